@@ -8,7 +8,9 @@ import sys
 
 from estimator.errors import InputError
 
-COMMANDS: list = []  # modules with register(subparsers); see rodo/commands/
+from .commands import ego_velocity, run, simulate
+
+COMMANDS = [simulate, run, ego_velocity]  # modules with register(subparsers); see rodo/commands/
 
 
 def build_parser(commands=None) -> argparse.ArgumentParser:

@@ -1,0 +1,55 @@
+"""Simulator speed: scans per second of the radar model per scenario (goal: >= 100 scans/s for `city`;
+wall clock and per CPU second, as the machine may be shared), plus the time to build the scene and to
+write the sequence directory.
+
+Run: `python -m bench.sim [--scenarios city,highway] [--duration 20] [--seed 0]`. Prints a Markdown table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def bench_scenario(name: str, seed: int, duration: float) -> dict:
+    import scenarios
+    from sim.simulate import simulate, write_simulation
+
+    sc = scenarios.get(name)
+    t0 = time.perf_counter()
+    parts = sc.build(seed, duration)
+    t1, c1 = time.perf_counter(), time.process_time()
+    seq, truth = simulate(parts.world, parts.profile, parts.radar, np.random.default_rng(seed), parts.duration)
+    t2, c2 = time.perf_counter(), time.process_time()
+    with tempfile.TemporaryDirectory() as tmp:
+        write_simulation(Path(tmp) / "seq", seq, truth)
+    t3 = time.perf_counter()
+    counts = np.diff(truth["scan_offsets"])
+    return {"scenario": name, "scans": len(counts), "median detections": float(np.median(counts)),
+            "build s": t1 - t0, "scans/s": len(counts) / (t2 - t1),
+            "scans/cpu-s": len(counts) / max(c2 - c1, 1e-9), "write s": t3 - t2,
+            "us/detection": 1e6 * (t2 - t1) / max(counts.sum(), 1)}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench.sim", description=__doc__.splitlines()[0])
+    ap.add_argument("--scenarios", default="city,highway,hills,stop_and_go,blockage,yaw_accel")
+    ap.add_argument("--duration", type=float, default=20.0)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    rows = [bench_scenario(n, args.seed, args.duration) for n in args.scenarios.split(",")]
+    keys = list(rows[0])
+    out = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    for r in rows:
+        out.append("| " + " | ".join(f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k]) for k in keys) + " |")
+    sys.stdout.write("\n".join(out) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

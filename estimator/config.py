@@ -1,0 +1,162 @@
+"""Estimator configuration: small sections with vehicle defaults, loadable from TOML, saved with results.
+
+`OdometryConfig.for_model("ca-polar")` gives the paper's method, `"cv-cartesian"` its baseline. The mixed
+configurations `"ca-cartesian"` and `"cv-polar"` exist for ablations. A TOML file overrides any field:
+
+    model = "ca-polar"
+    window = 4
+    [noise]
+    qc_ca = [1.0, 0.1, 0.1, 0.01, 0.01, 0.05]
+
+Unknown keys are errors (named), values are checked for type and range.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+MODELS = ("ca-polar", "cv-cartesian", "ca-cartesian", "cv-polar")
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Process and measurement noise. Qc diagonals are [linear x, y, z, angular x, y, z], body frame.
+
+    qc_ca: power spectral density of the jerk (m^2/s^5, rad^2/s^5) for the CA prior.
+    qc_cv: power spectral density of the acceleration (m^2/s^3, rad^2/s^3) for the CV prior.
+    cartesian_sigma: the fixed Cartesian position sigma (m) of the baseline measurement model.
+    map_sigma: isotropic uncertainty (m) added to every map point's own covariance (the detection noise it was
+        created with): surfaces are sampled at different places each scan.
+    sensor_sigma_scale: multiplies the sensor's 1-sigma noise from sensor.toml (tuning, as in the paper).
+    """
+
+    qc_ca: tuple[float, ...] = (4.0, 0.5, 0.5, 0.05, 0.05, 0.1)
+    qc_cv: tuple[float, ...] = (1.0, 0.1, 0.1, 0.01, 0.01, 0.05)
+    cartesian_sigma: float = 0.3
+    map_sigma: float = 0.05
+    sensor_sigma_scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class AssociationConfig:
+    gate_probability: float = 0.95
+    max_radius: float = 5.0
+    doppler_sigma_floor: float = 0.05  # m/s, floor of the Doppler static/moving test
+    reassociate: int = 1  # re-associate after the first solve this many times
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    capacity: int = 1500
+    max_age: int = 30
+    voxel: float = 0.0
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    iterations: int = 5
+    robust_c: float = 3.0  # Cauchy scale in whitened units; 0 disables the robust loss
+    init_velocity_sigma: float = 0.2  # m/s on the Doppler initialisation
+    init_rate_sigma: float = 0.1  # rad/s
+    init_accel_sigma: float = 1.0  # m/s^2
+    init_angular_accel_sigma: float = 0.3  # rad/s^2
+
+
+@dataclass(frozen=True)
+class OdometryConfig:
+    model: str = "ca-polar"
+    window: int = 4
+    seed: int = 0
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    association: AssociationConfig = field(default_factory=AssociationConfig)
+    map: MapConfig = field(default_factory=MapConfig)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+
+    def __post_init__(self):
+        if self.model not in MODELS:
+            raise InputError(f"model: unknown {self.model!r}; known: {', '.join(MODELS)}")
+        if not (isinstance(self.window, int) and self.window >= 2):
+            raise InputError(f"window: must be an integer >= 2, got {self.window!r}")
+        for name, qc in (("noise.qc_ca", self.noise.qc_ca), ("noise.qc_cv", self.noise.qc_cv)):
+            if len(qc) != 6 or not all(np.isfinite(qc)) or min(qc) <= 0:
+                raise InputError(f"{name}: must be 6 positive numbers, got {list(qc)}")
+        if not 0 < self.association.gate_probability < 1:
+            raise InputError("association.gate_probability: must be in (0, 1)")
+        if self.map.capacity < 10:
+            raise InputError("map.capacity: must be >= 10")
+        for name in ("cartesian_sigma", "sensor_sigma_scale"):
+            if not getattr(self.noise, name) > 0:
+                raise InputError(f"noise.{name}: must be > 0")
+        if self.noise.map_sigma < 0:
+            raise InputError("noise.map_sigma: must be >= 0")
+
+    @property
+    def prior(self) -> str:
+        return self.model.split("-")[0]
+
+    @property
+    def measurement(self) -> str:
+        return self.model.split("-")[1]
+
+    @classmethod
+    def for_model(cls, model: str, **overrides) -> "OdometryConfig":
+        return cls(model=model, **overrides)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "config") -> "OdometryConfig":
+        sections = {"noise": NoiseConfig, "association": AssociationConfig, "map": MapConfig, "solver": SolverConfig}
+        top = {f.name for f in dataclasses.fields(cls)}
+        kwargs = {}
+        for key, value in data.items():
+            if key not in top:
+                raise InputError(f"{source}: unknown key {key!r}; known: {', '.join(sorted(top))}")
+            if key in sections:
+                if not isinstance(value, dict):
+                    raise InputError(f"{source}: [{key}] must be a table")
+                kwargs[key] = _section(sections[key], value, f"{source}: [{key}]")
+            else:
+                kwargs[key] = value
+        return cls(**kwargs)
+
+    @classmethod
+    def from_toml(cls, path: str | Path, model: str | None = None) -> "OdometryConfig":
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise InputError(f"{path}: config file not found") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(f"{path}: invalid TOML: {exc}") from None
+        if model is not None:
+            data.setdefault("model", model)
+        return cls.from_dict(data, source=str(path))
+
+
+def _section(kind, values: dict, where: str):
+    fields = {f.name: f for f in dataclasses.fields(kind)}
+    defaults = kind()
+    out = {}
+    for key, value in values.items():
+        if key not in fields:
+            raise InputError(f"{where}: unknown key {key!r}; known: {', '.join(sorted(fields))}")
+        default = getattr(defaults, key)
+        if isinstance(default, tuple):
+            if not isinstance(value, list) or not all(isinstance(v, (int, float)) for v in value):
+                raise InputError(f"{where} {key}: expected a list of numbers, got {value!r}")
+            value = tuple(float(v) for v in value)
+        elif isinstance(default, bool) or not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise InputError(f"{where} {key}: expected a number, got {value!r}")
+        elif isinstance(default, int) and not isinstance(value, int):
+            raise InputError(f"{where} {key}: expected an integer, got {value!r}")
+        out[key] = type(default)(value) if not isinstance(default, tuple) else value
+    return kind(**out)

@@ -1,0 +1,180 @@
+"""Instantaneous sensor velocity from Doppler alone (RANSAC + least squares, as in reve, Doer & Trommer).
+
+For a static target at unit direction u (sensor frame) the radial velocity is v_r = -u . v_s, with v_s the
+sensor's velocity in the sensor frame, so the stacked detections give the linear system U v_s = -v_r.
+
+Algorithm:
+1. Hypotheses: `iterations` minimal sets (3 detections in 3D, 2 in planar mode) drawn with the caller's
+   Generator, each solved exactly (near-singular sets are skipped), plus the zero-velocity hypothesis (so a
+   vehicle at standstill is always a candidate).
+2. Score: number of inliers |v_r + u . v| <= threshold (default max(3 sigma_vr, 0.05 m/s)). The hypothesis with
+   the most inliers wins; ties go to the smaller |v| (at standstill a moving object never wins over the
+   static world unless it has strictly more detections).
+3. Refit: least squares on the inliers, inliers re-selected with the refit, refit again (twice).
+4. Covariance sigma^2 (U^T U)^-1 over the inliers, sigma^2 = sum(res^2) / (n_in - dof) (floored at
+   (1e-6 m/s)^2 so it stays positive definite on noise-free data).
+
+Planar mode (vz = 0, only vx, vy) is used when the caller says so or when every |elevation| < PLANAR_ELEVATION
+(elevation carries no information); the covariance then has zeros in the z row and column.
+
+Failure (too few detections or inliers, or no non-degenerate minimal set) gives ok=False, v_sensor zeros,
+a zero covariance and no inliers: never an exception and never NaN.
+
+Checked by: tests/estimator/test_ego_velocity.py
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimator.errors import InputError, check_finite
+
+PLANAR_ELEVATION = 1e-3  # rad; all |elevation| below this -> planar mode
+MIN_THRESHOLD = 0.05     # m/s; the default inlier threshold is max(3 sigma_vr, MIN_THRESHOLD)
+MIN_DET = 1e-6           # |det| of a minimal set of unit directions below which the set is skipped
+
+
+@dataclass
+class EgoVelocity:
+    """Result of `estimate_ego_velocity`.
+
+    Attributes:
+        v_sensor: (3,) sensor velocity in the sensor frame (vz = 0 in planar mode).
+        covariance: (3, 3) covariance of v_sensor.
+        inliers: (n,) bool, the detections consistent with v_sensor (static world).
+        planar: True when only vx, vy were estimated.
+        ok: False when no estimate could be made (then v_sensor = 0, inliers all False).
+    """
+
+    v_sensor: np.ndarray
+    covariance: np.ndarray
+    inliers: np.ndarray
+    planar: bool
+    ok: bool
+
+
+def _directions(azimuth: np.ndarray, elevation: np.ndarray) -> np.ndarray:
+    ce = np.cos(elevation)
+    return np.stack([ce * np.cos(azimuth), ce * np.sin(azimuth), np.sin(elevation)], axis=-1)
+
+
+def _check_inputs(azimuth, elevation, radial_velocity):
+    azimuth = check_finite("azimuth", azimuth)
+    elevation = check_finite("elevation", elevation)
+    radial_velocity = check_finite("radial_velocity", radial_velocity)
+    for name, a in (("azimuth", azimuth), ("elevation", elevation), ("radial_velocity", radial_velocity)):
+        if a.ndim != 1 or a.shape != azimuth.shape:
+            raise InputError(f"{name}: expected a 1-D array of the same length as azimuth ({azimuth.shape}), "
+                             f"got shape {a.shape}")
+    return azimuth, elevation, radial_velocity
+
+
+def doppler_inliers(azimuth, elevation, radial_velocity, v_sensor, threshold) -> np.ndarray:
+    """Detections consistent with a sensor velocity: |v_r + u . v_sensor| <= threshold, (n,) bool.
+
+    Args:
+        azimuth, elevation, radial_velocity: (n,) detections (rad, rad, m/s).
+        v_sensor: (3,) sensor velocity in the sensor frame (e.g. the solver's predicted velocity).
+        threshold: m/s, >= 0.
+
+    Checked by: tests/estimator/test_ego_velocity.py::test_doppler_inliers
+    """
+    azimuth, elevation, radial_velocity = _check_inputs(azimuth, elevation, radial_velocity)
+    v = check_finite("v_sensor", v_sensor, (3,))
+    if v.shape != (3,):
+        raise InputError(f"v_sensor: expected shape (3,), got {v.shape}")
+    threshold = float(check_finite("threshold", threshold))
+    if threshold < 0:
+        raise InputError(f"threshold: must be >= 0, got {threshold}")
+    return np.abs(radial_velocity + _directions(azimuth, elevation) @ v) <= threshold
+
+
+def _failure(n: int, planar: bool) -> EgoVelocity:
+    return EgoVelocity(np.zeros(3), np.zeros((3, 3)), np.zeros(n, dtype=bool), planar, False)
+
+
+def _least_squares(U: np.ndarray, b: np.ndarray):
+    sol, *_ = np.linalg.lstsq(U, b, rcond=None)
+    return sol
+
+
+def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Generator, *, sigma_vr: float = 0.01,
+                          threshold: float | None = None, iterations: int = 100,
+                          planar: bool | None = None) -> EgoVelocity:
+    """Sensor velocity from one scan's Doppler measurements, robust to moving objects (see module docstring).
+
+    Model: v_r,i = -u_i . v_s for static targets, u_i = [cos el cos az, cos el sin az, sin el].
+
+    Args:
+        azimuth, elevation, radial_velocity: (n,) detections (rad, rad, m/s; v_r negative when approaching).
+        rng: numpy Generator (the only source of randomness; same state -> same result).
+        sigma_vr: 1-sigma of the radial velocity noise (m/s), sets the default threshold.
+        threshold: inlier threshold on |v_r + u . v| (m/s); default max(3 sigma_vr, 0.05).
+        iterations: number of random minimal sets.
+        planar: force planar (True) or 3-D (False) mode; None decides from the elevations.
+
+    Returns:
+        EgoVelocity (ok=False if fewer detections or inliers than the minimal set).
+
+    Checked by: tests/estimator/test_ego_velocity.py
+    """
+    azimuth, elevation, radial_velocity = _check_inputs(azimuth, elevation, radial_velocity)
+    if not isinstance(rng, np.random.Generator):
+        raise InputError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
+    sigma_vr = float(check_finite("sigma_vr", sigma_vr))
+    if sigma_vr <= 0:
+        raise InputError(f"sigma_vr: must be > 0, got {sigma_vr}")
+    if threshold is None:
+        threshold = max(3.0 * sigma_vr, MIN_THRESHOLD)
+    threshold = float(check_finite("threshold", threshold))
+    if threshold <= 0:
+        raise InputError(f"threshold: must be > 0, got {threshold}")
+    if isinstance(iterations, (bool, np.bool_)) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
+        raise InputError(f"iterations: must be a positive integer, got {iterations}")
+    n = len(azimuth)
+    if planar is None:
+        planar = bool(n == 0 or np.all(np.abs(elevation) < PLANAR_ELEVATION))
+    dof = 2 if planar else 3
+    if n < dof:
+        return _failure(n, planar)
+
+    U = _directions(azimuth, elevation)[:, :dof]
+    b = -radial_velocity
+
+    # hypotheses from minimal sets, solved in one batch; degenerate sets dropped (a set that repeats a
+    # detection has det = 0, so drawing with replacement is fine)
+    idx = rng.integers(0, n, size=(int(iterations), dof))
+    A = U[idx]                                   # (k, dof, dof)
+    good = np.abs(np.linalg.det(A)) > MIN_DET
+    hyps = np.zeros((1, dof))                    # the zero-velocity hypothesis first
+    if np.any(good):
+        hyps = np.concatenate([hyps, np.linalg.solve(A[good], b[idx[good]][..., None])[..., 0]])
+    counts = (np.abs(U @ hyps.T - b[:, None]) <= threshold).sum(axis=0)
+    order = np.lexsort((np.linalg.norm(hyps, axis=1), -counts))  # most inliers, then smallest |v|
+    v = hyps[order[0]]
+    inl = np.abs(U @ v - b) <= threshold
+    if inl.sum() < dof:
+        return _failure(n, planar)
+
+    for _ in range(2):
+        v_new = _least_squares(U[inl], b[inl])
+        inl_new = np.abs(U @ v_new - b) <= threshold
+        if inl_new.sum() < dof:  # the refit lost the consensus: keep the previous one
+            break
+        v, inl = v_new, inl_new
+    v = _least_squares(U[inl], b[inl])
+    A = U[inl]
+    n_in = int(inl.sum())
+    res = A @ v - b[inl]
+    s2 = float(res @ res) / (n_in - dof) if n_in > dof else sigma_vr**2
+    s2 = max(s2, 1e-12)
+    info = A.T @ A
+    if np.linalg.cond(info) > 1e12:
+        return _failure(n, planar)
+    cov = np.zeros((3, 3))
+    cov[:dof, :dof] = s2 * np.linalg.inv(info)
+    v_out = np.zeros(3)
+    v_out[:dof] = v
+    return EgoVelocity(v_out, cov, inl, planar, True)

@@ -1,0 +1,213 @@
+"""Local map of world points for scan-to-map association (paper sec. VII: 1500 points).
+
+Policy (docs/measurements.md, "Local map"):
+- add: after the solve, the caller passes the scan's static (Doppler-inlier) detections that were NOT associated,
+  placed in the world with the estimate. They are thinned before insertion: with voxel > 0 one randomly chosen
+  detection per voxel is kept, and none in a voxel that already holds a map point; then at most
+  max_new_fraction * capacity of them are kept (random subset), so one scan cannot flush the map.
+  New points get a new stable id, hits = 1, last_seen = scan.
+- refresh: associated points get last_seen = scan and hits += 1. Their positions are NOT moved (a map that
+  follows the estimate would absorb the drift it is meant to measure).
+- drop: `prune` removes points not seen for more than max_age scans, points behind the sensor (x_sensor <= 0)
+  and points farther than max_range. Whenever the map is over capacity (after `add`), the stalest points go
+  first: smallest last_seen, then fewest hits, then oldest id.
+
+All randomness comes from the Generator given at construction (default: SeedSequence(0)), so the same inputs
+give the same map. The arrays exposed (points, last_seen, hits, ids) are read-only views; indices into them are
+valid until the next add/prune.
+
+Checked by: tests/estimator/test_local_map.py
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimator.errors import InputError, check_finite
+
+
+def _int_arg(name: str, value) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise InputError(f"{name}: expected an integer, got {value!r}")
+    return int(value)
+
+
+def _voxel_keys(p: np.ndarray, voxel: float) -> np.ndarray:
+    return np.floor(p / voxel).astype(np.int64)
+
+
+class LocalMap:
+    """A bounded set of world points with last-seen scan, hit count and stable ids."""
+
+    def __init__(self, capacity: int = 1500, max_age: int = 30, voxel: float = 0.0,
+                 rng: np.random.Generator | None = None, *, max_new_fraction: float = 0.5):
+        """Args:
+            capacity: maximum number of points (paper: 1500).
+            max_age: a point not seen for more than this many scans is dropped by `prune`.
+            voxel: edge (m) of the voxels used to thin new points; 0 disables voxel thinning.
+            rng: Generator for the random choices (default seeded from SeedSequence(0)).
+            max_new_fraction: at most this fraction of `capacity` is added per scan.
+        """
+        self.capacity = _int_arg("capacity", capacity)
+        self.max_age = _int_arg("max_age", max_age)
+        if self.capacity < 1 or self.max_age < 0:
+            raise InputError(f"capacity, max_age: must be >= 1 and >= 0, got {capacity}, {max_age}")
+        self.voxel = float(check_finite("voxel", voxel))
+        if self.voxel < 0:
+            raise InputError(f"voxel: must be >= 0, got {voxel}")
+        self.max_new_fraction = float(check_finite("max_new_fraction", max_new_fraction))
+        if not 0.0 < self.max_new_fraction <= 1.0:
+            raise InputError(f"max_new_fraction: must be in (0, 1], got {max_new_fraction}")
+        if rng is None:
+            rng = np.random.default_rng(np.random.SeedSequence(0))
+        if not isinstance(rng, np.random.Generator):
+            raise InputError(f"rng: expected a numpy.random.Generator or None, got {type(rng).__name__}")
+        self._rng = rng
+        self._points = np.zeros((0, 3))
+        self._cov = np.zeros((0, 3, 3))
+        self._last_seen = np.zeros(0, dtype=np.int64)
+        self._hits = np.zeros(0, dtype=np.int64)
+        self._ids = np.zeros(0, dtype=np.int64)
+        self._next_id = 0
+
+    @staticmethod
+    def _view(a: np.ndarray) -> np.ndarray:
+        v = a.view()
+        v.flags.writeable = False
+        return v
+
+    @property
+    def points(self) -> np.ndarray:
+        """(m, 3) world coordinates."""
+        return self._view(self._points)
+
+    @property
+    def last_seen(self) -> np.ndarray:
+        """(m,) scan index at which each point was last added or associated."""
+        return self._view(self._last_seen)
+
+    @property
+    def hits(self) -> np.ndarray:
+        """(m,) number of scans that added or associated each point."""
+        return self._view(self._hits)
+
+    @property
+    def ids(self) -> np.ndarray:
+        """(m,) stable ids (never reused), e.g. for visualisation."""
+        return self._view(self._ids)
+
+    def __len__(self) -> int:
+        return len(self._points)
+
+    @property
+    def covariances(self) -> np.ndarray:
+        """(m, 3, 3) world-frame covariance of each point at insertion (zeros when none was given)."""
+        return self._view(self._cov)
+
+    def _keep(self, mask: np.ndarray) -> None:
+        self._cov = self._cov[mask]
+        self._points = self._points[mask]
+        self._last_seen = self._last_seen[mask]
+        self._hits = self._hits[mask]
+        self._ids = self._ids[mask]
+
+    def add(self, p_world, scan: int, covariances=None) -> None:
+        """Insert new world points (thinned as in the module docstring), then enforce the capacity.
+
+        Args:
+            p_world: (k, 3) new points in world coordinates (the caller's array is not modified).
+            scan: the current scan index.
+            covariances: optional (k, 3, 3) world-frame covariances of the points (kept with them).
+
+        Checked by: tests/estimator/test_local_map.py::test_capacity_and_stalest_dropped_first,
+            ::test_one_scan_cannot_flush_the_map, ::test_voxel_thinning
+        """
+        p = check_finite("p_world", p_world, (3,))
+        if p.ndim != 2:
+            raise InputError(f"p_world: expected shape (k, 3), got {p.shape}")
+        scan = _int_arg("scan", scan)
+        if len(p) == 0:
+            return
+        cov = np.zeros((len(p), 3, 3)) if covariances is None else check_finite("covariances", covariances, (3, 3))
+        if cov.shape != (len(p), 3, 3):
+            raise InputError(f"covariances: expected shape ({len(p)}, 3, 3), got {cov.shape}")
+        if self.voxel > 0:
+            order = self._rng.permutation(len(p))          # random representative per voxel
+            keys = _voxel_keys(p[order], self.voxel)
+            _, first = np.unique(keys, axis=0, return_index=True)
+            sel = order[np.sort(first)]
+            if len(self):
+                occupied = _voxel_keys(self._points, self.voxel)
+                both = np.concatenate([occupied, _voxel_keys(p[sel], self.voxel)])
+                _, inv = np.unique(both, axis=0, return_inverse=True)
+                inv = inv.ravel()
+                taken = np.zeros(inv.max() + 1, dtype=bool)
+                taken[inv[:len(occupied)]] = True
+                sel = sel[~taken[inv[len(occupied):]]]
+            p, cov = p[sel], cov[sel]
+        max_new = max(1, int(self.max_new_fraction * self.capacity))
+        if len(p) > max_new:
+            sel = np.sort(self._rng.choice(len(p), size=max_new, replace=False))
+            p, cov = p[sel], cov[sel]
+        k = len(p)
+        self._points = np.concatenate([self._points, p])
+        self._cov = np.concatenate([self._cov, cov])
+        self._last_seen = np.concatenate([self._last_seen, np.full(k, scan, dtype=np.int64)])
+        self._hits = np.concatenate([self._hits, np.ones(k, dtype=np.int64)])
+        self._ids = np.concatenate([self._ids, self._next_id + np.arange(k, dtype=np.int64)])
+        self._next_id += k
+        excess = len(self) - self.capacity
+        if excess > 0:
+            stalest = np.lexsort((self._ids, self._hits, self._last_seen))[:excess]
+            mask = np.ones(len(self), dtype=bool)
+            mask[stalest] = False
+            self._keep(mask)
+
+    def refresh(self, idx, scan: int) -> None:
+        """Mark map points as seen in `scan` (last_seen = scan, hits += 1); positions stay fixed.
+
+        Args:
+            idx: (k,) distinct indices into the current map (e.g. Association.map_idx).
+            scan: the current scan index.
+
+        Checked by: tests/estimator/test_local_map.py::test_refresh_keeps_points
+        """
+        scan = _int_arg("scan", scan)
+        idx = np.asarray(idx)
+        if idx.size == 0:
+            return
+        if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
+            raise InputError(f"idx: expected a 1-D integer array, got dtype {idx.dtype} shape {idx.shape}")
+        if idx.min() < 0 or idx.max() >= len(self):
+            raise InputError(f"idx: indices must be in [0, {len(self)}), got range [{idx.min()}, {idx.max()}]")
+        if len(np.unique(idx)) != len(idx):
+            raise InputError("idx: indices must be distinct")
+        self._last_seen[idx] = scan
+        self._hits[idx] += 1
+
+    def prune(self, scan: int, T_vehicle_world, T_vehicle_sensor, max_range: float) -> None:
+        """Drop points unseen for more than max_age scans, behind the sensor (x_s <= 0), or beyond max_range.
+
+        Args:
+            scan: the current scan index.
+            T_vehicle_world: (4, 4) current pose estimate.
+            T_vehicle_sensor: (4, 4) extrinsics.
+            max_range: m, > 0.
+
+        Checked by: tests/estimator/test_local_map.py::test_prune
+        """
+        scan = _int_arg("scan", scan)
+        T = check_finite("T_vehicle_world", T_vehicle_world, (4, 4))
+        Tvs = check_finite("T_vehicle_sensor", T_vehicle_sensor, (4, 4))
+        if T.shape != (4, 4) or Tvs.shape != (4, 4):
+            raise InputError("T_vehicle_world, T_vehicle_sensor: expected single (4, 4) poses")
+        max_range = float(check_finite("max_range", max_range))
+        if max_range <= 0:
+            raise InputError(f"max_range: must be > 0, got {max_range}")
+        if len(self) == 0:
+            return
+        p_v = self._points @ T[:3, :3].T + T[:3, 3]
+        p_s = (p_v - Tvs[:3, 3]) @ Tvs[:3, :3]
+        keep = ((scan - self._last_seen) <= self.max_age) & (p_s[:, 0] > 0) \
+            & (np.linalg.norm(p_s, axis=1) <= max_range)
+        self._keep(keep)

@@ -1,0 +1,228 @@
+"""Radar odometry, one scan at a time: predict, classify static/moving by Doppler, associate, solve, map.
+
+This is the algorithm layer (no file I/O, no printing): `RadarOdometry.process(t, polar)` takes one scan's
+detections [range, azimuth, elevation, radial_velocity] (sensor frame) and returns the newest estimate.
+
+Per scan k (paper sec. III-VI):
+1. predict x_k = f(x_{k-1}) and P_k = F P F^T + Q with the configured prior (CV or CA);
+2. keep detections whose Doppler is consistent with the predicted sensor velocity (static world); if the
+   prediction explains too few of them, fall back to a RANSAC ego-velocity fit (moving objects and clutter are
+   rejected either way, as in reve);
+3. associate map points with detections by maximum likelihood with S = G P G^T + R (+ map-point term), gated at
+   the chi-square quantile (eq. 86-88);
+4. add x_k to the sliding window, Gauss-Newton over prior, motion and measurement terms, re-associate with the
+   refined estimate, solve again, marginalise the oldest state when the window is full;
+5. update the local map: refresh associated points, add the unassociated static detections.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import association, measurements
+from .config import OdometryConfig
+from .ego_velocity import estimate_ego_velocity
+from .errors import InputError, check_finite
+from .lie import se3, so3
+from .local_map import LocalMap
+from .state import MotionModel, State
+from .window import MeasurementSet, SlidingWindow
+
+MIN_STATIC = 8  # fewer static detections than this: the Doppler classification falls back to RANSAC
+
+
+@dataclass
+class ScanEstimate:
+    """The newest estimate after one scan."""
+
+    t: float
+    T_vehicle_world: np.ndarray  # (4, 4)
+    varpi: np.ndarray  # (6,)
+    vd: np.ndarray | None  # (6,) or None (CV)
+    P: np.ndarray  # (18, 18) or (12, 12) posterior covariance of the newest state
+    n_detections: int
+    n_static: int
+    n_associated: int
+    nis: float  # mean normalised innovation squared of the accepted associations (per pair, dof 4)
+    timings: dict = field(default_factory=dict)  # seconds: predict, associate, solve, map
+    events: list = field(default_factory=list)
+
+    @property
+    def T_world_vehicle(self) -> np.ndarray:
+        return se3.inverse(self.T_vehicle_world)
+
+
+class RadarOdometry:
+    """Sliding-window radar odometry (CV/C, CA/P, or the mixed ablations) for one sensor.
+
+    Args:
+        config: OdometryConfig (model, window, noise, association, map, solver).
+        T_vehicle_sensor: (4, 4) extrinsics.
+        sensor_sigmas: (4,) 1-sigma noise [range, azimuth, elevation, radial_velocity] (from sensor.toml).
+        max_range: the sensor's maximum range (m), for pruning the map.
+    """
+
+    def __init__(self, config: OdometryConfig, T_vehicle_sensor, sensor_sigmas, max_range: float = 200.0):
+        self.config = config
+        self.T_vs = check_finite("T_vehicle_sensor", T_vehicle_sensor, (4, 4))
+        sig = check_finite("sensor_sigmas", sensor_sigmas, (4,))
+        if np.any(sig <= 0):
+            raise InputError(f"sensor_sigmas: must be > 0, got {sig}")
+        self.sigmas = sig * config.noise.sensor_sigma_scale
+        self.max_range = float(max_range)
+        qc = config.noise.qc_ca if config.prior == "ca" else config.noise.qc_cv
+        self.motion = MotionModel(config.prior, qc)
+        self.window = SlidingWindow(self.motion, config.window, config.measurement, self.T_vs,
+                                    config.solver.robust_c)
+        seeds = np.random.SeedSequence(config.seed).spawn(2)
+        self.rng = np.random.default_rng(seeds[0])
+        self.map = LocalMap(config.map.capacity, config.map.max_age, config.map.voxel,
+                            rng=np.random.default_rng(seeds[1]))
+        self.gate = association.gate_threshold(config.association.gate_probability, 4)
+        self.P: np.ndarray | None = None
+        self.scan_index = 0
+        self._last_t: float | None = None
+
+    # --- helpers ------------------------------------------------------------------------------------------
+    def _sensor_velocity(self, varpi: np.ndarray, P_varpi: np.ndarray):
+        """Sensor velocity in the sensor frame and its covariance: v_s = -C_vs^T (nu + omega x r_vs)."""
+        C, r = self.T_vs[:3, :3], self.T_vs[:3, 3]
+        v = -C.T @ (varpi[:3] + np.cross(varpi[3:], r))
+        J = -C.T @ np.c_[np.eye(3), -so3.hat(r)]
+        return v, J @ P_varpi @ J.T
+
+    def _static_mask(self, polar: np.ndarray, x: State, P: np.ndarray) -> tuple[np.ndarray, str | None]:
+        az, el, vr = polar[:, 1], polar[:, 2], polar[:, 3]
+        u = measurements.polar_to_cartesian(np.c_[np.ones(len(polar)), az, el])
+        v, Sv = self._sensor_velocity(x.varpi, P[6:12, 6:12])
+        sigma = np.sqrt(self.sigmas[3] ** 2 + np.einsum("ni,ij,nj->n", u, Sv, u))
+        thr = 3.0 * sigma + self.config.association.doppler_sigma_floor
+        mask = np.abs(vr + u @ v) <= thr
+        if mask.sum() >= max(MIN_STATIC, 0.2 * len(polar)):
+            return mask, None
+        ego = estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3])
+        if ego.ok and ego.inliers.sum() > mask.sum():
+            return ego.inliers, "doppler-ransac-fallback"
+        return mask, None
+
+    def _associate(self, x: State, P: np.ndarray, z: np.ndarray, pts: np.ndarray):
+        if len(self.map) == 0 or len(z) == 0:
+            return None, association.Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)
+        pred = measurements.predict(self.config.measurement, x.T, x.varpi, self.map.points, self.T_vs)
+        S = association.innovation_covariance(pred, P[:12, :12], self._R, 0.0) + self._map_term(pred.J_z_p)
+        assoc = association.associate(self.config.measurement, z, pts, pred, S, self.gate,
+                                      self.config.association.max_radius)
+        return pred, assoc
+
+    def _map_term(self, J_z_p: np.ndarray, idx=None) -> np.ndarray:
+        """J_z_p (Sigma_j + map_sigma^2 I) J_z_p^T: the uncertainty of map point j seen in measurement space."""
+        cov = self.map.covariances if idx is None else self.map.covariances[idx]
+        cov = cov + self.config.noise.map_sigma**2 * np.eye(3)
+        return J_z_p @ cov @ np.swapaxes(J_z_p, 1, 2)
+
+    def _point_covariances(self, polar: np.ndarray, C_world_sensor: np.ndarray) -> np.ndarray:
+        """World-frame covariance of new map points under the model's own noise assumption: the polar noise
+        propagated (polar models) or the fixed Cartesian sigma (Cartesian models, the CV/C baseline)."""
+        if self.config.measurement == "polar":
+            cov_s = measurements.cartesian_position_covariance(polar, self.sigmas)
+        else:
+            cov_s = np.broadcast_to(self.config.noise.cartesian_sigma**2 * np.eye(3), (len(polar), 3, 3))
+        return C_world_sensor @ cov_s @ C_world_sensor.T
+
+    def _measurement_set(self, pred, assoc, z) -> MeasurementSet | None:
+        if pred is None or len(assoc.map_idx) == 0:
+            return None
+        cov = self._R + self._map_term(pred.J_z_p[assoc.map_idx], assoc.map_idx)
+        return MeasurementSet(self.map.points[assoc.map_idx], z[assoc.det_idx], np.linalg.inv(cov))
+
+    def _initial_state(self, t: float, polar: np.ndarray) -> tuple[State, np.ndarray, list]:
+        cfg = self.config.solver
+        events = ["initialised"]
+        varpi = np.zeros(6)
+        vel_sigma = 5.0
+        if len(polar) >= 3:
+            ego = estimate_ego_velocity(polar[:, 1], polar[:, 2], polar[:, 3], self.rng, sigma_vr=self.sigmas[3])
+            if ego.ok:
+                # no rotation known from one scan: v_s = -C_vs^T nu
+                varpi[:3] = -self.T_vs[:3, :3] @ ego.v_sensor
+                vel_sigma = cfg.init_velocity_sigma
+        x0 = self.motion.initial_state(t, np.eye(4), varpi)
+        sig = [1e-4] * 6 + [vel_sigma] * 3 + [cfg.init_rate_sigma] * 3
+        if self.motion.dim == 18:
+            sig += [cfg.init_accel_sigma] * 3 + [cfg.init_angular_accel_sigma] * 3
+        return x0, np.diag(np.square(sig)), events
+
+    # --- the per-scan step ------------------------------------------------------------------------------
+    def process(self, t: float, polar) -> ScanEstimate:
+        """Process one scan at time t (s) with detections polar (n, 4); n may be 0."""
+        polar = check_finite("polar", polar, (4,)).reshape(-1, 4)
+        t = float(t)
+        if self._last_t is not None and not t > self._last_t:
+            raise InputError(f"t: scan times must increase strictly (got {t} after {self._last_t})")
+        timings = {}
+        tic = time.perf_counter()
+        cfg = self.config
+        model = cfg.measurement
+        polar = polar[(polar[:, 0] > 0) & (polar[:, 0] <= self.max_range)]
+        self._R = measurements.noise_covariance(model, polar[:1] if len(polar) else np.array([[1.0, 0, 0, 0]]),
+                                                self.sigmas, cfg.noise.cartesian_sigma)[0]
+        events: list = []
+        if self._last_t is None:
+            x, P, events = self._initial_state(t, polar)
+            self.window.initialize(x, P)
+        else:
+            prev = self.window.newest
+            x = self.motion.predict(prev, t)
+            F, Q = self.motion.transition_and_noise(prev, t - prev.t)
+            P = F @ self.P @ F.T + Q
+            self.window.push(x, Q)
+        timings["predict"] = time.perf_counter() - tic
+
+        tic = time.perf_counter()
+        static, note = self._static_mask(polar, x, P) if len(polar) else (np.zeros(0, bool), None)
+        if note:
+            events.append(note)
+        z = measurements.to_model_space(model, polar[static]) if static.any() else np.zeros((0, 4))
+        pts = measurements.polar_to_cartesian(polar[static]) if static.any() else np.zeros((0, 3))
+        pred, assoc = self._associate(x, P, z, pts)
+        self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(pred, assoc, z))
+        timings["associate"] = time.perf_counter() - tic
+
+        tic = time.perf_counter()
+        self.window.optimize(cfg.solver.iterations)
+        for _ in range(cfg.association.reassociate):
+            if pred is None:
+                break
+            t_assoc = time.perf_counter()
+            pred, assoc = self._associate(self.window.newest, P, z, pts)
+            self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(pred, assoc, z))
+            timings["associate"] += time.perf_counter() - t_assoc
+            self.window.optimize(cfg.solver.iterations)
+        self.P = self.window.newest_covariance()  # at the solution; marginalising does not change it
+        while len(self.window.states) > cfg.window:
+            self.window.marginalize_oldest()
+        timings["solve"] = time.perf_counter() - tic
+
+        tic = time.perf_counter()
+        xk = self.window.newest
+        if len(assoc.map_idx):
+            self.map.refresh(assoc.map_idx, self.scan_index)
+        if len(pts):
+            new = np.ones(len(pts), bool)
+            new[assoc.det_idx] = False
+            T_world_sensor = se3.inverse(xk.T) @ self.T_vs
+            self.map.add(se3.transform_points(T_world_sensor, pts[new]), self.scan_index,
+                         covariances=self._point_covariances(polar[static][new], T_world_sensor[:3, :3]))
+        self.map.prune(self.scan_index, xk.T, self.T_vs, self.max_range)
+        timings["map"] = time.perf_counter() - tic
+
+        nis = float(np.mean(assoc.d2)) if len(assoc.d2) else float("nan")
+        if not (np.all(np.isfinite(xk.T)) and np.all(np.isfinite(self.P))):
+            raise FloatingPointError("estimator state became non-finite")  # a bug, never silently written
+        self._last_t = t
+        self.scan_index += 1
+        return ScanEstimate(t, xk.T.copy(), xk.varpi.copy(), None if xk.vd is None else xk.vd.copy(),
+                            self.P.copy(), len(polar), int(static.sum()), len(assoc.map_idx), nis, timings, events)

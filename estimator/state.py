@@ -1,0 +1,107 @@
+"""The estimator's state and a uniform interface to the CV and CA motion priors.
+
+A `State` is x = {T, varpi, varpi_dot} (paper eq. 3) with T = T_vehicle_world; the CV prior simply has no
+varpi_dot (`vd is None`). Perturbations are left ones: x (+) d = {exp(d_xi^) T, varpi + d_eta, vd + d_zeta}.
+`MotionModel` gives the solver one interface for both priors: dimension, prediction, the prior residual with
+its Jacobians, and F_k / Q_k.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .lie import se3
+from .priors import ConstantAccelerationPrior, ConstantVelocityPrior
+
+
+@dataclass
+class State:
+    t: float
+    T: np.ndarray  # (4, 4) T_vehicle_world
+    varpi: np.ndarray  # (6,)
+    vd: np.ndarray | None = None  # (6,) or None for the CV prior
+
+    def copy(self) -> "State":
+        return State(self.t, self.T.copy(), self.varpi.copy(), None if self.vd is None else self.vd.copy())
+
+    def vector_tail(self) -> np.ndarray:
+        """[varpi; vd] (the Euclidean part of the state)."""
+        return self.varpi if self.vd is None else np.r_[self.varpi, self.vd]
+
+    def oplus(self, d: np.ndarray) -> "State":
+        """x (+) d with a left perturbation of the pose."""
+        vd = None if self.vd is None else self.vd + d[12:18]
+        return State(self.t, se3.exp(d[:6]) @ self.T, self.varpi + d[6:12], vd)
+
+    def ominus(self, other: "State") -> np.ndarray:
+        """x (-) other (paper eq. 12)."""
+        xi = se3.log(self.T @ se3.inverse(other.T))
+        return np.r_[xi, self.vector_tail() - other.vector_tail()]
+
+
+class MotionModel:
+    """The CA (dim 18) or CV (dim 12) prior behind one interface."""
+
+    def __init__(self, kind: str, qc_diag):
+        Qc = np.diag(np.asarray(qc_diag, dtype=float))
+        self.kind = kind
+        if kind == "ca":
+            self.prior = ConstantAccelerationPrior(Qc)
+            self.dim = 18
+        elif kind == "cv":
+            self.prior = ConstantVelocityPrior(Qc)
+            self.dim = 12
+        else:
+            raise ValueError(f"unknown prior kind {kind!r}")
+
+    def initial_state(self, t: float, T: np.ndarray, varpi: np.ndarray) -> State:
+        return State(t, T, varpi, np.zeros(6) if self.kind == "ca" else None)
+
+    def predict(self, x: State, t: float) -> State:
+        dt = t - x.t
+        if self.kind == "ca":
+            T, varpi, vd = self.prior.predict(x.T, x.varpi, x.vd, dt)
+            return State(t, T, varpi, vd)
+        T, varpi = self.prior.predict(x.T, x.varpi, dt)
+        return State(t, T, varpi, None)
+
+    def transition_and_noise(self, x: State, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        if self.kind == "ca":
+            return self.prior.transition_and_noise(x.varpi, x.vd, dt)
+        return self.prior.transition_and_noise(x.varpi, dt)
+
+    def residuals(self, states: list[State]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Batched `residual` over consecutive pairs of `states`: e (n-1, d), J_e_x1, J_e_x2 (n-1, d, d).
+
+        Same formulas as the priors' `residual` (e = x2 (-) f(x1), J_e_x2 = diag(J(e_xi)^-1, I..),
+        J_e_x1 = -diag(J(-e_xi)^-1, I..) F_k), evaluated in one vectorised pass for the whole window.
+        """
+        T1 = np.stack([x.T for x in states[:-1]])
+        T2 = np.stack([x.T for x in states[1:]])
+        tail1 = np.stack([x.vector_tail() for x in states[:-1]])
+        tail2 = np.stack([x.vector_tail() for x in states[1:]])
+        dt = np.array([b.t - a.t for a, b in zip(states[:-1], states[1:])])
+        if self.kind == "ca":
+            Tp, wp, vp = self.prior.predict(T1, tail1[:, :6], tail1[:, 6:], dt)
+            F = self.prior.transition_batch(tail1[:, :6], tail1[:, 6:], dt)
+            tail_pred = np.concatenate([wp, vp], axis=1)
+        else:
+            Tp, tail_pred = self.prior.predict(T1, tail1, dt)
+            F = self.prior.transition_batch(tail1, dt)
+        e_xi = se3.log(T2 @ se3.inverse(Tp))
+        e = np.concatenate([e_xi, tail2 - tail_pred], axis=1)
+        n, d = len(e), self.dim
+        J2 = np.broadcast_to(np.eye(d), (n, d, d)).copy()
+        J2[:, :6, :6] = se3.left_jacobian_inv(e_xi)
+        Jr = np.broadcast_to(np.eye(d), (n, d, d)).copy()
+        Jr[:, :6, :6] = se3.left_jacobian_inv(-e_xi)
+        return e, -(Jr @ F), J2
+
+    def residual(self, x1: State, x2: State) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """e = x2 (-) f(x1) and its Jacobians w.r.t. left perturbations of x1 and x2."""
+        dt = x2.t - x1.t
+        if self.kind == "ca":
+            return self.prior.residual(x1.T, x1.varpi, x1.vd, x2.T, x2.varpi, x2.vd, dt)
+        return self.prior.residual(x1.T, x1.varpi, x2.T, x2.varpi, dt)

@@ -1,0 +1,232 @@
+"""Sliding-window MAP (paper eq. 1-2): Gauss-Newton over a prior, motion-prior and measurement terms.
+
+The cost is J = J_v0 + sum_k J_vk + sum_k J_zk: a Gaussian prior on the oldest state (the marginalised past),
+the motion prior between consecutive states (e = x_k (-) f(x_{k-1}), weight Q_k^-1, eq. 49-50), and for each
+state the associated detections (e = z - g(x_k, p_j), weight S^-1 with S the measurement noise plus the
+map-point uncertainty, eq. 83), with an optional Cauchy loss applied by iterative re-weighting.
+Every term is linearised as e + J d with d the left perturbation of the states; the normal equations are
+solved densely (the window is small). When the window is full the oldest state is marginalised with the Schur
+complement into a new Gaussian prior on the next one.
+
+Checked by: tests/estimator/test_window.py
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+
+from . import _measurement_kernel as _kernel
+from .lie import se3
+from .state import MotionModel, State
+
+
+@dataclass
+class MeasurementSet:
+    """Associated pairs of one scan: map points, detections (model space) and their information matrices."""
+
+    p_world: np.ndarray  # (m, 3)
+    z: np.ndarray  # (m, 4) in the model's space
+    W: np.ndarray  # (m, 4, 4) information (inverse covariance)
+    weights: np.ndarray | None = None  # (m,) robust weights, set by SlidingWindow.optimize
+
+    def __len__(self) -> int:
+        return len(self.z)
+
+
+class SlidingWindow:
+    def __init__(self, motion: MotionModel, size: int, measurement_model: str, T_vehicle_sensor: np.ndarray,
+                 robust_c: float = 3.0):
+        self.motion = motion
+        self.size = size
+        self.model = measurement_model
+        self.T_vehicle_sensor = T_vehicle_sensor
+        self.robust_c = robust_c
+        self.states: list[State] = []
+        self.meas: list[MeasurementSet | None] = []
+        self.motion_info: list[np.ndarray] = []  # Q_k^-1 between states k and k+1
+        self.prior_mean: State | None = None
+        self.prior_info: np.ndarray | None = None
+        self._H: np.ndarray | None = None
+
+    # --- building -------------------------------------------------------------------------------------
+    def initialize(self, x0: State, P0: np.ndarray) -> None:
+        self.states = [x0.copy()]
+        self.meas = [None]
+        self.motion_info = []
+        self.prior_mean = x0.copy()
+        self.prior_info = _inv_spd(P0)
+        self._H = None
+
+    def push(self, x: State, Q: np.ndarray) -> None:
+        """Append a new (predicted) state linked to the newest by the motion prior with noise Q."""
+        self.states.append(x.copy())
+        self.meas.append(None)
+        self.motion_info.append(_inv_spd(Q))
+        self._H = None
+
+    def set_measurements(self, k: int, mset: MeasurementSet | None) -> None:
+        self.meas[k] = mset if mset is not None and len(mset) else None
+        self._H = None
+
+    @property
+    def newest(self) -> State:
+        return self.states[-1]
+
+    # --- linearisation ----------------------------------------------------------------------------------
+    def _prior_term(self, x: State):
+        e = x.ominus(self.prior_mean)
+        J = np.eye(len(e))
+        J[:6, :6] = se3.left_jacobian_inv(e[:6])
+        return e, J
+
+    def _measurement_terms(self, ks: list[int]):
+        """Measurement blocks of the states ks, linearised in one compiled pass (`_measurement_kernel`).
+
+        Returns per state (H (12,12), b (12,)) and the total cost; e = z - g(x), J = -[J_z_xi, J_z_varpi].
+        """
+        sets = [self.meas[k] for k in ks]
+        offsets = np.r_[0, np.cumsum([len(m) for m in sets])].astype(np.int64)
+        p = np.concatenate([m.p_world for m in sets])
+        z = np.concatenate([m.z for m in sets])
+        W = np.concatenate([m.W for m in sets])
+        w = np.concatenate([m.weights if m.weights is not None else np.ones(len(m)) for m in sets])
+        T = np.stack([self.states[k].T for k in ks])
+        varpi = np.stack([self.states[k].varpi for k in ks])
+        model = _kernel.POLAR if self.model == "polar" else _kernel.CARTESIAN
+        d2 = np.empty(len(z))
+        H, b, cost = _kernel.linearize_pairs(model, T, varpi, offsets, p, z, W, self.T_vehicle_sensor, w, d2)
+        return list(zip(H, b)), float(cost), np.split(d2, offsets[1:-1])
+
+    def update_robust_weights(self) -> None:
+        """Cauchy weights w = 1 / (1 + d2 / c^2) from the current residuals, held fixed while Gauss-Newton
+        iterates (iteratively re-weighting inside the iterations turns its quadratic convergence linear)."""
+        ks = [k for k, m in enumerate(self.meas) if m is not None]
+        if not ks:
+            return
+        for m in self.meas:
+            if m is not None:
+                m.weights = None
+        _, _, d2s = self._measurement_terms(ks)
+        for k, d2 in zip(ks, d2s):
+            self.meas[k].weights = (1.0 / (1.0 + d2 / self.robust_c**2)) if self.robust_c > 0 else None
+        self._H = None
+
+    def linearize(self):
+        """Normal equations (H, b) with H d = -b, and the cost, at the current estimate."""
+        n, d = len(self.states), self.motion.dim
+        H = np.zeros((n * d, n * d))
+        b = np.zeros(n * d)
+        e, J = self._prior_term(self.states[0])
+        JW = J.T @ self.prior_info
+        H[:d, :d] += JW @ J
+        b[:d] += JW @ e
+        cost = 0.5 * e @ self.prior_info @ e
+        if n > 1:
+            E, J1s, J2s = self.motion.residuals(self.states)
+            for k in range(n - 1):
+                e, Wq = E[k], self.motion_info[k]
+                Jk = np.concatenate([J1s[k], J2s[k]], axis=1)
+                JW = Jk.T @ Wq
+                sl = slice(k * d, (k + 2) * d)
+                H[sl, sl] += JW @ Jk
+                b[sl] += JW @ e
+                cost += 0.5 * e @ Wq @ e
+        ks = [k for k, m in enumerate(self.meas) if m is not None]
+        if ks:
+            blocks, c, _ = self._measurement_terms(ks)
+            cost += c
+            for k, (Hm, bm) in zip(ks, blocks):
+                sl = slice(k * d, k * d + 12)
+                H[sl, sl] += Hm
+                b[sl] += bm
+        return H, b, cost
+
+    # --- solving ----------------------------------------------------------------------------------------
+    def optimize(self, iterations: int = 5, tol: float = 1e-6) -> dict:
+        """Gauss-Newton; a step that increases the cost is halved (one linearisation per iteration).
+
+        Returns {'iterations', 'cost', 'step'}; the normal equations at the returned estimate are kept for
+        `newest_covariance`.
+        """
+        d = self.motion.dim
+        self.update_robust_weights()
+        H, b, cost = self.linearize()
+        step, it = 1.0, 0
+        for it in range(1, iterations + 1):
+            delta = _solve_spd(H, -b)
+            old = self.states
+            self.states = [x.oplus(step * delta[k * d:(k + 1) * d]) for k, x in enumerate(old)]
+            H2, b2, cost2 = self.linearize()
+            if np.isfinite(cost2) and cost2 <= cost * (1 + 1e-12) + 1e-12:
+                H, b, cost = H2, b2, cost2
+                if np.max(np.abs(step * delta)) < tol:
+                    break
+                step = 1.0
+            else:
+                self.states = old
+                step *= 0.5
+                if step < 1e-3:
+                    break
+        self._H = H
+        return {"iterations": it, "cost": float(cost), "step": float(step)}
+
+    def newest_covariance(self) -> np.ndarray:
+        """Posterior covariance of the newest state (left perturbation), from the window's information."""
+        H = self._H if self._H is not None else self.linearize()[0]
+        d = self.motion.dim
+        E = np.zeros((H.shape[0], d))
+        E[-d:, :] = np.eye(d)
+        P = _solve_spd(H, E)[-d:, :]
+        return 0.5 * (P + P.T)
+
+    def marginalize_oldest(self) -> None:
+        """Schur complement of the oldest state into a Gaussian prior on the next one."""
+        d = self.motion.dim
+        x0, x1 = self.states[0], self.states[1]
+        H = np.zeros((2 * d, 2 * d))
+        b = np.zeros(2 * d)
+        e, J = self._prior_term(x0)
+        H[:d, :d] += J.T @ self.prior_info @ J
+        b[:d] += J.T @ self.prior_info @ e
+        e, J1, J2 = self.motion.residual(x0, x1)
+        Jk = np.concatenate([J1, J2], axis=1)
+        H += Jk.T @ self.motion_info[0] @ Jk
+        b += Jk.T @ self.motion_info[0] @ e
+        if self.meas[0] is not None:
+            (Hm, bm), = self._measurement_terms([0])[0]
+            H[:12, :12] += Hm
+            b[:12] += bm
+        H00, H01, H11 = H[:d, :d], H[:d, d:], H[d:, d:]
+        X = _solve_spd(H00, np.c_[H01, b[:d]])
+        Lam = H11 - H01.T @ X[:, :d]
+        g = b[d:] - H01.T @ X[:, d]
+        Lam = 0.5 * (Lam + Lam.T)
+        # the new prior is 1/2 |x1 (-) m|^2_Lam with its mean shifted so that the linear term g is absorbed
+        shift = -_solve_spd(Lam, g)
+        self.prior_mean = x1.oplus(shift)
+        self.prior_info = Lam
+        self.states.pop(0)
+        self.meas.pop(0)
+        self.motion_info.pop(0)
+        self._H = None
+
+
+def _solve_spd(H: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve H x = rhs for symmetric positive (semi-)definite H, with a tiny relative jitter if needed."""
+    jitter = 0.0
+    scale = max(np.max(np.abs(np.diag(H))), 1e-300)
+    for _ in range(6):
+        try:
+            c = sla.cho_factor(H + jitter * np.eye(len(H)), lower=True, check_finite=False)
+            return sla.cho_solve(c, rhs, check_finite=False)
+        except np.linalg.LinAlgError:
+            jitter = scale * 1e-12 if jitter == 0 else jitter * 100
+    return np.linalg.lstsq(H, rhs, rcond=None)[0]
+
+
+def _inv_spd(P: np.ndarray) -> np.ndarray:
+    W = _solve_spd(P, np.eye(len(P)))
+    return 0.5 * (W + W.T)

@@ -1,0 +1,134 @@
+"""`rodo evaluate --gt groundtruth.txt --est estimate.txt [--states states.npz] [--truth truth.npz] [--json OUT]
+[--lengths 100,200,...] [--step 10] [--tolerance 0.001]`: KITTI, ATE, RPE, drift, NEES and velocity errors of
+an estimate against ground truth (docs/evaluation.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from estimator.errors import InputError
+from sim.sequence import read_tum
+from validation.metrics import DEFAULT_TOLERANCE, associate, evaluate, jsonable
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("evaluate", help="evaluate an estimated trajectory against ground truth (KITTI, ATE, ...)",
+                       description="Evaluate a TUM trajectory (t tx ty tz qx qy qz qw of T_world_vehicle, any "
+                                   "tool) against ground truth; with --states and --truth also NEES and velocity "
+                                   "errors. Prints a table; --json writes the full report.")
+    p.add_argument("--gt", required=True, metavar="FILE", help="ground truth TUM file (groundtruth.txt)")
+    p.add_argument("--est", required=True, metavar="FILE", help="estimated TUM file (estimate.txt)")
+    p.add_argument("--states", metavar="FILE", help="states.npz of `rodo run` (NEES, NIS, velocity, runtime)")
+    p.add_argument("--truth", metavar="FILE", help="truth.npz of the simulator (NEES, velocity errors)")
+    p.add_argument("--json", metavar="OUT", help="write the report as JSON")
+    p.add_argument("--lengths", default="100,200,300,400,500,600,700,800",
+                   help="KITTI segment lengths in metres (%(default)s)")
+    p.add_argument("--step", type=int, default=10, help="KITTI first-frame step (%(default)s)")
+    p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE,
+                   help="time association tolerance in seconds (%(default)s)")
+    p.set_defaults(func=main)
+
+
+def parse_lengths(text: str) -> tuple[float, ...]:
+    try:
+        lengths = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise InputError(f"--lengths: expected comma-separated metres like 100,200, got {text!r}") from None
+    if not lengths or not all(np.isfinite(v) and v > 0 for v in lengths):
+        raise InputError(f"--lengths: need positive finite lengths, got {text!r}")
+    return lengths
+
+
+def load_npz(path: str, option: str, required: tuple[str, ...]) -> dict:
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{option} {path}: file not found")
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise InputError(f"{option} {path}: not a readable .npz file ({exc})") from None
+    missing = [k for k in required if k not in arrays]
+    if missing:
+        raise InputError(f"{option} {path}: missing array(s) {', '.join(missing)} (has {', '.join(arrays)})")
+    return arrays
+
+
+def _fmt(v, spec=".4g") -> str:
+    return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, spec)
+
+
+def table(rep: dict) -> str:
+    rows = [("matched poses", f"{rep['matched']} (gt {rep['gt_poses']}, est {rep['est_poses']})"),
+            ("path length", f"{_fmt(rep['path_length_m'], '.1f')} m"),
+            ("KITTI t_err", f"{_fmt(rep['kitti_t_err_pct'])} %  ({rep['kitti_segments']} segments)"),
+            ("KITTI r_err", f"{_fmt(rep['kitti_r_err_deg_per_m'])} deg/m"),
+            ("ATE rmse / max", f"{_fmt(rep['ate_rmse_m'])} / {_fmt(rep['ate_max_m'])} m"),
+            ("RPE per frame", f"{_fmt(rep['rpe']['rpe_trans_rmse_m'])} m, {_fmt(rep['rpe']['rpe_rot_rmse_deg'])} "
+                              "deg (rmse)"),
+            (f"RPE per {rep['rpe']['rpe_delta_m']:g} m", f"{_fmt(rep['rpe']['rpe_trans_pct'])} %, "
+                                                       f"{_fmt(rep['rpe']['rpe_rot_deg_per_m'])} deg/m"),
+            ("final drift x y z", " ".join(_fmt(rep["drift"]["final"][a], ".3f") for a in "xyz") + " m"),
+            ("final drift r p y", " ".join(_fmt(rep["drift"]["final"][a], ".3f") for a in ("roll", "pitch", "yaw"))
+             + " deg"),
+            ("max |z| |roll| |pitch|", f"{_fmt(rep['drift']['max_abs']['z'], '.3f')} m "
+                                       f"{_fmt(rep['drift']['max_abs']['roll'], '.3f')} "
+                                       f"{_fmt(rep['drift']['max_abs']['pitch'], '.3f')} deg")]
+    for L, s in ((s["length_m"], s) for s in rep["segments"]):
+        rows.append((f"  {L:g} m", f"{_fmt(s['t_err_pct'])} %, {_fmt(s['r_err_deg_per_m'])} deg/m ({s['count']})"))
+    if "nees" in rep:
+        n = rep["nees"]
+        rows.append((f"NEES (d={n['dim']})", f"mean {_fmt(n['mean'])}, per-scan bounds "
+                                             f"[{_fmt(n['per_scan_bounds'][0])}, {_fmt(n['per_scan_bounds'][1])}], "
+                                             f"{_fmt(100 * n['fraction_within'], '.0f')} % of scans within"))
+    if "nis" in rep:
+        n = rep["nis"]
+        rows.append(("NIS per pair (dof 4)", f"mean {_fmt(n['mean'])} over {n['pairs']} pairs, bounds "
+                                             f"[{_fmt(n['bounds'][0])}, {_fmt(n['bounds'][1])}]"))
+    if "velocity" in rep:
+        v = rep["velocity"]
+        rows.append(("velocity rmse", f"{_fmt(v['nu_rmse_mps'])} m/s, {_fmt(v['omega_rmse_degps'])} deg/s"))
+    if rep.get("ms_per_scan"):
+        rows.append(("ms per scan", f"median {_fmt(rep['ms_per_scan']['median'])}, p95 "
+                                    f"{_fmt(rep['ms_per_scan']['p95'])}"))
+    w = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)
+
+
+def _check(fn, what: str) -> None:
+    try:
+        fn()
+    except InputError as exc:
+        raise InputError(f"{what}: {exc}") from None
+
+
+def main(args) -> int:
+    lengths = parse_lengths(args.lengths)
+    if args.step < 1:
+        raise InputError(f"--step: must be >= 1, got {args.step}")
+    if not (np.isfinite(args.tolerance) and args.tolerance >= 0):
+        raise InputError(f"--tolerance: must be >= 0 seconds, got {args.tolerance}")
+    gt = read_tum(args.gt)
+    est = read_tum(args.est)
+    states = load_npz(args.states, "--states", ("t", "T_vehicle_world", "varpi", "P")) if args.states else None
+    truth = load_npz(args.truth, "--truth", ("t", "T_vehicle_world", "varpi")) if args.truth else None
+    _check(lambda: associate(gt.t, est.t, args.tolerance), f"--gt {args.gt} and --est {args.est}")
+    if states is not None and truth is not None:
+        _check(lambda: associate(states["t"], truth["t"], args.tolerance),
+               f"--states {args.states} and --truth {args.truth}")
+    rep = evaluate(gt, est, lengths, args.step, states, truth, args.tolerance)
+    print(table(rep))
+    if args.json:
+        tmp = args.json + ".tmp"
+        with open(tmp, "w") as fh:
+            json.dump(jsonable(rep), fh, indent=1)
+            fh.write("\n")
+        os.replace(tmp, args.json)
+        print(f"wrote {args.json}")
+    return 0

@@ -1,0 +1,109 @@
+"""The scenario definitions (each registered explicitly at import; see docs/simulator.md for what they test).
+
+Mover ids start at MOVER_ID (well above any static object id) so truth ids never collide.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim import trajectory as traj
+from sim import world as w
+
+from .registry import Scenario, register
+
+MOVER_ID = 1_000_000
+CA_POLAR = {"model": "ca-polar"}
+
+
+def _route(profile):
+    return traj.route_of(profile)
+
+
+def _oncoming(rng, profile, duration, every: float, lane: float, first: float = 6.0, size=w.CAR_SIZE,
+              start_id: int = 0):
+    """Oncoming vehicles meeting the ego roughly every `every` seconds."""
+    movers, t, k = [], first, start_id
+    while t < duration:
+        movers.append(w.oncoming_vehicle(profile, MOVER_ID + k, t, lane=lane,
+                                         speed_ratio=rng.uniform(0.8, 1.2), size=size))
+        k += 1
+        t += rng.uniform(0.5, 1.5) * every
+    return movers
+
+
+def _city_world(rng, profile, duration):
+    world = w.build_world(rng, _route(profile), w.CITY)
+    movers = _oncoming(rng, profile, duration, 12.0, 3.5)
+    n = len(movers)
+    movers += [w.overtaking_vehicle(profile, MOVER_ID + n + i, t, speed_ratio=1.4)
+               for i, t in enumerate(np.arange(20.0, duration, 45.0))]
+    return world.with_movers(movers)
+
+
+def _highway_world(rng, profile, duration):
+    world = w.build_world(rng, _route(profile), w.HIGHWAY)
+    movers = [w.lead_vehicle(profile, MOVER_ID, 2.0, 0.0, duration, size=w.TRUCK_SIZE)]
+    movers += [w.overtaking_vehicle(profile, MOVER_ID + 1 + i, t, lane=3.7, speed_ratio=rng.uniform(1.15, 1.3))
+               for i, t in enumerate(np.arange(8.0, duration, 15.0))]
+    return world.with_movers(movers)
+
+
+def _hills_world(rng, profile, duration):
+    world = w.build_world(rng, _route(profile), w.RURAL)
+    return world.with_movers(_oncoming(rng, profile, duration, 20.0, 3.5))
+
+
+def _stop_and_go_world(rng, profile, duration):
+    world = w.build_world(rng, _route(profile), w.CITY)
+    return world.with_movers(_oncoming(rng, profile, duration, 15.0, 3.5))
+
+
+BLOCKAGE_DELTA = 3.3  # s: the truck's rear axle is where the ego's will be 3.3 s later
+BLOCKAGE_SLOW = (13.0, 21.0)  # s: crawling at 1.6 m/s, the truck 0.8 m from the sensor, +-54 deg wide
+BLOCKAGE_BLACKOUT = (5.0, 7.0)  # s: total blockage (empty scans)
+
+
+def _blockage_profile(rng, duration):
+    """Crawl at 2.5-3.5 m/s, slow to 1.6 m/s over 3 s for BLOCKAGE_SLOW, speed up, crawl on. The gap to the
+    truck is the distance driven in BLOCKAGE_DELTA: sensor-to-truck 0.8 m at 1.6 m/s, 7 m at 3.5 m/s."""
+    b = traj.ProfileBuilder(rng.uniform(2.5, 3.5))
+    b.add(5.0, speed=rng.uniform(2.5, 3.5)).add(5.0, speed=rng.uniform(2.5, 3.5))
+    b.add(BLOCKAGE_SLOW[0] - 10.0, speed=1.6).add(BLOCKAGE_SLOW[1] - BLOCKAGE_SLOW[0])
+    b.add(3.0, speed=3.0)
+    while b.duration < duration:
+        b.add(rng.uniform(2.0, 5.0), speed=rng.uniform(2.5, 3.5))
+        if rng.uniform() < 0.2:
+            b.turn(rng.uniform(-0.3, 0.3), rng.uniform(30.0, 60.0))
+    return b.build()
+
+
+def _blockage_world(rng, profile, duration):
+    world = w.build_world(rng, _route(profile), w.CITY)
+    truck = w.lead_vehicle(profile, MOVER_ID, BLOCKAGE_DELTA, 0.0, duration, size=(8.0, 2.6, 3.8))
+    movers = [truck] + _oncoming(rng, profile, duration, 10.0, 3.5, size=w.TRUCK_SIZE, start_id=1)
+    return world.with_movers(movers).with_blackouts([BLOCKAGE_BLACKOUT])
+
+
+def _yaw_world(rng, profile, duration):
+    return w.build_world(rng, _route(profile), w.RURAL)
+
+
+CITY = register(Scenario(
+    "city", 1, "urban driving 0-50 km/h: buildings, parked cars, poles, turns, stops, oncoming traffic",
+    traj.city, _city_world, estimator_defaults=dict(CA_POLAR), length=950.0))
+HIGHWAY = register(Scenario(
+    "highway", 1, "80-130 km/h, gentle curves, lane changes, guard rails, a lead truck, overtaking cars",
+    traj.highway, _highway_world, estimator_defaults=dict(CA_POLAR), length=1200.0))
+HILLS = register(Scenario(
+    "hills", 1, "rural road 40-70 km/h with 3-8 % grades (tens of metres of height change)",
+    traj.hills, _hills_world, estimator_defaults=dict(CA_POLAR), length=950.0))
+STOP_AND_GO = register(Scenario(
+    "stop_and_go", 1, "stop-and-go city traffic down to standstill, 10-35 km/h",
+    traj.stop_and_go, _stop_and_go_world, estimator_defaults=dict(CA_POLAR), length=950.0))
+BLOCKAGE = register(Scenario(
+    "blockage", 1, "crawling behind a truck; 8 s at 1.6 m/s with it 0.8 m ahead (+-54 deg), 2 s total blockage",
+    _blockage_profile, _blockage_world, estimator_defaults=dict(CA_POLAR), duration=40.0))
+YAW_ACCEL = register(Scenario(
+    "yaw_accel", 1, "the paper's Fig. 1 manoeuvre: 10 m/s with constant yaw acceleration 0.05 rad/s^2",
+    traj.yaw_accel, _yaw_world, estimator_defaults=dict(CA_POLAR), duration=10.0))

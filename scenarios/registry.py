@@ -1,0 +1,139 @@
+"""The explicit registry of named, versioned scenarios (no discovery by magic: `scenarios.definitions` calls
+`register` for each one).
+
+A scenario is a small definition: name, version, one-line description, a builder of (trajectory profile,
+world, radar config), estimator defaults (a plain dict), and its default extent: a path length (metres,
+KITTI-style sequences) or a duration (short manoeuvres). Randomness: `SeedSequence(seed)` spawns three
+independent streams (trajectory, world, radar), so the same seed gives the same bytes.
+
+Checked by: tests/scenarios/test_registry.py
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from estimator.errors import InputError
+from sim.radar import RadarConfig
+from sim.simulate import simulate, write_simulation
+from sim.trajectory import Profile
+from sim.world import World
+
+MARGIN = 5.0  # s of extra trajectory past the simulated duration (movers may look ahead)
+
+
+@dataclass(frozen=True)
+class Parts:
+    """What a scenario builds for one seed: ego profile, world, radar, and the duration to simulate."""
+
+    profile: Profile
+    world: World
+    radar: RadarConfig
+    duration: float
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A named, versioned scenario.
+
+    Attributes:
+        name, version, description: identity (bump the version whenever the output for a seed changes).
+        profile: (rng, duration) -> Profile, the ego trajectory covering at least `duration` seconds.
+        world: (rng, profile, duration) -> World built around the route.
+        radar: () -> RadarConfig.
+        estimator_defaults: plain dict of estimator settings suited to the scenario.
+        length: default path length in metres (the duration is chosen to drive it), or None.
+        duration: default duration in seconds when `length` is None.
+    """
+
+    name: str
+    version: int
+    description: str
+    profile: Callable
+    world: Callable
+    radar: Callable = RadarConfig
+    estimator_defaults: dict = field(default_factory=dict)
+    length: float | None = None
+    duration: float | None = None
+
+    def _rngs(self, seed: int):
+        if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise InputError(f"seed: expected an integer >= 0, got {seed!r}")
+        return [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(3)]
+
+    def default_duration(self, seed: int) -> float:
+        """The duration that drives `length` metres for this seed (or the fixed `duration`)."""
+        if self.length is None:
+            return float(self.duration)
+        rng = self._rngs(seed)[0]
+        guess = 60.0
+        while True:  # profiles extend the same random draw, so a longer profile has the same prefix
+            profile = self.profile(rng, guess)
+            if profile.path_length() >= self.length:
+                break
+            guess *= 2
+            rng = self._rngs(seed)[0]
+        lo, hi = 0.0, profile.duration
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if profile.path_length(mid) < self.length else (lo, mid)
+        return float(np.ceil(hi * 10) / 10)
+
+    def build(self, seed: int, duration: float | None = None) -> Parts:
+        """Profile, world and radar for `seed` (same seed -> identical parts)."""
+        if duration is not None and not (np.isfinite(duration) and duration > 0):
+            raise InputError(f"duration: must be a positive number of seconds, got {duration!r}")
+        duration = self.default_duration(seed) if duration is None else float(duration)
+        rng_traj, rng_world, _ = self._rngs(seed)
+        profile = self.profile(rng_traj, duration + MARGIN)
+        world = self.world(rng_world, profile, duration)
+        return Parts(profile, world, self.radar(), duration)
+
+    def simulate(self, seed: int, duration: float | None = None, progress=None, radar: RadarConfig | None = None):
+        """Simulate the scenario: returns (Sequence, truth dict) (see sim.simulate.simulate).
+
+        `radar` overrides the scenario's radar, e.g. `RadarConfig().noise_free()` for model checks."""
+        parts = self.build(seed, duration)
+        rng_radar = self._rngs(seed)[2]
+        return simulate(parts.world, parts.profile, parts.radar if radar is None else radar, rng_radar,
+                        parts.duration, progress)
+
+    def summary(self) -> str:
+        extent = f"{self.length:.0f} m" if self.length is not None else f"{self.duration:.0f} s"
+        return f"{self.name:<12} v{self.version:<3} {extent:>7}  {self.description}"
+
+
+_REGISTRY: dict[str, Scenario] = {}
+
+
+def register(scenario: Scenario) -> Scenario:
+    if scenario.name in _REGISTRY:
+        raise ValueError(f"scenario {scenario.name!r} registered twice")
+    _REGISTRY[scenario.name] = scenario
+    return scenario
+
+
+def names() -> list[str]:
+    """Registered scenario names, in registration order."""
+    return list(_REGISTRY)
+
+
+def get(name: str) -> Scenario:
+    """The scenario called `name`; InputError listing the known names otherwise."""
+    try:
+        return _REGISTRY[name]
+    except (KeyError, TypeError):
+        raise InputError(f"unknown scenario {name!r}; known scenarios: {', '.join(names())}") from None
+
+
+def simulate_to(name: str, seed: int, out_dir, duration: float | None = None, progress=None):
+    """Simulate scenario `name` with `seed` and write the sequence directory (radar.csv, sensor.toml,
+    groundtruth.txt, truth.npz) to out_dir. Returns (Sequence, truth)."""
+    scenario = get(name)
+    seq, truth = scenario.simulate(seed, duration, progress)
+    write_simulation(Path(out_dir), seq, truth)
+    return seq, truth

@@ -1,0 +1,104 @@
+"""Shared plumbing of the sequence readers and writers: the error type, text decoding, atomic writes.
+
+Format description: docs/sequence_format.md. Checked by: tests/sim/test_sequence.py,
+tests/sim/test_sequence_fuzz.py, tests/sim/test_tum.py.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from estimator.errors import InputError
+
+UNIT_QUATERNION_TOL = 1e-6
+
+
+class SequenceFormatError(InputError):
+    """A file of a sequence is malformed.
+
+    The message names the file, the 1-based line (as an editor shows it; a CSV header is line 1) when there is
+    one, and the field (CSV column, TOML key) when there is one:
+    ``/data/seq/radar.csv, line 12, field 'range': negative value -1.5 (must be >= 0)``.
+
+    Attributes:
+        path: the file, as given.
+        line: 1-based line number or None.
+        field: column or key name or None.
+        reason: the message without the location prefix.
+    """
+
+    def __init__(self, path, reason: str, line: int | None = None, field: str | None = None):
+        self.path = str(path)
+        self.line = line
+        self.field = field
+        self.reason = reason
+        where = self.path
+        if line is not None:
+            where += f", line {line}"
+        if field is not None:
+            where += f", field '{field}'"
+        super().__init__(f"{where}: {reason}")
+
+
+def decode_text(path, data: bytes) -> str:
+    """UTF-8 bytes of a text file -> str with '\\n' line endings; BOM and CRLF tolerated.
+
+    Raises:
+        SequenceFormatError: the file is empty (or only a BOM/whitespace) or not UTF-8 (names the line).
+    """
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise SequenceFormatError(path, f"not UTF-8 text (byte 0x{data[exc.start]:02x})", line=line) from None
+    if "\r" in text:
+        text = text.replace("\r\n", "\n")
+        if "\r" in text:
+            line = text[: text.index("\r")].count("\n") + 1
+            raise SequenceFormatError(path, "stray carriage return (use LF or CRLF line endings)", line=line)
+    if not text.strip():
+        raise SequenceFormatError(path, "the file is empty")
+    if "\x00" in text:
+        line = text[: text.index("\x00")].count("\n") + 1
+        raise SequenceFormatError(path, "NUL byte in a text file", line=line)
+    return text
+
+
+def read_text(path) -> str:
+    """Read and decode a text file of a sequence (see `decode_text`); a missing file is an InputError."""
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise SequenceFormatError(path, "file not found") from None
+    except IsADirectoryError:
+        raise SequenceFormatError(path, "is a directory, expected a file") from None
+    except OSError as exc:
+        raise SequenceFormatError(path, f"cannot read ({exc.strerror})") from None
+    return decode_text(path, data)
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """Write `data` to `path` atomically: a temporary file in the same directory, fsync, then os.replace."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def float_text(x: float) -> str:
+    """Shortest text that reads back to exactly the same float64 (Python's repr)."""
+    return repr(float(x))

@@ -1,0 +1,361 @@
+"""The imaging-radar sensor model: what a 4D radar (range, azimuth, elevation, radial velocity) reports for
+one scan of a `sim.world.World`, computed from geometry only (no estimator code: the estimator's measurement
+models are checked against this, and vice versa).
+
+Measurement model (sensor frame x boresight, y left, z up; paper eq. 80 and docs/conventions.md):
+    r = |p_s|, azimuth = atan2(y, x), elevation = asin(z / r),
+    v_r = d r / dt = u . (C_sw v_target - v_sensor),   u = p_s / r,
+with v_sensor the velocity of the sensor origin in the sensor frame, from the vehicle twist
+[v; w] = -varpi and the lever arm r_vs: v_sensor = C_vs^T (v + w x r_vs). A static target gives v_r = -u . v_sensor
+(negative when approaching). Then Gaussian noise in polar coordinates.
+
+Per scan: cull patches -> sample surfaces (Poisson counts, density falling as 1/r^2, i.e. a fixed expected
+number per resolution cell) -> add point scatterers and moving boxes -> field of view and range gates ->
+occlusion (a depth buffer of opaque patches on the angular cell grid, then one detection per cell: the
+nearest) -> detection probability -> noise -> Poisson false alarms. See docs/simulator.md.
+
+Checked by: tests/sim/test_radar.py
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from estimator.errors import InputError
+from estimator.lie import se3, so3
+
+from .objects import CLUTTER, MOVING, STATIC_POINT, STATIC_SURFACE, Patches
+
+DEG = np.pi / 180.0
+
+
+def default_mount() -> np.ndarray:
+    """T_vehicle_sensor: 3.5 m forward, 0.5 m up of the rear-axle centre, yawed 1.0 deg, pitched up 0.5 deg."""
+    C = so3.exp(np.array([0.0, 0.0, 1.0 * DEG])) @ so3.exp(np.array([0.0, -0.5 * DEG, 0.0]))
+    return se3.from_rotation_translation(C, np.array([3.5, 0.0, 0.5]))
+
+
+@dataclass(frozen=True, eq=False)
+class RadarConfig:
+    """Sensor parameters (SI units, radians). `noise_free()` gives sigmas 0, no clutter and detection prob 1.
+
+    Attributes:
+        sigmas: 1-sigma noise of (range, azimuth, elevation, radial_velocity).
+        cell_azimuth, cell_elevation: angular resolution cell (occlusion and one detection per cell).
+        pd_max, pd_range50, pd_width: detection probability pd(r) = pd_max / (1 + exp((r - r50) / width)),
+            multiplied by a point scatterer's own probability.
+        surface_fill: expected detections per resolution cell covered by a surface of reflectivity 1 seen
+            head-on (the density of surface samples falls as cos(incidence) / r^2).
+        min_density_range: below this range the surface density stops growing.
+        clutter_rate: mean number of false alarms per scan (Poisson), uniform in the field of view and range,
+            radial velocity uniform in +-clutter_speed.
+        occlusion_tolerance: a target is hidden if an opaque surface of another object is this much closer.
+        ideal_detection: every visible target is detected (pd 1, including point scatterers).
+    """
+
+    rate_hz: float = 13.0
+    T_vehicle_sensor: np.ndarray = field(default_factory=default_mount)
+    sigmas: tuple = (0.02, 0.15 * DEG, 0.3 * DEG, 0.01)
+    azimuth_fov: tuple = (-60 * DEG, 60 * DEG)
+    elevation_fov: tuple = (-15 * DEG, 15 * DEG)
+    min_range: float = 0.5
+    max_range: float = 150.0
+    cell_azimuth: float = 0.5 * DEG
+    cell_elevation: float = 1.0 * DEG
+    pd_max: float = 0.95
+    pd_range50: float = 120.0
+    pd_width: float = 10.0
+    surface_fill: float = 0.2
+    min_density_range: float = 2.0
+    clutter_rate: float = 20.0
+    clutter_speed: float = 20.0
+    occlusion_tolerance: float = 0.3
+    ideal_detection: bool = False
+
+    def __post_init__(self):
+        if not (self.rate_hz > 0 and 0 <= self.min_range < self.max_range):
+            raise InputError("RadarConfig: need rate_hz > 0 and 0 <= min_range < max_range")
+        if len(self.sigmas) != 4 or any(not np.isfinite(s) or s < 0 for s in self.sigmas):
+            raise InputError(f"RadarConfig.sigmas: need 4 finite values >= 0, got {self.sigmas}")
+        for name in ("azimuth_fov", "elevation_fov"):
+            lo, hi = getattr(self, name)
+            if not lo < hi:
+                raise InputError(f"RadarConfig.{name}: need min < max, got {(lo, hi)}")
+        if self.cell_azimuth <= 0 or self.cell_elevation <= 0:
+            raise InputError("RadarConfig.cell_azimuth/cell_elevation: must be > 0")
+
+    def noise_free(self) -> "RadarConfig":
+        return replace(self, sigmas=(0.0, 0.0, 0.0, 0.0), clutter_rate=0.0, ideal_detection=True)
+
+    def pd(self, r: np.ndarray) -> np.ndarray:
+        if self.ideal_detection:
+            return np.ones_like(r)
+        return self.pd_max / (1.0 + np.exp((r - self.pd_range50) / self.pd_width))
+
+    def sensor_config(self):
+        """The `sim.sequence.SensorConfig` written to sensor.toml. Zero sigmas (noise-free) are written as
+        1e-6 because the file format requires positive sigmas."""
+        from .sequence import NoiseSigmas, SensorConfig
+
+        s = [max(x, 1e-6) for x in self.sigmas]
+        return SensorConfig(self.rate_hz, np.array(self.T_vehicle_sensor), NoiseSigmas(*s), tuple(self.azimuth_fov),
+                            tuple(self.elevation_fov), self.max_range, self.min_range)
+
+    @property
+    def grid_shape(self) -> tuple[int, int]:
+        return (int(np.ceil((self.azimuth_fov[1] - self.azimuth_fov[0]) / self.cell_azimuth)),
+                int(np.ceil((self.elevation_fov[1] - self.elevation_fov[0]) / self.cell_elevation)))
+
+
+@dataclass(frozen=True)
+class Detections:
+    """One scan's output. Measured: range, azimuth, elevation, radial_velocity (n,). Truth: label (n,) (0 static
+    surface, 1 static point, 2 moving, 3 clutter), object_id (n,) (-1 if none), landmark_id (n,) (-1 if none),
+    p_world (n, 3) the true scatterer (NaN for clutter), true_polar (n, 4) noise-free measurement."""
+
+    range: np.ndarray
+    azimuth: np.ndarray
+    elevation: np.ndarray
+    radial_velocity: np.ndarray
+    label: np.ndarray
+    object_id: np.ndarray
+    landmark_id: np.ndarray
+    p_world: np.ndarray
+    true_polar: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.range)
+
+
+def empty_detections() -> Detections:
+    z = np.zeros(0)
+    zi = np.zeros(0, int)
+    return Detections(z, z, z, z, zi, zi, zi, np.zeros((0, 3)), np.zeros((0, 4)))
+
+
+def sensor_velocity(varpi: np.ndarray, T_vehicle_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity of the sensor origin and angular velocity, both in the sensor frame, from the state's varpi.
+
+    v_s = C_vs^T (v + w x r_vs), w_s = C_vs^T w with [v; w] = -varpi (docs/conventions.md)."""
+    v, w = -varpi[:3], -varpi[3:]
+    C, r = T_vehicle_sensor[:3, :3], T_vehicle_sensor[:3, 3]
+    return C.T @ (v + np.cross(w, r)), C.T @ w
+
+
+def polar(p_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Paper eq. 80: (n, 3) sensor-frame points -> range, azimuth, elevation."""
+    r = np.linalg.norm(p_s, axis=-1)
+    az = np.arctan2(p_s[:, 1], p_s[:, 0])
+    el = np.arcsin(np.clip(p_s[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
+    return r, az, el
+
+
+class _Cull:
+    """Patches visible from the sensor: in range, facing it, near the field of view."""
+
+    def __init__(self, patches: Patches, T_sensor_world: np.ndarray, cfg: RadarConfig):
+        C, t = T_sensor_world[:3, :3], T_sensor_world[:3, 3]
+        c = patches.center @ C.T + t
+        d = np.linalg.norm(c, axis=-1)
+        hd = patches.half_diagonal
+        n = patches.normal @ C.T
+        facing = np.einsum("ij,ij->i", n, -c)  # > 0: the sensor is on the normal's side
+        ang = np.where(d > hd, np.arcsin(np.clip(hd / np.maximum(d, 1e-9), 0, 1)), np.pi)
+        az = np.arctan2(c[:, 1], c[:, 0])
+        el = np.arcsin(np.clip(c[:, 2] / np.maximum(d, 1e-9), -1, 1))
+        keep = ((d - hd < cfg.max_range) & (d + hd > cfg.min_range) & (patches.two_sided | (facing > 0))
+                & (az > cfg.azimuth_fov[0] - ang) & (az < cfg.azimuth_fov[1] + ang)
+                & (el > cfg.elevation_fov[0] - ang) & (el < cfg.elevation_fov[1] + ang))
+        self.idx = np.flatnonzero(keep)
+        self.patches = patches.subset(self.idx)
+        self.d = d[keep]
+        self.cos = np.abs(facing[keep]) / np.maximum(self.d, 1e-9)
+        self.sensor = Patches(patches.origin[keep] @ C.T + t, patches.u[keep] @ C.T, patches.v[keep] @ C.T,
+                              patches.object_id[keep], patches.reflectivity[keep], patches.opaque[keep],
+                              patches.two_sided[keep])
+
+    def counts(self, cfg: RadarConfig, rng: np.random.Generator) -> np.ndarray:
+        cell = cfg.cell_azimuth * cfg.cell_elevation
+        lam = (cfg.surface_fill * self.patches.reflectivity * self.patches.area * self.cos
+               / (np.maximum(self.d, cfg.min_density_range) ** 2 * cell))
+        return rng.poisson(lam)
+
+
+def _depth_buffer(p: Patches, cfg: RadarConfig, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest opaque surface along each cell-centre ray: depth (cells,) (inf if none) and its object id.
+
+    Each patch (sensor frame) is tested only against the cells of its angular bounding box, estimated from
+    9 points on the patch and padded by one cell; the test itself is an exact ray-rectangle intersection."""
+    n_az, n_el = cfg.grid_shape
+    depth = np.full(n_az * n_el, np.inf)
+    owner = np.full(n_az * n_el, -1)
+    if not len(p):
+        return depth, owner
+    ab = np.array([[a, b] for a in (0, 0.5, 1) for b in (0, 0.5, 1)])
+    pts = p.origin[:, None, :] + ab[None, :, :1] * p.u[:, None, :] + ab[None, :, 1:] * p.v[:, None, :]
+    az = np.arctan2(pts[..., 1], pts[..., 0])
+    el = np.arctan2(pts[..., 2], np.linalg.norm(pts[..., :2], axis=-1))
+    az_lo, az_hi = az.min(axis=1), az.max(axis=1)
+    # behind or beside the sensor the corner azimuths may not bound the patch: take the whole field of view
+    wraps = (az_hi - az_lo > np.pi) | (np.any(pts[..., 0] <= 0, axis=1) & (az_hi - az_lo > np.pi / 2))
+    az_lo = np.where(wraps, cfg.azimuth_fov[0], az_lo)
+    az_hi = np.where(wraps, cfg.azimuth_fov[1], az_hi)
+    ia0 = np.clip(np.floor((az_lo - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) - 1, 0, n_az - 1)
+    ia1 = np.clip(np.floor((az_hi - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) + 1, 0, n_az - 1)
+    ie0 = np.clip(np.floor((el.min(axis=1) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) - 1, 0,
+                  n_el - 1)
+    ie1 = np.clip(np.floor((el.max(axis=1) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) + 1, 0,
+                  n_el - 1)
+    na, ne = ia1 - ia0 + 1, ie1 - ie0 + 1
+    cnt = na * ne
+    pid = np.repeat(np.arange(len(p)), cnt)
+    k = np.arange(pid.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    cell = (ia0[pid] + k // ne[pid]) * n_el + ie0[pid] + k % ne[pid]
+    d = dirs[cell]
+    normal = np.cross(p.u, p.v)
+    denom = np.einsum("ij,ij->i", normal[pid], d)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.einsum("ij,ij->i", normal, p.origin)[pid] / denom
+        q = s[:, None] * d - p.origin[pid]
+        a = np.einsum("ij,ij->i", q, p.u[pid]) / np.einsum("ij,ij->i", p.u, p.u)[pid]
+        b = np.einsum("ij,ij->i", q, p.v[pid]) / np.einsum("ij,ij->i", p.v, p.v)[pid]
+        hit = (s > 0) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1) & np.isfinite(s)
+    cell, s, pid = cell[hit], s[hit], pid[hit]
+    order = np.lexsort((s, cell))
+    first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]] if order.size else order
+    depth[cell[first]] = s[first]
+    owner[cell[first]] = p.object_id[pid[first]]
+    return depth, owner
+
+
+def cell_directions(cfg: RadarConfig) -> np.ndarray:
+    """Unit directions (sensor frame) of the cell centres, (n_az * n_el, 3), azimuth-major."""
+    n_az, n_el = cfg.grid_shape
+    az = cfg.azimuth_fov[0] + (np.arange(n_az) + 0.5) * cfg.cell_azimuth
+    el = cfg.elevation_fov[0] + (np.arange(n_el) + 0.5) * cfg.cell_elevation
+    A, E = np.meshgrid(az, el, indexing="ij")
+    A, E = A.ravel(), E.ravel()
+    return np.stack([np.cos(E) * np.cos(A), np.cos(E) * np.sin(A), np.sin(E)], axis=-1)
+
+
+def cell_index(az: np.ndarray, el: np.ndarray, cfg: RadarConfig) -> np.ndarray:
+    n_az, n_el = cfg.grid_shape
+    ia = np.clip(np.floor((az - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int), 0, n_az - 1)
+    ie = np.clip(np.floor((el - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int), 0, n_el - 1)
+    return ia * n_el + ie
+
+
+class Radar:
+    """A radar with a fixed configuration; `scan(...)` simulates one scan.
+
+    Args:
+        config: the sensor parameters.
+    """
+
+    def __init__(self, config: RadarConfig | None = None):
+        self.config = RadarConfig() if config is None else config
+        self._dirs = cell_directions(self.config)
+
+    def scan(self, world, T_world_vehicle: np.ndarray, varpi: np.ndarray, rng: np.random.Generator,
+             movers: list | None = None) -> Detections:
+        """Detections of one scan.
+
+        Args:
+            world: `sim.world.World` (static patches and points; its blackouts are handled by the caller).
+            T_world_vehicle: (4, 4) true vehicle pose at the scan time.
+            varpi: (6,) the state's body velocity [nu; omega] at the scan time (nu = -speed forward).
+            rng: the random generator (consumed in a fixed order: same state -> same scan).
+            movers: list of (MovingBox, T_world_object (4, 4), v_world (3,), w_world (3,)) present now.
+
+        Returns:
+            `Detections` in random order.
+
+        Checked by: tests/sim/test_radar.py (exact geometry, radial velocity sign, noise statistics, field
+        of view, range limits, occlusion, moving targets).
+        """
+        cfg = self.config
+        T_ws = T_world_vehicle @ cfg.T_vehicle_sensor
+        T_sw = se3.inverse(T_ws)
+        C_sw, t_sw = T_sw[:3, :3], T_sw[:3, 3]
+        v_s, _ = sensor_velocity(np.asarray(varpi, dtype=float), cfg.T_vehicle_sensor)
+
+        # --- candidates: (p_world, v_world, label, object_id, landmark_id, pd_own)
+        p_w, v_w, label, oid, lid, pd_own = [], [], [], [], [], []
+        opaque = []
+        static = _Cull(world.patches, T_sw, cfg)
+        pts, k = static.patches.sample(static.counts(cfg, rng), rng)
+        p_w.append(pts)
+        v_w.append(np.zeros_like(pts))
+        label.append(np.full(len(pts), STATIC_SURFACE))
+        oid.append(static.patches.object_id[k])
+        lid.append(np.full(len(pts), -1))
+        pd_own.append(np.ones(len(pts)))
+        opaque.append(static.sensor.subset(static.sensor.opaque))
+
+        P = world.points
+        p_w.append(P.p)
+        v_w.append(np.zeros_like(P.p))
+        label.append(np.full(len(P), STATIC_POINT))
+        oid.append(np.full(len(P), -1))
+        lid.append(P.landmark_id)
+        pd_own.append(P.pd)
+
+        for mover, T_wo, v_o, w_o in movers or ():
+            body = mover.body_patches.transformed(T_wo)
+            cull = _Cull(body, T_sw, cfg)
+            pts, k = cull.patches.sample(cull.counts(cfg, rng), rng)
+            p_w.append(pts)
+            v_w.append(v_o + np.cross(w_o, pts - T_wo[:3, 3]))
+            label.append(np.full(len(pts), MOVING))
+            oid.append(np.full(len(pts), mover.object_id))
+            lid.append(np.full(len(pts), -1))
+            pd_own.append(np.ones(len(pts)))
+            opaque.append(cull.sensor)
+
+        p_w, v_w = np.concatenate(p_w), np.concatenate(v_w)
+        label, oid, lid, pd_own = (np.concatenate(x) for x in (label, oid, lid, pd_own))
+
+        # --- geometry in the sensor frame, gates
+        p_s = p_w @ C_sw.T + t_sw
+        r, az, el = polar(p_s)
+        keep = ((r >= cfg.min_range) & (r <= cfg.max_range) & (az >= cfg.azimuth_fov[0])
+                & (az <= cfg.azimuth_fov[1]) & (el >= cfg.elevation_fov[0]) & (el <= cfg.elevation_fov[1]))
+        idx = np.flatnonzero(keep)
+        r, az, el = r[idx], az[idx], el[idx]
+        cell = cell_index(az, el, cfg)
+
+        # --- occlusion: opaque surfaces of other objects in front, then the nearest per cell
+        depth, owner = _depth_buffer(Patches.concat(opaque), cfg, self._dirs)
+        visible = ~((depth[cell] < r - cfg.occlusion_tolerance) & (owner[cell] != oid[idx]))
+        idx, r, az, el, cell = idx[visible], r[visible], az[visible], el[visible], cell[visible]
+        order = np.lexsort((r, cell))
+        first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]] if order.size else order
+        idx, r, az, el = idx[first], r[first], az[first], el[first]
+
+        # --- detection probability
+        pd = cfg.pd(r) * (1.0 if cfg.ideal_detection else pd_own[idx])
+        hit = rng.random(len(idx)) < pd
+        idx, r, az, el = idx[hit], r[hit], az[hit], el[hit]
+        u = p_s[idx] / r[:, None]
+        vr = np.einsum("ij,ij->i", u, v_w[idx] @ C_sw.T - v_s)
+
+        # --- noise, clutter, shuffle
+        true = np.stack([r, az, el, vr], axis=-1)
+        meas = true + rng.standard_normal(true.shape) * np.asarray(cfg.sigmas)
+        n_fa = rng.poisson(cfg.clutter_rate) if cfg.clutter_rate > 0 else 0
+        fa = np.stack([rng.uniform(cfg.min_range, cfg.max_range, n_fa),
+                       rng.uniform(*cfg.azimuth_fov, n_fa), rng.uniform(*cfg.elevation_fov, n_fa),
+                       rng.uniform(-cfg.clutter_speed, cfg.clutter_speed, n_fa)], axis=-1)
+        meas = np.concatenate([meas, fa])
+        perm = rng.permutation(len(meas))
+        neg = np.full(n_fa, -1)
+        return Detections(
+            range=meas[perm, 0], azimuth=meas[perm, 1], elevation=meas[perm, 2], radial_velocity=meas[perm, 3],
+            label=np.concatenate([label[idx], np.full(n_fa, CLUTTER)])[perm],
+            object_id=np.concatenate([oid[idx], neg])[perm],
+            landmark_id=np.concatenate([lid[idx], neg])[perm],
+            p_world=np.concatenate([p_w[idx], np.full((n_fa, 3), np.nan)])[perm],
+            true_polar=np.concatenate([true, fa])[perm],
+        )

@@ -1,0 +1,111 @@
+"""The sequence format: a directory with radar.csv, sensor.toml and optionally groundtruth.txt.
+
+Specification, examples and validation rules: docs/sequence_format.md. This module is the public face of the
+format; the work is split along the files: `sim.radar_csv` (detections, cache), `sim.sensor_config`
+(sensor.toml), `sim.tum` (groundtruth.txt), `sim.sequence_types` (the dataclasses).
+
+Every malformed input raises `SequenceFormatError`, an `estimator.errors.InputError`, whose message names the
+file, the 1-based line and the field. Writers are deterministic (same sequence -> same bytes) and atomic.
+
+Checked by: tests/sim/test_sequence.py, tests/sim/test_sequence_fuzz.py, tests/sim/test_tum.py
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from estimator.errors import InputError
+
+from ._seqio import SequenceFormatError, atomic_write_bytes
+from .radar_csv import cache_path, format_radar_csv, read_radar_csv
+from .sensor_config import format_sensor_config, read_sensor_config, write_sensor_config
+from .sequence_types import (
+    NoiseSigmas,
+    RadarScan,
+    SensorConfig,
+    Sequence,
+    Trajectory,
+    polar_to_cartesian,
+)
+from .tum import format_tum, read_tum, write_tum
+
+RADAR_CSV = "radar.csv"
+SENSOR_TOML = "sensor.toml"
+GROUNDTRUTH_TXT = "groundtruth.txt"
+
+__all__ = [
+    "GROUNDTRUTH_TXT", "RADAR_CSV", "SENSOR_TOML", "NoiseSigmas", "RadarScan", "SensorConfig", "Sequence",
+    "SequenceFormatError", "Trajectory", "cache_path", "polar_to_cartesian", "read_radar_csv",
+    "read_sensor_config", "read_sequence", "read_tum", "write_sensor_config", "write_sequence", "write_tum",
+]
+
+
+def read_sequence(path, *, use_cache: bool = True) -> Sequence:
+    """Read and validate a sequence directory.
+
+    Args:
+        path: the directory holding radar.csv, sensor.toml and optionally groundtruth.txt.
+        use_cache: load/store the parsed radar.csv in `.radar.csv.npz` next to it (invalidated when the CSV's
+            size, mtime_ns or first/last KiB change).
+
+    Returns:
+        Sequence with one RadarScan per scan index that has rows, in order; groundtruth None when
+        groundtruth.txt is absent.
+
+    Raises:
+        SequenceFormatError (InputError): missing directory or required file, or any malformed content
+        (message names file, line and field).
+
+    Checked by: tests/sim/test_sequence.py::test_round_trip_is_bit_exact_and_deterministic
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise SequenceFormatError(path, "not a sequence directory (expected radar.csv and sensor.toml in it)")
+    sensor = read_sensor_config(path / SENSOR_TOML)
+    scans = read_radar_csv(path / RADAR_CSV, use_cache=use_cache)
+    gt_path = path / GROUNDTRUTH_TXT
+    groundtruth = read_tum(gt_path) if gt_path.exists() else None
+    return Sequence(sensor=sensor, scans=scans, groundtruth=groundtruth)
+
+
+def write_sequence(path, seq: Sequence) -> None:
+    """Write a sequence directory (created if needed; its three files are replaced atomically).
+
+    Empty scans write no rows. A stale radar cache is removed, and so is a stale groundtruth.txt when
+    `seq.groundtruth` is None. Other files in the directory (e.g. the simulator's truth.npz) are left alone.
+
+    Raises:
+        InputError: `seq` does not satisfy the format's rules (names the offending scan and field).
+
+    Checked by: tests/sim/test_sequence.py::test_round_trip_is_bit_exact_and_deterministic
+    """
+    if not isinstance(seq, Sequence):
+        raise InputError(f"seq: expected a Sequence, got {type(seq).__name__}")
+    if not isinstance(seq.sensor, SensorConfig):
+        raise InputError(f"seq.sensor: expected a SensorConfig, got {type(seq.sensor).__name__}")
+    if seq.groundtruth is not None and not isinstance(seq.groundtruth, Trajectory):
+        raise InputError(f"seq.groundtruth: expected a Trajectory or None, got {type(seq.groundtruth).__name__}")
+    # format everything first: nothing is written when any part is invalid
+    radar_bytes = format_radar_csv(seq.scans)
+    sensor_bytes = format_sensor_config(seq.sensor).encode("utf-8")
+    gt_bytes = None if seq.groundtruth is None else format_tum(seq.groundtruth).encode("ascii")
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot create the sequence directory ({exc.strerror or exc})") from None
+    atomic_write_bytes(path / RADAR_CSV, radar_bytes)
+    try:
+        os.unlink(cache_path(path / RADAR_CSV))
+    except FileNotFoundError:
+        pass
+    atomic_write_bytes(path / SENSOR_TOML, sensor_bytes)
+    gt_path = path / GROUNDTRUTH_TXT
+    if gt_bytes is not None:
+        atomic_write_bytes(gt_path, gt_bytes)
+    else:
+        try:
+            os.unlink(gt_path)
+        except FileNotFoundError:
+            pass

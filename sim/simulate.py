@@ -1,0 +1,142 @@
+"""Trajectory + world + radar -> a radar `Sequence` and its truth (the richer ground truth of truth.npz).
+
+Scan k is taken at t_k = k / rate_hz (k = 0 .. floor(duration * rate_hz)); every scan, even an empty one
+(total blockage), has a row in groundtruth.txt and in truth.npz. The truth.npz layout is documented in
+docs/simulator.md.
+
+Checked by: tests/sim/test_simulate.py
+"""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from estimator.errors import InputError
+
+from .radar import Radar, RadarConfig, empty_detections
+from .sequence import RadarScan, Sequence, Trajectory, write_sequence
+from .trajectory import Profile
+from .world import World
+
+TRUTH_NPZ = "truth.npz"
+
+
+def scan_times(duration: float, rate_hz: float) -> np.ndarray:
+    """t_k = k / rate_hz for k = 0 .. floor(duration * rate_hz (+1e-9))."""
+    n = int(np.floor(duration * rate_hz + 1e-9)) + 1
+    return np.arange(n) / rate_hz
+
+
+def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random.Generator,
+             duration: float | None = None, progress=None) -> tuple[Sequence, dict]:
+    """Simulate a radar sequence.
+
+    Args:
+        world: the scene (static parts, moving boxes, blackout intervals).
+        profile: the ego trajectory (CA segments).
+        config: the radar.
+        rng: random generator for all measurement randomness (consumed scan by scan).
+        duration: seconds to simulate (default: the whole profile); must not exceed the profile.
+        progress: optional object with update() called once per scan (e.g. rodo.progress.Progress).
+
+    Returns:
+        (sequence, truth): the `sim.sequence.Sequence` (all scans, empty ones included, ground truth
+        T_world_vehicle at every scan time) and the truth dict of `truth_arrays`.
+    """
+    duration = profile.duration if duration is None else float(duration)
+    if not (0 < duration <= profile.duration + 1e-9):
+        raise InputError(f"duration: must be in (0, {profile.duration:.3f}] s, got {duration}")
+    t = scan_times(min(duration, profile.duration), config.rate_hz)
+    motion = profile.sample(t)
+    T_wv = motion.T_world_vehicle
+    radar = Radar(config)
+    mover_states = [(m, m.states(t)) for m in world.movers]
+    scans, dets = [], []
+    for k, tk in enumerate(t):
+        if world.blacked_out(tk):
+            det = empty_detections()
+        else:
+            movers = [(m, s.T_world_object[k], s.v_world[k], s.w_world[k]) for m, s in mover_states
+                      if s.present[k]]
+            det = radar.scan(world, T_wv[k], motion.varpi[k], rng, movers)
+        dets.append(det)
+        scans.append(RadarScan(k, float(tk), det.range, det.azimuth, det.elevation, det.radial_velocity))
+        if progress is not None:
+            progress.update()
+    seq = Sequence(config.sensor_config(), scans, Trajectory(t, T_wv))
+    truth = truth_arrays(motion, dets, config, mover_states)
+    return seq, truth
+
+
+def truth_arrays(motion, dets, config: RadarConfig, mover_states) -> dict:
+    """The truth.npz arrays (docs/simulator.md): per scan and per detection (detections of scan k are rows
+    scan_offsets[k]:scan_offsets[k+1], in radar.csv order)."""
+    counts = np.array([len(d) for d in dets], dtype=np.int64)
+    cat = lambda name: np.concatenate([getattr(d, name) for d in dets]) if dets else None  # noqa: E731
+    K = len(motion.t)
+    ids = np.array([m.object_id for m, _ in mover_states], dtype=np.int64)
+    T_mov = np.full((K, len(ids), 4, 4), np.nan)
+    for j, (_, s) in enumerate(mover_states):
+        T_mov[s.present, j] = s.T_world_object[s.present]
+    return {
+        "t": motion.t,
+        "T_vehicle_world": motion.T_vehicle_world,
+        "varpi": motion.varpi,
+        "varpi_dot": motion.varpi_dot,
+        "T_vehicle_sensor": np.array(config.T_vehicle_sensor),
+        "scan_offsets": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        "det_scan": np.repeat(np.arange(K), counts).astype(np.int64),
+        "det_label": cat("label").astype(np.int8),
+        "det_object_id": cat("object_id").astype(np.int64),
+        "det_landmark_id": cat("landmark_id").astype(np.int64),
+        "det_p_world": cat("p_world"),
+        "det_true_polar": cat("true_polar"),
+        "mover_ids": ids,
+        "mover_T_world_object": T_mov,
+    }
+
+
+def save_npz(path, arrays: dict) -> None:
+    """np.savez without timestamps: same arrays -> same bytes (zip entries dated 1980-01-01, sorted keys)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+        for key in sorted(arrays):
+            info = zipfile.ZipInfo(key + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            data = io.BytesIO()
+            np.lib.format.write_array(data, np.ascontiguousarray(arrays[key]), allow_pickle=False)
+            zf.writestr(info, data.getvalue(), compresslevel=1)
+    Path(path).write_bytes(buf.getvalue())
+
+
+def write_simulation(out_dir, seq: Sequence, truth: dict) -> Path:
+    """Write the sequence (radar.csv, sensor.toml, groundtruth.txt) and truth.npz into out_dir."""
+    out = Path(out_dir)
+    write_sequence(out, seq)
+    save_npz(out / TRUTH_NPZ, truth)
+    return out
+
+
+def load_truth(path) -> dict:
+    """Read truth.npz (a sequence directory or the file itself) into a dict of arrays."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / TRUTH_NPZ
+    if not path.is_file():
+        raise InputError(f"{path}: truth file not found")
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def path_length(T_world_vehicle: np.ndarray) -> float:
+    """Length of the polyline through the vehicle positions, metres."""
+    p = T_world_vehicle[:, :3, 3]
+    return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+
+
+__all__ = ["TRUTH_NPZ", "load_truth", "path_length", "save_npz", "scan_times", "simulate",
+           "truth_arrays", "write_simulation"]

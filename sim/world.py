@@ -1,0 +1,273 @@
+"""Structured scenes around a route: buildings with gaps, poles, trees, parked cars, guard rails, road-side
+clutter, ground that follows the road's height, and moving vehicles (lead, oncoming, overtaking).
+
+Everything static is placed relative to the route polyline (`sim.trajectory.Route`) and rejected if it would
+come closer than `clearance` to the driven path. The ground is `GROUND_BELOW` metres under the vehicle frame
+origin (the rear-axle centre), so on hills it follows the road's height.
+
+Checked by: tests/sim/test_world.py
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from estimator.lie import se3, so3
+
+from .objects import MovingBox, Patches, Points, box
+from .trajectory import Profile, Route
+
+GROUND_BELOW = 0.35  # m, ground under the vehicle frame origin
+CAR_SIZE = (4.5, 1.8, 1.5)
+TRUCK_SIZE = (8.0, 2.5, 3.6)
+
+
+@dataclass(frozen=True)
+class SceneParams:
+    """What to put along the route (ranges are (low, high) of uniform draws; spacings in metres)."""
+
+    building_offset: tuple = (9.0, 16.0)     # facade distance from the route, m (None-like: 0 buildings)
+    building_length: tuple = (12.0, 40.0)
+    building_gap: tuple = (3.0, 15.0)
+    building_height: tuple = (6.0, 20.0)
+    building_prob: float = 0.85              # a slot holds a building (else an open gap)
+    pole_spacing: float = 25.0
+    pole_offset: tuple = (4.5, 7.0)
+    tree_spacing: float = 30.0
+    tree_offset: tuple = (5.0, 9.0)
+    parked_car_spacing: float = 20.0         # 0: none
+    parked_car_offset: tuple = (3.6, 4.4)
+    guard_rail_offset: float = 0.0           # 0: no guard rails
+    clutter_per_100m: float = 20.0
+    ground_half_width: float = 20.0
+    ground_reflectivity: float = 0.15
+    clearance: float = 2.5
+
+
+CITY = SceneParams()
+HIGHWAY = SceneParams(building_offset=(25.0, 45.0), building_prob=0.25, building_height=(5.0, 10.0),
+                      pole_spacing=50.0, pole_offset=(9.0, 12.0), tree_spacing=40.0, tree_offset=(12.0, 25.0),
+                      parked_car_spacing=0.0, guard_rail_offset=7.5, clutter_per_100m=10.0,
+                      ground_half_width=25.0, clearance=5.0)
+RURAL = SceneParams(building_offset=(12.0, 30.0), building_prob=0.3, building_height=(4.0, 9.0),
+                    pole_spacing=40.0, tree_spacing=12.0, tree_offset=(5.0, 15.0), parked_car_spacing=0.0,
+                    clutter_per_100m=30.0)
+
+
+@dataclass(frozen=True)
+class World:
+    """A scene: static surface patches, persistent point scatterers, moving boxes, and blackout intervals
+    (t0, t1) in which the radar is totally blocked (e.g. spray on the radome): those scans are empty."""
+
+    patches: Patches
+    points: Points
+    movers: tuple = ()
+    blackouts: tuple = ()
+
+    def blacked_out(self, t: float) -> bool:
+        return any(t0 <= t <= t1 for t0, t1 in self.blackouts)
+
+    def with_movers(self, movers) -> "World":
+        return World(self.patches, self.points, tuple(self.movers) + tuple(movers), self.blackouts)
+
+    def with_blackouts(self, blackouts) -> "World":
+        return World(self.patches, self.points, self.movers, tuple(self.blackouts) + tuple(blackouts))
+
+
+class _Ids:
+    def __init__(self):
+        self.object = 0
+        self.landmark = 0
+
+    def next_object(self) -> int:
+        self.object += 1
+        return self.object - 1
+
+    def landmarks(self, n: int) -> np.ndarray:
+        self.landmark += n
+        return np.arange(self.landmark - n, self.landmark)
+
+
+def _frame(route: Route, s: np.ndarray):
+    """Route position (ground level), forward and left unit vectors at arc lengths s (clipped to the route)."""
+    i = np.clip(np.round(np.asarray(s) / max(route.s[1] - route.s[0], 1e-9)).astype(int) if route.s.size > 1
+                else np.zeros(np.shape(s), int), 0, len(route.s) - 1)
+    ground = route.p_world[i] - np.array([0.0, 0.0, GROUND_BELOW])
+    return ground, route.forward()[i], route.left()[i], i
+
+
+def _positions(rng, length: float, spacing: float) -> np.ndarray:
+    """Arc lengths roughly `spacing` apart (jittered), covering [0, length + 60] (a little past the end)."""
+    if spacing <= 0:
+        return np.zeros(0)
+    n = int((length + 60.0) / spacing) + 1
+    return np.cumsum(rng.uniform(0.5, 1.5, n) * spacing) - rng.uniform(0, spacing)
+
+
+def build_world(rng: np.random.Generator, route: Route, params: SceneParams = CITY) -> World:
+    """A static scene around `route`. Random draws only from `rng` (same rng state -> same world)."""
+    ids = _Ids()
+    tree = cKDTree(route.p_world[:, :2])
+    patches, points = [], []
+
+    def clear(pts) -> bool:
+        d, _ = tree.query(np.atleast_2d(pts)[:, :2])
+        return bool(np.all(d >= params.clearance))
+
+    # buildings: boxes whose road-facing side is the facade; corners are strong point scatterers
+    for side in (-1.0, 1.0):
+        s = rng.uniform(-20.0, 0.0)
+        while s < route.length + 40.0:
+            length = rng.uniform(*params.building_length)
+            if rng.uniform() < params.building_prob:
+                off, depth, height = rng.uniform(*params.building_offset), rng.uniform(8, 15), \
+                    rng.uniform(*params.building_height)
+                (g0, g1), (f0, f1), (l0, l1), _ = _frame(route, np.array([s, s + length]))
+                if np.dot(f0, f1) > np.cos(0.15):  # straight enough
+                    a = g0 + side * off * l0
+                    b = g1 + side * off * l1
+                    u = b - a
+                    u[2] = 0.0
+                    yaw = np.arctan2(u[1], u[0])
+                    centre = 0.5 * (a + b) + side * 0.5 * depth * l0
+                    centre[2] = min(a[2], b[2]) - 1.0
+                    size = (np.linalg.norm(u), depth, height + 1.0)
+                    T = se3.from_rotation_translation(so3.exp(np.array([0, 0, yaw])), centre)
+                    corners = se3.transform_points(T, np.array([[sx * size[0] / 2, sy * depth / 2, 1.5]
+                                                                for sx in (-1, 1) for sy in (-1, 1)]))
+                    if clear(corners) and size[0] > 1.0:
+                        patches.append(box(T, size, ids.next_object(), 1.0, opaque=True))
+                        points.append(Points(corners, rng.uniform(0.5, 0.9, 4), ids.landmarks(4)))
+            s += length + rng.uniform(*params.building_gap)
+
+    # poles (3 scatterers up the pole) and signs
+    for side in (-1.0, 1.0):
+        s = _positions(rng, route.length, params.pole_spacing)
+        g, _, left, _ = _frame(route, s)
+        base = g + side * rng.uniform(*params.pole_offset, (len(s), 1)) * left
+        ok = tree.query(base[:, :2])[0] >= params.clearance
+        base = base[ok]
+        heights = np.array([0.5, 2.5, 4.5])
+        p = (base[:, None, :] + heights[None, :, None] * np.array([0, 0, 1.0])).reshape(-1, 3)
+        points.append(Points(p, rng.uniform(0.6, 0.95, len(p)), ids.landmarks(len(p))))
+
+    # trees: a trunk scatterer and a few weak canopy scatterers
+    for side in (-1.0, 1.0):
+        s = _positions(rng, route.length, params.tree_spacing)
+        g, _, left, _ = _frame(route, s)
+        base = g + side * rng.uniform(*params.tree_offset, (len(s), 1)) * left
+        base = base[tree.query(base[:, :2])[0] >= params.clearance + 1.0]
+        canopy = base[:, None, :] + np.array([0, 0, 4.0]) + rng.normal(0, [1.2, 1.2, 0.8], (len(base), 5, 3))
+        trunk = base + np.array([0, 0, 1.0])
+        canopy = canopy.reshape(-1, 3)
+        canopy = canopy[tree.query(canopy[:, :2])[0] >= params.clearance]
+        p = np.concatenate([trunk, canopy])
+        pd = np.concatenate([np.full(len(trunk), 0.6), np.full(len(canopy), 0.3)])
+        points.append(Points(p, pd, ids.landmarks(len(p))))
+
+    # parked cars: opaque boxes + bumper-corner scatterers
+    if params.parked_car_spacing > 0:
+        for side in (-1.0, 1.0):
+            s = _positions(rng, route.length, params.parked_car_spacing)
+            s = s[rng.uniform(size=len(s)) < 0.6]
+            g, f, left, _ = _frame(route, s)
+            for k in range(len(s)):
+                c = g[k] + side * rng.uniform(*params.parked_car_offset) * left[k]
+                yaw = np.arctan2(f[k, 1], f[k, 0]) + rng.normal(0, 0.03)
+                T = se3.from_rotation_translation(so3.exp(np.array([0, 0, yaw])), c)
+                L, W, _ = CAR_SIZE
+                corners = se3.transform_points(T, np.array([[sx * L / 2, sy * W / 2, 0.5]
+                                                            for sx in (-1, 1) for sy in (-1, 1)]))
+                if clear(corners):
+                    patches.append(box(T, CAR_SIZE, ids.next_object(), 2.0, opaque=True, max_size=2.5))
+                    points.append(Points(corners, np.full(4, 0.7), ids.landmarks(4)))
+
+    # guard rails: two-sided metal strips 0.4-0.75 m above ground, posts every 4 m
+    if params.guard_rail_offset > 0:
+        step = 4
+        for side in (-1.0, 1.0):
+            g, _, left, _ = _frame(route, route.s[::step])
+            base = g + side * params.guard_rail_offset * left
+            oid = ids.next_object()
+            u = np.diff(base, axis=0)
+            n = len(u)
+            o = base[:-1] + np.array([0, 0, 0.4])
+            patches.append(Patches(o, u, np.tile([0, 0, 0.35], (n, 1)), np.full(n, oid), np.full(n, 2.0),
+                                   np.zeros(n, bool), np.ones(n, bool)))
+            posts = base + np.array([0, 0, 0.5])
+            points.append(Points(posts, np.full(len(posts), 0.5), ids.landmarks(len(posts))))
+
+    # road-side clutter: weak scatterers (bushes, debris, small signs) 3-40 m off the route
+    n = rng.poisson(params.clutter_per_100m * (route.length + 60.0) / 100.0)
+    if n:
+        g, _, left, _ = _frame(route, rng.uniform(-20.0, route.length + 40.0, n))
+        lateral = rng.choice([-1.0, 1.0], n) * rng.uniform(3.0, 40.0, n)
+        p = g + lateral[:, None] * left + np.array([0, 0, 1.0]) * rng.uniform(0.0, 3.0, (n, 1))
+        p = p[tree.query(p[:, :2])[0] >= params.clearance]
+        points.append(Points(p, rng.uniform(0.2, 0.6, len(p)), ids.landmarks(len(p))))
+
+    patches.append(_ground(route, params, ids.next_object()))
+    return World(Patches.concat(patches), Points.concat(points))
+
+
+def _ground(route: Route, params: SceneParams, object_id: int, step: float = 5.0, width: float = 5.0) -> Patches:
+    """Ground strips following the road's height: tiles `step` long (along the road) and `width` wide."""
+    k = max(int(round(step / max(route.s[1] - route.s[0], 1e-9))), 1) if route.s.size > 1 else 1
+    idx = np.arange(0, len(route.s), k)
+    ground = route.p_world[idx] - np.array([0, 0, GROUND_BELOW])
+    left = route.left()[idx]
+    # extend the first and last strips so the ground reaches behind the start and past the end
+    fwd = route.forward()[idx]
+    ground = np.concatenate([ground[:1] - 30 * fwd[:1], ground, ground[-1:] + 60 * fwd[-1:]])
+    left = np.concatenate([left[:1], left, left[-1:]])
+    along = np.diff(ground, axis=0)
+    m = int(np.ceil(2 * params.ground_half_width / width))
+    lat = -params.ground_half_width + width * np.arange(m)
+    o = (ground[:-1, None, :] + lat[None, :, None] * left[:-1, None, :]).reshape(-1, 3)
+    u = np.repeat(along, m, axis=0)
+    v = np.repeat(left[:-1] * width, m, axis=0)
+    n = len(o)
+    return Patches(o, u, v, np.full(n, object_id), np.full(n, params.ground_reflectivity), np.zeros(n, bool),
+                   np.zeros(n, bool))
+
+
+# ------------------------------------------------------------------------------------------- moving traffic
+
+def _offset(x: float, y: float, yaw: float = 0.0) -> np.ndarray:
+    """Carrier -> box transform: box bottom centre at (x, y) in the carrier frame, on the ground."""
+    return se3.from_rotation_translation(so3.exp(np.array([0, 0, yaw])), np.array([x, y, -GROUND_BELOW]))
+
+
+def lead_vehicle(ego: Profile, object_id: int, delta: float, t_on: float, t_off: float,
+                 size=CAR_SIZE) -> MovingBox:
+    """A vehicle on the ego's own path, `delta` seconds ahead (its rear axle where the ego will be at
+    t + delta). Only safe when the ego keeps moving (the gap is the distance driven in delta seconds)."""
+    t_off = min(t_off, ego.duration - delta)
+    return MovingBox(object_id, tuple(size), ego, t_on + delta, 1.0, t_on, t_off,
+                     _offset(size[0] / 2 - 1.0, 0.0))
+
+
+def oncoming_vehicle(ego: Profile, object_id: int, t_meet: float, window: float = 12.0, lane: float = 3.5,
+                     speed_ratio: float = 1.0, size=CAR_SIZE) -> MovingBox:
+    """Oncoming traffic in the lane `lane` metres to the left, meeting the ego at t_meet: it drives the ego's
+    path backwards, tau(t) = t_meet - speed_ratio (t - t_meet), turned by a half turn."""
+    t_on = t_meet - window
+    t_off = t_meet + window
+    # keep tau inside the carrier's time span
+    t_on = max(t_on, t_meet - (ego.duration - t_meet) / speed_ratio)
+    t_off = min(t_off, t_meet + t_meet / speed_ratio)
+    tau0 = t_meet - speed_ratio * (t_on - t_meet)
+    return MovingBox(object_id, tuple(size), ego, tau0, -speed_ratio, t_on, t_off,
+                     _offset(size[0] / 2 - 1.0, lane, np.pi))
+
+
+def overtaking_vehicle(ego: Profile, object_id: int, t_pass: float, window: float = 15.0, lane: float = 3.5,
+                       speed_ratio: float = 1.3, size=CAR_SIZE) -> MovingBox:
+    """A faster vehicle in the lane to the left, level with the ego at t_pass (same path, time map rate > 1)."""
+    t_on = max(t_pass - window, t_pass - t_pass / speed_ratio)
+    t_off = min(t_pass + window, t_pass + (ego.duration - t_pass) / speed_ratio)
+    tau0 = t_pass + speed_ratio * (t_on - t_pass)
+    return MovingBox(object_id, tuple(size), ego, tau0, speed_ratio, t_on, t_off, _offset(size[0] / 2 - 1.0, lane))

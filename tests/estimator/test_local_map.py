@@ -1,0 +1,142 @@
+"""Local map policy: capacity, stalest first, refresh, pruning, stable ids, thinning, determinism."""
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from estimator.errors import InputError
+from estimator.lie import se3, so3
+from estimator.local_map import LocalMap
+
+
+def _rng(seed):
+    return np.random.default_rng(np.random.SeedSequence(seed))
+
+
+def test_capacity_and_stalest_dropped_first():
+    m = LocalMap(capacity=10, max_age=100, max_new_fraction=1.0)
+    m.add(np.arange(18.0).reshape(6, 3), scan=0)          # ids 0..5 at scan 0
+    m.refresh(np.array([0, 1]), scan=3)                    # ids 0, 1 seen again
+    m.add(np.arange(18.0).reshape(6, 3) + 100, scan=5)    # ids 6..11 at scan 5: 12 > 10
+    assert len(m) == 10
+    # the stalest are ids 2..5 (last seen 0); of them the oldest ids 2, 3 go first
+    assert sorted(m.ids.tolist()) == [0, 1, 4, 5, 6, 7, 8, 9, 10, 11]
+    # ties on last_seen broken by hits: id 0 and 1 have 2 hits, new points 1
+    m.refresh(np.flatnonzero(np.isin(m.ids, [4, 5, 6, 7, 8, 9, 10, 11])), scan=5)
+    m.add(np.zeros((2, 3)) + 500, scan=5)
+    assert len(m) == 10
+    assert set(m.ids.tolist()) == {4, 5, 6, 7, 8, 9, 10, 11, 12, 13}
+
+
+@given(sizes=st.lists(st.integers(0, 400), min_size=1, max_size=12), seed=st.integers(0, 1000),
+       capacity=st.integers(1, 300))
+def test_capacity_never_exceeded_and_ids_stable(sizes, seed, capacity):
+    rng = _rng(seed)
+    m = LocalMap(capacity=capacity, max_age=3, voxel=0.0, rng=_rng(seed + 1))
+    id_to_point = {}
+    for scan, k in enumerate(sizes):
+        m.add(rng.uniform(-50, 50, (k, 3)), scan)
+        assert len(m) <= capacity
+        if len(m):
+            m.refresh(rng.choice(len(m), size=min(len(m), 5), replace=False), scan)
+        for i, p in zip(m.ids.tolist(), m.points):
+            assert np.array_equal(id_to_point.setdefault(i, p.copy()), p)   # an id keeps its point
+        assert len(np.unique(m.ids)) == len(m)
+        assert np.all(np.diff(m.ids) > 0)                                    # order kept, ids never reused
+
+
+def test_one_scan_cannot_flush_the_map():
+    m = LocalMap(capacity=100, max_age=10, rng=_rng(1))
+    m.add(_rng(2).uniform(0, 10, (40, 3)), scan=0)
+    m.add(_rng(12).uniform(0, 10, (40, 3)), scan=0)
+    assert len(m) == 80
+    m.refresh(np.arange(80), scan=1)
+    m.add(_rng(3).uniform(0, 10, (1000, 3)), scan=1)
+    # at most 50 new points per add; the 80 refreshed ones have more hits, so the new ones go first
+    assert len(m) == 100
+    assert np.sum(m.ids < 80) == 80
+
+
+def test_refresh_keeps_points():
+    m = LocalMap(capacity=50, max_age=2)
+    p = _rng(4).uniform(1, 20, (10, 3))
+    m.add(p, scan=0)
+    before = m.points.copy()
+    m.refresh(np.array([2, 7]), scan=4)
+    np.testing.assert_array_equal(m.points, before)            # positions never move
+    assert m.last_seen.tolist() == [0, 0, 4, 0, 0, 0, 0, 4, 0, 0]
+    assert m.hits.tolist() == [1, 1, 2, 1, 1, 1, 1, 2, 1, 1]
+    m.prune(4, np.eye(4), np.eye(4), 100.0)                     # age 4 > max_age 2 except the refreshed ones
+    assert m.ids.tolist() == [2, 7]
+    with pytest.raises(ValueError):
+        m.points[0, 0] = 1.0                                    # read-only views
+
+
+def test_prune():
+    T_wv = se3.from_rotation_translation(so3.exp(np.array([0, 0, np.pi / 2])), np.array([10.0, 0.0, 0.0]))
+    T = se3.inverse(T_wv)                                       # vehicle at (10, 0) facing +y (world)
+    T_vs = se3.from_rotation_translation(np.eye(3), np.array([2.0, 0.0, 0.0]))   # sensor 2 m ahead
+    # sensor at world (10, 2) looking along +y
+    pts = np.array([[10.0, 10.0, 0.0],    # 8 m ahead: kept
+                    [10.0, 1.0, 0.0],     # 1 m behind the sensor (but ahead of the vehicle origin): dropped
+                    [10.0, -5.0, 0.0],    # behind: dropped
+                    [10.0, 90.0, 0.0],    # 88 m ahead, beyond 80 m: dropped
+                    [30.0, 3.0, 0.0]])    # 1 m ahead, 20 m to the side: kept
+    m = LocalMap(capacity=10, max_age=5)
+    m.add(pts, scan=0)
+    m.prune(1, T, T_vs, max_range=80.0)
+    np.testing.assert_array_equal(m.points, pts[[0, 4]])
+    assert m.ids.tolist() == [0, 4]
+    m.prune(6, T, T_vs, max_range=80.0)                         # age 6 > 5: everything goes
+    assert len(m) == 0
+
+
+def test_voxel_thinning():
+    m = LocalMap(capacity=1000, voxel=1.0, rng=_rng(5))
+    p = np.array([[0.1, 0.1, 0.1], [0.9, 0.5, 0.2], [1.5, 0.5, 0.5], [5.2, 5.1, 5.0]])
+    m.add(p, scan=0)
+    assert len(m) == 3                                          # two points share the voxel [0, 1)^3
+    m.add(np.array([[0.5, 0.5, 0.5], [7.5, 0.0, 0.0]]), scan=1)   # first voxel already occupied
+    assert len(m) == 4
+    np.testing.assert_array_equal(m.points[-1], [7.5, 0.0, 0.0])
+
+
+def test_deterministic_given_the_generator():
+    pts = _rng(6).uniform(0, 30, (3000, 3))
+    a = LocalMap(capacity=500, voxel=0.5, rng=_rng(7))
+    b = LocalMap(capacity=500, voxel=0.5, rng=_rng(7))
+    a.add(pts, 0)
+    b.add(pts, 0)
+    assert a.points.tobytes() == b.points.tobytes()
+
+
+def test_bad_input_names_the_argument():
+    m = LocalMap(capacity=5)
+    with pytest.raises(InputError, match="p_world"):
+        m.add(np.zeros((2, 2)), 0)
+    m.add(np.ones((2, 3)), 0)
+    with pytest.raises(InputError, match="idx"):
+        m.refresh(np.array([0, 5]), 1)
+    with pytest.raises(InputError, match="idx"):
+        m.refresh(np.array([1, 1]), 1)
+    with pytest.raises(InputError, match="max_range"):
+        m.prune(1, np.eye(4), np.eye(4), -1.0)
+    with pytest.raises(InputError, match="capacity"):
+        LocalMap(capacity=0)
+    with pytest.raises(InputError, match="rng"):
+        LocalMap(rng=42)
+
+
+def test_covariances_follow_their_points_through_thinning_and_pruning():
+    rng = np.random.default_rng(3)
+    m = LocalMap(capacity=50, max_age=5, voxel=1.0, rng=np.random.default_rng(0))
+    p = rng.uniform(0, 20, size=(200, 3))
+    cov = np.einsum("k,ij->kij", np.arange(200.0), np.eye(3))  # cov k tagged by its point index k
+    m.add(p, 0, covariances=cov)
+    assert 0 < len(m) <= 25  # max_new_fraction 0.5 of the capacity per scan
+    # each kept point carries the covariance it came with
+    idx = [int(np.flatnonzero(np.all(p == q, axis=1))[0]) for q in m.points]
+    np.testing.assert_array_equal(m.covariances[:, 0, 0], np.array(idx, dtype=float))
+    m.add(rng.uniform(0, 20, size=(5, 3)), 1)  # no covariances given: zeros
+    assert m.covariances.shape == (len(m), 3, 3)

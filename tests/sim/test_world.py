@@ -1,0 +1,102 @@
+"""World generation: clearance from the route, ground following the road, movers' exact rigid motion,
+reproducibility, box geometry."""
+
+import numpy as np
+import pytest
+
+from estimator.errors import InputError
+from estimator.lie import se3
+from sim import objects as ob
+from sim import trajectory as tr
+from sim import world as w
+
+
+@pytest.fixture(scope="module")
+def city():
+    profile = tr.city(np.random.default_rng(0), 40.0)
+    route = tr.route_of(profile)
+    return profile, route, w.build_world(np.random.default_rng(1), route, w.CITY)
+
+
+def test_static_scene_keeps_clear_of_the_route(city):
+    _, route, world = city
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(route.p_world[:, :2])
+    assert len(world.points) > 100
+    assert tree.query(world.points.p[:, :2])[0].min() >= w.CITY.clearance - 1e-9
+    assert world.patches.opaque.sum() > 50
+
+
+def _min_box_distance(patches, route):
+    """Distance from route points to sampled points on the patches (a check not limited to corners)."""
+    pts, _ = patches.sample(np.full(len(patches), 20), np.random.default_rng(0))
+    from scipy.spatial import cKDTree
+
+    return cKDTree(pts[:, :2]).query(route.p_world[:, :2])[0].min()
+
+
+def test_every_opaque_surface_leaves_the_road_free(city):
+    _, route, world = city
+    opaque = world.patches.subset(world.patches.opaque)
+    assert _min_box_distance(opaque, route) > 1.5
+
+
+def test_ground_follows_the_road_height_on_hills():
+    profile = tr.hills(np.random.default_rng(0), 60.0)
+    route = tr.route_of(profile)
+    world = w.build_world(np.random.default_rng(0), route, w.RURAL)
+    ground = world.patches.subset(world.patches.object_id == world.patches.object_id.max())
+    assert np.ptp(route.p_world[:, 2]) > 5.0
+    # the ground tile centred under the road has its height at the route height minus GROUND_BELOW
+    c = ground.center
+    from scipy.spatial import cKDTree
+
+    d, i = cKDTree(c[:, :2]).query(route.p_world[::10, :2])
+    dz = c[i, 2] - (route.p_world[::10, 2] - w.GROUND_BELOW)
+    assert np.abs(dz).max() < 0.6  # tiles are 5 m long on grades up to 8 %
+    assert np.all(ground.normal[:, 2] > 0.99)
+
+
+def test_same_rng_same_world(city):
+    profile, route, world = city
+    again = w.build_world(np.random.default_rng(1), route, w.CITY)
+    for f in ("origin", "u", "v", "object_id", "reflectivity", "opaque"):
+        np.testing.assert_array_equal(getattr(world.patches, f), getattr(again.patches, f))
+    np.testing.assert_array_equal(world.points.p, again.points.p)
+    other = w.build_world(np.random.default_rng(2), route, w.CITY)
+    assert len(other.points) != len(world.points) or not np.array_equal(other.points.p, world.points.p)
+
+
+@pytest.mark.parametrize("kind", ["lead", "oncoming", "overtaking"])
+def test_movers_velocity_is_the_derivative_of_their_pose(city, kind):
+    profile = city[0]
+    mover = {"lead": lambda: w.lead_vehicle(profile, 5, 2.0, 0.0, 30.0),
+             "oncoming": lambda: w.oncoming_vehicle(profile, 5, 15.0, speed_ratio=0.9),
+             "overtaking": lambda: w.overtaking_vehicle(profile, 5, 15.0)}[kind]()
+    t = np.array([12.0, 12.0 + 1e-4, 12.0 - 1e-4, 15.0])
+    s = mover.states(t)
+    assert s.present.all()
+    q = np.array([2.0, 0.8, 1.2, 1.0])  # a point fixed on the body
+    p = np.einsum("mij,j->mi", s.T_world_object, q)[:, :3]
+    fd = (p[1] - p[2]) / 2e-4
+    np.testing.assert_allclose(s.v_world[0] + np.cross(s.w_world[0], p[0] - s.T_world_object[0, :3, 3]), fd,
+                               atol=1e-6)
+    if kind == "oncoming":  # level with the ego at t_meet, one lane to the left, facing the other way
+        T_wv = profile.sample(np.array([15.0])).T_world_vehicle[0]
+        rel = se3.inverse(T_wv) @ s.T_world_object[3]
+        np.testing.assert_allclose(rel[:3, 3], [1.25, 3.5, -w.GROUND_BELOW], atol=1e-9)
+        assert rel[0, 0] == pytest.approx(-1.0)
+
+
+def test_mover_outside_its_carrier_time_is_rejected(city):
+    profile = city[0]
+    with pytest.raises(InputError, match="carrier time"):
+        ob.MovingBox(1, w.CAR_SIZE, profile, 0.0, 1.0, 0.0, profile.duration + 10.0)
+
+
+def test_box_faces_point_outwards():
+    b = ob.box(se3.from_rotation_translation(np.eye(3), np.array([1.0, 2.0, 0.0])), (4.0, 2.0, 1.5), 0)
+    outward = b.center - np.array([1.0, 2.0, 0.75])
+    assert np.all(np.einsum("ij,ij->i", b.normal, outward) > 0)
+    assert b.area.sum() == pytest.approx(2 * (2.0 * 1.5) + 2 * (4.0 * 1.5) + 4.0 * 2.0)

@@ -1,0 +1,221 @@
+"""The campaign runner: both executor paths, persistence, resume after an interruption, failures, seeds, summary."""
+
+import csv
+import json
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from estimator.errors import InputError
+from validation.campaign import (FIELDS, Trial, TrialOutcome, make_executor, make_trials, npz_path, read_results,
+                                 run_campaign, summarize_campaign, trial_seeds, write_summary)
+from validation.consistency import chi2_bounds
+
+MODELS = ("ca-polar", "cv-cartesian")
+DIMS = {"ca-polar": 18, "cv-cartesian": 12}
+
+
+@dataclass(frozen=True)
+class FakeTrial:
+    """A cheap stand-in: metrics and chi-square NEES drawn from the trial's seed; some trials fail."""
+
+    fail: frozenset = frozenset()
+    model_fail: frozenset = frozenset()  # (trial, model) pairs whose model run reports an error
+    scans: int = 30
+
+    def __call__(self, trial: Trial):
+        if trial.index in self.fail:
+            raise ValueError(f"simulated failure in trial {trial.index}")
+        out = []
+        for m in trial.models:
+            if (trial.index, m) in self.model_fail:
+                out.append(TrialOutcome(m, error="non-finite estimate from scan 3"))
+                continue
+            rng = np.random.default_rng(np.random.SeedSequence([trial.seed, DIMS[m]]))
+            nees = rng.chisquare(DIMS[m], self.scans)
+            out.append(TrialOutcome(m, {"kitti_t_err_pct": rng.uniform(1, 3), "ate_rmse_m": rng.uniform(0, 1),
+                                        "nees_mean": nees.mean(), "nees_dim": DIMS[m], "ms_per_scan": 10.0},
+                                    {"t": np.arange(self.scans) / 13, "nees": nees, "nees_dim": DIMS[m]}))
+        return out
+
+
+class InterruptAfter:
+    """A progress object that raises KeyboardInterrupt after n updates (an interrupted campaign)."""
+
+    def __init__(self, n):
+        self.n = n
+        self.done = 0
+
+    def update(self, k=1):
+        self.done += k
+        if self.done >= self.n:
+            raise KeyboardInterrupt
+
+
+def _key_rows(rows):
+    return sorted((int(r["trial"]), r["model"], r["status"], r["seed"], r["kitti_t_err_pct"], r["error"])
+                  for r in rows)
+
+
+def test_trial_seeds_reproducible():
+    a = trial_seeds(7, 5)
+    assert a == trial_seeds(7, 5) and trial_seeds(7, 3) == a[:3]  # a trial's seed does not depend on N
+    assert len(set(a)) == 5 and all(isinstance(s, int) and 0 <= s < 2**63 for s in a)
+    assert a[2] == int(np.random.SeedSequence(7).spawn(5)[2].generate_state(1, np.uint64)[0] >> np.uint64(1))
+    assert trial_seeds(8, 5) != a
+    for bad in (-1, 1.5, True):
+        with pytest.raises(InputError, match="seed"):
+            trial_seeds(bad, 3)
+    with pytest.raises(InputError, match="runs"):
+        trial_seeds(1, 0)
+
+
+def test_process_pool_and_dask_give_the_same_persisted_results(tmp_path):
+    trials = make_trials(3, 6, MODELS)
+    fn = FakeTrial(fail=frozenset({4}))
+    with ProcessPoolExecutor(2) as ex:
+        rep = run_campaign(fn, trials, ex, tmp_path / "pool", meta={"runs": 6})
+    with make_executor(2, "local", processes=False) as ex:
+        rep_dask = run_campaign(fn, trials, ex, tmp_path / "dask", meta={"runs": 6})
+    assert rep.ran == rep_dask.ran == 12 and rep.skipped == 0
+    pool_rows = read_results(tmp_path / "pool" / "results.csv")
+    assert _key_rows(pool_rows) == _key_rows(read_results(tmp_path / "dask" / "results.csv"))
+    assert _key_rows(pool_rows) == _key_rows(rep.rows)
+    for tr in trials:
+        for m in MODELS:
+            p, q = npz_path(tmp_path / "pool", tr.index, m), npz_path(tmp_path / "dask", tr.index, m)
+            assert p.exists() == q.exists() == (tr.index != 4)
+            if tr.index != 4:
+                with np.load(p) as a, np.load(q) as b:
+                    np.testing.assert_array_equal(a["nees"], b["nees"])
+    # same seed -> same numbers: the rows' values follow from the trial seeds alone
+    again = FakeTrial()(trials[0])[0].metrics["kitti_t_err_pct"]
+    assert float(next(r for r in pool_rows if r["trial"] == "0" and r["model"] == MODELS[0])["kitti_t_err_pct"]) \
+        == again
+
+
+def test_failing_trial_is_recorded_and_does_not_stop_the_campaign(tmp_path):
+    trials = make_trials(0, 5, MODELS)
+    fn = FakeTrial(fail=frozenset({1}), model_fail=frozenset({(3, "cv-cartesian")}))
+    with ProcessPoolExecutor(2) as ex:
+        rep = run_campaign(fn, trials, ex, tmp_path)
+    rows = {(int(r["trial"]), r["model"]): r for r in read_results(tmp_path / "results.csv")}
+    assert len(rows) == 10
+    for m in MODELS:
+        assert rows[1, m]["status"] == "error"
+        assert rows[1, m]["error"] == "ValueError: simulated failure in trial 1"
+    assert rows[3, "cv-cartesian"]["status"] == "error" and "non-finite" in rows[3, "cv-cartesian"]["error"]
+    assert rows[3, "ca-polar"]["status"] == "ok" and rows[3, "ca-polar"]["error"] == ""
+    assert sum(r["status"] == "ok" for r in rep.rows) == 7
+    s = summarize_campaign(tmp_path)
+    assert s["models"]["cv-cartesian"]["errors"] == 2 and s["models"]["ca-polar"]["errors"] == 1
+
+
+@pytest.mark.parametrize("dask", [False, True])
+def test_resume_after_interruption_loses_nothing_and_duplicates_nothing(tmp_path, dask):
+    trials = make_trials(11, 8, MODELS)
+    fn = FakeTrial(fail=frozenset({5}))
+    ctx = (lambda: make_executor(2, "local", processes=False)) if dask else (lambda: ProcessPoolExecutor(2))
+    with pytest.raises(KeyboardInterrupt):
+        with ctx() as ex:
+            run_campaign(fn, trials, ex, tmp_path, progress=InterruptAfter(5), meta={"seed": 11})
+    first = read_results(tmp_path / "results.csv")
+    assert 5 <= len(first) < 16
+    with open(tmp_path / "results.csv", "a") as fh:
+        fh.write("7,123,ca-po")  # a torn row, as from a crash in the middle of a write
+    with pytest.raises(InputError, match="exists; pass --resume"):
+        with ProcessPoolExecutor(1) as ex:
+            run_campaign(fn, trials, ex, tmp_path, meta={"seed": 11})
+    with pytest.raises(InputError, match="different campaign .* seed"):
+        with ProcessPoolExecutor(1) as ex:
+            run_campaign(fn, trials, ex, tmp_path, resume=True, meta={"seed": 12})
+    with ctx() as ex:
+        rep = run_campaign(fn, trials, ex, tmp_path, resume=True, meta={"seed": 11})
+    assert rep.skipped == len(first) and rep.ran == 16 - len(first)
+    rows = read_results(tmp_path / "results.csv")
+    keys = [(int(r["trial"]), r["model"]) for r in rows]
+    assert len(keys) == len(set(keys)) == 16
+    assert [k for k in keys[:len(first)]] == [(int(r["trial"]), r["model"]) for r in first]
+    with ProcessPoolExecutor(2) as ex:
+        run_campaign(fn, trials, ex, tmp_path / "straight")
+    assert _key_rows(rows) == _key_rows(read_results(tmp_path / "straight" / "results.csv"))
+    with open(tmp_path / "results.csv", newline="") as fh:
+        assert next(csv.reader(fh)) == list(FIELDS)
+
+
+def test_resume_runs_only_the_missing_model(tmp_path):
+    trials = [Trial(0, 5, MODELS)]
+    with ProcessPoolExecutor(1) as ex:
+        run_campaign(FakeTrial(), [Trial(0, 5, MODELS[:1])], ex, tmp_path)
+        rep = run_campaign(FakeTrial(), trials, ex, tmp_path, resume=True)
+    assert rep.skipped == 1 and rep.ran == 1
+    assert [r["model"] for r in read_results(tmp_path / "results.csv")] == list(MODELS)
+
+
+def test_summary_statistics_and_nees_bounds(tmp_path):
+    trials = make_trials(2, 12, MODELS)
+    with ProcessPoolExecutor(2) as ex:
+        run_campaign(FakeTrial(scans=40), trials, ex, tmp_path, meta={"scenario": "fake"})
+    s = summarize_campaign(tmp_path)
+    rows = read_results(tmp_path / "results.csv")
+    for m in MODELS:
+        vals = np.array([float(r["kitti_t_err_pct"]) for r in rows if r["model"] == m])
+        got = s["models"][m]["metrics"]["kitti_t_err_pct"]
+        assert got["n"] == 12 and got["mean"] == pytest.approx(vals.mean()) and \
+            got["median"] == pytest.approx(np.median(vals))
+        assert got["p2_5"] == pytest.approx(np.percentile(vals, 2.5))
+        n = s["models"][m]["nees"]
+        assert n["dim"] == DIMS[m] and n["runs"] == 12
+        assert n["bounds_for_runs"] == pytest.approx(chi2_bounds(12, DIMS[m]).tolist())
+        lo, hi = n["bounds_for_runs"]
+        assert lo < n["mean_over_scans"] < hi and n["fraction_scans_within"] >= 0.85
+        assert len(s["models"][m]["nees_curve"]["mean"]) == 40
+    write_summary(tmp_path, s, "No NEES plot: test.")
+    md = (tmp_path / "summary.md").read_text()
+    assert "## ca-polar" in md and "kitti_t_err_pct" in md and "No NEES plot" in md and "scenario=fake" in md
+    assert json.loads((tmp_path / "summary.json").read_text())["trials"] == 12
+
+
+def test_make_executor_rejects_bad_arguments():
+    with pytest.raises(InputError, match="jobs"):
+        with make_executor(0):
+            pass
+    with pytest.raises(InputError, match="dask"):
+        with make_executor(1, "localhost:8786"):
+            pass
+
+
+def test_montecarlo_cli_rejects_bad_arguments(tmp_path, capsys):
+    from rodo.cli import main
+    from rodo.commands import montecarlo
+
+    assert main(["montecarlo", "city", "--runs", "1", "--models", "ca-polar,nope", "--out", str(tmp_path)],
+                commands=[montecarlo]) == 2
+    assert "--models: unknown model(s) nope" in capsys.readouterr().err
+    assert main(["montecarlo", "atlantis", "--runs", "1", "--out", str(tmp_path)], commands=[montecarlo]) == 2
+    assert "unknown scenario" in capsys.readouterr().err
+    assert main(["montecarlo", "city", "--runs", "0", "--out", str(tmp_path)], commands=[montecarlo]) == 2
+
+
+@pytest.mark.slow
+def test_tiny_real_campaign_through_the_cli(tmp_path, capsys):
+    from rodo.cli import main
+    from rodo.commands import montecarlo
+
+    out = tmp_path / "mc"
+    argv = ["montecarlo", "city", "--runs", "2", "--models", "ca-polar,cv-cartesian", "--jobs", "2",
+            "--duration", "1.0", "--seed", "4", "--out", str(out)]
+    assert main(argv, commands=[montecarlo]) == 0
+    rows = read_results(out / "results.csv")
+    assert len(rows) == 4 and {r["model"] for r in rows} == set(MODELS)
+    for r in rows:
+        assert r["status"] == "ok", r["error"]
+        assert float(r["ate_rmse_m"]) < 1.0 and int(r["scans"]) >= 12
+        assert npz_path(out, int(r["trial"]), r["model"]).exists()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["models"]["ca-polar"]["nees"]["dim"] == 18
+    assert "NEES" in (out / "summary.md").read_text()
+    assert main(argv + ["--resume"], commands=[montecarlo]) == 0  # nothing left to do
+    assert "ran 0 (trial, model) runs, skipped 4" in capsys.readouterr().out

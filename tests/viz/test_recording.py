@@ -1,0 +1,322 @@
+"""Rerun recordings read back with rerun.chunk.RrdReader, and the numbers they plot (viz.run_metrics)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy.stats import chi2
+
+from estimator.config import OdometryConfig
+from estimator.errors import InputError
+from estimator.lie import se3
+from sim.sequence import Sequence
+from tests.strategies import twists
+from validation.driver import run_sequence
+from viz import run_metrics as rm
+from viz.recording import DETECTION_CLASSES, ScanDetail, record_run
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+# ------------------------------------------------------------------------------------------- run_metrics
+@given(dof=st.integers(1, 12), n_runs=st.integers(1, 40))
+def test_nees_bounds_match_chi_square_quantiles(dof, n_runs):
+    lo, hi = rm.nees_bounds(dof, n_runs)
+    assert lo == pytest.approx(chi2.ppf(0.025, dof * n_runs) / n_runs, rel=1e-12)
+    assert hi == pytest.approx(chi2.ppf(0.975, dof * n_runs) / n_runs, rel=1e-12)
+    # coverage: the mean of n_runs chi2(dof) draws falls inside 95 % of the time
+    rng = np.random.default_rng(np.random.SeedSequence([dof, n_runs]))
+    mean = rng.chisquare(dof, size=(4000, n_runs)).mean(axis=1)
+    assert abs(np.mean((mean >= lo) & (mean <= hi)) - 0.95) < 0.02
+
+
+def test_nees_bounds_reject_bad_arguments():
+    for kwargs, name in ((dict(dof=0), "dof"), (dict(dof=6, n_runs=0), "n_runs"), (dict(dof=6, prob=1.0), "prob")):
+        with pytest.raises(InputError, match=name):
+            rm.nees_bounds(**kwargs)
+
+
+def _random_spd(rng, d, scales):
+    A = rng.standard_normal((d, d))
+    Q, _ = np.linalg.qr(A)
+    return (Q * scales**2) @ Q.T
+
+
+def test_nees_is_chi_square_for_sampled_errors():
+    rng = np.random.default_rng(np.random.SeedSequence(11))
+    P = _random_spd(rng, 6, np.array([0.1, 0.5, 2.0, 0.01, 0.02, 0.05]))
+    err = rng.multivariate_normal(np.zeros(6), P, size=20000)
+    v = rm.nees(err, np.broadcast_to(P, (len(err), 6, 6)))
+    assert v.mean() == pytest.approx(6.0, abs=0.1)   # chi2(6): mean 6, sd of the mean 0.024
+    assert v.var() == pytest.approx(12.0, rel=0.06)
+    err[3] = np.nan
+    assert np.isnan(rm.nees(err[:5], np.broadcast_to(P, (5, 6, 6)))[3])
+
+
+@given(xi=twists("vehicle", translation_scale=50.0), seed=st.integers(0, 2**32 - 1))
+def test_position_covariance_world_monte_carlo(xi, seed):
+    """Sigma_w = C^T P_rho C against samples of T' = exp(gamma^) T, gamma ~ N(0, P) (first order)."""
+    T = se3.exp(np.asarray(xi))
+    rng = np.random.default_rng(np.random.SeedSequence(seed))
+    A = rng.standard_normal((6, 6)) * np.array([0.3, 0.5, 0.2, 3e-3, 3e-3, 5e-3])[:, None]
+    P = A @ A.T / 6 + np.diag([1e-4] * 3 + [1e-8] * 3)  # rotation sd of mrad: first order holds
+    gamma = rng.multivariate_normal(np.zeros(6), P, size=4000)
+    r_w = se3.inverse(se3.exp(gamma) @ T)[:, :3, 3]
+    S_mc = np.cov(r_w.T)
+    S = rm.position_covariance_world(T, P[:3, :3])
+    # same shape: whiten the sample covariance by S (4000 samples: entries within ~0.1 of I)
+    L = np.linalg.cholesky(S)
+    W = np.linalg.solve(L, np.linalg.solve(L, S_mc).T)
+    assert np.abs(W - np.eye(3)).max() < 0.15
+
+
+@given(seed=st.integers(0, 2**32 - 1), n_sigma=st.floats(0.5, 5.0))
+def test_covariance_ellipsoid_reconstructs_sigma(seed, n_sigma):
+    rng = np.random.default_rng(np.random.SeedSequence(seed))
+    S = np.stack([_random_spd(rng, 3, rng.uniform(0.01, 3.0, 3)) for _ in range(5)])
+    half, q = rm.covariance_ellipsoid(S, n_sigma)
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_quat(q).as_matrix()
+    assert np.allclose(np.linalg.det(R), 1.0)
+    assert np.all(q[:, 3] >= 0)
+    rebuilt = R @ (((half / n_sigma) ** 2)[:, :, None] * np.swapaxes(R, 1, 2))
+    assert np.allclose(rebuilt, S, atol=1e-10 * np.abs(S).max())
+
+
+def test_match_times_nearest_within_tolerance():
+    idx = rm.match_times([0.0, 0.1, 0.25, 0.3 + 1e-9], [0.3, 0.0, 0.1, 0.2])
+    assert idx.tolist() == [1, 2, -1, 0]
+
+
+# ------------------------------------------------------------------------------------------- recordings
+@pytest.fixture(scope="module")
+def run():
+    import scenarios
+
+    seq, truth = scenarios.get("hills").simulate(3, duration=1.2)
+    result = run_sequence(seq, OdometryConfig.for_model("ca-polar"))
+    return seq, truth, result
+
+
+def _chunks(path):
+    from rerun.chunk import RrdReader
+
+    return RrdReader(path).stream().to_chunks()
+
+
+def _column(chunks, entity, column, static=False):
+    """Rows of `column` of an entity (temporal rows sorted by frame), as a list."""
+    rows = []
+    for ch in chunks:
+        if ch.entity_path != entity or ch.is_static != static:
+            continue
+        rb = ch.to_record_batch()
+        if column not in rb.schema.names:
+            continue
+        vals = rb.column(column).to_pylist()
+        keys = rb.column("frame").to_pylist() if not static else range(len(vals))
+        rows.extend(zip(keys, vals))
+    return [v for _, v in sorted(rows, key=lambda kv: kv[0])]
+
+
+def _synthetic_detail(seq, truth, result, rng):
+    """ScanDetail per frame: static = truth label 0/1, every other static detection associated with a random
+    map point."""
+    out = []
+    by_t = {s.t: s for s in seq.scans}
+    for k, e in enumerate(result.estimates):
+        scan = by_t[e.t]
+        lab = truth["det_label"][truth["scan_offsets"][k]:truth["scan_offsets"][k + 1]]
+        static = lab <= 1
+        det = np.flatnonzero(static)[::2]
+        mp = rng.normal(size=(max(len(det), 1) + 5, 3)) * 20
+        out.append(ScanDetail(scan.polar, static, det, rng.permutation(len(mp))[:len(det)], mp))
+    return out
+
+
+@pytest.fixture
+def strict_rerun():
+    """rerun's strict mode (raise on malformed data) for one test, restored afterwards."""
+    import rerun as rr
+
+    before = rr.strict_mode()
+    rr.set_strict_mode(True)
+    yield
+    rr.set_strict_mode(before)
+
+
+def test_recording_contents_match_the_run(run, tmp_path, strict_rerun):
+    import rerun as rr
+
+    seq, truth, result = run
+    detail = _synthetic_detail(seq, truth, result, np.random.default_rng(np.random.SeedSequence(5)))
+    path = record_run(tmp_path / "a" / "run.rrd", seq, result, truth=truth, detail=detail)
+    assert rr.get_global_data_recording() is None  # an explicit stream, never the global one
+    chunks = _chunks(path)
+    paths = {ch.entity_path for ch in chunks}
+    for entity in ("/world", "/world/vehicle", "/world/vehicle/sensor", "/world/vehicle/sensor/scan", "/world/map",
+                   "/world/associations", "/world/estimate/trajectory", "/world/truth/trajectory",
+                   "/world/estimate/covariance", "/world/truth/vehicle", "/metrics/error/translation",
+                   "/metrics/drift", "/metrics/nees/pose", "/metrics/nees/velocity", "/metrics/nis",
+                   "/metrics/counts", "/metrics/timing", "/velocity/nu_x", "/acceleration/omega_dot_z", "/events"):
+        assert entity in paths, entity
+    n = len(result.estimates)
+    T_wv = np.stack([e.T_world_vehicle for e in result.estimates])
+
+    # world frame convention and the trajectories
+    xyz = _column(chunks, "/world", "ViewCoordinates:xyz", static=True)
+    z_up = [d.value for d in rr.components.ViewCoordinates.RIGHT_HAND_Z_UP.coordinates]
+    assert np.ravel(xyz).tolist() == z_up and z_up[2] == rr.components.ViewCoordinates.FLU.coordinates[2].value
+    strip = np.array(_column(chunks, "/world/estimate/trajectory", "LineStrips3D:strips", static=True)[0][0])
+    assert np.allclose(strip, result.trajectory().T_world_vehicle[:, :3, 3], atol=1e-4)
+    gt = np.array(_column(chunks, "/world/truth/trajectory", "LineStrips3D:strips", static=True)[0][0])
+    assert np.allclose(gt[0], strip[0], atol=1e-5)  # aligned at the first pose
+    T_gt = se3.inverse(truth["T_vehicle_world"])
+    expected = (T_wv[0] @ se3.inverse(T_gt[0])) @ T_gt
+    assert np.allclose(gt, expected[:, :3, 3], atol=1e-4)
+    trans = np.array(_column(chunks, "/world/vehicle", "Transform3D:translation")).reshape(n, 3)
+    assert np.allclose(trans, T_wv[:, :3, 3], atol=1e-4)
+
+    # the extrinsic: static, logged exactly once
+    ext = [ch for ch in chunks if ch.entity_path == "/world/vehicle/sensor"
+           and "Transform3D:translation" in ch.to_record_batch().schema.names]
+    assert len(ext) == 1 and ext[0].is_static and ext[0].num_rows == 1
+    assert np.allclose(_column(chunks, "/world/vehicle/sensor", "Transform3D:translation", static=True)[0][0],
+                       seq.sensor.T_vehicle_sensor[:3, 3], atol=1e-6)
+
+    # NEES: bounds are the chi-square quantiles; values recomputed independently from the truth dict
+    nees = np.array(_column(chunks, "/metrics/nees/pose", "Scalars:scalars"))
+    assert nees.shape == (n, 3)
+    assert np.allclose(nees[:, 1], chi2.ppf(0.025, 6)) and np.allclose(nees[:, 2], chi2.ppf(0.975, 6))
+    T_e_g = result.estimates[0].T_world_vehicle @ truth["T_vehicle_world"][0]
+    for k in (0, n // 2, n - 1):
+        e = result.estimates[k]
+        xi = se3.log(truth["T_vehicle_world"][k] @ se3.inverse(T_e_g) @ se3.inverse(e.T_vehicle_world))
+        assert nees[k, 0] == pytest.approx(xi @ np.linalg.solve(e.P[:6, :6], xi), rel=1e-6, abs=1e-9)
+    assert nees[0, 0] == pytest.approx(0.0, abs=1e-9)
+    nis = np.array(_column(chunks, "/metrics/nis", "Scalars:scalars"))
+    assoc = [e.n_associated for e in result.estimates if np.isfinite(e.nis)]
+    assert nis[-1, 2] == pytest.approx(chi2.ppf(0.975, 4 * assoc[-1]) / assoc[-1])
+
+    # 3-sigma ellipsoid of the world position: C^T P_rho C
+    half = np.array(_column(chunks, "/world/estimate/covariance", "Ellipsoids3D:half_sizes")).reshape(n, 3)
+    e = result.estimates[-1]
+    C = e.T_vehicle_world[:3, :3]
+    assert np.allclose(np.sort(half[-1]), 3 * np.sqrt(np.linalg.eigvalsh(C.T @ e.P[:3, :3] @ C)), rtol=1e-5)
+
+    # both timelines; time = scan time
+    ts = [ch for ch in chunks if ch.entity_path == "/metrics/counts" and not ch.is_static][0].to_record_batch()
+    assert {"frame", "time"} <= set(ts.schema.names)
+    t_logged = np.array([x.total_seconds() if hasattr(x, "total_seconds") else x / 1e9
+                         for x in ts.column("time").to_pylist()])
+    assert np.allclose(t_logged, result.t, atol=1e-6)
+
+    # scan classes and association lines
+    cls = _column(chunks, "/world/vehicle/sensor/scan", "Points3D:class_ids")
+    k = n - 1
+    lab = truth["det_label"][truth["scan_offsets"][k]:truth["scan_offsets"][k + 1]]
+    assert np.array_equal(cls[k], detail[k].classes(lab))
+    assert set(np.unique(np.concatenate(cls))) <= set(DETECTION_CLASSES)
+    lines = np.array(_column(chunks, "/world/associations", "LineStrips3D:strips")[k])
+    d = detail[k]
+    T_ws = result.estimates[k].T_world_vehicle @ seq.sensor.T_vehicle_sensor
+    from estimator.measurements import polar_to_cartesian
+
+    assert np.allclose(lines[:, 0], se3.transform_points(T_ws, polar_to_cartesian(d.polar[d.det_idx])), atol=1e-3)
+    assert np.allclose(lines[:, 1], d.map_points[d.map_idx], atol=1e-4)
+
+    from rerun.chunk import RrdReader
+
+    assert any(s.kind == "blueprint" for s in RrdReader(path).blueprints())
+
+
+def test_recording_without_detail_or_truth(run, tmp_path):
+    seq, truth, result = run
+    plain = Sequence(seq.sensor, seq.scans, None)
+    chunks = _chunks(record_run(tmp_path / "plain.rrd", plain, result))
+    paths = {ch.entity_path for ch in chunks}
+    assert "/world/truth/trajectory" not in paths and "/metrics/nees/pose" not in paths
+    assert "/velocity/nu_x" in paths and "/world/vehicle/sensor/scan" in paths
+    cls = _column(chunks, "/world/vehicle/sensor/scan", "Points3D:class_ids")
+    assert set(np.unique(np.concatenate(cls))) == {4}   # no association detail, no labels
+    # truth labels without detail: clutter and movers are marked
+    chunks = _chunks(record_run(tmp_path / "labels.rrd", seq, result, truth=truth))
+    cls = np.concatenate(_column(chunks, "/world/vehicle/sensor/scan", "Points3D:class_ids"))
+    lab = truth["det_label"][:truth["scan_offsets"][len(result.estimates)]]
+    assert np.array_equal(cls == 3, lab == 3) and np.array_equal(cls == 6, lab == 2)
+
+
+def test_two_recordings_are_independent_files(run, tmp_path):
+    from rerun.chunk import RrdReader
+
+    seq, _, result = run
+    a = record_run(tmp_path / "a.rrd", seq, result, recording_id="run-a")
+    b = record_run(tmp_path / "b.rrd", seq, result, recording_id="run-b")
+    assert [r.recording_id for r in RrdReader(a).recordings()] == ["run-a"]
+    assert [r.recording_id for r in RrdReader(b).recordings()] == ["run-b"]
+
+
+def test_record_run_rejects_bad_input(run, tmp_path):
+    seq, truth, result = run
+    with pytest.raises(InputError, match="detail"):
+        record_run(tmp_path / "x.rrd", seq, result, detail=[None])
+    with pytest.raises(InputError, match="truth"):
+        record_run(tmp_path / "x.rrd", seq, result, truth={"t": truth["t"]})
+    with pytest.raises(InputError, match="ScanDetail.static"):
+        ScanDetail(np.ones((3, 4)), [True, False], [], [], np.zeros((0, 3)))
+    with pytest.raises(InputError, match="ScanDetail.map_idx"):
+        ScanDetail(np.ones((3, 4)), [True] * 3, [0], [2], np.zeros((1, 3)))
+    with pytest.raises(InputError, match="ScanDetail.polar"):
+        ScanDetail(np.full((3, 4), np.nan), [True] * 3, [], [], np.zeros((0, 3)))
+
+
+def test_scan_detail_classes():
+    d = ScanDetail(np.ones((5, 4)), [True, True, False, True, False], [3], [0], np.zeros((1, 3)))
+    assert d.classes().tolist() == [1, 1, 2, 0, 2]
+    assert d.classes(np.array([0, 3, 2, 0, 3])).tolist() == [1, 3, 2, 0, 3]
+
+
+def test_importing_viz_and_commands_loads_neither_rerun_nor_matplotlib():
+    code = ("import sys, viz, viz.recording, viz.figures, viz.paper_data, rodo.commands.view, "
+            "rodo.commands.figures, rodo.commands.run; "
+            "bad = [m for m in ('rerun', 'matplotlib') if m in sys.modules]; assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
+
+
+# ------------------------------------------------------------------------------------------- rodo view
+def test_view_without_display_says_how(run, tmp_path, monkeypatch, capsys):
+    from rodo import cli
+    from rodo.commands import view
+
+    seq, _, result = run
+    path = record_run(tmp_path / "v.rrd", seq, result)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(view.sys, "platform", "linux")
+    monkeypatch.setattr(view.subprocess, "call", lambda *a, **k: pytest.fail("must not start a viewer"))
+    assert cli.main(["view", str(path)], commands=[view]) == 0
+    out = capsys.readouterr().out
+    assert f"rerun {path.resolve()}" in out
+    assert cli.main(["view", str(tmp_path / "missing.rrd")], commands=[view]) == 2
+    assert "missing.rrd" in capsys.readouterr().err
+
+
+def test_view_with_display_starts_the_viewer(run, tmp_path, monkeypatch):
+    from rodo import cli
+    from rodo.commands import view
+
+    seq, _, result = run
+    path = record_run(tmp_path / "v.rrd", seq, result)
+    calls = []
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setattr(view, "find_viewer", lambda: "/opt/bin/rerun")
+    monkeypatch.setattr(view.subprocess, "call", lambda argv: calls.append(argv) or 0)
+    assert cli.main(["view", str(path)], commands=[view]) == 0
+    assert calls == [["/opt/bin/rerun", str(path)]]

@@ -1,0 +1,454 @@
+"""Monte Carlo campaigns: many seeded trials of a scenario, each run with several models, evaluated against truth.
+
+One runner, `run_campaign(trial_fn, trials, executor, out_dir, resume)`, serves every executor that follows the
+`concurrent.futures.Executor` interface: a local `ProcessPoolExecutor` or a Dask `Client.get_executor()`
+(`make_executor`). Workers only compute; the calling process writes every file, so a remote Dask worker needs no
+shared disk. Layout of out_dir (docs/evaluation.md):
+
+- `campaign.json`: the campaign's parameters (checked on resume: resuming a different campaign is an error);
+- `results.csv`: one row per (trial, model), appended, flushed and fsync'ed as soon as the trial finishes;
+- `trials/trial_XXXX_MODEL.npz`: per-scan arrays of the run (t, nees, nis, n_associated, ms_per_scan, ...),
+  written atomically *before* its row, so a row always has its arrays;
+- `summary.json`, `summary.md` (`summarize_campaign`, `write_summary`).
+
+Seeds: `trial_seeds(seed, n)` spawns n children of `SeedSequence(seed)`; trial i's integer seed is the first
+64-bit word of child i's state, shifted right by one (so it is a non-negative int63):
+`SeedSequence(seed).spawn(n)[i].generate_state(1, np.uint64)[0] >> 1`. The scenario then derives its own
+streams from that integer. Same (seed, n) -> same seeds -> same bytes; a trial's seed does not depend on n.
+
+Checked by: tests/validation/test_campaign.py
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import os
+import time
+import traceback
+from concurrent.futures import FIRST_COMPLETED, wait
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from estimator.errors import InputError
+
+from .metrics import jsonable
+
+FIELDS = ("trial", "seed", "model", "status", "kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m",
+          "rpe_trans_pct", "drift_x_m", "drift_y_m", "drift_z_m", "drift_roll_deg", "drift_pitch_deg",
+          "drift_yaw_deg", "max_abs_z_m", "max_abs_roll_deg", "max_abs_pitch_deg", "nees_mean", "nees_dim",
+          "nis_mean", "nu_rmse_mps", "ms_per_scan", "scans", "path_length_m", "wall_s", "error")
+METRICS = FIELDS[4:-1]
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One trial: its index in the campaign, its integer seed, and the models still to run."""
+
+    index: int
+    seed: int
+    models: tuple[str, ...]
+
+
+@dataclass
+class TrialOutcome:
+    """The result of one model in one trial: a metrics row, per-scan arrays, or an error message."""
+
+    model: str
+    metrics: dict = field(default_factory=dict)
+    arrays: dict = field(default_factory=dict)
+    error: str | None = None
+
+    @property
+    def status(self) -> str:
+        return "ok" if self.error is None else "error"
+
+
+def trial_seeds(seed: int, n: int) -> list[int]:
+    """Integer seeds of n trials from one `SeedSequence(seed).spawn(n)` (module docstring).
+
+    Checked by: tests/validation/test_campaign.py::test_trial_seeds_reproducible
+    """
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"seed: expected an integer >= 0, got {seed!r}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise InputError(f"runs: expected an integer >= 1, got {n!r}")
+    return [int(c.generate_state(1, np.uint64)[0] >> np.uint64(1)) for c in np.random.SeedSequence(int(seed)).spawn(int(n))]
+
+
+def make_trials(seed: int, runs: int, models: Iterable[str]) -> list[Trial]:
+    models = tuple(models)
+    if not models:
+        raise InputError("models: at least one model is needed")
+    return [Trial(i, s, models) for i, s in enumerate(trial_seeds(seed, runs))]
+
+
+@contextlib.contextmanager
+def make_executor(jobs: int, dask: str | None = None, processes: bool = True):
+    """A concurrent.futures Executor: ProcessPoolExecutor(jobs), or Dask (`dask="local"`: a LocalCluster of
+    `jobs` workers with one thread each, processes unless processes=False; `dask="tcp://host:port"`: connect)."""
+    if int(jobs) < 1:
+        raise InputError(f"jobs: must be >= 1, got {jobs!r}")
+    if dask is None:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(int(jobs)) as ex:
+            yield ex
+        return
+    from distributed import Client, LocalCluster
+
+    if dask == "local":
+        with LocalCluster(n_workers=int(jobs), threads_per_worker=1, processes=processes, dashboard_address=None,
+                          silence_logs=40) as cluster, Client(cluster) as client:
+            yield client.get_executor()
+    else:
+        if "://" not in dask:
+            raise InputError(f"dask: expected 'local' or a scheduler address like tcp://host:8786, got {dask!r}")
+        try:
+            client = Client(dask, timeout=10)
+        except OSError as exc:
+            raise InputError(f"dask: cannot connect to scheduler {dask!r}: {exc}") from None
+        with client:
+            yield client.get_executor()
+
+
+def _fsync_append(path: Path, rows: list[dict]) -> None:
+    new = not path.exists() or path.stat().st_size == 0
+    with open(path, "a", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=FIELDS, extrasaction="ignore")
+        if new:
+            w.writeheader()
+        for row in rows:
+            w.writerow({k: _cell(row.get(k, "")) for k in FIELDS})
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
+def _cell(v):
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v))
+    if isinstance(v, str):
+        return " | ".join(v.splitlines())
+    return v
+
+
+def read_results(path: str | Path) -> list[dict]:
+    """Rows of results.csv as dicts of strings; a torn last row (crash while writing) is dropped."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    text = path.read_text()
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows:
+        return []
+    if tuple(rows[0]) != FIELDS:
+        raise InputError(f"{path}: line 1: unexpected header (expected {','.join(FIELDS)})")
+    out = []
+    for line, row in enumerate(rows[1:], start=2):
+        if len(row) != len(FIELDS) or row[3] not in ("ok", "error"):
+            if line == len(rows) and not text.endswith("\n"):
+                break  # torn final row
+            raise InputError(f"{path}: line {line}: malformed row ({len(row)} fields)")
+        out.append(dict(zip(FIELDS, row)))
+    return out
+
+
+def _rewrite(path: Path, rows: list[dict]) -> None:
+    tmp = path.with_name("." + path.name + ".tmp")
+    with open(tmp, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=FIELDS)
+        w.writeheader()
+        w.writerows(rows)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def npz_path(out_dir: str | Path, trial: int, model: str) -> Path:
+    return Path(out_dir) / "trials" / f"trial_{trial:04d}_{model}.npz"
+
+
+def _save_arrays(path: Path, arrays: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name("." + path.name + ".tmp")
+    with open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **{k: np.asarray(v) for k, v in arrays.items()})
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def _error_text(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}".strip()
+
+
+@dataclass
+class CampaignReport:
+    rows: list[dict]  # all rows of results.csv after the run
+    ran: int  # (trial, model) rows written by this call
+    skipped: int  # rows already present (resume)
+    wall_s: float
+
+
+def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[Trial], executor, out_dir,
+                 resume: bool = False, progress=None, meta: dict | None = None) -> CampaignReport:
+    """Run every (trial, model) not yet in out_dir/results.csv on `executor`, persisting each trial at once.
+
+    Args:
+        trial_fn: picklable callable Trial -> list[TrialOutcome] (one per model of trial.models). An exception
+            raised by it is recorded as status=error for each of the trial's models; it never stops the campaign.
+        trials: the campaign's trials (make_trials).
+        executor: any concurrent.futures.Executor (ProcessPoolExecutor, Dask's Client.get_executor()).
+        out_dir: campaign directory (created).
+        resume: continue a campaign in out_dir, skipping (trial, model) rows already written (ok or error).
+            Without it, an existing results.csv is an error (nothing is overwritten).
+        progress: optional object with update(n) (rodo.progress.Progress), called once per (trial, model).
+        meta: the campaign's parameters, saved as campaign.json; on resume they must equal the saved ones.
+
+    Returns:
+        CampaignReport. An interruption (KeyboardInterrupt, or an exception from `progress`) cancels the
+        pending trials and propagates; every row written before it stays, and resume picks up the rest.
+
+    Checked by: tests/validation/test_campaign.py
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "results.csv"
+    meta_path = out / "campaign.json"
+    meta = jsonable(meta or {})
+    if csv_path.exists() and not resume:
+        raise InputError(f"out: {csv_path} exists; pass --resume to continue that campaign or choose another "
+                         "directory")
+    if resume and meta_path.exists() and meta:
+        saved = json.loads(meta_path.read_text())
+        diff = sorted(k for k in set(saved) | set(meta) if saved.get(k) != meta.get(k))
+        if diff:
+            raise InputError(f"resume: {meta_path} was written for a different campaign (differs in "
+                             f"{', '.join(diff)}: saved {[saved.get(k) for k in diff]}, now "
+                             f"{[meta.get(k) for k in diff]})")
+    if meta:
+        meta_path.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    rows = read_results(csv_path) if resume else []
+    if resume and csv_path.exists():
+        _rewrite(csv_path, rows)  # drops a torn final row
+    done = {(int(r["trial"]), r["model"]) for r in rows}
+    todo = []
+    for tr in trials:
+        missing = tuple(m for m in tr.models if (tr.index, m) not in done)
+        if missing:
+            todo.append(Trial(tr.index, tr.seed, missing))
+    skipped = sum(len(tr.models) for tr in trials) - sum(len(tr.models) for tr in todo)
+    t0 = time.perf_counter()
+    ran = 0
+    pending = {executor.submit(trial_fn, tr): tr for tr in todo}
+    try:
+        while pending:
+            finished, _ = wait(list(pending), return_when=FIRST_COMPLETED)
+            for fut in finished:
+                tr = pending.pop(fut)
+                new_rows = _collect(out, tr, fut)
+                _fsync_append(csv_path, new_rows)
+                rows.extend({k: str(_cell(r.get(k, ""))) for k in FIELDS} for r in new_rows)
+                ran += len(new_rows)
+                if progress is not None:
+                    progress.update(len(new_rows))
+    except BaseException:
+        for fut in pending:
+            fut.cancel()
+        raise
+    return CampaignReport(rows, ran, skipped, time.perf_counter() - t0)
+
+
+def _collect(out: Path, tr: Trial, fut) -> list[dict]:
+    """Rows (and saved arrays) for a finished future; any failure becomes status=error rows."""
+    base = {"trial": tr.index, "seed": tr.seed}
+    try:
+        outcomes = fut.result()
+        by_model = {o.model: o for o in outcomes}
+        missing = [m for m in tr.models if m not in by_model]
+        if missing:
+            raise RuntimeError(f"trial function returned no outcome for model(s) {', '.join(missing)}")
+    except Exception as exc:  # noqa: BLE001 - a failed trial is data, not a reason to stop
+        text = _error_text(exc)
+        return [{**base, "model": m, "status": "error", "error": text} for m in tr.models]
+    rows = []
+    for m in tr.models:
+        o = by_model[m]
+        if o.error is None and o.arrays:
+            _save_arrays(npz_path(out, tr.index, m), o.arrays)
+        rows.append({**base, "model": m, "status": o.status, **{k: o.metrics.get(k, "") for k in METRICS},
+                     "error": o.error or ""})
+    return rows
+
+
+@dataclass(frozen=True)
+class ScenarioTrial:
+    """The real trial: simulate `scenario` with the trial's seed, run each model, evaluate against the truth.
+
+    Picklable (a frozen dataclass of plain values), so it runs in a process pool or on a Dask worker. A model
+    whose run raises, or whose estimate stops being finite, yields status=error with the message; the other
+    models of the trial still run.
+    """
+
+    scenario: str
+    duration: float | None = None
+    lengths: tuple[float, ...] | None = None
+    step: int = 10
+
+    def __call__(self, trial: Trial) -> list[TrialOutcome]:
+        import scenarios
+        from estimator.config import OdometryConfig
+        from sim.sequence import Trajectory
+
+        from .driver import run_sequence
+
+        seq, truth = scenarios.get(self.scenario).simulate(trial.seed, self.duration)
+        gt = Trajectory(truth["t"], np.linalg.inv(truth["T_vehicle_world"]))
+        outcomes = []
+        for model in trial.models:
+            t0 = time.perf_counter()
+            try:
+                result = run_sequence(seq, OdometryConfig.for_model(model))
+                outcomes.append(evaluate_result(model, result, gt, truth, self.lengths, self.step,
+                                                time.perf_counter() - t0))
+            except Exception as exc:  # noqa: BLE001 - recorded per model
+                where = traceback.extract_tb(exc.__traceback__)[-1]
+                outcomes.append(TrialOutcome(model, error=f"{_error_text(exc)} (at {Path(where.filename).name}:"
+                                                          f"{where.lineno})"))
+        return outcomes
+
+
+def evaluate_result(model: str, result, gt, truth: dict, lengths, step: int, wall_s: float) -> TrialOutcome:
+    """Metrics row and per-scan arrays of one `validation.driver.RunResult` against the simulator's truth."""
+    from .consistency import nees_sequence, nis_summary
+    from .metrics import evaluate
+
+    est = result.estimates
+    T = np.stack([e.T_vehicle_world for e in est])
+    bad = ~np.all(np.isfinite(T), axis=(1, 2))
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        return TrialOutcome(model, error=f"non-finite estimate from scan {k} (t = {est[k].t:.3f} s)")
+    d = est[0].P.shape[0]
+    states = {"t": result.t, "T_vehicle_world": T, "varpi": np.stack([e.varpi for e in est]),
+              "varpi_dot": np.stack([e.vd if e.vd is not None else np.zeros(6) for e in est]),
+              "P": np.stack([e.P for e in est]).reshape(len(est), d, d),
+              "nis": np.array([e.nis for e in est], dtype=float),
+              "n_associated": np.array([e.n_associated for e in est]), "ms_per_scan": result.wall_ms}
+    rep = evaluate(gt, result.trajectory(), lengths, step, states, truth)
+    ns = nees_sequence(states, truth)
+    fin, mx = rep["drift"]["final"], rep["drift"]["max_abs"]
+    metrics = {"kitti_t_err_pct": rep["kitti_t_err_pct"], "kitti_r_err_deg_per_m": rep["kitti_r_err_deg_per_m"],
+               "ate_rmse_m": rep["ate_rmse_m"], "rpe_trans_pct": rep["rpe"]["rpe_trans_pct"],
+               **{f"drift_{a}_{'m' if a in 'xyz' else 'deg'}": fin[a] for a in fin},
+               "max_abs_z_m": mx["z"], "max_abs_roll_deg": mx["roll"], "max_abs_pitch_deg": mx["pitch"],
+               "nees_mean": rep["nees"]["mean"], "nees_dim": d, "nis_mean": rep["nis"]["mean"],
+               "nu_rmse_mps": rep["velocity"]["nu_rmse_mps"],
+               "ms_per_scan": float(np.median(result.wall_ms)), "scans": len(est),
+               "path_length_m": rep["path_length_m"], "wall_s": wall_s}
+    nis = nis_summary(states["nis"], states["n_associated"])
+    arrays = {"t": ns["t"], "nees": ns["nees"], "nees_dim": d, "nis": states["nis"],
+              "n_associated": states["n_associated"], "ms_per_scan": result.wall_ms,
+              "nis_pairs": nis["pairs"], "T_world_vehicle_est": result.trajectory().T_world_vehicle}
+    return TrialOutcome(model, metrics, arrays)
+
+
+SUMMARY_METRICS = ("kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m", "rpe_trans_pct", "drift_z_m",
+                   "max_abs_z_m", "max_abs_roll_deg", "max_abs_pitch_deg", "drift_yaw_deg", "nees_mean", "nis_mean",
+                   "nu_rmse_mps", "ms_per_scan", "wall_s")
+
+
+def _describe(x: np.ndarray) -> dict:
+    x = x[np.isfinite(x)]
+    if not x.size:
+        return {"n": 0, "mean": None, "median": None, "p2_5": None, "p97_5": None}
+    lo, hi = np.percentile(x, [2.5, 97.5])
+    return {"n": int(x.size), "mean": float(x.mean()), "median": float(np.median(x)), "p2_5": float(lo),
+            "p97_5": float(hi)}
+
+
+def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
+    """Per model: mean, median and 95 % interval (2.5/97.5 percentiles) of every metric over the ok trials, the
+    error count, and the average NEES over runs per scan against chi2_bounds(runs at that scan, d, alpha).
+
+    Returns a JSON-ready dict; `nees_curve` per model holds t, mean, count, lower, upper (lists).
+
+    Checked by: tests/validation/test_campaign.py::test_summary_statistics
+    """
+    from .consistency import average_nees, chi2_bounds
+
+    out = Path(out_dir)
+    rows = read_results(out / "results.csv")
+    models = list(dict.fromkeys(r["model"] for r in rows))
+    summary = {"trials": len({r["trial"] for r in rows}), "alpha": alpha, "models": {}}
+    for m in models:
+        mine = [r for r in rows if r["model"] == m]
+        ok = [r for r in mine if r["status"] == "ok"]
+        num = lambda k: np.array([float(r[k]) if r[k] not in ("", "None") else np.nan for r in ok])  # noqa: E731
+        entry = {"runs": len(mine), "ok": len(ok), "errors": len(mine) - len(ok),
+                 "error_examples": sorted({r["error"] for r in mine if r["status"] == "error"})[:3],
+                 "metrics": {k: _describe(num(k)) for k in SUMMARY_METRICS}}
+        runs, t, dim = [], np.zeros(0), None
+        for r in ok:
+            p = npz_path(out, int(r["trial"]), m)
+            if not p.exists():
+                continue
+            with np.load(p) as z:
+                runs.append(z["nees"])
+                dim = int(z["nees_dim"])
+                t = z["t"] if len(z["t"]) > len(t) else t
+        if runs:
+            mean, count = average_nees(runs)
+            b = chi2_bounds(count, dim, alpha)
+            fin = np.isfinite(mean)
+            within = (mean[fin] >= b[fin, 0]) & (mean[fin] <= b[fin, 1])
+            pooled = np.concatenate([r[np.isfinite(r)] for r in runs])
+            entry["nees"] = {"dim": dim, "runs": len(runs), "mean_over_scans": float(np.mean(mean[fin])),
+                             "median_over_scans": float(np.median(mean[fin])),
+                             "bounds_for_runs": chi2_bounds(len(runs), dim, alpha).tolist(),
+                             "fraction_scans_within": float(within.mean()) if within.size else None,
+                             "pooled_mean": float(pooled.mean()) if pooled.size else None}
+            entry["nees_curve"] = {"t": t.tolist(), "mean": mean.tolist(), "count": count.tolist(),
+                                   "lower": b[:, 0].tolist(), "upper": b[:, 1].tolist()}
+        summary["models"][m] = entry
+    return jsonable(summary)
+
+
+def write_summary(out_dir, summary: dict, plot_note: str = "") -> None:
+    """Write summary.json and summary.md (a table per model; `plot_note` is added, e.g. where the NEES plot is)."""
+    out = Path(out_dir)
+    slim = {**summary, "models": {m: {k: v for k, v in e.items() if k != "nees_curve"}
+                                  for m, e in summary["models"].items()}}
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
+    lines = ["# Monte Carlo campaign", ""]
+    meta_path = out / "campaign.json"
+    if meta_path.exists():
+        meta = json.loads(meta_path.read_text())
+        lines += ["Parameters: " + ", ".join(f"{k}={v}" for k, v in sorted(meta.items())), ""]
+    lines += [f"{summary['trials']} trials; intervals are the 2.5 and 97.5 percentiles over the ok runs; NEES "
+              f"bounds are two-sided {100 * (1 - summary['alpha']):.0f} % chi-square bounds of the average.", ""]
+    for m, e in slim["models"].items():
+        lines += [f"## {m}", "", f"runs {e['runs']}, ok {e['ok']}, errors {e['errors']}", ""]
+        for msg in e["error_examples"]:
+            lines.append(f"- error: `{msg}`")
+        lines += ["", "| metric | n | mean | median | 95 % interval |", "| --- | ---: | ---: | ---: | --- |"]
+        for k, s in e["metrics"].items():
+            lines.append(f"| {k} | {s['n']} | {fmt(s['mean'])} | {fmt(s['median'])} | "
+                         f"[{fmt(s['p2_5'])}, {fmt(s['p97_5'])}] |")
+        if "nees" in e:
+            n = e["nees"]
+            lo, hi = n["bounds_for_runs"]
+            lines += ["", f"Average NEES (d = {n['dim']}, {n['runs']} runs): mean over scans "
+                          f"{fmt(n['mean_over_scans'])}, median {fmt(n['median_over_scans'])}; bounds for "
+                          f"{n['runs']} runs [{fmt(lo)}, {fmt(hi)}]; scans within their bounds: "
+                          f"{fmt(None if n['fraction_scans_within'] is None else 100 * n['fraction_scans_within'])} %."]
+        lines.append("")
+    if plot_note:
+        lines += [plot_note, ""]
+    (out / "summary.md").write_text("\n".join(lines))

@@ -1,0 +1,178 @@
+"""Filter consistency: NEES of the newest state against the truth and NIS of the associations, with chi-square
+bounds (Bar-Shalom, Li, Kirubarajan 2001, ch. 5.4).
+
+State error (docs/conventions.md, paper eq. 12), left perturbation, T = T_vehicle_world:
+    e = x_true (-) x_est = [ln(T_true T_est^-1)^vee; varpi_true - varpi_est; varpi_dot_true - varpi_dot_est]
+    NEES = e^T P^-1 e, d = 18 (CA) or 12 (CV: no varpi_dot).
+The estimator's world frame is its own: it starts at T_vehicle_world(0) = I, so the truth is expressed relative
+to its first pose, T_true,k <- T_true,k T_true,0^-1, before comparing.
+
+For N independent runs the average NEES at one scan, times N, is chi-square with N d degrees of freedom when the
+filter is consistent; the two-sided (1 - alpha) bounds of the average are chi2.ppf([alpha/2, 1 - alpha/2], N d) / N.
+
+Checked by: tests/validation/test_consistency.py
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2
+
+from estimator.errors import InputError
+from estimator.lie import se3
+
+from .metrics import DEFAULT_TOLERANCE, associate
+
+NIS_DOF = 4  # one polar detection: range, azimuth, elevation, radial velocity
+
+
+def truth_in_estimator_frame(T_vehicle_world_true: np.ndarray) -> np.ndarray:
+    """T_true,k T_true,0^-1: the true poses in the frame in which the estimator starts at the identity."""
+    T = np.asarray(T_vehicle_world_true, dtype=float)
+    return T @ se3.inverse(T[0])
+
+
+def state_error(T_true, varpi_true, T_est, varpi_est, vd_true=None, vd_est=None) -> np.ndarray:
+    """e = x_true (-) x_est (paper eq. 12), batched: (..., 4, 4), (..., 6) -> (..., 12) or (..., 18) with vd.
+
+    Checked by: tests/validation/test_consistency.py::test_state_error_is_left_perturbation
+    """
+    xi = se3.log(np.asarray(T_true, dtype=float) @ se3.inverse(np.asarray(T_est, dtype=float)))
+    parts = [xi, np.asarray(varpi_true, dtype=float) - np.asarray(varpi_est, dtype=float)]
+    if vd_true is not None and vd_est is not None:
+        parts.append(np.asarray(vd_true, dtype=float) - np.asarray(vd_est, dtype=float))
+    return np.concatenate(parts, axis=-1)
+
+
+def nees(e: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """e^T P^-1 e, batched (..., d) and (..., d, d) -> (...,). NaN where P is not positive definite or e/P not finite.
+
+    Checked by: tests/validation/test_consistency.py::test_gaussian_nees_within_bounds
+    """
+    e = np.asarray(e, dtype=float)
+    P = np.asarray(P, dtype=float)
+    if P.shape[-2:] != (e.shape[-1], e.shape[-1]) or P.shape[:-2] != e.shape[:-1]:
+        raise InputError(f"e, P: expected (..., d) and (..., d, d), got {e.shape} and {P.shape}")
+    flat_e = e.reshape(-1, e.shape[-1])
+    flat_P = P.reshape(-1, e.shape[-1], e.shape[-1])
+    out = np.full(len(flat_e), np.nan)
+    good = np.all(np.isfinite(flat_e), axis=1) & np.all(np.isfinite(flat_P), axis=(1, 2))
+    if good.any():
+        Ps = 0.5 * (flat_P[good] + np.swapaxes(flat_P[good], 1, 2))
+        try:
+            L = np.linalg.cholesky(Ps)
+            z = np.linalg.solve(L, flat_e[good][..., None])[..., 0]
+            out[good] = np.sum(z * z, axis=1)
+        except np.linalg.LinAlgError:  # some P is not positive definite: do them one by one
+            idx = np.flatnonzero(good)
+            for k, Pk in zip(idx, Ps):
+                try:
+                    z = np.linalg.solve(np.linalg.cholesky(Pk), flat_e[k])
+                    out[k] = z @ z
+                except np.linalg.LinAlgError:
+                    pass
+    return out.reshape(e.shape[:-1])
+
+
+def chi2_bounds(n_runs, dim: int, alpha: float = 0.05) -> np.ndarray:
+    """Two-sided (1 - alpha) bounds of the average of n_runs chi-square(dim) values: chi2.ppf([a/2, 1-a/2], N d)/N.
+
+    `n_runs` may be an array (a count per scan); returns (..., 2) [lower, upper] (NaN where n_runs is 0).
+
+    Checked by: tests/validation/test_consistency.py::test_chi2_bounds_*
+    """
+    if not (0 < alpha < 1):
+        raise InputError(f"alpha: must be in (0, 1), got {alpha!r}")
+    n = np.asarray(n_runs, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lo = np.where(n > 0, chi2.ppf(alpha / 2, n * dim) / n, np.nan)
+        hi = np.where(n > 0, chi2.ppf(1 - alpha / 2, n * dim) / n, np.nan)
+    return np.stack([lo, hi], axis=-1)
+
+
+def nees_sequence(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
+    """Per-scan NEES of a run (states.npz arrays) against the simulator's truth (truth.npz arrays).
+
+    Args:
+        states: t (N,), T_vehicle_world (N, 4, 4), varpi (N, 6), varpi_dot (N, 6), P (N, d, d), d in {12, 18}.
+        truth: t (M,), T_vehicle_world (M, 4, 4), varpi (M, 6), varpi_dot (M, 6).
+
+    Returns:
+        dict: t (K,), nees (K,) (NaN where P is singular or the estimate is not finite; the first scan, whose
+        pose is fixed to the identity with zero covariance, usually is), dim, error (K, d).
+
+    Checked by: tests/validation/test_consistency.py::test_nees_sequence_*
+    """
+    for key in ("t", "T_vehicle_world", "varpi", "P"):
+        if key not in states:
+            raise InputError(f"states: missing array {key!r}")
+    for key in ("t", "T_vehicle_world", "varpi"):
+        if key not in truth:
+            raise InputError(f"truth: missing array {key!r}")
+    P = np.asarray(states["P"], dtype=float)
+    d = P.shape[-1]
+    if d not in (12, 18) or P.shape != (len(states["t"]), d, d):
+        raise InputError(f"states: P must be (N, 12, 12) or (N, 18, 18) for N scans, got {P.shape}")
+    ia, ib = associate(states["t"], truth["t"], tolerance)
+    T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float))
+    use_vd = d == 18
+    if use_vd and ("varpi_dot" not in states or "varpi_dot" not in truth):
+        raise InputError("states, truth: varpi_dot is needed for an 18-dimensional state")
+    T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
+    finite = np.all(np.isfinite(T_est), axis=(1, 2))
+    T_est = np.where(finite[:, None, None], T_est, np.eye(4))  # keep log() away from NaN; masked below
+    e = state_error(T_true[ib], np.asarray(truth["varpi"])[ib], T_est, np.asarray(states["varpi"])[ia],
+                    np.asarray(truth["varpi_dot"])[ib] if use_vd else None,
+                    np.asarray(states["varpi_dot"])[ia] if use_vd else None)
+    e[~finite] = np.nan
+    return {"t": np.asarray(states["t"], dtype=float)[ia], "nees": nees(e, P[ia]), "dim": d, "error": e}
+
+
+def average_nees(runs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Average per scan over runs of possibly different lengths (NaN entries skipped).
+
+    Returns (mean (K,), count (K,)) with K the longest run; mean is NaN where count is 0.
+    """
+    K = max((len(r) for r in runs), default=0)
+    stack = np.full((len(runs), K), np.nan)
+    for k, r in enumerate(runs):
+        stack[k, :len(r)] = r
+    count = np.sum(np.isfinite(stack), axis=0)
+    with np.errstate(invalid="ignore"):
+        mean = np.where(count > 0, np.nansum(stack, axis=0) / np.maximum(count, 1), np.nan)
+    return mean, count
+
+
+def nis_summary(nis, n_associated, alpha: float = 0.05) -> dict:
+    """NIS of the associations of one run: states.npz `nis` (mean d^2 per pair at each scan) and `n_associated`.
+
+    Pooled over the run: mean NIS per pair = sum_k n_k nis_k / sum_k n_k, with bounds chi2_bounds(sum n_k, 4).
+    Per scan: the fraction of scans whose mean lies within chi2_bounds(n_k, 4). Associations are gated (95 %
+    chi-square by default), which truncates the distribution: a consistent filter then shows a mean NIS a little
+    below 4 (the truncated mean: `gated_mean`), not a failure.
+
+    Checked by: tests/validation/test_consistency.py::test_nis_summary_*
+    """
+    nis = np.asarray(nis, dtype=float)
+    n = np.asarray(n_associated, dtype=float)
+    if nis.shape != n.shape or nis.ndim != 1:
+        raise InputError(f"nis, n_associated: expected equal 1-D arrays, got {nis.shape} and {n.shape}")
+    ok = np.isfinite(nis) & (n > 0)
+    total = float(n[ok].sum())
+    if total == 0:
+        return {"mean": float("nan"), "pairs": 0, "bounds": [float("nan")] * 2, "fraction_scans_within": float("nan"),
+                "dof": NIS_DOF}
+    mean = float(np.sum(nis[ok] * n[ok]) / total)
+    per_scan = chi2_bounds(n[ok], NIS_DOF, alpha)
+    within = (nis[ok] >= per_scan[:, 0]) & (nis[ok] <= per_scan[:, 1])
+    return {"mean": mean, "pairs": int(total), "bounds": chi2_bounds(total, NIS_DOF, alpha).tolist(),
+            "fraction_scans_within": float(within.mean()), "dof": NIS_DOF, "gated_mean": gated_mean(NIS_DOF, 0.95)}
+
+
+def gated_mean(dof: int, gate_probability: float) -> float:
+    """Mean of a chi-square(dof) variable conditioned on being below its gate_probability quantile.
+
+    E[x | x < g] = dof * F_{dof+2}(g) / F_dof(g), with F_dof(g) = gate_probability.
+    """
+    g = chi2.ppf(gate_probability, dof)
+    return float(dof * chi2.cdf(g, dof + 2) / gate_probability)

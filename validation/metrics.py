@@ -1,0 +1,341 @@
+"""Trajectory metrics: time association, ATE (Umeyama SE(3) alignment), RPE, per-axis drift, velocity errors.
+
+All trajectories are T_world_vehicle (N, 4, 4) as in TUM files; the estimate's world frame is its own (the
+estimator starts at the identity), the ground truth's the simulator's. Metrics that need a common frame either
+align (ATE) or express both trajectories relative to their first pose (drift), or are relative by nature
+(RPE, KITTI in `validation.kitti`). Definitions and formulas: docs/evaluation.md.
+
+Checked by: tests/validation/test_metrics.py
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimator.errors import InputError
+from estimator.lie import se3
+
+DEFAULT_TOLERANCE = 1e-3  # s
+
+
+def _times(name: str, t) -> np.ndarray:
+    t = np.asarray(t, dtype=float)
+    if t.ndim != 1:
+        raise InputError(f"{name}: expected a 1-D array of times, got shape {t.shape}")
+    if not np.all(np.isfinite(t)):
+        k = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise InputError(f"{name}: time {float(t[k])!r} at index {k} is not finite")
+    if t.size > 1 and np.any(np.diff(t) <= 0):
+        k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise InputError(f"{name}: times must strictly increase (index {k}: {float(t[k])!r} after "
+                         f"{float(t[k - 1])!r})")
+    return t
+
+
+def associate(t_a, t_b, tolerance: float = DEFAULT_TOLERANCE, min_matches: int = 2,
+              min_fraction: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Match two strictly increasing time stamp lists: mutual nearest neighbours within `tolerance`.
+
+    A pair (i, j) is kept when t_b[j] is the nearest stamp of b to t_a[i], t_a[i] the nearest of a to t_b[j],
+    and |t_a[i] - t_b[j]| <= tolerance; so each stamp is used at most once.
+
+    Args:
+        t_a: (N,) times of the first trajectory (e.g. ground truth); t_b: (M,) of the second.
+        tolerance: largest accepted time difference, seconds.
+        min_matches: fewer matches is an error.
+        min_fraction: fewer than this fraction of the shorter list matched is an error (mismatched files).
+
+    Returns:
+        (ia, ib): index arrays of equal length, increasing.
+
+    Raises:
+        InputError naming the argument: non-finite or unsorted times, or too few matches (with both time spans).
+
+    Checked by: tests/validation/test_metrics.py::test_associate_*
+    """
+    t_a, t_b = _times("t_a", t_a), _times("t_b", t_b)
+    if not (np.isfinite(tolerance) and tolerance >= 0):
+        raise InputError(f"tolerance: must be a finite number >= 0, got {tolerance!r}")
+    if t_a.size == 0 or t_b.size == 0:
+        raise InputError(f"t_a, t_b: empty trajectory ({t_a.size} and {t_b.size} poses)")
+
+    def nearest(src, dst):
+        k = np.clip(np.searchsorted(dst, src), 1, max(len(dst) - 1, 1))
+        lo = np.maximum(k - 1, 0)
+        hi = np.minimum(k, len(dst) - 1)
+        return np.where(np.abs(dst[lo] - src) <= np.abs(dst[hi] - src), lo, hi)
+
+    j = nearest(t_a, t_b)
+    back = nearest(t_b, t_a)
+    ia = np.arange(len(t_a))
+    ok = (back[j] == ia) & (np.abs(t_a - t_b[j]) <= tolerance)
+    ia, ib = ia[ok], j[ok]
+    need = max(min_matches, int(np.ceil(min_fraction * min(len(t_a), len(t_b)))))
+    if len(ia) < need:
+        raise InputError(
+            f"t_a, t_b: only {len(ia)} time stamps match within {tolerance:g} s (need {need}); "
+            f"first trajectory spans [{t_a[0]:.6f}, {t_a[-1]:.6f}] s with {len(t_a)} poses, second "
+            f"[{t_b[0]:.6f}, {t_b[-1]:.6f}] s with {len(t_b)}: are these files of the same sequence?")
+    return ia, ib
+
+
+def umeyama_se3(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Rigid transform T (4, 4) minimising sum |dst_i - (C src_i + r)|^2 (Umeyama 1991, no scale).
+
+    C = U diag(1, 1, det(U V^T)) V^T from the SVD U S V^T of the cross-covariance sum (dst_i - mu_d)(src_i - mu_s)^T,
+    r = mu_d - C mu_s. Needs (N, 3) point sets with N >= 3 not all collinear for a unique C (with fewer, one of
+    the minimisers is returned).
+
+    Checked by: tests/validation/test_metrics.py::test_umeyama_recovers_transform
+    """
+    src = np.asarray(src, dtype=float)
+    dst = np.asarray(dst, dtype=float)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 1:
+        raise InputError(f"src, dst: expected matching (N, 3) points, got {src.shape} and {dst.shape}")
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    cov = (dst - mu_d).T @ (src - mu_s) / len(src)
+    U, _, Vt = np.linalg.svd(cov)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    C = U @ D @ Vt
+    return se3.from_rotation_translation(C, mu_d - C @ mu_s)
+
+
+def _stats(x: np.ndarray, prefix: str, unit: str) -> dict:
+    x = np.asarray(x, dtype=float)
+    if x.size == 0:
+        return {f"{prefix}_{k}_{unit}": float("nan") for k in ("rmse", "mean", "median", "max")}
+    return {f"{prefix}_rmse_{unit}": float(np.sqrt(np.mean(x ** 2))), f"{prefix}_mean_{unit}": float(np.mean(x)),
+            f"{prefix}_median_{unit}": float(np.median(x)), f"{prefix}_max_{unit}": float(np.max(x))}
+
+
+def _poses(name: str, T) -> np.ndarray:
+    T = np.asarray(T, dtype=float)
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise InputError(f"{name}: expected (N, 4, 4) poses, got shape {T.shape}")
+    if not np.all(np.isfinite(T)):
+        raise InputError(f"{name}: poses contain NaN or infinity")
+    return T
+
+
+def _pair(gt, est):
+    gt, est = _poses("gt", gt), _poses("est", est)
+    if gt.shape != est.shape:
+        raise InputError(f"gt, est: need the same number of poses (associate first), got {len(gt)} and {len(est)}")
+    return gt, est
+
+
+def ate(gt: np.ndarray, est: np.ndarray, align: bool = True) -> dict:
+    """Absolute trajectory error of positions after SE(3) alignment (Sturm et al. 2012; Umeyama, no scale).
+
+    e_i = |p_gt,i - (C p_est,i + r)| with (C, r) = umeyama_se3(p_est, p_gt).
+
+    Args:
+        gt, est: (N, 4, 4) T_world_vehicle at matched times.
+        align: False compares positions as they are.
+
+    Returns:
+        dict: ate_rmse_m, ate_mean_m, ate_median_m, ate_max_m, and `T_align` (4, 4, list) mapping est into gt.
+
+    Checked by: tests/validation/test_metrics.py::test_ate_*
+    """
+    gt, est = _pair(gt, est)
+    p_gt, p_est = gt[:, :3, 3], est[:, :3, 3]
+    T = umeyama_se3(p_est, p_gt) if align else np.eye(4)
+    err = np.linalg.norm(p_gt - (p_est @ T[:3, :3].T + T[:3, 3]), axis=1)
+    return {**_stats(err, "ate", "m"), "T_align": T.tolist()}
+
+
+def _rotation_angle(C: np.ndarray) -> np.ndarray:
+    """Angle of rotation matrices, accurate near 0 too: atan2(|axial(C - C^T)| / 2, (tr C - 1) / 2)."""
+    axial = np.stack([C[..., 2, 1] - C[..., 1, 2], C[..., 0, 2] - C[..., 2, 0], C[..., 1, 0] - C[..., 0, 1]], -1)
+    return np.arctan2(0.5 * np.linalg.norm(axial, axis=-1), 0.5 * (np.trace(C, axis1=-2, axis2=-1) - 1.0))
+
+
+def path_distances(T_world_vehicle: np.ndarray) -> np.ndarray:
+    """Cumulative path length (N,) along the positions, metres."""
+    p = T_world_vehicle[:, :3, 3]
+    return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
+
+
+def rpe(gt: np.ndarray, est: np.ndarray, delta_frames: int = 1, delta_m: float = 10.0) -> dict:
+    """Relative pose error per frame and per metre (Sturm et al. 2012; Geiger et al. 2012 for the per-metre form).
+
+    E_ij = (est_i^-1 est_j)^-1 (gt_i^-1 gt_j); translational error |r(E)|, rotational angle(E).
+    Per frame: pairs (i, i + delta_frames), errors in m and deg per pair.
+    Per metre: for every i, j = the first frame whose ground-truth path distance exceeds dist_i + delta_m;
+    errors divided by the travelled distance dist_j - dist_i (m/m as %, deg/m).
+
+    Returns:
+        dict with rpe_trans_{rmse,mean,median,max}_m, rpe_rot_{...}_deg (per frame), rpe_trans_pct and
+        rpe_rot_deg_per_m (means per metre, NaN when the path is shorter than delta_m), and the deltas.
+
+    Checked by: tests/validation/test_metrics.py::test_rpe_*
+    """
+    gt, est = _pair(gt, est)
+    if int(delta_frames) < 1:
+        raise InputError(f"delta_frames: must be >= 1, got {delta_frames!r}")
+    if not (np.isfinite(delta_m) and delta_m > 0):
+        raise InputError(f"delta_m: must be > 0, got {delta_m!r}")
+    d = int(delta_frames)
+
+    def errors(i, j):
+        E = se3.inverse(se3.inverse(est[i]) @ est[j]) @ (se3.inverse(gt[i]) @ gt[j])
+        return np.linalg.norm(E[:, :3, 3], axis=1), _rotation_angle(E[:, :3, :3])
+
+    i = np.arange(max(len(gt) - d, 0))
+    te, re = errors(i, i + d)
+    out = {"rpe_delta_frames": d, **_stats(te, "rpe_trans", "m"), **_stats(np.rad2deg(re), "rpe_rot", "deg")}
+    dist = path_distances(gt)
+    j = np.searchsorted(dist, dist + delta_m, side="right")
+    ok = j < len(gt)
+    i, j = np.arange(len(gt))[ok], j[ok]
+    te, re = errors(i, j)
+    travelled = dist[j] - dist[i]
+    out["rpe_delta_m"] = float(delta_m)
+    out["rpe_trans_pct"] = float(np.mean(te / travelled) * 100) if len(i) else float("nan")
+    out["rpe_rot_deg_per_m"] = float(np.rad2deg(np.mean(re / travelled))) if len(i) else float("nan")
+    return out
+
+
+def euler_zyx(C: np.ndarray) -> np.ndarray:
+    """(roll, pitch, yaw) of C = Rz(yaw) Ry(pitch) Rx(roll), (..., 3, 3) -> (..., 3), radians."""
+    roll = np.arctan2(C[..., 2, 1], C[..., 2, 2])
+    pitch = np.arcsin(np.clip(-C[..., 2, 0], -1.0, 1.0))
+    yaw = np.arctan2(C[..., 1, 0], C[..., 0, 0])
+    return np.stack([roll, pitch, yaw], axis=-1)
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+DRIFT_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+
+
+def drift(gt: np.ndarray, est: np.ndarray) -> dict:
+    """Per-axis drift, both trajectories expressed relative to their first pose.
+
+    G_k = gt_0^-1 gt_k and E_k = est_0^-1 est_k (both T_first_vehicle_k). Position drift r(E_k) - r(G_k) in the
+    first vehicle frame (x forward, y left, z up); attitude drift the wrapped difference of the ZYX Euler angles
+    (roll, pitch, yaw) of C(E_k) and C(G_k). A planar estimate of a hilly drive shows up in z, roll and pitch.
+
+    Returns:
+        dict: `final` {x, y, z (m), roll, pitch, yaw (deg)} at the last pose, `max_abs` {z, roll, pitch} over
+        time, and `series` arrays (N, 6) (not JSON: the caller drops or converts it).
+
+    Checked by: tests/validation/test_metrics.py::test_drift_*
+    """
+    gt, est = _pair(gt, est)
+    G = se3.inverse(gt[:1]) @ gt
+    E = se3.inverse(est[:1]) @ est
+    dp = E[:, :3, 3] - G[:, :3, 3]
+    da = np.rad2deg(_wrap(euler_zyx(E[:, :3, :3]) - euler_zyx(G[:, :3, :3])))
+    series = np.c_[dp, da]
+    final = {axis: float(v) for axis, v in zip(DRIFT_AXES, series[-1])}
+    max_abs = {axis: float(np.max(np.abs(series[:, k]))) for k, axis in enumerate(DRIFT_AXES) if k in (2, 3, 4)}
+    return {"final": final, "max_abs": max_abs, "units": "m for x, y, z; deg for roll, pitch, yaw",
+            "series": series}
+
+
+def velocity_errors(t_est, varpi_est, t_true, varpi_true, varpi_dot_est=None, varpi_dot_true=None,
+                    tolerance: float = DEFAULT_TOLERANCE) -> dict:
+    """Errors of the estimated body velocity varpi = [nu; omega] (paper convention) against the truth.
+
+    Times are matched with `associate`; e = varpi_est - varpi_true per matched scan. Reports the RMSE of the
+    linear part (m/s, overall and per axis) and of the angular part (deg/s); the same for varpi_dot when both
+    are given and the estimate's is not all zeros (the CV model has none).
+
+    Checked by: tests/validation/test_metrics.py::test_velocity_errors_*
+    """
+    ia, ib = associate(t_est, t_true, tolerance)
+    ve = np.asarray(varpi_est, dtype=float)
+    vt = np.asarray(varpi_true, dtype=float)
+    if ve.shape != (len(t_est), 6) or vt.shape != (len(t_true), 6):
+        raise InputError(f"varpi: expected (N, 6) arrays matching the times, got {ve.shape} and {vt.shape}")
+    e = ve[ia] - vt[ib]
+    ok = np.all(np.isfinite(e), axis=1)
+    e = e[ok]
+    rms = lambda x: float(np.sqrt(np.mean(x ** 2))) if x.size else float("nan")  # noqa: E731
+    out = {"matched": int(len(ia)), "finite": int(ok.sum()),
+           "nu_rmse_mps": rms(e[:, :3]) * np.sqrt(3) if e.size else float("nan"),
+           "nu_rmse_per_axis_mps": [rms(e[:, k]) for k in range(3)],
+           "omega_rmse_degps": float(np.rad2deg(rms(e[:, 3:]) * np.sqrt(3))) if e.size else float("nan")}
+    if varpi_dot_est is not None and varpi_dot_true is not None:
+        ae = np.asarray(varpi_dot_est, dtype=float)[ia]
+        at = np.asarray(varpi_dot_true, dtype=float)[ib]
+        if np.any(ae != 0):
+            ea = (ae - at)[np.all(np.isfinite(ae - at), axis=1)]
+            out["a_rmse_mps2"] = rms(ea[:, :3]) * np.sqrt(3) if ea.size else float("nan")
+            out["alpha_rmse_degps2"] = float(np.rad2deg(rms(ea[:, 3:]) * np.sqrt(3))) if ea.size else float("nan")
+    return out
+
+
+def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, truth: dict | None = None,
+             tolerance: float = DEFAULT_TOLERANCE, alpha: float = 0.05) -> dict:
+    """All metrics of one run, as the JSON report of `rodo evaluate` (docs/evaluation.md lists the keys).
+
+    Args:
+        gt, est: `sim.sequence.Trajectory`-like objects with `t` (N,) and `T_world_vehicle` (N, 4, 4); their
+            times are matched with `associate` (mutual nearest within `tolerance`).
+        lengths, step: KITTI segment lengths (m; default validation.kitti.LENGTHS) and first-frame step.
+        states: optional states.npz arrays (t, T_vehicle_world, varpi, varpi_dot, P, nis, n_associated,
+            ms_per_scan); truth: optional truth.npz arrays (t, T_vehicle_world, varpi, varpi_dot).
+
+    Returns:
+        dict with kitti_t_err_pct, kitti_r_err_deg_per_m, kitti_segments, segments (per length), ate_*,
+        rpe, drift (final, max_abs), matched, and `nees`, `nis`, `velocity`, `ms_per_scan` when available.
+        Values that cannot be computed (path shorter than every KITTI length) are NaN.
+
+    Checked by: tests/validation/test_metrics.py::test_evaluate_report, tests/cli/test_evaluate_cli.py
+    """
+    from .consistency import chi2_bounds, nees_sequence, nis_summary
+    from .kitti import LENGTHS, kitti_errors
+
+    ig, ie = associate(gt.t, est.t, tolerance)
+    G, E = gt.T_world_vehicle[ig], est.T_world_vehicle[ie]
+    k = kitti_errors(G, E, LENGTHS if lengths is None else lengths, step)
+    out = {"matched": int(len(ig)), "gt_poses": int(len(gt.t)), "est_poses": int(len(est.t)),
+           "path_length_m": float(path_distances(G)[-1]),
+           "kitti_t_err_pct": k.t_err_pct, "kitti_r_err_deg_per_m": k.r_err_deg_per_m,
+           "kitti_segments": k.n_segments,
+           "segments": [{"length_m": L, "t_err_pct": t, "r_err_deg_per_m": r, "count": n}
+                        for L, (t, r, n) in k.per_length().items()]}
+    out.update({key: v for key, v in ate(G, E).items()})
+    out["rpe"] = rpe(G, E)
+    dr = drift(G, E)
+    out["drift"] = {"final": dr["final"], "max_abs": dr["max_abs"], "units": dr["units"]}
+    if states is not None and "ms_per_scan" in states:
+        ms = np.asarray(states["ms_per_scan"], dtype=float)
+        out["ms_per_scan"] = {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95))} if ms.size else {}
+    if states is not None and "nis" in states and "n_associated" in states:
+        out["nis"] = nis_summary(states["nis"], states["n_associated"], alpha)
+    if states is not None and truth is not None:
+        out["velocity"] = velocity_errors(states["t"], states["varpi"], truth["t"], truth["varpi"],
+                                          states.get("varpi_dot"), truth.get("varpi_dot"), tolerance)
+        ns = nees_sequence(states, truth, tolerance)
+        v = ns["nees"][np.isfinite(ns["nees"])]
+        d = ns["dim"]
+        per_scan = chi2_bounds(1, d, alpha)
+        out["nees"] = {"dim": d, "scans": int(len(ns["nees"])), "finite": int(v.size),
+                       "mean": float(v.mean()) if v.size else float("nan"),
+                       "median": float(np.median(v)) if v.size else float("nan"),
+                       "per_scan_bounds": per_scan.tolist(),
+                       "fraction_within": float(np.mean((v >= per_scan[0]) & (v <= per_scan[1])))
+                       if v.size else float("nan"),
+                       "time_average_bounds": chi2_bounds(max(v.size, 1), d, alpha).tolist()}
+    return out
+
+
+def jsonable(obj):
+    """Replace non-finite floats by None and numpy scalars/arrays by Python objects (strict JSON)."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    return obj

@@ -1,0 +1,260 @@
+"""Static figures (PNG): the NEES plot of Monte Carlo summaries and the paper's figures 1-4.
+
+matplotlib is used through `matplotlib.figure.Figure` with the Agg canvas (no pyplot, no global state, no
+display). The numbers come from `viz.paper_data`; each figure function takes an output path (and optionally
+precomputed data) and returns the path written.
+
+Checked by: tests/viz/test_figures.py
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from estimator.errors import InputError
+
+from . import paper_data
+
+SAMPLE = "#3b6fd8"  # Monte Carlo samples (blue, as in the paper)
+MEAN = "#e0479e"  # prior mean / full model (pink, as in the paper)
+BIASED = "#f08a24"  # acceleration ignored (orange)
+TRUTH, CV, CA = "black", "#d62728", "#1f5fd6"  # Fig. 4: as in the paper (black, red, blue)
+
+
+def _figure(w: float, h: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(w, h), dpi=110, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig, path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, format="png")
+    return path
+
+
+def ellipse_xy(mean, cov, n_sigma: float = 3.0, n: int = 100) -> np.ndarray:
+    """(n, 2) points of the n-sigma ellipse {x : (x - m)^T cov^-1 (x - m) = n_sigma^2} of a 2x2 covariance."""
+    lam, V = np.linalg.eigh(0.5 * (np.asarray(cov, float) + np.asarray(cov, float).T))
+    a = np.linspace(0.0, 2 * np.pi, n)
+    circle = np.stack([np.cos(a), np.sin(a)], axis=1)
+    return np.asarray(mean, float) + n_sigma * (circle * np.sqrt(np.maximum(lam, 0.0))) @ V.T
+
+
+# ------------------------------------------------------------------------------------------------ NEES
+def plot_nees(path, t, nees_mean, bounds, labels) -> Path:
+    """Average NEES over time with its chi-square band (Monte Carlo summaries).
+
+    Args:
+        path: output PNG.
+        t: (N,) times in seconds.
+        nees_mean: (N,) or (N, m) mean NEES of m quantities (e.g. pose, velocity).
+        bounds: (lower, upper) scalars or (N,) arrays (e.g. `viz.run_metrics.nees_bounds(dof, n_runs)`).
+        labels: a label or m labels (with the dof, e.g. "pose (6 dof)").
+
+    Returns:
+        path. The legend gives each series' fraction of time inside the band (about 95 % when consistent).
+    """
+    t = np.asarray(t, dtype=float).reshape(-1)
+    y = np.asarray(nees_mean, dtype=float)
+    y = y[:, None] if y.ndim == 1 else y
+    if y.ndim != 2 or y.shape[0] != len(t) or len(t) == 0:
+        raise InputError(f"nees_mean: expected shape ({len(t)},) or ({len(t)}, m), got {np.shape(nees_mean)}")
+    labels = [labels] if isinstance(labels, str) else list(labels)
+    if len(labels) != y.shape[1]:
+        raise InputError(f"labels: expected {y.shape[1]} labels, got {len(labels)}")
+    try:
+        lo, hi = (np.broadcast_to(np.asarray(b, dtype=float), t.shape) for b in bounds)
+    except (TypeError, ValueError):
+        raise InputError(f"bounds: expected (lower, upper) scalars or ({len(t)},) arrays") from None
+    fig = _figure(7.5, 4.0)
+    ax = fig.add_subplot()
+    ax.fill_between(t, lo, hi, color="0.85", label="95 % chi-square band")
+    for j, lab in enumerate(labels):
+        inside = np.nanmean((y[:, j] >= lo) & (y[:, j] <= hi)) * 100
+        ax.plot(t, y[:, j], lw=1.3, label=f"{lab}: {inside:.0f} % inside")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("average NEES")
+    top = np.nanmax(np.r_[hi, y.ravel()]) if np.isfinite(y).any() else float(hi.max())
+    ax.set_ylim(0, 1.1 * top)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title("Normalised estimation error squared")
+    return _save(fig, path)
+
+
+# ------------------------------------------------------------------------------------------------ Fig. 1
+def figure1_prior(path, data: dict | None = None, quick: bool = False) -> Path:
+    """Fig. 1: the CA prior under pure yaw acceleration: Monte Carlo samples (blue) and the prior's mean with
+    3-sigma ellipses (pink) for position (top view), velocity and acceleration (forward and yaw components)."""
+    d = paper_data.fig1_data(n_samples=200 if quick else 600) if data is None else data
+    fig = _figure(13.0, 4.3)
+    ax_p, ax_v, ax_a = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.4, 1, 1]})
+    for i, t in enumerate(d["t"]):
+        s = d["samples_pos"][i]
+        ax_p.scatter(s[:, 0], s[:, 1], s=3, color=SAMPLE, alpha=0.35, lw=0,
+                     label="Monte Carlo samples" if i == 0 else None)
+        e = ellipse_xy(d["mean_pos"][i, :2], d["cov_pos"][i, :2, :2])
+        ax_p.plot(e[:, 0], e[:, 1], color=MEAN, lw=1.5, label="prior mean and 3-sigma" if i == 0 else None)
+        ax_p.plot(*d["mean_pos"][i, :2], "o", color=MEAN, ms=4)
+        ax_p.annotate(f"t = {t:.2f} s", d["mean_pos"][i, :2], textcoords="offset points", xytext=(-10, 12),
+                      fontsize=8)
+    ax_p.plot(d["mean_path"][:, 0], d["mean_path"][:, 1], color=MEAN, lw=0.8, ls="--", label="mean path")
+    ax_p.plot(0, 0, "k^", ms=7, label="start")
+    ax_p.set_xlabel("world x (m)")
+    ax_p.set_ylabel("world y (m)")
+    ax_p.set_aspect("equal", adjustable="datalim")
+    ax_p.set_title("position (top view)")
+    ax_p.legend(loc="upper left", fontsize=8)
+    # vehicle quantities: forward speed v_x = -nu_x, yaw rate w_z = -omega_z (docs/conventions.md)
+    for ax, key, title, xl, yl in ((ax_v, "varpi", "velocity", "forward speed -nu_x (m/s)",
+                                     "yaw rate -omega_z (rad/s)"),
+                                    (ax_a, "vd", "acceleration", "forward acceleration -nu_dot_x (m/s^2)",
+                                     "yaw acceleration -omega_dot_z (rad/s^2)")):
+        sel = [0, 5]
+        for i, t in enumerate(d["t"]):
+            s = -d[f"samples_{key}"][i][:, sel]
+            ax.scatter(s[:, 0], s[:, 1], s=3, color=SAMPLE, alpha=0.35, lw=0)
+            m = -d[f"mean_{key}"][i][sel]
+            e = ellipse_xy(m, d[f"cov_{key}"][i][np.ix_(sel, sel)])
+            ax.plot(e[:, 0], e[:, 1], color=MEAN, lw=1.5)
+            ax.plot(*m, "o", color=MEAN, ms=4)
+            if key == "varpi" or i == 0:
+                ax.annotate(f"{t:.2f} s" if key == "varpi" else "all t (constant mean)", m,
+                            textcoords="offset points", xytext=(6, 4), fontsize=7)
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl)
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+    c = d["case"]
+    fig.suptitle(f"Fig. 1: constant-acceleration prior, pure yaw acceleration {-c['vd0'][5]:.2f} rad/s^2 at "
+                 f"{-c['varpi0'][0]:.0f} m/s ({d['samples_pos'].shape[1]} samples per time)", fontsize=11)
+    return _save(fig, path)
+
+
+# ------------------------------------------------------------------------------------------------ Fig. 2
+def figure2_measurement_models(path, data: dict | None = None, quick: bool = False, magnify: float = 5.0) -> Path:
+    """Fig. 2: 3-sigma position ellipses (top view) of a simulated scan under the polar model (true polar noise
+    propagated to Cartesian) and the fixed Cartesian model; right: 3-sigma semi-axes against range."""
+    d = paper_data.fig2_data() if data is None else data
+    fig = _figure(13.0, 5.0)
+    ax, ax_r = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.5, 1]})
+    pts = d["points"]
+    ax.scatter(pts[:, 0], pts[:, 1], s=4, color="0.3", zorder=3, label="detections")
+    circle = ellipse_xy([0, 0], d["cov_cartesian"][:2, :2])
+    for i, p in enumerate(pts):
+        e = ellipse_xy(p[:2], d["cov_polar"][i, :2, :2] * magnify**2)
+        ax.plot(e[:, 0], e[:, 1], color=CA, lw=0.8, label="polar model" if i == 0 else None)
+        ax.plot(p[0] + magnify * circle[:, 0], p[1] + magnify * circle[:, 1], color=CV, lw=0.8,
+                label="Cartesian model" if i == 0 else None)
+    ax.plot(0, 0, "k^", ms=7, label="sensor")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("sensor x (m)")
+    ax.set_ylabel("sensor y (m)")
+    ax.set_title(f"3-sigma ellipses of one scan (magnified x{magnify:g})")
+    ax.legend(loc="upper left", fontsize=8)
+    r = d["ranges"]
+    ax_r.plot(r, d["semi_polar"][:, 1], color=CA, label="polar, lateral (3 r sigma_az)")
+    ax_r.plot(r, d["semi_polar"][:, 0], color=CA, ls="--", label="polar, radial (3 sigma_r)")
+    ax_r.axhline(d["semi_cartesian"], color=CV, label=f"Cartesian (3 x {d['cartesian_sigma']:g} m)")
+    ax_r.axvline(d["crossover_range"], color="0.5", ls=":", label=f"crossover r* = {d['crossover_range']:.0f} m")
+    ax_r.set_yscale("log")
+    ax_r.set_xlabel("range (m)")
+    ax_r.set_ylabel("3-sigma semi-axis (m)")
+    ax_r.set_title("Cartesian: too large near, too small far")
+    ax_r.grid(alpha=0.3, which="both")
+    ax_r.legend(fontsize=8, loc="lower right")
+    fig.suptitle("Fig. 2: polar vs Cartesian measurement model", fontsize=11)
+    return _save(fig, path)
+
+
+# ------------------------------------------------------------------------------------------------ Fig. 3
+def figure3_association(path, data: dict | None = None, quick: bool = False) -> Path:
+    """Fig. 3: association ellipses (azimuth-range, 3-sigma) and radial-velocity pdfs predicted with the
+    acceleration (S, pink) and ignoring it (S~ = S + b b^T, orange); correct target pink, distractor orange."""
+    d = paper_data.fig3_data() if data is None else data
+    fig = _figure(12.0, 4.6)
+    ax, ax_v = fig.subplots(1, 2)
+    k = np.array([1, 0])  # (azimuth, range)
+    scale = np.array([np.degrees(1.0), 1.0])
+    for z, S, colour, name in ((d["z"], d["S"], MEAN, "with acceleration: S"),
+                               (d["z_noacc"], d["S_tilde"], BIASED, "acceleration ignored: S~ = S + b b^T")):
+        e = ellipse_xy(z[k] * scale, S[np.ix_(k, k)] * np.outer(scale, scale))
+        ax.plot(e[:, 0], e[:, 1], color=colour, lw=1.8, label=name)
+        ax.plot(*(z[k] * scale), "+", color=colour, ms=10)
+    for det, colour, name, i in ((d["detections"][0], MEAN, "correct target", 0),
+                                 (d["detections"][1], BIASED, "distractor", 1)):
+        ax.plot(*(det[k] * scale), "x", color=colour, ms=10, mew=2.5,
+                label=f"{name}: d2 = {d['d2_full'][i]:.2f} (S), {d['d2_noacc'][i]:.2f} (S~)")
+    ax.set_xlabel("azimuth (deg)")
+    ax.set_ylabel("range (m)")
+    ax.set_title("marginal 3-sigma association ellipses")
+    ax.legend(fontsize=7.5, loc="upper left")
+    ax.grid(alpha=0.3)
+    for z, S, colour, name in ((d["z"], d["S"], MEAN, "p(v_r), full state"),
+                               (d["z_noacc"], d["S_tilde"], BIASED, "p(v_r~), acceleration ignored")):
+        sd = np.sqrt(S[3, 3])
+        v = np.linspace(z[3] - 4 * sd, z[3] + 4 * sd, 300)
+        ax_v.plot(v, np.exp(-0.5 * ((v - z[3]) / sd) ** 2) / (sd * np.sqrt(2 * np.pi)), color=colour, lw=1.8,
+                  label=name)
+    for det, colour in ((d["detections"][0], MEAN), (d["detections"][1], BIASED)):
+        ax_v.axvline(det[3], color=colour, ls=":", lw=1.5)
+    ax_v.set_xlabel("radial velocity (m/s)")
+    ax_v.set_ylabel("probability density (s/m)")
+    ax_v.set_title(f"bias b_vr = {d['bias'][3]:+.3f} m/s")
+    ax_v.legend(fontsize=8)
+    ax_v.grid(alpha=0.3)
+    fig.suptitle(f"Fig. 3: unmodelled yaw acceleration {d['yaw_accel']:.2f} rad/s^2 over dt = {d['dt']*1e3:.0f} ms "
+                 f"(azimuth bias {np.degrees(d['bias'][1]):.3f} deg)", fontsize=11)
+    return _save(fig, path)
+
+
+# ------------------------------------------------------------------------------------------------ Fig. 4
+def figure4_trajectories(path, data: dict | None = None, quick: bool = False) -> Path:
+    """Fig. 4: ground truth (black), CV/C (red) and CA/P (blue) trajectories: top view and height over the
+    distance travelled (a simulated sequence; quick: 12 s, else 60 s)."""
+    d = paper_data.fig4_data(duration=12.0 if quick else 60.0) if data is None else data
+    fig = _figure(12.0, 4.8)
+    ax, ax_h = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.2, 1]})
+    err = d["final_error"]
+    for key, colour, name in (("truth", TRUTH, "ground truth"),
+                              ("cv", CV, f"CV/C (final error {err['cv-cartesian']:.2f} m)"),
+                              ("ca", CA, f"CA/P (final error {err['ca-polar']:.2f} m)")):
+        p = d[key]
+        ax.plot(p[:, 0], p[:, 1], color=colour, lw=1.4, label=name)
+        ax_h.plot(d["distance"], p[:, 2], color=colour, lw=1.4, label=name)
+    ax.plot(*d["truth"][0, :2], "k^", ms=7)
+    span = np.ptp(d["truth"][:, :2], axis=0)
+    if span.min() > 0.1 * span.max():
+        ax.set_aspect("equal", adjustable="datalim")
+    else:  # a nearly straight route: equal axes would hide the lateral drift
+        ax.set_title("top view (axes not to scale)")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    if not ax.get_title():
+        ax.set_title("top view")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    ax_h.set_xlabel("distance travelled (m)")
+    ax_h.set_ylabel("height z (m)")
+    ax_h.set_title("height over distance")
+    ax_h.grid(alpha=0.3)
+    fig.suptitle(f"Fig. 4: odometry on simulated '{d['scenario']}' (seed {d['seed']}, {d['duration']:.0f} s, "
+                 f"{d['path_length']:.0f} m)", fontsize=11)
+    return _save(fig, path)
+
+
+FIGURES = (("fig1_prior.png", figure1_prior), ("fig2_measurement_models.png", figure2_measurement_models),
+           ("fig3_association.png", figure3_association), ("fig4_trajectories.png", figure4_trajectories))
+
+
+def write_all(out_dir, quick: bool = False) -> list[Path]:
+    """Write the four figures into out_dir; returns their paths."""
+    out = Path(out_dir)
+    return [fn(out / name, quick=quick) for name, fn in FIGURES]

@@ -1,0 +1,344 @@
+"""Rerun recordings of an odometry run: `record_run(path, seq, result, truth=None, detail=None)`.
+
+Every recording is written through its own `rr.RecordingStream` (never the global stream), so Monte Carlo
+workers can each write a file. rerun is imported inside the functions only: `rodo run` without `--rerun`
+never loads it. Entity paths, colours and what each plot means: docs/visualisation.md.
+
+Timelines: `frame` (scan index k of the run) and `time` (scan time, a duration in seconds).
+
+Checked by: tests/viz/test_recording.py (recordings read back with rerun.chunk.RrdReader)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from estimator.errors import InputError, check_finite
+from estimator.lie import se3
+
+from . import run_metrics as rm
+
+# class ids of detections (AnnotationContext on `world`): label, RGB
+DETECTION_CLASSES = {
+    0: ("associated", (40, 200, 60)),
+    1: ("static, not associated (gated out)", (240, 180, 0)),
+    2: ("rejected as moving", (230, 40, 40)),
+    3: ("clutter (truth)", (160, 80, 220)),
+    4: ("detection (no association detail)", (120, 170, 255)),
+    5: ("static (truth)", (200, 200, 200)),
+    6: ("moving (truth)", (255, 120, 0)),
+}
+TRUTH_CLUTTER = 3  # sim label of a false alarm (0 static surface, 1 static point, 2 moving, 3 clutter)
+TRUTH_MOVING = 2
+ESTIMATE_COLOUR = (40, 120, 255)
+TRUTH_COLOUR = (20, 20, 20)
+VELOCITY_NAMES = ("nu_x (m/s)", "nu_y (m/s)", "nu_z (m/s)", "omega_x (rad/s)", "omega_y (rad/s)",
+                  "omega_z (rad/s)")
+ACCEL_NAMES = ("nu_dot_x (m/s^2)", "nu_dot_y (m/s^2)", "nu_dot_z (m/s^2)", "omega_dot_x (rad/s^2)",
+               "omega_dot_y (rad/s^2)", "omega_dot_z (rad/s^2)")
+
+
+@dataclass
+class ScanDetail:
+    """Per-scan association detail the estimator can hand to `record_run` (RunResult does not keep it).
+
+    Attributes:
+        polar: (n, 4) detections [range, azimuth, elevation, radial_velocity] in the sensor frame, as the
+            estimator used them (after its range filter).
+        static: (n,) bool, True where the Doppler test kept the detection as static.
+        det_idx: (k,) int, associated detections, indices into `polar` (not into polar[static]).
+        map_idx: (k,) int, their map points, indices into `map_points`.
+        map_points: (m, 3) the local map in the estimator's world frame at association time (before the
+            map update of this scan).
+        rows: (n,) int indices of the detections in the scan's rows (radar.csv order), used to look up the
+            truth labels; None means polar is the whole scan in its original order.
+    """
+
+    polar: np.ndarray
+    static: np.ndarray
+    det_idx: np.ndarray
+    map_idx: np.ndarray
+    map_points: np.ndarray
+    rows: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.polar = check_finite("ScanDetail.polar", self.polar, (4,)).reshape(-1, 4)
+        n = len(self.polar)
+        self.static = np.asarray(self.static, dtype=bool).reshape(-1)
+        if len(self.static) != n:
+            raise InputError(f"ScanDetail.static: expected {n} flags, got {len(self.static)}")
+        self.map_points = check_finite("ScanDetail.map_points", self.map_points, (3,)).reshape(-1, 3)
+        self.det_idx = np.asarray(self.det_idx, dtype=np.int64).reshape(-1)
+        self.map_idx = np.asarray(self.map_idx, dtype=np.int64).reshape(-1)
+        if len(self.det_idx) != len(self.map_idx):
+            raise InputError(f"ScanDetail.det_idx, map_idx: lengths differ ({len(self.det_idx)} vs "
+                             f"{len(self.map_idx)})")
+        for name, idx, size in (("det_idx", self.det_idx, n), ("map_idx", self.map_idx, len(self.map_points))):
+            if len(idx) and (idx.min() < 0 or idx.max() >= size):
+                raise InputError(f"ScanDetail.{name}: indices must lie in [0, {size}), got {idx.min()}..{idx.max()}")
+        if self.rows is not None:
+            self.rows = np.asarray(self.rows, dtype=np.int64).reshape(-1)
+            if len(self.rows) != n:
+                raise InputError(f"ScanDetail.rows: expected {n} indices, got {len(self.rows)}")
+
+    def classes(self, labels: np.ndarray | None = None) -> np.ndarray:
+        """Class id per detection (DETECTION_CLASSES): associated 0, gated out 1, moving 2; clutter 3 when the
+        truth labels (n,) are given (it overrides the status)."""
+        cls = np.where(self.static, 1, 2).astype(np.uint16)
+        cls[self.det_idx] = 0
+        if labels is not None:
+            cls[np.asarray(labels) == TRUTH_CLUTTER] = 3
+        return cls
+
+
+def _sensor_points(polar: np.ndarray) -> np.ndarray:
+    r, az, el = polar[:, 0], polar[:, 1], polar[:, 2]
+    ce = np.cos(el)
+    return np.stack([r * ce * np.cos(az), r * ce * np.sin(az), r * np.sin(el)], axis=1)
+
+
+def _quat_xyzw(C: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(C).as_quat()
+    return np.where(q[..., 3:4] < 0, -q, q)
+
+
+class _Truth:
+    """Ground truth matched to the estimates: aligned poses (N, 4, 4; NaN where missing), varpi, vd, and
+    per-scan detection labels when the simulator's truth dict is given."""
+
+    def __init__(self, seq, result, truth: dict | None):
+        t_est = result.t
+        n = len(t_est)
+        self.T_world_vehicle = None
+        self.varpi = self.vd = None
+        self.labels = None
+        if truth is not None:
+            for key in ("t", "T_vehicle_world"):
+                if key not in truth:
+                    raise InputError(f"truth: missing key {key!r} (expected the dict of sim.simulate)")
+            t_truth = np.asarray(truth["t"], dtype=float)
+            T_wv = se3.inverse(check_finite("truth['T_vehicle_world']", truth["T_vehicle_world"], (4, 4)))
+        elif seq.groundtruth is not None and len(seq.groundtruth.t):
+            t_truth, T_wv = np.asarray(seq.groundtruth.t, float), np.asarray(seq.groundtruth.T_world_vehicle, float)
+        else:
+            return
+        idx = rm.match_times(t_est, t_truth)
+        self.index = idx
+        ok = idx >= 0
+        if not ok.any():
+            return
+        first = int(np.argmax(ok))
+        aligned = np.full((n, 4, 4), np.nan)
+        est0 = result.estimates[first].T_world_vehicle
+        aligned[ok] = (est0 @ se3.inverse(T_wv[idx[first]])) @ T_wv[idx[ok]]
+        self.T_world_vehicle = aligned
+        if truth is not None:
+            if "varpi" in truth:
+                self.varpi = np.full((n, 6), np.nan)
+                self.varpi[ok] = np.asarray(truth["varpi"], float)[idx[ok]]
+            if "varpi_dot" in truth:
+                self.vd = np.full((n, 6), np.nan)
+                self.vd[ok] = np.asarray(truth["varpi_dot"], float)[idx[ok]]
+            if "det_label" in truth and "scan_offsets" in truth:
+                self._labels = np.asarray(truth["det_label"])
+                self._offsets = np.asarray(truth["scan_offsets"], dtype=np.int64)
+                self.labels = True
+
+    def scan_labels(self, k: int, n_rows: int) -> np.ndarray | None:
+        """Truth labels of the rows of scan k (radar.csv order), None when unknown or inconsistent."""
+        if not self.labels or self.index[k] < 0:
+            return None
+        j = self.index[k]
+        lab = self._labels[self._offsets[j]:self._offsets[j + 1]]
+        return lab if len(lab) == n_rows else None
+
+
+def _series(rec, rr, path: str, frames, times, values, names, colours=None) -> None:
+    """Send a time series (N, c) as columns; rows whose first value is NaN are left out (gaps)."""
+    values = np.asarray(values, dtype=float).reshape(len(frames), -1)
+    keep = np.isfinite(values[:, 0])
+    if not keep.any():
+        return
+    style = {"names": list(names)}
+    if colours is not None:
+        style["colors"] = list(colours)
+    rec.log(path, rr.SeriesLines(**style), static=True)
+    rec.send_columns(path, indexes=[rr.TimeColumn("frame", sequence=frames[keep]),
+                                    rr.TimeColumn("time", duration=times[keep])],
+                     columns=rr.Scalars.columns(scalars=values[keep]))
+
+
+def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
+    """All the time series; returns the tab origins that got data."""
+    est = result.estimates
+    logged = set()
+
+    def send(tab, path, values, names, colours=None):
+        _series(rec, rr, path, frames, times, values, names, colours)
+        logged.add(tab)
+
+    grey, red, blue, black = (150, 150, 150), (220, 50, 50), ESTIMATE_COLOUR, TRUTH_COLOUR
+    if truth.T_world_vehicle is not None:
+        err = rm.pose_errors(np.stack([e.T_world_vehicle for e in est]), truth.T_world_vehicle)
+        send("metrics/error", "metrics/error/translation", err.translation[:, None], ["translation error (m)"])
+        send("metrics/error", "metrics/error/rotation", err.rotation_deg[:, None], ["rotation error (deg)"])
+        send("metrics/drift", "metrics/drift", err.drift, ["x drift (m)", "y drift (m)", "z drift (m)"],
+             [(220, 50, 50), (40, 170, 40), (40, 90, 230)])
+        lo, hi = rm.nees_bounds(6)
+        P = np.stack([e.P for e in est])
+        v = rm.nees(err.xi, P[:, :6, :6])
+        send("metrics/nees", "metrics/nees/pose", np.c_[v, np.full_like(v, lo), np.full_like(v, hi)],
+             ["pose NEES (6 dof)", "2.5 % bound", "97.5 % bound"], [blue, grey, grey])
+        if truth.varpi is not None:
+            varpi = np.stack([e.varpi for e in est])
+            v = rm.nees(truth.varpi - varpi, P[:, 6:12, 6:12])
+            send("metrics/nees", "metrics/nees/velocity", np.c_[v, np.full_like(v, lo), np.full_like(v, hi)],
+                 ["velocity NEES (6 dof)", "2.5 % bound", "97.5 % bound"], [red, grey, grey])
+    nis = np.array([e.nis for e in est], dtype=float)
+    n_assoc = np.array([e.n_associated for e in est])
+    bounds = np.array([rm.nees_bounds(4, int(m)) if m > 0 else (np.nan, np.nan) for m in n_assoc])
+    send("metrics/nis", "metrics/nis", np.c_[nis, bounds], ["mean NIS per pair (4 dof)", "2.5 % bound",
+                                                            "97.5 % bound"], [blue, grey, grey])
+    counts = np.array([[e.n_detections, e.n_static, e.n_associated] for e in est], dtype=float)
+    send("metrics/counts", "metrics/counts", counts, ["detections", "static (Doppler)", "associated"])
+    stages = ("predict", "associate", "solve", "map")
+    ms = np.c_[result.wall_ms, np.array([[e.timings.get(s, np.nan) * 1e3 for s in stages] for e in est])]
+    send("metrics/timing", "metrics/timing", ms, ["total (ms)"] + [f"{s} (ms)" for s in stages])
+    varpi = np.stack([e.varpi for e in est])
+    vd = np.stack([e.vd for e in est]) if all(e.vd is not None for e in est) else None
+    for group, names, e_val, t_val in (("velocity", VELOCITY_NAMES, varpi, truth.varpi),
+                                       ("acceleration", ACCEL_NAMES, vd, truth.vd)):
+        for i, name in enumerate(names):
+            cols, labels, colours = [], [], []
+            if e_val is not None:
+                cols.append(e_val[:, i]), labels.append(f"estimate {name}"), colours.append(blue)
+            if t_val is not None:
+                cols.append(t_val[:, i]), labels.append(f"truth {name}"), colours.append(black)
+            if cols:
+                send(group, f"{group}/{name.split(' ')[0]}", np.stack(cols, axis=1), labels, colours)
+    return logged
+
+
+def _log_scans(rec, rr, seq, result, truth: _Truth, detail) -> None:
+    """Per frame: the scan in the sensor frame (class ids), the local map, association lines."""
+    scans = {float(s.t): s for s in seq.scans}
+    for k, e in enumerate(result.estimates):
+        rec.set_time("frame", sequence=k)
+        rec.set_time("time", duration=float(e.t))
+        scan = scans.get(float(e.t))
+        d = detail[k] if detail is not None else None
+        if d is not None:
+            labels = None
+            if scan is not None:
+                all_labels = truth.scan_labels(k, len(scan))
+                if all_labels is not None:
+                    rows = d.rows if d.rows is not None else (np.arange(len(d.polar)) if len(d.polar) == len(scan)
+                                                                else None)
+                    labels = all_labels[rows] if rows is not None else None
+            p_s = _sensor_points(d.polar)
+            rec.log("world/vehicle/sensor/scan", rr.Points3D(p_s, class_ids=d.classes(labels), radii=0.15))
+            rec.log("world/map", rr.Points3D(d.map_points, colors=[(90, 90, 90)], radii=0.1))
+            T_ws = e.T_world_vehicle @ seq.sensor.T_vehicle_sensor
+            a = se3.transform_points(T_ws, p_s[d.det_idx]) if len(d.det_idx) else np.zeros((0, 3))
+            strips = np.stack([a, d.map_points[d.map_idx]], axis=1)
+            rec.log("world/associations", rr.LineStrips3D(strips, colors=[(40, 200, 60)], radii=0.03))
+        elif scan is not None:
+            labels = truth.scan_labels(k, len(scan))
+            if labels is None:
+                cls = np.full(len(scan), 4, dtype=np.uint16)
+            else:
+                cls = np.where(labels == TRUTH_CLUTTER, 3, np.where(labels == TRUTH_MOVING, 6, 5)).astype(np.uint16)
+            rec.log("world/vehicle/sensor/scan", rr.Points3D(scan.points_sensor, class_ids=cls, radii=0.15))
+        if e.events:
+            rec.log("events", rr.TextLog("; ".join(e.events), level="INFO"))
+
+
+def record_run(path, seq, result, truth: dict | None = None, detail: list | None = None,
+               recording_id: str | None = None) -> Path:
+    """Write a Rerun recording (.rrd) of one odometry run.
+
+    Contents (entity paths; docs/visualisation.md): `world` (RIGHT_HAND_Z_UP, the estimator's world frame),
+    `world/estimate/trajectory` and `world/truth/trajectory` (line strips; the truth aligned to the estimate
+    by its first pose), `world/vehicle` (estimated T_world_vehicle per frame), `world/vehicle/sensor` (the
+    extrinsic, static, logged once), `world/vehicle/sensor/scan` (detections in the sensor frame, class ids of
+    DETECTION_CLASSES), `world/map`, `world/associations`, `world/estimate/covariance` (3-sigma ellipsoid of
+    the vehicle's world position, Sigma_w = C^T P_rho C, see `run_metrics.position_covariance_world`),
+    `world/truth/vehicle`; time series under `metrics/...`, `velocity/...`, `acceleration/...`; `events`.
+
+    Args:
+        path: output .rrd file (parent directories are created).
+        seq: the `sim.sequence.Sequence` that was run.
+        result: its `validation.driver.RunResult`.
+        truth: the simulator's truth dict (t, T_vehicle_world, varpi, varpi_dot, det_label, scan_offsets), or
+            None (then seq.groundtruth, if any, gives the truth trajectory).
+        detail: per-frame `ScanDetail` (or None entries), len == len(result.estimates), or None.
+        recording_id: Rerun recording id (default: a fresh one).
+
+    Returns:
+        The path written.
+
+    Raises:
+        InputError: empty result, detail of the wrong length, malformed truth.
+    """
+    import rerun as rr
+
+    from .blueprint import build_blueprint
+
+    est = result.estimates
+    if not est:
+        raise InputError("result: no estimates to record")
+    if detail is not None and len(detail) != len(est):
+        raise InputError(f"detail: expected {len(est)} entries (one per estimate), got {len(detail)}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    truth_m = _Truth(seq, result, truth)
+    n = len(est)
+    frames = np.arange(n)
+    times = result.t.astype(float)
+    T_wv = np.stack([e.T_world_vehicle for e in est])
+    positions = T_wv[:, :3, 3]
+
+    rec = rr.RecordingStream("rodo", recording_id=recording_id)
+    rec.save(path)
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log("world", rr.AnnotationContext([(i, label, colour) for i, (label, colour) in DETECTION_CLASSES.items()]),
+            static=True)
+    T_vs = np.asarray(seq.sensor.T_vehicle_sensor, dtype=float)
+    rec.log("world/vehicle/sensor", rr.Transform3D(translation=T_vs[:3, 3], quaternion=_quat_xyzw(T_vs[:3, :3])),
+            rr.TransformAxes3D(axis_length=0.8), static=True)
+    rec.log("world/vehicle", rr.TransformAxes3D(axis_length=2.0), static=True)
+    rec.log("world/estimate/trajectory", rr.LineStrips3D([positions], colors=[ESTIMATE_COLOUR], radii=0.08,
+                                                         labels=[f"estimate ({result.config.model})"]), static=True)
+    index = [rr.TimeColumn("frame", sequence=frames), rr.TimeColumn("time", duration=times)]
+    rec.send_columns("world/vehicle", indexes=index,
+                     columns=rr.Transform3D.columns(translation=positions, quaternion=_quat_xyzw(T_wv[:, :3, :3])))
+    Sigma = rm.position_covariance_world(np.stack([e.T_vehicle_world for e in est]),
+                                         np.stack([e.P[:3, :3] for e in est]))
+    half, quat = rm.covariance_ellipsoid(Sigma, 3.0)
+    rec.log("world/estimate/covariance", rr.Ellipsoids3D.from_fields(
+        colors=[(40, 120, 255)], fill_mode=rr.components.FillMode.MajorWireframe), static=True)
+    rec.send_columns("world/estimate/covariance", indexes=index,
+                     columns=rr.Ellipsoids3D.columns(centers=positions, half_sizes=half, quaternions=quat))
+    if truth_m.T_world_vehicle is not None:
+        ok = np.all(np.isfinite(truth_m.T_world_vehicle.reshape(n, -1)), axis=1)
+        Tt = truth_m.T_world_vehicle[ok]
+        rec.log("world/truth/trajectory", rr.LineStrips3D([Tt[:, :3, 3]], colors=[TRUTH_COLOUR], radii=0.08,
+                                                          labels=["ground truth (aligned at the first pose)"]),
+                static=True)
+        rec.log("world/truth/vehicle", rr.TransformAxes3D(axis_length=1.5), static=True)
+        rec.send_columns("world/truth/vehicle",
+                         indexes=[rr.TimeColumn("frame", sequence=frames[ok]),
+                                  rr.TimeColumn("time", duration=times[ok])],
+                         columns=rr.Transform3D.columns(translation=Tt[:, :3, 3], quaternion=_quat_xyzw(Tt[:, :3, :3])))
+    logged = _log_series(rec, rr, result, truth_m, frames, times)
+    _log_scans(rec, rr, seq, result, truth_m, detail)
+    pts = positions if truth_m.T_world_vehicle is None else np.r_[positions, truth_m.T_world_vehicle[:, :3, 3]]
+    rec.send_blueprint(build_blueprint(pts, logged))
+    rec.flush()
+    rec.disconnect()  # closes the file sink: the .rrd is complete when this returns
+    return path
