@@ -33,7 +33,9 @@ def _campaign(executor_kind: str, jobs: int, trials, trial_fn, root: Path) -> di
     return {"executor": executor_kind, "workers": jobs, "trials": len(trials), "ok rows": f"{ok}/{len(rows)}",
             "wall s (run)": run_s, "start-up + shut-down s": total_s - run_s,
             "trials/min": 60 * len(trials) / run_s, "median ms/scan": ms[len(ms) // 2] if ms else float("nan"),
-            "rows written": rep.ran}
+            "rows written": rep.ran,
+            "errors": "; ".join(sorted({r["error"].replace("|", "/") for r in rows if r["status"] == "error"})[:2])
+            or "-"}
 
 
 def run(quick: bool) -> str:
@@ -57,7 +59,10 @@ def run(quick: bool) -> str:
     for r in rows:
         lines.append("| " + " | ".join(f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k]) for k in keys) + " |")
     lines += ["", "Wall times on a machine shared with other jobs vary; the ratio between the two executors in the "
-                  "same run is the figure to compare."]
+                  "same run is the figure to compare. The pool's workers are forked from this process, which holds "
+                  "the compiled numba kernels after the serial trial; Dask's worker processes start fresh (cluster "
+                  "start-up is listed apart) and load the kernels from numba's cache in their first trial, a cost "
+                  "that longer trials amortise."]
     return "\n".join(lines) + "\n"
 
 

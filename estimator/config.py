@@ -35,13 +35,16 @@ class NoiseConfig:
     map_sigma: isotropic uncertainty (m) added to every map point's own covariance (the detection noise it was
         created with): surfaces are sampled at different places each scan.
     sensor_sigma_scale: multiplies the sensor's 1-sigma noise from sensor.toml (tuning, as in the paper).
+    sigma_floor: lower bounds of the 1-sigma [range m, azimuth rad, elevation rad, radial velocity m/s] the
+        estimator uses (a noise-free sensor.toml must not make the information matrix singular).
     """
 
-    qc_ca: tuple[float, ...] = (4.0, 0.5, 0.5, 0.05, 0.05, 0.1)
-    qc_cv: tuple[float, ...] = (1.0, 0.1, 0.1, 0.01, 0.01, 0.05)
+    qc_ca: tuple[float, ...] = (2.0, 0.05, 0.05, 1e-4, 1e-3, 0.05)
+    qc_cv: tuple[float, ...] = (1.0, 0.05, 0.05, 1e-3, 1e-3, 0.05)
     cartesian_sigma: float = 0.3
-    map_sigma: float = 0.05
+    map_sigma: float = 0.3
     sensor_sigma_scale: float = 1.0
+    sigma_floor: tuple[float, ...] = (0.005, 5e-4, 5e-4, 0.005)
 
 
 @dataclass(frozen=True)

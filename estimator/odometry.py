@@ -12,7 +12,8 @@ Per scan k (paper sec. III-VI):
    the chi-square quantile (eq. 86-88);
 4. add x_k to the sliding window, Gauss-Newton over prior, motion and measurement terms, re-associate with the
    refined estimate, solve again, marginalise the oldest state when the window is full;
-5. update the local map: refresh associated points, add the unassociated static detections.
+5. update the local map: refresh associated points, add the unassociated static detections. The map ages
+   with scans that have static detections, so a blockage does not expire the map needed after it.
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ class ScanEstimate:
     nis: float  # mean normalised innovation squared of the accepted associations (per pair, dof 4)
     timings: dict = field(default_factory=dict)  # seconds: predict, associate, solve, map
     events: list = field(default_factory=list)
+    detail: dict | None = None  # with record_detail: polar, static, det_idx, map_idx, map_points, rows
 
     @property
     def T_world_vehicle(self) -> np.ndarray:
@@ -63,16 +65,19 @@ class RadarOdometry:
         T_vehicle_sensor: (4, 4) extrinsics.
         sensor_sigmas: (4,) 1-sigma noise [range, azimuth, elevation, radial_velocity] (from sensor.toml).
         max_range: the sensor's maximum range (m), for pruning the map.
+        record_detail: keep per-scan association detail in `ScanEstimate.detail` (for visual debugging).
     """
 
-    def __init__(self, config: OdometryConfig, T_vehicle_sensor, sensor_sigmas, max_range: float = 200.0):
+    def __init__(self, config: OdometryConfig, T_vehicle_sensor, sensor_sigmas, max_range: float = 200.0,
+                 record_detail: bool = False):
         self.config = config
         self.T_vs = check_finite("T_vehicle_sensor", T_vehicle_sensor, (4, 4))
         sig = check_finite("sensor_sigmas", sensor_sigmas, (4,))
         if np.any(sig <= 0):
             raise InputError(f"sensor_sigmas: must be > 0, got {sig}")
-        self.sigmas = sig * config.noise.sensor_sigma_scale
+        self.sigmas = np.maximum(sig * config.noise.sensor_sigma_scale, config.noise.sigma_floor)
         self.max_range = float(max_range)
+        self.record_detail = record_detail
         qc = config.noise.qc_ca if config.prior == "ca" else config.noise.qc_cv
         self.motion = MotionModel(config.prior, qc)
         self.window = SlidingWindow(self.motion, config.window, config.measurement, self.T_vs,
@@ -84,6 +89,7 @@ class RadarOdometry:
         self.gate = association.gate_threshold(config.association.gate_probability, 4)
         self.P: np.ndarray | None = None
         self.scan_index = 0
+        self.map_clock = 0  # counts scans with static detections: the map ages with observations, not time
         self._last_t: float | None = None
 
     # --- helpers ------------------------------------------------------------------------------------------
@@ -166,7 +172,8 @@ class RadarOdometry:
         tic = time.perf_counter()
         cfg = self.config
         model = cfg.measurement
-        polar = polar[(polar[:, 0] > 0) & (polar[:, 0] <= self.max_range)]
+        in_range = (polar[:, 0] > 0) & (polar[:, 0] <= self.max_range)
+        polar = polar[in_range]
         self._R = measurements.noise_covariance(model, polar[:1] if len(polar) else np.array([[1.0, 0, 0, 0]]),
                                                 self.sigmas, cfg.noise.cartesian_sigma)[0]
         events: list = []
@@ -206,17 +213,24 @@ class RadarOdometry:
             self.window.marginalize_oldest()
         timings["solve"] = time.perf_counter() - tic
 
+        detail = None
+        if self.record_detail:
+            detail = dict(polar=polar, static=static, det_idx=np.flatnonzero(static)[assoc.det_idx],
+                          map_idx=assoc.map_idx.copy(), map_points=self.map.points.copy(),
+                          rows=np.flatnonzero(in_range))
         tic = time.perf_counter()
         xk = self.window.newest
+        if len(pts):
+            self.map_clock += 1  # an empty scan (blockage) must not expire the map it will need afterwards
         if len(assoc.map_idx):
-            self.map.refresh(assoc.map_idx, self.scan_index)
+            self.map.refresh(assoc.map_idx, self.map_clock)
         if len(pts):
             new = np.ones(len(pts), bool)
             new[assoc.det_idx] = False
             T_world_sensor = se3.inverse(xk.T) @ self.T_vs
-            self.map.add(se3.transform_points(T_world_sensor, pts[new]), self.scan_index,
+            self.map.add(se3.transform_points(T_world_sensor, pts[new]), self.map_clock,
                          covariances=self._point_covariances(polar[static][new], T_world_sensor[:3, :3]))
-        self.map.prune(self.scan_index, xk.T, self.T_vs, self.max_range)
+        self.map.prune(self.map_clock, xk.T, self.T_vs, self.max_range)
         timings["map"] = time.perf_counter() - tic
 
         nis = float(np.mean(assoc.d2)) if len(assoc.d2) else float("nan")
@@ -225,4 +239,5 @@ class RadarOdometry:
         self._last_t = t
         self.scan_index += 1
         return ScanEstimate(t, xk.T.copy(), xk.varpi.copy(), None if xk.vd is None else xk.vd.copy(),
-                            self.P.copy(), len(polar), int(static.sum()), len(assoc.map_idx), nis, timings, events)
+                            self.P.copy(), len(polar), int(static.sum()), len(assoc.map_idx), nis, timings, events,
+                            detail)

@@ -6,7 +6,7 @@ state the associated detections (e = z - g(x_k, p_j), weight S^-1 with S the mea
 map-point uncertainty, eq. 83), with an optional Cauchy loss applied by iterative re-weighting.
 Every term is linearised as e + J d with d the left perturbation of the states; the normal equations are
 solved densely (the window is small). When the window is full the oldest state is marginalised with the Schur
-complement into a new Gaussian prior on the next one.
+complement into a prior on the next one, kept as (Lam, g) at its linearisation point: cost 1/2 e^T Lam e + g^T e.
 
 Checked by: tests/estimator/test_window.py
 """
@@ -47,8 +47,9 @@ class SlidingWindow:
         self.states: list[State] = []
         self.meas: list[MeasurementSet | None] = []
         self.motion_info: list[np.ndarray] = []  # Q_k^-1 between states k and k+1
-        self.prior_mean: State | None = None
+        self.prior_mean: State | None = None  # linearisation point of the prior on the oldest state
         self.prior_info: np.ndarray | None = None
+        self.prior_grad: np.ndarray | None = None  # linear term g: cost 1/2 e^T Lam e + g^T e, e = x0 (-) mean
         self._H: np.ndarray | None = None
 
     # --- building -------------------------------------------------------------------------------------
@@ -58,6 +59,7 @@ class SlidingWindow:
         self.motion_info = []
         self.prior_mean = x0.copy()
         self.prior_info = _inv_spd(P0)
+        self.prior_grad = np.zeros(len(P0))
         self._H = None
 
     def push(self, x: State, Q: np.ndarray) -> None:
@@ -120,10 +122,9 @@ class SlidingWindow:
         H = np.zeros((n * d, n * d))
         b = np.zeros(n * d)
         e, J = self._prior_term(self.states[0])
-        JW = J.T @ self.prior_info
-        H[:d, :d] += JW @ J
-        b[:d] += JW @ e
-        cost = 0.5 * e @ self.prior_info @ e
+        H[:d, :d] += J.T @ self.prior_info @ J
+        b[:d] += J.T @ (self.prior_info @ e + self.prior_grad)
+        cost = 0.5 * e @ self.prior_info @ e + self.prior_grad @ e
         if n > 1:
             E, J1s, J2s = self.motion.residuals(self.states)
             for k in range(n - 1):
@@ -157,6 +158,8 @@ class SlidingWindow:
         step, it = 1.0, 0
         for it in range(1, iterations + 1):
             delta = _solve_spd(H, -b)
+            if not np.all(np.isfinite(delta)):
+                break
             old = self.states
             self.states = [x.oplus(step * delta[k * d:(k + 1) * d]) for k, x in enumerate(old)]
             H2, b2, cost2 = self.linearize()
@@ -190,7 +193,7 @@ class SlidingWindow:
         b = np.zeros(2 * d)
         e, J = self._prior_term(x0)
         H[:d, :d] += J.T @ self.prior_info @ J
-        b[:d] += J.T @ self.prior_info @ e
+        b[:d] += J.T @ (self.prior_info @ e + self.prior_grad)
         e, J1, J2 = self.motion.residual(x0, x1)
         Jk = np.concatenate([J1, J2], axis=1)
         H += Jk.T @ self.motion_info[0] @ Jk
@@ -203,11 +206,10 @@ class SlidingWindow:
         X = _solve_spd(H00, np.c_[H01, b[:d]])
         Lam = H11 - H01.T @ X[:, :d]
         g = b[d:] - H01.T @ X[:, d]
-        Lam = 0.5 * (Lam + Lam.T)
-        # the new prior is 1/2 |x1 (-) m|^2_Lam with its mean shifted so that the linear term g is absorbed
-        shift = -_solve_spd(Lam, g)
-        self.prior_mean = x1.oplus(shift)
-        self.prior_info = Lam
+        # the new prior on x1: 1/2 e^T Lam e + g^T e with e = x1 (-) x1_now, exactly the Schur complement here
+        self.prior_mean = x1.copy()
+        self.prior_info = 0.5 * (Lam + Lam.T)
+        self.prior_grad = g
         self.states.pop(0)
         self.meas.pop(0)
         self.motion_info.pop(0)

@@ -8,9 +8,9 @@ import sys
 
 from estimator.errors import InputError
 
-from .commands import ego_velocity, run, simulate
+from .commands import demo, ego_velocity, evaluate, figures, montecarlo, prior, run, simulate, view
 
-COMMANDS = [simulate, run, ego_velocity]  # modules with register(subparsers); see rodo/commands/
+COMMANDS = [demo, simulate, run, evaluate, montecarlo, ego_velocity, prior, figures, view]  # modules with register(subparsers); see rodo/commands/
 
 
 def build_parser(commands=None) -> argparse.ArgumentParser:

@@ -28,7 +28,7 @@ import json
 import os
 import time
 import traceback
-from concurrent.futures import FIRST_COMPLETED, wait
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, CancelledError, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
@@ -78,7 +78,8 @@ def trial_seeds(seed: int, n: int) -> list[int]:
         raise InputError(f"seed: expected an integer >= 0, got {seed!r}")
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise InputError(f"runs: expected an integer >= 1, got {n!r}")
-    return [int(c.generate_state(1, np.uint64)[0] >> np.uint64(1)) for c in np.random.SeedSequence(int(seed)).spawn(int(n))]
+    children = np.random.SeedSequence(int(seed)).spawn(int(n))
+    return [int(c.generate_state(1, np.uint64)[0] >> np.uint64(1)) for c in children]
 
 
 def make_trials(seed: int, runs: int, models: Iterable[str]) -> list[Trial]:
@@ -148,12 +149,11 @@ def read_results(path: str | Path) -> list[dict]:
         return []
     if tuple(rows[0]) != FIELDS:
         raise InputError(f"{path}: line 1: unexpected header (expected {','.join(FIELDS)})")
+    body = rows[1:] if text.endswith("\n") else rows[1:-1]  # a final row without its newline is torn: drop it
     out = []
-    for line, row in enumerate(rows[1:], start=2):
+    for line, row in enumerate(body, start=2):
         if len(row) != len(FIELDS) or row[3] not in ("ok", "error"):
-            if line == len(rows) and not text.endswith("\n"):
-                break  # torn final row
-            raise InputError(f"{path}: line {line}: malformed row ({len(row)} fields)")
+            raise InputError(f"{path}: line {line}: malformed row ({len(row)} fields, status {row[3:4]})")
         out.append(dict(zip(FIELDS, row)))
     return out
 
@@ -187,6 +187,12 @@ def _error_text(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}".strip()
 
 
+def remaining(trials: list[Trial], out_dir) -> int:
+    """How many (trial, model) runs of `trials` are not yet in out_dir/results.csv (for a progress bar)."""
+    done = {(int(r["trial"]), r["model"]) for r in read_results(Path(out_dir) / "results.csv")}
+    return sum((tr.index, m) not in done for tr in trials for m in tr.models)
+
+
 @dataclass
 class CampaignReport:
     rows: list[dict]  # all rows of results.csv after the run
@@ -202,6 +208,8 @@ def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[T
     Args:
         trial_fn: picklable callable Trial -> list[TrialOutcome] (one per model of trial.models). An exception
             raised by it is recorded as status=error for each of the trial's models; it never stops the campaign.
+            A broken executor (a worker process died) is not the trial's failure: it stops the campaign with
+            nothing recorded for the unfinished trials, so that resume runs them.
         trials: the campaign's trials (make_trials).
         executor: any concurrent.futures.Executor (ProcessPoolExecutor, Dask's Client.get_executor()).
         out_dir: campaign directory (created).
@@ -268,11 +276,13 @@ def _collect(out: Path, tr: Trial, fut) -> list[dict]:
     """Rows (and saved arrays) for a finished future; any failure becomes status=error rows."""
     base = {"trial": tr.index, "seed": tr.seed}
     try:
-        outcomes = fut.result()
+        outcomes = fut.result()  # a broken pool or a cancelled future is no result of the trial: it propagates
         by_model = {o.model: o for o in outcomes}
         missing = [m for m in tr.models if m not in by_model]
         if missing:
             raise RuntimeError(f"trial function returned no outcome for model(s) {', '.join(missing)}")
+    except (BrokenExecutor, CancelledError):
+        raise
     except Exception as exc:  # noqa: BLE001 - a failed trial is data, not a reason to stop
         text = _error_text(exc)
         return [{**base, "model": m, "status": "error", "error": text} for m in tr.models]
@@ -317,7 +327,8 @@ class ScenarioTrial:
                 outcomes.append(evaluate_result(model, result, gt, truth, self.lengths, self.step,
                                                 time.perf_counter() - t0))
             except Exception as exc:  # noqa: BLE001 - recorded per model
-                where = traceback.extract_tb(exc.__traceback__)[-1]
+                frames = traceback.extract_tb(exc.__traceback__)
+                where = next((f for f in reversed(frames) if not f.filename.endswith("errors.py")), frames[-1])
                 outcomes.append(TrialOutcome(model, error=f"{_error_text(exc)} (at {Path(where.filename).name}:"
                                                           f"{where.lineno})"))
         return outcomes

@@ -76,7 +76,7 @@ def scan_times(seq: Sequence) -> np.ndarray:
     return t
 
 
-def run_sequence(seq: Sequence, config: OdometryConfig, progress=None) -> RunResult:
+def run_sequence(seq: Sequence, config: OdometryConfig, progress=None, record_detail: bool = False) -> RunResult:
     """Run the estimator over every scan of `seq`; `progress` is an optional object with update().
 
     BLAS is limited to one thread for the run: the estimator's matrices are tiny (at most a few hundred rows),
@@ -84,12 +84,13 @@ def run_sequence(seq: Sequence, config: OdometryConfig, progress=None) -> RunRes
     threads, 77 us with one).
     """
     with threadpool_limits(limits=1, user_api="blas"):
-        return _run(seq, config, progress)
+        return _run(seq, config, progress, record_detail)
 
 
-def _run(seq: Sequence, config: OdometryConfig, progress) -> RunResult:
+def _run(seq: Sequence, config: OdometryConfig, progress, record_detail: bool) -> RunResult:
     sensor = seq.sensor
-    odo = RadarOdometry(config, sensor.T_vehicle_sensor, sensor.noise.as_array(), sensor.max_range)
+    odo = RadarOdometry(config, sensor.T_vehicle_sensor, sensor.noise.as_array(), sensor.max_range,
+                        record_detail=record_detail)
     by_t = {s.t: s for s in seq.scans}
     times = scan_times(seq)
     if len(times) == 0:

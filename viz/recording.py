@@ -11,6 +11,7 @@ Checked by: tests/viz/test_recording.py (recordings read back with rerun.chunk.R
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -201,7 +202,7 @@ def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
                  ["velocity NEES (6 dof)", "2.5 % bound", "97.5 % bound"], [red, grey, grey])
     nis = np.array([e.nis for e in est], dtype=float)
     n_assoc = np.array([e.n_associated for e in est])
-    bounds = np.array([rm.nees_bounds(4, int(m)) if m > 0 else (np.nan, np.nan) for m in n_assoc])
+    bounds = rm.nees_bounds_array(4, n_assoc)
     send("metrics/nis", "metrics/nis", np.c_[nis, bounds], ["mean NIS per pair (4 dof)", "2.5 % bound",
                                                             "97.5 % bound"], [blue, grey, grey])
     counts = np.array([[e.n_detections, e.n_static, e.n_associated] for e in est], dtype=float)
@@ -284,10 +285,10 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
 
     Raises:
         InputError: empty result, detail of the wrong length, malformed truth.
+
+    Checked by: tests/viz/test_recording.py::test_recording_contents_match_the_run (and the tests after it)
     """
     import rerun as rr
-
-    from .blueprint import build_blueprint
 
     est = result.estimates
     if not est:
@@ -297,14 +298,30 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     truth_m = _Truth(seq, result, truth)
+    tmp = path.with_name(f".{path.name}.tmp")
+    rec = rr.RecordingStream("rodo", recording_id=recording_id)
+    rec.save(tmp)
+    try:
+        _write(rec, rr, seq, result, truth_m, detail)
+        rec.flush()
+    except BaseException:
+        rec.disconnect()
+        tmp.unlink(missing_ok=True)
+        raise
+    rec.disconnect()  # closes the file sink: the .rrd is complete when this returns
+    os.replace(tmp, path)  # a crash never leaves half a recording under the final name
+    return path
+
+
+def _write(rec, rr, seq, result, truth_m: _Truth, detail) -> None:
+    from .blueprint import build_blueprint
+
+    est = result.estimates
     n = len(est)
     frames = np.arange(n)
     times = result.t.astype(float)
     T_wv = np.stack([e.T_world_vehicle for e in est])
     positions = T_wv[:, :3, 3]
-
-    rec = rr.RecordingStream("rodo", recording_id=recording_id)
-    rec.save(path)
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log("world", rr.AnnotationContext([(i, label, colour) for i, (label, colour) in DETECTION_CLASSES.items()]),
             static=True)
@@ -313,7 +330,8 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
             rr.TransformAxes3D(axis_length=0.8), static=True)
     rec.log("world/vehicle", rr.TransformAxes3D(axis_length=2.0), static=True)
     rec.log("world/estimate/trajectory", rr.LineStrips3D([positions], colors=[ESTIMATE_COLOUR], radii=0.08,
-                                                         labels=[f"estimate ({result.config.model})"]), static=True)
+                                                         labels=[f"estimate ({result.config.model})"],
+                                                         show_labels=False), static=True)
     index = [rr.TimeColumn("frame", sequence=frames), rr.TimeColumn("time", duration=times)]
     rec.send_columns("world/vehicle", indexes=index,
                      columns=rr.Transform3D.columns(translation=positions, quaternion=_quat_xyzw(T_wv[:, :3, :3])))
@@ -328,7 +346,8 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
         ok = np.all(np.isfinite(truth_m.T_world_vehicle.reshape(n, -1)), axis=1)
         Tt = truth_m.T_world_vehicle[ok]
         rec.log("world/truth/trajectory", rr.LineStrips3D([Tt[:, :3, 3]], colors=[TRUTH_COLOUR], radii=0.08,
-                                                          labels=["ground truth (aligned at the first pose)"]),
+                                                          labels=["ground truth (aligned at the first pose)"],
+                                                          show_labels=False),
                 static=True)
         rec.log("world/truth/vehicle", rr.TransformAxes3D(axis_length=1.5), static=True)
         rec.send_columns("world/truth/vehicle",
@@ -339,6 +358,3 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
     _log_scans(rec, rr, seq, result, truth_m, detail)
     pts = positions if truth_m.T_world_vehicle is None else np.r_[positions, truth_m.T_world_vehicle[:, :3, 3]]
     rec.send_blueprint(build_blueprint(pts, logged))
-    rec.flush()
-    rec.disconnect()  # closes the file sink: the .rrd is complete when this returns
-    return path

@@ -47,6 +47,22 @@ def nees_bounds(dof: int, n_runs: int = 1, prob: float = 0.95) -> tuple[float, f
     return float(chi2.ppf(a, k) / n_runs), float(chi2.ppf(1.0 - a, k) / n_runs)
 
 
+def nees_bounds_array(dof: int, n_terms, prob: float = 0.95) -> np.ndarray:
+    """`nees_bounds(dof, n)` for an array of term counts n (N,) -> (N, 2); rows with n <= 0 are NaN.
+
+    Checked by: tests/viz/test_recording.py::test_nees_bounds_match_chi_square_quantiles
+    """
+    n = np.asarray(n_terms, dtype=float).reshape(-1)
+    out = np.full((len(n), 2), np.nan)
+    ok = n > 0
+    if ok.any():
+        nees_bounds(dof, 1, prob)  # validates dof and prob
+        a = 0.5 * (1.0 - float(prob))
+        out[ok, 0] = chi2.ppf(a, n[ok] * dof) / n[ok]
+        out[ok, 1] = chi2.ppf(1.0 - a, n[ok] * dof) / n[ok]
+    return out
+
+
 def align_to_first(T_a_vehicle, T_b_vehicle0) -> np.ndarray:
     """Poses (N, 4, 4) T_a_v of a trajectory expressed in another world frame b, aligned by the first pose:
     T_b_a T_a_v with T_b_a = T_b_v(0) T_a_v(0)^-1, so the first aligned pose equals T_b_vehicle0.

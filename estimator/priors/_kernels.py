@@ -43,7 +43,7 @@ def gauss_legendre_01(n: int) -> tuple[np.ndarray, np.ndarray]:
 # 13 Hz has b ~ 0.3: 6 nodes); checked by
 # tests/estimator/test_priors_ca.py::test_process_noise_matches_van_loan_of_full_magnus_block.
 QUAD_SIZES = (4, 6, 8, 12, 24, 32)
-QUAD_BELOW = np.array([0.08, 2.0, 6.0, 25.0, 50.0, np.inf])
+QUAD_BELOW = np.array([0.08, 1.2, 4.0, 15.0, 50.0, np.inf])
 QUAD_NODES = np.zeros((len(QUAD_SIZES), max(QUAD_SIZES)))
 QUAD_WEIGHTS = np.zeros_like(QUAD_NODES)
 for _i, _n in enumerate(QUAD_SIZES):
@@ -188,6 +188,46 @@ def _ub_poly(c, scale, Sp, out):
 
 
 @njit(cache=True, fastmath=_FM, error_model="numpy")
+def _ub_axpby(alpha, X, beta, out):
+    """out = alpha X + beta out (ub arrays); beta == 0 overwrites (out may hold garbage)."""
+    for j in range(2):
+        for k in range(3):
+            for m in range(3):
+                if beta == 0.0:
+                    out[j, k, m] = alpha * X[j, k, m]
+                else:
+                    out[j, k, m] = alpha * X[j, k, m] + beta * out[j, k, m]
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy")
+def _sandwich_acc(N, Qc, Nd, NQ, Q, c11, c12, c13):
+    """With NQ = N Qc (N ub): Q[:6,:6] += c11 N Qc N^T (upper triangle), Q[:6,6:12] += c12 NQ,
+    Q[:6,12:18] += c13 NQ (skipped when c13 == 0)."""
+    Nd[:] = 0.0
+    _ub_to_dense(N, Nd, 0, 0, 1.0)
+    for i in range(6):
+        k0 = 0 if i < 3 else 3  # zero lower-left block of N
+        for j in range(6):
+            s = 0.0
+            for k in range(k0, 6):
+                s += Nd[i, k] * Qc[k, j]
+            NQ[i, j] = s
+    for i in range(6):
+        for j in range(i, 6):
+            k0 = 0 if j < 3 else 3
+            s = 0.0
+            for k in range(k0, 6):
+                s += NQ[i, k] * Nd[j, k]
+            Q[i, j] += c11 * s
+        if c12 != 0.0:
+            for j in range(6):
+                Q[i, 6 + j] += c12 * NQ[i, j]
+        if c13 != 0.0:
+            for j in range(6):
+                Q[i, 12 + j] += c13 * NQ[i, j]
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy")
 def _ub_to_dense(U, M, r0, c0, alpha):
     """M[r0:r0+6, c0:c0+6] += alpha * U (dense)."""
     for i in range(3):
@@ -289,11 +329,61 @@ def predict_batch(T, varpi, vd, dt, order, T_out, varpi_out, vd_out):
 # ----------------------------------------------------------------------------------------------
 # CA prior: F_k and Q_k fused (paper eq. 43-69, docs/priors.md)
 @njit(cache=True, fastmath=_FM, error_model="numpy")
-def _ca_core(varpi, vd, dt, Qc, order, F, Q, want_q, ws6, ws33, ws66, Sp, cf):
-    """Write F_k (18,18) and, if want_q, Q_k (18,18) for one interval (F, Q zeroed by the caller)."""
+def _s_blocks(varpi, dt, order, X, Y, S12, S13, U1, U2, N):
+    """S12 = dt I + dt^3/12 Y + dt^5/240 Y^2 (+ order 4), S13 = 0 (order 4: dt^5/720 (3XY - YX)); Y = curlyhat(vd)
+    given, X = curlyhat(varpi) written here (order 4 only). U1, U2, N are scratch."""
+    S12[:] = 0.0
+    S13[:] = 0.0
+    for i in range(3):
+        S12[0, i, i] = dt
+    h5 = dt * dt * dt * dt * dt
+    if order >= 2:
+        _ub_axpby(dt * dt * dt / 12.0, Y, 1.0, S12)
+    if order >= 3:
+        _ub_mul(Y, Y, U1)
+        _ub_axpby(h5 / 240.0, U1, 1.0, S12)
+    if order >= 4:
+        _ub_curly(varpi, X)
+        c = h5 / 720.0
+        _ub_mul(X, Y, U1)  # XY
+        _ub_mul(Y, X, U2)  # YX
+        _ub_axpby(3.0 * c, U1, 0.0, S13)
+        _ub_axpby(-c, U2, 1.0, S13)  # S13 = c (3 XY - YX)
+        # S12 += c (-3 X^2 Y + 3 X Y X - Y X^2) = c (X (3 (YX - XY)) - (YX) X)
+        _ub_axpby(3.0, U2, 0.0, N)
+        _ub_axpby(-3.0, U1, 1.0, N)
+        _ub_mul(X, N, U1)  # 3 X (YX - XY)
+        _ub_mul(U2, X, N)  # Y X^2
+        _ub_axpby(c, U1, 1.0, S12)
+        _ub_axpby(-c, N, 1.0, S12)
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy")
+def _last_column(sig, Sp, cf, S12, S13, h, scale, order, Hs, Js, U1, N):
+    """N = h H(scale sigma) S12 + J(scale sigma) S13 (the pose row of exp(scale S_A) L, up to the factor)."""
+    a = math.sqrt(sig[3] * sig[3] + sig[4] * sig[4] + sig[5] * sig[5])
+    _se3_coeffs(2, scale * a, cf)
+    _ub_poly(cf, scale, Sp, Hs)
+    _ub_mul(Hs, S12, U1)
+    _ub_axpby(h, U1, 0.0, N)
+    if order >= 4:
+        _se3_coeffs(1, scale * a, cf)
+        _ub_poly(cf, scale, Sp, Js)
+        _ub_mul(Js, S13, U1)
+        _ub_axpby(1.0, U1, 1.0, N)
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy")
+def _ca_core(varpi, vd, dt, Qc, order, noise, F, Q, want_q, ws6, ws33, ws66, Sp, cf):
+    """Write F_k (18,18) and, if want_q, Q_k (18,18) for one interval (F, Q zeroed by the caller).
+
+    noise 0: the paper's Q = G F^T (eq. 43-48); 1: quadrature over s of Phi(dt, s) L Qc L^T Phi(dt, s)^T with
+    Phi(dt, s) the Magnus transition of the sub-interval [s, dt] (docs/priors.md sec. 4b)."""
     sig = ws6[0]
     t1 = ws6[1]
     t2 = ws6[2]
+    w0 = ws6[3]
+    sq = ws6[4]
     S = ws33[0]
     X = ws33[1]
     Y = ws33[2]
@@ -304,116 +394,52 @@ def _ca_core(varpi, vd, dt, Qc, order, F, Q, want_q, ws6, ws33, ws66, Sp, cf):
     Hs = ws33[7]
     Js = ws33[8]
     N = ws33[9]
+    S12q = ws33[10]
+    S13q = ws33[11]
     magnus_sigma(varpi, vd, dt, order, sig, t1, t2)
     _ub_curly(sig, S)
-    _ub_powers(S, Sp)
+    _ub_powers(S, Sp[0])
     a = math.sqrt(sig[3] * sig[3] + sig[4] * sig[4] + sig[5] * sig[5])
-    # S12 = dt I + dt^3/12 Y + dt^5/240 Y^2 (+ order 4 terms); S13 = 0 (order 4: dt^5/720 (3XY - YX))
     _ub_curly(vd, Y)
-    S12[:] = 0.0
-    S13[:] = 0.0
-    for i in range(3):
-        S12[0, i, i] = dt
-    h5 = dt * dt * dt * dt * dt
-    if order >= 2:
-        c = dt * dt * dt / 12.0
-        for j in range(2):
-            for k in range(3):
-                for m in range(3):
-                    S12[j, k, m] += c * Y[j, k, m]
-    if order >= 3:
-        _ub_mul(Y, Y, U1)
-        c = h5 / 240.0
-        for j in range(2):
-            for k in range(3):
-                for m in range(3):
-                    S12[j, k, m] += c * U1[j, k, m]
-    if order >= 4:
-        _ub_curly(varpi, X)
-        c = h5 / 720.0
-        _ub_mul(X, Y, U1)  # XY
-        _ub_mul(Y, X, U2)  # YX
-        for j in range(2):
-            for k in range(3):
-                for m in range(3):
-                    S13[j, k, m] = c * (3.0 * U1[j, k, m] - U2[j, k, m])
-        # S12 += c (-3 X^2 Y + 3 X Y X - Y X^2) = c (X (3 (YX - XY)) - (YX) X)
-        for j in range(2):
-            for k in range(3):
-                for m in range(3):
-                    N[j, k, m] = 3.0 * (U2[j, k, m] - U1[j, k, m])
-        _ub_mul(X, N, U1)  # 3 X (YX - XY)
-        _ub_mul(U2, X, N)  # Y X^2
-        for j in range(2):
-            for k in range(3):
-                for m in range(3):
-                    S12[j, k, m] += c * (U1[j, k, m] - N[j, k, m])
+    _s_blocks(varpi, dt, order, X, Y, S12, S13, U1, U2, N)
     # F: [[Ad(exp sigma), J S12, J S13 + dt H S12], [0, I, dt I], [0, 0, I]]
     _se3_coeffs(0, a, cf)
-    _ub_poly(cf, 1.0, Sp, U1)
+    _ub_poly(cf, 1.0, Sp[0], U1)
     _ub_to_dense(U1, F, 0, 0, 1.0)
     _se3_coeffs(1, a, cf)
-    _ub_poly(cf, 1.0, Sp, Js)
-    _se3_coeffs(2, a, cf)
-    _ub_poly(cf, 1.0, Sp, Hs)
+    _ub_poly(cf, 1.0, Sp[0], Js)
     _ub_mul(Js, S12, U1)
     _ub_to_dense(U1, F, 0, 6, 1.0)
-    _ub_mul(Hs, S12, U1)
-    _ub_to_dense(U1, F, 0, 12, dt)
-    if order >= 4:
-        _ub_mul(Js, S13, U1)
-        _ub_to_dense(U1, F, 0, 12, 1.0)
+    _last_column(sig, Sp[0], cf, S12, S13, dt, 1.0, order, Hs, Js, U1, N)
+    _ub_to_dense(N, F, 0, 12, 1.0)
     for i in range(6, 18):
         F[i, i] = 1.0
     for i in range(6):
         F[6 + i, 12 + i] = dt
     if not want_q:
         return
-    # Q = dt int_0^1 E(v) L Qc L^T E(v)^T dv, E(v) L = [v N(v); v dt I; I], N(v) = v dt H(v sigma) S12 + J(v sigma) S13
+    # Q = dt int_0^1 E(u) L Qc L^T E(u)^T du with E(u) L = [K(u); u dt I; I]:
+    #   noise 0: E(u) = exp(u S_A), K = u N(u), N(u) = u dt H(u sigma) S12 + J(u sigma) S13;
+    #   noise 1: E(u) = Magnus transition over the last u dt of the interval, K = N of that sub-interval.
     NQ = ws66[0]
     Nd = ws66[1]
     qs = _quad_set(sig)
     for q in range(QUAD_COUNT[qs]):
         v = QUAD_NODES[qs, q]
         w = QUAD_WEIGHTS[qs, q]
-        _se3_coeffs(2, v * a, cf)
-        _ub_poly(cf, v, Sp, Hs)
-        _ub_mul(Hs, S12, N)
-        for j in range(2):
-            for k in range(3):
-                for m in range(3):
-                    N[j, k, m] *= v * dt
-        if order >= 4:
-            _se3_coeffs(1, v * a, cf)
-            _ub_poly(cf, v, Sp, Js)
-            _ub_mul(Js, S13, U1)
-            for j in range(2):
-                for k in range(3):
-                    for m in range(3):
-                        N[j, k, m] += U1[j, k, m]
-        Nd[:] = 0.0
-        _ub_to_dense(N, Nd, 0, 0, 1.0)
-        # NQ = Nd Qc (Nd upper-block: skip its zero lower-left)
-        for i in range(6):
-            k0 = 0 if i < 3 else 3
-            for j in range(6):
-                s = 0.0
-                for k in range(k0, 6):
-                    s += Nd[i, k] * Qc[k, j]
-                NQ[i, j] = s
-        c11 = dt * w * v * v
-        c12 = dt * dt * w * v * v
-        c13 = dt * w * v
-        for i in range(6):
-            for j in range(i, 6):
-                k0 = 0 if j < 3 else 3
-                s = 0.0
-                for k in range(k0, 6):
-                    s += NQ[i, k] * Nd[j, k]
-                Q[i, j] += c11 * s
-            for j in range(6):
-                Q[i, 6 + j] += c12 * NQ[i, j]
-                Q[i, 12 + j] += c13 * NQ[i, j]
+        if noise == 0:
+            _last_column(sig, Sp[0], cf, S12, S13, v * dt, v, order, Hs, Js, U1, N)
+            _sandwich_acc(N, Qc, Nd, NQ, Q, dt * w * v * v, dt * dt * w * v * v, dt * w * v)
+        else:
+            h = v * dt
+            for i in range(6):
+                w0[i] = varpi[i] + (dt - h) * vd[i]
+            magnus_sigma(w0, vd, h, order, sq, t1, t2)
+            _ub_curly(sq, U1)
+            _ub_powers(U1, Sp[1])
+            _s_blocks(w0, h, order, X, Y, S12q, S13q, U1, U2, N)
+            _last_column(sq, Sp[1], cf, S12q, S13q, h, 1.0, order, Hs, Js, U1, N)
+            _sandwich_acc(N, Qc, Nd, NQ, Q, dt * w, dt * w * h, dt * w)
     h2 = dt * dt
     for i in range(6):
         for j in range(6):
@@ -427,22 +453,22 @@ def _ca_core(varpi, vd, dt, Qc, order, F, Q, want_q, ws6, ws33, ws66, Sp, cf):
 
 
 @njit(cache=True, fastmath=_FM, error_model="numpy")
-def ca_batch(varpi, vd, dt, Qc, order, F, Q, want_q):
+def ca_batch(varpi, vd, dt, Qc, order, noise, F, Q, want_q):
     """F (N,18,18), Q (N,18,18) for N intervals (written in place, zeroed here)."""
-    ws6 = np.empty((3, 6))
-    ws33 = np.empty((10, 2, 3, 3))
+    ws6 = np.empty((5, 6))
+    ws33 = np.empty((12, 2, 3, 3))
     ws66 = np.empty((2, 6, 6))
-    Sp = np.empty((5, 2, 3, 3))
+    Sp = np.empty((2, 5, 2, 3, 3))
     cf = np.empty(5)
     for n in range(varpi.shape[0]):
         F[n] = 0.0
         if want_q:
             Q[n] = 0.0
-        _ca_core(varpi[n], vd[n], dt[n], Qc, order, F[n], Q[n], want_q, ws6, ws33, ws66, Sp, cf)
+        _ca_core(varpi[n], vd[n], dt[n], Qc, order, noise, F[n], Q[n], want_q, ws6, ws33, ws66, Sp, cf)
 
 
 @njit(cache=True, fastmath=_FM, error_model="numpy")
-def ca_into(varpi, vd, dt, Qc, order, want_q, out):
+def ca_into(varpi, vd, dt, Qc, order, noise, want_q, out):
     """One interval into out (2, 18, 18) = (F, Q); returns 0, or 1 / 2 if varpi / vd is not finite
     (a status for the public method to raise on; nothing is computed then)."""
     for i in range(6):
@@ -454,130 +480,8 @@ def ca_into(varpi, vd, dt, Qc, order, want_q, out):
     out[0] = 0.0
     if want_q:
         out[1] = 0.0
-    ws6 = np.empty((3, 6))
-    ws33 = np.empty((10, 2, 3, 3))
-    ws66 = np.empty((2, 6, 6))
-    Sp = np.empty((5, 2, 3, 3))
-    cf = np.empty(5)
-    _ca_core(varpi, vd, dt, Qc, order, out[0], out[1], want_q, ws6, ws33, ws66, Sp, cf)
-    return 0
-
-
-# ----------------------------------------------------------------------------------------------
-# CV prior: F = [[Ad(exp(dt varpi)), dt J(dt varpi)], [0, I]], Q exact (docs/priors.md)
-@njit(cache=True, fastmath=_FM, error_model="numpy")
-def _cv_core(varpi, dt, Qc, F, Q, want_q, sig, S, U1, Sp, cf, Nd, NQ):
-    for i in range(6):
-        sig[i] = dt * varpi[i]
-    _ub_curly(sig, S)
-    _ub_powers(S, Sp)
-    a = math.sqrt(sig[3] * sig[3] + sig[4] * sig[4] + sig[5] * sig[5])
-    _se3_coeffs(0, a, cf)
-    _ub_poly(cf, 1.0, Sp, U1)
-    _ub_to_dense(U1, F, 0, 0, 1.0)
-    _se3_coeffs(1, a, cf)
-    _ub_poly(cf, 1.0, Sp, U1)
-    _ub_to_dense(U1, F, 0, 6, dt)
-    for i in range(6, 12):
-        F[i, i] = 1.0
-    if not want_q:
-        return
-    # Q11 = dt^3 int v^2 J(v sigma) Qc J^T dv, Q12 = dt^2 H(sigma) Qc, Q22 = dt Qc
-    qs = _quad_set(sig)
-    for q in range(QUAD_COUNT[qs]):
-        v = QUAD_NODES[qs, q]
-        _se3_coeffs(1, v * a, cf)
-        _ub_poly(cf, v, Sp, U1)
-        Nd[:] = 0.0
-        _ub_to_dense(U1, Nd, 0, 0, 1.0)
-        for i in range(6):
-            k0 = 0 if i < 3 else 3
-            for j in range(6):
-                s = 0.0
-                for k in range(k0, 6):
-                    s += Nd[i, k] * Qc[k, j]
-                NQ[i, j] = s
-        c11 = dt * dt * dt * QUAD_WEIGHTS[qs, q] * v * v
-        for i in range(6):
-            for j in range(i, 6):
-                k0 = 0 if j < 3 else 3
-                s = 0.0
-                for k in range(k0, 6):
-                    s += NQ[i, k] * Nd[j, k]
-                Q[i, j] += c11 * s
-    _se3_coeffs(2, a, cf)
-    _ub_poly(cf, 1.0, Sp, U1)
-    Nd[:] = 0.0
-    _ub_to_dense(U1, Nd, 0, 0, 1.0)
-    for i in range(6):
-        for j in range(6):
-            s = 0.0
-            for k in range(6):
-                s += Nd[i, k] * Qc[k, j]
-            Q[i, 6 + j] = dt * dt * s
-            Q[6 + i, 6 + j] = dt * Qc[i, j]
-    for i in range(12):  # mirror the upper triangle
-        for j in range(i):
-            Q[i, j] = Q[j, i]
-
-
-@njit(cache=True, fastmath=_FM, error_model="numpy")
-def cv_batch(varpi, dt, Qc, F, Q, want_q):
-    sig = np.empty(6)
-    S = np.empty((2, 3, 3))
-    U1 = np.empty((2, 3, 3))
-    Sp = np.empty((5, 2, 3, 3))
-    cf = np.empty(5)
-    Nd = np.empty((6, 6))
-    NQ = np.empty((6, 6))
-    for n in range(varpi.shape[0]):
-        F[n] = 0.0
-        if want_q:
-            Q[n] = 0.0
-        _cv_core(varpi[n], dt[n], Qc, F[n], Q[n], want_q, sig, S, U1, Sp, cf, Nd, NQ)
-
-
-@njit(cache=True)
-def first_nonfinite(a, b):
-    """0 if all of a and b are finite, 1 if a is not, 2 if b is not (cheap input check)."""
-    for x in a.ravel():
-        if not math.isfinite(x):
-            return 1
-    for x in b.ravel():
-        if not math.isfinite(x):
-            return 2
-    return 0
-
-
-@njit(cache=True, fastmath=_FM, error_model="numpy")
-def cv_into(varpi, dt, Qc, want_q, out):
-    """One CV interval into out (2, 12, 12) = (F, Q); returns 0, or 1 if varpi is not finite."""
-    for i in range(6):
-        if not math.isfinite(varpi[i]):
-            return 1
-    out[0] = 0.0
-    if want_q:
-        out[1] = 0.0
-    sig = np.empty(6)
-    S = np.empty((2, 3, 3))
-    U1 = np.empty((2, 3, 3))
-    Sp = np.empty((5, 2, 3, 3))
-    cf = np.empty(5)
-    Nd = np.empty((6, 6))
-    NQ = np.empty((6, 6))
-    _cv_core(varpi, dt, Qc, out[0], out[1], want_q, sig, S, U1, Sp, cf, Nd, NQ)
-    return 0
-
-
-@njit(cache=True)
-def pose_problem(T):
-    """0 if T (4,4) is finite with bottom row [0, 0, 0, 1]; 1 if non-finite; 2 if the bottom row is wrong."""
-    for i in range(4):
-        for j in range(4):
-            if not math.isfinite(T[i, j]):
-                return 1
-    if abs(T[3, 0]) > 1e-9 or abs(T[3, 1]) > 1e-9 or abs(T[3, 2]) > 1e-9 or abs(T[3, 3] - 1.0) > 1e-9:
-        return 2
+    _ca_core(varpi, vd, dt, Qc, order, noise, out[0], out[1], want_q, np.empty((5, 6)), np.empty((12, 2, 3, 3)),
+             np.empty((2, 6, 6)), np.empty((2, 5, 2, 3, 3)), np.empty(5))
     return 0
 
 

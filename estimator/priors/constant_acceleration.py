@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from estimator.errors import InputError, check_finite
 from estimator.lie import se3
@@ -30,7 +31,33 @@ from . import _kernels as K
 
 
 # ---------------------------------------------------------------------------------------------- validation
+@njit(cache=True)
+def first_nonfinite(a, b):
+    """0 if all of a and b are finite, 1 if a is not, 2 if b is not (cheap input check)."""
+    for x in a.ravel():
+        if not math.isfinite(x):
+            return 1
+    for x in b.ravel():
+        if not math.isfinite(x):
+            return 2
+    return 0
+
+
+@njit(cache=True)
+def pose_problem(T):
+    """0 if T (4,4) is finite with bottom row [0, 0, 0, 1]; 1 if non-finite; 2 if the bottom row is wrong."""
+    for i in range(4):
+        for j in range(4):
+            if not math.isfinite(T[i, j]):
+                return 1
+    if abs(T[3, 0]) > 1e-9 or abs(T[3, 1]) > 1e-9 or abs(T[3, 2]) > 1e-9 or abs(T[3, 3] - 1.0) > 1e-9:
+        return 2
+    return 0
+
+
 def _check_dt(dt) -> float:
+    if np.ndim(dt) != 0:
+        raise InputError(f"dt: expected a scalar number of seconds, got shape {np.shape(dt)}")
     try:
         value = float(dt)
     except (TypeError, ValueError):
@@ -51,7 +78,7 @@ def _vec6(name: str, x) -> np.ndarray:
 
 
 def _check_pair(names, a, b) -> None:
-    bad = K.first_nonfinite(a, b)
+    bad = first_nonfinite(a, b)
     if bad:
         raise InputError(f"{names[bad - 1]}: contains NaN or infinity")
 
@@ -113,7 +140,7 @@ def _single_pose(T, name: str = "T"):
         a = np.ascontiguousarray(T, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InputError(f"{name}: not a numeric array ({exc})") from None
-    bad = K.pose_problem(a)
+    bad = pose_problem(a)
     if bad == 1:
         raise InputError(f"{name}: contains NaN or infinity")
     if bad == 2:
@@ -147,21 +174,30 @@ class ConstantAccelerationPrior:
     Args:
         Qc: (6, 6) symmetric positive-definite power spectral density of the jerk, [linear; angular].
         magnus_order: 1, 2, 3 (paper eq. 28-30) or 4 (3 plus the leading fourth-order term).
+        noise: "paper" (default): Q_k = G F_k^T of eq. 43-48 (whitened error vs the exact integral ~4e-4 at
+            13 Hz, growing as dt^2); "subinterval": Q_k = int Phi(dt, s) L Qc L^T Phi(dt, s)^T ds with each
+            Phi(dt, s) the Magnus transition of [s, dt] (~1e-7 at 13 Hz, ~1.5x the cost; docs/priors.md sec. 4b).
 
     Checked by: tests/estimator/test_priors_ca.py
     """
 
     state_dim = 18
 
-    def __init__(self, Qc, magnus_order: int = 3):
+    NOISE_MODELS = ("paper", "subinterval")
+
+    def __init__(self, Qc, magnus_order: int = 3, noise: str = "paper"):
         if isinstance(magnus_order, bool) or not isinstance(magnus_order, (int, np.integer)) \
                 or not 1 <= int(magnus_order) <= 4:
             raise InputError(f"magnus_order: must be one of 1, 2, 3, 4, got {magnus_order!r}")
+        if noise not in self.NOISE_MODELS:
+            raise InputError(f"noise: must be one of {self.NOISE_MODELS}, got {noise!r}")
         self.Qc = check_qc(Qc)
         self.magnus_order = int(magnus_order)
+        self.noise = noise
+        self._noise_code = self.NOISE_MODELS.index(noise)
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(magnus_order={self.magnus_order})"
+        return f"{type(self).__name__}(magnus_order={self.magnus_order}, noise={self.noise!r})"
 
     # ------------------------------------------------------------------------------------------ mean
     def predict(self, T, varpi, varpi_dot, dt):
@@ -217,7 +253,7 @@ class ConstantAccelerationPrior:
         varpi, varpi_dot = _vec6("varpi", varpi), _vec6("varpi_dot", varpi_dot)
         dt = _check_dt(dt)
         out = np.empty((2, 18, 18))
-        bad = K.ca_into(varpi, varpi_dot, dt, self.Qc, self.magnus_order, want_q, out)
+        bad = K.ca_into(varpi, varpi_dot, dt, self.Qc, self.magnus_order, self._noise_code, want_q, out)
         if bad:
             raise InputError(f"{('varpi', 'varpi_dot')[bad - 1]}: contains NaN or infinity")
         return out[0], out[1]
@@ -248,7 +284,7 @@ class ConstantAccelerationPrior:
     def _batch(self, varpi, varpi_dot, dt, want_q, out):
         varpi, varpi_dot, dt = self._check_batch(varpi, varpi_dot, dt)
         F, Q = _outputs(out, varpi.shape[0], 18, want_q)
-        K.ca_batch(varpi, varpi_dot, dt, self.Qc, self.magnus_order, F, Q, want_q)
+        K.ca_batch(varpi, varpi_dot, dt, self.Qc, self.magnus_order, self._noise_code, F, Q, want_q)
         return F, Q
 
     def transition_batch(self, varpi, varpi_dot, dt, out=None) -> np.ndarray:

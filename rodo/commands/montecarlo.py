@@ -10,8 +10,8 @@ import os
 from estimator.config import MODELS
 from estimator.errors import InputError
 from rodo.progress import Progress
-from validation.campaign import (ScenarioTrial, make_executor, make_trials, run_campaign, summarize_campaign,
-                                 write_summary)
+from validation.campaign import (ScenarioTrial, make_executor, make_trials, remaining, run_campaign,
+                                 summarize_campaign, write_summary)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -84,7 +84,8 @@ def main(args) -> int:
     meta = {"scenario": args.scenario, "runs": args.runs, "models": list(models), "seed": args.seed,
             "duration": args.duration}
     trial_fn = ScenarioTrial(args.scenario, args.duration)
-    with Progress(args.runs * len(models), f"montecarlo {args.scenario}") as bar, \
+    total = remaining(trials, args.out) if args.resume else len(trials) * len(models)
+    with Progress(total, f"montecarlo {args.scenario}") as bar, \
             make_executor(args.jobs, args.dask) as executor:
         report = run_campaign(trial_fn, trials, executor, args.out, resume=args.resume, progress=bar, meta=meta)
     summary = summarize_campaign(args.out)

@@ -20,6 +20,8 @@ def register(subparsers) -> None:
     p.add_argument("--dt", type=float, default=1.0, help="horizon in seconds (default 1.0)")
     p.add_argument("--substeps", type=int, default=200, help="jerk sub-steps of the SDE (default 200)")
     p.add_argument("--magnus-order", type=int, default=3, help="Magnus order of the prior (1-4, default 3)")
+    p.add_argument("--noise", choices=("paper", "subinterval"), default="paper",
+                   help="process-noise model of the prior (default: the paper's G F^T)")
     p.add_argument("--out", required=True, type=Path, help="output directory")
     p.set_defaults(func=run)
 
@@ -31,7 +33,7 @@ def run(args) -> int:
         raise InputError(f"--seed: must be >= 0, got {args.seed}")
     case = ps.yaw_acceleration_case()
     case["dt"] = args.dt
-    prior = ConstantAccelerationPrior(case["Qc"], magnus_order=args.magnus_order)
+    prior = ConstantAccelerationPrior(case["Qc"], magnus_order=args.magnus_order, noise=args.noise)
     state = {k: case[k] for k in ("T0", "varpi0", "vd0", "P0", "dt")}
     (T_m, w_m, v_m), P = ps.propagate_mean_cov(prior, **state)
     rng = np.random.default_rng(np.random.SeedSequence(args.seed))
@@ -42,7 +44,7 @@ def run(args) -> int:
     mean_nees = float(eps.mean())
     result = {
         "case": "yaw_acceleration", "samples": args.samples, "seed": args.seed, "dt": args.dt,
-        "substeps": args.substeps, "magnus_order": args.magnus_order,
+        "substeps": args.substeps, "magnus_order": args.magnus_order, "noise": args.noise,
         "mean_nees": mean_nees, "nees_bounds_95": [lo, hi], "dof": 18,
         "covariance_lrt_stat": stat, "covariance_lrt_dof": dof, "covariance_lrt_p": p_value,
         "pass": bool(lo <= mean_nees <= hi and p_value > 1e-3),

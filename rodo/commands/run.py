@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from estimator.config import MODELS, OdometryConfig
 from rodo.progress import Progress
 from sim.sequence import read_sequence
+from sim.simulate import TRUTH_NPZ, load_truth
 from validation.driver import run_sequence, scan_times, write_run
 
 
@@ -38,12 +40,16 @@ def main(args) -> int:
     config = load_config(args)
     seq = read_sequence(args.sequence)
     with Progress(len(scan_times(seq)), f"rodo run {config.model}") as bar:
-        result = run_sequence(seq, config, progress=bar)
+        result = run_sequence(seq, config, progress=bar, record_detail=bool(args.rerun))
     write_run(args.out, result)
     if args.rerun:
-        from viz.recording import record_run  # viz is the only package importing rerun
+        from viz.recording import ScanDetail, record_run  # viz is the only package importing rerun
 
-        record_run(args.rerun, seq, result)
+        truth_path = Path(args.sequence) / TRUTH_NPZ
+        truth = load_truth(args.sequence) if truth_path.exists() else None
+        details = [ScanDetail(**e.detail) for e in result.estimates]
+        record_run(args.rerun, seq, result, truth=truth, detail=details)
+        print(f"wrote {args.rerun} (open it with: rodo view {args.rerun})")
     s = result.summary()
     print(json.dumps({k: s[k] for k in ("model", "scans", "median_associations", "median_ms_per_scan",
                                         "p95_ms_per_scan")}))

@@ -84,10 +84,11 @@ def test_sample_prior_bad_input(case, kwargs, name):
 
 def test_cli_prior_montecarlo(tmp_path, capsys):
     out = tmp_path / "mc"
-    code = cli.main(["prior-montecarlo", "--samples", "400", "--seed", "2", "--substeps", "50", "--out", str(out)],
-                    commands=[prior_cmd])
+    argv = ["prior-montecarlo", "--samples", "400", "--seed", "2", "--substeps", "50", "--noise", "subinterval",
+            "--out", str(out)]
+    code = cli.main(argv, commands=[prior_cmd])
     result = json.loads((out / "prior_montecarlo.json").read_text())
-    assert code == 0 and result["pass"] is True
+    assert code == 0 and result["pass"] is True and result["noise"] == "subinterval"
     lo, hi = result["nees_bounds_95"]
     assert lo <= result["mean_nees"] <= hi
     data = np.load(out / "prior_montecarlo.npz")

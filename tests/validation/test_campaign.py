@@ -10,7 +10,7 @@ import pytest
 
 from estimator.errors import InputError
 from validation.campaign import (FIELDS, Trial, TrialOutcome, make_executor, make_trials, npz_path, read_results,
-                                 run_campaign, summarize_campaign, trial_seeds, write_summary)
+                                 remaining, run_campaign, summarize_campaign, trial_seeds, write_summary)
 from validation.consistency import chi2_bounds
 
 MODELS = ("ca-polar", "cv-cartesian")
@@ -79,7 +79,13 @@ def test_process_pool_and_dask_give_the_same_persisted_results(tmp_path):
         rep = run_campaign(fn, trials, ex, tmp_path / "pool", meta={"runs": 6})
     with make_executor(2, "local", processes=False) as ex:
         rep_dask = run_campaign(fn, trials, ex, tmp_path / "dask", meta={"runs": 6})
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:  # connect by address
+        with make_executor(1, cluster.scheduler_address) as ex:
+            run_campaign(fn, trials, ex, tmp_path / "tcp")
     assert rep.ran == rep_dask.ran == 12 and rep.skipped == 0
+    assert _key_rows(read_results(tmp_path / "tcp" / "results.csv")) == _key_rows(rep.rows)
     pool_rows = read_results(tmp_path / "pool" / "results.csv")
     assert _key_rows(pool_rows) == _key_rows(read_results(tmp_path / "dask" / "results.csv"))
     assert _key_rows(pool_rows) == _key_rows(rep.rows)
@@ -131,9 +137,10 @@ def test_resume_after_interruption_loses_nothing_and_duplicates_nothing(tmp_path
     with pytest.raises(InputError, match="different campaign .* seed"):
         with ProcessPoolExecutor(1) as ex:
             run_campaign(fn, trials, ex, tmp_path, resume=True, meta={"seed": 12})
+    left = remaining(trials, tmp_path)
     with ctx() as ex:
         rep = run_campaign(fn, trials, ex, tmp_path, resume=True, meta={"seed": 11})
-    assert rep.skipped == len(first) and rep.ran == 16 - len(first)
+    assert rep.skipped == len(first) and rep.ran == 16 - len(first) == left
     rows = read_results(tmp_path / "results.csv")
     keys = [(int(r["trial"]), r["model"]) for r in rows]
     assert len(keys) == len(set(keys)) == 16
@@ -143,6 +150,47 @@ def test_resume_after_interruption_loses_nothing_and_duplicates_nothing(tmp_path
     assert _key_rows(rows) == _key_rows(read_results(tmp_path / "straight" / "results.csv"))
     with open(tmp_path / "results.csv", newline="") as fh:
         assert next(csv.reader(fh)) == list(FIELDS)
+
+
+@dataclass(frozen=True)
+class DyingTrial:
+    """A worker process that dies (as by the OOM killer) in one trial."""
+
+    die: int
+
+    def __call__(self, trial):
+        if trial.index == self.die:
+            import os
+
+            os._exit(1)
+        return FakeTrial()(trial)
+
+
+def test_dead_worker_stops_the_campaign_without_recording_unfinished_trials(tmp_path):
+    from concurrent.futures.process import BrokenProcessPool
+
+    trials = make_trials(4, 6, MODELS)
+    with pytest.raises(BrokenProcessPool):
+        with ProcessPoolExecutor(1) as ex:
+            run_campaign(DyingTrial(3), trials, ex, tmp_path)
+    rows = read_results(tmp_path / "results.csv")
+    assert all(r["status"] == "ok" for r in rows) and {int(r["trial"]) for r in rows} <= {0, 1, 2}
+    with ProcessPoolExecutor(2) as ex:
+        run_campaign(FakeTrial(), trials, ex, tmp_path, resume=True)
+    assert len(read_results(tmp_path / "results.csv")) == 12
+
+
+def test_read_results_drops_only_a_torn_final_row(tmp_path):
+    with ProcessPoolExecutor(1) as ex:
+        run_campaign(FakeTrial(), make_trials(0, 2, MODELS[:1]), ex, tmp_path)
+    path = tmp_path / "results.csv"
+    good = path.read_text()
+    last = good.splitlines()[-1]
+    path.write_text(good + last.rstrip("\r"))  # all fields present (the error field is empty), no newline
+    assert len(read_results(path)) == 2
+    path.write_text(good.replace(",ok,", ",?,", 1))
+    with pytest.raises(InputError, match="results.csv: line 2: malformed row"):
+        read_results(path)
 
 
 def test_resume_runs_only_the_missing_model(tmp_path):

@@ -51,8 +51,8 @@ def test_constant_yaw_rate_error_gives_rotation_error_per_metre():
     est = _chain(np.broadcast_to(step, (250, 4, 4)))
     gt = _straight(251)
     res = kitti_errors(gt, est, lengths=(100.0, 200.0))
-    np.testing.assert_allclose(res.segments[:, 3], 101 * delta / 100 * np.where(res.segments[:, 1] == 100, 1, 201 / 202),
-                               rtol=1e-9)
+    want = np.where(res.segments[:, 1] == 100, 101 * delta / 100, 201 * delta / 200)
+    np.testing.assert_allclose(res.segments[:, 3], want, rtol=1e-9)
     assert res.per_length()[200.0][2] == 5  # firsts 0..40 (f + 201 <= 250)
 
 

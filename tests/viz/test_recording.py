@@ -30,6 +30,8 @@ def test_nees_bounds_match_chi_square_quantiles(dof, n_runs):
     lo, hi = rm.nees_bounds(dof, n_runs)
     assert lo == pytest.approx(chi2.ppf(0.025, dof * n_runs) / n_runs, rel=1e-12)
     assert hi == pytest.approx(chi2.ppf(0.975, dof * n_runs) / n_runs, rel=1e-12)
+    assert np.allclose(rm.nees_bounds_array(dof, [n_runs, 0])[0], (lo, hi), rtol=1e-12)
+    assert np.isnan(rm.nees_bounds_array(dof, [n_runs, 0])[1]).all()
     # coverage: the mean of n_runs chi2(dof) draws falls inside 95 % of the time
     rng = np.random.default_rng(np.random.SeedSequence([dof, n_runs]))
     mean = rng.chisquare(dof, size=(4000, n_runs)).mean(axis=1)
@@ -210,6 +212,14 @@ def test_recording_contents_match_the_run(run, tmp_path, strict_rerun):
     e = result.estimates[-1]
     C = e.T_vehicle_world[:3, :3]
     assert np.allclose(np.sort(half[-1]), 3 * np.sqrt(np.linalg.eigvalsh(C.T @ e.P[:3, :3] @ C)), rtol=1e-5)
+    from scipy.spatial.transform import Rotation
+
+    quat = np.array(_column(chunks, "/world/estimate/covariance", "Ellipsoids3D:quaternions")).reshape(n, 4)
+    R = Rotation.from_quat(quat[-1]).as_matrix()   # the ellipsoid's axes rebuild C^T P_rho C
+    assert np.allclose(R @ np.diag((half[-1] / 3) ** 2) @ R.T, C.T @ e.P[:3, :3] @ C,
+                       rtol=1e-4, atol=1e-6 * np.abs(e.P[:3, :3]).max())
+    assert np.array_equal(_column(chunks, "/world/estimate/covariance", "Ellipsoids3D:centers")[-1][0],
+                          np.float32(T_wv[-1, :3, 3]))
 
     # both timelines; time = scan time
     ts = [ch for ch in chunks if ch.entity_path == "/metrics/counts" and not ch.is_static][0].to_record_batch()
@@ -320,3 +330,29 @@ def test_view_with_display_starts_the_viewer(run, tmp_path, monkeypatch):
     monkeypatch.setattr(view.subprocess, "call", lambda argv: calls.append(argv) or 0)
     assert cli.main(["view", str(path)], commands=[view]) == 0
     assert calls == [["/opt/bin/rerun", str(path)]]
+
+
+def test_cv_recording_has_truth_only_acceleration(run, tmp_path):
+    seq, truth, _ = run
+    result = run_sequence(seq, OdometryConfig.for_model("cv-cartesian"))
+    chunks = _chunks(record_run(tmp_path / "cv.rrd", seq, result, truth=truth))
+    names = _column(chunks, "/acceleration/omega_dot_z", "SeriesLines:names", static=True)[0]
+    assert names == ["truth omega_dot_z (rad/s^2)"]
+    vel = np.array(_column(chunks, "/metrics/nees/velocity", "Scalars:scalars"))
+    k = len(result.estimates) - 1
+    eta = truth["varpi"][k] - result.estimates[k].varpi
+    assert vel[k, 0] == pytest.approx(eta @ np.linalg.solve(result.estimates[k].P[6:12, 6:12], eta), rel=1e-6)
+
+
+def test_rodo_run_writes_a_readable_recording(run, tmp_path, capsys):
+    from rodo import cli
+    from rodo.commands import run as run_command
+    from sim.simulate import write_simulation
+
+    seq, truth, _ = run
+    write_simulation(tmp_path / "seq", seq, truth)
+    rrd = tmp_path / "out" / "run.rrd"
+    assert cli.main(["run", str(tmp_path / "seq"), "--out", str(tmp_path / "out"), "--rerun", str(rrd)],
+                    commands=[run_command]) == 0
+    paths = {ch.entity_path for ch in _chunks(rrd)}
+    assert {"/world/estimate/trajectory", "/world/vehicle/sensor/scan", "/metrics/timing"} <= paths
