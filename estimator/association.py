@@ -34,6 +34,8 @@ from scipy.stats import chi2
 from estimator.errors import InputError, check_finite
 from estimator.measurements import MODELS, Prediction, polar_to_cartesian_jacobian, residual
 
+from . import _association_kernel as _kernel
+
 
 @dataclass
 class Association:
@@ -112,30 +114,13 @@ def _search_radius(model: str, pred: Prediction, S: np.ndarray, gate: float) -> 
 
 
 def _greedy_one_to_one(j: np.ndarray, i: np.ndarray, d2: np.ndarray, m: int, n: int) -> np.ndarray:
-    """Mask of pairs chosen greedily by smallest d2 with each j and each i used at most once."""
+    """Mask of pairs chosen greedily by smallest d2 (ties: smaller j, then i), each j and i used at most once."""
     order = np.lexsort((i, j, d2))
-    rank = np.empty(len(d2), dtype=np.int64)
-    rank[order] = np.arange(len(d2))
-    alive = np.ones(len(d2), dtype=bool)
-    chosen = np.zeros(len(d2), dtype=bool)
-    big = np.iinfo(np.int64).max
-    while alive.any():
-        best_j = np.full(m, big)
-        best_i = np.full(n, big)
-        np.minimum.at(best_j, j[alive], rank[alive])
-        np.minimum.at(best_i, i[alive], rank[alive])
-        take = alive & (best_j[j] == rank) & (best_i[i] == rank)
-        chosen |= take
-        used_j = np.zeros(m, dtype=bool)
-        used_i = np.zeros(n, dtype=bool)
-        used_j[j[take]] = True
-        used_i[i[take]] = True
-        alive &= ~(used_j[j] | used_i[i])
-    return chosen
+    return _kernel.greedy_one_to_one(order, j, i, m, n)
 
 
 def associate(model: str, z_meas, det_points_sensor, pred: Prediction, S, gate: float,
-              max_radius: float = 5.0) -> Association:
+              max_radius: float = 5.0, max_candidates: int = 16) -> Association:
     """Gated, one-to-one nearest-neighbour association in the Mahalanobis metric (paper eq. 86-88).
 
     Args:
@@ -146,6 +131,7 @@ def associate(model: str, z_meas, det_points_sensor, pred: Prediction, S, gate: 
         S: (m, 4, 4) innovation covariances (`innovation_covariance`).
         gate: d2 threshold (`gate_threshold`).
         max_radius: cap (m) of the KD-tree search radius.
+        max_candidates: at most this many nearest detections (inside the radius) are scored per map point.
 
     Returns:
         Association (pairs sorted by map index).
@@ -171,22 +157,23 @@ def associate(model: str, z_meas, det_points_sensor, pred: Prediction, S, gate: 
     if m == 0 or n == 0:
         return empty
     try:
-        L = np.linalg.cholesky(S)
+        np.linalg.cholesky(S)
     except np.linalg.LinAlgError:
         raise InputError("S: not positive definite for every map point") from None
+    S_inv = np.linalg.inv(S)
 
     radius = np.minimum(_search_radius(model, pred, S, gate), max_radius)
-    hits = cKDTree(pts).query_ball_point(pred.p_sensor, radius, return_sorted=False)
-    counts = np.fromiter((len(h) for h in hits), dtype=np.int64, count=m)
-    n_candidates = int(counts.sum())
+    # candidates: the k nearest detections inside each map point's own radius (bounded work per point)
+    k = min(max_candidates, n)
+    dist, idx = cKDTree(pts).query(pred.p_sensor, k=k, distance_upper_bound=float(radius.max()))
+    dist, idx = dist.reshape(m, k), idx.reshape(m, k)
+    valid = (idx < n) & (dist <= radius[:, None])
+    n_candidates = int(valid.sum())
     if n_candidates == 0:
         return empty
-    j = np.repeat(np.arange(m), counts)
-    i = np.concatenate(hits.tolist()).astype(np.int64)
-
-    e = residual(model, z_meas[i], pred.z[j])                      # (k, 4)
-    w = np.linalg.solve(L[j], e[..., None])[..., 0]                 # L^-1 e
-    d2 = np.einsum("ki,ki->k", w, w)
+    j = np.nonzero(valid)[0].astype(np.int64)
+    i = idx[valid].astype(np.int64)
+    d2 = _kernel.pair_d2(model == "polar", j, i, z_meas, pred.z, S_inv)  # e^T S^-1 e, azimuth wrapped
     keep = d2 <= gate
     j, i, d2 = j[keep], i[keep], d2[keep]
     chosen = _greedy_one_to_one(j, i, d2, m, n)

@@ -64,12 +64,16 @@ class MapConfig:
 
 @dataclass(frozen=True)
 class SolverConfig:
+    """Gauss-Newton settings and the initial state's uncertainty (vehicle frame, per axis x, y, z / roll,
+    pitch, yaw): a vehicle barely rolls or pitches, and an unconstrained initial roll acceleration would be
+    carried on by the constant-acceleration prior."""
+
     iterations: int = 5
     robust_c: float = 3.0  # Cauchy scale in whitened units; 0 disables the robust loss
     init_velocity_sigma: float = 0.2  # m/s on the Doppler initialisation
-    init_rate_sigma: float = 0.1  # rad/s
-    init_accel_sigma: float = 1.0  # m/s^2
-    init_angular_accel_sigma: float = 0.3  # rad/s^2
+    init_rate_sigma: tuple[float, ...] = (0.02, 0.02, 0.2)  # rad/s
+    init_accel_sigma: tuple[float, ...] = (1.0, 0.2, 0.2)  # m/s^2
+    init_angular_accel_sigma: tuple[float, ...] = (0.02, 0.02, 0.2)  # rad/s^2
 
 
 @dataclass(frozen=True)
@@ -99,6 +103,27 @@ class OdometryConfig:
                 raise InputError(f"noise.{name}: must be > 0")
         if self.noise.map_sigma < 0:
             raise InputError("noise.map_sigma: must be >= 0")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise InputError(f"seed: must be an integer >= 0, got {self.seed!r}")
+        if len(self.noise.sigma_floor) != 4 or min(self.noise.sigma_floor) <= 0:
+            raise InputError("noise.sigma_floor: must be 4 positive numbers [range, azimuth, elevation, "
+                             f"radial_velocity], got {list(self.noise.sigma_floor)}")
+        if self.solver.iterations < 1:
+            raise InputError(f"solver.iterations: must be >= 1, got {self.solver.iterations}")
+        if self.solver.robust_c < 0:
+            raise InputError(f"solver.robust_c: must be >= 0 (0 disables the robust loss), got {self.solver.robust_c}")
+        for name in ("init_rate_sigma", "init_accel_sigma", "init_angular_accel_sigma"):
+            v = getattr(self.solver, name)
+            if len(v) != 3 or min(v) <= 0:
+                raise InputError(f"solver.{name}: must be 3 positive numbers, got {list(v)}")
+        if not self.solver.init_velocity_sigma > 0:
+            raise InputError("solver.init_velocity_sigma: must be > 0")
+        if not self.association.max_radius > 0:
+            raise InputError(f"association.max_radius: must be > 0, got {self.association.max_radius}")
+        if self.association.reassociate < 0 or self.association.doppler_sigma_floor < 0:
+            raise InputError("association.reassociate, association.doppler_sigma_floor: must be >= 0")
+        if self.map.max_age < 0 or self.map.voxel < 0:
+            raise InputError("map.max_age, map.voxel: must be >= 0")
 
     @property
     def prior(self) -> str:
@@ -113,7 +138,15 @@ class OdometryConfig:
         return cls(model=model, **overrides)
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """Plain dict (tuples as lists), e.g. for summary.json; `from_dict(to_dict())` round-trips."""
+        def plain(v):
+            return [plain(x) for x in v] if isinstance(v, (tuple, list)) else \
+                {k: plain(x) for k, x in v.items()} if isinstance(v, dict) else v
+
+        return plain(dataclasses.asdict(self))
+
+    def replace(self, **changes) -> "OdometryConfig":
+        return dataclasses.replace(self, **changes)
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "config") -> "OdometryConfig":
@@ -129,7 +162,10 @@ class OdometryConfig:
                 kwargs[key] = _section(sections[key], value, f"{source}: [{key}]")
             else:
                 kwargs[key] = value
-        return cls(**kwargs)
+        try:
+            return cls(**kwargs)
+        except InputError as exc:
+            raise InputError(f"{source}: {exc}") from None
 
     @classmethod
     def from_toml(cls, path: str | Path, model: str | None = None) -> "OdometryConfig":
@@ -138,6 +174,12 @@ class OdometryConfig:
             data = tomllib.loads(path.read_text(encoding="utf-8"))
         except FileNotFoundError:
             raise InputError(f"{path}: config file not found") from None
+        except IsADirectoryError:
+            raise InputError(f"{path}: is a directory, expected a TOML config file") from None
+        except UnicodeDecodeError as exc:
+            raise InputError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read ({exc.strerror})") from None
         except tomllib.TOMLDecodeError as exc:
             raise InputError(f"{path}: invalid TOML: {exc}") from None
         if model is not None:
@@ -154,7 +196,8 @@ def _section(kind, values: dict, where: str):
             raise InputError(f"{where}: unknown key {key!r}; known: {', '.join(sorted(fields))}")
         default = getattr(defaults, key)
         if isinstance(default, tuple):
-            if not isinstance(value, list) or not all(isinstance(v, (int, float)) for v in value):
+            if not isinstance(value, (list, tuple)) or not all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
                 raise InputError(f"{where} {key}: expected a list of numbers, got {value!r}")
             value = tuple(float(v) for v in value)
         elif isinstance(default, bool) or not isinstance(value, (int, float)) or isinstance(value, bool):

@@ -156,9 +156,9 @@ class RadarOdometry:
                 varpi[:3] = -self.T_vs[:3, :3] @ ego.v_sensor
                 vel_sigma = cfg.init_velocity_sigma
         x0 = self.motion.initial_state(t, np.eye(4), varpi)
-        sig = [1e-4] * 6 + [vel_sigma] * 3 + [cfg.init_rate_sigma] * 3
+        sig = [1e-4] * 6 + [vel_sigma] * 3 + list(cfg.init_rate_sigma)
         if self.motion.dim == 18:
-            sig += [cfg.init_accel_sigma] * 3 + [cfg.init_angular_accel_sigma] * 3
+            sig += list(cfg.init_accel_sigma) + list(cfg.init_angular_accel_sigma)
         return x0, np.diag(np.square(sig)), events
 
     # --- the per-scan step ------------------------------------------------------------------------------

@@ -104,6 +104,8 @@ SE3_H = _reduce_se3(_shifted_factorial_series(2))
 
 def horner(coeffs: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Evaluate sum_k coeffs[..., k] x^k for each leading row of coeffs; returns (rows, *x.shape)."""
+    if np.ndim(x) == 0:  # scalar fast path (the solver's single-state calls)
+        return coeffs @ (float(x) ** np.arange(coeffs.shape[1]))
     out = np.zeros((coeffs.shape[0],) + np.shape(x))
     for k in range(coeffs.shape[1] - 1, -1, -1):
         out = out * x + coeffs[:, k].reshape((-1,) + (1,) * np.ndim(x))

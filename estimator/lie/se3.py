@@ -103,9 +103,12 @@ def transform_points(T: np.ndarray, p: np.ndarray) -> np.ndarray:
 def _curly_poly(xi: np.ndarray, taylor: np.ndarray, closed) -> np.ndarray:
     xi = np.asarray(xi, dtype=float)
     angle = np.linalg.norm(xi[..., 3:], axis=-1)
-    small = angle < TAYLOR_BELOW
-    safe = np.where(small, TAYLOR_BELOW, angle)
-    c = np.where(small, horner(taylor, angle**2), closed(safe))
+    if angle.ndim == 0:  # single input: evaluate only the branch that applies
+        c = horner(taylor, angle**2) if angle < TAYLOR_BELOW else closed(angle)
+    else:
+        small = angle < TAYLOR_BELOW
+        safe = np.where(small, TAYLOR_BELOW, angle)
+        c = np.where(small, horner(taylor, angle**2), closed(safe))
     S = curlyhat(xi)
     S2 = S @ S
     S3 = S2 @ S

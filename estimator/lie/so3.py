@@ -39,6 +39,8 @@ def vee(Phi: np.ndarray) -> np.ndarray:
 def _coefficients(phi: np.ndarray, taylor: np.ndarray, closed) -> np.ndarray:
     """Coefficients c_0..c_2 of f(phi^) = c0 I + c1 phi^ + c2 phi^2, shape (3, ...)."""
     angle = np.linalg.norm(phi, axis=-1)
+    if angle.ndim == 0:  # single input: evaluate only the branch that applies
+        return horner(taylor, angle**2) if angle < TAYLOR_BELOW else closed(angle)
     small = angle < TAYLOR_BELOW
     safe = np.where(small, TAYLOR_BELOW, angle)  # closed forms never see the small angles
     return np.where(small, horner(taylor, angle**2), closed(safe))

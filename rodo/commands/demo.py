@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 from estimator.config import OdometryConfig
+from estimator.errors import InputError
 from rodo.progress import Progress
 
 
@@ -44,8 +45,13 @@ def main(args) -> int:
     from validation.driver import run_sequence, scan_times, write_run
     from validation.metrics import evaluate
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    from rodo.commands.run import check_out_dir
+
+    if args.scenario not in scenarios.names():
+        scenarios.get(args.scenario)  # raises InputError listing the known names
+    if not (np.isfinite(args.duration) and args.duration > 0):
+        raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
+    out = check_out_dir(args.out)
     report: dict = {}
 
     tic = _step("prior Monte Carlo (paper Fig. 1): CA prior under pure yaw acceleration, 2000 samples")

@@ -23,6 +23,9 @@ def register(subparsers) -> None:
 def main(args: argparse.Namespace) -> int:
     from viz.figures import write_all  # viz is the only package importing matplotlib
 
+    from rodo.commands.run import check_out_dir
+
+    check_out_dir(args.out)
     for path in write_all(args.out, quick=args.quick):
         print(path)
     return 0

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from estimator.config import MODELS, OdometryConfig
+from estimator.errors import InputError
 from rodo.progress import Progress
 from sim.sequence import read_sequence
 from sim.simulate import TRUTH_NPZ, load_truth
@@ -30,15 +31,35 @@ def register(sub: argparse._SubParsersAction) -> None:
 def load_config(args) -> OdometryConfig:
     if args.config:
         cfg = OdometryConfig.from_toml(args.config, model=args.model)
-        if args.model and cfg.model != args.model:
-            cfg = OdometryConfig.from_dict({**cfg.to_dict(), "model": args.model})
+        if args.model and cfg.model != args.model:  # the command line wins over the file
+            cfg = cfg.replace(model=args.model)
         return cfg
     return OdometryConfig.for_model(args.model or "ca-polar")
 
 
+def check_out_dir(path, create: bool = True) -> Path:
+    """Check (and create) the output directory before the work, so a bad --out fails early, not after."""
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out: {out} exists and is not a directory")
+    for parent in out.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"--out: cannot create {out} ({parent} is not a directory)")
+            break
+    if create:
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise InputError(f"--out: cannot create {out} ({exc.strerror})") from None
+    return out
+
+
 def main(args) -> int:
     config = load_config(args)
+    check_out_dir(args.out, create=False)
     seq = read_sequence(args.sequence)
+    check_out_dir(args.out)
     with Progress(len(scan_times(seq)), f"rodo run {config.model}") as bar:
         result = run_sequence(seq, config, progress=bar, record_detail=bool(args.rerun))
     write_run(args.out, result)

@@ -8,6 +8,8 @@ import argparse
 
 import numpy as np
 
+from estimator.errors import InputError
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("scenarios", help="list the simulation scenarios",
@@ -40,6 +42,8 @@ def run_simulate(args: argparse.Namespace) -> int:
     from sim.simulate import path_length
 
     scenario = scenarios.get(args.scenario)  # InputError listing the known names -> exit 2
+    if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
+        raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
     duration = scenario.default_duration(args.seed) if args.duration is None else args.duration
     n_scans = int(np.floor(duration * scenario.radar().rate_hz + 1e-9)) + 1
     with Progress(n_scans, f"simulate {scenario.name}") as bar:
