@@ -22,11 +22,13 @@ POLAR, CARTESIAN = 0, 1
 
 
 @njit(cache=True, fastmath=False)
-def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_out):
+def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_out, robust_c):
     """H (K, 12, 12), b (K, 12), cost for K states; pairs offsets[k]:offsets[k+1] belong to state k.
 
     Each pair's squared Mahalanobis distance is written to d2_out; its term is weighted by weights[a]
-    (fixed robust weights, see `SlidingWindow.optimize`): cost = 1/2 sum_a weights[a] d2_a.
+    (robust weights held fixed during a solve, see `SlidingWindow.optimize`): cost = 1/2 sum_a w_a d2_a.
+    A negative weights[a] is replaced first by the Cauchy weight 1 / (1 + d2_a / robust_c^2) of the current
+    residual (1 when robust_c is 0), so a solve sets its weights in its first linearisation.
     """
     K = T.shape[0]
     H = np.zeros((K, 12, 12))
@@ -129,6 +131,8 @@ def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_ou
                     s += W[a, i, l] * e[l]
                 d2 += e[i] * s
             d2_out[a] = d2
+            if weights[a] < 0.0:
+                weights[a] = 1.0 / (1.0 + d2 / (robust_c * robust_c)) if robust_c > 0.0 else 1.0
             wgt = weights[a]
             cost += 0.5 * wgt * d2
             for i in range(4):

@@ -207,7 +207,7 @@ class RadarOdometry:
             pred, assoc = self._associate(self.window.newest, P, z, pts)
             self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(pred, assoc, z))
             timings["associate"] += time.perf_counter() - t_assoc
-            self.window.optimize(cfg.solver.iterations)
+            self.window.optimize(min(cfg.solver.iterations, 3))  # starts at the previous solution
         self.P = self.window.newest_covariance()  # at the solution; marginalising does not change it
         while len(self.window.states) > cfg.window:
             self.window.marginalize_oldest()

@@ -50,6 +50,7 @@ class SlidingWindow:
         self.prior_mean: State | None = None  # linearisation point of the prior on the oldest state
         self.prior_info: np.ndarray | None = None
         self.prior_grad: np.ndarray | None = None  # linear term g: cost 1/2 e^T Lam e + g^T e, e = x0 (-) mean
+        self._packed = None  # the window's measurement sets concatenated for the kernel (cached)
         self._H: np.ndarray | None = None
 
     # --- building -------------------------------------------------------------------------------------
@@ -90,30 +91,33 @@ class SlidingWindow:
         Returns per state (H (12,12), b (12,)) and the total cost; e = z - g(x), J = -[J_z_xi, J_z_varpi].
         """
         sets = [self.meas[k] for k in ks]
-        offsets = np.r_[0, np.cumsum([len(m) for m in sets])].astype(np.int64)
-        p = np.concatenate([m.p_world for m in sets])
-        z = np.concatenate([m.z for m in sets])
-        W = np.concatenate([m.W for m in sets])
-        w = np.concatenate([m.weights if m.weights is not None else np.ones(len(m)) for m in sets])
+        key = tuple(id(m) for m in sets)
+        if self._packed is None or self._packed[0] != key:  # the sets change only when scans come and go
+            offsets = np.r_[0, np.cumsum([len(m) for m in sets])].astype(np.int64)
+            self._packed = (key, offsets, np.concatenate([m.p_world for m in sets]),
+                            np.concatenate([m.z for m in sets]), np.concatenate([m.W for m in sets]))
+        _, offsets, p, z, W = self._packed
+        for m in sets:
+            if m.weights is None:
+                m.weights = np.full(len(m), -1.0)  # the kernel sets Cauchy weights from these residuals
+        w = np.concatenate([m.weights for m in sets])
         T = np.stack([self.states[k].T for k in ks])
         varpi = np.stack([self.states[k].varpi for k in ks])
         model = _kernel.POLAR if self.model == "polar" else _kernel.CARTESIAN
         d2 = np.empty(len(z))
-        H, b, cost = _kernel.linearize_pairs(model, T, varpi, offsets, p, z, W, self.T_vehicle_sensor, w, d2)
+        H, b, cost = _kernel.linearize_pairs(model, T, varpi, offsets, p, z, W, self.T_vehicle_sensor, w, d2,
+                                             float(self.robust_c))
+        for m, wk in zip(sets, np.split(w, offsets[1:-1])):
+            m.weights = wk
         return list(zip(H, b)), float(cost), np.split(d2, offsets[1:-1])
 
-    def update_robust_weights(self) -> None:
-        """Cauchy weights w = 1 / (1 + d2 / c^2) from the current residuals, held fixed while Gauss-Newton
-        iterates (iteratively re-weighting inside the iterations turns its quadratic convergence linear)."""
-        ks = [k for k, m in enumerate(self.meas) if m is not None]
-        if not ks:
-            return
+    def reset_robust_weights(self) -> None:
+        """Forget the Cauchy weights: the next linearisation sets them from the current residuals, and they
+        stay fixed while Gauss-Newton iterates (re-weighting inside the iterations turns its quadratic
+        convergence linear)."""
         for m in self.meas:
             if m is not None:
                 m.weights = None
-        _, _, d2s = self._measurement_terms(ks)
-        for k, d2 in zip(ks, d2s):
-            self.meas[k].weights = (1.0 / (1.0 + d2 / self.robust_c**2)) if self.robust_c > 0 else None
         self._H = None
 
     def linearize(self):
@@ -153,7 +157,7 @@ class SlidingWindow:
         `newest_covariance`.
         """
         d = self.motion.dim
-        self.update_robust_weights()
+        self.reset_robust_weights()
         H, b, cost = self.linearize()
         step, it = 1.0, 0
         for it in range(1, iterations + 1):
@@ -161,7 +165,7 @@ class SlidingWindow:
             if not np.all(np.isfinite(delta)):
                 break
             old = self.states
-            self.states = [x.oplus(step * delta[k * d:(k + 1) * d]) for k, x in enumerate(old)]
+            self.states = _oplus_all(old, step * delta.reshape(len(old), d))
             H2, b2, cost2 = self.linearize()
             if np.isfinite(cost2) and cost2 <= cost * (1 + 1e-12) + 1e-12:
                 H, b, cost = H2, b2, cost2
@@ -216,16 +220,26 @@ class SlidingWindow:
         self._H = None
 
 
+def _oplus_all(states: list[State], d: np.ndarray) -> list[State]:
+    """[x_k (+) d_k] for the whole window with one batched exponential."""
+    E = se3.exp(d[:, :6])
+    out = []
+    for k, x in enumerate(states):
+        vd = None if x.vd is None else x.vd + d[k, 12:18]
+        out.append(State(x.t, E[k] @ x.T, x.varpi + d[k, 6:12], vd))
+    return out
+
+
 def _solve_spd(H: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Solve H x = rhs for symmetric positive (semi-)definite H, with a tiny relative jitter if needed."""
+    """Solve H x = rhs for symmetric positive (semi-)definite H (LAPACK dposv; the fastest here for the
+    window's sizes), with a tiny relative jitter if the Cholesky factorisation fails."""
     jitter = 0.0
     scale = max(np.max(np.abs(np.diag(H))), 1e-300)
     for _ in range(6):
-        try:
-            c = sla.cho_factor(H + jitter * np.eye(len(H)), lower=True, check_finite=False)
-            return sla.cho_solve(c, rhs, check_finite=False)
-        except np.linalg.LinAlgError:
-            jitter = scale * 1e-12 if jitter == 0 else jitter * 100
+        _, x, info = sla.lapack.dposv(H + jitter * np.eye(len(H)) if jitter else H, rhs, lower=1)
+        if info == 0:
+            return x
+        jitter = scale * 1e-12 if jitter == 0 else jitter * 100
     return np.linalg.lstsq(H, rhs, rcond=None)[0]
 
 

@@ -8,9 +8,10 @@ import sys
 
 from estimator.errors import InputError
 
-from .commands import demo, ego_velocity, evaluate, figures, montecarlo, prior, run, simulate, view
+from .commands import (convert, demo, ego_velocity, evaluate, figures, montecarlo, prior, run, simulate, table1,
+                       view)
 
-COMMANDS = [demo, simulate, run, evaluate, montecarlo, ego_velocity, prior, figures, view]  # modules with register(subparsers); see rodo/commands/
+COMMANDS = [demo, simulate, run, evaluate, montecarlo, table1, convert, ego_velocity, prior, figures, view]  # modules with register(subparsers); see rodo/commands/
 
 
 def build_parser(commands=None) -> argparse.ArgumentParser:

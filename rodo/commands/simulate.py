@@ -25,6 +25,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output sequence directory")
     p.add_argument("--duration", type=float, default=None,
                    help="seconds to simulate (default: the scenario's own length)")
+    p.add_argument("--rerun", metavar="OUT.rrd", help="also write a Rerun recording of the simulated sequence")
     p.set_defaults(func=run_simulate)
 
 
@@ -53,4 +54,9 @@ def run_simulate(args: argparse.Namespace) -> int:
     print(f"scans {len(counts)} ({truth['t'][-1]:.1f} s), detections per scan median {np.median(counts):.0f} "
           f"(min {counts.min()}, max {counts.max()}), empty scans {int(np.sum(counts == 0))}, "
           f"path length {path_length(seq.groundtruth.T_world_vehicle):.1f} m")
+    if args.rerun:
+        from viz.recording import record_sequence  # viz is the only package importing rerun
+
+        record_sequence(args.rerun, seq, truth)
+        print(f"wrote {args.rerun} (open it with: rodo view {args.rerun})")
     return 0

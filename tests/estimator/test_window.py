@@ -46,7 +46,7 @@ def test_kernel_matches_numpy_linearisation(model, seed):
     w = rng.uniform(0.2, 1.0, K * m)
     d2 = np.empty(K * m)
     H, b, cost = kernel.linearize_pairs(kernel.POLAR if model == "polar" else kernel.CARTESIAN, T, varpi,
-                                        offsets, p, z, W, scene.T_VEHICLE_SENSOR, w, d2)
+                                        offsets, p, z, W, scene.T_VEHICLE_SENSOR, w, d2, 3.0)
     total = 0.0
     for k in range(K):
         sl = slice(k * m, (k + 1) * m)

@@ -356,3 +356,28 @@ def test_rodo_run_writes_a_readable_recording(run, tmp_path, capsys):
                     commands=[run_command]) == 0
     paths = {ch.entity_path for ch in _chunks(rrd)}
     assert {"/world/estimate/trajectory", "/world/vehicle/sensor/scan", "/metrics/timing"} <= paths
+
+
+def test_sequence_recording(tmp_path):
+    """`rodo simulate --rerun`: the truth trajectory and the per-frame vehicle pose equal groundtruth.txt, and
+    the scans carry the simulator's labels as class ids."""
+    from rerun.chunk import RrdReader
+
+    from rodo.cli import main
+    from rodo.commands import simulate
+    from sim.sequence import read_sequence
+
+    out, rrd = tmp_path / "seq", tmp_path / "seq.rrd"
+    assert main(["simulate", "city", "--seed", "2", "--duration", "1", "--out", str(out), "--rerun", str(rrd)],
+                commands=[simulate]) == 0
+    seq = read_sequence(out)
+    chunks = list(RrdReader(rrd).stream().to_chunks())
+    paths = {str(c.entity_path) for c in chunks}
+    assert {"/world/truth/trajectory", "/world/vehicle", "/world/vehicle/sensor/scan"} <= paths
+    traj = [c for c in chunks if str(c.entity_path) == "/world/truth/trajectory"]
+    strips = traj[0].to_record_batch().column("LineStrips3D:strips").to_pylist()[0][0]
+    np.testing.assert_allclose(np.array(strips), seq.groundtruth.T_world_vehicle[:, :3, 3], atol=1e-5)
+    scans = [c for c in chunks if str(c.entity_path) == "/world/vehicle/sensor/scan"]
+    ids = np.concatenate([np.concatenate(c.to_record_batch().column("Points3D:class_ids").to_pylist())
+                          for c in scans])
+    assert set(np.unique(ids)) <= {3, 5, 6} and 5 in ids

@@ -1,0 +1,89 @@
+"""`rodo convert FORMAT SOURCE --out SEQ_DIR [options]`: real radar recordings -> the sequence format.
+
+Parse, call `sim.convert.<format>`, write, print the summary. Nothing else. Docs: docs/realdata.md.
+
+Checked by: tests/sim/test_convert.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+from estimator.errors import InputError
+
+FORMATS = ("radarscenes", "ti-mmwave", "vod")
+
+HELP = """\
+Convert a real radar recording into a sequence directory (radar.csv, sensor.toml, groundtruth.txt when the
+source has ground truth) plus conversion.json (what was kept, dropped and why, and the assumptions).
+
+Formats:
+  radarscenes  RadarScenes export folder (radar{N}_detections.csv.gz + radar{N}_timestamp_and_odom.csv).
+               --radars 2 writes SEQ_DIR; --radars 2,3 writes one sequence per radar into SEQ_DIR/radarN
+               (the sequence format has one sensor). 2D radar: elevation 0 with sigma 10 deg. Extra columns
+               label, rcs; odom.csv with the odometry speed and yaw rate; groundtruth.txt from the odometry pose.
+  ti-mmwave    TI mmWave CSV export (radar_scans.csv, radar_detections.csv, calib yaml). 4D; vehicle frame =
+               IMU body frame; no ground truth.
+  vod          directory of View-of-Delft radar *.bin files (float32 N x 7: x,y,z,RCS,v_r,v_r_comp,time),
+               one per scan in file-name order, t = k / --rate.
+"""
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("convert", help="convert real radar data into a sequence directory",
+                              description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("format", choices=FORMATS, metavar="FORMAT", help=" | ".join(FORMATS))
+    p.add_argument("source", metavar="SOURCE", help="source folder")
+    p.add_argument("--out", required=True, metavar="SEQ_DIR", help="output sequence directory")
+    p.add_argument("--radars", default=None, help="radarscenes: radar numbers 1-4, e.g. 2 or 2,3 (default 2)")
+    p.add_argument("--t-max", type=float, default=None, help="radarscenes: keep scans with t <= T_MAX seconds")
+    p.add_argument("--rate", type=float, default=None, help="vod: scan rate in Hz (default 10)")
+    p.add_argument("--sigma", default=None, metavar="R,AZ,EL,VR",
+                   help="override the 1-sigma noise: range (m), azimuth (rad), elevation (rad), radial velocity (m/s)")
+    p.set_defaults(func=run)
+
+
+def _sigmas(text: str):
+    from sim.sequence import NoiseSigmas
+
+    try:
+        values = [float(s) for s in text.split(",")]
+    except ValueError:
+        raise InputError(f"--sigma: expected 4 numbers R,AZ,EL,VR, got {text!r}") from None
+    if len(values) != 4:
+        raise InputError(f"--sigma: expected 4 numbers R,AZ,EL,VR, got {len(values)}")
+    try:
+        return NoiseSigmas(*values)
+    except InputError as exc:
+        raise InputError(f"--sigma: {exc}") from None
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from sim.convert import _common, radarscenes, ti_mmwave, vod
+
+    for option, value, owner in (("--radars", args.radars, "radarscenes"), ("--t-max", args.t_max, "radarscenes"),
+                                 ("--rate", args.rate, "vod")):
+        if value is not None and args.format != owner:
+            raise InputError(f"{option}: only for the {owner} format, not {args.format}")
+    noise = _sigmas(args.sigma) if args.sigma is not None else None
+    out = Path(args.out)
+    if args.format == "radarscenes":
+        radars = radarscenes.parse_radars(args.radars if args.radars is not None else "2")
+        convs = radarscenes.convert(args.source, radars, t_max=args.t_max)
+        targets = [out] if len(convs) == 1 else [out / c.name for c in convs]
+    elif args.format == "ti-mmwave":
+        convs, targets = [ti_mmwave.convert(args.source)], [out]
+    else:
+        convs = [vod.convert(args.source, rate_hz=10.0 if args.rate is None else args.rate)]
+        targets = [out]
+    for conv, target in zip(convs, targets):
+        if noise is not None:
+            conv.sequence.sensor = dataclasses.replace(conv.sequence.sensor, noise=noise)
+            conv.report.notes.append(f"noise sigmas from --sigma {args.sigma}")
+        _common.write_conversion(target, conv)
+        print(f"{conv.name} -> {target}")
+        print(conv.report.summary())
+    return 0

@@ -1,0 +1,86 @@
+"""`rodo table1 [--runs N] [--scenarios city,highway,hills,stop_and_go,blockage] [--jobs J] [--dask ADDRESS|local]
+[--duration S] [--seed S] --out DIR [--resume]`: the paper's Table I on the simulated suite (validation/table1.py).
+
+One resumable campaign per scenario in DIR/<scenario>/ (both models, N seeds from SeedSequence(seed)), then
+DIR/table1.md and DIR/table1.json, and the table on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from estimator.errors import InputError
+from rodo.progress import Progress
+from validation.campaign import make_executor, make_trials, remaining, run_campaign
+from validation.table1 import MODELS, SCENARIOS, Table1Trial, build_table, load_runs, write_table
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("table1", help="the paper's Table I (KITTI drift, runtime; CV/C vs CA/P) on the simulated "
+                                      "suite",
+                       description="Run N seeded trials of each scenario with both models (a resumable campaign "
+                                   "per scenario in DIR/<scenario>/), then write DIR/table1.md and table1.json.")
+    p.add_argument("--runs", type=int, default=1, help="trials per scenario (default 1)")
+    p.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated scenarios (%(default)s)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
+    p.add_argument("--dask", metavar="ADDRESS", help="'local' (a LocalCluster of --jobs workers) or a scheduler "
+                                                     "address tcp://host:port; default: a local process pool")
+    p.add_argument("--duration", type=float, help="seconds of every trial (default: each scenario's own)")
+    p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--resume", action="store_true", help="continue the campaigns in DIR (skip finished rows)")
+    p.set_defaults(func=main)
+
+
+def parse_scenarios(text: str) -> list[str]:
+    import scenarios
+
+    names = [s.strip() for s in text.split(",") if s.strip()]
+    if not names:
+        raise InputError("--scenarios: no scenario given")
+    known = scenarios.names()
+    bad = [s for s in names if s not in known]
+    if bad:
+        raise InputError(f"--scenarios: unknown scenario(s) {', '.join(bad)}; choose from {', '.join(known)}")
+    if len(set(names)) != len(names):
+        raise InputError(f"--scenarios: a scenario is listed twice: {text}")
+    return names
+
+
+def main(args) -> int:
+    if args.runs < 1:
+        raise InputError(f"--runs: must be >= 1, got {args.runs}")
+    if args.jobs < 1:
+        raise InputError(f"--jobs: must be >= 1, got {args.jobs}")
+    if args.duration is not None and not args.duration > 0:
+        raise InputError(f"--duration: must be > 0 seconds, got {args.duration}")
+    names = parse_scenarios(args.scenarios)
+    trials = make_trials(args.seed, args.runs, MODELS)
+    out = args.out
+    if not args.resume:
+        taken = [s for s in names if os.path.exists(os.path.join(out, s, "results.csv"))]
+        if taken:  # checked before any work, so a refused run leaves nothing half done
+            raise InputError(f"--out: {os.path.join(out, taken[0], 'results.csv')} exists; pass --resume to "
+                             "continue, or choose another directory")
+    total = sum(remaining(trials, os.path.join(out, s)) for s in names) if args.resume \
+        else len(names) * len(trials) * len(MODELS)
+    ran = skipped = errors = 0
+    with Progress(total, "table1") as bar, make_executor(args.jobs, args.dask) as executor:
+        for s in names:
+            meta = {"scenario": s, "runs": args.runs, "models": list(MODELS), "seed": args.seed,
+                    "duration": args.duration, "table": "table1"}
+            rep = run_campaign(Table1Trial(s, args.duration), trials, executor, os.path.join(out, s),
+                               resume=args.resume, progress=bar, meta=meta)
+            ran, skipped = ran + rep.ran, skipped + rep.skipped
+            errors += sum(r["status"] == "error" for r in rep.rows)
+            for r in rep.rows:
+                if r["status"] == "error":
+                    print(f"error in {s} trial {r['trial']} ({r['model']}): {r['error']}")
+    table = build_table(load_runs(out, names), names)
+    meta = {"scenarios": ",".join(names), "runs": args.runs, "seed": args.seed, "duration": args.duration}
+    text = write_table(out, table, meta)
+    print(text)
+    print(f"ran {ran} (trial, model) runs, skipped {skipped} already done, {errors} errors")
+    print(f"wrote {os.path.join(out, 'table1.md')} and table1.json")
+    return 0

@@ -1,0 +1,222 @@
+"""Shared plumbing of the real-data converters: CSV reading with located errors, the drop report, scan building.
+
+Docs: docs/realdata.md. Checked by: tests/sim/test_convert.py
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from estimator.errors import InputError
+from sim.sequence import RadarScan, Sequence, write_sequence
+
+CONVERSION_JSON = "conversion.json"
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+@dataclass
+class ConversionReport:
+    """What a converter kept, dropped (and why) and assumed; written as conversion.json next to the sequence."""
+
+    format: str
+    source: str
+    kept_detections: int = 0
+    kept_scans: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+
+    def drop(self, reason: str, bad: np.ndarray) -> np.ndarray:
+        """Count the True entries of `bad` under `reason`; return the keep mask ~bad."""
+        bad = np.asarray(bad, dtype=bool)
+        n = int(bad.sum())
+        if n:
+            self.dropped[reason] = self.dropped.get(reason, 0) + n
+        return ~bad
+
+    def to_dict(self) -> dict:
+        return {"format": self.format, "source": self.source, "kept_detections": self.kept_detections,
+                "kept_scans": self.kept_scans, "dropped": dict(self.dropped), "notes": list(self.notes),
+                "info": self.info}
+
+    def summary(self) -> str:
+        """Human-readable lines for the CLI."""
+        lines = [f"{self.format}: kept {self.kept_detections} detections in {self.kept_scans} scans"]
+        if self.dropped:
+            lines += [f"  dropped {n} {reason}" for reason, n in sorted(self.dropped.items())]
+        else:
+            lines.append("  dropped nothing")
+        lines += [f"  note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+
+@dataclass
+class Conversion:
+    """One converted sequence: the sequence, its report, and extra files (name -> text) written beside it."""
+
+    name: str
+    sequence: Sequence
+    report: ConversionReport
+    extra_files: dict[str, str] = field(default_factory=dict)
+
+
+def open_text(path: Path):
+    """Open a (possibly .gz) text file; InputError naming the file when it is missing or unreadable."""
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:
+        if path.suffix == ".gz":
+            return gzip.open(path, "rt", encoding="utf-8", newline="")
+        return open(path, encoding="utf-8", newline="")
+    except OSError as exc:
+        raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None
+
+
+def _locate(path: Path, names: list[str], lines) -> InputError:
+    """Walk the data lines (slow path, only after a parse failure) to name the first bad line and field."""
+    for number, line in enumerate(lines, start=2):
+        line = line.rstrip("\r\n")
+        if not line.strip():
+            return InputError(f"{path}, line {number}: blank line")
+        parts = line.split(",")
+        if len(parts) != len(names):
+            return InputError(f"{path}, line {number}: expected {len(names)} fields ({','.join(names)}), "
+                              f"got {len(parts)}")
+        for name, value in zip(names, parts):
+            try:
+                float(value)
+            except ValueError:
+                return InputError(f"{path}, line {number}, field '{name}': not a number: {value.strip()!r}")
+    return InputError(f"{path}: cannot parse the data rows")
+
+
+def read_csv(path, required: tuple[str, ...], int_columns: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """Read a numeric CSV with a header line; return the required columns (float64, int64 for `int_columns`).
+
+    NaN values are returned as they are (the converters drop and count them). Raises InputError naming the
+    file, line and field for a missing file, a missing column, a wrong field count or a non-number.
+    """
+    path = Path(path)
+    with open_text(path) as f:
+        try:
+            header = f.readline()
+            body = f.read()
+        except (OSError, UnicodeDecodeError, EOFError, gzip.BadGzipFile) as exc:
+            raise InputError(f"{path}: cannot read ({exc})") from None
+    names = [n.strip() for n in header.strip().lstrip("\ufeff").split(",")]
+    if not header.strip():
+        raise InputError(f"{path}: empty file (expected a header line with {','.join(required)})")
+    missing = [c for c in required if c not in names]
+    if missing:
+        raise InputError(f"{path}, line 1: missing column(s) {', '.join(missing)} "
+                         f"(found {','.join(names)}; required {','.join(required)})")
+    lines = body.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
+        return {c: np.zeros(0, dtype=np.int64 if c in int_columns else float) for c in required}
+    try:
+        data = np.loadtxt(lines, delimiter=",", dtype=float, ndmin=2)
+    except ValueError:
+        raise _locate(path, names, lines) from None
+    if data.shape[1] != len(names):
+        raise _locate(path, names, lines)
+    out = {c: data[:, names.index(c)] for c in required}
+    for c in int_columns:
+        col = out[c]
+        whole = np.isfinite(col) & (col == np.round(col))
+        if not whole.all():
+            k = int(np.flatnonzero(~whole)[0])
+            value = lines[k].split(",")[names.index(c)].strip()
+            raise InputError(f"{path}, line {k + 2}, field '{c}': must be an integer, got {value!r}")
+        if np.any(np.abs(col) > 2**52):  # float64 lost digits (e.g. ns timestamps): parse again as int64
+            try:
+                col = np.loadtxt(lines, delimiter=",", dtype=np.int64, usecols=[names.index(c)], ndmin=1)
+            except (ValueError, OverflowError):
+                raise InputError(f"{path}, field '{c}': integers expected (int64 range)") from None
+        out[c] = col.astype(np.int64)
+    return out
+
+
+def read_flat_yaml(path) -> dict[str, tuple[float, int]]:
+    """Parse a flat `key: number` YAML file (comments allowed) -> {key: (value, line)}; strings are skipped."""
+    path = Path(path)
+    with open_text(path) as f:
+        text = f.read()
+    out = {}
+    for number, line in enumerate(text.splitlines(), start=1):
+        line = line.split("#", 1)[0].strip()
+        if not line or ":" not in line:
+            continue
+        key, value = (s.strip() for s in line.split(":", 1))
+        try:
+            out[key] = (float(value), number)
+        except ValueError:
+            continue
+    return out
+
+
+def scans_from_rows(report: ConversionReport, scan: np.ndarray, t_scan: np.ndarray, rng, az, el, vr,
+                    extra: dict[str, np.ndarray]) -> list[RadarScan]:
+    """Group detection rows into RadarScans (vectorised split; rows need not be sorted).
+
+    Args:
+        scan: (n,) int scan index of each row; `t_scan[scan]` is its time (t_scan strictly increasing).
+        rng, az, el, vr: (n,) polar detections (range is `rng`).
+        extra: name -> (n,) extra columns.
+    """
+    for name in extra:
+        if not _NAME.match(name):
+            raise InputError(f"extra column name {name!r} is not an identifier")
+    order = np.argsort(scan, kind="stable")
+    cols = [a[order] for a in (rng, az, el, vr)]
+    ext = {k: np.asarray(v, dtype=float)[order] for k, v in extra.items()}
+    s = scan[order]
+    starts = np.flatnonzero(np.r_[True, s[1:] != s[:-1]]) if len(s) else np.zeros(0, dtype=int)
+    bounds = np.r_[starts, len(s)]
+    scans = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        k = int(s[a])
+        scans.append(RadarScan(k, float(t_scan[k]), *(c[a:b] for c in cols), {n: v[a:b] for n, v in ext.items()}))
+    report.kept_detections = int(len(s))
+    report.kept_scans = len(scans)
+    return scans
+
+
+def planar_poses(x, y, yaw) -> np.ndarray:
+    """(M,) planar poses -> (M, 4, 4) T_world_vehicle (z = 0, rotation about z by yaw)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.zeros((len(x), 4, 4))
+    T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s, s, c
+    T[:, 2, 2] = T[:, 3, 3] = 1.0
+    T[:, 0, 3], T[:, 1, 3] = x, y
+    return T
+
+
+def polar_from_xyz(p: np.ndarray):
+    """(n, 3) sensor-frame points -> range, azimuth, elevation (paper eq. 80); range 0 gives elevation 0."""
+    r = np.linalg.norm(p, axis=1)
+    az = np.arctan2(p[:, 1], p[:, 0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        el = np.where(r > 0, np.arcsin(np.clip(p[:, 2] / np.where(r > 0, r, 1.0), -1.0, 1.0)), 0.0)
+    return r, az, el
+
+
+def write_conversion(out_dir, conv: Conversion) -> Path:
+    """Write the sequence, conversion.json and the extra files into `out_dir`; return the directory."""
+    out = Path(out_dir)
+    write_sequence(out, conv.sequence)
+    try:
+        (out / CONVERSION_JSON).write_text(json.dumps(conv.report.to_dict(), indent=2, sort_keys=True) + "\n",
+                                           encoding="utf-8")
+        for name, text in conv.extra_files.items():
+            (out / name).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"{out}: cannot write ({exc.strerror or exc})") from None
+    return out

@@ -1,0 +1,137 @@
+"""TI mmWave (ti_mmwave_rospkg, RIO demo CSV export) 4D radar -> the sequence format.
+
+Input folder (`rio_ti_mmwave_demo`, see its README): `radar_scans.csv` (`scan_idx,t_trigger_ns,...`),
+`radar_detections.csv` (`scan_idx,x_m,y_m,z_m,intensity,v_radial_mps,...`, sensor frame x forward, y left,
+z up) and `calib_ti_mmwave_rospkg_dataset.yaml` (radar -> IMU body extrinsics, radar_frame_ms).
+
+- Scan time: trigger time + radar_frame_ms / 2 (the upstream ekf_rio convention: mid-exposure), in seconds
+  from the first scan's trigger (its absolute time in ns is kept in conversion.json, `t0_ns`).
+- Vehicle frame = the IMU body frame (`base_link`). The yaml's q_b_r/l_b_r refer to RIO's radar frame
+  (x_r = -y_ti, y_r = x_ti, z_r = z_ti), so T_vehicle_sensor = [C_b_r C_r_ti, l_b_r].
+- Polar coordinates are recomputed in float64 from x, y, z; `intensity` is kept as the extra column `snr`.
+- Doppler quantisation is measured (step and share of values on the grid) and reported; sigma_vr is the
+  quantisation noise (measured step) / sqrt(12) (the sensor noise below it is not observable here).
+- No ground truth: no groundtruth.txt.
+
+Checked by: tests/sim/test_convert.py::test_ti_*, tests/validation/test_realdata.py::test_ti_*
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from estimator.errors import InputError
+from estimator.lie import so3
+from sim.sequence import NoiseSigmas, SensorConfig, Sequence
+
+from ._common import Conversion, ConversionReport, polar_from_xyz, read_csv, read_flat_yaml, scans_from_rows
+
+SCANS_CSV = "radar_scans.csv"
+DETECTIONS_CSV = "radar_detections.csv"
+CALIB_YAML = "calib_ti_mmwave_rospkg_dataset.yaml"
+CALIB_KEYS = ("l_b_r_x", "l_b_r_y", "l_b_r_z", "q_b_r_x", "q_b_r_y", "q_b_r_z", "q_b_r_w", "radar_frame_ms")
+C_RIO_TI = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # p_rio = C_RIO_TI @ p_ti
+DOPPLER_STEP = 0.125  # m/s, nominal quantisation (the measured step is used and reported)
+# nominal sigmas (IWR6843AOP, 3 Tx / 4 Rx: coarse angles); not observable without ground truth
+RANGE_SIGMA = 0.05
+AZIMUTH_SIGMA = np.deg2rad(3.0)
+ELEVATION_SIGMA = np.deg2rad(5.0)
+
+
+def read_calibration(path) -> tuple[np.ndarray, float]:
+    """(4, 4) T_vehicle_sensor (vehicle = IMU body) and radar_frame_ms from the RIO calibration yaml."""
+    values = read_flat_yaml(path)
+    missing = [k for k in CALIB_KEYS if k not in values]
+    if missing:
+        raise InputError(f"{path}: missing key(s) {', '.join(missing)}")
+    v = {k: values[k][0] for k in CALIB_KEYS}
+    q = np.array([v["q_b_r_x"], v["q_b_r_y"], v["q_b_r_z"], v["q_b_r_w"]])
+    norm = np.linalg.norm(q)
+    if not np.all(np.isfinite(q)) or abs(norm - 1.0) > 1e-3:
+        raise InputError(f"{path}, line {values['q_b_r_x'][1]}, field 'q_b_r': not a unit quaternion "
+                         f"(|q| = {norm:.6g})")
+    if not v["radar_frame_ms"] >= 0:
+        raise InputError(f"{path}, line {values['radar_frame_ms'][1]}, field 'radar_frame_ms': must be >= 0")
+    T = np.eye(4)
+    T[:3, :3] = so3.from_quaternion(q / norm) @ C_RIO_TI
+    T[:3, 3] = v["l_b_r_x"], v["l_b_r_y"], v["l_b_r_z"]
+    return T, v["radar_frame_ms"]
+
+
+def doppler_quantisation(radial_velocity) -> dict:
+    """Measure the Doppler quantisation: step = median spacing of the distinct values; share of values within
+    1e-3 steps of the grid k * step; number of distinct values. (The demo: step 0.12492 m/s, nominal 0.125.)"""
+    vr = np.asarray(radial_velocity, dtype=float)
+    u = np.unique(vr)
+    if len(u) < 2:
+        return {"step_mps": None, "fraction_on_grid": 1.0, "distinct_values": int(len(u))}
+    step = float(np.median(np.diff(u)))
+    on_grid = np.abs(vr / step - np.round(vr / step)) < 1e-3
+    return {"step_mps": step, "fraction_on_grid": float(on_grid.mean()), "distinct_values": int(len(u))}
+
+
+def convert(source) -> Conversion:
+    """Convert the TI mmWave demo folder (see module docstring) into one Conversion named 'ti_mmwave'.
+
+    Checked by: tests/sim/test_convert.py::test_ti_converts_demo
+    """
+    source = Path(source)
+    if not source.is_dir():
+        raise InputError(f"SOURCE: {source} is not a directory (expected the TI mmWave CSV export)")
+    T_vs, frame_ms = read_calibration(source / CALIB_YAML)
+    sc = read_csv(source / SCANS_CSV, ("scan_idx", "t_trigger_ns"), int_columns=("scan_idx", "t_trigger_ns"))
+    det = read_csv(source / DETECTIONS_CSV, ("scan_idx", "x_m", "y_m", "z_m", "intensity", "v_radial_mps"),
+                   int_columns=("scan_idx",))
+    report = ConversionReport("ti-mmwave", str(source))
+    idx, trig = sc["scan_idx"], sc["t_trigger_ns"]
+    if len(idx) == 0:
+        raise InputError(f"{source / SCANS_CSV}: no scans")
+    if np.any(idx < 0) or len(np.unique(idx)) != len(idx):
+        raise InputError(f"{source / SCANS_CSV}, field 'scan_idx': must be unique and >= 0")
+    order = np.argsort(idx)
+    idx, trig = idx[order], trig[order]
+    good = np.r_[True, np.diff(trig) > 0]
+    if not good.all():
+        report.dropped["scans whose trigger time does not increase"] = int((~good).sum())
+        idx, trig = idx[good], trig[good]
+    t0_ns = int(trig[0])
+    t_scan = (trig - t0_ns).astype(np.float64) * 1e-9 + 0.5e-3 * frame_ms  # (S,) s
+    # map scan_idx -> position in the time table
+    pos = np.full(int(max(idx.max(), det["scan_idx"].max(initial=0))) + 1, -1)
+    pos[idx] = np.arange(len(idx))
+    s = det["scan_idx"]
+    valid = (s >= 0) & (s < len(pos))
+    k = np.where(valid, pos[np.clip(s, 0, len(pos) - 1)], -1)
+    keep = report.drop("detections whose scan has no (valid) trigger time", k < 0)
+    vals = np.stack([det[c] for c in ("x_m", "y_m", "z_m", "intensity", "v_radial_mps")])
+    keep &= report.drop("detections with NaN or infinity", keep & ~np.all(np.isfinite(vals), axis=0))
+    p = np.where(keep[:, None], vals[:3].T, 1.0)
+    rng, az, el = polar_from_xyz(p)
+    keep &= report.drop("detections at zero range", keep & ~(rng > 1e-6))
+    vr = det["v_radial_mps"]
+    scans = scans_from_rows(report, k[keep], t_scan, rng[keep], az[keep], el[keep], vr[keep],
+                            {"snr": det["intensity"][keep]})
+    quant = doppler_quantisation(vr[keep])
+    step = quant["step_mps"] if quant["step_mps"] is not None else DOPPLER_STEP
+    sigma_vr = step / np.sqrt(12.0)
+    noise = NoiseSigmas(range=RANGE_SIGMA, azimuth=float(AZIMUTH_SIGMA), elevation=float(ELEVATION_SIGMA),
+                        radial_velocity=float(sigma_vr))
+    azk, elk = az[keep], el[keep]
+    fov_az = (float(azk.min()), float(azk.max())) if len(azk) else (-np.pi / 2, np.pi / 2)
+    fov_el = (float(elk.min()), float(elk.max())) if len(elk) else (-np.pi / 4, np.pi / 4)
+    rate = float(1.0 / np.median(np.diff(t_scan))) if len(t_scan) > 1 else 10.0
+    sensor = SensorConfig(rate_hz=rate, T_vehicle_sensor=T_vs, noise=noise,
+                          azimuth_fov=(fov_az[0], max(fov_az[1], fov_az[0] + 1e-6)),
+                          elevation_fov=(fov_el[0], max(fov_el[1], fov_el[0] + 1e-6)),
+                          max_range=float(np.ceil(rng[keep].max())) if keep.any() else 20.0)
+    report.info.update({"t0_ns": t0_ns, "time": "trigger + radar_frame_ms / 2, seconds from t0_ns",
+                        "radar_frame_ms": frame_ms, "rate_hz": rate, "doppler_quantisation": quant,
+                        "sigma_radial_velocity_mps": float(sigma_vr)})
+    report.notes.append(f"Doppler step measured {step:.6g} m/s (nominal {DOPPLER_STEP}); on that grid: "
+                        f"{100 * quant['fraction_on_grid']:.2f} % of "
+                        f"detections, {quant['distinct_values']} distinct values")
+    report.notes.append("vehicle frame = IMU body frame; no ground truth (no groundtruth.txt)")
+    report.notes.append("range/azimuth/elevation sigmas are nominal; sigma_vr = Doppler step / sqrt(12)")
+    return Conversion("ti_mmwave", Sequence(sensor=sensor, scans=scans, groundtruth=None), report)
