@@ -89,6 +89,7 @@ class RadarOdometry:
         self.gate = association.gate_threshold(config.association.gate_probability, 4)
         self.P: np.ndarray | None = None
         self.scan_index = 0
+        self._last_data: State | None = None  # newest state at the last scan with static detections
         self.map_clock = 0  # counts scans with static detections: the map ages with observations, not time
         self._last_t: float | None = None
 
@@ -126,7 +127,7 @@ class RadarOdometry:
     def _map_term(self, J_z_p: np.ndarray, idx=None) -> np.ndarray:
         """J_z_p (Sigma_j + map_sigma^2 I) J_z_p^T: the uncertainty of map point j seen in measurement space."""
         cov = self.map.covariances if idx is None else self.map.covariances[idx]
-        cov = cov + self.config.noise.map_sigma**2 * np.eye(3)
+        cov = cov + self.config.map_sigma**2 * np.eye(3)
         return J_z_p @ cov @ np.swapaxes(J_z_p, 1, 2)
 
     def _point_covariances(self, polar: np.ndarray, C_world_sensor: np.ndarray) -> np.ndarray:
@@ -144,18 +145,29 @@ class RadarOdometry:
         cov = self._R + self._map_term(pred.J_z_p[assoc.map_idx], assoc.map_idx)
         return MeasurementSet(self.map.points[assoc.map_idx], z[assoc.det_idx], np.linalg.inv(cov))
 
-    def _initial_state(self, t: float, polar: np.ndarray) -> tuple[State, np.ndarray, list]:
+    def _reinitialise(self, t: float, polar: np.ndarray) -> tuple[State, np.ndarray, list]:
+        """After an outage: dead-reckoned pose, Doppler velocity, last rates, zero acceleration, empty map."""
+        T = self.motion.predict(self.window.newest, t).T
+        x, P, _ = self._initial_state(t, polar, T=T, rates=self._last_data.varpi[3:])
+        self.map = LocalMap(self.config.map.capacity, self.config.map.max_age, self.config.map.voxel,
+                            rng=self.map._rng)
+        gap = t - self._last_data.t
+        return x, P, [f"re-initialised after {gap:.2f} s without static detections"]
+
+    def _initial_state(self, t: float, polar: np.ndarray, T=None, rates=None) -> tuple[State, np.ndarray, list]:
         cfg = self.config.solver
         events = ["initialised"]
         varpi = np.zeros(6)
+        if rates is not None:
+            varpi[3:] = rates
         vel_sigma = 5.0
         if len(polar) >= 3:
             ego = estimate_ego_velocity(polar[:, 1], polar[:, 2], polar[:, 3], self.rng, sigma_vr=self.sigmas[3])
             if ego.ok:
-                # no rotation known from one scan: v_s = -C_vs^T nu
-                varpi[:3] = -self.T_vs[:3, :3] @ ego.v_sensor
+                # v_s = -C_vs^T (nu + omega x r_vs), with omega as known (zero at the start)
+                varpi[:3] = -self.T_vs[:3, :3] @ ego.v_sensor - np.cross(varpi[3:], self.T_vs[:3, 3])
                 vel_sigma = cfg.init_velocity_sigma
-        x0 = self.motion.initial_state(t, np.eye(4), varpi)
+        x0 = self.motion.initial_state(t, np.eye(4) if T is None else T, varpi)
         sig = [1e-4] * 6 + [vel_sigma] * 3 + list(cfg.init_rate_sigma)
         if self.motion.dim == 18:
             sig += list(cfg.init_accel_sigma) + list(cfg.init_angular_accel_sigma)
@@ -177,8 +189,13 @@ class RadarOdometry:
         self._R = measurements.noise_covariance(model, polar[:1] if len(polar) else np.array([[1.0, 0, 0, 0]]),
                                                 self.sigmas, cfg.noise.cartesian_sigma)[0]
         events: list = []
+        outage = self.config.outage.reinit_after
         if self._last_t is None:
             x, P, events = self._initial_state(t, polar)
+            self.window.initialize(x, P)
+        elif (outage > 0 and len(polar) >= MIN_STATIC and self._last_data is not None
+              and t - self._last_data.t > outage):
+            x, P, events = self._reinitialise(t, polar)
             self.window.initialize(x, P)
         else:
             prev = self.window.newest
@@ -222,6 +239,7 @@ class RadarOdometry:
         xk = self.window.newest
         if len(pts):
             self.map_clock += 1  # an empty scan (blockage) must not expire the map it will need afterwards
+            self._last_data = xk.copy()
         if len(assoc.map_idx):
             self.map.refresh(assoc.map_idx, self.map_clock)
         if len(pts):

@@ -15,7 +15,7 @@ from rodo.cli import main
 
 # commands whose bad-input paths are exercised below; `scenarios` takes no input
 COVERED = {"run", "simulate", "evaluate", "montecarlo", "ego-velocity", "prior-montecarlo", "figures", "view",
-           "demo"}
+           "demo", "convert", "table1"}
 NO_INPUT = {"scenarios"}
 
 
@@ -263,3 +263,17 @@ def test_demo_bad_inputs(tmp_path, capsys):
 
 def test_demo_out_is_a_file(a_file, capsys):
     _fails(capsys, ["demo", "--out", a_file, "--no-figures", "--duration", "0.2"], "a_file")
+
+
+# ---------------------------------------------------------------- rodo convert, rodo table1
+
+
+def test_convert_bad_inputs(tmp_path, a_file, capsys):
+    _fails(capsys, ["convert", "radarscenes", tmp_path / "nowhere", "--out", tmp_path / "c"], "nowhere")
+    _fails(capsys, ["convert", "vod", tmp_path, "--out", tmp_path / "c", "--rate", "0"], "--rate")
+    _argparse_fails(capsys, ["convert", "kitti", tmp_path, "--out", tmp_path / "c"], "invalid choice", "kitti")
+
+
+def test_table1_bad_inputs(tmp_path, capsys):
+    _fails(capsys, ["table1", "--scenarios", "city,atlantis", "--out", tmp_path / "t"], "atlantis")
+    _fails(capsys, ["table1", "--runs", "0", "--out", tmp_path / "t"], "--runs")
