@@ -36,18 +36,30 @@ def bench_scenario(name: str, seed: int, duration: float) -> dict:
             "us/detection": 1e6 * (t2 - t1) / max(counts.sum(), 1)}
 
 
+def table(names, seed: int, duration: float) -> str:
+    rows = [bench_scenario(n, seed, duration) for n in names]
+    keys = list(rows[0])
+    out = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    for r in rows:
+        out.append("| " + " | ".join(f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k]) for k in keys) + " |")
+    return "\n".join(out) + "\n"
+
+
+def run(quick: bool) -> str:
+    """Markdown section for `python -m bench` (goal: >= 100 scans/s for city)."""
+    duration = 10.0 if quick else 20.0
+    names = ["city", "highway", "hills", "stop_and_go", "blockage", "yaw_accel"]
+    return (f"## Simulator speed ({duration:.0f} s of each scenario, seed 0; goal >= 100 scans/s for city)\n\n"
+            + table(names, 0, duration))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.sim", description=__doc__.splitlines()[0])
     ap.add_argument("--scenarios", default="city,highway,hills,stop_and_go,blockage,yaw_accel")
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    rows = [bench_scenario(n, args.seed, args.duration) for n in args.scenarios.split(",")]
-    keys = list(rows[0])
-    out = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
-    for r in rows:
-        out.append("| " + " | ".join(f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k]) for k in keys) + " |")
-    sys.stdout.write("\n".join(out) + "\n")
+    sys.stdout.write(table(args.scenarios.split(","), args.seed, args.duration))
     return 0
 
 

@@ -57,6 +57,8 @@ class AssociationConfig:
     max_radius: float = 5.0
     doppler_sigma_floor: float = 0.05  # m/s, floor of the Doppler static/moving test
     reassociate: int = 1  # re-associate after the first solve this many times
+    ransac_above_sigma: float = 0.5  # m/s: the RANSAC Doppler fallback is used only when the predicted sensor
+    # velocity is this uncertain (or explains fewer than 8 detections)
 
 
 @dataclass(frozen=True)
@@ -68,7 +70,7 @@ class MapConfig:
 
 @dataclass(frozen=True)
 class OutageConfig:
-    """After this long without static detections (total blockage, a dropped sensor) the estimator
+    """After this long without associations (total blockage, a dropped sensor) the estimator
     re-initialises at the next scan with data: pose dead-reckoned through the outage, velocity from a Doppler
     fit, angular rates from the last scan with data, acceleration zero, a fresh window and map (the old map no
     longer fits the dead-reckoned pose). 0 disables it."""

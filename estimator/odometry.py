@@ -89,7 +89,7 @@ class RadarOdometry:
         self.gate = association.gate_threshold(config.association.gate_probability, 4)
         self.P: np.ndarray | None = None
         self.scan_index = 0
-        self._last_data: State | None = None  # newest state at the last scan with static detections
+        self._last_data: State | None = None  # newest state at the last scan with associations
         self.map_clock = 0  # counts scans with static detections: the map ages with observations, not time
         self._last_t: float | None = None
 
@@ -108,7 +108,11 @@ class RadarOdometry:
         sigma = np.sqrt(self.sigmas[3] ** 2 + np.einsum("ni,ij,nj->n", u, Sv, u))
         thr = 3.0 * sigma + self.config.association.doppler_sigma_floor
         mask = np.abs(vr + u @ v) <= thr
-        if mask.sum() >= max(MIN_STATIC, 0.2 * len(polar)):
+        # A confident prediction is trusted even when it explains few detections (a truck filling the view:
+        # the largest Doppler consensus is then the truck, not the world). RANSAC decides only when the
+        # prediction is uncertain (after initialisation or an outage) or explains almost nothing.
+        confident = np.sqrt(np.trace(Sv)) < self.config.association.ransac_above_sigma
+        if mask.sum() >= MIN_STATIC and (confident or mask.sum() >= 0.2 * len(polar)):
             return mask, None
         ego = estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3])
         if ego.ok and ego.inliers.sum() > mask.sum():
@@ -152,7 +156,7 @@ class RadarOdometry:
         self.map = LocalMap(self.config.map.capacity, self.config.map.max_age, self.config.map.voxel,
                             rng=self.map._rng)
         gap = t - self._last_data.t
-        return x, P, [f"re-initialised after {gap:.2f} s without static detections"]
+        return x, P, [f"re-initialised after {gap:.2f} s without associations"]
 
     def _initial_state(self, t: float, polar: np.ndarray, T=None, rates=None) -> tuple[State, np.ndarray, list]:
         cfg = self.config.solver
@@ -193,10 +197,12 @@ class RadarOdometry:
         if self._last_t is None:
             x, P, events = self._initial_state(t, polar)
             self.window.initialize(x, P)
+            self._last_data = x.copy()
         elif (outage > 0 and len(polar) >= MIN_STATIC and self._last_data is not None
               and t - self._last_data.t > outage):
             x, P, events = self._reinitialise(t, polar)
             self.window.initialize(x, P)
+            self._last_data = x.copy()  # the outage clock restarts: the fresh map needs a scan to fill
         else:
             prev = self.window.newest
             x = self.motion.predict(prev, t)
@@ -239,6 +245,7 @@ class RadarOdometry:
         xk = self.window.newest
         if len(pts):
             self.map_clock += 1  # an empty scan (blockage) must not expire the map it will need afterwards
+        if len(assoc.map_idx):
             self._last_data = xk.copy()
         if len(assoc.map_idx):
             self.map.refresh(assoc.map_idx, self.map_clock)
