@@ -324,14 +324,20 @@ class ScenarioTrial:
             t0 = time.perf_counter()
             try:
                 result = run_sequence(seq, OdometryConfig.for_model(model))
-                outcomes.append(evaluate_result(model, result, gt, truth, self.lengths, self.step,
-                                                time.perf_counter() - t0))
+                out = evaluate_result(model, result, gt, truth, self.lengths, self.step, time.perf_counter() - t0)
+                if out.error is None:
+                    out.arrays.update(self.extra_arrays(gt, result))
+                outcomes.append(out)
             except Exception as exc:  # noqa: BLE001 - recorded per model
                 frames = traceback.extract_tb(exc.__traceback__)
                 where = next((f for f in reversed(frames) if not f.filename.endswith("errors.py")), frames[-1])
                 outcomes.append(TrialOutcome(model, error=f"{_error_text(exc)} (at {Path(where.filename).name}:"
                                                           f"{where.lineno})"))
         return outcomes
+
+    def extra_arrays(self, gt, result) -> dict:
+        """More per-trial arrays to store in trials/*.npz (subclasses add theirs, e.g. table1's segments)."""
+        return {}
 
 
 def evaluate_result(model: str, result, gt, truth: dict, lengths, step: int, wall_s: float) -> TrialOutcome:

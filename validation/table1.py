@@ -30,8 +30,6 @@ Checked by: tests/validation/test_table1.py
 from __future__ import annotations
 
 import json
-import time
-import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,7 +37,7 @@ import numpy as np
 
 from estimator.errors import InputError
 
-from .campaign import Trial, TrialOutcome, _error_text, evaluate_result, npz_path, read_results
+from .campaign import ScenarioTrial, npz_path, read_results
 from .kitti import LENGTHS, kitti_errors
 from .metrics import jsonable
 
@@ -51,41 +49,13 @@ STANDARD, SHORT, NA = "standard", "short", "n/a"
 
 
 @dataclass(frozen=True)
-class Table1Trial:
-    """A campaign trial (picklable): simulate `scenario` with the trial's seed, run each model, evaluate.
+class Table1Trial(ScenarioTrial):
+    """A campaign trial (picklable): `validation.campaign.ScenarioTrial` on the standard KITTI lengths, plus
+    the per-segment KITTI arrays on both length sets and the path length, which the table needs to pool
+    segments over runs (the campaign stores only per-run means)."""
 
-    Like `validation.campaign.ScenarioTrial`, plus the per-segment KITTI arrays on both length sets and the
-    path length, which the table needs to pool segments over runs (the campaign stores only per-run means).
-    """
-
-    scenario: str
-    duration: float | None = None
-    step: int = 10
-
-    def __call__(self, trial: Trial) -> list[TrialOutcome]:
-        import scenarios
-        from estimator.config import OdometryConfig
-        from sim.sequence import Trajectory
-
-        from .driver import run_sequence
-
-        seq, truth = scenarios.get(self.scenario).simulate(trial.seed, self.duration)
-        gt = Trajectory(truth["t"], np.linalg.inv(truth["T_vehicle_world"]))
-        outcomes = []
-        for model in trial.models:
-            t0 = time.perf_counter()
-            try:
-                result = run_sequence(seq, OdometryConfig.for_model(model))
-                out = evaluate_result(model, result, gt, truth, None, self.step, time.perf_counter() - t0)
-                if out.error is None:
-                    out.arrays.update(segment_arrays(gt, result.trajectory(), self.step))
-                outcomes.append(out)
-            except Exception as exc:  # noqa: BLE001 - recorded per model, the other model still runs
-                frames = traceback.extract_tb(exc.__traceback__)
-                where = frames[-1] if frames else None
-                at = f" (at {Path(where.filename).name}:{where.lineno})" if where else ""
-                outcomes.append(TrialOutcome(model, error=_error_text(exc) + at))
-        return outcomes
+    def extra_arrays(self, gt, result) -> dict:
+        return segment_arrays(gt, result.trajectory(), self.step)
 
 
 def segment_arrays(gt, est, step: int = 10) -> dict:
