@@ -78,6 +78,9 @@ class RadarOdometry:
         self.sigmas = np.maximum(sig * config.noise.sensor_sigma_scale, config.noise.sigma_floor)
         self.max_range = float(max_range)
         self.record_detail = record_detail
+        # R does not depend on the detection in either model (diagonal polar sigmas, or the fixed Cartesian one)
+        self._R = measurements.noise_covariance(config.measurement, np.array([[1.0, 0.0, 0.0, 0.0]]), self.sigmas,
+                                                config.noise.cartesian_sigma)[0]
         qc = config.noise.qc_ca if config.prior == "ca" else config.noise.qc_cv
         self.motion = MotionModel(config.prior, qc)
         self.window = SlidingWindow(self.motion, config.window, config.measurement, self.T_vs,
@@ -190,8 +193,6 @@ class RadarOdometry:
         model = cfg.measurement
         in_range = (polar[:, 0] > 0) & (polar[:, 0] <= self.max_range)
         polar = polar[in_range]
-        self._R = measurements.noise_covariance(model, polar[:1] if len(polar) else np.array([[1.0, 0, 0, 0]]),
-                                                self.sigmas, cfg.noise.cartesian_sigma)[0]
         events: list = []
         outage = self.config.outage.reinit_after
         if self._last_t is None:

@@ -73,7 +73,7 @@ class MotionModel:
         return self.prior.transition_and_noise(x.varpi, dt)
 
     def residuals(self, states: list[State]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Batched `residual` over consecutive pairs of `states`: e (n-1, d), J_e_x1, J_e_x2 (n-1, d, d).
+        """The priors' `residual` for all consecutive pairs of `states`: e (n-1, d), J_e_x1, J_e_x2 (n-1, d, d).
 
         Same formulas as the priors' `residual` (e = x2 (-) f(x1), J_e_x2 = diag(J(e_xi)^-1, I..),
         J_e_x1 = -diag(J(-e_xi)^-1, I..) F_k), evaluated in one vectorised pass for the whole window.
@@ -98,10 +98,3 @@ class MotionModel:
         Jr = np.broadcast_to(np.eye(d), (n, d, d)).copy()
         Jr[:, :6, :6] = se3.left_jacobian_inv(-e_xi)
         return e, -(Jr @ F), J2
-
-    def residual(self, x1: State, x2: State) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """e = x2 (-) f(x1) and its Jacobians w.r.t. left perturbations of x1 and x2."""
-        dt = x2.t - x1.t
-        if self.kind == "ca":
-            return self.prior.residual(x1.T, x1.varpi, x1.vd, x2.T, x2.varpi, x2.vd, dt)
-        return self.prior.residual(x1.T, x1.varpi, x2.T, x2.varpi, dt)

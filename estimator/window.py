@@ -198,8 +198,8 @@ class SlidingWindow:
         e, J = self._prior_term(x0)
         H[:d, :d] += J.T @ self.prior_info @ J
         b[:d] += J.T @ (self.prior_info @ e + self.prior_grad)
-        e, J1, J2 = self.motion.residual(x0, x1)
-        Jk = np.concatenate([J1, J2], axis=1)
+        E, J1, J2 = self.motion.residuals([x0, x1])
+        e, Jk = E[0], np.concatenate([J1[0], J2[0]], axis=1)
         H += Jk.T @ self.motion_info[0] @ Jk
         b += Jk.T @ self.motion_info[0] @ e
         if self.meas[0] is not None:

@@ -27,7 +27,6 @@ import io
 import json
 import os
 import time
-import traceback
 from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, CancelledError, wait
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -294,85 +293,6 @@ def _collect(out: Path, tr: Trial, fut) -> list[dict]:
         rows.append({**base, "model": m, "status": o.status, **{k: o.metrics.get(k, "") for k in METRICS},
                      "error": o.error or ""})
     return rows
-
-
-@dataclass(frozen=True)
-class ScenarioTrial:
-    """The real trial: simulate `scenario` with the trial's seed, run each model, evaluate against the truth.
-
-    Picklable (a frozen dataclass of plain values), so it runs in a process pool or on a Dask worker. A model
-    whose run raises, or whose estimate stops being finite, yields status=error with the message; the other
-    models of the trial still run.
-    """
-
-    scenario: str
-    duration: float | None = None
-    lengths: tuple[float, ...] | None = None
-    step: int = 10
-
-    def __call__(self, trial: Trial) -> list[TrialOutcome]:
-        import scenarios
-        from estimator.config import OdometryConfig
-        from sim.sequence import Trajectory
-
-        from .driver import run_sequence
-
-        seq, truth = scenarios.get(self.scenario).simulate(trial.seed, self.duration)
-        gt = Trajectory(truth["t"], np.linalg.inv(truth["T_vehicle_world"]))
-        outcomes = []
-        for model in trial.models:
-            t0 = time.perf_counter()
-            try:
-                result = run_sequence(seq, OdometryConfig.for_model(model))
-                out = evaluate_result(model, result, gt, truth, self.lengths, self.step, time.perf_counter() - t0)
-                if out.error is None:
-                    out.arrays.update(self.extra_arrays(gt, result))
-                outcomes.append(out)
-            except Exception as exc:  # noqa: BLE001 - recorded per model
-                frames = traceback.extract_tb(exc.__traceback__)
-                where = next((f for f in reversed(frames) if not f.filename.endswith("errors.py")), frames[-1])
-                outcomes.append(TrialOutcome(model, error=f"{_error_text(exc)} (at {Path(where.filename).name}:"
-                                                          f"{where.lineno})"))
-        return outcomes
-
-    def extra_arrays(self, gt, result) -> dict:
-        """More per-trial arrays to store in trials/*.npz (subclasses add theirs, e.g. table1's segments)."""
-        return {}
-
-
-def evaluate_result(model: str, result, gt, truth: dict, lengths, step: int, wall_s: float) -> TrialOutcome:
-    """Metrics row and per-scan arrays of one `validation.driver.RunResult` against the simulator's truth."""
-    from .consistency import nees_sequence, nis_summary
-    from .metrics import evaluate
-
-    est = result.estimates
-    T = np.stack([e.T_vehicle_world for e in est])
-    bad = ~np.all(np.isfinite(T), axis=(1, 2))
-    if bad.any():
-        k = int(np.flatnonzero(bad)[0])
-        return TrialOutcome(model, error=f"non-finite estimate from scan {k} (t = {est[k].t:.3f} s)")
-    d = est[0].P.shape[0]
-    states = {"t": result.t, "T_vehicle_world": T, "varpi": np.stack([e.varpi for e in est]),
-              "varpi_dot": np.stack([e.vd if e.vd is not None else np.zeros(6) for e in est]),
-              "P": np.stack([e.P for e in est]).reshape(len(est), d, d),
-              "nis": np.array([e.nis for e in est], dtype=float),
-              "n_associated": np.array([e.n_associated for e in est]), "ms_per_scan": result.wall_ms}
-    rep = evaluate(gt, result.trajectory(), lengths, step, states, truth)
-    ns = nees_sequence(states, truth)
-    fin, mx = rep["drift"]["final"], rep["drift"]["max_abs"]
-    metrics = {"kitti_t_err_pct": rep["kitti_t_err_pct"], "kitti_r_err_deg_per_m": rep["kitti_r_err_deg_per_m"],
-               "ate_rmse_m": rep["ate_rmse_m"], "rpe_trans_pct": rep["rpe"]["rpe_trans_pct"],
-               **{f"drift_{a}_{'m' if a in 'xyz' else 'deg'}": fin[a] for a in fin},
-               "max_abs_z_m": mx["z"], "max_abs_roll_deg": mx["roll"], "max_abs_pitch_deg": mx["pitch"],
-               "nees_mean": rep["nees"]["mean"], "nees_dim": d, "nis_mean": rep["nis"]["mean"],
-               "nu_rmse_mps": rep["velocity"]["nu_rmse_mps"],
-               "ms_per_scan": float(np.median(result.wall_ms)), "scans": len(est),
-               "path_length_m": rep["path_length_m"], "wall_s": wall_s}
-    nis = nis_summary(states["nis"], states["n_associated"])
-    arrays = {"t": ns["t"], "nees": ns["nees"], "nees_dim": d, "nis": states["nis"],
-              "n_associated": states["n_associated"], "ms_per_scan": result.wall_ms,
-              "nis_pairs": nis["pairs"], "T_world_vehicle_est": result.trajectory().T_world_vehicle}
-    return TrialOutcome(model, metrics, arrays)
 
 
 SUMMARY_METRICS = ("kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m", "rpe_trans_pct", "drift_z_m",

@@ -37,7 +37,8 @@ import numpy as np
 
 from estimator.errors import InputError
 
-from .campaign import ScenarioTrial, npz_path, read_results
+from .campaign import npz_path, read_results
+from .trial import ScenarioTrial
 from .kitti import LENGTHS, kitti_errors
 from .metrics import jsonable
 
@@ -50,7 +51,7 @@ STANDARD, SHORT, NA = "standard", "short", "n/a"
 
 @dataclass(frozen=True)
 class Table1Trial(ScenarioTrial):
-    """A campaign trial (picklable): `validation.campaign.ScenarioTrial` on the standard KITTI lengths, plus
+    """A campaign trial (picklable): `validation.trial.ScenarioTrial` on the standard KITTI lengths, plus
     the per-segment KITTI arrays on both length sets and the path length, which the table needs to pool
     segments over runs (the campaign stores only per-run means)."""
 

@@ -10,8 +10,8 @@ import os
 from estimator.config import MODELS
 from estimator.errors import InputError
 from rodo.progress import Progress
-from validation.campaign import (ScenarioTrial, make_executor, make_trials, remaining, run_campaign,
-                                 summarize_campaign, write_summary)
+from validation.campaign import make_executor, make_trials, remaining, run_campaign, summarize_campaign, write_summary
+from validation.trial import ScenarioTrial
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,14 +22,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("scenario", metavar="SCENARIO", help="scenario name (rodo simulate --list)")
     p.add_argument("--runs", type=int, required=True, help="number of trials")
     p.add_argument("--models", default="ca-polar,cv-cartesian", help="comma-separated models (%(default)s)")
+    add_campaign_options(p)
+    p.set_defaults(func=main)
+
+
+def add_campaign_options(p) -> None:
+    """The options every campaign command shares (montecarlo, table1): executor, trial length, seed, output."""
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
     p.add_argument("--dask", metavar="ADDRESS", help="'local' (a LocalCluster of --jobs workers) or a scheduler "
                                                      "address tcp://host:port; default: a local process pool")
-    p.add_argument("--duration", type=float, help="seconds of each trial (default: the scenario's)")
+    p.add_argument("--duration", type=float, help="seconds of each trial (default: each scenario's own)")
     p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="campaign directory")
     p.add_argument("--resume", action="store_true", help="continue the campaign in DIR (skip finished rows)")
-    p.set_defaults(func=main)
 
 
 def parse_models(text: str) -> tuple[str, ...]:

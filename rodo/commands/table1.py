@@ -12,6 +12,7 @@ import os
 
 from estimator.errors import InputError
 from rodo.progress import Progress
+from rodo.commands.montecarlo import add_campaign_options
 from validation.campaign import make_executor, make_trials, remaining, run_campaign
 from validation.table1 import MODELS, SCENARIOS, Table1Trial, build_table, load_runs, write_table
 
@@ -23,13 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "per scenario in DIR/<scenario>/), then write DIR/table1.md and table1.json.")
     p.add_argument("--runs", type=int, default=1, help="trials per scenario (default 1)")
     p.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated scenarios (%(default)s)")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
-    p.add_argument("--dask", metavar="ADDRESS", help="'local' (a LocalCluster of --jobs workers) or a scheduler "
-                                                     "address tcp://host:port; default: a local process pool")
-    p.add_argument("--duration", type=float, help="seconds of every trial (default: each scenario's own)")
-    p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
-    p.add_argument("--resume", action="store_true", help="continue the campaigns in DIR (skip finished rows)")
+    add_campaign_options(p)
     p.set_defaults(func=main)
 
 

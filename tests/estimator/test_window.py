@@ -172,3 +172,19 @@ def test_bad_input_is_rejected_with_a_clear_error():
         odo.process(0.1, np.full((3, 4), np.nan))
     with pytest.raises(InputError, match="model"):
         OdometryConfig(model="ca-spherical")
+
+
+@pytest.mark.parametrize("kind", ["ca", "cv"])
+def test_batched_motion_residuals_equal_the_priors_residual(kind):
+    """MotionModel.residuals (the window's single path) = the prior's own residual, pair by pair."""
+    rng = np.random.default_rng(4)
+    motion = MotionModel(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
+    states = [State(0.1 * k + 0.01 * k**2, se3.exp(rng.normal(size=6) * 0.5), rng.normal(size=6),
+                    rng.normal(size=6) if kind == "ca" else None) for k in range(4)]
+    E, J1, J2 = motion.residuals(states)
+    for k, (a, b) in enumerate(zip(states[:-1], states[1:])):
+        args = (a.T, a.varpi, a.vd, b.T, b.varpi, b.vd) if kind == "ca" else (a.T, a.varpi, b.T, b.varpi)
+        e, j1, j2 = motion.prior.residual(*args, b.t - a.t)
+        np.testing.assert_allclose(E[k], e, atol=1e-12)
+        np.testing.assert_allclose(J1[k], j1, atol=1e-10)
+        np.testing.assert_allclose(J2[k], j2, atol=1e-12)
