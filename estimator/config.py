@@ -59,6 +59,10 @@ class AssociationConfig:
     reassociate: int = 1  # re-associate after the first solve this many times
     ransac_above_sigma: float = 0.5  # m/s: the RANSAC Doppler fallback is used only when the predicted sensor
     # velocity is this uncertain (or explains fewer than 8 detections)
+    doppler_jerk_margin: float = 0.5  # m/s: a confident prediction's Doppler fit may move this far beyond its
+    # 3-sigma (hard braking, hand-held sensors: jerk the prior does not expect)
+    doppler_update_probability: float = 0.999  # chi-square level above which the scan's Doppler velocity
+    # corrects the predicted velocity before association
 
 
 @dataclass(frozen=True)
@@ -76,6 +80,21 @@ class OutageConfig:
     longer fits the dead-reckoned pose). 0 disables it."""
 
     reinit_after: float = 1.0  # seconds
+
+
+@dataclass(frozen=True)
+class StandstillConfig:
+    """Zero-velocity term: when the scan's Doppler says the sensor is at rest (the static detections' median
+    |radial velocity| below max(speed / 2, sigma_vr), and their least-squares velocity consistent with zero at 99 %) the newest
+    state gets varpi = 0 (and varpi_dot = 0) with these 1-sigmas. Doppler alone cannot tell a standstill from a turn
+    on the spot about an axis near the sensor; a wheeled vehicle at rest does not turn, which is what this
+    assumes. speed = 0 disables it."""
+
+    speed: float = 0.05  # m/s
+    sigma_velocity: float = 0.005  # m/s
+    sigma_rate: float = 0.002  # rad/s
+    sigma_accel: float = 0.01  # m/s^2
+    sigma_angular_accel: float = 0.005  # rad/s^2
 
 
 @dataclass(frozen=True)
@@ -102,6 +121,7 @@ class OdometryConfig:
     map: MapConfig = field(default_factory=MapConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
     outage: OutageConfig = field(default_factory=OutageConfig)
+    standstill: StandstillConfig = field(default_factory=StandstillConfig)
 
     def __post_init__(self):
         if self.model not in MODELS:
@@ -139,6 +159,15 @@ class OdometryConfig:
             raise InputError(f"association.max_radius: must be > 0, got {self.association.max_radius}")
         if self.association.reassociate < 0 or self.association.doppler_sigma_floor < 0:
             raise InputError("association.reassociate, association.doppler_sigma_floor: must be >= 0")
+        st = self.standstill
+        if st.speed < 0 or min(st.sigma_velocity, st.sigma_rate, st.sigma_accel, st.sigma_angular_accel) <= 0:
+            raise InputError("standstill: speed must be >= 0 (0 disables it) and the sigmas > 0")
+        if not 0 < self.association.doppler_update_probability < 1:
+            raise InputError("association.doppler_update_probability: must be in (0, 1), got "
+                             f"{self.association.doppler_update_probability}")
+        if not self.association.doppler_jerk_margin > 0:
+            raise InputError("association.doppler_jerk_margin: must be > 0 m/s, got "
+                             f"{self.association.doppler_jerk_margin}")
         if not self.outage.reinit_after >= 0:
             raise InputError(f"outage.reinit_after: must be >= 0 seconds, got {self.outage.reinit_after}")
         if self.map.max_age < 0 or self.map.voxel < 0:
@@ -175,7 +204,7 @@ class OdometryConfig:
     @classmethod
     def from_dict(cls, data: dict, source: str = "config") -> "OdometryConfig":
         sections = {"noise": NoiseConfig, "association": AssociationConfig, "map": MapConfig, "solver": SolverConfig,
-                    "outage": OutageConfig}
+                    "outage": OutageConfig, "standstill": StandstillConfig}
         top = {f.name for f in dataclasses.fields(cls)}
         kwargs = {}
         for key, value in data.items():

@@ -102,7 +102,7 @@ def _least_squares(U: np.ndarray, b: np.ndarray):
 
 def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Generator, *, sigma_vr: float = 0.01,
                           threshold: float | None = None, iterations: int = 100,
-                          planar: bool | None = None) -> EgoVelocity:
+                          planar: bool | None = None, near: tuple | None = None) -> EgoVelocity:
     """Sensor velocity from one scan's Doppler measurements, robust to moving objects (see module docstring).
 
     Model: v_r,i = -u_i . v_s for static targets, u_i = [cos el cos az, cos el sin az, sin el].
@@ -111,9 +111,13 @@ def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Ge
         azimuth, elevation, radial_velocity: (n,) detections (rad, rad, m/s; v_r negative when approaching).
         rng: numpy Generator (the only source of randomness; same state -> same result).
         sigma_vr: 1-sigma of the radial velocity noise (m/s), sets the default threshold.
-        threshold: inlier threshold on |v_r + u . v| (m/s); default max(3 sigma_vr, 0.05).
+        threshold: inlier threshold on |v_r + u . v| (m/s), one number or (n,) per detection; default
+            max(3 sigma_vr, 0.05).
         iterations: number of random minimal sets.
         planar: force planar (True) or 3-D (False) mode; None decides from the elevations.
+        near: optional (v (3,), radius m/s): only hypotheses within `radius` of v compete, and v itself is a
+            hypothesis instead of zero (the estimator's predicted sensor velocity: a prediction-gated RANSAC
+            that follows an unmodelled jerk but never jumps to a larger moving consensus, e.g. a truck).
 
     Returns:
         EgoVelocity (ok=False if fewer detections or inliers than the minimal set).
@@ -128,9 +132,9 @@ def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Ge
         raise InputError(f"sigma_vr: must be > 0, got {sigma_vr}")
     if threshold is None:
         threshold = max(3.0 * sigma_vr, MIN_THRESHOLD)
-    threshold = float(check_finite("threshold", threshold))
-    if threshold <= 0:
-        raise InputError(f"threshold: must be > 0, got {threshold}")
+    threshold = check_finite("threshold", threshold)
+    if threshold.ndim > 1 or (threshold.ndim == 1 and threshold.shape != azimuth.shape) or np.any(threshold <= 0):
+        raise InputError(f"threshold: must be > 0, a number or one per detection, got shape {threshold.shape}")
     if isinstance(iterations, (bool, np.bool_)) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
         raise InputError(f"iterations: must be a positive integer, got {iterations}")
     n = len(azimuth)
@@ -149,10 +153,19 @@ def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Ge
     A = U[idx]                                   # (k, dof, dof)
     good = np.abs(np.linalg.det(A)) > MIN_DET
     hyps = np.zeros((1, dof))                    # the zero-velocity hypothesis first
+    if near is not None:
+        v_near = check_finite("near velocity", near[0], (3,))[:dof]
+        radius = float(check_finite("near radius", near[1]))
+        if not radius > 0:
+            raise InputError(f"near radius: must be > 0, got {radius}")
+        hyps = v_near[None, :]
     if np.any(good):
         hyps = np.concatenate([hyps, np.linalg.solve(A[good], b[idx[good]][..., None])[..., 0]])
-    counts = (np.abs(U @ hyps.T - b[:, None]) <= threshold).sum(axis=0)
-    order = np.lexsort((np.linalg.norm(hyps, axis=1), -counts))  # most inliers, then smallest |v|
+    if near is not None:
+        hyps = hyps[np.linalg.norm(hyps - v_near, axis=1) <= radius]
+    counts = (np.abs(U @ hyps.T - b[:, None]) <= np.reshape(threshold, (-1, 1))).sum(axis=0)
+    ref = np.zeros(dof) if near is None else v_near
+    order = np.lexsort((np.linalg.norm(hyps - ref, axis=1), -counts))  # most inliers, then closest to ref
     v = hyps[order[0]]
     inl = np.abs(U @ v - b) <= threshold
     if inl.sum() < dof:

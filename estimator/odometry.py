@@ -25,7 +25,7 @@ import numpy as np
 
 from . import association, measurements
 from .config import OdometryConfig
-from .ego_velocity import estimate_ego_velocity
+from .ego_velocity import PLANAR_ELEVATION, estimate_ego_velocity
 from .errors import InputError, check_finite
 from .lie import se3, so3
 from .local_map import LocalMap
@@ -51,6 +51,7 @@ class ScanEstimate:
     timings: dict = field(default_factory=dict)  # seconds: predict, associate, solve, map
     events: list = field(default_factory=list)
     detail: dict | None = None  # with record_detail: polar, static, det_idx, map_idx, map_points, rows
+    standstill: bool = False  # the zero-velocity term was applied (Doppler: the sensor at rest)
 
     @property
     def T_world_vehicle(self) -> np.ndarray:
@@ -90,6 +91,9 @@ class RadarOdometry:
         self.map = LocalMap(config.map.capacity, config.map.max_age, config.map.voxel,
                             rng=np.random.default_rng(seeds[1]))
         self.gate = association.gate_threshold(config.association.gate_probability, 4)
+        self._doppler_gate = {d: association.gate_threshold(config.association.doppler_update_probability, d)
+                              for d in (2, 3)}
+        self._still_gate = {d: association.gate_threshold(0.99, d) for d in (2, 3)}
         self.P: np.ndarray | None = None
         self.scan_index = 0
         self._last_data: State | None = None  # newest state at the last scan with associations
@@ -105,22 +109,101 @@ class RadarOdometry:
         return v, J @ P_varpi @ J.T
 
     def _static_mask(self, polar: np.ndarray, x: State, P: np.ndarray) -> tuple[np.ndarray, str | None]:
+        """Static detections by Doppler: the largest consensus near the predicted sensor velocity.
+
+        A confident prediction (the usual case) seeds a prediction-gated RANSAC: only velocities within the
+        prediction's 3-sigma plus `association.doppler_jerk_margin` compete, so an unmodelled jerk (hard
+        braking, a hand-held sensor) does not split the static world into "moving" detections, and a larger
+        moving consensus (a truck filling the view) is never taken for the world. An uncertain prediction
+        (after initialisation or an outage) uses the prediction's own gate, or an unconstrained RANSAC fit when
+        the prediction explains too little of the scan.
+        """
+        acfg = self.config.association
         az, el, vr = polar[:, 1], polar[:, 2], polar[:, 3]
         u = measurements.polar_to_cartesian(np.c_[np.ones(len(polar)), az, el])
         v, Sv = self._sensor_velocity(x.varpi, P[6:12, 6:12])
-        sigma = np.sqrt(self.sigmas[3] ** 2 + np.einsum("ni,ij,nj->n", u, Sv, u))
-        thr = 3.0 * sigma + self.config.association.doppler_sigma_floor
-        mask = np.abs(vr + u @ v) <= thr
-        # A confident prediction is trusted even when it explains few detections (a truck filling the view:
-        # the largest Doppler consensus is then the truck, not the world). RANSAC decides only when the
-        # prediction is uncertain (after initialisation or an outage) or explains almost nothing.
-        confident = np.sqrt(np.trace(Sv)) < self.config.association.ransac_above_sigma
-        if mask.sum() >= MIN_STATIC and (confident or mask.sum() >= 0.2 * len(polar)):
+        # per detection: radial velocity noise, the direction noise seen through the velocity (v . du/daz,
+        # v . du/del), and the predicted velocity's own uncertainty
+        ca, sa, ce, se = np.cos(az), np.sin(az), np.cos(el), np.sin(el)
+        d_az = np.c_[-ce * sa, ce * ca, np.zeros_like(az)] @ v
+        d_el = np.c_[-se * ca, -se * sa, ce] @ v
+        var_fit = self.sigmas[3] ** 2 + (self.sigmas[1] * d_az) ** 2 + (self.sigmas[2] * d_el) ** 2
+        sigma = np.sqrt(var_fit + np.einsum("ni,ij,nj->n", u, Sv, u))
+        mask = np.abs(vr + u @ v) <= 3.0 * sigma + acfg.doppler_sigma_floor
+        confident = np.sqrt(np.trace(Sv)) < acfg.ransac_above_sigma
+        fit_threshold = 3.0 * np.sqrt(var_fit) + acfg.doppler_sigma_floor
+        if confident:
+            radius = 3.0 * np.sqrt(np.linalg.eigvalsh(Sv)[-1]) + acfg.doppler_jerk_margin
+            ego = estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3], threshold=fit_threshold,
+                                        near=(v, radius))
+            if ego.ok and ego.inliers.sum() >= max(MIN_STATIC, mask.sum()):
+                return ego.inliers, None
+            if mask.sum() >= MIN_STATIC:
+                return mask, None
+        elif mask.sum() >= MIN_STATIC and mask.sum() >= 0.2 * len(polar):
             return mask, None
-        ego = estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3])
+        ego = estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3], threshold=fit_threshold)
         if ego.ok and ego.inliers.sum() > mask.sum():
             return ego.inliers, "doppler-ransac-fallback"
         return mask, None
+
+    def _doppler_fit(self, static: np.ndarray):
+        """Least-squares sensor velocity of the static detections: (v (dof,), covariance, dof, their radial
+        velocities), or None.
+        Planar (dof 2: vx, vy) when the elevations carry no information (2D sensors)."""
+        az, el, vr = static[:, 1], static[:, 2], static[:, 3]
+        dof = 2 if np.all(np.abs(el) < PLANAR_ELEVATION) else 3
+        if len(static) < dof + 3:
+            return None
+        A = measurements.polar_to_cartesian(np.c_[np.ones(len(static)), az, el])[:, :dof]
+        info = A.T @ A
+        if np.linalg.cond(info) > 1e8:
+            return None
+        v = np.linalg.solve(info, A.T @ -vr)
+        res = A @ v + vr
+        s2 = max(float(res @ res) / (len(static) - dof), self.sigmas[3] ** 2)
+        return v, s2 * np.linalg.inv(info), dof, vr
+
+    def _doppler_update(self, x: State, P: np.ndarray, fit) -> State:
+        """The predicted state, corrected by the scan's Doppler ego-velocity when the two disagree.
+
+        Association gates the radial velocity at the sensor's few cm/s, so a velocity prediction off by a
+        tenth of a m/s (an unmodelled jerk: hard braking, a hand-held sensor) would reject most true pairs. The
+        least-squares sensor velocity of the static detections, v_s = -C_vs^T (nu + omega x r_vs), is compared
+        with the prediction (chi-square at `association.doppler_update_probability`); only when it contradicts
+        it does a Kalman update move the mean. The result is only the linearisation point and the centre of
+        the association gates: P stays the predicted covariance and the solve uses the detections through its
+        own factors, so nothing is counted twice. (Updating P too, or updating at every scan, made the gates
+        follow the least-squares fit's own errors: more pitch drift on the simulated city.)
+        """
+        if fit is None:
+            return x
+        v, cov, dof, _ = fit
+        C, r = self.T_vs[:3, :3], self.T_vs[:3, 3]
+        J = (-C.T @ np.c_[np.eye(3), -so3.hat(r)])[:dof]
+        H = np.zeros((dof, len(P)))
+        H[:, 6:12] = J
+        S = H @ P @ H.T + cov
+        innovation = v - J @ x.varpi
+        if innovation @ np.linalg.solve(S, innovation) <= self._doppler_gate[dof]:
+            return x  # the prediction agrees with the scan's Doppler: nothing to correct
+        K = np.linalg.solve(S, H @ P).T
+        return x.oplus(K @ innovation)
+
+    def _standstill_info(self, fit) -> np.ndarray | None:
+        """Information of the zero-velocity term when the Doppler says the sensor is at rest, else None."""
+        cfg = self.config.standstill
+        if fit is None or cfg.speed <= 0:
+            return None
+        v, cov, dof, vr = fit
+        # at rest every static detection's Doppler is noise: a small median, and a fit consistent with zero
+        quiet = np.median(np.abs(vr)) <= max(0.5 * cfg.speed, self.sigmas[3])
+        if not (quiet and v @ np.linalg.solve(cov, v) <= self._still_gate[dof]):
+            return None
+        sig = [cfg.sigma_velocity] * 3 + [cfg.sigma_rate] * 3
+        if self.motion.dim == 18:
+            sig += [cfg.sigma_accel] * 3 + [cfg.sigma_angular_accel] * 3
+        return np.diag(1.0 / np.square(sig))
 
     def _associate(self, x: State, P: np.ndarray, z: np.ndarray, pts: np.ndarray):
         if len(self.map) == 0 or len(z) == 0:
@@ -194,6 +277,7 @@ class RadarOdometry:
         in_range = (polar[:, 0] > 0) & (polar[:, 0] <= self.max_range)
         polar = polar[in_range]
         events: list = []
+        predicted = False  # True: x, P, Q predicted from the window (not a fresh initialisation)
         outage = self.config.outage.reinit_after
         if self._last_t is None:
             x, P, events = self._initial_state(t, polar)
@@ -209,13 +293,19 @@ class RadarOdometry:
             x = self.motion.predict(prev, t)
             F, Q = self.motion.transition_and_noise(prev, t - prev.t)
             P = F @ self.P @ F.T + Q
-            self.window.push(x, Q)
+            predicted = True
         timings["predict"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
         static, note = self._static_mask(polar, x, P) if len(polar) else (np.zeros(0, bool), None)
         if note:
             events.append(note)
+        fit = self._doppler_fit(polar[static]) if static.sum() >= MIN_STATIC else None
+        if predicted:
+            x = self._doppler_update(x, P, fit)
+            self.window.push(x, Q)
+        still = self._standstill_info(fit)
+        self.window.set_standstill(len(self.window.states) - 1, still)
         z = measurements.to_model_space(model, polar[static]) if static.any() else np.zeros((0, 4))
         pts = measurements.polar_to_cartesian(polar[static]) if static.any() else np.zeros((0, 3))
         pred, assoc = self._associate(x, P, z, pts)
@@ -266,4 +356,4 @@ class RadarOdometry:
         self.scan_index += 1
         return ScanEstimate(t, xk.T.copy(), xk.varpi.copy(), None if xk.vd is None else xk.vd.copy(),
                             self.P.copy(), len(polar), int(static.sum()), len(assoc.map_idx), nis, timings, events,
-                            detail)
+                            detail, still is not None)

@@ -46,6 +46,7 @@ class SlidingWindow:
         self.robust_c = robust_c
         self.states: list[State] = []
         self.meas: list[MeasurementSet | None] = []
+        self.still: list[np.ndarray | None] = []  # per state: information of a zero-velocity term, or None
         self.motion_info: list[np.ndarray] = []  # Q_k^-1 between states k and k+1
         self.prior_mean: State | None = None  # linearisation point of the prior on the oldest state
         self.prior_info: np.ndarray | None = None
@@ -61,13 +62,21 @@ class SlidingWindow:
         self.prior_mean = x0.copy()
         self.prior_info = _inv_spd(P0)
         self.prior_grad = np.zeros(len(P0))
+        self.still = [None]
         self._H = None
 
     def push(self, x: State, Q: np.ndarray) -> None:
         """Append a new (predicted) state linked to the newest by the motion prior with noise Q."""
         self.states.append(x.copy())
         self.meas.append(None)
+        self.still.append(None)
         self.motion_info.append(_inv_spd(Q))
+        self._H = None
+
+    def set_standstill(self, k: int, info: np.ndarray | None) -> None:
+        """A zero-velocity term on state k: cost 1/2 t^T info t with t = [varpi; vd] (a standstill seen by
+        the Doppler: a wheeled vehicle at rest neither moves nor turns), or None to remove it."""
+        self.still[k] = info
         self._H = None
 
     def set_measurements(self, k: int, mset: MeasurementSet | None) -> None:
@@ -139,6 +148,13 @@ class SlidingWindow:
                 H[sl, sl] += JW @ Jk
                 b[sl] += JW @ e
                 cost += 0.5 * e @ Wq @ e
+        for k, info in enumerate(self.still):
+            if info is not None:
+                t = self.states[k].vector_tail()
+                sl = slice(k * d + 6, (k + 1) * d)
+                H[sl, sl] += info
+                b[sl] += info @ t
+                cost += 0.5 * t @ info @ t
         ks = [k for k, m in enumerate(self.meas) if m is not None]
         if ks:
             blocks, c, _ = self._measurement_terms(ks)
@@ -206,6 +222,9 @@ class SlidingWindow:
             (Hm, bm), = self._measurement_terms([0])[0]
             H[:12, :12] += Hm
             b[:12] += bm
+        if self.still[0] is not None:
+            H[6:d, 6:d] += self.still[0]
+            b[6:d] += self.still[0] @ x0.vector_tail()
         H00, H01, H11 = H[:d, :d], H[:d, d:], H[d:, d:]
         X = _solve_spd(H00, np.c_[H01, b[:d]])
         Lam = H11 - H01.T @ X[:, :d]
@@ -216,6 +235,7 @@ class SlidingWindow:
         self.prior_grad = g
         self.states.pop(0)
         self.meas.pop(0)
+        self.still.pop(0)
         self.motion_info.pop(0)
         self._H = None
 

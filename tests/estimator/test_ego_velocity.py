@@ -103,6 +103,44 @@ def test_lead_truck_dominating_the_scan():
     assert not est.inliers[:n_truck].any()
 
 
+def test_near_keeps_the_consensus_next_to_the_prediction():
+    """A truck with more detections than the static world wins a free RANSAC; gated near the predicted
+    velocity (off by 0.3 m/s: hard braking) the static world wins and is refitted exactly."""
+    rng = _rng(11)
+    v = np.array([8.0, 0.2, 0.0])
+    az, el, vr = _scene(rng, v, n=100, sigma=0.005)
+    n_truck = 150
+    az_t, el_t = rng.normal(0, 0.1, n_truck), rng.uniform(-0.05, 0.1, n_truck)
+    u_t = np.stack([np.cos(el_t) * np.cos(az_t), np.cos(el_t) * np.sin(az_t), np.sin(el_t)], axis=1)
+    vr_t = u_t @ (np.array([7.0, 0, 0]) - v) + 0.005 * rng.normal(size=n_truck)  # truck at 7 m/s
+    az, el, vr = np.r_[az_t, az], np.r_[el_t, el], np.r_[vr_t, vr]
+    free = estimate_ego_velocity(az, el, vr, _rng(1), sigma_vr=0.005)
+    assert free.inliers[:n_truck].all()  # the larger, wrong consensus
+    gated = estimate_ego_velocity(az, el, vr, _rng(1), sigma_vr=0.005, near=(v + [0.3, 0, 0], 0.5))
+    assert gated.ok and not gated.inliers[:n_truck].any() and gated.inliers[n_truck:].all()
+    np.testing.assert_allclose(gated.v_sensor, v, atol=0.01)
+    # nothing near the prediction: not ok, never the far consensus
+    far = estimate_ego_velocity(az, el, vr, _rng(1), sigma_vr=0.005, near=(v + [3.0, 0, 0], 0.5))
+    assert not far.ok and not far.inliers.any()
+
+
+def test_per_detection_threshold():
+    """One threshold per detection: a detection whose own threshold is tight becomes an outlier."""
+    rng = _rng(12)
+    v = np.array([5.0, 0.0, 0.0])
+    az, el, vr = _scene(rng, v, n=40)
+    vr[0] += 0.1
+    loose = estimate_ego_velocity(az, el, vr, _rng(2), threshold=np.full(40, 0.2))
+    tight = np.full(40, 0.2)
+    tight[0] = 0.05
+    strict = estimate_ego_velocity(az, el, vr, _rng(2), threshold=tight)
+    assert loose.inliers[0] and not strict.inliers[0] and strict.inliers[1:].all()
+    with pytest.raises(InputError, match="threshold"):
+        estimate_ego_velocity(az, el, vr, _rng(2), threshold=np.full(39, 0.2))
+    with pytest.raises(InputError, match="near radius"):
+        estimate_ego_velocity(az, el, vr, _rng(2), near=(v, 0.0))
+
+
 def test_standstill_moving_object_does_not_win():
     rng = _rng(8)
     az, el, vr = _scene(rng, np.zeros(3), n=60, sigma=0.005)
