@@ -3,21 +3,25 @@
 This is the algorithm layer (no file I/O, no printing): `RadarOdometry.process(t, polar)` takes one scan's
 detections [range, azimuth, elevation, radial_velocity] (sensor frame) and returns the newest estimate.
 
-Per scan k (paper sec. III-VI):
+Per scan k (paper sec. III-VI; docs/estimator.md gives the reasons and the measurements behind each step):
 1. predict x_k = f(x_{k-1}) and P_k = F P F^T + Q with the configured prior (CV or CA);
-2. keep detections whose Doppler is consistent with the predicted sensor velocity (static world); if the
-   prediction explains too few of them, fall back to a RANSAC ego-velocity fit (moving objects and clutter are
-   rejected either way, as in reve);
-3. associate map points with detections by maximum likelihood with S = G P G^T + R (+ map-point term), gated at
-   the chi-square quantile (eq. 86-88);
-4. add x_k to the sliding window, Gauss-Newton over prior, motion and measurement terms, re-associate with the
+2. static detections: the largest Doppler consensus near the predicted sensor velocity (a prediction-gated
+   RANSAC), or a free RANSAC fit when the prediction is uncertain (moving objects and clutter are rejected
+   either way, as in reve);
+3. when the scan's Doppler velocity contradicts the prediction (an unmodelled jerk), move the predicted mean
+   to it: it is the linearisation point and the centre of the association gates;
+4. a zero-velocity term when the Doppler says the sensor is at rest;
+5. associate map points with detections by maximum likelihood with S = G P G^T + R (+ map-point term), gated
+   at the chi-square quantile (eq. 86-88), both windowed to the field of view;
+6. add x_k to the sliding window, Gauss-Newton over prior, motion and measurement terms, re-associate with the
    refined estimate, solve again, marginalise the oldest state when the window is full;
-5. update the local map: refresh associated points, add the unassociated static detections. The map ages
+7. update the local map: refresh associated points, add the unassociated static detections. The map ages
    with scans that have static detections, so a blockage does not expire the map needed after it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -67,10 +71,12 @@ class RadarOdometry:
         sensor_sigmas: (4,) 1-sigma noise [range, azimuth, elevation, radial_velocity] (from sensor.toml).
         max_range: the sensor's maximum range (m), for pruning the map.
         record_detail: keep per-scan association detail in `ScanEstimate.detail` (for visual debugging).
+        fov: ((az_min, az_max), (el_min, el_max)) radians, the sensor's field of view (sensor.toml): association
+            is windowed inside it (`_window_masks`); None: no window.
     """
 
     def __init__(self, config: OdometryConfig, T_vehicle_sensor, sensor_sigmas, max_range: float = 200.0,
-                 record_detail: bool = False):
+                 record_detail: bool = False, fov=None):
         self.config = config
         self.T_vs = check_finite("T_vehicle_sensor", T_vehicle_sensor, (4, 4))
         sig = check_finite("sensor_sigmas", sensor_sigmas, (4,))
@@ -78,6 +84,12 @@ class RadarOdometry:
             raise InputError(f"sensor_sigmas: must be > 0, got {sig}")
         self.sigmas = np.maximum(sig * config.noise.sensor_sigma_scale, config.noise.sigma_floor)
         self.max_range = float(max_range)
+        self.fov = None
+        if fov is not None:
+            fov = check_finite("fov", fov, (2, 2))
+            if fov.shape != (2, 2) or np.any(fov[:, 0] >= fov[:, 1]):
+                raise InputError(f"fov: expected ((az_min, az_max), (el_min, el_max)) with min < max, got {fov}")
+            self.fov = fov
         self.record_detail = record_detail
         # R does not depend on the detection in either model (diagonal polar sigmas, or the fixed Cartesian one)
         self._R = measurements.noise_covariance(config.measurement, np.array([[1.0, 0.0, 0.0, 0.0]]), self.sigmas,
@@ -205,14 +217,40 @@ class RadarOdometry:
             sig += [cfg.sigma_accel] * 3 + [cfg.sigma_angular_accel] * 3
         return np.diag(1.0 / np.square(sig))
 
-    def _associate(self, x: State, P: np.ndarray, z: np.ndarray, pts: np.ndarray):
+    def _associate(self, x: State, P: np.ndarray, z: np.ndarray, pts: np.ndarray, polar: np.ndarray):
+        """Map points and detections paired inside the association window (`_window_masks`)."""
         if len(self.map) == 0 or len(z) == 0:
             return None, association.Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)
         pred = measurements.predict(self.config.measurement, x.T, x.varpi, self.map.points, self.T_vs)
-        S = association.innovation_covariance(pred, P[:12, :12], self._R, 0.0) + self._map_term(pred.J_z_p)
-        assoc = association.associate(self.config.measurement, z, pts, pred, S, self.gate,
-                                      self.config.association.max_radius)
-        return pred, assoc
+        m_in, d_in = self._window_masks(pred.p_sensor, polar)
+        mi, di = np.flatnonzero(m_in), np.flatnonzero(d_in)
+        sub = dataclasses.replace(pred, z=pred.z[mi], J_z_xi=pred.J_z_xi[mi], J_z_varpi=pred.J_z_varpi[mi],
+                                  J_z_p=pred.J_z_p[mi], p_sensor=pred.p_sensor[mi])
+        S = association.innovation_covariance(sub, P[:12, :12], self._R, 0.0) + self._map_term(sub.J_z_p, mi)
+        a = association.associate(self.config.measurement, z[di], pts[di], sub, S, self.gate,
+                                  self.config.association.max_radius)
+        return pred, association.Association(mi[a.map_idx], di[a.det_idx], a.d2, a.n_candidates)
+
+    def _window_masks(self, p_sensor: np.ndarray, polar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Map points (predicted) and detections (measured) inside the field of view shrunk by 3 sigma of the
+        angle noise. Detections exist only inside the field of view but map points are not cut there: a map
+        point that has left it (ground passing below the lower edge) would be paired with the detections at
+        the edge, all on one side of it, a bias the solve turns into pitch. The same window on both sides
+        keeps the pairs symmetric. An angle whose field of view is narrower than the margin (a 2D radar's
+        elevation) is not windowed."""
+        m_in = np.ones(len(p_sensor), bool)
+        d_in = np.ones(len(polar), bool)
+        if self.fov is None:
+            return m_in, d_in
+        r = np.maximum(np.linalg.norm(p_sensor, axis=1), 1e-12)
+        angles = ((np.arctan2(p_sensor[:, 1], p_sensor[:, 0]), polar[:, 1], self.fov[0], self.sigmas[1]),
+                  (np.arcsin(np.clip(p_sensor[:, 2] / r, -1, 1)), polar[:, 2], self.fov[1], self.sigmas[2]))
+        for pred_angle, meas_angle, (lo, hi), sigma in angles:
+            lo, hi = lo + 3 * sigma, hi - 3 * sigma
+            if hi - lo > 0.1 * (hi - lo + 6 * sigma):
+                m_in &= (pred_angle >= lo) & (pred_angle <= hi)
+                d_in &= (meas_angle >= lo) & (meas_angle <= hi)
+        return m_in, d_in
 
     def _map_term(self, J_z_p: np.ndarray, idx=None) -> np.ndarray:
         """J_z_p (Sigma_j + map_sigma^2 I) J_z_p^T: the uncertainty of map point j seen in measurement space."""
@@ -308,7 +346,7 @@ class RadarOdometry:
         self.window.set_standstill(len(self.window.states) - 1, still)
         z = measurements.to_model_space(model, polar[static]) if static.any() else np.zeros((0, 4))
         pts = measurements.polar_to_cartesian(polar[static]) if static.any() else np.zeros((0, 3))
-        pred, assoc = self._associate(x, P, z, pts)
+        pred, assoc = self._associate(x, P, z, pts, polar[static])
         self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(pred, assoc, z))
         timings["associate"] = time.perf_counter() - tic
 
@@ -318,7 +356,7 @@ class RadarOdometry:
             if pred is None:
                 break
             t_assoc = time.perf_counter()
-            pred, assoc = self._associate(self.window.newest, P, z, pts)
+            pred, assoc = self._associate(self.window.newest, P, z, pts, polar[static])
             self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(pred, assoc, z))
             timings["associate"] += time.perf_counter() - t_assoc
             self.window.optimize(min(cfg.solver.iterations, 3))  # starts at the previous solution

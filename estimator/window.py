@@ -3,7 +3,8 @@
 The cost is J = J_v0 + sum_k J_vk + sum_k J_zk: a Gaussian prior on the oldest state (the marginalised past),
 the motion prior between consecutive states (e = x_k (-) f(x_{k-1}), weight Q_k^-1, eq. 49-50), and for each
 state the associated detections (e = z - g(x_k, p_j), weight S^-1 with S the measurement noise plus the
-map-point uncertainty, eq. 83), with an optional Cauchy loss applied by iterative re-weighting.
+map-point uncertainty, eq. 83), with an optional Cauchy loss applied by iterative re-weighting, and a
+zero-velocity term on states the odometry found at rest (`set_standstill`).
 Every term is linearised as e + J d with d the left perturbation of the states; the normal equations are
 solved densely (the window is small). When the window is full the oldest state is marginalised with the Schur
 complement into a prior on the next one, kept as (Lam, g) at its linearisation point: cost 1/2 e^T Lam e + g^T e.

@@ -90,7 +90,7 @@ def run_sequence(seq: Sequence, config: OdometryConfig, progress=None, record_de
 def _run(seq: Sequence, config: OdometryConfig, progress, record_detail: bool) -> RunResult:
     sensor = seq.sensor
     odo = RadarOdometry(config, sensor.T_vehicle_sensor, sensor.noise.as_array(), sensor.max_range,
-                        record_detail=record_detail)
+                        record_detail=record_detail, fov=(sensor.azimuth_fov, sensor.elevation_fov))
     by_t = {s.t: s for s in seq.scans}
     times = scan_times(seq)
     if len(times) == 0:

@@ -248,3 +248,26 @@ def test_standstill_holds_the_pose(model):
     # measured (ca-polar): attitude 0.0073 vs 0.020 rad, largest rate or speed 0.0018 vs 0.045
     assert drift[0.05][0] < 0.5 * drift[0.0][0] and drift[0.05][0] < 0.015
     assert drift[0.05][1] < 0.005 and drift[0.0][1] > 5 * drift[0.05][1]
+
+
+def test_association_window_is_the_same_for_map_points_and_detections():
+    """Both sides cut at the field of view shrunk by 3 sigma; a 2D radar's elevation is not windowed."""
+    from estimator.errors import InputError
+
+    D = np.pi / 180
+    sig = np.array([0.02, 0.15 * D, 0.3 * D, 0.01])
+    odo = RadarOdometry(OdometryConfig(), np.eye(4), sig, 100.0, fov=((-60 * D, 60 * D), (-15 * D, 15 * D)))
+    el = np.array([-14.5, -14.0, 0.0, 14.0, 14.5]) * D
+    az = np.array([0.0, 59.0, 59.7, -59.0, 0.0]) * D
+    polar = np.c_[np.full(5, 20.0), az, el, np.zeros(5)]
+    p_sensor = measurements.polar_to_cartesian(polar)
+    m_in, d_in = odo._window_masks(p_sensor, polar)
+    np.testing.assert_array_equal(m_in, [False, True, False, True, False])
+    np.testing.assert_array_equal(d_in, m_in)
+    planar = RadarOdometry(OdometryConfig(), np.eye(4), [0.1, 0.01, 0.17, 0.1], 100.0,
+                           fov=((-60 * D, 60 * D), (-1e-4, 1e-4)))
+    flat = np.c_[np.full(3, 20.0), np.array([-50.0, 0.0, 50.0]) * D, np.zeros(3), np.zeros(3)]
+    m_in, d_in = planar._window_masks(measurements.polar_to_cartesian(flat) + [0, 0, 0.5], flat)
+    assert m_in.all() and d_in.all()
+    with pytest.raises(InputError, match="fov"):
+        RadarOdometry(OdometryConfig(), np.eye(4), sig, 100.0, fov=((1.0, -1.0), (-0.1, 0.1)))
