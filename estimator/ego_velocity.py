@@ -7,9 +7,11 @@ Algorithm:
 1. Hypotheses: `iterations` minimal sets (3 detections in 3D, 2 in planar mode) drawn with the caller's
    Generator, each solved exactly (near-singular sets are skipped), plus the zero-velocity hypothesis (so a
    vehicle at standstill is always a candidate).
-2. Score: number of inliers |v_r + u . v| <= threshold (default max(3 sigma_vr, 0.05 m/s)). The hypothesis with
-   the most inliers wins; ties go to the smaller |v| (at standstill a moving object never wins over the
-   static world unless it has strictly more detections).
+2. Score: number of inliers |v_r + u . v| <= threshold (default max(3 sigma_vr, 0.05 m/s); one per detection
+   if given so). The hypothesis with the most inliers wins; ties go to the smaller |v| (at standstill a moving
+   object never wins over the static world unless it has strictly more detections). With `near=(v, radius)`
+   only hypotheses within radius of v compete and v replaces the zero hypothesis (the odometry's
+   prediction-gated classification); ties then go to the hypothesis closest to v.
 3. Refit: least squares on the inliers, inliers re-selected with the refit, refit again (twice).
 4. Covariance sigma^2 (U^T U)^-1 over the inliers, sigma^2 = sum(res^2) / (n_in - dof) (floored at
    (1e-6 m/s)^2 so it stays positive definite on noise-free data).
