@@ -61,6 +61,9 @@ class AssociationConfig:
     # velocity is this uncertain (or explains fewer than 8 detections)
     doppler_jerk_margin: float = 0.5  # m/s: a confident prediction's Doppler fit may move this far beyond its
     # 3-sigma (hard braking, hand-held sensors: jerk the prior does not expect)
+    consensus_switch_after: float = 1.0  # s: a free Doppler consensus outnumbering ours by consensus_switch_ratio
+    # for this long is taken as the world (re-initialisation); 0 disables it
+    consensus_switch_ratio: float = 1.5
     doppler_update_probability: float = 0.999  # chi-square level above which the scan's Doppler velocity
     # corrects the predicted velocity before association
 
@@ -165,6 +168,12 @@ class OdometryConfig:
         if not 0 < self.association.doppler_update_probability < 1:
             raise InputError("association.doppler_update_probability: must be in (0, 1), got "
                              f"{self.association.doppler_update_probability}")
+        if not self.association.consensus_switch_ratio > 1:
+            raise InputError("association.consensus_switch_ratio: must be > 1, got "
+                             f"{self.association.consensus_switch_ratio}")
+        if not self.association.consensus_switch_after >= 0:
+            raise InputError("association.consensus_switch_after: must be >= 0 s, got "
+                             f"{self.association.consensus_switch_after}")
         if not self.association.doppler_jerk_margin > 0:
             raise InputError("association.doppler_jerk_margin: must be > 0 m/s, got "
                              f"{self.association.doppler_jerk_margin}")

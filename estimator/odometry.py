@@ -98,8 +98,9 @@ class RadarOdometry:
         self.motion = MotionModel(config.prior, qc)
         self.window = SlidingWindow(self.motion, config.window, config.measurement, self.T_vs,
                                     config.solver.robust_c)
-        seeds = np.random.SeedSequence(config.seed).spawn(2)
+        seeds = np.random.SeedSequence(config.seed).spawn(3)
         self.rng = np.random.default_rng(seeds[0])
+        self._rng_consensus = np.random.default_rng(seeds[2])  # its own stream: the check changes no other draw
         self.map = LocalMap(config.map.capacity, config.map.max_age, config.map.voxel,
                             rng=np.random.default_rng(seeds[1]))
         self.gate = association.gate_threshold(config.association.gate_probability, 4)
@@ -111,6 +112,8 @@ class RadarOdometry:
         self._last_data: State | None = None  # newest state at the last scan with associations
         self.map_clock = 0  # counts scans with static detections: the map ages with observations, not time
         self._last_t: float | None = None
+        self._outvoted = 0  # consecutive scans in which a free Doppler consensus outnumbered ours 2:1
+        self._scan_dt = 0.1  # s, the latest time between scans (counts the consensus-switch scans)
 
     # --- helpers ------------------------------------------------------------------------------------------
     def _sensor_velocity(self, varpi: np.ndarray, P_varpi: np.ndarray):
@@ -148,16 +151,43 @@ class RadarOdometry:
             radius = 3.0 * np.sqrt(np.linalg.eigvalsh(Sv)[-1]) + acfg.doppler_jerk_margin
             ego = estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3], threshold=fit_threshold,
                                         near=(v, radius))
-            if ego.ok and ego.inliers.sum() >= max(MIN_STATIC, mask.sum()):
-                return ego.inliers, None
-            if mask.sum() >= MIN_STATIC:
-                return mask, None
+            ours = ego.inliers if ego.ok and ego.inliers.sum() >= max(MIN_STATIC, mask.sum()) else mask
+            if self._outvoted_by(az, el, vr, fit_threshold, ours):
+                return self._free.inliers, "doppler-consensus-switch"
+            if ours.sum() >= MIN_STATIC:
+                return ours, None
         elif mask.sum() >= MIN_STATIC and mask.sum() >= 0.2 * len(polar):
             return mask, None
         ego = estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3], threshold=fit_threshold)
         if ego.ok and ego.inliers.sum() > mask.sum():
             return ego.inliers, "doppler-ransac-fallback"
         return mask, None
+
+    def _outvoted_by(self, az, el, vr, threshold, ours: np.ndarray) -> bool:
+        """True when a free Doppler fit has outnumbered our static set by `association.consensus_switch_ratio`
+        (and explained a fifth of the scan)
+        for `association.consensus_switch_after` seconds of scans in a row. The world is taken to be the
+        largest Doppler consensus in the long run: a truck may fill the view for a while (the prediction gate
+        bridges that), but once the estimate has locked onto a co-moving object the world comes back as a
+        larger consensus far from the prediction, and without this it would never be taken again."""
+        after = self.config.association.consensus_switch_after
+        if after <= 0 or len(vr) < MIN_STATIC:
+            self._outvoted = 0
+            return False
+        self._free = estimate_ego_velocity(az, el, vr, self._rng_consensus, sigma_vr=self.sigmas[3],
+                                           threshold=threshold)
+        n = int(self._free.inliers.sum()) if self._free.ok else 0
+        overlap = int((self._free.inliers & ours).sum()) if self._free.ok else 0
+        if n >= self.config.association.consensus_switch_ratio * max(ours.sum(), 1) and n >= 0.2 * len(vr) \
+                and overlap < 0.5 * n:
+            self._outvoted += 1
+        else:
+            self._outvoted = 0
+        rate = 1.0 / max(self._scan_dt, 1e-3)
+        if self._outvoted >= max(int(np.ceil(after * rate)), 1):
+            self._outvoted = 0
+            return True
+        return False
 
     def _doppler_fit(self, static: np.ndarray):
         """Least-squares sensor velocity of the static detections: (v (dof,), covariance, dof, their radial
@@ -273,14 +303,15 @@ class RadarOdometry:
         cov = self._R + self._map_term(pred.J_z_p[assoc.map_idx], assoc.map_idx)
         return MeasurementSet(self.map.points[assoc.map_idx], z[assoc.det_idx], np.linalg.inv(cov))
 
-    def _reinitialise(self, t: float, polar: np.ndarray) -> tuple[State, np.ndarray, list]:
+    def _reinitialise(self, t: float, polar: np.ndarray, reason: str | None = None) -> tuple[State, np.ndarray, list]:
         """After an outage: dead-reckoned pose, Doppler velocity, last rates, zero acceleration, empty map."""
         T = self.motion.predict(self.window.newest, t).T
         x, P, _ = self._initial_state(t, polar, T=T, rates=self._last_data.varpi[3:])
         self.map = LocalMap(self.config.map.capacity, self.config.map.max_age, self.config.map.voxel,
                             rng=self.map._rng)
-        gap = t - self._last_data.t
-        return x, P, [f"re-initialised after {gap:.2f} s without associations"]
+        if reason is None:
+            reason = f"re-initialised after {t - self._last_data.t:.2f} s without associations"
+        return x, P, [reason]
 
     def _initial_state(self, t: float, polar: np.ndarray, T=None, rates=None) -> tuple[State, np.ndarray, list]:
         cfg = self.config.solver
@@ -335,9 +366,17 @@ class RadarOdometry:
         timings["predict"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
+        if self._last_t is not None:
+            self._scan_dt = t - self._last_t
         static, note = self._static_mask(polar, x, P) if len(polar) else (np.zeros(0, bool), None)
         if note:
             events.append(note)
+        if note == "doppler-consensus-switch" and predicted:
+            x, P, more = self._reinitialise(t, polar, "re-initialised on the larger Doppler consensus")
+            events += more
+            self.window.initialize(x, P)
+            self._last_data = x.copy()
+            predicted = False
         fit = self._doppler_fit(polar[static]) if static.sum() >= MIN_STATIC else None
         if predicted:
             x = self._doppler_update(x, P, fit)

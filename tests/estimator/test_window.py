@@ -271,3 +271,25 @@ def test_association_window_is_the_same_for_map_points_and_detections():
     assert m_in.all() and d_in.all()
     with pytest.raises(InputError, match="fov"):
         RadarOdometry(OdometryConfig(), np.eye(4), sig, 100.0, fov=((1.0, -1.0), (-0.1, 0.1)))
+
+
+def test_locked_onto_a_co_moving_object_the_world_is_taken_back():
+    """The first 2 s see only a truck moving with the vehicle (Doppler 0: the estimate says standstill); then
+    the world comes into view with twice the truck's detections: after consensus_switch_after (1 s) the
+    estimator re-initialises on it and tracks the true 10 m/s. Without the switch it stays at rest."""
+    rng = np.random.default_rng(11)
+    t, T, varpi, vd = scene.trajectory(65, speed=10.0, accel=0.0, yaw_rate=0.0, yaw_acc=0.0, pitch_acc=0.0)
+    L = scene.landmarks(rng, n=1500, extent=400.0)
+    truck = np.c_[rng.uniform(4, 8, 150), rng.uniform(-1.2, 1.2, 150), rng.uniform(-0.5, 1.5, 150)]
+    r = np.linalg.norm(truck, axis=1)
+    truck_polar = np.c_[r, np.arctan2(truck[:, 1], truck[:, 0]), np.arcsin(truck[:, 2] / r), np.zeros(150)]
+    for after, expect_speed in ((1.0, 10.0), (0.0, 0.0)):
+        cfg = OdometryConfig.from_dict({"model": "ca-polar", "association": {"consensus_switch_after": after}})
+        odo = RadarOdometry(cfg, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+        events = []
+        for k in range(len(t)):
+            world = scene.measure(T[k], varpi[k], vd[k], L, rng) if k >= 26 else np.zeros((0, 4))
+            est = odo.process(t[k], np.r_[truck_polar + rng.normal(size=truck_polar.shape) * scene.SIGMAS, world])
+            events += est.events
+        assert est.varpi[0] == pytest.approx(-expect_speed, abs=0.1), (after, events)
+        assert ("doppler-consensus-switch" in events) == (after > 0)
