@@ -61,8 +61,9 @@ class AssociationConfig:
     # velocity is this uncertain (or explains fewer than 8 detections)
     doppler_jerk_margin: float = 0.5  # m/s: a confident prediction's Doppler fit may move this far beyond its
     # 3-sigma (hard braking, hand-held sensors: jerk the prior does not expect)
-    consensus_switch_after: float = 1.0  # s: a free Doppler consensus outnumbering ours by consensus_switch_ratio
-    # for this long is taken as the world (re-initialisation); 0 disables it
+    consensus_switch_after: float = 0.0  # s: a free Doppler consensus outnumbering ours by consensus_switch_ratio
+    # for this long is taken as the world (re-initialisation); 0 (default) disables it: on `highway` a lead
+    # truck outnumbered the world 1.5:1 for over a second and the switch took it (7.2 % instead of 0.25 %)
     consensus_switch_ratio: float = 1.5
     doppler_update_probability: float = 0.999  # chi-square level above which the scan's Doppler velocity
     # corrects the predicted velocity before association
