@@ -129,9 +129,9 @@ class RadarOdometry:
         A confident prediction (the usual case) seeds a prediction-gated RANSAC: only velocities within the
         prediction's 3-sigma plus `association.doppler_jerk_margin` compete, so an unmodelled jerk (hard
         braking, a hand-held sensor) does not split the static world into "moving" detections, and a larger
-        moving consensus (a truck filling the view) is never taken for the world. An uncertain prediction
-        (after initialisation or an outage) uses the prediction's own gate, or an unconstrained RANSAC fit when
-        the prediction explains too little of the scan.
+        moving consensus (a truck filling the view) is not taken for the world while the world offers
+        MIN_STATIC detections near the prediction. Otherwise, and when an uncertain prediction (after
+        initialisation or an outage) explains too little of the scan, an unconstrained RANSAC fit decides.
         """
         acfg = self.config.association
         az, el, vr = polar[:, 1], polar[:, 2], polar[:, 3]
