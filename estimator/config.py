@@ -166,18 +166,13 @@ class OdometryConfig:
         st = self.standstill
         if st.speed < 0 or min(st.sigma_velocity, st.sigma_rate, st.sigma_accel, st.sigma_angular_accel) <= 0:
             raise InputError("standstill: speed must be >= 0 (0 disables it) and the sigmas > 0")
-        if not 0 < self.association.doppler_update_probability < 1:
-            raise InputError("association.doppler_update_probability: must be in (0, 1), got "
-                             f"{self.association.doppler_update_probability}")
-        if not self.association.consensus_switch_ratio > 1:
-            raise InputError("association.consensus_switch_ratio: must be > 1, got "
-                             f"{self.association.consensus_switch_ratio}")
-        if not self.association.consensus_switch_after >= 0:
-            raise InputError("association.consensus_switch_after: must be >= 0 s, got "
-                             f"{self.association.consensus_switch_after}")
-        if not self.association.doppler_jerk_margin > 0:
-            raise InputError("association.doppler_jerk_margin: must be > 0 m/s, got "
-                             f"{self.association.doppler_jerk_margin}")
+        for name, ok, rule in (("doppler_update_probability", lambda x: 0 < x < 1, "in (0, 1)"),
+                               ("consensus_switch_ratio", lambda x: x > 1, "> 1"),
+                               ("consensus_switch_after", lambda x: x >= 0, ">= 0 s"),
+                               ("doppler_jerk_margin", lambda x: x > 0, "> 0 m/s")):
+            value = getattr(self.association, name)
+            if not ok(value):
+                raise InputError(f"association.{name}: must be {rule}, got {value}")
         if not self.outage.reinit_after >= 0:
             raise InputError(f"outage.reinit_after: must be >= 0 seconds, got {self.outage.reinit_after}")
         if self.map.max_age < 0 or self.map.voxel < 0:

@@ -102,6 +102,37 @@ def _least_squares(U: np.ndarray, b: np.ndarray):
     return sol
 
 
+def _fit(U: np.ndarray, b: np.ndarray, variance_floor: float, default_variance: float, max_cond: float):
+    """v = argmin |U v - b| and its covariance s^2 (U^T U)^-1, s^2 the residual variance (default_variance with
+    no redundancy), at least variance_floor; None when U^T U is worse conditioned than max_cond."""
+    n, dof = U.shape
+    info = U.T @ U
+    if np.linalg.cond(info) > max_cond:
+        return None
+    v = np.linalg.solve(info, U.T @ b)
+    res = U @ v - b
+    s2 = float(res @ res) / (n - dof) if n > dof else default_variance
+    return v, max(s2, variance_floor) * np.linalg.inv(info)
+
+
+def least_squares_velocity(azimuth, elevation, radial_velocity, *, variance_floor: float, max_cond: float = 1e12,
+                           planar: bool | None = None):
+    """Sensor velocity of detections all taken as static (no outlier rejection): (v, covariance) with v of
+    length 2 (planar: vx, vy) or 3, or None with too few detections or a degenerate geometry.
+
+    The odometry's Doppler check of its prediction uses it on the static detections it chose.
+    Planar as in `estimate_ego_velocity`. Checked by: tests/estimator/test_ego_velocity.py
+    """
+    azimuth, elevation, radial_velocity = _check_inputs(azimuth, elevation, radial_velocity)
+    if planar is None:
+        planar = bool(len(azimuth) == 0 or np.all(np.abs(elevation) < PLANAR_ELEVATION))
+    dof = 2 if planar else 3
+    if len(azimuth) <= dof:
+        return None
+    U = _directions(azimuth, elevation)[:, :dof]
+    return _fit(U, -radial_velocity, variance_floor, variance_floor, max_cond)
+
+
 def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Generator, *, sigma_vr: float = 0.01,
                           threshold: float | None = None, iterations: int = 100,
                           planar: bool | None = None, near: tuple | None = None) -> EgoVelocity:
@@ -179,17 +210,11 @@ def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Ge
         if inl_new.sum() < dof:  # the refit lost the consensus: keep the previous one
             break
         v, inl = v_new, inl_new
-    v = _least_squares(U[inl], b[inl])
-    A = U[inl]
-    n_in = int(inl.sum())
-    res = A @ v - b[inl]
-    s2 = float(res @ res) / (n_in - dof) if n_in > dof else sigma_vr**2
-    s2 = max(s2, 1e-12)
-    info = A.T @ A
-    if np.linalg.cond(info) > 1e12:
+    fit = _fit(U[inl], b[inl], 1e-12, sigma_vr**2, 1e12)
+    if fit is None:
         return _failure(n, planar)
     cov = np.zeros((3, 3))
-    cov[:dof, :dof] = s2 * np.linalg.inv(info)
+    cov[:dof, :dof] = fit[1]
     v_out = np.zeros(3)
-    v_out[:dof] = v
+    v_out[:dof] = fit[0]
     return EgoVelocity(v_out, cov, inl, planar, True)

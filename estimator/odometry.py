@@ -29,7 +29,7 @@ import numpy as np
 
 from . import association, measurements
 from .config import OdometryConfig
-from .ego_velocity import PLANAR_ELEVATION, estimate_ego_velocity
+from .ego_velocity import estimate_ego_velocity, least_squares_velocity
 from .errors import InputError, check_finite
 from .lie import se3, so3
 from .local_map import LocalMap
@@ -191,20 +191,13 @@ class RadarOdometry:
 
     def _doppler_fit(self, static: np.ndarray):
         """Least-squares sensor velocity of the static detections: (v (dof,), covariance, dof, their radial
-        velocities), or None.
-        Planar (dof 2: vx, vy) when the elevations carry no information (2D sensors)."""
-        az, el, vr = static[:, 1], static[:, 2], static[:, 3]
-        dof = 2 if np.all(np.abs(el) < PLANAR_ELEVATION) else 3
-        if len(static) < dof + 3:
+        velocities), or None (fewer than dof + 3 detections, degenerate geometry). Planar (dof 2: vx, vy) when
+        the elevations carry no information (2D sensors)."""
+        fit = least_squares_velocity(static[:, 1], static[:, 2], static[:, 3], variance_floor=self.sigmas[3] ** 2,
+                                     max_cond=1e8)
+        if fit is None or len(static) < len(fit[0]) + 3:
             return None
-        A = measurements.polar_to_cartesian(np.c_[np.ones(len(static)), az, el])[:, :dof]
-        info = A.T @ A
-        if np.linalg.cond(info) > 1e8:
-            return None
-        v = np.linalg.solve(info, A.T @ -vr)
-        res = A @ v + vr
-        s2 = max(float(res @ res) / (len(static) - dof), self.sigmas[3] ** 2)
-        return v, s2 * np.linalg.inv(info), dof, vr
+        return fit[0], fit[1], len(fit[0]), static[:, 3]
 
     def _doppler_update(self, x: State, P: np.ndarray, fit) -> State:
         """The predicted state, corrected by the scan's Doppler ego-velocity when the two disagree.
@@ -276,10 +269,11 @@ class RadarOdometry:
         angles = ((np.arctan2(p_sensor[:, 1], p_sensor[:, 0]), polar[:, 1], self.fov[0], self.sigmas[1]),
                   (np.arcsin(np.clip(p_sensor[:, 2] / r, -1, 1)), polar[:, 2], self.fov[1], self.sigmas[2]))
         for pred_angle, meas_angle, (lo, hi), sigma in angles:
+            if (hi - lo) - 6 * sigma < 0.1 * (hi - lo):  # the margin would eat the field of view
+                continue
             lo, hi = lo + 3 * sigma, hi - 3 * sigma
-            if hi - lo > 0.1 * (hi - lo + 6 * sigma):
-                m_in &= (pred_angle >= lo) & (pred_angle <= hi)
-                d_in &= (meas_angle >= lo) & (meas_angle <= hi)
+            m_in &= (pred_angle >= lo) & (pred_angle <= hi)
+            d_in &= (meas_angle >= lo) & (meas_angle <= hi)
         return m_in, d_in
 
     def _map_term(self, J_z_p: np.ndarray, idx=None) -> np.ndarray:

@@ -74,13 +74,18 @@ def plot_summary(out_dir, summary: dict) -> str:
     return "Average NEES over time with its bounds: " + ", ".join(written) + "."
 
 
-def main(args) -> int:
+def check_campaign_options(args) -> None:
+    """InputError naming the option for a bad --runs, --jobs or --duration (montecarlo, table1)."""
     if args.runs < 1:
         raise InputError(f"--runs: must be >= 1, got {args.runs}")
     if args.jobs < 1:
         raise InputError(f"--jobs: must be >= 1, got {args.jobs}")
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration: must be > 0 seconds, got {args.duration}")
+
+
+def main(args) -> int:
+    check_campaign_options(args)
     import scenarios
 
     scenarios.get(args.scenario)  # unknown names fail here, listing the known ones

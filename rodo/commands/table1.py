@@ -12,7 +12,7 @@ import os
 
 from estimator.errors import InputError
 from rodo.progress import Progress
-from rodo.commands.montecarlo import add_campaign_options
+from rodo.commands.montecarlo import add_campaign_options, check_campaign_options
 from validation.campaign import make_executor, make_trials, remaining, run_campaign
 from validation.table1 import MODELS, SCENARIOS, Table1Trial, build_table, load_runs, write_table
 
@@ -44,12 +44,7 @@ def parse_scenarios(text: str) -> list[str]:
 
 
 def main(args) -> int:
-    if args.runs < 1:
-        raise InputError(f"--runs: must be >= 1, got {args.runs}")
-    if args.jobs < 1:
-        raise InputError(f"--jobs: must be >= 1, got {args.jobs}")
-    if args.duration is not None and not args.duration > 0:
-        raise InputError(f"--duration: must be > 0 seconds, got {args.duration}")
+    check_campaign_options(args)
     names = parse_scenarios(args.scenarios)
     trials = make_trials(args.seed, args.runs, MODELS)
     out = args.out

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator.ego_velocity import doppler_inliers, estimate_ego_velocity
+from estimator.ego_velocity import doppler_inliers, estimate_ego_velocity, least_squares_velocity
 from estimator.errors import InputError
 from tests.strategies import vectors
 
@@ -139,6 +139,22 @@ def test_per_detection_threshold():
         estimate_ego_velocity(az, el, vr, _rng(2), threshold=np.full(39, 0.2))
     with pytest.raises(InputError, match="near radius"):
         estimate_ego_velocity(az, el, vr, _rng(2), near=(v, 0.0))
+
+
+def test_least_squares_velocity():
+    """Exact on noise-free data (3D and planar), the covariance floor, and None where it cannot fit."""
+    rng = _rng(13)
+    v = np.array([6.0, -0.4, 0.2])
+    az, el, vr = _scene(rng, v, n=30)
+    fit = least_squares_velocity(az, el, vr, variance_floor=1e-4)
+    np.testing.assert_allclose(fit[0], v, atol=1e-10)
+    U = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=1)
+    np.testing.assert_allclose(fit[1], 1e-4 * np.linalg.inv(U.T @ U), rtol=1e-10)  # no residual: the floor
+    az, el, vr = _scene(rng, v * [1, 1, 0], n=30, planar=True)
+    fit = least_squares_velocity(az, el, vr, variance_floor=1e-6)
+    np.testing.assert_allclose(fit[0], v[:2], atol=1e-10)
+    assert least_squares_velocity(az[:2], el[:2], vr[:2], variance_floor=1e-6) is None  # no redundancy
+    assert least_squares_velocity(np.zeros(5), np.zeros(5), np.ones(5), variance_floor=1e-6) is None  # one direction
 
 
 def test_standstill_moving_object_does_not_win():

@@ -204,27 +204,30 @@ def test_radarscenes_bad_inputs(tmp_path, capsys):
     bad = tmp_path / "bad"
     bad.mkdir()
     (bad / "radar2_timestamp_and_odom.csv").write_text((tmp_path / "src" / "radar2_timestamp_and_odom.csv").read_text())
-    with gzip.open(bad / "radar2_detections.csv.gz", "wt") as f:
-        f.write("\n".join([lines[0].replace("vr_mps", "doppler")] + lines[1:]) + "\n")
+
+    def write_with(edits: dict[int, tuple[int, str]], header: str | None = None):
+        """The detections file with field edits {line index: (column, value)} and an optional new header."""
+        rows = [header or lines[0]]
+        for i, line in enumerate(lines[1:], start=1):
+            if i in edits:
+                parts = line.split(",")
+                parts[edits[i][0]] = edits[i][1]
+                line = ",".join(parts)
+            rows.append(line)
+        with gzip.open(bad / "radar2_detections.csv.gz", "wt") as f:
+            f.write("\n".join(rows) + "\n")
+
+    write_with({}, header=lines[0].replace("vr_mps", "doppler"))
     with pytest.raises(InputError, match=r"line 1: missing column\(s\) vr_mps"):
         radarscenes.convert_radar(bad, 2)
-    parts = lines[4].split(",")
-    parts[2] = "abc"
-    with gzip.open(bad / "radar2_detections.csv.gz", "wt") as f:
-        f.write("\n".join(lines[:4] + [",".join(parts)] + lines[5:]) + "\n")
+    write_with({4: (2, "abc")})
     with pytest.raises(InputError, match=r"line 5, field 'azimuth_rad': not a number: 'abc'"):
         radarscenes.convert_radar(bad, 2)
-    p0 = lines[3].split(",")
-    p0[0] = "2.5"
-    with gzip.open(bad / "radar2_detections.csv.gz", "wt") as f:
-        f.write("\n".join(lines[:3] + [",".join(p0)] + lines[4:]) + "\n")
+    write_with({3: (0, "2.5")})
     with pytest.raises(InputError, match=r"line 4, field 'scan_idx': must be an integer, got '2.5'"):
         radarscenes.convert_radar(bad, 2)
     # NaN value, zero range and a scan_idx without odometry: dropped and counted
-    p1, p2, p3 = lines[2].split(","), lines[3].split(","), lines[6].split(",")
-    p1[3], p2[1], p3[0] = "nan", "0.0", "99"
-    with gzip.open(bad / "radar2_detections.csv.gz", "wt") as f:
-        f.write("\n".join(lines[:2] + [",".join(p1), ",".join(p2)] + lines[4:6] + [",".join(p3)] + lines[7:]) + "\n")
+    write_with({2: (3, "nan"), 3: (1, "0.0"), 6: (0, "99")})
     assert _run(["convert", "radarscenes", str(bad), "--out", out, "--radars", "2"]) == 0
     dropped = json.loads((Path(out) / CONVERSION_JSON).read_text())["dropped"]
     assert dropped == {"detections with NaN or infinity": 1, "detections with range <= 0": 1,
