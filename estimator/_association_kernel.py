@@ -46,3 +46,200 @@ def greedy_one_to_one(order, j, i, m, n):
             used_i[i[k]] = True
             chosen[k] = True
     return chosen
+
+
+@njit(cache=True)
+def _lambda_max_sym3(M):
+    """Largest eigenvalue of a symmetric 3x3 matrix (trigonometric closed form, Smith 1961)."""
+    p1 = M[0, 1] * M[0, 1] + M[0, 2] * M[0, 2] + M[1, 2] * M[1, 2]
+    q = (M[0, 0] + M[1, 1] + M[2, 2]) / 3.0
+    p2 = (M[0, 0] - q) ** 2 + (M[1, 1] - q) ** 2 + (M[2, 2] - q) ** 2 + 2.0 * p1
+    if p2 <= 0.0:
+        return q
+    p = math.sqrt(p2 / 6.0)
+    b00, b11, b22 = (M[0, 0] - q) / p, (M[1, 1] - q) / p, (M[2, 2] - q) / p
+    b01, b02, b12 = M[0, 1] / p, M[0, 2] / p, M[1, 2] / p
+    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02))
+    phi = math.acos(min(1.0, max(-1.0, r))) / 3.0
+    return q + 2.0 * p * math.cos(phi)
+
+
+@njit(cache=True)
+def _inv_spd4(S, out):
+    """out = S^-1 for a symmetric 4x4 matrix via Cholesky; False if S is not positive definite."""
+    L = np.zeros((4, 4))
+    for i in range(4):
+        for j in range(i + 1):
+            s = S[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    Li = np.zeros((4, 4))  # L^-1 (lower triangular)
+    for i in range(4):
+        Li[i, i] = 1.0 / L[i, i]
+        for j in range(i):
+            s = 0.0
+            for k in range(j, i):
+                s -= L[i, k] * Li[k, j]
+            Li[i, j] = s / L[i, i]
+    for i in range(4):
+        for j in range(i, 4):
+            s = 0.0
+            for k in range(j, 4):
+                s += Li[k, i] * Li[k, j]
+            out[i, j] = s
+            out[j, i] = s
+    return True
+
+
+@njit(cache=True)
+def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_s, S, S_inv, W_map, radius):
+    """Everything the association needs per map point, in one pass (the same model as
+    `measurements.predict`, `association.innovation_covariance` and `association._search_radius`):
+
+    z (m, 4) predicted measurement, p_s (m, 3) sensor-frame position,
+    S = G P G^T + R + J_z_p (cov_world_j + map_var I) J_z_p^T and S_inv (m, 4, 4),
+    W_map = (R + J_z_p (cov_world_j + map_var I) J_z_p^T)^-1 (the pair's information in the solve),
+    radius (m,) the KD-tree radius that holds every detection with d2 <= gate.
+    Returns -1 when all is well, else the index of the first point at the sensor origin (range < 1e-9) or
+    with an S that is not positive definite (then m + index).
+    """
+    m = p_world.shape[0]
+    C = T[:3, :3]
+    t = T[:3, 3]
+    Cvs = Tvs[:3, :3]
+    rvs = Tvs[:3, 3]
+    nu = varpi[:3]
+    om = varpi[3:]
+    G = np.zeros((4, 12))
+    Jp = np.zeros((4, 3))
+    A = np.empty((3, 6))
+    B = np.empty((3, 3))  # dp_s/dp_world = C_vs^T C
+    for i in range(3):
+        for j in range(3):
+            B[i, j] = Cvs[0, i] * C[0, j] + Cvs[1, i] * C[1, j] + Cvs[2, i] * C[2, j]
+    GP = np.empty((4, 12))
+    JC = np.empty((4, 3))
+    Sm = np.empty((4, 4))
+    Pc = np.empty((3, 3))
+    Ac = np.empty((3, 3))
+    M = np.empty((3, 3))
+    for a in range(m):
+        pv0 = C[0, 0] * p_world[a, 0] + C[0, 1] * p_world[a, 1] + C[0, 2] * p_world[a, 2] + t[0]
+        pv1 = C[1, 0] * p_world[a, 0] + C[1, 1] * p_world[a, 1] + C[1, 2] * p_world[a, 2] + t[1]
+        pv2 = C[2, 0] * p_world[a, 0] + C[2, 1] * p_world[a, 1] + C[2, 2] * p_world[a, 2] + t[2]
+        d0, d1, d2 = pv0 - rvs[0], pv1 - rvs[1], pv2 - rvs[2]
+        ps0 = Cvs[0, 0] * d0 + Cvs[1, 0] * d1 + Cvs[2, 0] * d2
+        ps1 = Cvs[0, 1] * d0 + Cvs[1, 1] * d1 + Cvs[2, 1] * d2
+        ps2 = Cvs[0, 2] * d0 + Cvs[1, 2] * d1 + Cvs[2, 2] * d2
+        r = math.sqrt(ps0 * ps0 + ps1 * ps1 + ps2 * ps2)
+        if r < 1e-9:
+            return a
+        p_s[a, 0], p_s[a, 1], p_s[a, 2] = ps0, ps1, ps2
+        u0, u1, u2 = ps0 / r, ps1 / r, ps2 / r
+        g0 = nu[0] + om[1] * pv2 - om[2] * pv1
+        g1 = nu[1] + om[2] * pv0 - om[0] * pv2
+        g2 = nu[2] + om[0] * pv1 - om[1] * pv0
+        q0 = Cvs[0, 0] * g0 + Cvs[1, 0] * g1 + Cvs[2, 0] * g2
+        q1 = Cvs[0, 1] * g0 + Cvs[1, 1] * g1 + Cvs[2, 1] * g2
+        q2 = Cvs[0, 2] * g0 + Cvs[1, 2] * g1 + Cvs[2, 2] * g2
+        vr = u0 * q0 + u1 * q1 + u2 * q2
+        for i in range(3):
+            A[i, 0] = Cvs[0, i]
+            A[i, 1] = Cvs[1, i]
+            A[i, 2] = Cvs[2, i]
+            A[i, 3] = -(Cvs[1, i] * pv2 - Cvs[2, i] * pv1)
+            A[i, 4] = -(-Cvs[0, i] * pv2 + Cvs[2, i] * pv0)
+            A[i, 5] = -(Cvs[0, i] * pv1 - Cvs[1, i] * pv0)
+        a0, a1, a2 = (q0 - u0 * vr) / r, (q1 - u1 * vr) / r, (q2 - u2 * vr) / r
+        w0 = Cvs[0, 0] * u0 + Cvs[0, 1] * u1 + Cvs[0, 2] * u2
+        w1 = Cvs[1, 0] * u0 + Cvs[1, 1] * u1 + Cvs[1, 2] * u2
+        w2 = Cvs[2, 0] * u0 + Cvs[2, 1] * u1 + Cvs[2, 2] * u2
+        m0 = w1 * om[2] - w2 * om[1]
+        m1 = w2 * om[0] - w0 * om[2]
+        m2 = w0 * om[1] - w1 * om[0]
+        for j in range(6):
+            G[3, j] = a0 * A[0, j] + a1 * A[1, j] + a2 * A[2, j]
+            G[3, 6 + j] = u0 * A[0, j] + u1 * A[1, j] + u2 * A[2, j]
+        G[3, 0] += m0
+        G[3, 1] += m1
+        G[3, 2] += m2
+        G[3, 3] += pv1 * m2 - pv2 * m1
+        G[3, 4] += pv2 * m0 - pv0 * m2
+        G[3, 5] += pv0 * m1 - pv1 * m0
+        for j in range(3):
+            Jp[3, j] = a0 * B[0, j] + a1 * B[1, j] + a2 * B[2, j] + m0 * C[0, j] + m1 * C[1, j] + m2 * C[2, j]
+        if polar:
+            rho = max(math.sqrt(ps0 * ps0 + ps1 * ps1), 1e-12 * r)
+            rho2 = rho * rho
+            dd = r * r * rho
+            Js = ((ps0 / r, ps1 / r, ps2 / r), (-ps1 / rho2, ps0 / rho2, 0.0),
+                  (-ps0 * ps2 / dd, -ps1 * ps2 / dd, rho2 / dd))
+            for i in range(3):
+                for j in range(6):
+                    G[i, j] = Js[i][0] * A[0, j] + Js[i][1] * A[1, j] + Js[i][2] * A[2, j]
+                for j in range(3):
+                    Jp[i, j] = Js[i][0] * B[0, j] + Js[i][1] * B[1, j] + Js[i][2] * B[2, j]
+            z[a, 0] = r
+            z[a, 1] = math.atan2(ps1, ps0)
+            z[a, 2] = math.asin(min(1.0, max(-1.0, ps2 / r)))
+        else:
+            for i in range(3):
+                for j in range(6):
+                    G[i, j] = A[i, j]
+                for j in range(3):
+                    Jp[i, j] = B[i, j]
+            z[a, 0], z[a, 1], z[a, 2] = ps0, ps1, ps2
+        z[a, 3] = vr
+        # map term and S
+        for i in range(3):
+            for j in range(3):
+                Pc[i, j] = cov_world[a, i, j]
+            Pc[i, i] += map_var
+        for i in range(4):
+            for j in range(3):
+                JC[i, j] = Jp[i, 0] * Pc[0, j] + Jp[i, 1] * Pc[1, j] + Jp[i, 2] * Pc[2, j]
+            for j in range(12):
+                s = 0.0
+                for k in range(12):
+                    s += G[i, k] * P[k, j]
+                GP[i, j] = s
+        for i in range(4):
+            for j in range(i, 4):
+                sm = R[i, j] + JC[i, 0] * Jp[j, 0] + JC[i, 1] * Jp[j, 1] + JC[i, 2] * Jp[j, 2]
+                sg = 0.0
+                for k in range(12):
+                    sg += GP[i, k] * G[j, k]
+                Sm[i, j] = sm
+                Sm[j, i] = sm
+                S[a, i, j] = sm + sg
+                S[a, j, i] = sm + sg
+        if not (_inv_spd4(S[a], S_inv[a]) and _inv_spd4(Sm, W_map[a])):
+            return m + a
+        # search radius: the position block of S in Cartesian coordinates
+        if polar:
+            ce, se = math.cos(z[a, 2]), math.sin(z[a, 2])
+            ca, sa = math.cos(z[a, 1]), math.sin(z[a, 1])
+            Ac[0, 0], Ac[1, 0], Ac[2, 0] = ce * ca, ce * sa, se
+            Ac[0, 1], Ac[1, 1], Ac[2, 1] = -r * ce * sa, r * ce * ca, 0.0
+            Ac[0, 2], Ac[1, 2], Ac[2, 2] = -r * se * ca, -r * se * sa, r * ce
+            for i in range(3):
+                for j in range(3):
+                    Pc[i, j] = Ac[i, 0] * S[a, 0, j] + Ac[i, 1] * S[a, 1, j] + Ac[i, 2] * S[a, 2, j]
+            for i in range(3):
+                for j in range(3):
+                    M[i, j] = Pc[i, 0] * Ac[j, 0] + Pc[i, 1] * Ac[j, 1] + Pc[i, 2] * Ac[j, 2]
+            k2 = max(1.0, (r + math.sqrt(gate * S[a, 0, 0])) / (r * ce))
+        else:
+            for i in range(3):
+                for j in range(3):
+                    M[i, j] = S[a, i, j]
+            k2 = 1.0
+        lam = _lambda_max_sym3(M)
+        radius[a] = math.sqrt(gate * max(lam, 0.0) * k2) * (1.0 + 1e-9)
+    return -1

@@ -21,7 +21,7 @@ from numba import njit
 POLAR, CARTESIAN = 0, 1
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_out, robust_c):
     """H (K, 12, 12), b (K, 12), cost for K states; pairs offsets[k]:offsets[k+1] belong to state k.
 
@@ -135,22 +135,29 @@ def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_ou
                 weights[a] = 1.0 / (1.0 + d2 / (robust_c * robust_c)) if robust_c > 0.0 else 1.0
             wgt = weights[a]
             cost += 0.5 * wgt * d2
+            # J has zeros in rows 0-2 of the velocity columns: WJ[:, :6] = W J[:, :6], WJ[:, 6:] = W[:, 3] J[3, 6:]
             for i in range(4):
-                for j in range(12):
+                for j in range(6):
                     s = 0.0
                     for l in range(4):
                         s += W[a, i, l] * J[l, j]
                     WJ[i, j] = wgt * s
+                for j in range(6, 12):
+                    WJ[i, j] = wgt * W[a, i, 3] * J[3, j]
             for i in range(12):
                 bi = 0.0
                 for l in range(4):
                     bi += WJ[l, i] * e[l]
                 b[k, i] -= bi  # J_residual = -J
+            for i in range(6):
                 for j in range(i, 12):
                     s = 0.0
                     for l in range(4):
                         s += J[l, i] * WJ[l, j]
                     H[k, i, j] += s
+            for i in range(6, 12):
+                for j in range(i, 12):
+                    H[k, i, j] += J[3, i] * WJ[3, j]
     for k in range(K):
         for i in range(12):
             for j in range(i + 1, 12):

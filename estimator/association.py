@@ -163,9 +163,25 @@ def associate(model: str, z_meas, det_points_sensor, pred: Prediction, S, gate: 
     S_inv = np.linalg.inv(S)
 
     radius = np.minimum(_search_radius(model, pred, S, gate), max_radius)
+    return match(model, z_meas, cKDTree(pts), pred.z, pred.p_sensor, S_inv, radius, gate, max_candidates)
+
+
+def match(model: str, z_meas: np.ndarray, tree: cKDTree, z_pred: np.ndarray, p_sensor: np.ndarray,
+          S_inv: np.ndarray, radius: np.ndarray, gate: float, max_candidates: int = 16) -> Association:
+    """The candidate search, gating and one-to-one choice of `associate`, from prepared inputs (no checks):
+    a KD-tree over the detections' sensor-frame positions (one per scan, reused when re-associating), the m
+    map points' predictions z_pred (m, 4) and p_sensor (m, 3), S_inv (m, 4, 4) and search radii (m,) (capped).
+
+    Checked by: tests/estimator/test_association.py (through `associate`),
+        tests/estimator/test_odometry.py::test_prepared_association_equals_the_reference
+    """
+    m, n = len(z_pred), tree.n
+    empty = Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)
+    if m == 0 or n == 0:
+        return empty
     # candidates: the k nearest detections inside each map point's own radius (bounded work per point)
     k = min(max_candidates, n)
-    dist, idx = cKDTree(pts).query(pred.p_sensor, k=k, distance_upper_bound=float(radius.max()))
+    dist, idx = tree.query(p_sensor, k=k, distance_upper_bound=float(radius.max()))
     dist, idx = dist.reshape(m, k), idx.reshape(m, k)
     valid = (idx < n) & (dist <= radius[:, None])
     n_candidates = int(valid.sum())
@@ -173,7 +189,7 @@ def associate(model: str, z_meas, det_points_sensor, pred: Prediction, S, gate: 
         return empty
     j = np.nonzero(valid)[0].astype(np.int64)
     i = idx[valid].astype(np.int64)
-    d2 = _kernel.pair_d2(model == "polar", j, i, z_meas, pred.z, S_inv)  # e^T S^-1 e, azimuth wrapped
+    d2 = _kernel.pair_d2(model == "polar", j, i, z_meas, z_pred, S_inv)  # e^T S^-1 e, azimuth wrapped
     keep = d2 <= gate
     j, i, d2 = j[keep], i[keep], d2[keep]
     chosen = _greedy_one_to_one(j, i, d2, m, n)

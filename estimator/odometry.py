@@ -27,6 +27,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scipy.spatial import cKDTree
+
+from . import _association_kernel as _akernel
 from . import association, measurements
 from .config import OdometryConfig
 from .ego_velocity import estimate_ego_velocity, least_squares_velocity
@@ -240,19 +243,36 @@ class RadarOdometry:
             sig += [cfg.sigma_accel] * 3 + [cfg.sigma_angular_accel] * 3
         return np.diag(1.0 / np.square(sig))
 
-    def _associate(self, x: State, P: np.ndarray, z: np.ndarray, pts: np.ndarray, polar: np.ndarray):
-        """Map points and detections paired inside the association window (`_window_masks`)."""
+    def _associate(self, x: State, P: np.ndarray, z: np.ndarray, pts: np.ndarray, polar: np.ndarray, scan: dict):
+        """Map points and detections paired inside the association window (`_window_masks`).
+
+        Per map point, `_association_kernel.prepare` evaluates the prediction, S = G P G^T + R + map term
+        (`association.innovation_covariance` plus `_map_term`), its inverse and the search radius in one
+        compiled pass; `association.match` does the rest. `scan` caches the KD-tree of this scan's detections
+        for the re-association. Returns (W_map, Association): W_map (m, 4, 4) the information of each map
+        point's pair in the solve, (R + map term)^-1; None when nothing could be associated.
+        """
         if len(self.map) == 0 or len(z) == 0:
             return None, association.Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)
-        pred = measurements.predict(self.config.measurement, x.T, x.varpi, self.map.points, self.T_vs)
-        m_in, d_in = self._window_masks(pred.p_sensor, polar)
-        mi, di = np.flatnonzero(m_in), np.flatnonzero(d_in)
-        sub = dataclasses.replace(pred, z=pred.z[mi], J_z_xi=pred.J_z_xi[mi], J_z_varpi=pred.J_z_varpi[mi],
-                                  J_z_p=pred.J_z_p[mi], p_sensor=pred.p_sensor[mi])
-        S = association.innovation_covariance(sub, P[:12, :12], self._R, 0.0) + self._map_term(sub.J_z_p, mi)
-        a = association.associate(self.config.measurement, z[di], pts[di], sub, S, self.gate,
-                                  self.config.association.max_radius)
-        return pred, association.Association(mi[a.map_idx], di[a.det_idx], a.d2, a.n_candidates)
+        m = len(self.map)
+        zp, p_s = np.empty((m, 4)), np.empty((m, 3))
+        S, S_inv, W_map = np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4))
+        radius = np.empty(m)
+        bad = _akernel.prepare(self.config.measurement == "polar", x.T, x.varpi, self.map.points,
+                               self.map.covariances, self.config.map_sigma**2, np.ascontiguousarray(P[:12, :12]),
+                               self._R, self.T_vs, self.gate, zp, p_s, S, S_inv, W_map, radius)
+        if bad >= 0:  # a map point at the sensor, or an innovation covariance that is not positive definite
+            raise FloatingPointError(f"association: map point {bad % m} has "
+                                     + ("range 0" if bad < m else "a non positive definite S"))
+        m_in, d_in = self._window_masks(p_s, polar)
+        mi = np.flatnonzero(m_in)
+        if "tree" not in scan:
+            scan["di"] = np.flatnonzero(d_in)
+            scan["tree"] = cKDTree(pts[scan["di"]])
+        di = scan["di"]
+        a = association.match(self.config.measurement, z[di], scan["tree"], zp[mi], p_s[mi], S_inv[mi],
+                              np.minimum(radius[mi], self.config.association.max_radius), self.gate)
+        return W_map, association.Association(mi[a.map_idx], di[a.det_idx], a.d2, a.n_candidates)
 
     def _window_masks(self, p_sensor: np.ndarray, polar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Map points (predicted) and detections (measured) inside the field of view shrunk by 3 sigma of the
@@ -276,12 +296,6 @@ class RadarOdometry:
             d_in &= (meas_angle >= lo) & (meas_angle <= hi)
         return m_in, d_in
 
-    def _map_term(self, J_z_p: np.ndarray, idx=None) -> np.ndarray:
-        """J_z_p (Sigma_j + map_sigma^2 I) J_z_p^T: the uncertainty of map point j seen in measurement space."""
-        cov = self.map.covariances if idx is None else self.map.covariances[idx]
-        cov = cov + self.config.map_sigma**2 * np.eye(3)
-        return J_z_p @ cov @ np.swapaxes(J_z_p, 1, 2)
-
     def _point_covariances(self, polar: np.ndarray, C_world_sensor: np.ndarray) -> np.ndarray:
         """World-frame covariance of new map points under the model's own noise assumption: the polar noise
         propagated (polar models) or the fixed Cartesian sigma (Cartesian models, the CV/C baseline)."""
@@ -291,11 +305,10 @@ class RadarOdometry:
             cov_s = np.broadcast_to(self.config.noise.cartesian_sigma**2 * np.eye(3), (len(polar), 3, 3))
         return C_world_sensor @ cov_s @ C_world_sensor.T
 
-    def _measurement_set(self, pred, assoc, z) -> MeasurementSet | None:
-        if pred is None or len(assoc.map_idx) == 0:
+    def _measurement_set(self, W_map, assoc, z) -> MeasurementSet | None:
+        if W_map is None or len(assoc.map_idx) == 0:
             return None
-        cov = self._R + self._map_term(pred.J_z_p[assoc.map_idx], assoc.map_idx)
-        return MeasurementSet(self.map.points[assoc.map_idx], z[assoc.det_idx], np.linalg.inv(cov))
+        return MeasurementSet(self.map.points[assoc.map_idx], z[assoc.det_idx], W_map[assoc.map_idx])
 
     def _reinitialise(self, t: float, polar: np.ndarray, reason: str | None = None) -> tuple[State, np.ndarray, list]:
         """After an outage: dead-reckoned pose, Doppler velocity, last rates, zero acceleration, empty map."""
@@ -379,20 +392,21 @@ class RadarOdometry:
         self.window.set_standstill(len(self.window.states) - 1, still)
         z = measurements.to_model_space(model, polar[static]) if static.any() else np.zeros((0, 4))
         pts = measurements.polar_to_cartesian(polar[static]) if static.any() else np.zeros((0, 3))
-        pred, assoc = self._associate(x, P, z, pts, polar[static])
-        self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(pred, assoc, z))
+        scan_cache: dict = {}
+        W_map, assoc = self._associate(x, P, z, pts, polar[static], scan_cache)
+        self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_map, assoc, z))
         timings["associate"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
-        self.window.optimize(cfg.solver.iterations)
+        self.window.optimize(cfg.solver.iterations, cfg.solver.step_tolerance)
         for _ in range(cfg.association.reassociate):
-            if pred is None:
+            if W_map is None:
                 break
             t_assoc = time.perf_counter()
-            pred, assoc = self._associate(self.window.newest, P, z, pts, polar[static])
-            self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(pred, assoc, z))
+            W_map, assoc = self._associate(self.window.newest, P, z, pts, polar[static], scan_cache)
+            self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_map, assoc, z))
             timings["associate"] += time.perf_counter() - t_assoc
-            self.window.optimize(min(cfg.solver.iterations, 3))  # starts at the previous solution
+            self.window.optimize(min(cfg.solver.iterations, 3), cfg.solver.step_tolerance)  # from the last solution
         self.P = self.window.newest_covariance()  # at the solution; marginalising does not change it
         while len(self.window.states) > cfg.window:
             self.window.marginalize_oldest()

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import _motion_kernel
 from .lie import se3
 from .priors import ConstantAccelerationPrior, ConstantVelocityPrior
 
@@ -76,7 +77,8 @@ class MotionModel:
         """The priors' `residual` for all consecutive pairs of `states`: e (n-1, d), J_e_x1, J_e_x2 (n-1, d, d).
 
         Same formulas as the priors' `residual` (e = x2 (-) f(x1), J_e_x2 = diag(J(e_xi)^-1, I..),
-        J_e_x1 = -diag(J(-e_xi)^-1, I..) F_k), evaluated in one vectorised pass for the whole window.
+        J_e_x1 = -diag(J(-e_xi)^-1, I..) F_k): means and F_k from the priors' batched kernels, the SE(3)
+        logarithm and Jacobians from `_motion_kernel`, one pass for the whole window.
         """
         T1 = np.stack([x.T for x in states[:-1]])
         T2 = np.stack([x.T for x in states[1:]])
@@ -90,11 +92,8 @@ class MotionModel:
         else:
             Tp, tail_pred = self.prior.predict(T1, tail1, dt)
             F = self.prior.transition_batch(tail1, dt)
-        e_xi = se3.log(T2 @ se3.inverse(Tp))
-        e = np.concatenate([e_xi, tail2 - tail_pred], axis=1)
-        n, d = len(e), self.dim
-        J2 = np.broadcast_to(np.eye(d), (n, d, d)).copy()
-        J2[:, :6, :6] = se3.left_jacobian_inv(e_xi)
-        Jr = np.broadcast_to(np.eye(d), (n, d, d)).copy()
-        Jr[:, :6, :6] = se3.left_jacobian_inv(-e_xi)
-        return e, -(Jr @ F), J2
+        n, d = len(dt), self.dim
+        e, J1, J2 = np.empty((n, d)), np.empty((n, d, d)), np.empty((n, d, d))
+        _motion_kernel.residuals(np.ascontiguousarray(Tp), np.ascontiguousarray(tail_pred), T2,
+                                 np.ascontiguousarray(tail2), np.ascontiguousarray(F), e, J1, J2)
+        return e, J1, J2

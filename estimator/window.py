@@ -20,6 +20,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from . import _measurement_kernel as _kernel
+from . import _motion_kernel
 from .lie import se3
 from .state import MotionModel, State
 
@@ -90,10 +91,11 @@ class SlidingWindow:
 
     # --- linearisation ----------------------------------------------------------------------------------
     def _prior_term(self, x: State):
-        e = x.ominus(self.prior_mean)
-        J = np.eye(len(e))
-        J[:6, :6] = se3.left_jacobian_inv(e[:6])
-        return e, J
+        """e = x (-) prior_mean and de/dx = diag(J(e_xi)^-1, I)."""
+        J = np.eye(self.motion.dim)
+        xi, Jm = np.empty(6), np.empty((6, 6))
+        _motion_kernel.se3_log_and_jac_inv(x.T @ se3.inverse(self.prior_mean.T), xi, J[:6, :6], Jm)
+        return np.r_[xi, x.vector_tail() - self.prior_mean.vector_tail()], J
 
     def _measurement_terms(self, ks: list[int]):
         """Measurement blocks of the states ks, linearised in one compiled pass (`_measurement_kernel`).
@@ -242,12 +244,13 @@ class SlidingWindow:
 
 
 def _oplus_all(states: list[State], d: np.ndarray) -> list[State]:
-    """[x_k (+) d_k] for the whole window with one batched exponential."""
-    E = se3.exp(d[:, :6])
+    """[x_k (+) d_k] for the whole window with one compiled batched exponential (`State.oplus` for all k)."""
+    T = np.empty((len(states), 4, 4))
+    _motion_kernel.exp_times(np.ascontiguousarray(d[:, :6]), np.stack([x.T for x in states]), T)
     out = []
     for k, x in enumerate(states):
         vd = None if x.vd is None else x.vd + d[k, 12:18]
-        out.append(State(x.t, E[k] @ x.T, x.varpi + d[k, 6:12], vd))
+        out.append(State(x.t, T[k], x.varpi + d[k, 6:12], vd))
     return out
 
 

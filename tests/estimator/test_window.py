@@ -190,6 +190,43 @@ def test_batched_motion_residuals_equal_the_priors_residual(kind):
         np.testing.assert_allclose(J2[k], j2, atol=1e-12)
 
 
+@pytest.mark.parametrize("scale", [0.0, 1e-9, 1e-4, 0.3, 1.5, 3.1])
+def test_motion_kernel_log_and_jacobians_match_lie(scale):
+    """The compiled SE(3) logarithm and inverse left Jacobians = estimator.lie's, from the identity through
+    the Taylor range (< 1 rad) and the closed forms up to near pi."""
+    from estimator import _motion_kernel
+
+    rng = np.random.default_rng(int(scale * 1e3) + 1)
+    for _ in range(20):
+        xi = rng.normal(size=6)
+        xi[3:] *= scale / np.linalg.norm(xi[3:])
+        T = se3.exp(xi)
+        out, Jp, Jm = np.empty(6), np.empty((6, 6)), np.empty((6, 6))
+        _motion_kernel.se3_log_and_jac_inv(T, out, Jp, Jm)
+        ref = se3.log(T)
+        np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(Jp, se3.left_jacobian_inv(ref), rtol=1e-9, atol=1e-11)
+        np.testing.assert_allclose(Jm, se3.left_jacobian_inv(-ref), rtol=1e-9, atol=1e-11)
+
+
+@pytest.mark.parametrize("kind", ["ca", "cv"])
+def test_window_update_equals_state_oplus(kind):
+    """The solver's compiled batched update = State.oplus state by state (small and large steps)."""
+    from estimator.window import _oplus_all
+
+    rng = np.random.default_rng(5)
+    motion = MotionModel(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
+    states = [State(0.1 * k, se3.exp(rng.normal(size=6)), rng.normal(size=6),
+                    rng.normal(size=6) if kind == "ca" else None) for k in range(4)]
+    d = rng.normal(size=(4, motion.dim)) * np.array([1e-9, 1e-3, 0.5, 2.0])[:, None]
+    for got, x, dk in zip(_oplus_all(states, d), states, d):
+        want = x.oplus(dk)
+        np.testing.assert_allclose(got.T, want.T, rtol=1e-13, atol=1e-13)
+        np.testing.assert_array_equal(got.varpi, want.varpi)
+        if kind == "ca":
+            np.testing.assert_array_equal(got.vd, want.vd)
+
+
 def _two_segments(n1: int, n2: int, speed: float, brake: float, rate: float = 13.0):
     """Constant speed for n1 scans, then braking at `brake` m/s^2 (a step in acceleration: the jerk no prior
     expects) for n2 scans. Times, T_vehicle_world, varpi, varpi_dot."""
@@ -248,6 +285,57 @@ def test_standstill_holds_the_pose(model):
     # measured (ca-polar): attitude 0.0073 vs 0.020 rad, largest rate or speed 0.0018 vs 0.045
     assert drift[0.05][0] < 0.5 * drift[0.0][0] and drift[0.05][0] < 0.015
     assert drift[0.05][1] < 0.005 and drift[0.0][1] > 5 * drift[0.05][1]
+
+
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+def test_prepared_association_equals_the_reference(model):
+    """The odometry's compiled association (`_association_kernel.prepare` + `association.match`, one KD-tree per
+    scan) gives the pairs, distances and solve information of the readable reference: `measurements.predict`,
+    `association.innovation_covariance` plus the map-point term, `association.associate`."""
+    from estimator import _association_kernel as akernel
+    from estimator import association
+
+    rng = np.random.default_rng(3)
+    t, T, varpi, vd = scene.trajectory(8)
+    L = scene.landmarks(rng)
+    D = np.pi / 180
+    odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0,
+                        fov=((-60 * D, 60 * D), (-15 * D, 15 * D)))
+    for k in range(7):
+        odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
+    x = odo.motion.predict(odo.window.newest, t[7])
+    P = odo.P + np.diag(np.r_[np.full(6, 1e-4), np.full(6, 1e-2), np.zeros(odo.motion.dim - 12)])
+    polar = scene.measure(T[7], varpi[7], vd[7], L, rng)
+    z = measurements.to_model_space(odo.config.measurement, polar)
+    pts = measurements.polar_to_cartesian(polar)
+    W_map, got = odo._associate(x, P, z, pts, polar, {})
+
+    pred = measurements.predict(odo.config.measurement, x.T, x.varpi, odo.map.points, odo.T_vs)
+    cov = odo.map.covariances + odo.config.map_sigma**2 * np.eye(3)
+    Smap = odo._R + pred.J_z_p @ cov @ np.swapaxes(pred.J_z_p, 1, 2)
+    S = association.innovation_covariance(pred, P[:12, :12], Smap, 0.0)
+    m_in, d_in = odo._window_masks(pred.p_sensor, polar)
+    mi, di = np.flatnonzero(m_in), np.flatnonzero(d_in)
+    sub = measurements.Prediction(z=pred.z[mi], J_z_xi=pred.J_z_xi[mi], J_z_varpi=pred.J_z_varpi[mi],
+                                  J_z_p=pred.J_z_p[mi], p_sensor=pred.p_sensor[mi])
+    ref = association.associate(odo.config.measurement, z[di], pts[di], sub, S[mi], odo.gate,
+                                odo.config.association.max_radius)
+    assert len(ref.map_idx) > 100
+    np.testing.assert_array_equal(got.map_idx, mi[ref.map_idx])
+    np.testing.assert_array_equal(got.det_idx, di[ref.det_idx])
+    np.testing.assert_allclose(got.d2, ref.d2, rtol=1e-9)
+    assert got.n_candidates == ref.n_candidates
+    np.testing.assert_allclose(W_map, np.linalg.inv(Smap), rtol=1e-8, atol=1e-8 * np.abs(W_map).max())
+    # the kernel's own outputs, point by point
+    m = len(odo.map)
+    out = [np.empty((m, 4)), np.empty((m, 3)), np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4)),
+           np.empty(m)]
+    assert akernel.prepare(model == "ca-polar", x.T, x.varpi, odo.map.points, odo.map.covariances,
+                           odo.config.map_sigma**2, P[:12, :12].copy(), odo._R, odo.T_vs, odo.gate, *out) == -1
+    np.testing.assert_allclose(out[0], pred.z, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(out[2], S, rtol=1e-10, atol=1e-14)
+    radius = association._search_radius(odo.config.measurement, pred, S, odo.gate)
+    assert np.all(out[5] >= radius) and np.allclose(out[5], radius, rtol=1e-7)
 
 
 def test_association_window_is_the_same_for_map_points_and_detections():
