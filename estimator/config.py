@@ -61,10 +61,11 @@ class AssociationConfig:
     # velocity is this uncertain (or explains fewer than 8 detections)
     doppler_jerk_margin: float = 0.5  # m/s: a confident prediction's Doppler fit may move this far beyond its
     # 3-sigma (hard braking, hand-held sensors: jerk the prior does not expect)
-    consensus_switch_after: float = 0.0  # s: a free Doppler consensus outnumbering ours by consensus_switch_ratio
-    # for this long is taken as the world (re-initialisation); 0 (default) disables it: on `highway` a lead
-    # truck outnumbered the world 1.5:1 for over a second and the switch took it (7.2 % instead of 0.25 %)
-    consensus_switch_ratio: float = 1.5
+    consensus_switch_after: float = 0.5  # s: another Doppler consensus covering consensus_switch_ratio times
+    # the space of ours (occupied consensus_voxel voxels) for this long is taken as the world (re-initialisation
+    # on it); 0 disables it. Counting detections instead took a lead truck on `highway` (7.2 % instead of 0.25 %)
+    consensus_switch_ratio: float = 3.0
+    consensus_voxel: float = 2.0  # m
     doppler_update_probability: float = 0.999  # chi-square level above which the scan's Doppler velocity
     # corrects the predicted velocity before association
 
@@ -173,6 +174,7 @@ class OdometryConfig:
         for name, ok, rule in (("doppler_update_probability", lambda x: 0 < x < 1, "in (0, 1)"),
                                ("consensus_switch_ratio", lambda x: x > 1, "> 1"),
                                ("consensus_switch_after", lambda x: x >= 0, ">= 0 s"),
+                               ("consensus_voxel", lambda x: x > 0, "> 0 m"),
                                ("doppler_jerk_margin", lambda x: x > 0, "> 0 m/s")):
             value = getattr(self.association, name)
             if not ok(value):

@@ -363,8 +363,8 @@ def test_association_window_is_the_same_for_map_points_and_detections():
 
 def test_locked_onto_a_co_moving_object_the_world_is_taken_back():
     """The first 2 s see only a truck moving with the vehicle (Doppler 0: the estimate says standstill); then
-    the world comes into view with twice the truck's detections: after consensus_switch_after (1 s) the
-    estimator re-initialises on it and tracks the true 10 m/s. Without the switch it stays at rest."""
+    the world comes into view, spread over far more space than the truck: after consensus_switch_after (1 s)
+    the estimator re-initialises on it and tracks the true 10 m/s. Without the switch it stays at rest."""
     rng = np.random.default_rng(11)
     t, T, varpi, vd = scene.trajectory(65, speed=10.0, accel=0.0, yaw_rate=0.0, yaw_acc=0.0, pitch_acc=0.0)
     L = scene.landmarks(rng, n=1500, extent=400.0)
@@ -381,3 +381,28 @@ def test_locked_onto_a_co_moving_object_the_world_is_taken_back():
             events += est.events
         assert est.varpi[0] == pytest.approx(-expect_speed, abs=0.1), (after, events)
         assert ("doppler-consensus-switch" in events) == (after > 0)
+
+
+def test_a_compact_object_outnumbering_the_world_is_not_taken():
+    """A co-moving truck with four times the world's detections (the lead truck on `highway`): the world
+    covers more space, so the estimate stays on it, no consensus switch, 10 m/s tracked throughout."""
+    rng = np.random.default_rng(12)
+    t, T, varpi, vd = scene.trajectory(40, speed=10.0, accel=0.0, yaw_rate=0.0, yaw_acc=0.0, pitch_acc=0.0)
+    L = scene.landmarks(rng, n=250, extent=400.0)
+    n_truck = 4 * len(scene.measure(T[0], varpi[0], vd[0], L))
+    truck = np.c_[rng.uniform(15, 19, n_truck), rng.uniform(-1.3, 1.3, n_truck), rng.uniform(-0.5, 3.0, n_truck)]
+    r = np.linalg.norm(truck, axis=1)
+    truck_polar = np.c_[r, np.arctan2(truck[:, 1], truck[:, 0]), np.arcsin(truck[:, 2] / r), np.zeros(n_truck)]
+    odo = RadarOdometry(OdometryConfig.for_model("ca-polar"), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+    events = []
+    for k in range(len(t)):
+        world = scene.measure(T[k], varpi[k], vd[k], L, rng)
+        est = odo.process(t[k], np.r_[truck_polar + rng.normal(size=truck_polar.shape) * scene.SIGMAS, world])
+        events += est.events
+        assert est.varpi[0] == pytest.approx(-10.0, abs=0.1), (k, events)
+    assert "doppler-consensus-switch" not in events
+    # the starting fit picks the world's detections (rows after the truck's), not the truck's
+    scan = np.r_[truck_polar, scene.measure(T[0], varpi[0], vd[0], L, rng)]
+    ego = odo._widest_consensus(scan)
+    assert ego.inliers.shape == (len(scan),) and not ego.inliers[:n_truck].any()
+    assert ego.inliers[n_truck:].mean() > 0.9
