@@ -204,16 +204,17 @@ def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_
         for i in range(4):
             for j in range(3):
                 JC[i, j] = Jp[i, 0] * Pc[0, j] + Jp[i, 1] * Pc[1, j] + Jp[i, 2] * Pc[2, j]
+            kend = 12 if i == 3 else 6  # G[:3, 6:] = 0: the position rows do not depend on the velocity
             for j in range(12):
                 s = 0.0
-                for k in range(12):
+                for k in range(kend):
                     s += G[i, k] * P[k, j]
                 GP[i, j] = s
         for i in range(4):
             for j in range(i, 4):
                 sm = R[i, j] + JC[i, 0] * Jp[j, 0] + JC[i, 1] * Jp[j, 1] + JC[i, 2] * Jp[j, 2]
                 sg = 0.0
-                for k in range(12):
+                for k in range(12 if j == 3 else 6):
                     sg += GP[i, k] * G[j, k]
                 Sm[i, j] = sm
                 Sm[j, i] = sm
