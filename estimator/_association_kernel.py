@@ -244,3 +244,22 @@ def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_
         lam = _lambda_max_sym3(M)
         radius[a] = math.sqrt(gate * max(lam, 0.0) * k2) * (1.0 + 1e-9)
     return -1
+
+
+@njit(cache=True)
+def order_by_d2(j, i, d2, n):
+    """np.lexsort((i, j, d2)): ascending d2, ties by j, then i; a sort of d2 with the rare exact ties fixed."""
+    order = np.argsort(d2, kind="mergesort")
+    s = 0
+    while s < len(order):
+        e = s + 1
+        while e < len(order) and d2[order[e]] == d2[order[s]]:
+            e += 1
+        if e - s > 1:
+            run = order[s:e].copy()
+            key = np.empty(e - s, np.int64)
+            for t in range(e - s):
+                key[t] = j[run[t]] * n + i[run[t]]
+            order[s:e] = run[np.argsort(key, kind="mergesort")]
+        s = e
+    return order

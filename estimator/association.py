@@ -115,8 +115,7 @@ def _search_radius(model: str, pred: Prediction, S: np.ndarray, gate: float) -> 
 
 def _greedy_one_to_one(j: np.ndarray, i: np.ndarray, d2: np.ndarray, m: int, n: int) -> np.ndarray:
     """Mask of pairs chosen greedily by smallest d2 (ties: smaller j, then i), each j and i used at most once."""
-    order = np.lexsort((i, j, d2))
-    return _kernel.greedy_one_to_one(order, j, i, m, n)
+    return _kernel.greedy_one_to_one(_kernel.order_by_d2(j, i, d2, n), j, i, m, n)
 
 
 def associate(model: str, z_meas, det_points_sensor, pred: Prediction, S, gate: float,
@@ -181,8 +180,11 @@ def match(model: str, z_meas: np.ndarray, tree: cKDTree, z_pred: np.ndarray, p_s
         return empty
     # candidates: the k nearest detections inside each map point's own radius (bounded work per point)
     k = min(max_candidates, n)
-    dist, idx = tree.query(p_sensor, k=k, distance_upper_bound=float(radius.max()))
-    dist, idx = dist.reshape(m, k), idx.reshape(m, k)
+    dist, idx = np.empty((m, k)), np.empty((m, k), np.int64)
+    by_radius = np.argsort(radius, kind="stable")
+    for g in np.array_split(by_radius, min(4, m)):  # a tighter distance bound per quarter: fewer nodes visited
+        d_g, i_g = tree.query(p_sensor[g], k=k, distance_upper_bound=float(radius[g].max()))
+        dist[g], idx[g] = d_g.reshape(len(g), k), i_g.reshape(len(g), k)
     valid = (idx < n) & (dist <= radius[:, None])
     n_candidates = int(valid.sum())
     if n_candidates == 0:

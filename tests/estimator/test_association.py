@@ -169,3 +169,15 @@ def test_empty_inputs_and_bad_input():
         innovation_covariance(pred, np.eye(6), np.eye(4))
     with pytest.raises(InputError, match="R"):
         innovation_covariance(pred, np.eye(12), np.eye(3))
+
+
+@given(st.lists(st.tuples(st.integers(0, 6), st.integers(0, 6), st.integers(0, 3)), min_size=0, max_size=60))
+def test_pair_order_is_lexsort_with_ties(pairs):
+    """The compiled ordering of the greedy matching = np.lexsort((i, j, d2)): ascending d2, ties (frequent here:
+    d2 takes four values) by map index j, then detection index i."""
+    from estimator import _association_kernel as kernel
+
+    j = np.array([p[0] for p in pairs], dtype=np.int64)
+    i = np.array([p[1] for p in pairs], dtype=np.int64)
+    d2 = np.array([float(p[2]) for p in pairs])
+    np.testing.assert_array_equal(kernel.order_by_d2(j, i, d2, 7), np.lexsort((i, j, d2)))
