@@ -184,3 +184,47 @@ def exp_times(xi, T, out):
                 for k in range(4):
                     s += E[i, k] * T[n, k, j]
                 out[n, i, j] = s
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy")
+def accumulate(H, b, e, J1, J2, W):
+    """Adds the motion terms of consecutive states k, k+1 to the window's normal equations: with
+    J = [J1_k, J2_k] (d x 2d), H[kd:(k+2)d, kd:(k+2)d] += J^T W_k J, b[...] += J^T W_k e_k; returns
+    sum_k 1/2 e_k^T W_k e_k."""
+    n, d = e.shape[0], e.shape[1]
+    JW = np.empty((2 * d, d))
+    We = np.empty(d)
+    cost = 0.0
+    for k in range(n):
+        for i in range(d):
+            s = 0.0
+            for l in range(d):
+                s += W[k, i, l] * e[k, l]
+            We[i] = s
+            cost += 0.5 * e[k, i] * s
+        for r in range(2 * d):  # JW = J^T W
+            for c in range(d):
+                s = 0.0
+                if r < d:
+                    for l in range(d):
+                        s += J1[k, l, r] * W[k, l, c]
+                else:
+                    for l in range(d):
+                        s += J2[k, l, r - d] * W[k, l, c]
+                JW[r, c] = s
+        o = k * d
+        for r in range(2 * d):
+            s = 0.0
+            for l in range(d):
+                s += (J1[k, l, r] if r < d else J2[k, l, r - d]) * We[l]
+            b[o + r] += s
+            for c in range(2 * d):
+                s = 0.0
+                if c < d:
+                    for l in range(d):
+                        s += JW[r, l] * J1[k, l, c]
+                else:
+                    for l in range(d):
+                        s += JW[r, l] * J2[k, l, c - d]
+                H[o + r, o + c] += s
+    return cost

@@ -15,6 +15,8 @@ import numpy as np
 from . import _motion_kernel
 from .lie import se3
 from .priors import ConstantAccelerationPrior, ConstantVelocityPrior
+from .priors import _kernels as _prior_kernels
+from .priors.constant_velocity import _cv_batch
 
 
 @dataclass
@@ -85,15 +87,22 @@ class MotionModel:
         tail1 = np.stack([x.vector_tail() for x in states[:-1]])
         tail2 = np.stack([x.vector_tail() for x in states[1:]])
         dt = np.array([b.t - a.t for a, b in zip(states[:-1], states[1:])])
+        n = len(dt)
+        # the priors' kernels directly: the window's states are the estimator's own (finite, times increasing)
+        w1 = np.ascontiguousarray(tail1[:, :6])
+        vd1 = np.ascontiguousarray(tail1[:, 6:]) if self.kind == "ca" else np.zeros((n, 6))
+        Tp, wp, vp = np.empty((n, 4, 4)), np.empty((n, 6)), np.empty((n, 6))
+        order = self.prior.magnus_order if self.kind == "ca" else 1
+        _prior_kernels.predict_batch(T1, w1, vd1, dt, order, Tp, wp, vp)
+        F = np.empty((n, self.dim, self.dim))
         if self.kind == "ca":
-            Tp, wp, vp = self.prior.predict(T1, tail1[:, :6], tail1[:, 6:], dt)
-            F = self.prior.transition_batch(tail1[:, :6], tail1[:, 6:], dt)
+            _prior_kernels.ca_batch(w1, vd1, dt, self.prior.Qc, order, self.prior._noise_code, F,
+                                    np.empty((n, 0, 0)), False)
             tail_pred = np.concatenate([wp, vp], axis=1)
         else:
-            Tp, tail_pred = self.prior.predict(T1, tail1, dt)
-            F = self.prior.transition_batch(tail1, dt)
-        n, d = len(dt), self.dim
+            _cv_batch(w1, dt, self.prior.Qc, F, np.empty((n, 0, 0)), False)
+            tail_pred = wp
+        d = self.dim
         e, J1, J2 = np.empty((n, d)), np.empty((n, d, d)), np.empty((n, d, d))
-        _motion_kernel.residuals(np.ascontiguousarray(Tp), np.ascontiguousarray(tail_pred), T2,
-                                 np.ascontiguousarray(tail2), np.ascontiguousarray(F), e, J1, J2)
+        _motion_kernel.residuals(Tp, tail_pred, T2, np.ascontiguousarray(tail2), F, e, J1, J2)
         return e, J1, J2

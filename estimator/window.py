@@ -143,14 +143,7 @@ class SlidingWindow:
         cost = 0.5 * e @ self.prior_info @ e + self.prior_grad @ e
         if n > 1:
             E, J1s, J2s = self.motion.residuals(self.states)
-            for k in range(n - 1):
-                e, Wq = E[k], self.motion_info[k]
-                Jk = np.concatenate([J1s[k], J2s[k]], axis=1)
-                JW = Jk.T @ Wq
-                sl = slice(k * d, (k + 2) * d)
-                H[sl, sl] += JW @ Jk
-                b[sl] += JW @ e
-                cost += 0.5 * e @ Wq @ e
+            cost += _motion_kernel.accumulate(H, b, E, J1s, J2s, np.stack(self.motion_info))
         for k, info in enumerate(self.still):
             if info is not None:
                 t = self.states[k].vector_tail()

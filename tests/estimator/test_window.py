@@ -227,6 +227,32 @@ def test_window_update_equals_state_oplus(kind):
             np.testing.assert_array_equal(got.vd, want.vd)
 
 
+@pytest.mark.parametrize("kind", ["ca", "cv"])
+def test_motion_terms_in_the_normal_equations(kind):
+    """The compiled accumulation of the motion terms = J^T W J, J^T W e, 1/2 e^T W e summed in NumPy."""
+    from estimator import _motion_kernel
+
+    rng = np.random.default_rng(6)
+    motion = MotionModel(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
+    d = motion.dim
+    states = [State(0.08 * k, se3.exp(rng.normal(size=6)), rng.normal(size=6),
+                    rng.normal(size=6) if kind == "ca" else None) for k in range(4)]
+    E, J1, J2 = motion.residuals(states)
+    W = np.stack([(lambda A: A @ A.T + np.eye(d))(rng.normal(size=(d, d))) for _ in range(3)])
+    H, b = np.zeros((4 * d, 4 * d)), np.zeros(4 * d)
+    cost = _motion_kernel.accumulate(H, b, E, J1, J2, W)
+    H_ref, b_ref, cost_ref = np.zeros_like(H), np.zeros_like(b), 0.0
+    for k in range(3):
+        J = np.concatenate([J1[k], J2[k]], axis=1)
+        sl = slice(k * d, (k + 2) * d)
+        H_ref[sl, sl] += J.T @ W[k] @ J
+        b_ref[sl] += J.T @ W[k] @ E[k]
+        cost_ref += 0.5 * E[k] @ W[k] @ E[k]
+    np.testing.assert_allclose(H, H_ref, rtol=1e-10, atol=1e-10 * np.abs(H_ref).max())
+    np.testing.assert_allclose(b, b_ref, rtol=1e-10, atol=1e-10 * np.abs(b_ref).max())
+    assert cost == pytest.approx(cost_ref, rel=1e-12)
+
+
 def _two_segments(n1: int, n2: int, speed: float, brake: float, rate: float = 13.0):
     """Constant speed for n1 scans, then braking at `brake` m/s^2 (a step in acceleration: the jerk no prior
     expects) for n2 scans. Times, T_vehicle_world, varpi, varpi_dot."""
