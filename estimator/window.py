@@ -165,7 +165,10 @@ class SlidingWindow:
     def optimize(self, iterations: int = 5, tol: float = 1e-6) -> dict:
         """Gauss-Newton; a step that increases the cost is halved (one linearisation per iteration).
 
-        Returns {'iterations', 'cost', 'step'}; the normal equations at the returned estimate are kept for
+        A full step whose largest element is below tol is the last: it is applied without linearising again
+        (near the solution convergence is quadratic, so the step after it would be ~tol^2 and the cost check
+        cannot fail meaningfully). Returns {'iterations', 'cost', 'step'}; the normal equations of the last
+        linearisation (at the returned estimate, or one step below tol before it) are kept for
         `newest_covariance`.
         """
         d = self.motion.dim
@@ -177,6 +180,9 @@ class SlidingWindow:
             if not np.all(np.isfinite(delta)):
                 break
             old = self.states
+            if step == 1.0 and np.max(np.abs(delta)) < tol:
+                self.states = _oplus_all(old, delta.reshape(len(old), d))
+                break
             self.states = _oplus_all(old, step * delta.reshape(len(old), d))
             H2, b2, cost2 = self.linearize()
             if np.isfinite(cost2) and cost2 <= cost * (1 + 1e-12) + 1e-12:
