@@ -286,30 +286,35 @@ class RadarOdometry:
 
         Per map point, `_association_kernel.prepare` evaluates the prediction, S = G P G^T + R + map term
         (`association.innovation_covariance` plus `_map_term`), its inverse and the search radius in one
-        compiled pass; `association.match` does the rest. `scan` caches the KD-tree of this scan's detections
-        for the re-association. Returns (W_map, Association): W_map (m, 4, 4) the information of each map
-        point's pair in the solve, (R + map term)^-1; None when nothing could be associated.
+        compiled pass over the map points inside the window; `association.match` does the rest. `scan` caches the
+        KD-tree of this scan's detections for the re-association. Returns (W_map, Association): W_map (m, 4, 4)
+        the information of each map point's pair in the solve, (R + map term)^-1 (NaN outside the window);
+        None when nothing could be associated.
         """
         if len(self.map) == 0 or len(z) == 0:
             return None, association.Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)
-        m = len(self.map)
-        zp, p_s = np.empty((m, 4)), np.empty((m, 3))
-        S, S_inv, W_map = np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4))
-        radius = np.empty(m)
-        bad = _akernel.prepare(self.config.measurement == "polar", x.T, x.varpi, self.map.points,
-                               self.map.covariances, self.config.map_sigma**2, np.ascontiguousarray(P[:12, :12]),
-                               self._R, self.T_vs, self.gate, zp, p_s, S, S_inv, W_map, radius)
-        if bad >= 0:  # a map point at the sensor, or an innovation covariance that is not positive definite
-            raise FloatingPointError(f"association: map point {bad % m} has "
-                                     + ("range 0" if bad < m else "a non positive definite S"))
-        m_in, d_in = self._window_masks(p_s, polar)
+        # the window first (positions only), then the compiled pass over the map points inside it
+        T_sw = se3.inverse(self.T_vs) @ x.T
+        m_in, d_in = self._window_masks(self.map.points @ T_sw[:3, :3].T + T_sw[:3, 3], polar)
         mi = np.flatnonzero(m_in)
+        m = len(mi)
+        zp, p_s = np.empty((m, 4)), np.empty((m, 3))
+        S, S_inv, W_in = np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4))
+        radius = np.empty(m)
+        bad = _akernel.prepare(self.config.measurement == "polar", x.T, x.varpi, self.map.points[mi],
+                               self.map.covariances[mi], self.config.map_sigma**2, np.ascontiguousarray(P[:12, :12]),
+                               self._R, self.T_vs, self.gate, zp, p_s, S, S_inv, W_in, radius)
+        if bad >= 0:  # a map point at the sensor, or an innovation covariance that is not positive definite
+            raise FloatingPointError(f"association: map point {mi[bad % m]} has "
+                                     + ("range 0" if bad < m else "a non positive definite S"))
+        W_map = np.full((len(self.map), 4, 4), np.nan)  # outside the window: never paired, never read
+        W_map[mi] = W_in
         if "tree" not in scan:
             scan["di"] = np.flatnonzero(d_in)
             scan["tree"] = cKDTree(pts[scan["di"]])
         di = scan["di"]
-        a = association.match(self.config.measurement, z[di], scan["tree"], zp[mi], p_s[mi], S_inv[mi],
-                              np.minimum(radius[mi], self.config.association.max_radius), self.gate)
+        a = association.match(self.config.measurement, z[di], scan["tree"], zp, p_s, S_inv,
+                              np.minimum(radius, self.config.association.max_radius), self.gate)
         return W_map, association.Association(mi[a.map_idx], di[a.det_idx], a.d2, a.n_candidates)
 
     def _window_masks(self, p_sensor: np.ndarray, polar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
