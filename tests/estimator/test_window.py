@@ -434,3 +434,17 @@ def test_a_compact_object_outnumbering_the_world_is_not_taken():
     ego = odo._widest_consensus(scan)
     assert ego.inliers.shape == (len(scan),) and not ego.inliers[:n_truck].any()
     assert ego.inliers[n_truck:].mean() > 0.9
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(0, 80), st.floats(0.3, 5.0), st.floats(1.0, 500.0))
+@settings(max_examples=30)
+def test_support_counts_the_occupied_voxels(seed, n, voxel, extent):
+    """The space a consensus covers (`odometry._support`) = the number of distinct voxel rows, also for
+    negative coordinates and points on voxel faces."""
+    from estimator.odometry import _support
+
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-extent, extent, size=(n, 3))
+    p[: n // 4] = np.round(p[: n // 4] / voxel) * voxel  # exactly on faces
+    want = len(np.unique(np.floor(p / voxel).astype(np.int64), axis=0)) if n else 0
+    assert _support(p, voxel) == want
