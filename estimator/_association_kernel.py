@@ -11,6 +11,8 @@ import math
 import numpy as np
 from numba import njit
 
+from ._measurement_kernel import point_model
+
 
 @njit(cache=True)
 def pair_d2(polar, j, i, z_meas, z_pred, S_inv):
@@ -129,73 +131,21 @@ def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_
     Pc = np.empty((3, 3))
     Ac = np.empty((3, 3))
     M = np.empty((3, 3))
+    zp = np.empty(4)
+    Js = np.empty((3, 3))
+    am = np.empty((2, 3))
     for a in range(m):
-        pv0 = C[0, 0] * p_world[a, 0] + C[0, 1] * p_world[a, 1] + C[0, 2] * p_world[a, 2] + t[0]
-        pv1 = C[1, 0] * p_world[a, 0] + C[1, 1] * p_world[a, 1] + C[1, 2] * p_world[a, 2] + t[1]
-        pv2 = C[2, 0] * p_world[a, 0] + C[2, 1] * p_world[a, 1] + C[2, 2] * p_world[a, 2] + t[2]
-        d0, d1, d2 = pv0 - rvs[0], pv1 - rvs[1], pv2 - rvs[2]
-        ps0 = Cvs[0, 0] * d0 + Cvs[1, 0] * d1 + Cvs[2, 0] * d2
-        ps1 = Cvs[0, 1] * d0 + Cvs[1, 1] * d1 + Cvs[2, 1] * d2
-        ps2 = Cvs[0, 2] * d0 + Cvs[1, 2] * d1 + Cvs[2, 2] * d2
-        r = math.sqrt(ps0 * ps0 + ps1 * ps1 + ps2 * ps2)
-        if r < 1e-9:
+        r = point_model(polar, C, t, Cvs, rvs, nu, om, p_world[a], A, G, zp, Js, am, p_s[a])
+        if r == 0.0:
             return a
-        p_s[a, 0], p_s[a, 1], p_s[a, 2] = ps0, ps1, ps2
-        u0, u1, u2 = ps0 / r, ps1 / r, ps2 / r
-        g0 = nu[0] + om[1] * pv2 - om[2] * pv1
-        g1 = nu[1] + om[2] * pv0 - om[0] * pv2
-        g2 = nu[2] + om[0] * pv1 - om[1] * pv0
-        q0 = Cvs[0, 0] * g0 + Cvs[1, 0] * g1 + Cvs[2, 0] * g2
-        q1 = Cvs[0, 1] * g0 + Cvs[1, 1] * g1 + Cvs[2, 1] * g2
-        q2 = Cvs[0, 2] * g0 + Cvs[1, 2] * g1 + Cvs[2, 2] * g2
-        vr = u0 * q0 + u1 * q1 + u2 * q2
-        for i in range(3):
-            A[i, 0] = Cvs[0, i]
-            A[i, 1] = Cvs[1, i]
-            A[i, 2] = Cvs[2, i]
-            A[i, 3] = -(Cvs[1, i] * pv2 - Cvs[2, i] * pv1)
-            A[i, 4] = -(-Cvs[0, i] * pv2 + Cvs[2, i] * pv0)
-            A[i, 5] = -(Cvs[0, i] * pv1 - Cvs[1, i] * pv0)
-        a0, a1, a2 = (q0 - u0 * vr) / r, (q1 - u1 * vr) / r, (q2 - u2 * vr) / r
-        w0 = Cvs[0, 0] * u0 + Cvs[0, 1] * u1 + Cvs[0, 2] * u2
-        w1 = Cvs[1, 0] * u0 + Cvs[1, 1] * u1 + Cvs[1, 2] * u2
-        w2 = Cvs[2, 0] * u0 + Cvs[2, 1] * u1 + Cvs[2, 2] * u2
-        m0 = w1 * om[2] - w2 * om[1]
-        m1 = w2 * om[0] - w0 * om[2]
-        m2 = w0 * om[1] - w1 * om[0]
-        for j in range(6):
-            G[3, j] = a0 * A[0, j] + a1 * A[1, j] + a2 * A[2, j]
-            G[3, 6 + j] = u0 * A[0, j] + u1 * A[1, j] + u2 * A[2, j]
-        G[3, 0] += m0
-        G[3, 1] += m1
-        G[3, 2] += m2
-        G[3, 3] += pv1 * m2 - pv2 * m1
-        G[3, 4] += pv2 * m0 - pv0 * m2
-        G[3, 5] += pv0 * m1 - pv1 * m0
+        for i in range(4):
+            z[a, i] = zp[i]
+        # dz/dp_world: [Js; a^T] C_vs^T C + [0; m^T C]
         for j in range(3):
-            Jp[3, j] = a0 * B[0, j] + a1 * B[1, j] + a2 * B[2, j] + m0 * C[0, j] + m1 * C[1, j] + m2 * C[2, j]
-        if polar:
-            rho = max(math.sqrt(ps0 * ps0 + ps1 * ps1), 1e-12 * r)
-            rho2 = rho * rho
-            dd = r * r * rho
-            Js = ((ps0 / r, ps1 / r, ps2 / r), (-ps1 / rho2, ps0 / rho2, 0.0),
-                  (-ps0 * ps2 / dd, -ps1 * ps2 / dd, rho2 / dd))
             for i in range(3):
-                for j in range(6):
-                    G[i, j] = Js[i][0] * A[0, j] + Js[i][1] * A[1, j] + Js[i][2] * A[2, j]
-                for j in range(3):
-                    Jp[i, j] = Js[i][0] * B[0, j] + Js[i][1] * B[1, j] + Js[i][2] * B[2, j]
-            z[a, 0] = r
-            z[a, 1] = math.atan2(ps1, ps0)
-            z[a, 2] = math.asin(min(1.0, max(-1.0, ps2 / r)))
-        else:
-            for i in range(3):
-                for j in range(6):
-                    G[i, j] = A[i, j]
-                for j in range(3):
-                    Jp[i, j] = B[i, j]
-            z[a, 0], z[a, 1], z[a, 2] = ps0, ps1, ps2
-        z[a, 3] = vr
+                Jp[i, j] = Js[i, 0] * B[0, j] + Js[i, 1] * B[1, j] + Js[i, 2] * B[2, j]
+            Jp[3, j] = am[0, 0] * B[0, j] + am[0, 1] * B[1, j] + am[0, 2] * B[2, j] \
+                + am[1, 0] * C[0, j] + am[1, 1] * C[1, j] + am[1, 2] * C[2, j]
         # map term and S
         for i in range(3):
             for j in range(3):

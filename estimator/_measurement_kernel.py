@@ -19,9 +19,93 @@ import numpy as np
 from numba import njit
 
 POLAR, CARTESIAN = 0, 1
+_FM = {"nsz", "arcp", "contract", "afn", "reassoc"}  # IEEE-safe fast-math subset (as in priors._kernels)
 
 
-@njit(cache=True, fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+@njit(cache=True, fastmath=_FM, inline="always")
+def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
+    """The measurement model of one map point p (3,) for a state (C, t, nu, om) and extrinsics (Cvs, rvs),
+    shared by `linearize_pairs` and `_association_kernel.prepare`:
+
+    z (4,) the predicted [r, az, el, v_r] (polar) or [x, y, z, v_r] (Cartesian); J (4, 12) = dz/d[xi, varpi]
+    (rows 0-2 have zeros in the velocity columns); Js (3, 3) = dz[:3]/dp_s; am (2, 3) = (dv_r/dp_s,
+    dv_r/dp_v through the point's velocity), from which the caller builds dz/dp; A (3, 6) = dp_s/dxi;
+    ps (3,) the point in the sensor frame.
+    Returns the range r, or 0.0 for a point at the sensor origin (nothing else is written then).
+    """
+    pv0 = C[0, 0] * p[0] + C[0, 1] * p[1] + C[0, 2] * p[2] + t[0]
+    pv1 = C[1, 0] * p[0] + C[1, 1] * p[1] + C[1, 2] * p[2] + t[1]
+    pv2 = C[2, 0] * p[0] + C[2, 1] * p[1] + C[2, 2] * p[2] + t[2]
+    d0, d1, d2 = pv0 - rvs[0], pv1 - rvs[1], pv2 - rvs[2]
+    ps0 = Cvs[0, 0] * d0 + Cvs[1, 0] * d1 + Cvs[2, 0] * d2
+    ps1 = Cvs[0, 1] * d0 + Cvs[1, 1] * d1 + Cvs[2, 1] * d2
+    ps2 = Cvs[0, 2] * d0 + Cvs[1, 2] * d1 + Cvs[2, 2] * d2
+    ps[0], ps[1], ps[2] = ps0, ps1, ps2
+    r = math.sqrt(ps0 * ps0 + ps1 * ps1 + ps2 * ps2)
+    if r < 1e-9:
+        return 0.0
+    u0, u1, u2 = ps0 / r, ps1 / r, ps2 / r
+    # velocity of the point in the vehicle frame: nu + omega x p_v, then rotated into the sensor frame
+    g0 = nu[0] + om[1] * pv2 - om[2] * pv1
+    g1 = nu[1] + om[2] * pv0 - om[0] * pv2
+    g2 = nu[2] + om[0] * pv1 - om[1] * pv0
+    q0 = Cvs[0, 0] * g0 + Cvs[1, 0] * g1 + Cvs[2, 0] * g2
+    q1 = Cvs[0, 1] * g0 + Cvs[1, 1] * g1 + Cvs[2, 1] * g2
+    q2 = Cvs[0, 2] * g0 + Cvs[1, 2] * g1 + Cvs[2, 2] * g2
+    vr = u0 * q0 + u1 * q1 + u2 * q2
+    # dp_s/dxi = C_vs^T [I, -p_v^]: A[:, :3] = C_vs^T; A[:, 3:] = -C_vs^T p_v^ (column j of C_vs^T is row j of C_vs)
+    for i in range(3):
+        A[i, 0] = Cvs[0, i]
+        A[i, 1] = Cvs[1, i]
+        A[i, 2] = Cvs[2, i]
+        A[i, 3] = -(Cvs[1, i] * pv2 - Cvs[2, i] * pv1)
+        A[i, 4] = -(-Cvs[0, i] * pv2 + Cvs[2, i] * pv0)
+        A[i, 5] = -(Cvs[0, i] * pv1 - Cvs[1, i] * pv0)
+    # dv_r/dp_s = (q - u vr)^T / r ; dv_r/dp_v (via q) = u^T C_vs^T omega^ = (w x omega)^T with w = C_vs u
+    a0, a1, a2 = (q0 - u0 * vr) / r, (q1 - u1 * vr) / r, (q2 - u2 * vr) / r
+    w0 = Cvs[0, 0] * u0 + Cvs[0, 1] * u1 + Cvs[0, 2] * u2
+    w1 = Cvs[1, 0] * u0 + Cvs[1, 1] * u1 + Cvs[1, 2] * u2
+    w2 = Cvs[2, 0] * u0 + Cvs[2, 1] * u1 + Cvs[2, 2] * u2
+    m0 = w1 * om[2] - w2 * om[1]
+    m1 = w2 * om[0] - w0 * om[2]
+    m2 = w0 * om[1] - w1 * om[0]
+    am[0, 0], am[0, 1], am[0, 2] = a0, a1, a2
+    am[1, 0], am[1, 1], am[1, 2] = m0, m1, m2
+    for j in range(6):
+        J[3, j] = a0 * A[0, j] + a1 * A[1, j] + a2 * A[2, j]
+        J[3, 6 + j] = u0 * A[0, j] + u1 * A[1, j] + u2 * A[2, j]
+    # + dv_r/dp_v dp_v/dxi = m^T [I, -p_v^] = [m, (p_v x m)]
+    J[3, 0] += m0
+    J[3, 1] += m1
+    J[3, 2] += m2
+    J[3, 3] += pv1 * m2 - pv2 * m1
+    J[3, 4] += pv2 * m0 - pv0 * m2
+    J[3, 5] += pv0 * m1 - pv1 * m0
+    if polar:
+        rho = max(math.sqrt(ps0 * ps0 + ps1 * ps1), 1e-12 * r)
+        rho2 = rho * rho
+        dd = r * r * rho
+        Js[0, 0], Js[0, 1], Js[0, 2] = ps0 / r, ps1 / r, ps2 / r
+        Js[1, 0], Js[1, 1], Js[1, 2] = -ps1 / rho2, ps0 / rho2, 0.0
+        Js[2, 0], Js[2, 1], Js[2, 2] = -ps0 * ps2 / dd, -ps1 * ps2 / dd, rho2 / dd
+        z[0] = r
+        z[1] = math.atan2(ps1, ps0)
+        z[2] = math.asin(min(1.0, max(-1.0, ps2 / r)))
+    else:
+        for i in range(3):
+            for j in range(3):
+                Js[i, j] = 1.0 if i == j else 0.0
+        z[0], z[1], z[2] = ps0, ps1, ps2
+    z[3] = vr
+    for i in range(3):
+        for j in range(6):
+            J[i, j] = Js[i, 0] * A[0, j] + Js[i, 1] * A[1, j] + Js[i, 2] * A[2, j]
+        for j in range(6, 12):
+            J[i, j] = 0.0
+    return r
+
+
+@njit(cache=True, fastmath=_FM)
 def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_out, robust_c):
     """H (K, 12, 12), b (K, 12), cost for K states; pairs offsets[k]:offsets[k+1] belong to state k.
 
@@ -38,6 +122,10 @@ def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_ou
     WJ = np.zeros((4, 12))
     A = np.empty((3, 6))
     e = np.zeros(4)
+    zp = np.empty(4)
+    Js = np.empty((3, 3))
+    am = np.empty((2, 3))
+    ps = np.empty(3)
     Cvs = Tvs[:3, :3]
     rvs = Tvs[:3, 3]
     for k in range(K):
@@ -46,83 +134,14 @@ def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_ou
         nu = varpi[k, :3]
         om = varpi[k, 3:]
         for a in range(offsets[k], offsets[k + 1]):
-            pv0 = C[0, 0] * p_world[a, 0] + C[0, 1] * p_world[a, 1] + C[0, 2] * p_world[a, 2] + t[0]
-            pv1 = C[1, 0] * p_world[a, 0] + C[1, 1] * p_world[a, 1] + C[1, 2] * p_world[a, 2] + t[1]
-            pv2 = C[2, 0] * p_world[a, 0] + C[2, 1] * p_world[a, 1] + C[2, 2] * p_world[a, 2] + t[2]
-            d0, d1, d2 = pv0 - rvs[0], pv1 - rvs[1], pv2 - rvs[2]
-            ps0 = Cvs[0, 0] * d0 + Cvs[1, 0] * d1 + Cvs[2, 0] * d2
-            ps1 = Cvs[0, 1] * d0 + Cvs[1, 1] * d1 + Cvs[2, 1] * d2
-            ps2 = Cvs[0, 2] * d0 + Cvs[1, 2] * d1 + Cvs[2, 2] * d2
-            r = math.sqrt(ps0 * ps0 + ps1 * ps1 + ps2 * ps2)
-            u0, u1, u2 = ps0 / r, ps1 / r, ps2 / r
-            # velocity of the point in the vehicle frame: nu + omega x p_v, then rotated into the sensor frame
-            g0 = nu[0] + om[1] * pv2 - om[2] * pv1
-            g1 = nu[1] + om[2] * pv0 - om[0] * pv2
-            g2 = nu[2] + om[0] * pv1 - om[1] * pv0
-            q0 = Cvs[0, 0] * g0 + Cvs[1, 0] * g1 + Cvs[2, 0] * g2
-            q1 = Cvs[0, 1] * g0 + Cvs[1, 1] * g1 + Cvs[2, 1] * g2
-            q2 = Cvs[0, 2] * g0 + Cvs[1, 2] * g1 + Cvs[2, 2] * g2
-            vr = u0 * q0 + u1 * q1 + u2 * q2
-            # dp_s/dxi = C_vs^T [I, -p_v^]: column j of C_vs^T is row j of C_vs
-            # A (3x6) stored implicitly: A[:, :3] = C_vs^T; A[:, 3:] = -C_vs^T p_v^
-            for i in range(3):
-                A[i, 0] = Cvs[0, i]
-                A[i, 1] = Cvs[1, i]
-                A[i, 2] = Cvs[2, i]
-                # -(C_vs^T p_v^)[i, :] = -(sum_j Cvs[j, i] * hat(p_v)[j, :])
-                A[i, 3] = -(Cvs[1, i] * pv2 - Cvs[2, i] * pv1)
-                A[i, 4] = -(-Cvs[0, i] * pv2 + Cvs[2, i] * pv0)
-                A[i, 5] = -(Cvs[0, i] * pv1 - Cvs[1, i] * pv0)
-            # dv_r/dp_s = (q - u vr)^T / r ; dv_r/dp_v (via q) = u^T C_vs^T omega^
-            a0, a1, a2 = (q0 - u0 * vr) / r, (q1 - u1 * vr) / r, (q2 - u2 * vr) / r
-            w0 = Cvs[0, 0] * u0 + Cvs[0, 1] * u1 + Cvs[0, 2] * u2  # (C_vs u)
-            w1 = Cvs[1, 0] * u0 + Cvs[1, 1] * u1 + Cvs[1, 2] * u2
-            w2 = Cvs[2, 0] * u0 + Cvs[2, 1] * u1 + Cvs[2, 2] * u2
-            # (C_vs u)^T omega^ = (w x omega)^T... row vector w^T omega^ = (omega x w)^T * -1 = (w x omega)^T
-            m0 = w1 * om[2] - w2 * om[1]
-            m1 = w2 * om[0] - w0 * om[2]
-            m2 = w0 * om[1] - w1 * om[0]
-            for j in range(12):
-                J[3, j] = 0.0
-            for j in range(6):
-                J[3, j] = a0 * A[0, j] + a1 * A[1, j] + a2 * A[2, j]
-                J[3, 6 + j] = u0 * A[0, j] + u1 * A[1, j] + u2 * A[2, j]
-            # + dv_r/dp_v dp_v/dxi = m^T [I, -p_v^] = [m, (p_v x m)]
-            J[3, 0] += m0
-            J[3, 1] += m1
-            J[3, 2] += m2
-            J[3, 3] += pv1 * m2 - pv2 * m1
-            J[3, 4] += pv2 * m0 - pv0 * m2
-            J[3, 5] += pv0 * m1 - pv1 * m0
+            if point_model(model == POLAR, C, t, Cvs, rvs, nu, om, p_world[a], A, J, zp, Js, am, ps) == 0.0:
+                d2_out[a] = np.nan  # a map point at the sensor: the cost is undefined, the step is rejected
+                cost = np.nan
+                continue
+            for i in range(4):
+                e[i] = z[a, i] - zp[i]
             if model == POLAR:
-                rho2 = ps0 * ps0 + ps1 * ps1
-                rho = max(math.sqrt(rho2), 1e-12 * r)
-                rho2 = rho * rho
-                s0, s1, s2 = ps0 / r, ps1 / r, ps2 / r
-                t0, t1 = -ps1 / rho2, ps0 / rho2
-                dd = r * r * rho
-                v0, v1, v2 = -ps0 * ps2 / dd, -ps1 * ps2 / dd, rho2 / dd
-                for j in range(6):
-                    J[0, j] = s0 * A[0, j] + s1 * A[1, j] + s2 * A[2, j]
-                    J[1, j] = t0 * A[0, j] + t1 * A[1, j]
-                    J[2, j] = v0 * A[0, j] + v1 * A[1, j] + v2 * A[2, j]
-                for i in range(3):
-                    for j in range(6, 12):
-                        J[i, j] = 0.0
-                e[0] = z[a, 0] - r
-                az = z[a, 1] - math.atan2(ps1, ps0)
-                e[1] = az - 2.0 * math.pi * math.floor((az + math.pi) / (2.0 * math.pi))
-                e[2] = z[a, 2] - math.asin(min(1.0, max(-1.0, ps2 / r)))
-            else:
-                for i in range(3):
-                    for j in range(6):
-                        J[i, j] = A[i, j]
-                    for j in range(6, 12):
-                        J[i, j] = 0.0
-                e[0] = z[a, 0] - ps0
-                e[1] = z[a, 1] - ps1
-                e[2] = z[a, 2] - ps2
-            e[3] = z[a, 3] - vr
+                e[1] = e[1] - 2.0 * math.pi * math.floor((e[1] + math.pi) / (2.0 * math.pi))
             # residual derivative is -J; H, b are invariant to that sign pair (b flips with it)
             d2 = 0.0
             for i in range(4):
