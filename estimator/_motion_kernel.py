@@ -18,7 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .priors._kernels import _FM, _se3_coeffs, _se3_exp_into, _ub_curly, _ub_powers
+from .priors._kernels import _FM, _se3_coeffs, _se3_exp_into, _ub_curly, _ub_powers, mul44
 
 
 @njit(cache=True, fastmath=_FM, error_model="numpy")
@@ -178,12 +178,7 @@ def exp_times(xi, T, out):
     A2 = np.empty((3, 3))
     for n in range(T.shape[0]):
         _se3_exp_into(xi[n], E, c3, A, A2)
-        for i in range(4):
-            for j in range(4):
-                s = 0.0
-                for k in range(4):
-                    s += E[i, k] * T[n, k, j]
-                out[n, i, j] = s
+        mul44(E, T[n], out[n])
 
 
 @njit(cache=True, fastmath=_FM, error_model="numpy")

@@ -303,6 +303,17 @@ def _se3_exp_into(xi, E, c3, A, A2):
 
 
 @njit(cache=True, fastmath=_FM, error_model="numpy")
+def mul44(A, B, out):
+    """out = A B for 4x4 matrices (out must not alias A or B)."""
+    for i in range(4):
+        for j in range(4):
+            s = 0.0
+            for k in range(4):
+                s += A[i, k] * B[k, j]
+            out[i, j] = s
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy")
 def predict_batch(T, varpi, vd, dt, order, T_out, varpi_out, vd_out):
     """Mean transition eq. 31-34 for N intervals: T (N,4,4), varpi/vd (N,6), dt (N,)."""
     sig = np.empty(6)
@@ -315,12 +326,7 @@ def predict_batch(T, varpi, vd, dt, order, T_out, varpi_out, vd_out):
     for n in range(T.shape[0]):
         magnus_sigma(varpi[n], vd[n], dt[n], order, sig, t1, t2)
         _se3_exp_into(sig, E, c3, A, A2)
-        for i in range(4):
-            for j in range(4):
-                s = 0.0
-                for k in range(4):
-                    s += E[i, k] * T[n, k, j]
-                T_out[n, i, j] = s
+        mul44(E, T[n], T_out[n])
         for i in range(6):
             varpi_out[n, i] = varpi[n, i] + dt[n] * vd[n, i]
             vd_out[n, i] = vd[n, i]
