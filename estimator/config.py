@@ -72,9 +72,17 @@ class AssociationConfig:
 
 @dataclass(frozen=True)
 class MapConfig:
+    """Local map (estimator/local_map.py). fuse: refine an associated map point with the detection placed
+    by the solved estimate, information-weighted with the detection's noise plus map_sigma^2 (the surface is
+    resampled every scan); off: map points never move. Off by default: on city/hills/stop_and_go seeds 1-3 it
+    helped hills but not the other two on average (docs/estimator.md, "Map-point fusion"). max_fused: fading
+    memory of about this many observations per point (0: none), so a fused point never becomes certain."""
+
     capacity: int = 1500
     max_age: int = 30
     voxel: float = 0.0
+    fuse: bool = False
+    max_fused: int = 20
 
 
 @dataclass(frozen=True)
@@ -183,6 +191,10 @@ class OdometryConfig:
             raise InputError(f"outage.reinit_after: must be >= 0 seconds, got {self.outage.reinit_after}")
         if self.map.max_age < 0 or self.map.voxel < 0:
             raise InputError("map.max_age, map.voxel: must be >= 0")
+        if not isinstance(self.map.fuse, bool):
+            raise InputError(f"map.fuse: must be true or false, got {self.map.fuse!r}")
+        if self.map.max_fused < 0 or self.map.max_fused == 1:
+            raise InputError(f"map.max_fused: must be 0 (no fading) or >= 2, got {self.map.max_fused}")
 
     @property
     def prior(self) -> str:
@@ -265,7 +277,10 @@ def _section(kind, values: dict, where: str):
                     isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
                 raise InputError(f"{where} {key}: expected a list of numbers, got {value!r}")
             value = tuple(float(v) for v in value)
-        elif isinstance(default, bool) or not isinstance(value, (int, float)) or isinstance(value, bool):
+        elif isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise InputError(f"{where} {key}: expected true or false, got {value!r}")
+        elif not isinstance(value, (int, float)) or isinstance(value, bool):
             raise InputError(f"{where} {key}: expected a number, got {value!r}")
         elif isinstance(default, int) and not isinstance(value, int):
             raise InputError(f"{where} {key}: expected an integer, got {value!r}")

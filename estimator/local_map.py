@@ -8,6 +8,13 @@ Policy (docs/measurements.md, "Local map"):
   New points get a new stable id, hits = 1, last_seen = scan.
 - refresh: associated points get last_seen = scan and hits += 1. Their positions are NOT moved (a map that
   follows the estimate would absorb the drift it is meant to measure).
+- fuse (optional, the caller decides: MapConfig.fuse): instead of `refresh`, an associated point is refined
+  with the detection placed by the solved estimate, information-weighted (Kalman form
+  p += K (z - p), P = (I - K) P, K = P (P + R)^-1), so repeated observations average the detection noise
+  (elevation noise at long range above all) while close, precise observations dominate. With max_fused = N the
+  point's prior information is multiplied by (N - 1) / N once it holds N observations, so with equal R its
+  information stays at most N R^-1 (a fading memory of about N observations): the surface under a point is
+  resampled every scan and the estimate that places the detections drifts, so a point must not become certain.
 - drop: `prune` removes points not seen for more than max_age scans, points behind the sensor (x_sensor <= 0)
   and points farther than max_range. Whenever the map is over capacity (after `add`), the stalest points go
   first: smallest last_seen, then fewest hits, then oldest id.
@@ -184,6 +191,43 @@ class LocalMap:
             raise InputError("idx: indices must be distinct")
         self._last_seen[idx] = scan
         self._hits[idx] += 1
+
+    def fuse(self, idx, z_world, R_world, scan: int, max_fused: int = 0) -> None:
+        """Refresh map points (as `refresh`) and refine their positions with new observations of them.
+
+        Args:
+            idx: (k,) distinct indices into the current map.
+            z_world: (k, 3) the associated detections in world coordinates (placed with the estimate).
+            R_world: (k, 3, 3) their world-frame covariances (positive definite).
+            scan: the current scan index.
+            max_fused: N > 1: fading memory of about N observations (module docstring); 0: no fading.
+
+        A point added without a covariance (zeros) is treated as exact and does not move.
+
+        Checked by: tests/estimator/test_local_map.py::test_fuse_averages_noise_and_shrinks_covariance,
+            ::test_fuse_fading_memory_bounds_information
+        """
+        idx = np.asarray(idx)
+        if idx.size == 0:
+            return
+        z = check_finite("z_world", z_world, (3,))
+        R = check_finite("R_world", R_world, (3, 3))
+        if z.shape != (len(idx), 3) or R.shape != (len(idx), 3, 3):
+            raise InputError(f"z_world, R_world: expected shapes ({len(idx)}, 3), ({len(idx)}, 3, 3), "
+                             f"got {z.shape}, {R.shape}")
+        max_fused = _int_arg("max_fused", max_fused)
+        if max_fused < 0 or max_fused == 1:
+            raise InputError(f"max_fused: must be 0 (no fading) or >= 2, got {max_fused}")
+        self.refresh(idx, scan)  # checks idx and scan; hits now counts this observation too
+        P = self._cov[idx]
+        if max_fused:
+            n = self._hits[idx] - 1  # observations already in the point
+            fade = np.where(n >= max_fused, (max_fused - 1) / max_fused, 1.0)
+            P = P / fade[:, None, None]
+        K = P @ np.linalg.inv(P + R)
+        self._points[idx] = self._points[idx] + np.einsum("kij,kj->ki", K, z - self._points[idx])
+        P = P - K @ P
+        self._cov[idx] = 0.5 * (P + np.swapaxes(P, 1, 2))
 
     def prune(self, scan: int, T_vehicle_world, T_vehicle_sensor, max_range: float) -> None:
         """Drop points unseen for more than max_age scans, behind the sensor (x_s <= 0), or beyond max_range.

@@ -465,12 +465,18 @@ class RadarOdometry:
             self.map_clock += 1  # an empty scan (blockage) must not expire the map it will need afterwards
         if len(assoc.map_idx):
             self._last_data = xk.copy()
-        if len(assoc.map_idx):
+        T_world_sensor = se3.inverse(xk.T) @ self.T_vs
+        if len(assoc.map_idx) and cfg.map.fuse:
+            # the detection is a new sample of the surface near the point: its own noise plus the sampling spread
+            det = assoc.det_idx
+            R_w = self._point_covariances(polar[static][det], T_world_sensor[:3, :3]) + cfg.map_sigma**2 * np.eye(3)
+            self.map.fuse(assoc.map_idx, se3.transform_points(T_world_sensor, pts[det]), R_w, self.map_clock,
+                          cfg.map.max_fused)
+        elif len(assoc.map_idx):
             self.map.refresh(assoc.map_idx, self.map_clock)
         if len(pts):
             new = np.ones(len(pts), bool)
             new[assoc.det_idx] = False
-            T_world_sensor = se3.inverse(xk.T) @ self.T_vs
             self.map.add(se3.transform_points(T_world_sensor, pts[new]), self.map_clock,
                          covariances=self._point_covariances(polar[static][new], T_world_sensor[:3, :3]))
         self.map.prune(self.map_clock, xk.T, self.T_vs, self.max_range)

@@ -140,3 +140,74 @@ def test_covariances_follow_their_points_through_thinning_and_pruning():
     np.testing.assert_array_equal(m.covariances[:, 0, 0], np.array(idx, dtype=float))
     m.add(rng.uniform(0, 20, size=(5, 3)), 1)  # no covariances given: zeros
     assert m.covariances.shape == (len(m), 3, 3)
+
+
+def _elevation_like_covariance(rng, r):
+    """World covariance of a detection at range r: 2 cm range, 0.15 deg azimuth, 0.3 deg elevation, in a
+    randomly rotated sensor frame (x along the line of sight)."""
+    s = np.array([0.02, r * np.deg2rad(0.15), r * np.deg2rad(0.3)])
+    C = so3.exp(rng.normal(size=3) * 0.3)
+    return C @ np.diag(s**2) @ C.T
+
+
+def test_fuse_averages_noise_and_shrinks_covariance():
+    """Repeated noisy observations of a fixed point: without fading the fused point is the information-weighted
+    mean, its covariance (sum R^-1)^-1, and it converges to the truth (error consistent with that covariance)."""
+    rng = _rng(8)
+    truth = np.array([30.0, -4.0, 1.5])
+    errs, single = [], []
+    for trial in range(200):
+        Rs = [_elevation_like_covariance(rng, r) for r in rng.uniform(10, 80, 25)]
+        zs = [truth + rng.multivariate_normal(np.zeros(3), R) for R in Rs]
+        m = LocalMap(capacity=10, max_age=100)
+        m.add(zs[0][None], 0, covariances=Rs[0][None])
+        for k in range(1, len(zs)):
+            m.fuse(np.array([0]), zs[k][None], Rs[k][None], k, max_fused=0)
+        info = sum(np.linalg.inv(R) for R in Rs)
+        np.testing.assert_allclose(m.covariances[0], np.linalg.inv(info), rtol=1e-8, atol=1e-12)
+        mean = np.linalg.solve(info, sum(np.linalg.solve(R, z) for R, z in zip(Rs, zs)))
+        np.testing.assert_allclose(m.points[0], mean, atol=1e-9)
+        assert m.hits[0] == 25 and m.last_seen[0] == 24
+        e = m.points[0] - truth
+        errs.append(e @ info @ e)                      # chi-square, 3 dof if the covariance is right
+        single.append(np.linalg.norm(zs[0] - truth))
+        final = np.linalg.norm(e)
+        if trial == 0:
+            assert np.all(np.linalg.eigvalsh(Rs[0] - m.covariances[0]) > 0)   # shrank in every direction
+    assert 2.5 < np.mean(errs) < 3.5
+    assert np.mean(final) < 0.5 * np.mean(single)
+
+
+def test_fuse_fading_memory_bounds_information():
+    """With max_fused = N and equal R the information stays at most N R^-1, and the point follows a surface
+    that moved (an old position is forgotten)."""
+    R = np.diag([0.04, 0.01, 0.09])
+    m = LocalMap(capacity=10, max_age=1000)
+    m.add(np.zeros((1, 3)), 0, covariances=R[None])
+    for k in range(1, 200):
+        m.fuse(np.array([0]), np.zeros((1, 3)), R[None], k, max_fused=10)
+        assert np.all(np.linalg.eigvalsh(m.covariances[0] - R / 10) > -1e-12)   # never above N R^-1
+    np.testing.assert_allclose(m.covariances[0], R / 10, rtol=1e-6)
+    for k in range(200, 260):                                   # the surface moves 1 m: the point follows
+        m.fuse(np.array([0]), np.ones((1, 3)), R[None], k, max_fused=10)
+    np.testing.assert_allclose(m.points[0], np.ones(3), atol=0.01)
+    m0 = LocalMap(capacity=10, max_age=1000)                    # without fading it would stay near the middle
+    m0.add(np.zeros((1, 3)), 0, covariances=R[None])
+    for k in range(1, 260):
+        m0.fuse(np.array([0]), np.ones((1, 3)) * (k >= 200), R[None], k, max_fused=0)
+    assert np.all(m0.points[0] < 0.3)
+
+
+def test_fuse_moves_only_the_fused_points_and_exact_points_stay():
+    m = LocalMap(capacity=10, max_age=100)
+    p = np.arange(9.0).reshape(3, 3)
+    cov = np.stack([np.eye(3), np.zeros((3, 3)), np.eye(3)])   # point 1 was added without a covariance
+    m.add(p, 0, covariances=cov)
+    m.fuse(np.array([0, 1]), p[:2] + 1.0, np.stack([np.eye(3)] * 2), 1)
+    np.testing.assert_allclose(m.points, [p[0] + 0.5, p[1], p[2]])
+    np.testing.assert_allclose(m.covariances[0], 0.5 * np.eye(3))
+    assert m.hits.tolist() == [2, 2, 1]
+    with pytest.raises(InputError, match="z_world"):
+        m.fuse(np.array([0]), np.zeros((2, 3)), np.stack([np.eye(3)] * 2), 2)
+    with pytest.raises(InputError, match="max_fused"):
+        m.fuse(np.array([0]), np.zeros((1, 3)), np.eye(3)[None], 2, max_fused=1)
