@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 from . import _association_kernel as _akernel
 from . import association, measurements
 from .config import OdometryConfig
+from .consensus import MIN_STATIC, ConsensusSwitch  # MIN_STATIC: fewest static detections to use
 from .ego_velocity import estimate_ego_velocity, least_squares_velocity
 from .errors import InputError, check_finite
 from .lie import se3, so3
@@ -38,7 +39,6 @@ from .local_map import LocalMap
 from .state import MotionModel, State
 from .window import MeasurementSet, SlidingWindow
 
-MIN_STATIC = 8  # fewer static detections than this: the Doppler classification falls back to RANSAC
 
 
 @dataclass
@@ -62,14 +62,6 @@ class ScanEstimate:
     @property
     def T_world_vehicle(self) -> np.ndarray:
         return se3.inverse(self.T_vehicle_world)
-
-
-def _support(p: np.ndarray, voxel: float) -> int:
-    """The space a set of points covers: the number of distinct voxels (edge `voxel` m) they occupy."""
-    if len(p) == 0:
-        return 0
-    k = np.clip(np.floor(p / voxel).astype(np.int64), -(1 << 20), (1 << 20) - 1) + (1 << 20)  # 21 bits each
-    return len(np.unique((k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]))
 
 
 class RadarOdometry:
@@ -110,7 +102,8 @@ class RadarOdometry:
                                     config.solver.robust_c)
         seeds = np.random.SeedSequence(config.seed).spawn(3)
         self.rng = np.random.default_rng(seeds[0])
-        self._rng_consensus = np.random.default_rng(seeds[2])  # its own stream: the check changes no other draw
+        # its own random stream: the consensus checks change no other draw
+        self._consensus = ConsensusSwitch(config.association, self.sigmas[3], np.random.default_rng(seeds[2]))
         self.map = LocalMap(config.map.capacity, config.map.max_age, config.map.voxel,
                             rng=np.random.default_rng(seeds[1]))
         self.gate = association.gate_threshold(config.association.gate_probability, 4)
@@ -122,7 +115,6 @@ class RadarOdometry:
         self._last_data: State | None = None  # newest state at the last scan with associations
         self.map_clock = 0  # counts scans with static detections: the map ages with observations, not time
         self._last_t: float | None = None
-        self._outvoted = 0  # consecutive scans in which another Doppler consensus covered more space than ours
         self._scan_dt = 0.1  # s, the latest time between scans (counts the consensus-switch scans)
 
     # --- helpers ------------------------------------------------------------------------------------------
@@ -162,8 +154,9 @@ class RadarOdometry:
             ego = estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3], threshold=fit_threshold,
                                         near=(v, radius))
             ours = ego.inliers if ego.ok and ego.inliers.sum() >= max(MIN_STATIC, mask.sum()) else mask
-            if self._outvoted_by(az, el, vr, fit_threshold, ours, u * polar[:, :1]):
-                return self._free, "doppler-consensus-switch"
+            switch = self._consensus.outvoted(az, el, vr, fit_threshold, ours, u * polar[:, :1], self._scan_dt)
+            if switch is not None:
+                return switch, "doppler-consensus-switch"
             if ours.sum() >= MIN_STATIC:
                 return ours, None
         elif mask.sum() >= MIN_STATIC and mask.sum() >= 0.2 * len(polar):
@@ -173,61 +166,9 @@ class RadarOdometry:
             return ego.inliers, "doppler-ransac-fallback"
         return mask, None
 
-    def _wider_consensus(self, az, el, vr, threshold, taken: np.ndarray, pts: np.ndarray) -> np.ndarray | None:
-        """The largest Doppler consensus among the detections outside `taken` (a mask), if it covers
-        `association.consensus_switch_ratio` times the space `taken` covers (`_support`: occupied voxels of
-        `association.consensus_voxel` metres); else None. Its fit draws from its own random stream.
-
-        The world is what fills space: a truck may fill the view and outnumber the world for seconds, but it is
-        one compact object (on `highway` the lead truck covers at most 8 % of the voxels the world covers; on
-        `blockage` the truck 4-6 voxels against 50-170 for the world)."""
-        cfg = self.config.association
-        rest = np.flatnonzero(~taken)
-        if len(rest) < MIN_STATIC:
-            return None
-        need = cfg.consensus_switch_ratio * max(_support(pts[taken], cfg.consensus_voxel), 1)
-        if _support(pts[rest], cfg.consensus_voxel) < need:  # no subset of the rest can cover enough
-            return None
-        free = estimate_ego_velocity(az[rest], el[rest], vr[rest], self._rng_consensus, sigma_vr=self.sigmas[3],
-                                     threshold=None if np.ndim(threshold) == 0 else threshold[rest])
-        if not free.ok or free.inliers.sum() < MIN_STATIC \
-                or _support(pts[rest[free.inliers]], cfg.consensus_voxel) < need:
-            return None
-        wider = np.zeros(len(vr), bool)
-        wider[rest[free.inliers]] = True
-        return wider
-
-    def _outvoted_by(self, az, el, vr, threshold, ours: np.ndarray, pts: np.ndarray) -> bool:
-        """True when `_wider_consensus` than ours has existed for `association.consensus_switch_after` seconds
-        of scans in a row (it is then in self._free). When the estimate has locked onto a co-moving object
-        (nothing else in view for a while) the world comes back as a consensus far from the prediction,
-        spread over the whole scene; without this it would never be taken again. Counting detections instead
-        (the first version) took a lead truck that outnumbered the guard rails 1.5:1 on `highway`."""
-        after = self.config.association.consensus_switch_after
-        self._free = None if after <= 0 else self._wider_consensus(az, el, vr, threshold, ours, pts)
-        self._outvoted = 0 if self._free is None else self._outvoted + 1
-        if self._free is not None and self._outvoted >= max(int(np.ceil(after / max(self._scan_dt, 1e-3))), 1):
-            self._outvoted = 0
-            return True
-        return False
-
     def _widest_consensus(self, polar: np.ndarray, threshold=None):
-        """The Doppler fit to start from: the largest consensus, or a `_wider_consensus` than it (a truck
-        filling the view outnumbers the world but does not fill space). With the switch disabled, the largest."""
-        az, el, vr = polar[:, 1], polar[:, 2], polar[:, 3]
-        ego = estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3], threshold=threshold)
-        if not ego.ok or self.config.association.consensus_switch_after <= 0:
-            return ego
-        wider = self._wider_consensus(az, el, vr, threshold, ego.inliers, measurements.polar_to_cartesian(polar))
-        if wider is None:
-            return ego
-        fit = estimate_ego_velocity(az[wider], el[wider], vr[wider], self._rng_consensus, sigma_vr=self.sigmas[3],
-                                    threshold=None if np.ndim(threshold) == 0 else threshold[wider])
-        if not fit.ok:
-            return ego
-        inliers = np.zeros(len(polar), bool)
-        inliers[np.flatnonzero(wider)[fit.inliers]] = True
-        return dataclasses.replace(fit, inliers=inliers)
+        """The Doppler fit to start from (`ConsensusSwitch.widest`, drawing first from the main stream)."""
+        return self._consensus.widest(polar, self.rng, threshold)
 
     def _doppler_fit(self, static: np.ndarray):
         """Least-squares sensor velocity of the static detections: (v (dof,), covariance, dof, their radial

@@ -439,9 +439,9 @@ def test_a_compact_object_outnumbering_the_world_is_not_taken():
 @given(st.integers(0, 2**32 - 1), st.integers(0, 80), st.floats(0.3, 5.0), st.floats(1.0, 500.0))
 @settings(max_examples=30)
 def test_support_counts_the_occupied_voxels(seed, n, voxel, extent):
-    """The space a consensus covers (`odometry._support`) = the number of distinct voxel rows, also for
+    """The space a consensus covers (`consensus.support`) = the number of distinct voxel rows, also for
     negative coordinates and points on voxel faces."""
-    from estimator.odometry import _support
+    from estimator.consensus import support as _support
 
     rng = np.random.default_rng(seed)
     p = rng.uniform(-extent, extent, size=(n, 3))
