@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
 from estimator.errors import InputError, check_finite
-from estimator.measurements import MODELS, Prediction, polar_to_cartesian_jacobian, residual
+from estimator.measurements import MODELS, Prediction, polar_to_cartesian_jacobian
 
 from . import _association_kernel as _kernel
 

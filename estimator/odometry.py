@@ -21,7 +21,6 @@ Per scan k (paper sec. III-VI; docs/estimator.md gives the reasons and the measu
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass, field
 

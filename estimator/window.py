@@ -216,10 +216,7 @@ class SlidingWindow:
         e, J = self._prior_term(x0)
         H[:d, :d] += J.T @ self.prior_info @ J
         b[:d] += J.T @ (self.prior_info @ e + self.prior_grad)
-        E, J1, J2 = self.motion.residuals([x0, x1])
-        e, Jk = E[0], np.concatenate([J1[0], J2[0]], axis=1)
-        H += Jk.T @ self.motion_info[0] @ Jk
-        b += Jk.T @ self.motion_info[0] @ e
+        _motion_kernel.accumulate(H, b, *self.motion.residuals([x0, x1]), self.motion_info[0][None])
         if self.meas[0] is not None:
             (Hm, bm), = self._measurement_terms([0])[0]
             H[:12, :12] += Hm
