@@ -213,3 +213,33 @@ def order_by_d2(j, i, d2, n):
             order[s:e] = run[np.argsort(key, kind="mergesort")]
         s = e
     return order
+
+
+@njit(cache=True)
+def reuse_search(keys, p, radius, prev_keys, prev_p, prev_bound, prev_idx, prev_full, data, idx, dist, bound, full):
+    """`association.search` with a previous answer: for each point whose key has a previous row that is not
+    full and whose radius plus the distance it moved stays inside that row's bound, copy the row's detections
+    with their distances from the new position (bound shrinks by the move). Returns the mask of the other
+    points, which still need a query."""
+    m, k, n = len(keys), idx.shape[1], len(data)
+    todo = np.ones(m, np.bool_)
+    r = 0
+    for j in range(m):
+        while r < len(prev_keys) and prev_keys[r] < keys[j]:
+            r += 1
+        if r == len(prev_keys) or prev_keys[r] != keys[j] or prev_full[r]:
+            continue
+        shift = math.sqrt((p[j, 0] - prev_p[r, 0])**2 + (p[j, 1] - prev_p[r, 1])**2 + (p[j, 2] - prev_p[r, 2])**2)
+        if radius[j] + shift > prev_bound[r]:
+            continue
+        todo[j] = False
+        bound[j] = prev_bound[r] - shift
+        full[j] = False
+        for c in range(k):
+            i = prev_idx[r, c]
+            idx[j, c] = i
+            if i < n:
+                dist[j, c] = math.sqrt((data[i, 0] - p[j, 0])**2 + (data[i, 1] - p[j, 1])**2 + (data[i, 2] - p[j, 2])**2)
+            else:
+                dist[j, c] = np.inf
+    return todo

@@ -162,39 +162,91 @@ def associate(model: str, z_meas, det_points_sensor, pred: Prediction, S, gate: 
     S_inv = np.linalg.inv(S)
 
     radius = np.minimum(_search_radius(model, pred, S, gate), max_radius)
-    return match(model, z_meas, cKDTree(pts), pred.z, pred.p_sensor, S_inv, radius, gate, max_candidates)
+    return match(model, z_meas, cKDTree(pts), pred.z, pred.p_sensor, S_inv, radius, gate, max_candidates)[0]
+
+
+@dataclass
+class Search:
+    """The KD-tree's answer for m predicted positions, kept so a re-association at nearby positions can reuse it.
+
+    Attributes:
+        keys: (m,) sorted ids of the points (the caller's map indices).
+        p: (m, 3) the positions the distances are measured from.
+        bound: (m,) a row that is not full lists every detection within bound[j] of p[j].
+        idx: (m, k) detection indices, tree.n in unused places (queried rows: nearest first).
+        dist: (m, k) their distances from p (inf where idx is tree.n).
+        full: (m,) the query found k detections (more may lie within bound).
+    """
+
+    keys: np.ndarray
+    p: np.ndarray
+    bound: np.ndarray
+    idx: np.ndarray
+    dist: np.ndarray
+    full: np.ndarray
+
+
+def search(tree: cKDTree, p_sensor: np.ndarray, radius: np.ndarray, k: int, keys: np.ndarray,
+           previous: Search | None = None) -> Search:
+    """The k nearest detections of each position inside its radius (the candidates of `match`).
+
+    Without `previous`: KD-tree queries in four groups of similar radius (a tighter distance bound per group,
+    fewer nodes visited). With `previous` (the same tree, positions moved by a solve): a point whose previous row
+    was not full (so it lists every detection within the previous bound) and whose new radius plus the distance
+    its position moved stays inside that bound takes that row, re-measured from the new position; it holds
+    every detection within the new radius, fewer than k, which is what a new query would give. The other points
+    are queried.
+
+    Checked by: tests/estimator/test_association.py::test_reused_search_equals_a_new_query
+    """
+    m, n = len(p_sensor), tree.n
+    idx, dist = np.full((m, k), n, np.int64), np.full((m, k), np.inf)
+    bound, full = np.zeros(m), np.zeros(m, bool)
+    todo = np.ones(m, bool)
+    if previous is not None and m:
+        todo = _kernel.reuse_search(keys, p_sensor, radius, previous.keys, previous.p, previous.bound,
+                                    previous.idx, previous.full, tree.data, idx, dist, bound, full)
+    rows = np.flatnonzero(todo)
+    if len(rows):
+        by_radius = rows[np.argsort(radius[rows], kind="stable")]
+        for g in np.array_split(by_radius, min(4, len(rows))):
+            bound[g] = float(radius[g].max())
+            d_g, i_g = tree.query(p_sensor[g], k=k, distance_upper_bound=bound[g[0]])
+            dist[g], idx[g] = d_g.reshape(len(g), k), i_g.reshape(len(g), k)
+        full[rows] = idx[rows, -1] < n
+    return Search(keys, p_sensor, bound, idx, dist, full)
 
 
 def match(model: str, z_meas: np.ndarray, tree: cKDTree, z_pred: np.ndarray, p_sensor: np.ndarray,
-          S_inv: np.ndarray, radius: np.ndarray, gate: float, max_candidates: int = 16) -> Association:
+          S_inv: np.ndarray, radius: np.ndarray, gate: float, max_candidates: int = 16,
+          keys: np.ndarray | None = None, previous: Search | None = None) -> tuple[Association, Search]:
     """The candidate search, gating and one-to-one choice of `associate`, from prepared inputs (no checks):
     a KD-tree over the detections' sensor-frame positions (one per scan, reused when re-associating), the m
     map points' predictions z_pred (m, 4) and p_sensor (m, 3), S_inv (m, 4, 4) and search radii (m,) (capped).
+    keys (m,) sorted ids of the map points (default 0..m-1) and `previous`, the Search of an earlier call with
+    the same tree, let the search reuse that call's candidates (`search`). Returns the association and the
+    Search to pass on.
 
     Checked by: tests/estimator/test_association.py (through `associate`),
         tests/estimator/test_window.py::test_prepared_association_equals_the_reference
     """
     m, n = len(z_pred), tree.n
     empty = Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)
+    keys = np.arange(m) if keys is None else keys
     if m == 0 or n == 0:
-        return empty
+        return empty, Search(keys, p_sensor, np.zeros(m), np.zeros((m, 0), np.int64), np.zeros((m, 0)), np.zeros(m, bool))
     # candidates: the k nearest detections inside each map point's own radius (bounded work per point)
-    k = min(max_candidates, n)
-    dist, idx = np.empty((m, k)), np.empty((m, k), np.int64)
-    by_radius = np.argsort(radius, kind="stable")
-    for g in np.array_split(by_radius, min(4, m)):  # a tighter distance bound per quarter: fewer nodes visited
-        d_g, i_g = tree.query(p_sensor[g], k=k, distance_upper_bound=float(radius[g].max()))
-        dist[g], idx[g] = d_g.reshape(len(g), k), i_g.reshape(len(g), k)
-    valid = (idx < n) & (dist <= radius[:, None])
+    found = search(tree, p_sensor, radius, min(max_candidates, n), keys, previous)
+    valid = (found.idx < n) & (found.dist <= radius[:, None])
     n_candidates = int(valid.sum())
     if n_candidates == 0:
-        return empty
+        return empty, found
     j = np.nonzero(valid)[0].astype(np.int64)
-    i = idx[valid].astype(np.int64)
+    i = found.idx[valid].astype(np.int64)
     d2 = _kernel.pair_d2(model == "polar", j, i, z_meas, z_pred, S_inv)  # e^T S^-1 e, azimuth wrapped
     keep = d2 <= gate
     j, i, d2 = j[keep], i[keep], d2[keep]
     chosen = _greedy_one_to_one(j, i, d2, m, n)
     j, i, d2 = j[chosen], i[chosen], d2[chosen]
     order = np.argsort(j, kind="stable")
-    return Association(j[order], i[order], d2[order], n_candidates)
+    return Association(j[order], i[order], d2[order], n_candidates), found

@@ -226,7 +226,7 @@ class RadarOdometry:
         Per map point, `_association_kernel.prepare` evaluates the prediction, S = G P G^T + R + map term
         (`association.innovation_covariance` plus `_map_term`), its inverse and the search radius in one
         compiled pass over the map points inside the window; `association.match` does the rest. `scan` caches the
-        KD-tree of this scan's detections for the re-association. Returns (W_map, Association): W_map (m, 4, 4)
+        KD-tree of this scan's detections and its candidates for the re-association. Returns (W_map, Association): W_map (m, 4, 4)
         the information of each map point's pair in the solve, (R + map term)^-1 (NaN outside the window);
         None when nothing could be associated.
         """
@@ -252,8 +252,9 @@ class RadarOdometry:
             scan["di"] = np.flatnonzero(d_in)
             scan["tree"] = cKDTree(pts[scan["di"]])
         di = scan["di"]
-        a = association.match(self.config.measurement, z[di], scan["tree"], zp, p_s, S_inv,
-                              np.minimum(radius, self.config.association.max_radius), self.gate)
+        a, scan["search"] = association.match(self.config.measurement, z[di], scan["tree"], zp, p_s, S_inv,
+                                              np.minimum(radius, self.config.association.max_radius), self.gate,
+                                              keys=mi, previous=scan.get("search"))
         return W_map, association.Association(mi[a.map_idx], di[a.det_idx], a.d2, a.n_candidates)
 
     def _window_masks(self, p_sensor: np.ndarray, polar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

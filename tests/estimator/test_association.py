@@ -6,7 +6,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from estimator import measurements as ms
-from estimator.association import associate, gate_threshold, innovation_covariance
+from scipy.spatial import cKDTree
+
+from estimator.association import associate, gate_threshold, innovation_covariance, search
 from estimator.errors import InputError
 from estimator.lie import se3, so3
 
@@ -181,3 +183,34 @@ def test_pair_order_is_lexsort_with_ties(pairs):
     i = np.array([p[1] for p in pairs], dtype=np.int64)
     d2 = np.array([float(p[2]) for p in pairs])
     np.testing.assert_array_equal(kernel.order_by_d2(j, i, d2, 7), np.lexsort((i, j, d2)))
+
+
+def _pairs(found, radius, n):
+    valid = (found.idx < n) & (found.dist <= radius[:, None])
+    j, c = np.nonzero(valid)
+    return {(int(found.keys[a]), int(found.idx[a, b])): found.dist[a, b] for a, b in zip(j, c)}
+
+
+@given(seed=st.integers(0, 2**32 - 1), k=st.integers(1, 6), move=st.sampled_from([0.0, 0.01, 0.1, 1.0]))
+def test_reused_search_equals_a_new_query(seed, k, move):
+    """A search that reuses the previous one (positions moved, radii changed, some points gone or new) finds
+    the same candidate pairs at the same distances as a new KD-tree query; twice in a row too."""
+    rng = _rng(seed)
+    n, m = int(rng.integers(1, 60)), int(rng.integers(1, 40))
+    tree = cKDTree(rng.uniform(-3, 3, (n, 3)))
+    keys = np.sort(rng.choice(3 * m, m, replace=False))
+    p, radius = rng.uniform(-3, 3, (m, 3)), rng.uniform(0.05, 2.0, m)
+    found = search(tree, p, radius, k, keys)
+    for _ in range(2):
+        stay = rng.random(len(keys)) < 0.8
+        keys2 = np.union1d(keys[stay], rng.choice(np.arange(3 * m, 3 * m + 10), 3, replace=False))
+        p2 = rng.uniform(-3, 3, (len(keys2), 3))
+        r2 = rng.uniform(0.05, 2.0, len(keys2))
+        kept = np.isin(keys2, keys)
+        p2[kept] = found.p[np.isin(keys, keys2)] + move * rng.normal(size=(kept.sum(), 3))
+        r2[kept] = found.bound[np.isin(keys, keys2)] * rng.uniform(0.5, 1.1, kept.sum())
+        reused, fresh = search(tree, p2, r2, k, keys2, found), search(tree, p2, r2, k, keys2)
+        a, b = _pairs(reused, r2, n), _pairs(fresh, r2, n)
+        assert a.keys() == b.keys()
+        np.testing.assert_allclose([a[q] for q in b], list(b.values()), rtol=1e-12, atol=1e-12)
+        keys, found = keys2, reused
