@@ -111,6 +111,20 @@ class StandstillConfig:
 
 
 @dataclass(frozen=True)
+class VehicleConfig:
+    """A road vehicle's roll and pitch rates are small and zero on average (its roll and pitch stay within a few
+    degrees of the road's). The motion priors penalise changes of the rates (white-noise jerk, CA; white-noise
+    acceleration, CV), not the rates: a small constant roll or pitch rate costs nothing, Doppler hardly sees it
+    (it moves the sensor by the lever arm times the rate, ~1 mm/s), and elevations constrain it weakly, so it
+    integrates into roll and pitch, and turns make that z drift. A zero-mean term on each moving state's roll
+    and pitch rates with these 1-sigmas (rad/s) says what the vehicle does; 0 disables one (both 0 for a
+    hand-held sensor or a drone). docs/estimator.md, "Roll and pitch rates", has the measurements."""
+
+    sigma_roll_rate: float = 0.01  # rad/s
+    sigma_pitch_rate: float = 0.01  # rad/s
+
+
+@dataclass(frozen=True)
 class SolverConfig:
     """Gauss-Newton settings and the initial state's uncertainty (vehicle frame, per axis x, y, z / roll,
     pitch, yaw): a vehicle barely rolls or pitches, and an unconstrained initial roll acceleration would be
@@ -137,6 +151,7 @@ class OdometryConfig:
     solver: SolverConfig = field(default_factory=SolverConfig)
     outage: OutageConfig = field(default_factory=OutageConfig)
     standstill: StandstillConfig = field(default_factory=StandstillConfig)
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
 
     def __post_init__(self):
         if self.model not in MODELS:
@@ -179,6 +194,9 @@ class OdometryConfig:
         st = self.standstill
         if st.speed < 0 or min(st.sigma_velocity, st.sigma_rate, st.sigma_accel, st.sigma_angular_accel) <= 0:
             raise InputError("standstill: speed must be >= 0 (0 disables it) and the sigmas > 0")
+        for name in ("sigma_roll_rate", "sigma_pitch_rate"):
+            if not getattr(self.vehicle, name) >= 0:
+                raise InputError(f"vehicle.{name}: must be >= 0 rad/s (0 disables it), got {getattr(self.vehicle, name)}")
         for name, ok, rule in (("doppler_update_probability", lambda x: 0 < x < 1, "in (0, 1)"),
                                ("consensus_switch_ratio", lambda x: x > 1, "> 1"),
                                ("consensus_switch_after", lambda x: x >= 0, ">= 0 s"),
@@ -227,7 +245,8 @@ class OdometryConfig:
     @classmethod
     def from_dict(cls, data: dict, source: str = "config") -> "OdometryConfig":
         sections = {"noise": NoiseConfig, "association": AssociationConfig, "map": MapConfig, "solver": SolverConfig,
-                    "outage": OutageConfig, "standstill": StandstillConfig}
+                    "outage": OutageConfig, "standstill": StandstillConfig,
+                    "vehicle": VehicleConfig}
         top = {f.name for f in dataclasses.fields(cls)}
         kwargs = {}
         for key, value in data.items():

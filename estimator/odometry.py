@@ -109,6 +109,11 @@ class RadarOdometry:
         self._doppler_gate = {d: association.gate_threshold(config.association.doppler_update_probability, d)
                               for d in (2, 3)}
         self._still_gate = {d: association.gate_threshold(0.99, d) for d in (2, 3)}
+        # a moving road vehicle's roll and pitch rates are near zero (VehicleConfig); None when both terms are off
+        rate_info = np.zeros(self.motion.dim - 6)
+        for axis, sigma in ((3, config.vehicle.sigma_roll_rate), (4, config.vehicle.sigma_pitch_rate)):
+            rate_info[axis] = sigma**-2 if sigma > 0 else 0.0
+        self._vehicle_info = np.diag(rate_info) if rate_info.any() else None
         self.P: np.ndarray | None = None
         self.scan_index = 0
         self._last_data: State | None = None  # newest state at the last scan with associations
@@ -371,8 +376,8 @@ class RadarOdometry:
         if predicted:
             x = self._doppler_update(x, P, fit)
             self.window.push(x, Q)
-        still = self._standstill_info(fit)
-        self.window.set_standstill(len(self.window.states) - 1, still)
+        still = self._standstill_info(fit)  # at rest: every rate is zero; moving: roll and pitch rates near zero
+        self.window.set_rate_prior(len(self.window.states) - 1, self._vehicle_info if still is None else still)
         z = measurements.to_model_space(model, polar[static]) if static.any() else np.zeros((0, 4))
         pts = measurements.polar_to_cartesian(polar[static]) if static.any() else np.zeros((0, 3))
         scan_cache: dict = {}

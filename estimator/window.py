@@ -3,8 +3,9 @@
 The cost is J = J_v0 + sum_k J_vk + sum_k J_zk: a Gaussian prior on the oldest state (the marginalised past),
 the motion prior between consecutive states (e = x_k (-) f(x_{k-1}), weight Q_k^-1, eq. 49-50), and for each
 state the associated detections (e = z - g(x_k, p_j), weight S^-1 with S the measurement noise plus the
-map-point uncertainty, eq. 83), with an optional Cauchy loss applied by iterative re-weighting, and a
-zero-velocity term on states the odometry found at rest (`set_standstill`).
+map-point uncertainty, eq. 83), with an optional Cauchy loss applied by iterative re-weighting, and zero-mean
+terms on the rates the odometry knows more about than the motion prior does (`set_rate_prior`: all of them at
+rest, roll and pitch rates of a moving road vehicle).
 Every term is linearised as e + J d with d the left perturbation of the states; the normal equations are
 solved densely (the window is small). When the window is full the oldest state is marginalised with the Schur
 complement into a prior on the next one, kept as (Lam, g) at its linearisation point: cost 1/2 e^T Lam e + g^T e.
@@ -48,7 +49,7 @@ class SlidingWindow:
         self.robust_c = robust_c
         self.states: list[State] = []
         self.meas: list[MeasurementSet | None] = []
-        self.still: list[np.ndarray | None] = []  # per state: information of a zero-velocity term, or None
+        self.rate_prior: list[np.ndarray | None] = []  # per state: information of a zero-mean term on its rates
         self.motion_info: list[np.ndarray] = []  # Q_k^-1 between states k and k+1
         self.prior_mean: State | None = None  # linearisation point of the prior on the oldest state
         self.prior_info: np.ndarray | None = None
@@ -64,21 +65,22 @@ class SlidingWindow:
         self.prior_mean = x0.copy()
         self.prior_info = _inv_spd(P0)
         self.prior_grad = np.zeros(len(P0))
-        self.still = [None]
+        self.rate_prior = [None]
         self._H = None
 
     def push(self, x: State, Q: np.ndarray) -> None:
         """Append a new (predicted) state linked to the newest by the motion prior with noise Q."""
         self.states.append(x.copy())
         self.meas.append(None)
-        self.still.append(None)
+        self.rate_prior.append(None)
         self.motion_info.append(_inv_spd(Q))
         self._H = None
 
-    def set_standstill(self, k: int, info: np.ndarray | None) -> None:
-        """A zero-velocity term on state k: cost 1/2 t^T info t with t = [varpi; vd] (a standstill seen by
-        the Doppler: a wheeled vehicle at rest neither moves nor turns), or None to remove it."""
-        self.still[k] = info
+    def set_rate_prior(self, k: int, info: np.ndarray | None) -> None:
+        """A zero-mean term on state k's rates: cost 1/2 t^T info t with t = [varpi; vd] (a standstill seen by
+        the Doppler: a wheeled vehicle at rest neither moves nor turns; or a moving road vehicle's roll and pitch
+        rates), or None to remove it."""
+        self.rate_prior[k] = info
         self._H = None
 
     def set_measurements(self, k: int, mset: MeasurementSet | None) -> None:
@@ -144,7 +146,7 @@ class SlidingWindow:
         if n > 1:
             E, J1s, J2s = self.motion.residuals(self.states)
             cost += _motion_kernel.accumulate(H, b, E, J1s, J2s, np.stack(self.motion_info))
-        for k, info in enumerate(self.still):
+        for k, info in enumerate(self.rate_prior):
             if info is not None:
                 t = self.states[k].vector_tail()
                 sl = slice(k * d + 6, (k + 1) * d)
@@ -221,9 +223,9 @@ class SlidingWindow:
             (Hm, bm), = self._measurement_terms([0])[0]
             H[:12, :12] += Hm
             b[:12] += bm
-        if self.still[0] is not None:
-            H[6:d, 6:d] += self.still[0]
-            b[6:d] += self.still[0] @ x0.vector_tail()
+        if self.rate_prior[0] is not None:
+            H[6:d, 6:d] += self.rate_prior[0]
+            b[6:d] += self.rate_prior[0] @ x0.vector_tail()
         H00, H01, H11 = H[:d, :d], H[:d, d:], H[d:, d:]
         X = _solve_spd(H00, np.c_[H01, b[:d]])
         Lam = H11 - H01.T @ X[:, :d]
@@ -234,7 +236,7 @@ class SlidingWindow:
         self.prior_grad = g
         self.states.pop(0)
         self.meas.pop(0)
-        self.still.pop(0)
+        self.rate_prior.pop(0)
         self.motion_info.pop(0)
         self._H = None
 

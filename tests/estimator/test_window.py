@@ -115,11 +115,16 @@ def test_marginalisation_keeps_the_solution_and_the_newest_covariance():
 
 
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
-def test_noise_free_scene_gives_near_exact_odometry(model):
+@pytest.mark.parametrize("pitch_acc, vehicle", [(0.02, "off"), (0.0, "default")])
+def test_noise_free_scene_gives_near_exact_odometry(model, pitch_acc, vehicle):
+    """Exact on any SE(3) motion (a pitch acceleration: the road-vehicle roll and pitch rate terms off), and with
+    those terms on (the default) on a motion that has no roll or pitch rate: they pull towards the truth there."""
     rng = np.random.default_rng(0)
-    t, T, varpi, vd = scene.trajectory(30)
+    t, T, varpi, vd = scene.trajectory(30, pitch_acc=pitch_acc)
     L = scene.landmarks(rng)
-    odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+    cfg = OdometryConfig.from_dict({"model": model} | ({"vehicle": {"sigma_roll_rate": 0.0, "sigma_pitch_rate": 0.0}}
+                                                       if vehicle == "off" else {}))
+    odo = RadarOdometry(cfg, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
     for k in range(len(t)):
         est = odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L))
     Tgt = T[-1] @ se3.inverse(T[0])  # the estimator's world is its first vehicle frame
@@ -297,7 +302,8 @@ def test_standstill_holds_the_pose(model):
     zero = np.zeros(6)
     drift = {}
     for speed in (0.05, 0.0):
-        cfg = OdometryConfig.from_dict({"model": model, "standstill": {"speed": speed}})
+        cfg = OdometryConfig.from_dict({"model": model, "standstill": {"speed": speed},  # the standstill term alone
+                                        "vehicle": {"sigma_roll_rate": 0.0, "sigma_pitch_rate": 0.0}})
         odo = RadarOdometry(cfg, T_vs, sig, 30.0)
         still = []
         for k in range(200):
@@ -448,3 +454,49 @@ def test_support_counts_the_occupied_voxels(seed, n, voxel, extent):
     p[: n // 4] = np.round(p[: n // 4] / voxel) * voxel  # exactly on faces
     want = len(np.unique(np.floor(p / voxel).astype(np.int64), axis=0)) if n else 0
     assert _support(p, voxel) == want
+
+
+@pytest.mark.parametrize("kind", ["ca", "cv"])
+@given(roll=st.floats(-0.2, 0.2), pitch=st.floats(-0.2, 0.2), sigma=st.floats(1e-3, 0.1))
+def test_rate_prior_is_a_zero_mean_gaussian_term(kind, roll, pitch, sigma):
+    """One state with a Gaussian prior (rates with 1-sigma 0.02 rad/s around roll, pitch) and the zero-mean term
+    on its roll and pitch rates (sigma): the solve gives the product of the two Gaussians, mean r s0^2^-1 /
+    (s0^-2 + sigma^-2), and the covariance's rate block (s0^-2 + sigma^-2)^-1; nothing else moves."""
+    motion = MotionModel(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
+    d = motion.dim
+    win = SlidingWindow(motion, 4, "polar", scene.T_VEHICLE_SENSOR)
+    varpi = np.array([-10.0, 0.1, 0.0, roll, pitch, 0.05])
+    x0 = State(0.0, se3.exp(np.array([1.0, 2.0, 0.1, 0.01, -0.02, 0.3])), varpi, np.zeros(6) if kind == "ca" else None)
+    s0 = 0.02
+    win.initialize(x0, np.diag(np.full(d, s0**2)))
+    info = np.zeros((d - 6, d - 6))
+    info[3, 3] = info[4, 4] = sigma**-2
+    win.set_rate_prior(0, info)
+    win.optimize(5, 1e-12)
+    x = win.newest
+    shrink = s0**-2 / (s0**-2 + sigma**-2)
+    np.testing.assert_allclose(x.varpi[3:5], shrink * varpi[3:5], rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(np.delete(x.varpi, [3, 4]), np.delete(varpi, [3, 4]), atol=1e-12)
+    np.testing.assert_allclose(x.T, x0.T, atol=1e-12)
+    P = win.newest_covariance()
+    np.testing.assert_allclose(np.diag(P)[9:11], 1.0 / (s0**-2 + sigma**-2), rtol=1e-9)
+
+
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+def test_vehicle_rate_terms_hold_roll_and_pitch(model):
+    """20 s of level driving past noisy landmarks: without the zero-mean roll and pitch rate terms the rates
+    are free as long as they stay constant (the motion prior penalises changes only) and the attitude drifts by
+    tenths of a radian; with them (the default) it stays within 0.02 rad. Measured, seed 0: CA/P 0.0015 vs
+    0.37 rad, CV/C 0.0079 vs 0.27 rad (seeds 1-3: with the terms 0.006-0.019, without 0.08-0.34)."""
+    out = {}
+    for vehicle in ("default", "off"):
+        rng = np.random.default_rng(0)
+        t, T, varpi, vd = scene.trajectory(260, accel=0.0, yaw_rate=0.05, yaw_acc=0.0, pitch_acc=0.0)
+        L = scene.landmarks(rng, extent=400.0)
+        off = {"vehicle": {"sigma_roll_rate": 0.0, "sigma_pitch_rate": 0.0}} if vehicle == "off" else {}
+        odo = RadarOdometry(OdometryConfig.from_dict({"model": model} | off), scene.T_VEHICLE_SENSOR,
+                            scene.SIGMAS, 120.0)
+        for k in range(len(t)):
+            est = odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
+        out[vehicle] = np.abs(se3.log(est.T_vehicle_world @ se3.inverse(T[-1] @ se3.inverse(T[0])))[3:5]).max()
+    assert out["default"] < 0.02 and out["off"] > 10 * out["default"]
