@@ -141,13 +141,13 @@ class RadarOdometry:
         """
         acfg = self.config.association
         az, el, vr = polar[:, 1], polar[:, 2], polar[:, 3]
-        u = measurements.polar_to_cartesian(np.c_[np.ones(len(polar)), az, el])
+        u = measurements.polar_to_cartesian(np.stack([np.ones(len(polar)), az, el], axis=1))
         v, Sv = self._sensor_velocity(x.varpi, P[6:12, 6:12])
         # per detection: radial velocity noise, the direction noise seen through the velocity (v . du/daz,
         # v . du/del), and the predicted velocity's own uncertainty
         ca, sa, ce, se = np.cos(az), np.sin(az), np.cos(el), np.sin(el)
-        d_az = np.c_[-ce * sa, ce * ca, np.zeros_like(az)] @ v
-        d_el = np.c_[-se * ca, -se * sa, ce] @ v
+        d_az = np.stack([-ce * sa, ce * ca, np.zeros_like(az)], axis=1) @ v
+        d_el = np.stack([-se * ca, -se * sa, ce], axis=1) @ v
         var_fit = self.sigmas[3] ** 2 + (self.sigmas[1] * d_az) ** 2 + (self.sigmas[2] * d_el) ** 2
         sigma = np.sqrt(var_fit + np.einsum("ni,ij,nj->n", u, Sv, u))
         mask = np.abs(vr + u @ v) <= 3.0 * sigma + acfg.doppler_sigma_floor

@@ -31,7 +31,7 @@ class State:
 
     def vector_tail(self) -> np.ndarray:
         """[varpi; vd] (the Euclidean part of the state)."""
-        return self.varpi if self.vd is None else np.r_[self.varpi, self.vd]
+        return self.varpi if self.vd is None else np.concatenate((self.varpi, self.vd))
 
     def oplus(self, d: np.ndarray) -> "State":
         """x (+) d with a left perturbation of the pose."""
@@ -41,7 +41,7 @@ class State:
     def ominus(self, other: "State") -> np.ndarray:
         """x (-) other (paper eq. 12)."""
         xi = se3.log(self.T @ se3.inverse(other.T))
-        return np.r_[xi, self.vector_tail() - other.vector_tail()]
+        return np.concatenate((xi, self.vector_tail() - other.vector_tail()))
 
 
 class MotionModel:

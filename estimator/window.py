@@ -97,7 +97,7 @@ class SlidingWindow:
         J = np.eye(self.motion.dim)
         xi, Jm = np.empty(6), np.empty((6, 6))
         _motion_kernel.se3_log_and_jac_inv(x.T @ se3.inverse(self.prior_mean.T), xi, J[:6, :6], Jm)
-        return np.r_[xi, x.vector_tail() - self.prior_mean.vector_tail()], J
+        return np.concatenate((xi, x.vector_tail() - self.prior_mean.vector_tail())), J
 
     def _measurement_terms(self, ks: list[int]):
         """Measurement blocks of the states ks, linearised in one compiled pass (`_measurement_kernel`).
@@ -107,7 +107,7 @@ class SlidingWindow:
         sets = [self.meas[k] for k in ks]
         key = tuple(id(m) for m in sets)
         if self._packed is None or self._packed[0] != key:  # the sets change only when scans come and go
-            offsets = np.r_[0, np.cumsum([len(m) for m in sets])].astype(np.int64)
+            offsets = np.concatenate(([0], np.cumsum([len(m) for m in sets]))).astype(np.int64)
             self._packed = (key, offsets, np.concatenate([m.p_world for m in sets]),
                             np.concatenate([m.z for m in sets]), np.concatenate([m.W for m in sets]))
         _, offsets, p, z, W = self._packed
@@ -227,7 +227,7 @@ class SlidingWindow:
             H[6:d, 6:d] += self.rate_prior[0]
             b[6:d] += self.rate_prior[0] @ x0.vector_tail()
         H00, H01, H11 = H[:d, :d], H[:d, d:], H[d:, d:]
-        X = _solve_spd(H00, np.c_[H01, b[:d]])
+        X = _solve_spd(H00, np.column_stack((H01, b[:d])))
         Lam = H11 - H01.T @ X[:, :d]
         g = b[d:] - H01.T @ X[:, d]
         # the new prior on x1: 1/2 e^T Lam e + g^T e with e = x1 (-) x1_now, exactly the Schur complement here
