@@ -196,17 +196,21 @@ def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_
     return -1
 
 
-@njit(cache=True)
 def order_by_d2(j, i, d2, n):
-    """np.lexsort((i, j, d2)): ascending d2, ties by j, then i; a sort of d2 with the rare exact ties fixed."""
-    order = np.argsort(d2, kind="mergesort")
+    """np.lexsort((i, j, d2)): ascending d2, ties by j, then i; NumPy's sort of d2 (faster than numba's here),
+    then the rare exact ties put in (j, i, index) order."""
+    return _order_ties(np.argsort(d2), j, i, d2, n)
+
+
+@njit(cache=True)
+def _order_ties(order, j, i, d2, n):
     s = 0
     while s < len(order):
         e = s + 1
         while e < len(order) and d2[order[e]] == d2[order[s]]:
             e += 1
         if e - s > 1:
-            run = order[s:e].copy()
+            run = np.sort(order[s:e])  # the sort of d2 was not stable: ties of (j, i) too go by index
             key = np.empty(e - s, np.int64)
             for t in range(e - s):
                 key[t] = j[run[t]] * n + i[run[t]]
