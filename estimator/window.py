@@ -111,19 +111,18 @@ class SlidingWindow:
             self._packed = (key, offsets, np.concatenate([m.p_world for m in sets]),
                             np.concatenate([m.z for m in sets]), np.concatenate([m.W for m in sets]))
         _, offsets, p, z, W = self._packed
-        for m in sets:
-            if m.weights is None:
-                m.weights = np.full(len(m), -1.0)  # the kernel sets Cauchy weights from these residuals
-        w = np.concatenate([m.weights for m in sets])
+        fresh = [m.weights is None for m in sets]  # the kernel sets Cauchy weights where they are -1
+        w = np.concatenate([np.full(len(m), -1.0) if f else m.weights for m, f in zip(sets, fresh)])
         T = np.stack([self.states[k].T for k in ks])
         varpi = np.stack([self.states[k].varpi for k in ks])
         model = _kernel.POLAR if self.model == "polar" else _kernel.CARTESIAN
         d2 = np.empty(len(z))
         H, b, cost = _kernel.linearize_pairs(model, T, varpi, offsets, p, z, W, self.T_vehicle_sensor, w, d2,
                                              float(self.robust_c))
-        for m, wk in zip(sets, np.split(w, offsets[1:-1])):
-            m.weights = wk
-        return list(zip(H, b)), float(cost), np.split(d2, offsets[1:-1])
+        if any(fresh):
+            for m, wk in zip(sets, np.split(w, offsets[1:-1])):
+                m.weights = wk
+        return list(zip(H, b)), float(cost)
 
     def reset_robust_weights(self) -> None:
         """Forget the Cauchy weights: the next linearisation sets them from the current residuals, and they
@@ -155,7 +154,7 @@ class SlidingWindow:
                 cost += 0.5 * t @ info @ t
         ks = [k for k, m in enumerate(self.meas) if m is not None]
         if ks:
-            blocks, c, _ = self._measurement_terms(ks)
+            blocks, c = self._measurement_terms(ks)
             cost += c
             for k, (Hm, bm) in zip(ks, blocks):
                 sl = slice(k * d, k * d + 12)
