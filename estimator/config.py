@@ -121,7 +121,7 @@ class VehicleConfig:
     hand-held sensor or a drone). docs/estimator.md, "Roll and pitch rates", has the measurements."""
 
     sigma_roll_rate: float = 0.01  # rad/s
-    sigma_pitch_rate: float = 0.01  # rad/s
+    sigma_pitch_rate: float = 0.015  # rad/s
 
 
 @dataclass(frozen=True)

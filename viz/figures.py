@@ -1,4 +1,5 @@
-"""Static figures (PNG): the NEES plot of Monte Carlo summaries and the paper's figures 1-4.
+"""Static figures (PNG): the NEES plot of Monte Carlo summaries, the paper's figures 1-4 and Fig. 5 (out-of-plane
+drift with and without the road-vehicle roll and pitch rate terms; not in the paper).
 
 matplotlib is used through `matplotlib.figure.Figure` with the Agg canvas (no pyplot, no global state, no
 display). The numbers come from `viz.paper_data`; each figure function takes an output path (and optionally
@@ -250,11 +251,36 @@ def figure4_trajectories(path, data: dict | None = None, quick: bool = False) ->
     return _save(fig, path)
 
 
+def figure5_out_of_plane(path, data: dict | None = None, quick: bool = False) -> Path:
+    """Fig. 5 (ours, not the paper's): z, roll and pitch drift over the distance travelled, CV/C (red) and CA/P
+    (blue), solid with the road-vehicle roll and pitch rate terms (the default), dashed without them
+    (simulated city, seed 2; quick: 30 s, else 90 s)."""
+    d = paper_data.fig5_data(duration=30.0 if quick else 90.0) if data is None else data
+    fig = _figure(12.0, 7.0)
+    axes = fig.subplots(3, 1, sharex=True)
+    for column, (ax, label, unit) in enumerate(zip(axes, ("z", "roll", "pitch"), ("m", "deg", "deg"))):
+        for name, series in d["runs"].items():
+            colour = CA if name.startswith("CA/P") else CV
+            ax.plot(d["distance"], series[:, 2 + column], color=colour, lw=1.4,
+                    ls="--" if "no roll/pitch" in name else "-",
+                    label=f"{name} (final {d['final'][name][label]:+.2f} {unit})")
+        ax.axhline(0.0, color=TRUTH, lw=0.8)
+        ax.set_ylabel(f"{label} error ({unit})")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    axes[-1].set_xlabel("distance travelled (m)")
+    fig.suptitle(f"Fig. 5: out-of-plane drift on simulated '{d['scenario']}' (seed {d['seed']}, "
+                 f"{d['duration']:.0f} s, {d['path_length']:.0f} m): solid with the roll and pitch rate terms, "
+                 "dashed without", fontsize=10)
+    return _save(fig, path)
+
+
 FIGURES = (("fig1_prior.png", figure1_prior), ("fig2_measurement_models.png", figure2_measurement_models),
-           ("fig3_association.png", figure3_association), ("fig4_trajectories.png", figure4_trajectories))
+           ("fig3_association.png", figure3_association), ("fig4_trajectories.png", figure4_trajectories),
+           ("fig5_out_of_plane.png", figure5_out_of_plane))
 
 
 def write_all(out_dir, quick: bool = False) -> list[Path]:
-    """Write the four figures into out_dir; returns their paths."""
+    """Write the figures (the paper's 1-4 and our Fig. 5) into out_dir; returns their paths."""
     out = Path(out_dir)
     return [fn(out / name, quick=quick) for name, fn in FIGURES]

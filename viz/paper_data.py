@@ -1,4 +1,4 @@
-"""The numbers behind the paper's figures 1-4 (no plotting here: `viz.figures` draws them).
+"""The numbers behind the paper's figures 1-4 and our Fig. 5 (no plotting here: `viz.figures` draws them).
 
 Each `figN_data(...)` returns a plain dict of arrays; the tests check these numbers, the figures only draw them.
 Conventions (docs/conventions.md): T = T_vehicle_world, varpi = [nu; omega] (driving forward: nu_x < 0;
@@ -203,5 +203,39 @@ def fig4_data(scenario: str = "hills", seed: int = 0, duration: float = 12.0, pr
     out["t"] = np.asarray(gt.t)
     out["truth"] = p
     out["distance"] = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
+    out["path_length"] = float(out["distance"][-1])
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- Fig. 5 (ours)
+VEHICLE_OFF = {"vehicle": {"sigma_roll_rate": 0.0, "sigma_pitch_rate": 0.0}}
+
+
+def fig5_data(scenario: str = "city", seed: int = 2, duration: float = 30.0, progress=None) -> dict:
+    """Out-of-plane drift (not in the paper): z, roll and pitch errors over the distance travelled of CV/C and
+    CA/P, each with the road-vehicle roll and pitch rate terms (the default) and without them
+    (docs/estimator.md, "Roll and pitch rates"); `validation.metrics.drift`, both trajectories relative to
+    their first pose.
+
+    Returns:
+        dict: distance (N,) truth path length; runs {label: (N, 6) drift series [x, y, z m, roll, pitch, yaw
+        deg]}; final {label: {z, roll, pitch}}; path_length (m); scenario, seed, duration.
+    """
+    import scenarios
+    from estimator.config import OdometryConfig
+    from validation.driver import run_sequence
+    from validation.metrics import drift
+
+    seq, _ = scenarios.get(scenario).simulate(seed, duration=duration)
+    gt = seq.groundtruth.T_world_vehicle
+    out = dict(scenario=scenario, seed=seed, duration=duration, runs={}, final={})
+    for name, model in (("CV/C", "cv-cartesian"), ("CA/P", "ca-polar")):
+        for suffix, extra in (("", {}), (", no roll/pitch rate terms", VEHICLE_OFF)):
+            result = run_sequence(seq, OdometryConfig.from_dict({"model": model} | extra), progress=progress)
+            d = drift(gt, result.trajectory().T_world_vehicle)
+            out["runs"][name + suffix] = d["series"]
+            out["final"][name + suffix] = {axis: d["final"][axis] for axis in ("z", "roll", "pitch")}
+    p = gt[:, :3, 3]
+    out["distance"] = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))))
     out["path_length"] = float(out["distance"][-1])
     return out

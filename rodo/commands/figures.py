@@ -1,8 +1,9 @@
-"""`rodo figures --out DIR [--quick]`: write the paper's figures 1-4 as PNG files and print their paths.
+"""`rodo figures --out DIR [--quick]`: write the paper's figures 1-4 and our Fig. 5 (out-of-plane drift) as PNG
+files and print their paths.
 
 Parse, call, print: the numbers are computed in `viz.paper_data`, drawn in `viz.figures` (docs/visualisation.md).
---quick uses fewer Monte Carlo samples and a 12 s sequence for Fig. 4 (about 20 s in all); the full run
-simulates 60 s for Fig. 4 (a few minutes on two cores).
+--quick uses fewer Monte Carlo samples, a 12 s sequence for Fig. 4 and 30 s of city for Fig. 5 (about a minute
+in all); the full run simulates 60 s for Fig. 4 and 90 s for Fig. 5 (a few minutes on two cores).
 """
 
 from __future__ import annotations
@@ -11,12 +12,13 @@ import argparse
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("figures", help="write the paper's figures 1-4 (PNG)",
+    p = subparsers.add_parser("figures", help="write the paper's figures 1-4 and Fig. 5 (PNG)",
                               description="Reproduce the paper's figures from simulation: 1 the CA prior under "
                                           "yaw acceleration, 2 polar vs Cartesian measurement noise, 3 association "
-                                          "with and without acceleration, 4 CV/C vs CA/P trajectories.")
+                                          "with and without acceleration, 4 CV/C vs CA/P trajectories; and 5 (ours) "
+                                          "their out-of-plane drift with and without the roll and pitch rate terms.")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created)")
-    p.add_argument("--quick", action="store_true", help="fewer samples and a short sequence (about 20 s)")
+    p.add_argument("--quick", action="store_true", help="fewer samples and short sequences (about a minute)")
     p.set_defaults(func=main)
 
 

@@ -148,6 +148,30 @@ def test_fig4_png(fig4, tmp_path):
     assert_png(figures.figure4_trajectories(tmp_path / "f4.png", fig4))
 
 
+# ------------------------------------------------------------------------------------------------ Fig. 5
+@pytest.fixture(scope="module")
+def fig5():
+    return paper_data.fig5_data(duration=30.0)  # as `rodo figures --quick`
+
+
+def test_fig5_the_rate_terms_hold_roll_and_pitch(fig5):
+    """30 s of city seed 2 (240 m): the drift series start at zero and cover every scan, and with the roll and
+    pitch rate terms both models keep roll and pitch within half the error they reach without them (measured,
+    max |roll|, |pitch|: CA/P 0.61, 0.43 deg vs 3.74, 1.70 deg; CV/C 0.98, 1.11 vs 4.62, 1.93 deg)."""
+    n = len(fig5["distance"])
+    assert set(fig5["runs"]) == {"CV/C", "CA/P", "CV/C, no roll/pitch rate terms", "CA/P, no roll/pitch rate terms"}
+    for series in fig5["runs"].values():
+        assert series.shape == (n, 6) and np.all(series[0] == 0.0) and np.all(np.isfinite(series))
+    for name in ("CV/C", "CA/P"):
+        on, off = fig5["runs"][name], fig5["runs"][name + ", no roll/pitch rate terms"]
+        worst_on, worst_off = np.abs(on[:, 3:5]).max(axis=0), np.abs(off[:, 3:5]).max(axis=0)
+        assert worst_on.max() < 0.5 * worst_off.max(), (name, worst_on, worst_off)
+
+
+def test_fig5_png(fig5, tmp_path):
+    assert_png(figures.figure5_out_of_plane(tmp_path / "f5.png", fig5))
+
+
 # ------------------------------------------------------------------------------------------------ NEES, CLI
 def test_plot_nees(tmp_path):
     t = np.arange(50) * 0.1
@@ -161,13 +185,14 @@ def test_plot_nees(tmp_path):
         figures.plot_nees(tmp_path / "bad.png", t, y, (4, 8), ["one"])
 
 
-def test_rodo_figures_writes_four_pngs(tmp_path, monkeypatch, capsys, fig4):
+def test_rodo_figures_writes_five_pngs(tmp_path, monkeypatch, capsys, fig4, fig5):
     from rodo import cli
     from rodo.commands import figures as command
 
-    monkeypatch.setattr(paper_data, "fig4_data", lambda **kw: fig4)  # the 2 s sequence above
+    monkeypatch.setattr(paper_data, "fig4_data", lambda **kw: fig4)  # the short sequences above
+    monkeypatch.setattr(paper_data, "fig5_data", lambda **kw: fig5)
     assert cli.main(["figures", "--out", str(tmp_path / "figs"), "--quick"], commands=[command]) == 0
     printed = capsys.readouterr().out.split()
-    assert len(printed) == 4
+    assert len(printed) == 5
     for p in printed:
         assert_png(Path(p))
