@@ -105,10 +105,12 @@ class SlidingWindow:
         Returns per state (H (12,12), b (12,)) and the total cost; e = z - g(x), J = -[J_z_xi, J_z_varpi].
         """
         sets = [self.meas[k] for k in ks]
-        key = tuple(id(m) for m in sets)
-        if self._packed is None or self._packed[0] != key:  # the sets change only when scans come and go
+        # the sets change only when scans come and go; compared by identity with the packed sets held alive
+        # (an id() of a freed set can be reused by the next one: a stale pack once read past the new set's end)
+        packed = self._packed
+        if packed is None or len(packed[0]) != len(sets) or any(a is not b for a, b in zip(packed[0], sets)):
             offsets = np.concatenate(([0], np.cumsum([len(m) for m in sets]))).astype(np.int64)
-            self._packed = (key, offsets, np.concatenate([m.p_world for m in sets]),
+            self._packed = (sets, offsets, np.concatenate([m.p_world for m in sets]),
                             np.concatenate([m.z for m in sets]), np.concatenate([m.W for m in sets]))
         _, offsets, p, z, W = self._packed
         fresh = [m.weights is None for m in sets]  # the kernel sets Cauchy weights where they are -1

@@ -500,3 +500,33 @@ def test_vehicle_rate_terms_hold_roll_and_pitch(model):
             est = odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
         out[vehicle] = np.abs(se3.log(est.T_vehicle_world @ se3.inverse(T[-1] @ se3.inverse(T[0])))[3:5]).max()
     assert out["default"] < 0.02 and out["off"] > 10 * out["default"]
+
+
+def test_replaced_measurement_sets_are_never_read_stale():
+    """The window caches its measurement sets packed for the kernel. A set replaced by a new one (which CPython
+    often allocates at the freed set's address, so the same id()) must be packed anew: every linearisation
+    equals that of a fresh window holding the same set. (The cache once compared id()s and read a freed set's
+    pairs: a stop_and_go run ended with an improper rotation.)"""
+    rng = np.random.default_rng(3)
+    motion = MotionModel("ca", (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
+    t, T, varpi, vd = scene.trajectory(2)
+    x0 = State(t[0], T[0], varpi[0], vd[0])
+    R_inv = np.linalg.inv(np.diag(scene.SIGMAS**2))
+
+    def one_set(n):
+        p = scene.landmarks(rng, n=n)
+        z = measurements.predict("polar", T[0], varpi[0], p, scene.T_VEHICLE_SENSOR).z
+        return MeasurementSet(p, z + rng.normal(size=z.shape) * scene.SIGMAS, np.broadcast_to(R_inv, (n, 4, 4)).copy())
+
+    win = SlidingWindow(motion, 4, "polar", scene.T_VEHICLE_SENSOR)
+    win.initialize(x0, np.eye(18) * 0.01)
+    for n in rng.integers(5, 60, 40):
+        win.set_measurements(0, None)  # the previous set has no other reference: freed here
+        win.set_measurements(0, one_set(int(n)))
+        fresh = SlidingWindow(motion, 4, "polar", scene.T_VEHICLE_SENSOR)
+        fresh.initialize(x0, np.eye(18) * 0.01)
+        fresh.set_measurements(0, MeasurementSet(win.meas[0].p_world, win.meas[0].z, win.meas[0].W))
+        win.reset_robust_weights()
+        for a, b in zip(win.linearize(), fresh.linearize()):
+            np.testing.assert_array_equal(a, b)
+        del fresh
