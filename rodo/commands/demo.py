@@ -4,7 +4,7 @@
 2. a simulated `city` sequence (sim/), written in the documented format;
 3. CA/P (the paper's method) and CV/C (its baseline) on it, evaluated against ground truth (KITTI drift, ATE,
    per-axis drift, NEES);
-4. a Rerun recording of the CA/P run and the paper's figures.
+4. a Rerun recording of the CA/P run, the paper's figures and our Fig. 5 (out-of-plane drift).
 It prints where everything is and how to open it.
 """
 
