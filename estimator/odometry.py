@@ -394,7 +394,8 @@ class RadarOdometry:
             W_map, assoc = self._associate(self.window.newest, P, z, pts, polar[static], scan_cache)
             self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_map, assoc, z))
             timings["associate"] += time.perf_counter() - t_assoc
-            self.window.optimize(min(cfg.solver.iterations, 3), cfg.solver.step_tolerance)  # from the last solution
+            # from the last solution: the problem changed by a few pairs, and the step after the first is ~1e-5
+            self.window.optimize(cfg.solver.refine_iterations, cfg.solver.step_tolerance, check_last=False)
         self.P = self.window.newest_covariance()  # at the solution; marginalising does not change it
         while len(self.window.states) > cfg.window:
             self.window.marginalize_oldest()

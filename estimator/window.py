@@ -165,14 +165,15 @@ class SlidingWindow:
         return H, b, cost
 
     # --- solving ----------------------------------------------------------------------------------------
-    def optimize(self, iterations: int = 5, tol: float = 1e-6) -> dict:
+    def optimize(self, iterations: int = 5, tol: float = 1e-6, check_last: bool = True) -> dict:
         """Gauss-Newton; a step that increases the cost is halved (one linearisation per iteration).
 
         A full step whose largest element is below tol is the last: it is applied without linearising again
         (near the solution convergence is quadratic, so the step after it would be ~tol^2 and the cost check
-        cannot fail meaningfully). Returns {'iterations', 'cost', 'step'}; the normal equations of the last
-        linearisation (at the returned estimate, or one step below tol before it) are kept for
-        `newest_covariance`.
+        cannot fail meaningfully). check_last=False applies the step of the last iteration without the cost
+        check (for a refinement from a solution of a nearly identical problem). Returns {'iterations',
+        'cost', 'step'} (the cost at the last linearisation); the normal equations of the last linearisation
+        (at the returned estimate, or one step before it) are kept for `newest_covariance`.
         """
         d = self.motion.dim
         self.reset_robust_weights()
@@ -187,6 +188,8 @@ class SlidingWindow:
                 self.states = _oplus_all(old, delta.reshape(len(old), d))
                 break
             self.states = _oplus_all(old, step * delta.reshape(len(old), d))
+            if it == iterations and not check_last:
+                break
             H2, b2, cost2 = self.linearize()
             if np.isfinite(cost2) and cost2 <= cost * (1 + 1e-12) + 1e-12:
                 H, b, cost = H2, b2, cost2
