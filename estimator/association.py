@@ -228,7 +228,7 @@ def match(model: str, z_meas: np.ndarray, tree: cKDTree, z_pred: np.ndarray, p_s
     Search to pass on.
 
     Checked by: tests/estimator/test_association.py (through `associate`),
-        tests/estimator/test_window.py::test_prepared_association_equals_the_reference
+        tests/estimator/test_odometry.py::test_prepared_association_equals_the_reference
     """
     m, n = len(z_pred), tree.n
     empty = Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)

@@ -15,7 +15,7 @@ truck covers 4-6 voxels against 50-170 for the world, and the lead truck on `hig
 Counting detections instead (the first version) took a lead truck that outnumbered the guard rails 1.5:1 on
 `highway`. The fits of this module draw from their own random stream.
 
-Checked by: tests/estimator/test_window.py::test_locked_onto_a_co_moving_object_the_world_is_taken_back,
+Checked by: tests/estimator/test_odometry.py::test_locked_onto_a_co_moving_object_the_world_is_taken_back,
     ::test_a_compact_object_outnumbering_the_world_is_not_taken, ::test_support_counts_the_occupied_voxels
 """
 

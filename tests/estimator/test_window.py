@@ -1,5 +1,6 @@
-"""Sliding-window MAP: the compiled linearisation against the numpy models, Schur marginalisation,
-noise-free accuracy and robustness (empty scans, time gaps, blockage)."""
+"""Sliding-window MAP: the compiled linearisation against the numpy models, Gauss-Newton, Schur
+marginalisation, the motion kernels, the zero-mean rate terms and the packed-set cache. The odometry end to end
+is in test_odometry.py."""
 
 import numpy as np
 import pytest
@@ -8,9 +9,7 @@ from hypothesis import strategies as st
 
 from estimator import _measurement_kernel as kernel
 from estimator import measurements
-from estimator.config import OdometryConfig
 from estimator.lie import se3
-from estimator.odometry import RadarOdometry
 from estimator.state import MotionModel, State
 from estimator.window import MeasurementSet, SlidingWindow
 from tests.estimator import scene
@@ -142,71 +141,6 @@ def test_marginalisation_keeps_the_solution_and_the_newest_covariance():
         assert np.abs(a.ominus(b)).max() < 1e-7
 
 
-@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
-@pytest.mark.parametrize("pitch_acc, vehicle", [(0.02, "off"), (0.0, "default")])
-def test_noise_free_scene_gives_near_exact_odometry(model, pitch_acc, vehicle):
-    """Exact on any SE(3) motion (a pitch acceleration: the road-vehicle roll and pitch rate terms off), and with
-    those terms on (the default) on a motion that has no roll or pitch rate: they pull towards the truth there."""
-    rng = np.random.default_rng(0)
-    t, T, varpi, vd = scene.trajectory(30, pitch_acc=pitch_acc)
-    L = scene.landmarks(rng)
-    cfg = OdometryConfig.from_dict({"model": model} | ({"vehicle": {"sigma_roll_rate": 0.0, "sigma_pitch_rate": 0.0}}
-                                                       if vehicle == "off" else {}))
-    odo = RadarOdometry(cfg, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
-    for k in range(len(t)):
-        est = odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L))
-    Tgt = T[-1] @ se3.inverse(T[0])  # the estimator's world is its first vehicle frame
-    err = se3.log(est.T_vehicle_world @ se3.inverse(Tgt))
-    path = np.linalg.norm(se3.inverse(T[-1])[:3, 3] - se3.inverse(T[0])[:3, 3])
-    assert np.linalg.norm(err[:3]) < 1e-3 * path and np.linalg.norm(err[3:]) < 1e-4
-    # CV cannot represent the trajectory's acceleration: its velocity lags by a few mm/s, CA is exact
-    np.testing.assert_allclose(est.varpi, varpi[-1], atol=2e-3 if model.startswith("ca") else 1e-2)
-    assert est.n_associated > 0.9 * est.n_static
-
-
-@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
-def test_survives_empty_scans_gaps_and_clutter(model):
-    """Blockage (empty scans for 3 s), a 1 s time gap and a scan of pure clutter: finite, PD, and it recovers."""
-    rng = np.random.default_rng(1)
-    t, T, varpi, vd = scene.trajectory(110, accel=0.2, yaw_rate=0.02, yaw_acc=0.0, pitch_acc=0.0)
-    L = scene.landmarks(rng)
-    odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
-    for k in range(len(t)):
-        if 20 <= k < 59 or 70 <= k < 83:  # total blockage, then a gap with no scans at all
-            if k >= 70:
-                continue
-            z = np.zeros((0, 4))
-        elif k == 90:
-            z = np.c_[rng.uniform(1, 100, 500), rng.uniform(-1, 1, 500), rng.uniform(-0.2, 0.2, 500),
-                      rng.uniform(-30, 30, 500)]
-        else:
-            z = scene.measure(T[k], varpi[k], vd[k], L, rng)
-        est = odo.process(t[k], z)
-        assert np.all(np.isfinite(est.T_vehicle_world)) and np.all(np.isfinite(est.P))
-        assert np.linalg.eigvalsh(est.P).min() > 0
-    assert est.n_associated > 100  # recovered: associating again
-    np.testing.assert_allclose(est.varpi, varpi[-1], atol=0.3)  # and tracking the velocity again
-    # The pose error of the 4 s without data (about 45 m) is dead reckoning and stays; after the outage the
-    # estimator re-initialises (velocity from Doppler, fresh window and map) instead of matching a stale map.
-    Tgt = T[-1] @ se3.inverse(T[0])
-    err = se3.log(est.T_vehicle_world @ se3.inverse(Tgt))
-    path = np.sum(np.linalg.norm(np.diff(se3.inverse(T)[:, :3, 3], axis=0), axis=1))
-    assert np.linalg.norm(err[:3]) < 0.08 * path and np.linalg.norm(err[3:]) < 0.15
-
-
-def test_bad_input_is_rejected_with_a_clear_error():
-    from estimator.errors import InputError
-
-    odo = RadarOdometry(OdometryConfig(), scene.T_VEHICLE_SENSOR, scene.SIGMAS)
-    odo.process(0.0, np.zeros((0, 4)))
-    with pytest.raises(InputError, match="t: scan times must increase"):
-        odo.process(0.0, np.zeros((0, 4)))
-    with pytest.raises(InputError, match="polar"):
-        odo.process(0.1, np.full((3, 4), np.nan))
-    with pytest.raises(InputError, match="model"):
-        OdometryConfig(model="ca-spherical")
-
-
 @pytest.mark.parametrize("kind", ["ca", "cv"])
 def test_batched_motion_residuals_equal_the_priors_residual(kind):
     """MotionModel.residuals (the window's single path) = the prior's own residual, pair by pair."""
@@ -286,204 +220,6 @@ def test_motion_terms_in_the_normal_equations(kind):
     assert cost == pytest.approx(cost_ref, rel=1e-12)
 
 
-def _two_segments(n1: int, n2: int, speed: float, brake: float, rate: float = 13.0):
-    """Constant speed for n1 scans, then braking at `brake` m/s^2 (a step in acceleration: the jerk no prior
-    expects) for n2 scans. Times, T_vehicle_world, varpi, varpi_dot."""
-    from estimator.priors.exact import exact_predict
-
-    t1, T1, w1, a1 = scene.trajectory(n1, rate, speed, 0.0, 0.0, 0.0, 0.0)
-    vd = np.array([brake, 0, 0, 0, 0, 0])  # nu = -speed: braking makes nu_x grow towards 0
-    t2 = np.arange(1, n2 + 1) / rate
-    T2 = np.stack([exact_predict(T1[-1], w1[-1], vd, s)[0] for s in t2])
-    w2 = w1[-1] + t2[:, None] * vd
-    return (np.r_[t1, t1[-1] + t2], np.concatenate([T1, T2]), np.concatenate([w1, w2]),
-            np.concatenate([a1, np.tile(vd, (n2, 1))]))
-
-
-@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
-def test_hard_braking_is_followed(model):
-    """4 m/s^2 braking from 12 m/s, unannounced: the Doppler correction before association keeps the pairs
-    (the radial velocity gate is a few cm/s, the prediction is off by 0.3 m/s at the first braking scan)."""
-    rng = np.random.default_rng(5)
-    t, T, varpi, vd = _two_segments(25, 30, 12.0, 4.0)
-    L = scene.landmarks(rng)
-    odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
-    for k in range(len(t)):
-        est = odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
-        if k >= 25:
-            assert np.abs(est.varpi[:3] - varpi[k][:3]).max() < 0.05, k
-            assert est.n_associated > 0.8 * est.n_detections, k
-    Tgt = T[-1] @ se3.inverse(T[0])
-    err = se3.log(est.T_vehicle_world @ se3.inverse(Tgt))
-    assert np.linalg.norm(err[:3]) < 0.1 and np.linalg.norm(err[3:]) < 5e-3
-
-
-@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
-def test_standstill_holds_the_pose(model):
-    """20 s at rest, 40 points, a TI-like sensor (3 deg azimuth noise) close to the vehicle origin (Doppler
-    cannot see a turn on the spot): the zero-velocity term holds the velocity and the attitude; without it the
-    rates wander."""
-    rng = np.random.default_rng(9)
-    T_vs = se3.from_rotation_translation(np.eye(3), np.array([0.03, 0.03, -0.06]))
-    sig = np.array([0.05, np.deg2rad(3.0), np.deg2rad(5.0), 0.03])
-    L = np.c_[rng.uniform(2, 20, 40), rng.uniform(-15, 15, 40), rng.uniform(-2, 3, 40)]
-    zero = np.zeros(6)
-    drift = {}
-    for speed in (0.05, 0.0):
-        cfg = OdometryConfig.from_dict({"model": model, "standstill": {"speed": speed},  # the standstill term alone
-                                        "vehicle": {"sigma_roll_rate": 0.0, "sigma_pitch_rate": 0.0}})
-        odo = RadarOdometry(cfg, T_vs, sig, 30.0)
-        still = []
-        for k in range(200):
-            p_s = se3.transform_points(se3.inverse(T_vs), L)
-            r = np.linalg.norm(p_s, axis=1)
-            z = np.c_[r, np.arctan2(p_s[:, 1], p_s[:, 0]), np.arcsin(p_s[:, 2] / r), np.zeros(len(r))]
-            est = odo.process(0.1 * k, z + rng.normal(size=z.shape) * sig)
-            still.append(est.standstill)
-        assert np.mean(still) > 0.95 if speed > 0 else not any(still)  # the detector tests at 99 %
-        drift[speed] = (np.linalg.norm(se3.log(est.T_vehicle_world)[3:]), np.abs(est.varpi - zero).max())
-    # measured (ca-polar): attitude 0.0073 vs 0.020 rad, largest rate or speed 0.0018 vs 0.045
-    assert drift[0.05][0] < 0.5 * drift[0.0][0] and drift[0.05][0] < 0.015
-    assert drift[0.05][1] < 0.005 and drift[0.0][1] > 5 * drift[0.05][1]
-
-
-@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
-def test_prepared_association_equals_the_reference(model):
-    """The odometry's compiled association (`_association_kernel.prepare` + `association.match`, one KD-tree per
-    scan) gives the pairs, distances and solve information of the readable reference: `measurements.predict`,
-    `association.innovation_covariance` plus the map-point term, `association.associate`."""
-    from estimator import _association_kernel as akernel
-    from estimator import association
-
-    rng = np.random.default_rng(3)
-    t, T, varpi, vd = scene.trajectory(8)
-    L = scene.landmarks(rng)
-    D = np.pi / 180
-    odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0,
-                        fov=((-60 * D, 60 * D), (-15 * D, 15 * D)))
-    for k in range(7):
-        odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
-    x = odo.motion.predict(odo.window.newest, t[7])
-    P = odo.P + np.diag(np.r_[np.full(6, 1e-4), np.full(6, 1e-2), np.zeros(odo.motion.dim - 12)])
-    polar = scene.measure(T[7], varpi[7], vd[7], L, rng)
-    z = measurements.to_model_space(odo.config.measurement, polar)
-    pts = measurements.polar_to_cartesian(polar)
-    W_map, got = odo._associate(x, P, z, pts, polar, {})
-
-    pred = measurements.predict(odo.config.measurement, x.T, x.varpi, odo.map.points, odo.T_vs)
-    cov = odo.map.covariances + odo.config.map_sigma**2 * np.eye(3)
-    Smap = odo._R + pred.J_z_p @ cov @ np.swapaxes(pred.J_z_p, 1, 2)
-    S = association.innovation_covariance(pred, P[:12, :12], Smap, 0.0)
-    m_in, d_in = odo._window_masks(pred.p_sensor, polar)
-    mi, di = np.flatnonzero(m_in), np.flatnonzero(d_in)
-    sub = measurements.Prediction(z=pred.z[mi], J_z_xi=pred.J_z_xi[mi], J_z_varpi=pred.J_z_varpi[mi],
-                                  J_z_p=pred.J_z_p[mi], p_sensor=pred.p_sensor[mi])
-    ref = association.associate(odo.config.measurement, z[di], pts[di], sub, S[mi], odo.gate,
-                                odo.config.association.max_radius)
-    assert len(ref.map_idx) > 100
-    np.testing.assert_array_equal(got.map_idx, mi[ref.map_idx])
-    np.testing.assert_array_equal(got.det_idx, di[ref.det_idx])
-    np.testing.assert_allclose(got.d2, ref.d2, rtol=1e-9)
-    assert got.n_candidates == ref.n_candidates
-    W_ref = np.linalg.inv(Smap)[mi]
-    np.testing.assert_allclose(W_map[mi], W_ref, rtol=1e-8, atol=1e-8 * np.abs(W_ref).max())
-    assert np.isnan(W_map[~m_in]).all()
-    # the kernel's own outputs, point by point
-    m = len(odo.map)
-    out = [np.empty((m, 4)), np.empty((m, 3)), np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4)),
-           np.empty(m)]
-    assert akernel.prepare(model == "ca-polar", x.T, x.varpi, odo.map.points, odo.map.covariances,
-                           odo.config.map_sigma**2, P[:12, :12].copy(), odo._R, odo.T_vs, odo.gate, *out) == -1
-    np.testing.assert_allclose(out[0], pred.z, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(out[2], S, rtol=1e-10, atol=1e-14)
-    radius = association._search_radius(odo.config.measurement, pred, S, odo.gate)
-    assert np.all(out[5] >= radius) and np.allclose(out[5], radius, rtol=1e-7)
-
-
-def test_association_window_is_the_same_for_map_points_and_detections():
-    """Both sides cut at the field of view shrunk by 3 sigma; a 2D radar's elevation is not windowed."""
-    from estimator.errors import InputError
-
-    D = np.pi / 180
-    sig = np.array([0.02, 0.15 * D, 0.3 * D, 0.01])
-    odo = RadarOdometry(OdometryConfig(), np.eye(4), sig, 100.0, fov=((-60 * D, 60 * D), (-15 * D, 15 * D)))
-    el = np.array([-14.5, -14.0, 0.0, 14.0, 14.5]) * D
-    az = np.array([0.0, 59.0, 59.7, -59.0, 0.0]) * D
-    polar = np.c_[np.full(5, 20.0), az, el, np.zeros(5)]
-    p_sensor = measurements.polar_to_cartesian(polar)
-    m_in, d_in = odo._window_masks(p_sensor, polar)
-    np.testing.assert_array_equal(m_in, [False, True, False, True, False])
-    np.testing.assert_array_equal(d_in, m_in)
-    planar = RadarOdometry(OdometryConfig(), np.eye(4), [0.1, 0.01, 0.17, 0.1], 100.0,
-                           fov=((-60 * D, 60 * D), (-1e-4, 1e-4)))
-    flat = np.c_[np.full(3, 20.0), np.array([-50.0, 0.0, 50.0]) * D, np.zeros(3), np.zeros(3)]
-    m_in, d_in = planar._window_masks(measurements.polar_to_cartesian(flat) + [0, 0, 0.5], flat)
-    assert m_in.all() and d_in.all()
-    with pytest.raises(InputError, match="fov"):
-        RadarOdometry(OdometryConfig(), np.eye(4), sig, 100.0, fov=((1.0, -1.0), (-0.1, 0.1)))
-
-
-def test_locked_onto_a_co_moving_object_the_world_is_taken_back():
-    """The first 2 s see only a truck moving with the vehicle (Doppler 0: the estimate says standstill); then
-    the world comes into view, spread over far more space than the truck: after consensus_switch_after (1 s)
-    the estimator re-initialises on it and tracks the true 10 m/s. Without the switch it stays at rest."""
-    rng = np.random.default_rng(11)
-    t, T, varpi, vd = scene.trajectory(65, speed=10.0, accel=0.0, yaw_rate=0.0, yaw_acc=0.0, pitch_acc=0.0)
-    L = scene.landmarks(rng, n=1500, extent=400.0)
-    truck = np.c_[rng.uniform(4, 8, 150), rng.uniform(-1.2, 1.2, 150), rng.uniform(-0.5, 1.5, 150)]
-    r = np.linalg.norm(truck, axis=1)
-    truck_polar = np.c_[r, np.arctan2(truck[:, 1], truck[:, 0]), np.arcsin(truck[:, 2] / r), np.zeros(150)]
-    for after, expect_speed in ((1.0, 10.0), (0.0, 0.0)):
-        cfg = OdometryConfig.from_dict({"model": "ca-polar", "association": {"consensus_switch_after": after}})
-        odo = RadarOdometry(cfg, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
-        events = []
-        for k in range(len(t)):
-            world = scene.measure(T[k], varpi[k], vd[k], L, rng) if k >= 26 else np.zeros((0, 4))
-            est = odo.process(t[k], np.r_[truck_polar + rng.normal(size=truck_polar.shape) * scene.SIGMAS, world])
-            events += est.events
-        assert est.varpi[0] == pytest.approx(-expect_speed, abs=0.1), (after, events)
-        assert ("doppler-consensus-switch" in events) == (after > 0)
-
-
-def test_a_compact_object_outnumbering_the_world_is_not_taken():
-    """A co-moving truck with four times the world's detections (the lead truck on `highway`): the world
-    covers more space, so the estimate stays on it, no consensus switch, 10 m/s tracked throughout."""
-    rng = np.random.default_rng(12)
-    t, T, varpi, vd = scene.trajectory(40, speed=10.0, accel=0.0, yaw_rate=0.0, yaw_acc=0.0, pitch_acc=0.0)
-    L = scene.landmarks(rng, n=250, extent=400.0)
-    n_truck = 4 * len(scene.measure(T[0], varpi[0], vd[0], L))
-    truck = np.c_[rng.uniform(15, 19, n_truck), rng.uniform(-1.3, 1.3, n_truck), rng.uniform(-0.5, 3.0, n_truck)]
-    r = np.linalg.norm(truck, axis=1)
-    truck_polar = np.c_[r, np.arctan2(truck[:, 1], truck[:, 0]), np.arcsin(truck[:, 2] / r), np.zeros(n_truck)]
-    odo = RadarOdometry(OdometryConfig.for_model("ca-polar"), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
-    events = []
-    for k in range(len(t)):
-        world = scene.measure(T[k], varpi[k], vd[k], L, rng)
-        est = odo.process(t[k], np.r_[truck_polar + rng.normal(size=truck_polar.shape) * scene.SIGMAS, world])
-        events += est.events
-        assert est.varpi[0] == pytest.approx(-10.0, abs=0.1), (k, events)
-    assert "doppler-consensus-switch" not in events
-    # the starting fit picks the world's detections (rows after the truck's), not the truck's
-    scan = np.r_[truck_polar, scene.measure(T[0], varpi[0], vd[0], L, rng)]
-    ego = odo._widest_consensus(scan)
-    assert ego.inliers.shape == (len(scan),) and not ego.inliers[:n_truck].any()
-    assert ego.inliers[n_truck:].mean() > 0.9
-
-
-@given(st.integers(0, 2**32 - 1), st.integers(0, 80), st.floats(0.3, 5.0), st.floats(1.0, 500.0))
-@settings(max_examples=30)
-def test_support_counts_the_occupied_voxels(seed, n, voxel, extent):
-    """The space a consensus covers (`consensus.support`) = the number of distinct voxel rows, also for
-    negative coordinates and points on voxel faces."""
-    from estimator.consensus import support as _support
-
-    rng = np.random.default_rng(seed)
-    p = rng.uniform(-extent, extent, size=(n, 3))
-    p[: n // 4] = np.round(p[: n // 4] / voxel) * voxel  # exactly on faces
-    want = len(np.unique(np.floor(p / voxel).astype(np.int64), axis=0)) if n else 0
-    assert _support(p, voxel) == want
-
-
 @pytest.mark.parametrize("kind", ["ca", "cv"])
 @given(roll=st.floats(-0.2, 0.2), pitch=st.floats(-0.2, 0.2), sigma=st.floats(1e-3, 0.1))
 def test_rate_prior_is_a_zero_mean_gaussian_term(kind, roll, pitch, sigma):
@@ -508,26 +244,6 @@ def test_rate_prior_is_a_zero_mean_gaussian_term(kind, roll, pitch, sigma):
     np.testing.assert_allclose(x.T, x0.T, atol=1e-12)
     P = win.newest_covariance()
     np.testing.assert_allclose(np.diag(P)[9:11], 1.0 / (s0**-2 + sigma**-2), rtol=1e-9)
-
-
-@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
-def test_vehicle_rate_terms_hold_roll_and_pitch(model):
-    """20 s of level driving past noisy landmarks: without the zero-mean roll and pitch rate terms the rates
-    are free as long as they stay constant (the motion prior penalises changes only) and the attitude drifts by
-    tenths of a radian; with them (the default) it stays within 0.02 rad. Measured, seed 0: CA/P 0.0014 vs
-    0.37 rad, CV/C 0.0065 vs 0.27 rad (seeds 1-3: with the terms 0.005-0.029, without 0.08-0.34)."""
-    out = {}
-    for vehicle in ("default", "off"):
-        rng = np.random.default_rng(0)
-        t, T, varpi, vd = scene.trajectory(260, accel=0.0, yaw_rate=0.05, yaw_acc=0.0, pitch_acc=0.0)
-        L = scene.landmarks(rng, extent=400.0)
-        off = {"vehicle": {"sigma_roll_rate": 0.0, "sigma_pitch_rate": 0.0}} if vehicle == "off" else {}
-        odo = RadarOdometry(OdometryConfig.from_dict({"model": model} | off), scene.T_VEHICLE_SENSOR,
-                            scene.SIGMAS, 120.0)
-        for k in range(len(t)):
-            est = odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
-        out[vehicle] = np.abs(se3.log(est.T_vehicle_world @ se3.inverse(T[-1] @ se3.inverse(T[0])))[3:5]).max()
-    assert out["default"] < 0.02 and out["off"] > 10 * out["default"]
 
 
 def test_replaced_measurement_sets_are_never_read_stale():
