@@ -234,7 +234,8 @@ def match(model: str, z_meas: np.ndarray, tree: cKDTree, z_pred: np.ndarray, p_s
     empty = Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)
     keys = np.arange(m) if keys is None else keys
     if m == 0 or n == 0:
-        return empty, Search(keys, p_sensor, np.zeros(m), np.zeros((m, 0), np.int64), np.zeros((m, 0)), np.zeros(m, bool))
+        # no rows to reuse: every point "full", so a later call queries it
+        return empty, Search(keys, p_sensor, np.zeros(m), np.zeros((m, 0), np.int64), np.zeros((m, 0)), np.ones(m, bool))
     # candidates: the k nearest detections inside each map point's own radius (bounded work per point)
     found = search(tree, p_sensor, radius, min(max_candidates, n), keys, previous)
     valid = (found.idx < n) & (found.dist <= radius[:, None])
