@@ -243,7 +243,8 @@ def reuse_search(keys, p, radius, prev_keys, prev_p, prev_bound, prev_idx, prev_
             i = prev_idx[r, c]
             idx[j, c] = i
             if i < n:
-                dist[j, c] = math.sqrt((data[i, 0] - p[j, 0])**2 + (data[i, 1] - p[j, 1])**2 + (data[i, 2] - p[j, 2])**2)
+                dx, dy, dz = data[i, 0] - p[j, 0], data[i, 1] - p[j, 1], data[i, 2] - p[j, 2]
+                dist[j, c] = math.sqrt(dx * dx + dy * dy + dz * dz)
             else:
                 dist[j, c] = np.inf
     return todo

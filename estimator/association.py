@@ -235,7 +235,8 @@ def match(model: str, z_meas: np.ndarray, tree: cKDTree, z_pred: np.ndarray, p_s
     keys = np.arange(m) if keys is None else keys
     if m == 0 or n == 0:
         # no rows to reuse: every point "full", so a later call queries it
-        return empty, Search(keys, p_sensor, np.zeros(m), np.zeros((m, 0), np.int64), np.zeros((m, 0)), np.ones(m, bool))
+        return empty, Search(keys, p_sensor, np.zeros(m), np.zeros((m, 0), np.int64), np.zeros((m, 0)),
+                             np.ones(m, bool))
     # candidates: the k nearest detections inside each map point's own radius (bounded work per point)
     found = search(tree, p_sensor, radius, min(max_candidates, n), keys, previous)
     valid = (found.idx < n) & (found.dist <= radius[:, None])

@@ -200,7 +200,8 @@ class OdometryConfig:
             raise InputError("standstill: speed must be >= 0 (0 disables it) and the sigmas > 0")
         for name in ("sigma_roll_rate", "sigma_pitch_rate"):
             if not getattr(self.vehicle, name) >= 0:
-                raise InputError(f"vehicle.{name}: must be >= 0 rad/s (0 disables it), got {getattr(self.vehicle, name)}")
+                raise InputError(f"vehicle.{name}: must be >= 0 rad/s (0 disables it), "
+                                 f"got {getattr(self.vehicle, name)}")
         for name, ok, rule in (("doppler_update_probability", lambda x: 0 < x < 1, "in (0, 1)"),
                                ("consensus_switch_ratio", lambda x: x > 1, "> 1"),
                                ("consensus_switch_after", lambda x: x >= 0, ">= 0 s"),

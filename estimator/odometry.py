@@ -231,9 +231,9 @@ class RadarOdometry:
         Per map point, `_association_kernel.prepare` evaluates the prediction, S = G P G^T + R + map term
         (`association.innovation_covariance` plus `_map_term`), its inverse and the search radius in one
         compiled pass over the map points inside the window; `association.match` does the rest. `scan` caches the
-        KD-tree of this scan's detections and its candidates for the re-association. Returns (W_map, Association): W_map (m, 4, 4)
-        the information of each map point's pair in the solve, (R + map term)^-1 (NaN outside the window);
-        None when nothing could be associated.
+        KD-tree of this scan's detections and its candidates for the re-association. Returns (W_map,
+        Association): W_map (m, 4, 4) the information of each map point's pair in the solve, (R + map term)^-1
+        (NaN outside the window); None when nothing could be associated.
         """
         if len(self.map) == 0 or len(z) == 0:
             return None, association.Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)

@@ -111,8 +111,10 @@ def test_run_no_scans_and_no_groundtruth(seq, tmp_path, capsys):
     ("[noise]\nqc_cv = [1, 1, 1, 1, 1, \"x\"]\n", ("qc_cv", "list of numbers")),
     ("[map]\ncapacity = 1500.5\n", ("capacity", "integer")),
     ("[association]\ngate_probability = 1.5\n", ("association.gate_probability",)),
+    ("[vehicle]\nsigma_pitch_rate = -0.01\n", ("vehicle.sigma_pitch_rate", ">= 0")),
+    ("[solver]\nrefine_iterations = 0\n", ("solver.refine_iterations", ">= 1")),
 ], ids=["syntax", "unknown-key", "unknown-section-key", "type", "range", "model", "table", "qc-length",
-        "qc-type", "int", "gate"])
+        "qc-type", "int", "gate", "vehicle-sigma", "refine"])
 def test_run_bad_config(seq, tmp_path, capsys, text, needles):
     cfg = _config(tmp_path, text)
     err = _fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], *needles)
