@@ -75,7 +75,8 @@ class MapConfig:
     """Local map (estimator/local_map.py). fuse: refine an associated map point with the detection placed
     by the solved estimate, information-weighted with the detection's noise plus map_sigma^2 (the surface is
     resampled every scan); off: map points never move. Off by default: on city/hills/stop_and_go seeds 1-3 it
-    helped hills but not the other two on average (docs/estimator.md, "Map-point fusion"). max_fused: fading
+    helped hills but not the other two on average (docs/estimator.md, "Map-point fusion"; measured before the
+    [vehicle] roll and pitch rate terms). max_fused: fading
     memory of about this many observations per point (0: none), so a fused point never becomes certain."""
 
     capacity: int = 1500
