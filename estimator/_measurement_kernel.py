@@ -18,8 +18,9 @@ import math
 import numpy as np
 from numba import njit
 
+from .priors._kernels import _FM  # the IEEE-safe fast-math subset all kernels share
+
 POLAR, CARTESIAN = 0, 1
-_FM = {"nsz", "arcp", "contract", "afn", "reassoc"}  # IEEE-safe fast-math subset (as in priors._kernels)
 
 
 @njit(cache=True, fastmath=_FM, inline="always")

@@ -18,7 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .priors._kernels import _FM, _se3_coeffs, _se3_exp_into, _ub_curly, _ub_powers, mul44
+from .priors._kernels import _FM, _se3_coeffs, _se3_exp_into, _ub_curly, _ub_powers, matmul_into
 
 
 @njit(cache=True, fastmath=_FM, error_model="numpy")
@@ -178,7 +178,7 @@ def exp_times(xi, T, out):
     A2 = np.empty((3, 3))
     for n in range(T.shape[0]):
         _se3_exp_into(xi[n], E, c3, A, A2)
-        mul44(E, T[n], out[n])
+        matmul_into(E, T[n], out[n])
 
 
 @njit(cache=True, fastmath=_FM, error_model="numpy")

@@ -277,16 +277,22 @@ def magnus_sigma(varpi, vd, dt, order, out, tmp1, tmp2):
 
 
 @njit(cache=True, fastmath=_FM, error_model="numpy")
+def matmul_into(A, B, out):
+    """out = A B for small matrices (3x3 A^2, 4x4 poses; out must not alias A or B)."""
+    for i in range(A.shape[0]):
+        for j in range(B.shape[1]):
+            s = 0.0
+            for k in range(A.shape[1]):
+                s += A[i, k] * B[k, j]
+            out[i, j] = s
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy")
 def _se3_exp_into(xi, E, c3, A, A2):
     """E (4, 4) = exp(xi^)."""
     a = math.sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5])
     _hat3(xi, 3, A)
-    for i in range(3):
-        for j in range(3):
-            s = 0.0
-            for k in range(3):
-                s += A[i, k] * A[k, j]
-            A2[i, j] = s
+    matmul_into(A, A, A2)
     _so3_coeffs(0, a, c3)
     for i in range(3):
         for j in range(3):
@@ -302,15 +308,6 @@ def _se3_exp_into(xi, E, c3, A, A2):
     E[3, 3] = 1.0
 
 
-@njit(cache=True, fastmath=_FM, error_model="numpy")
-def mul44(A, B, out):
-    """out = A B for 4x4 matrices (out must not alias A or B)."""
-    for i in range(4):
-        for j in range(4):
-            s = 0.0
-            for k in range(4):
-                s += A[i, k] * B[k, j]
-            out[i, j] = s
 
 
 @njit(cache=True, fastmath=_FM, error_model="numpy")
@@ -326,7 +323,7 @@ def predict_batch(T, varpi, vd, dt, order, T_out, varpi_out, vd_out):
     for n in range(T.shape[0]):
         magnus_sigma(varpi[n], vd[n], dt[n], order, sig, t1, t2)
         _se3_exp_into(sig, E, c3, A, A2)
-        mul44(E, T[n], T_out[n])
+        matmul_into(E, T[n], T_out[n])
         for i in range(6):
             varpi_out[n, i] = varpi[n, i] + dt[n] * vd[n, i]
             vd_out[n, i] = vd[n, i]
