@@ -14,8 +14,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from validation.campaign import make_executor, make_trials, read_results, run_campaign
-from validation.trial import ScenarioTrial
+from rodo.validation.campaign import make_executor, make_trials, read_results, run_campaign
+from rodo.validation.trial import ScenarioTrial
 
 MODELS = ("ca-polar", "cv-cartesian")
 

@@ -42,8 +42,8 @@ def _load() -> str:
 
 def _accuracy(seq, traj) -> dict:
     """KITTI errors and final drift of `traj` (T_world_vehicle) against the sequence's ground truth."""
-    from validation.kitti import kitti_errors, trajectory_distances
-    from validation.metrics import associate, drift
+    from rodo.validation.kitti import kitti_errors, trajectory_distances
+    from rodo.validation.metrics import associate, drift
 
     gt = seq.groundtruth
     ia, ib = associate(gt.t, traj.t)
@@ -58,8 +58,8 @@ def _accuracy(seq, traj) -> dict:
 
 
 def _run_estimator(seq, model: str) -> tuple[dict, object]:
-    from estimator.config import OdometryConfig
-    from validation.driver import run_sequence
+    from rodo.estimator.config import OdometryConfig
+    from rodo.validation.driver import run_sequence
 
     # record_detail only copies the map (<= 1500 x 3) and the scan per call: microseconds against milliseconds
     res = run_sequence(seq, OdometryConfig.for_model(model), record_detail=True)
@@ -74,7 +74,7 @@ def _run_estimator(seq, model: str) -> tuple[dict, object]:
 
 
 def _run_icp(seq, kwargs: dict) -> tuple[dict, object]:
-    from validation.icp_baseline import run_icp
+    from rodo.validation.icp_baseline import run_icp
 
     traj, ms = run_icp(seq, **kwargs)
     ms = ms[SKIP:]
@@ -100,7 +100,7 @@ def _methods(icp_ok: bool):
 
 def run(quick: bool = False) -> str:
     """The Markdown section (see the module docstring)."""
-    import scenarios
+    from rodo import scenarios
 
     try:
         import open3d  # noqa: F401

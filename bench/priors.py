@@ -87,7 +87,7 @@ def run(quick: bool = False) -> str:
     ~80 us (thread hand-off under load), which would flatter our kernels absurdly."""
     import scipy.linalg  # noqa: F401  (load scipy's own OpenBLAS before limiting the thread pools)
 
-    import estimator.priors.exact  # noqa: F401
+    import rodo.estimator.priors.exact  # noqa: F401
 
     try:
         from threadpoolctl import threadpool_limits
@@ -98,9 +98,9 @@ def run(quick: bool = False) -> str:
 
 
 def _run(quick: bool, blas_note: str) -> str:
-    from estimator.lie import se3
-    from estimator.priors import ConstantAccelerationPrior
-    from estimator.priors import exact as ex
+    from rodo.estimator.lie import se3
+    from rodo.estimator.priors import ConstantAccelerationPrior
+    from rodo.estimator.priors import exact as ex
 
     n_acc = 10 if quick else 60
     repeats = 300 if quick else 3000

@@ -17,8 +17,8 @@ import numpy as np
 
 
 def bench_scenario(name: str, seed: int, duration: float) -> dict:
-    import scenarios
-    from sim.simulate import simulate, write_simulation
+    from rodo import scenarios
+    from rodo.sim.simulate import simulate, write_simulation
 
     sc = scenarios.get(name)
     t0 = time.perf_counter()

@@ -31,8 +31,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
-from estimator.errors import InputError, check_finite
-from estimator.measurements import MODELS, Prediction, polar_to_cartesian_jacobian
+from rodo.estimator.errors import InputError, check_finite
+from rodo.estimator.measurements import MODELS, Prediction, polar_to_cartesian_jacobian
 
 from . import _association_kernel as _kernel
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.errors import InputError, check_finite
+from rodo.estimator.errors import InputError, check_finite
 
 PLANAR_ELEVATION = 1e-3  # rad; all |elevation| below this -> planar mode
 MIN_THRESHOLD = 0.05     # m/s; the default inlier threshold is max(3 sigma_vr, MIN_THRESHOLD)

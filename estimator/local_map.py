@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.errors import InputError, check_finite
+from rodo.estimator.errors import InputError, check_finite
 
 
 def _int_arg(name: str, value) -> int:

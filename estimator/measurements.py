@@ -30,8 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.errors import InputError, check_finite
-from estimator.lie import so3
+from rodo.estimator.errors import InputError, check_finite
+from rodo.estimator.lie import so3
 
 MODELS = ("polar", "cartesian")
 MIN_RANGE = 1e-9  # m; a point closer than this to the sensor origin has no direction

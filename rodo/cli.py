@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 from .commands import (convert, demo, ego_velocity, evaluate, figures, montecarlo, prior, run, simulate, table1,
                        view)

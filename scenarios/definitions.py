@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim import trajectory as traj
-from sim import world as w
+from rodo.sim import trajectory as traj
+from rodo.sim import world as w
 
 from .registry import Scenario, register
 

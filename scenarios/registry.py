@@ -17,11 +17,11 @@ from typing import Callable
 
 import numpy as np
 
-from estimator.errors import InputError
-from sim.radar import RadarConfig
-from sim.simulate import simulate, write_simulation
-from sim.trajectory import Profile
-from sim.world import World
+from rodo.estimator.errors import InputError
+from rodo.sim.radar import RadarConfig
+from rodo.sim.simulate import simulate, write_simulation
+from rodo.sim.trajectory import Profile
+from rodo.sim.world import World
 
 MARGIN = 5.0  # s of extra trajectory past the simulated duration (movers may look ahead)
 

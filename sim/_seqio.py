@@ -10,7 +10,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 UNIT_QUATERNION_TOL = 1e-6
 

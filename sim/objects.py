@@ -17,8 +17,8 @@ from functools import cached_property
 
 import numpy as np
 
-from estimator.errors import InputError
-from estimator.lie import se3
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
 
 from .trajectory import Profile
 

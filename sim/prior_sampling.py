@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from estimator.errors import InputError, check_finite
-from estimator.lie import se3
+from rodo.estimator.errors import InputError, check_finite
+from rodo.estimator.lie import se3
 
 
 def _ad(a: np.ndarray, b: np.ndarray) -> np.ndarray:

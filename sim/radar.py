@@ -23,8 +23,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from estimator.errors import InputError
-from estimator.lie import se3, so3
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3, so3
 
 from .objects import CLUTTER, MOVING, STATIC_POINT, STATIC_SURFACE, Patches
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 from ._seqio import SequenceFormatError, atomic_write_bytes, decode_text
 from .sequence_types import REQUIRED_COLUMNS, RadarScan

@@ -13,7 +13,7 @@ import tomllib
 
 import numpy as np
 
-from estimator.lie import so3
+from rodo.estimator.lie import so3
 
 from ._seqio import UNIT_QUATERNION_TOL, SequenceFormatError, atomic_write_bytes, float_text, read_text
 from .sequence_types import SIGMA_NAMES, NoiseSigmas, SensorConfig, check_sensor_values

@@ -15,7 +15,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 from ._seqio import SequenceFormatError, atomic_write_bytes
 from .radar_csv import cache_path, format_radar_csv, read_radar_csv

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 REQUIRED_COLUMNS = ("scan", "t", "range", "azimuth", "elevation", "radial_velocity")
 SIGMA_NAMES = ("range", "azimuth", "elevation", "radial_velocity")

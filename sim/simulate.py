@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 from .radar import Radar, RadarConfig, empty_detections
 from .sequence import RadarScan, Sequence, Trajectory, write_sequence

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.errors import InputError, check_finite
-from estimator.lie import se3
+from rodo.estimator.errors import InputError, check_finite
+from rodo.estimator.lie import se3
 
 MAX_STEP = 0.005  # s; Magnus sub-step (global error ~1e-12 for vehicle motion, see the test)
 

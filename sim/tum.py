@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.lie import so3
+from rodo.estimator.lie import so3
 
 from ._seqio import UNIT_QUATERNION_TOL, SequenceFormatError, atomic_write_bytes, read_text
 from .sequence_types import Trajectory

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from estimator.lie import se3, so3
+from rodo.estimator.lie import se3, so3
 
 from .objects import MovingBox, Patches, Points, box
 from .trajectory import Profile, Route

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from estimator.lie import se3
+from rodo.estimator.lie import se3
 
 
 def numerical_jacobian(f, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:

@@ -34,7 +34,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 from .metrics import jsonable
 

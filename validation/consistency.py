@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from estimator.errors import InputError
-from estimator.lie import se3
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
 
 from .metrics import DEFAULT_TOLERANCE, associate
 

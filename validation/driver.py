@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from estimator.config import OdometryConfig
-from estimator.errors import InputError
-from estimator.lie import se3
-from estimator.odometry import RadarOdometry, ScanEstimate
-from sim.sequence import Sequence, Trajectory, write_tum
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.estimator.odometry import RadarOdometry, ScanEstimate
+from rodo.sim.sequence import Sequence, Trajectory, write_tum
 
 
 @dataclass

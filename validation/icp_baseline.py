@@ -29,9 +29,9 @@ from collections import deque
 
 import numpy as np
 
-from estimator.errors import InputError
-from estimator.lie import se3
-from sim.sequence import Sequence, Trajectory
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.sim.sequence import Sequence, Trajectory
 
 METHODS = ("point_to_point", "point_to_plane")
 MIN_POINTS = 10       # fewer source or map points: keep the constant-velocity prediction
@@ -96,7 +96,7 @@ def run_icp(seq: Sequence, method: str = "point_to_plane", max_correspondence: f
         raise InputError(f"seq: expected a sim.sequence.Sequence, got {type(seq).__name__}")
     from threadpoolctl import threadpool_limits
 
-    from validation.driver import scan_times
+    from rodo.validation.driver import scan_times
 
     times = scan_times(seq)
     if len(times) == 0:
@@ -115,7 +115,7 @@ def run_icp(seq: Sequence, method: str = "point_to_plane", max_correspondence: f
 
 
 def _static_mask(scan, sigma_vr: float, rng: np.random.Generator) -> np.ndarray:
-    from estimator.ego_velocity import estimate_ego_velocity
+    from rodo.estimator.ego_velocity import estimate_ego_velocity
 
     ego = estimate_ego_velocity(scan.azimuth, scan.elevation, scan.radial_velocity, rng, sigma_vr=sigma_vr)
     return ego.inliers if ego.ok else np.ones(len(scan), dtype=bool)

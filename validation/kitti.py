@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 LENGTHS = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
 

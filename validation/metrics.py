@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.errors import InputError
-from estimator.lie import se3
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
 
 DEFAULT_TOLERANCE = 1e-3  # s
 

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 from .campaign import npz_path, read_results
 from .trial import ScenarioTrial

@@ -33,9 +33,9 @@ class ScenarioTrial:
     step: int = 10
 
     def __call__(self, trial: Trial) -> list[TrialOutcome]:
-        import scenarios
-        from estimator.config import OdometryConfig
-        from sim.sequence import Trajectory
+        from rodo import scenarios
+        from rodo.estimator.config import OdometryConfig
+        from rodo.sim.sequence import Trajectory
 
         from .driver import run_sequence
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 from . import paper_data
 

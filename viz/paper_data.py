@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator import measurements
-from estimator.errors import InputError
-from estimator.lie import se3
+from rodo.estimator import measurements
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
 
 from .run_metrics import align_to_first, position_covariance_world
 
@@ -34,8 +34,8 @@ def fig1_data(n_samples: int = 400, n_times: int = 4, horizon: float = 2.0, seed
         cov_varpi, cov_vd (n_times, 6, 6); mean_path (50, 3) the mean position over [0, horizon];
         case (the set-up dict).
     """
-    from estimator.priors import ConstantAccelerationPrior
-    from sim.prior_sampling import propagate_mean_cov, sample_prior, yaw_acceleration_case
+    from rodo.estimator.priors import ConstantAccelerationPrior
+    from rodo.sim.prior_sampling import propagate_mean_cov, sample_prior, yaw_acceleration_case
 
     case = yaw_acceleration_case()
     prior = ConstantAccelerationPrior(case["Qc"])
@@ -84,8 +84,8 @@ def fig2_data(seed: int = 0, cartesian_sigma: float | None = None, max_points: i
         sigmas (4,); crossover_range (m) c / s_az; ranges (k,), semi_polar (k, 2) 3-sigma [radial, lateral]
         and semi_cartesian (scalar) for the range sweep.
     """
-    import scenarios
-    from estimator.config import NoiseConfig
+    from rodo import scenarios
+    from rodo.estimator.config import NoiseConfig
 
     c = NoiseConfig().cartesian_sigma if cartesian_sigma is None else float(cartesian_sigma)
     if not c > 0:
@@ -127,9 +127,9 @@ def fig3_data(yaw_accel: float = 1.0, speed: float = 10.0, yaw_rate: float = 0.2
         d2_full, d2_noacc (2,); p_world (3,); T_vehicle_sensor (4, 4); x_k (T, varpi, vd); x_noacc (T, varpi);
         dt, yaw_accel, varpi0, vd0.
     """
-    from estimator.config import NoiseConfig
-    from estimator.priors import ConstantAccelerationPrior
-    from sim.radar import RadarConfig
+    from rodo.estimator.config import NoiseConfig
+    from rodo.estimator.priors import ConstantAccelerationPrior
+    from rodo.sim.radar import RadarConfig
 
     radar = RadarConfig()
     T_vs = np.asarray(radar.T_vehicle_sensor, dtype=float)
@@ -183,9 +183,9 @@ def fig4_data(scenario: str = "hills", seed: int = 0, duration: float = 12.0, pr
         dict: t (N,); truth, cv, ca (N, 3) world positions (truth frame); distance (N,) truth path length;
         final_error (dict model -> m); path_length (m); scenario, seed, duration.
     """
-    import scenarios
-    from estimator.config import OdometryConfig
-    from validation.driver import run_sequence
+    from rodo import scenarios
+    from rodo.estimator.config import OdometryConfig
+    from rodo.validation.driver import run_sequence
 
     seq, _ = scenarios.get(scenario).simulate(seed, duration=duration)
     gt = seq.groundtruth
@@ -221,10 +221,10 @@ def fig5_data(scenario: str = "city", seed: int = 2, duration: float = 30.0, pro
         dict: distance (N,) truth path length; runs {label: (N, 6) drift series [x, y, z m, roll, pitch, yaw
         deg]}; final {label: {z, roll, pitch}}; path_length (m); scenario, seed, duration.
     """
-    import scenarios
-    from estimator.config import OdometryConfig
-    from validation.driver import run_sequence
-    from validation.metrics import drift
+    from rodo import scenarios
+    from rodo.estimator.config import OdometryConfig
+    from rodo.validation.driver import run_sequence
+    from rodo.validation.metrics import drift
 
     seq, _ = scenarios.get(scenario).simulate(seed, duration=duration)
     gt = seq.groundtruth.T_world_vehicle

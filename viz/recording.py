@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errors import InputError, check_finite
-from estimator.lie import se3
+from rodo.estimator.errors import InputError, check_finite
+from rodo.estimator.lie import se3
 
 from . import run_metrics as rm
 

@@ -16,8 +16,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from estimator.errors import InputError, check_finite
-from estimator.lie import se3, so3
+from rodo.estimator.errors import InputError, check_finite
+from rodo.estimator.lie import se3, so3
 
 
 def nees_bounds(dof: int, n_runs: int = 1, prob: float = 0.95) -> tuple[float, float]:

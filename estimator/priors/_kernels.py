@@ -20,8 +20,8 @@ import math
 import numpy as np
 from numba import njit
 
-from estimator.lie._series import SE3_EXP, SE3_H, SE3_JAC, SO3_EXP, SO3_JAC
-from estimator.lie.so3 import TAYLOR_BELOW
+from rodo.estimator.lie._series import SE3_EXP, SE3_H, SE3_JAC, SO3_EXP, SO3_JAC
+from rodo.estimator.lie.so3 import TAYLOR_BELOW
 
 # kind 0: exp (Ad), 1: left Jacobian J, 2: H = sum S^n/(n+2)!
 _SE3_TAB = np.ascontiguousarray(np.stack([SE3_EXP, SE3_JAC, SE3_H]))

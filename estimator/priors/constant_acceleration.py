@@ -24,8 +24,8 @@ import math
 import numpy as np
 from numba import njit
 
-from estimator.errors import InputError, check_finite
-from estimator.lie import se3
+from rodo.estimator.errors import InputError, check_finite
+from rodo.estimator.lie import se3
 
 from . import _kernels as K
 

@@ -21,8 +21,8 @@ import math
 import numpy as np
 from numba import njit
 
-from estimator.errors import InputError, check_finite
-from estimator.lie import se3
+from rodo.estimator.errors import InputError, check_finite
+from rodo.estimator.lie import se3
 
 from . import _kernels as K
 from .constant_acceleration import (_check_dt, _outputs, _single_pose, _vec6, block_diag3, check_batch, check_pose,

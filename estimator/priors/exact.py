@@ -20,8 +20,8 @@ import numpy as np
 import scipy.linalg as sla
 from scipy.integrate import solve_ivp
 
-from estimator.errors import InputError, check_finite
-from estimator.lie import se3
+from rodo.estimator.errors import InputError, check_finite
+from rodo.estimator.lie import se3
 
 from ._kernels import magnus_sigma
 from .constant_acceleration import ConstantAccelerationPrior, _check_dt

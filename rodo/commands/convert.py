@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 FORMATS = ("radarscenes", "ti-mmwave", "vod")
 
@@ -45,7 +45,7 @@ def register(subparsers) -> None:
 
 
 def _sigmas(text: str):
-    from sim.sequence import NoiseSigmas
+    from rodo.sim.sequence import NoiseSigmas
 
     try:
         values = [float(s) for s in text.split(",")]
@@ -62,7 +62,7 @@ def _sigmas(text: str):
 def run(args) -> int:
     from pathlib import Path
 
-    from sim.convert import _common, radarscenes, ti_mmwave, vod
+    from rodo.sim.convert import _common, radarscenes, ti_mmwave, vod
 
     for option, value, owner in (("--radars", args.radars, "radarscenes"), ("--t-max", args.t_max, "radarscenes"),
                                  ("--rate", args.rate, "vod")):

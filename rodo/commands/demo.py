@@ -15,8 +15,8 @@ import json
 import time
 from pathlib import Path
 
-from estimator.config import OdometryConfig
-from estimator.errors import InputError
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.errors import InputError
 from rodo.progress import Progress
 
 
@@ -39,11 +39,11 @@ def _step(msg: str) -> float:
 def main(args) -> int:
     import numpy as np
 
-    import scenarios
-    from sim.sequence import read_sequence
-    from sim.simulate import load_truth
-    from validation.driver import run_sequence, scan_times, write_run
-    from validation.metrics import evaluate
+    from rodo import scenarios
+    from rodo.sim.sequence import read_sequence
+    from rodo.sim.simulate import load_truth
+    from rodo.validation.driver import run_sequence, scan_times, write_run
+    from rodo.validation.metrics import evaluate
 
     from rodo.commands.run import check_out_dir
 
@@ -90,14 +90,14 @@ def main(args) -> int:
                                                              "drift")} for m, (_, ev) in results.items()}
     rrd = out / "ca-polar.rrd"
     tic = _step("writing the Rerun recording of the CA/P run")
-    from viz.recording import ScanDetail, record_run
+    from rodo.viz.recording import ScanDetail, record_run
 
     res = results["ca-polar"][0]
     record_run(rrd, seq, res, truth=truth, detail=[ScanDetail(**e.detail) for e in res.estimates])
     print(f"    {time.perf_counter() - tic:.1f} s -> {rrd}")
     if not args.no_figures:
         tic = _step("paper figures (quick versions)")
-        from viz.figures import write_all
+        from rodo.viz.figures import write_all
 
         paths = write_all(out / "figures", quick=True)
         print(f"    {time.perf_counter() - tic:.1f} s -> {', '.join(str(p) for p in paths)}")
@@ -120,6 +120,6 @@ def _table(results) -> str:
 
 
 def _jsonable(obj):
-    from validation.metrics import jsonable
+    from rodo.validation.metrics import jsonable
 
     return jsonable(obj)

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.ego_velocity import PLANAR_ELEVATION, estimate_ego_velocity
-from estimator.errors import InputError
+from rodo.estimator.ego_velocity import PLANAR_ELEVATION, estimate_ego_velocity
+from rodo.estimator.errors import InputError
 from rodo.progress import Progress
 
 HEADER = "scan,t,vx,vy,vz,inliers"
@@ -42,7 +42,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from sim.sequence import read_sequence
+    from rodo.sim.sequence import read_sequence
 
     if args.seed < 0:
         raise InputError(f"--seed: must be >= 0, got {args.seed}")

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errors import InputError
-from sim.sequence import read_tum
-from validation.metrics import DEFAULT_TOLERANCE, associate, evaluate, jsonable
+from rodo.estimator.errors import InputError
+from rodo.sim.sequence import read_tum
+from rodo.validation.metrics import DEFAULT_TOLERANCE, associate, evaluate, jsonable
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -23,7 +23,7 @@ def register(subparsers) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from viz.figures import write_all  # viz is the only package importing matplotlib
+    from rodo.viz.figures import write_all  # viz is the only package importing matplotlib
 
     from rodo.commands.run import check_out_dir
 

@@ -7,11 +7,11 @@ from __future__ import annotations
 import argparse
 import os
 
-from estimator.config import MODELS
-from estimator.errors import InputError
+from rodo.estimator.config import MODELS
+from rodo.estimator.errors import InputError
 from rodo.progress import Progress
-from validation.campaign import make_executor, make_trials, remaining, run_campaign, summarize_campaign, write_summary
-from validation.trial import ScenarioTrial
+from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign, summarize_campaign, write_summary
+from rodo.validation.trial import ScenarioTrial
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -52,7 +52,7 @@ def plot_summary(out_dir, summary: dict) -> str:
     """Plot the average NEES per model through viz.figures.plot_nees when it exists; returns a note for
     summary.md (where the plot is, or why there is none)."""
     try:
-        from viz.figures import plot_nees  # viz is the only package that imports matplotlib
+        from rodo.viz.figures import plot_nees  # viz is the only package that imports matplotlib
     except ImportError as exc:
         return f"No NEES plot: viz.figures.plot_nees is not available ({exc})."
     curves = {m: e for m, e in summary["models"].items() if "nees_curve" in e}
@@ -86,7 +86,7 @@ def check_campaign_options(args) -> None:
 
 def main(args) -> int:
     check_campaign_options(args)
-    import scenarios
+    from rodo import scenarios
 
     scenarios.get(args.scenario)  # unknown names fail here, listing the known ones
     models = parse_models(args.models)

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errors import InputError
-from estimator.priors import ConstantAccelerationPrior
-from sim import prior_sampling as ps
+from rodo.estimator.errors import InputError
+from rodo.estimator.priors import ConstantAccelerationPrior
+from rodo.sim import prior_sampling as ps
 
 
 def register(subparsers) -> None:

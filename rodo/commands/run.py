@@ -6,12 +6,12 @@ import argparse
 import json
 from pathlib import Path
 
-from estimator.config import MODELS, OdometryConfig
-from estimator.errors import InputError
+from rodo.estimator.config import MODELS, OdometryConfig
+from rodo.estimator.errors import InputError
 from rodo.progress import Progress
-from sim.sequence import read_sequence
-from sim.simulate import TRUTH_NPZ, load_truth
-from validation.driver import run_sequence, scan_times, write_run
+from rodo.sim.sequence import read_sequence
+from rodo.sim.simulate import TRUTH_NPZ, load_truth
+from rodo.validation.driver import run_sequence, scan_times, write_run
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -64,7 +64,7 @@ def main(args) -> int:
         result = run_sequence(seq, config, progress=bar, record_detail=bool(args.rerun))
     write_run(args.out, result)
     if args.rerun:
-        from viz.recording import ScanDetail, record_run  # viz is the only package importing rerun
+        from rodo.viz.recording import ScanDetail, record_run  # viz is the only package importing rerun
 
         truth_path = Path(args.sequence) / TRUTH_NPZ
         truth = load_truth(args.sequence) if truth_path.exists() else None

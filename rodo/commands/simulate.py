@@ -8,7 +8,7 @@ import argparse
 
 import numpy as np
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 
 def register(subparsers) -> None:
@@ -30,7 +30,7 @@ def register(subparsers) -> None:
 
 
 def run_scenarios(args: argparse.Namespace) -> int:
-    import scenarios
+    from rodo import scenarios
 
     for name in scenarios.names():
         print(scenarios.get(name).summary())
@@ -38,9 +38,9 @@ def run_scenarios(args: argparse.Namespace) -> int:
 
 
 def run_simulate(args: argparse.Namespace) -> int:
-    import scenarios
+    from rodo import scenarios
     from rodo.progress import Progress
-    from sim.simulate import path_length
+    from rodo.sim.simulate import path_length
 
     scenario = scenarios.get(args.scenario)  # InputError listing the known names -> exit 2
     if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
@@ -55,7 +55,7 @@ def run_simulate(args: argparse.Namespace) -> int:
           f"(min {counts.min()}, max {counts.max()}), empty scans {int(np.sum(counts == 0))}, "
           f"path length {path_length(seq.groundtruth.T_world_vehicle):.1f} m")
     if args.rerun:
-        from viz.recording import record_sequence  # viz is the only package importing rerun
+        from rodo.viz.recording import record_sequence  # viz is the only package importing rerun
 
         record_sequence(args.rerun, seq, truth)
         print(f"wrote {args.rerun} (open it with: rodo view {args.rerun})")

@@ -10,11 +10,11 @@ from __future__ import annotations
 import argparse
 import os
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 from rodo.progress import Progress
 from rodo.commands.montecarlo import add_campaign_options, check_campaign_options
-from validation.campaign import make_executor, make_trials, remaining, run_campaign
-from validation.table1 import MODELS, SCENARIOS, Table1Trial, build_table, load_runs, write_table
+from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign
+from rodo.validation.table1 import MODELS, SCENARIOS, Table1Trial, build_table, load_runs, write_table
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def parse_scenarios(text: str) -> list[str]:
-    import scenarios
+    from rodo import scenarios
 
     names = [s.strip() for s in text.split(",") if s.strip()]
     if not names:

@@ -14,7 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 
 
 def register(subparsers) -> None:

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errors import InputError
-from sim.sequence import RadarScan, Sequence, write_sequence
+from rodo.estimator.errors import InputError
+from rodo.sim.sequence import RadarScan, Sequence, write_sequence
 
 CONVERSION_JSON = "conversion.json"
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")

@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errors import InputError
-from estimator.lie import so3
-from sim.sequence import NoiseSigmas, SensorConfig, Sequence, Trajectory
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import so3
+from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence, Trajectory
 
 from ._common import Conversion, ConversionReport, planar_poses, read_csv, scans_from_rows
 

@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errors import InputError
-from estimator.lie import so3
-from sim.sequence import NoiseSigmas, SensorConfig, Sequence
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import so3
+from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence
 
 from ._common import Conversion, ConversionReport, polar_from_xyz, read_csv, read_flat_yaml, scans_from_rows
 

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errors import InputError
-from sim.sequence import NoiseSigmas, SensorConfig, Sequence
+from rodo.estimator.errors import InputError
+from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence
 
 from ._common import Conversion, ConversionReport, polar_from_xyz, scans_from_rows
 

@@ -9,7 +9,7 @@ import shutil
 
 import pytest
 
-import scenarios
+from rodo import scenarios
 from rodo import cli
 from rodo.cli import main
 

@@ -7,7 +7,7 @@ import pytest
 
 from rodo.cli import main
 from rodo.commands import demo as demo_cmd
-from sim.sequence import read_sequence, read_tum
+from rodo.sim.sequence import read_sequence, read_tum
 
 
 @pytest.mark.slow

@@ -5,11 +5,11 @@ import json
 import numpy as np
 import pytest
 
-from estimator.lie import se3
+from rodo.estimator.lie import se3
 from rodo.cli import main
 from rodo.commands import evaluate as evaluate_cmd
-from sim.sequence import Trajectory, read_tum, write_tum
-from validation.metrics import evaluate
+from rodo.sim.sequence import Trajectory, read_tum, write_tum
+from rodo.validation.metrics import evaluate
 
 
 def _run(argv):
@@ -62,7 +62,7 @@ def test_accepts_tum_from_other_tools(files, capsys):
     d, gt, _ = files
     # a header comment, tabs, scientific notation, negative qw (the same rotation), fewer digits
     T = gt.T_world_vehicle
-    from estimator.lie import so3
+    from rodo.estimator.lie import so3
 
     q = -so3.to_quaternion(T[:, :3, :3])
     lines = ["# timestamp tx ty tz qx qy qz qw"]

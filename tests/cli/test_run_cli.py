@@ -12,12 +12,12 @@ import sys
 import numpy as np
 import pytest
 
-import scenarios
-from estimator.config import OdometryConfig
-from estimator.errors import InputError
+from rodo import scenarios
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.errors import InputError
 from rodo.cli import main
 from rodo.commands import run as run_cmd
-from sim.sequence import read_sequence, read_tum
+from rodo.sim.sequence import read_sequence, read_tum
 
 MODELS = {"ca-polar": 18, "cv-cartesian": 12}
 SUMMARY_KEYS = {"model", "scans", "median_associations", "median_ms_per_scan", "p95_ms_per_scan", "config"}

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.lie import se3, so3
-from estimator.priors.exact import exact_predict
+from rodo.estimator.lie import se3, so3
+from rodo.estimator.priors.exact import exact_predict
 
 T_VEHICLE_SENSOR = se3.from_rotation_translation(so3.exp(np.array([0.0, 0.02, 0.03])), np.array([3.5, 0.1, 0.6]))
 SIGMAS = np.array([0.02, np.deg2rad(0.15), np.deg2rad(0.3), 0.01])

@@ -5,12 +5,12 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator import measurements as ms
+from rodo.estimator import measurements as ms
 from scipy.spatial import cKDTree
 
-from estimator.association import associate, gate_threshold, innovation_covariance, search
-from estimator.errors import InputError
-from estimator.lie import se3, so3
+from rodo.estimator.association import associate, gate_threshold, innovation_covariance, search
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3, so3
 
 T_VS = se3.from_rotation_translation(so3.exp(np.array([0.0, 0.02, 0.0])), np.array([3.5, 0.0, 0.6]))
 # the paper's sensor: 2 cm, 0.15 deg, 0.3 deg, 0.01 m/s
@@ -177,7 +177,7 @@ def test_empty_inputs_and_bad_input():
 def test_pair_order_is_lexsort_with_ties(pairs):
     """The compiled ordering of the greedy matching = np.lexsort((i, j, d2)): ascending d2, ties (frequent here:
     d2 takes four values) by map index j, then detection index i."""
-    from estimator import _association_kernel as kernel
+    from rodo.estimator import _association_kernel as kernel
 
     j = np.array([p[0] for p in pairs], dtype=np.int64)
     i = np.array([p[1] for p in pairs], dtype=np.int64)

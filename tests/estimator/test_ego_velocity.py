@@ -5,8 +5,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator.ego_velocity import doppler_inliers, estimate_ego_velocity, least_squares_velocity
-from estimator.errors import InputError
+from rodo.estimator.ego_velocity import doppler_inliers, estimate_ego_velocity, least_squares_velocity
+from rodo.estimator.errors import InputError
 from tests.strategies import vectors
 
 
@@ -238,7 +238,7 @@ def test_bad_input_names_the_argument():
 
 def test_cli_ego_velocity(tmp_path):
     """End to end: a hand-made sequence (3-D scan with a moving object, planar scan, too-few scan) -> CSV."""
-    seq_mod = pytest.importorskip("sim.sequence")
+    seq_mod = pytest.importorskip("rodo.sim.sequence")
     from rodo.cli import main
     from rodo.commands import ego_velocity as cmd
 

@@ -8,8 +8,8 @@ import scipy.linalg as sla
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator.lie import se3, so3
-from estimator.lie import _series
+from rodo.estimator.lie import se3, so3
+from rodo.estimator.lie import _series
 from tests.helpers import numerical_jacobian
 from tests.strategies import rotation_vectors, twists
 

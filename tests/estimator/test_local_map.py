@@ -5,9 +5,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator.errors import InputError
-from estimator.lie import se3, so3
-from estimator.local_map import LocalMap
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3, so3
+from rodo.estimator.local_map import LocalMap
 
 
 def _rng(seed):

@@ -3,8 +3,8 @@ sensor noise, so a map point observed again really is the same point and fusing 
 
 import numpy as np
 
-from estimator.config import OdometryConfig
-from estimator.odometry import RadarOdometry
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.odometry import RadarOdometry
 from tests.estimator import scene
 
 
@@ -37,7 +37,7 @@ def test_fused_map_points_approach_the_landmarks():
 def test_fuse_options_are_checked():
     import pytest
 
-    from estimator.errors import InputError
+    from rodo.estimator.errors import InputError
     assert OdometryConfig().map.fuse is False                                  # off by default
     assert OdometryConfig.from_dict({"map": {"fuse": True, "max_fused": 0}}).map.max_fused == 0
     with pytest.raises(InputError, match="fuse"):

@@ -5,11 +5,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator import measurements
-from estimator import measurements as ms
-from estimator.measurements import MODELS
-from estimator.errors import InputError
-from estimator.lie import se3, so3
+from rodo.estimator import measurements
+from rodo.estimator import measurements as ms
+from rodo.estimator.measurements import MODELS
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3, so3
 from tests.helpers import left_perturbation_jacobian, numerical_jacobian
 from tests.strategies import twists, vectors, vehicle_motion
 

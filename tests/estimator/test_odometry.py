@@ -7,10 +7,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimator import measurements
-from estimator.config import OdometryConfig
-from estimator.lie import se3
-from estimator.odometry import RadarOdometry
+from rodo.estimator import measurements
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.lie import se3
+from rodo.estimator.odometry import RadarOdometry
 from tests.estimator import scene
 
 
@@ -67,7 +67,7 @@ def test_survives_empty_scans_gaps_and_clutter(model):
 
 
 def test_bad_input_is_rejected_with_a_clear_error():
-    from estimator.errors import InputError
+    from rodo.estimator.errors import InputError
 
     odo = RadarOdometry(OdometryConfig(), scene.T_VEHICLE_SENSOR, scene.SIGMAS)
     odo.process(0.0, np.zeros((0, 4)))
@@ -82,7 +82,7 @@ def test_bad_input_is_rejected_with_a_clear_error():
 def _two_segments(n1: int, n2: int, speed: float, brake: float, rate: float = 13.0):
     """Constant speed for n1 scans, then braking at `brake` m/s^2 (a step in acceleration: the jerk no prior
     expects) for n2 scans. Times, T_vehicle_world, varpi, varpi_dot."""
-    from estimator.priors.exact import exact_predict
+    from rodo.estimator.priors.exact import exact_predict
 
     t1, T1, w1, a1 = scene.trajectory(n1, rate, speed, 0.0, 0.0, 0.0, 0.0)
     vd = np.array([brake, 0, 0, 0, 0, 0])  # nu = -speed: braking makes nu_x grow towards 0
@@ -145,8 +145,8 @@ def test_prepared_association_equals_the_reference(model):
     """The odometry's compiled association (`_association_kernel.prepare` + `association.match`, one KD-tree per
     scan) gives the pairs, distances and solve information of the readable reference: `measurements.predict`,
     `association.innovation_covariance` plus the map-point term, `association.associate`."""
-    from estimator import _association_kernel as akernel
-    from estimator import association
+    from rodo.estimator import _association_kernel as akernel
+    from rodo.estimator import association
 
     rng = np.random.default_rng(3)
     t, T, varpi, vd = scene.trajectory(8)
@@ -195,7 +195,7 @@ def test_prepared_association_equals_the_reference(model):
 
 def test_association_window_is_the_same_for_map_points_and_detections():
     """Both sides cut at the field of view shrunk by 3 sigma; a 2D radar's elevation is not windowed."""
-    from estimator.errors import InputError
+    from rodo.estimator.errors import InputError
 
     D = np.pi / 180
     sig = np.array([0.02, 0.15 * D, 0.3 * D, 0.01])
@@ -268,7 +268,7 @@ def test_a_compact_object_outnumbering_the_world_is_not_taken():
 def test_support_counts_the_occupied_voxels(seed, n, voxel, extent):
     """The space a consensus covers (`consensus.support`) = the number of distinct voxel rows, also for
     negative coordinates and points on voxel faces."""
-    from estimator.consensus import support as _support
+    from rodo.estimator.consensus import support as _support
 
     rng = np.random.default_rng(seed)
     p = rng.uniform(-extent, extent, size=(n, 3))

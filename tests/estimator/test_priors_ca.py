@@ -7,10 +7,10 @@ import scipy.linalg as sla
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimator.errors import InputError
-from estimator.lie import se3
-from estimator.priors import ConstantAccelerationPrior
-from estimator.priors import exact as ex
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.estimator.priors import ConstantAccelerationPrior
+from rodo.estimator.priors import exact as ex
 from tests.helpers import numerical_jacobian
 from tests.strategies import twists, vectors, vehicle_motion
 

@@ -5,10 +5,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimator.errors import InputError
-from estimator.lie import se3
-from estimator.priors import ConstantVelocityPrior
-from estimator.priors import exact as ex
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.estimator.priors import ConstantVelocityPrior
+from rodo.estimator.priors import exact as ex
 from tests.helpers import numerical_jacobian
 from tests.strategies import twists, vectors, vehicle_motion
 

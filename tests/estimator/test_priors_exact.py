@@ -5,9 +5,9 @@ import pytest
 import scipy.linalg as sla
 from hypothesis import given, settings
 
-from estimator.errors import InputError
-from estimator.lie import se3
-from estimator.priors import exact as ex
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.estimator.priors import exact as ex
 from tests.helpers import numerical_jacobian
 from tests.strategies import twists, vehicle_motion
 

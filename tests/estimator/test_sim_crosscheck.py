@@ -5,9 +5,9 @@ noise-free measurement of it. A disagreement means one of them is wrong."""
 import numpy as np
 import pytest
 
-import scenarios
-from estimator import measurements
-from estimator.lie import se3
+from rodo import scenarios
+from rodo.estimator import measurements
+from rodo.estimator.lie import se3
 
 
 @pytest.mark.parametrize("name", ["city", "hills"])

@@ -7,11 +7,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimator import _measurement_kernel as kernel
-from estimator import measurements
-from estimator.lie import se3
-from estimator.state import MotionModel, State
-from estimator.window import MeasurementSet, SlidingWindow
+from rodo.estimator import _measurement_kernel as kernel
+from rodo.estimator import measurements
+from rodo.estimator.lie import se3
+from rodo.estimator.state import MotionModel, State
+from rodo.estimator.window import MeasurementSet, SlidingWindow
 from tests.estimator import scene
 
 
@@ -161,7 +161,7 @@ def test_batched_motion_residuals_equal_the_priors_residual(kind):
 def test_motion_kernel_log_and_jacobians_match_lie(scale):
     """The compiled SE(3) logarithm and inverse left Jacobians = estimator.lie's, from the identity through
     the Taylor range (< 1 rad) and the closed forms up to near pi."""
-    from estimator import _motion_kernel
+    from rodo.estimator import _motion_kernel
 
     rng = np.random.default_rng(int(scale * 1e3) + 1)
     for _ in range(20):
@@ -179,7 +179,7 @@ def test_motion_kernel_log_and_jacobians_match_lie(scale):
 @pytest.mark.parametrize("kind", ["ca", "cv"])
 def test_window_update_equals_state_oplus(kind):
     """The solver's compiled batched update = State.oplus state by state (small and large steps)."""
-    from estimator.window import _oplus_all
+    from rodo.estimator.window import _oplus_all
 
     rng = np.random.default_rng(5)
     motion = MotionModel(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
@@ -197,7 +197,7 @@ def test_window_update_equals_state_oplus(kind):
 @pytest.mark.parametrize("kind", ["ca", "cv"])
 def test_motion_terms_in_the_normal_equations(kind):
     """The compiled accumulation of the motion terms = J^T W J, J^T W e, 1/2 e^T W e summed in NumPy."""
-    from estimator import _motion_kernel
+    from rodo.estimator import _motion_kernel
 
     rng = np.random.default_rng(6)
     motion = MotionModel(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-import scenarios
-from estimator.errors import InputError
+from rodo import scenarios
+from rodo.estimator.errors import InputError
 from rodo import cli
 from rodo.commands import simulate as simulate_cmd
-from sim.sequence import read_sequence
+from rodo.sim.sequence import read_sequence
 
 REQUIRED = ["city", "highway", "hills", "stop_and_go", "blockage", "yaw_accel"]
 
@@ -38,7 +38,7 @@ def test_long_scenarios_cover_kitti_lengths(name):
 
 def test_hills_and_stop_and_go_do_what_they_say():
     parts = scenarios.get("hills").build(0, duration=60.0)
-    from sim.trajectory import route_of
+    from rodo.sim.trajectory import route_of
 
     assert np.ptp(route_of(parts.profile).p_world[:, 2]) > 5.0
     parts = scenarios.get("stop_and_go").build(0, duration=40.0)
@@ -47,7 +47,7 @@ def test_hills_and_stop_and_go_do_what_they_say():
 
 
 def test_blockage_has_near_total_and_total_blockage():
-    from scenarios.definitions import BLOCKAGE_BLACKOUT, BLOCKAGE_SLOW
+    from rodo.scenarios.definitions import BLOCKAGE_BLACKOUT, BLOCKAGE_SLOW
 
     seq, truth = scenarios.get("blockage").simulate(0, duration=BLOCKAGE_SLOW[1])
     counts = np.diff(truth["scan_offsets"])
@@ -108,9 +108,9 @@ def test_cli_unknown_scenario_exits_2_with_names(tmp_path, capsys):
 
 
 def test_noise_free_override_reproduces_geometry():
-    from estimator.lie import se3
-    from sim.radar import RadarConfig
-    from sim.sequence import polar_to_cartesian
+    from rodo.estimator.lie import se3
+    from rodo.sim.radar import RadarConfig
+    from rodo.sim.sequence import polar_to_cartesian
 
     cfg = RadarConfig().noise_free()
     seq, truth = scenarios.get("highway").simulate(0, duration=0.5, radar=cfg)

@@ -15,13 +15,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator.ego_velocity import estimate_ego_velocity
-from estimator.errors import InputError
+from rodo.estimator.ego_velocity import estimate_ego_velocity
+from rodo.estimator.errors import InputError
 from rodo import cli
 from rodo.commands import convert as convert_cmd
-from sim.convert import radarscenes, ti_mmwave, vod
-from sim.convert._common import CONVERSION_JSON, write_conversion
-from sim.sequence import polar_to_cartesian, read_sequence
+from rodo.sim.convert import radarscenes, ti_mmwave, vod
+from rodo.sim.convert._common import CONVERSION_JSON, write_conversion
+from rodo.sim.sequence import polar_to_cartesian, read_sequence
 
 
 def _rng(seed: int) -> np.random.Generator:
@@ -283,7 +283,7 @@ def test_ti_times_extrinsics_and_quantisation(tmp_path):
     seq = read_sequence(tmp_path / "seq")
     np.testing.assert_allclose([s.t for s in seq.scans], (trig - trig[0]) * 1e-9 + 0.00925, atol=1e-12)
     # the TI boresight (x_ti) is RIO's y_r axis: in the body frame it is C_b_r e_y
-    from estimator.lie import so3
+    from rodo.estimator.lie import so3
     C_b_r = so3.from_quaternion(np.array([0.923218461092, 0.375992995522, -0.0267831268675, -0.0746967504749]))
     T = seq.sensor.T_vehicle_sensor
     np.testing.assert_allclose(T[:3, 0], C_b_r[:, 1], atol=1e-9)

@@ -5,12 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from estimator.errors import InputError
-from estimator.priors import ConstantAccelerationPrior
-from estimator.priors.exact import exact_predict
+from rodo.estimator.errors import InputError
+from rodo.estimator.priors import ConstantAccelerationPrior
+from rodo.estimator.priors.exact import exact_predict
 from rodo import cli
 from rodo.commands import prior as prior_cmd
-from sim import prior_sampling as ps
+from rodo.sim import prior_sampling as ps
 
 N = 2000
 

@@ -9,12 +9,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from estimator.lie import se3, so3
-from sim import objects as ob
-from sim import trajectory as tr
-from sim.radar import DEG, Radar, RadarConfig
-from sim.sequence import polar_to_cartesian
-from sim.world import World
+from rodo.estimator.lie import se3, so3
+from rodo.sim import objects as ob
+from rodo.sim import trajectory as tr
+from rodo.sim.radar import DEG, Radar, RadarConfig
+from rodo.sim.sequence import polar_to_cartesian
+from rodo.sim.world import World
 from tests.strategies import vehicle_motion
 
 IDEAL = RadarConfig().noise_free()
@@ -206,7 +206,7 @@ def test_occlusion_agrees_with_brute_force_ray_casting():
     """In a generated city, almost no detection has an opaque surface of another object on its line of
     sight (brute force over all patches). The depth buffer tests cell-centre rays, so a target may peek
     past an edge within one cell: allow 1 %."""
-    from sim import world as w
+    from rodo.sim import world as w
 
     profile = tr.city(np.random.default_rng(0), 30.0)
     world = w.build_world(np.random.default_rng(1), tr.route_of(profile), w.CITY)

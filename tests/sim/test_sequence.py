@@ -9,8 +9,8 @@ import numpy as np
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from estimator.lie import se3, so3
-from sim.sequence import NoiseSigmas, RadarScan, SensorConfig, Sequence, Trajectory
+from rodo.estimator.lie import se3, so3
+from rodo.sim.sequence import NoiseSigmas, RadarScan, SensorConfig, Sequence, Trajectory
 from tests.strategies import rotation_vectors, vectors
 
 _fin = dict(allow_nan=False, allow_infinity=False)
@@ -82,9 +82,9 @@ from pathlib import Path  # noqa: E402
 import pytest  # noqa: E402
 from hypothesis import given  # noqa: E402
 
-from estimator.errors import InputError  # noqa: E402
-from sim import radar_csv  # noqa: E402
-from sim.sequence import (  # noqa: E402
+from rodo.estimator.errors import InputError  # noqa: E402
+from rodo.sim import radar_csv  # noqa: E402
+from rodo.sim.sequence import (  # noqa: E402
     cache_path,
     polar_to_cartesian,
     read_sensor_config,

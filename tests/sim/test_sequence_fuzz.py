@@ -15,8 +15,8 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from estimator.errors import InputError
-from sim.sequence import SequenceFormatError, read_sequence, write_sequence
+from rodo.estimator.errors import InputError
+from rodo.sim.sequence import SequenceFormatError, read_sequence, write_sequence
 from tests.sim.test_sequence import sequences
 
 REQUIRED = ("scan", "t", "range", "azimuth", "elevation", "radial_velocity")

@@ -5,12 +5,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimator.lie import se3
-from sim import trajectory as tr
-from sim import world as w
-from sim.radar import RadarConfig
-from sim.sequence import polar_to_cartesian, read_sequence, read_tum
-from sim.simulate import load_truth, save_npz, scan_times, simulate, write_simulation
+from rodo.estimator.lie import se3
+from rodo.sim import trajectory as tr
+from rodo.sim import world as w
+from rodo.sim.radar import RadarConfig
+from rodo.sim.sequence import polar_to_cartesian, read_sequence, read_tum
+from rodo.sim.simulate import load_truth, save_npz, scan_times, simulate, write_simulation
 
 
 @pytest.fixture(scope="module")

@@ -6,9 +6,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 
-from estimator.errors import InputError
-from estimator.lie import se3
-from sim import trajectory as tr
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.sim import trajectory as tr
 
 seg_strategy = st.builds(tr.Segment, duration=st.floats(0.3, 2.0), accel=st.floats(-3, 3),
                          roll_acc=st.floats(-0.2, 0.2), pitch_acc=st.floats(-0.2, 0.2),

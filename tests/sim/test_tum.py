@@ -10,9 +10,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator.errors import InputError
-from estimator.lie import se3
-from sim.sequence import Trajectory, read_tum, write_tum
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.sim.sequence import Trajectory, read_tum, write_tum
 from tests.strategies import rotation_vectors, vectors
 
 FIELDS = ("t", "tx", "ty", "tz", "qx", "qy", "qz", "qw")

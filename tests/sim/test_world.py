@@ -4,11 +4,11 @@ reproducibility, box geometry."""
 import numpy as np
 import pytest
 
-from estimator.errors import InputError
-from estimator.lie import se3
-from sim import objects as ob
-from sim import trajectory as tr
-from sim import world as w
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.sim import objects as ob
+from rodo.sim import trajectory as tr
+from rodo.sim import world as w
 
 
 @pytest.fixture(scope="module")

@@ -8,10 +8,10 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from estimator.errors import InputError
-from validation.campaign import (FIELDS, Trial, TrialOutcome, make_executor, make_trials, npz_path, read_results,
+from rodo.estimator.errors import InputError
+from rodo.validation.campaign import (FIELDS, Trial, TrialOutcome, make_executor, make_trials, npz_path, read_results,
                                  remaining, run_campaign, summarize_campaign, trial_seeds, write_summary)
-from validation.consistency import chi2_bounds
+from rodo.validation.consistency import chi2_bounds
 
 MODELS = ("ca-polar", "cv-cartesian")
 DIMS = {"ca-polar": 18, "cv-cartesian": 12}

@@ -5,10 +5,10 @@ import pytest
 from hypothesis import given
 from scipy.stats import chi2
 
-from estimator.errors import InputError
-from estimator.lie import se3
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
 from tests.strategies import twists
-from validation.consistency import (average_nees, chi2_bounds, gated_mean, nees, nees_sequence, nis_summary,
+from rodo.validation.consistency import (average_nees, chi2_bounds, gated_mean, nees, nees_sequence, nis_summary,
                                     state_error, truth_in_estimator_frame)
 
 

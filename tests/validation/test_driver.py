@@ -8,13 +8,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-import scenarios
-from estimator.config import OdometryConfig
-from estimator.errors import InputError
-from estimator.lie import se3
-from sim.sequence import (NoiseSigmas, RadarScan, SensorConfig, Sequence, Trajectory, read_sequence, read_tum,
+from rodo import scenarios
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.sim.sequence import (NoiseSigmas, RadarScan, SensorConfig, Sequence, Trajectory, read_sequence, read_tum,
                           write_sequence)
-from validation.driver import relative_pose_errors, run_sequence, scan_times, write_run
+from rodo.validation.driver import relative_pose_errors, run_sequence, scan_times, write_run
 
 RATE = 13.0
 GAP = (5, 6, 7, 8)  # scans left without rows (about 0.3 s of total blockage)

@@ -38,14 +38,14 @@ Checked against: validation/consistency.py (nees, chi2_bounds, average_nees, nee
 import numpy as np
 import pytest
 
-import scenarios
-from estimator.config import OdometryConfig
-from estimator.lie import se3
-from estimator.state import MotionModel
-from sim import prior_sampling as ps
-from validation.campaign import trial_seeds
-from validation.consistency import average_nees, chi2_bounds, nees, nees_sequence, state_error
-from validation.driver import run_sequence
+from rodo import scenarios
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.lie import se3
+from rodo.estimator.state import MotionModel
+from rodo.sim import prior_sampling as ps
+from rodo.validation.campaign import trial_seeds
+from rodo.validation.consistency import average_nees, chi2_bounds, nees, nees_sequence, state_error
+from rodo.validation.driver import run_sequence
 
 SCENARIO, RUNS, DURATION, SEED = "yaw_accel", 4, 3.0, 7
 FULL_TOLERANCE = 15.0  # average NEES / d, full state (measured 7.2 CA/P, 4.2 CV/C)

@@ -6,19 +6,19 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator.errors import InputError
-from estimator.lie import se3
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
 from tests.strategies import twists
-from validation.driver import scan_times
-from validation.icp_baseline import _predict, run_icp
+from rodo.validation.driver import scan_times
+from rodo.validation.icp_baseline import _predict, run_icp
 
 pytest.importorskip("open3d")
 
 
 @pytest.fixture(scope="module")
 def city_noise_free():
-    import scenarios
-    from sim.radar import RadarConfig
+    from rodo import scenarios
+    from rodo.sim.radar import RadarConfig
 
     seq, _ = scenarios.get("city").simulate(0, duration=5.0, radar=RadarConfig().noise_free())
     return seq
@@ -53,7 +53,7 @@ def test_icp_tracks_noise_free_city(city_noise_free, method):
 
 @pytest.mark.slow
 def test_doppler_filtered_icp_is_deterministic_and_tracks():
-    import scenarios
+    from rodo import scenarios
 
     seq, _ = scenarios.get("city").simulate(1, duration=3.0)  # with noise, clutter and movers
     a, _ = run_icp(seq, doppler_filter=True, seed=3)

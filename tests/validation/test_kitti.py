@@ -5,9 +5,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator.errors import InputError
-from estimator.lie import se3, so3
-from validation.kitti import LENGTHS, kitti_errors, trajectory_distances
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3, so3
+from rodo.validation.kitti import LENGTHS, kitti_errors, trajectory_distances
 
 
 def _straight(n: int) -> np.ndarray:

@@ -8,11 +8,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.optimize import minimize
 
-from estimator.errors import InputError
-from estimator.lie import se3, so3
-from sim.sequence import Trajectory
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3, so3
+from rodo.sim.sequence import Trajectory
 from tests.strategies import twists
-from validation.metrics import (DRIFT_AXES, associate, ate, drift, euler_zyx, evaluate, jsonable, rpe, umeyama_se3,
+from rodo.validation.metrics import (DRIFT_AXES, associate, ate, drift, euler_zyx, evaluate, jsonable, rpe, umeyama_se3,
                                 velocity_errors)
 
 

@@ -9,13 +9,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimator.config import OdometryConfig
-from estimator.ego_velocity import estimate_ego_velocity
-from sim.convert import radarscenes, ti_mmwave
-from sim.convert._common import read_csv
-from validation.driver import run_sequence
-from validation.kitti import kitti_errors
-from validation.metrics import drift
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.ego_velocity import estimate_ego_velocity
+from rodo.sim.convert import radarscenes, ti_mmwave
+from rodo.sim.convert._common import read_csv
+from rodo.validation.driver import run_sequence
+from rodo.validation.kitti import kitti_errors
+from rodo.validation.metrics import drift
 
 RS = "radarscenes_seq105_2d"
 TI = "rio_ti_mmwave_demo"

@@ -8,11 +8,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator.errors import InputError
+from rodo.estimator.errors import InputError
 from rodo import cli
 from rodo.commands import table1 as table1_cmd
-from validation.campaign import npz_path, read_results
-from validation.table1 import (LENGTHS, SHORT_LENGTHS, build_table, load_runs, render_markdown,
+from rodo.validation.campaign import npz_path, read_results
+from rodo.validation.table1 import (LENGTHS, SHORT_LENGTHS, build_table, load_runs, render_markdown,
                                segment_arrays)
 
 
@@ -171,7 +171,7 @@ def test_tiny_real_run_writes_table_and_resumes(tmp_path, capsys):
 
 def test_segment_arrays_match_kitti_on_a_known_drift():
     """A straight 150 m drive whose estimate is scaled by 1.02: every segment's translational error is 2 %."""
-    from sim.sequence import Trajectory
+    from rodo.sim.sequence import Trajectory
 
     t = np.arange(0, 15.0, 0.1)
     T = np.tile(np.eye(4), (len(t), 1, 1))

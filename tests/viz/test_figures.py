@@ -10,11 +10,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from estimator import measurements
-from estimator.errors import InputError
-from estimator.lie import se3
-from viz import figures, paper_data
-from viz.run_metrics import nees_bounds
+from rodo.estimator import measurements
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.viz import figures, paper_data
+from rodo.viz.run_metrics import nees_bounds
 
 
 def assert_png(path, min_bytes: int = 20_000):
@@ -132,8 +132,8 @@ def fig4():
 
 
 def test_fig4_trajectories_start_together_and_stay_close(fig4):
-    from sim.simulate import path_length
-    import scenarios
+    from rodo.sim.simulate import path_length
+    from rodo import scenarios
 
     assert np.allclose(fig4["ca"][0], fig4["truth"][0]) and np.allclose(fig4["cv"][0], fig4["truth"][0])
     assert np.all(np.diff(fig4["distance"]) >= 0)

@@ -12,14 +12,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.stats import chi2
 
-from estimator.config import OdometryConfig
-from estimator.errors import InputError
-from estimator.lie import se3
-from sim.sequence import Sequence
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.sim.sequence import Sequence
 from tests.strategies import twists
-from validation.driver import run_sequence
-from viz import run_metrics as rm
-from viz.recording import DETECTION_CLASSES, ScanDetail, record_run
+from rodo.validation.driver import run_sequence
+from rodo.viz import run_metrics as rm
+from rodo.viz.recording import DETECTION_CLASSES, ScanDetail, record_run
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -100,7 +100,7 @@ def test_match_times_nearest_within_tolerance():
 # ------------------------------------------------------------------------------------------- recordings
 @pytest.fixture(scope="module")
 def run():
-    import scenarios
+    from rodo import scenarios
 
     seq, truth = scenarios.get("hills").simulate(3, duration=1.2)
     result = run_sequence(seq, OdometryConfig.for_model("ca-polar"))
@@ -237,7 +237,7 @@ def test_recording_contents_match_the_run(run, tmp_path, strict_rerun):
     lines = np.array(_column(chunks, "/world/associations", "LineStrips3D:strips")[k])
     d = detail[k]
     T_ws = result.estimates[k].T_world_vehicle @ seq.sensor.T_vehicle_sensor
-    from estimator.measurements import polar_to_cartesian
+    from rodo.estimator.measurements import polar_to_cartesian
 
     assert np.allclose(lines[:, 0], se3.transform_points(T_ws, polar_to_cartesian(d.polar[d.det_idx])), atol=1e-3)
     assert np.allclose(lines[:, 1], d.map_points[d.map_idx], atol=1e-4)
@@ -294,7 +294,7 @@ def test_scan_detail_classes():
 
 
 def test_importing_viz_and_commands_loads_neither_rerun_nor_matplotlib():
-    code = ("import sys, viz, viz.recording, viz.figures, viz.paper_data, rodo.commands.view, "
+    code = ("import sys, rodo.viz, rodo.viz.recording, rodo.viz.figures, rodo.viz.paper_data, rodo.commands.view, "
             "rodo.commands.figures, rodo.commands.run; "
             "bad = [m for m in ('rerun', 'matplotlib') if m in sys.modules]; assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
@@ -347,7 +347,7 @@ def test_cv_recording_has_truth_only_acceleration(run, tmp_path):
 def test_rodo_run_writes_a_readable_recording(run, tmp_path, capsys):
     from rodo import cli
     from rodo.commands import run as run_command
-    from sim.simulate import write_simulation
+    from rodo.sim.simulate import write_simulation
 
     seq, truth, _ = run
     write_simulation(tmp_path / "seq", seq, truth)
@@ -365,7 +365,7 @@ def test_sequence_recording(tmp_path):
 
     from rodo.cli import main
     from rodo.commands import simulate
-    from sim.sequence import read_sequence
+    from rodo.sim.sequence import read_sequence
 
     out, rrd = tmp_path / "seq", tmp_path / "seq.rrd"
     assert main(["simulate", "city", "--seed", "2", "--duration", "1", "--out", str(out), "--rerun", str(rrd)],
