@@ -69,7 +69,7 @@ def _run_estimator(seq, model: str) -> tuple[dict, object]:
               for key in ("predict", "associate", "solve", "map")}
     speed = {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "stages": stages,
              "assoc": float(np.median([e.n_associated for e in est])),
-             "map": float(np.median([len(e.detail["map_points"]) for e in est]))}
+             "map": float(np.median([len(e.detail.map_points) for e in est]))}
     return speed, res.trajectory()
 
 

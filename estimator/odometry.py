@@ -22,8 +22,6 @@ Per scan k (paper sec. III-VI; docs/estimator.md gives the reasons and the measu
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
-
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -35,32 +33,10 @@ from .ego_velocity import estimate_ego_velocity, least_squares_velocity
 from .errors import InputError, check_finite
 from .lie import se3, so3
 from .local_map import LocalMap
+from .scan import ScanDetail, ScanEstimate
 from .state import MotionModel, State
 from .window import MeasurementSet, SlidingWindow
 
-
-
-@dataclass
-class ScanEstimate:
-    """The newest estimate after one scan."""
-
-    t: float
-    T_vehicle_world: np.ndarray  # (4, 4)
-    varpi: np.ndarray  # (6,)
-    vd: np.ndarray | None  # (6,) or None (CV)
-    P: np.ndarray  # (18, 18) or (12, 12) posterior covariance of the newest state
-    n_detections: int
-    n_static: int
-    n_associated: int
-    nis: float  # mean normalised innovation squared of the accepted associations (per pair, dof 4)
-    timings: dict = field(default_factory=dict)  # seconds: predict, associate, solve, map
-    events: list = field(default_factory=list)
-    detail: dict | None = None  # with record_detail: polar, static, det_idx, map_idx, map_points, rows
-    standstill: bool = False  # the zero-velocity term was applied (Doppler: the sensor at rest)
-
-    @property
-    def T_world_vehicle(self) -> np.ndarray:
-        return se3.inverse(self.T_vehicle_world)
 
 
 class RadarOdometry:
@@ -403,9 +379,8 @@ class RadarOdometry:
 
         detail = None
         if self.record_detail:
-            detail = dict(polar=polar, static=static, det_idx=np.flatnonzero(static)[assoc.det_idx],
-                          map_idx=assoc.map_idx.copy(), map_points=self.map.points.copy(),
-                          rows=np.flatnonzero(in_range))
+            detail = ScanDetail(polar, static, np.flatnonzero(static)[assoc.det_idx], assoc.map_idx.copy(),
+                                self.map.points.copy(), np.flatnonzero(in_range))
         tic = time.perf_counter()
         xk = self.window.newest
         if len(pts):

@@ -25,7 +25,8 @@ from threadpoolctl import threadpool_limits
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
-from rodo.estimator.odometry import RadarOdometry, ScanEstimate
+from rodo.estimator.odometry import RadarOdometry
+from rodo.estimator.scan import ScanEstimate
 from rodo.sim.sequence import Sequence, Trajectory, write_tum
 
 
@@ -120,7 +121,7 @@ def write_run(out_dir: str | Path, result: RunResult) -> None:
         t=result.t,
         T_vehicle_world=np.stack([e.T_vehicle_world for e in est]),
         varpi=np.stack([e.varpi for e in est]),
-        varpi_dot=np.stack([e.vd if e.vd is not None else np.zeros(6) for e in est]),
+        varpi_dot=np.stack([e.varpi_dot if e.varpi_dot is not None else np.zeros(6) for e in est]),
         P=np.stack([e.P for e in est]).reshape(len(est), d, d),
         n_detections=np.array([e.n_detections for e in est]),
         n_static=np.array([e.n_static for e in est]),

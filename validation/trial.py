@@ -75,7 +75,7 @@ def evaluate_result(model: str, result, gt, truth: dict, lengths, step: int, wal
         return TrialOutcome(model, error=f"non-finite estimate from scan {k} (t = {est[k].t:.3f} s)")
     d = est[0].P.shape[0]
     states = {"t": result.t, "T_vehicle_world": T, "varpi": np.stack([e.varpi for e in est]),
-              "varpi_dot": np.stack([e.vd if e.vd is not None else np.zeros(6) for e in est]),
+              "varpi_dot": np.stack([e.varpi_dot if e.varpi_dot is not None else np.zeros(6) for e in est]),
               "P": np.stack([e.P for e in est]).reshape(len(est), d, d),
               "nis": np.array([e.nis for e in est], dtype=float),
               "n_associated": np.array([e.n_associated for e in est]), "ms_per_scan": result.wall_ms}

@@ -12,13 +12,13 @@ Checked by: tests/viz/test_recording.py (recordings read back with rerun.chunk.R
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from rodo.estimator.errors import InputError, check_finite
 from rodo.estimator.lie import se3
+from rodo.estimator.scan import ScanDetail
 
 from . import run_metrics as rm
 
@@ -42,57 +42,14 @@ ACCEL_NAMES = ("nu_dot_x (m/s^2)", "nu_dot_y (m/s^2)", "nu_dot_z (m/s^2)", "omeg
                "omega_dot_y (rad/s^2)", "omega_dot_z (rad/s^2)")
 
 
-@dataclass
-class ScanDetail:
-    """Per-scan association detail the estimator can hand to `record_run` (RunResult does not keep it).
-
-    Attributes:
-        polar: (n, 4) detections [range, azimuth, elevation, radial_velocity] in the sensor frame, as the
-            estimator used them (after its range filter).
-        static: (n,) bool, True where the Doppler test kept the detection as static.
-        det_idx: (k,) int, associated detections, indices into `polar` (not into polar[static]).
-        map_idx: (k,) int, their map points, indices into `map_points`.
-        map_points: (m, 3) the local map in the estimator's world frame at association time (before the
-            map update of this scan).
-        rows: (n,) int indices of the detections in the scan's rows (radar.csv order), used to look up the
-            truth labels; None means polar is the whole scan in its original order.
-    """
-
-    polar: np.ndarray
-    static: np.ndarray
-    det_idx: np.ndarray
-    map_idx: np.ndarray
-    map_points: np.ndarray
-    rows: np.ndarray | None = None
-
-    def __post_init__(self):
-        self.polar = check_finite("ScanDetail.polar", self.polar, (4,)).reshape(-1, 4)
-        n = len(self.polar)
-        self.static = np.asarray(self.static, dtype=bool).reshape(-1)
-        if len(self.static) != n:
-            raise InputError(f"ScanDetail.static: expected {n} flags, got {len(self.static)}")
-        self.map_points = check_finite("ScanDetail.map_points", self.map_points, (3,)).reshape(-1, 3)
-        self.det_idx = np.asarray(self.det_idx, dtype=np.int64).reshape(-1)
-        self.map_idx = np.asarray(self.map_idx, dtype=np.int64).reshape(-1)
-        if len(self.det_idx) != len(self.map_idx):
-            raise InputError(f"ScanDetail.det_idx, map_idx: lengths differ ({len(self.det_idx)} vs "
-                             f"{len(self.map_idx)})")
-        for name, idx, size in (("det_idx", self.det_idx, n), ("map_idx", self.map_idx, len(self.map_points))):
-            if len(idx) and (idx.min() < 0 or idx.max() >= size):
-                raise InputError(f"ScanDetail.{name}: indices must lie in [0, {size}), got {idx.min()}..{idx.max()}")
-        if self.rows is not None:
-            self.rows = np.asarray(self.rows, dtype=np.int64).reshape(-1)
-            if len(self.rows) != n:
-                raise InputError(f"ScanDetail.rows: expected {n} indices, got {len(self.rows)}")
-
-    def classes(self, labels: np.ndarray | None = None) -> np.ndarray:
-        """Class id per detection (DETECTION_CLASSES): associated 0, gated out 1, moving 2; clutter 3 when the
-        truth labels (n,) are given (it overrides the status)."""
-        cls = np.where(self.static, 1, 2).astype(np.uint16)
-        cls[self.det_idx] = 0
-        if labels is not None:
-            cls[np.asarray(labels) == TRUTH_CLUTTER] = 3
-        return cls
+def detection_classes(detail: ScanDetail, labels: np.ndarray | None = None) -> np.ndarray:
+    """Class id per detection (DETECTION_CLASSES): associated 0, gated out 1, moving 2; clutter 3 when the
+    truth labels (n,) are given (it overrides the status)."""
+    cls = np.where(detail.static, 1, 2).astype(np.uint16)
+    cls[detail.det_idx] = 0
+    if labels is not None:
+        cls[np.asarray(labels) == TRUTH_CLUTTER] = 3
+    return cls
 
 
 def _sensor_points(polar: np.ndarray) -> np.ndarray:
@@ -211,7 +168,7 @@ def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
     ms = np.c_[result.wall_ms, np.array([[e.timings.get(s, np.nan) * 1e3 for s in stages] for e in est])]
     send("metrics/timing", "metrics/timing", ms, ["total (ms)"] + [f"{s} (ms)" for s in stages])
     varpi = np.stack([e.varpi for e in est])
-    vd = np.stack([e.vd for e in est]) if all(e.vd is not None for e in est) else None
+    vd = np.stack([e.varpi_dot for e in est]) if all(e.varpi_dot is not None for e in est) else None
     for group, names, e_val, t_val in (("velocity", VELOCITY_NAMES, varpi, truth.varpi),
                                        ("acceleration", ACCEL_NAMES, vd, truth.vd)):
         for i, name in enumerate(names):
@@ -242,7 +199,7 @@ def _log_scans(rec, rr, seq, result, truth: _Truth, detail) -> None:
                                                                 else None)
                     labels = all_labels[rows] if rows is not None else None
             p_s = _sensor_points(d.polar)
-            rec.log("world/vehicle/sensor/scan", rr.Points3D(p_s, class_ids=d.classes(labels), radii=0.15))
+            rec.log("world/vehicle/sensor/scan", rr.Points3D(p_s, class_ids=detection_classes(d, labels), radii=0.15))
             rec.log("world/map", rr.Points3D(d.map_points, colors=[(90, 90, 90)], radii=0.1))
             T_ws = e.T_world_vehicle @ seq.sensor.T_vehicle_sensor
             a = se3.transform_points(T_ws, p_s[d.det_idx]) if len(d.det_idx) else np.zeros((0, 3))

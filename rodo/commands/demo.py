@@ -90,10 +90,10 @@ def main(args) -> int:
                                                              "drift")} for m, (_, ev) in results.items()}
     rrd = out / "ca-polar.rrd"
     tic = _step("writing the Rerun recording of the CA/P run")
-    from rodo.viz.recording import ScanDetail, record_run
+    from rodo.viz.recording import record_run
 
     res = results["ca-polar"][0]
-    record_run(rrd, seq, res, truth=truth, detail=[ScanDetail(**e.detail) for e in res.estimates])
+    record_run(rrd, seq, res, truth=truth, detail=[e.detail for e in res.estimates])
     print(f"    {time.perf_counter() - tic:.1f} s -> {rrd}")
     if not args.no_figures:
         tic = _step("paper figures (quick versions)")

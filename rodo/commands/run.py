@@ -64,11 +64,11 @@ def main(args) -> int:
         result = run_sequence(seq, config, progress=bar, record_detail=bool(args.rerun))
     write_run(args.out, result)
     if args.rerun:
-        from rodo.viz.recording import ScanDetail, record_run  # viz is the only package importing rerun
+        from rodo.viz.recording import record_run  # viz is the only package importing rerun
 
         truth_path = Path(args.sequence) / TRUTH_NPZ
         truth = load_truth(args.sequence) if truth_path.exists() else None
-        details = [ScanDetail(**e.detail) for e in result.estimates]
+        details = [e.detail for e in result.estimates]
         record_run(args.rerun, seq, result, truth=truth, detail=details)
         print(f"wrote {args.rerun} (open it with: rodo view {args.rerun})")
     s = result.summary()

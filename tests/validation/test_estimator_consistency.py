@@ -59,7 +59,7 @@ def _states(result) -> dict:
     d = est[0].P.shape[0]
     return {"t": result.t, "T_vehicle_world": np.stack([e.T_vehicle_world for e in est]),
             "varpi": np.stack([e.varpi for e in est]),
-            "varpi_dot": np.stack([e.vd if e.vd is not None else np.zeros(6) for e in est]),
+            "varpi_dot": np.stack([e.varpi_dot if e.varpi_dot is not None else np.zeros(6) for e in est]),
             "P": np.stack([e.P for e in est]).reshape(len(est), d, d)}
 
 

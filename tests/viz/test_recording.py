@@ -19,7 +19,8 @@ from rodo.sim.sequence import Sequence
 from tests.strategies import twists
 from rodo.validation.driver import run_sequence
 from rodo.viz import run_metrics as rm
-from rodo.viz.recording import DETECTION_CLASSES, ScanDetail, record_run
+from rodo.estimator.scan import ScanDetail
+from rodo.viz.recording import DETECTION_CLASSES, detection_classes, record_run
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -232,7 +233,7 @@ def test_recording_contents_match_the_run(run, tmp_path, strict_rerun):
     cls = _column(chunks, "/world/vehicle/sensor/scan", "Points3D:class_ids")
     k = n - 1
     lab = truth["det_label"][truth["scan_offsets"][k]:truth["scan_offsets"][k + 1]]
-    assert np.array_equal(cls[k], detail[k].classes(lab))
+    assert np.array_equal(cls[k], detection_classes(detail[k], lab))
     assert set(np.unique(np.concatenate(cls))) <= set(DETECTION_CLASSES)
     lines = np.array(_column(chunks, "/world/associations", "LineStrips3D:strips")[k])
     d = detail[k]
@@ -279,6 +280,9 @@ def test_record_run_rejects_bad_input(run, tmp_path):
         record_run(tmp_path / "x.rrd", seq, result, detail=[None])
     with pytest.raises(InputError, match="truth"):
         record_run(tmp_path / "x.rrd", seq, result, truth={"t": truth["t"]})
+
+
+def test_scan_detail_rejects_inconsistent_input():
     with pytest.raises(InputError, match="ScanDetail.static"):
         ScanDetail(np.ones((3, 4)), [True, False], [], [], np.zeros((0, 3)))
     with pytest.raises(InputError, match="ScanDetail.map_idx"):
@@ -287,10 +291,10 @@ def test_record_run_rejects_bad_input(run, tmp_path):
         ScanDetail(np.full((3, 4), np.nan), [True] * 3, [], [], np.zeros((0, 3)))
 
 
-def test_scan_detail_classes():
+def test_detection_classes():
     d = ScanDetail(np.ones((5, 4)), [True, True, False, True, False], [3], [0], np.zeros((1, 3)))
-    assert d.classes().tolist() == [1, 1, 2, 0, 2]
-    assert d.classes(np.array([0, 3, 2, 0, 3])).tolist() == [1, 3, 2, 0, 3]
+    assert detection_classes(d).tolist() == [1, 1, 2, 0, 2]
+    assert detection_classes(d, np.array([0, 3, 2, 0, 3])).tolist() == [1, 3, 2, 0, 3]
 
 
 def test_importing_viz_and_commands_loads_neither_rerun_nor_matplotlib():
