@@ -1,0 +1,70 @@
+"""The paper's estimator: SE(3) math, the CV and CA motion priors, the polar and Cartesian measurement models,
+Doppler front end, association, local map, sliding-window MAP and the per-scan odometry.
+
+A map of the package (each module's public names are re-exported here):
+
+    lie/                SO(3) and SE(3) (`so3`, `se3`) and their compiled kernels
+    priors/             the array-level priors: ConstantAccelerationPrior (Magnus mean, F_k, Q_k),
+                        ConstantVelocityPrior, `exact` (ODE references)
+    state.py            State: {T_vehicle_world, varpi, varpi_dot} and its left perturbation
+    motion.py           MotionPrior (CA, CV): the priors as the estimator uses them
+    radar_geometry.py   polar <-> Cartesian with Jacobians, propagated position covariance
+    measurement_models.py  MeasurementModel (polar, Cartesian): space, noise, residual, association metric
+    measurements.py     the NumPy reference of the measurement prediction and its Jacobians (used as
+                        `rodo.estimator.measurements`, not re-exported: its names are the reference's)
+    association.py      gating and one-to-one maximum-likelihood matching (eq. 86-88)
+    scan_association.py the odometry's windowed, compiled association of the map with a scan
+    ego_velocity.py     Doppler ego-velocity (RANSAC, least squares)
+    consensus.py        which Doppler consensus is the world (the consensus switch)
+    doppler.py          the Doppler front end: static detections, velocity correction, standstill
+    local_map.py        LocalMap: the bounded map of points
+    window.py           SlidingWindow: Gauss-Newton over prior, motion and measurement terms, marginalisation
+    odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
+    scan.py             ScanEstimate, ScanDetail: what a scan returns
+    config.py           OdometryConfig and its sections (TOML)
+    errors.py           InputError, check_finite
+
+Configurations: `OdometryConfig.for_model("ca-polar")` (the paper's method), `"cv-cartesian"` (its baseline),
+`"ca-cartesian"` and `"cv-polar"` (ablations): the product of a `MotionPrior` and a `MeasurementModel`.
+Docs: docs/estimator.md, docs/priors.md, docs/measurements.md, docs/architecture.md.
+"""
+
+from importlib import import_module
+
+# public name -> the module that defines it. Loaded on first use (PEP 562), so `import rodo.estimator.lie`
+# (the simulator's only need) does not import numba and the compiled kernels.
+_EXPORTS = {
+    "association": ("Association", "associate", "gate_threshold", "innovation_covariance", "match"),
+    "config": ("MODELS", "OdometryConfig"),
+    "consensus": ("ConsensusSwitch",),
+    "doppler": ("DopplerFrontEnd", "body_velocity", "sensor_velocity"),
+    "ego_velocity": ("EgoVelocity", "estimate_ego_velocity", "least_squares_velocity"),
+    "errors": ("InputError", "check_finite"),
+    "lie": ("se3", "so3"),
+    "local_map": ("LocalMap",),
+    "measurement_models": ("CartesianModel", "MeasurementModel", "PolarModel", "measurement_model"),
+    "motion": ("ConstantAccelerationMotion", "ConstantVelocityMotion", "MotionPrior", "motion_prior",
+               "motion_prior_for"),
+    "odometry": ("RadarOdometry",),
+    "priors": ("ConstantAccelerationPrior", "ConstantVelocityPrior"),
+    "radar_geometry": ("cartesian_position_covariance", "polar_to_cartesian", "polar_to_cartesian_jacobian",
+                       "wrap_angle"),
+    "scan_association": ("MapAssociation", "ScanMeasurements"),
+    "scan": ("ScanDetail", "ScanEstimate"),
+    "state": ("State",),
+    "window": ("MeasurementSet", "SlidingWindow"),
+}
+_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    if name not in _WHERE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(f"{__name__}.{_WHERE[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_WHERE))

@@ -14,7 +14,7 @@ Pairs are gated at d2 <= gate (chi-square quantile, 4 dof, default 95 %). Candid
 the detections' Cartesian sensor-frame positions, queried around each map point's predicted position with the
 radius sqrt(gate * lambda_max(Sigma_pos,j)), capped at max_radius, where Sigma_pos,j is the position block of
 S_j expressed in Cartesian coordinates (for the polar model A S_j[:3, :3] A^T, A = d(cartesian)/d(polar) at the
-prediction, times a curvature factor k >= 1, see `_search_radius`). Since the 3-D marginal Mahalanobis distance
+prediction, times a curvature factor k >= 1, see `MeasurementModel.search_radius`). Since the 3-D marginal Mahalanobis distance
 never exceeds the 4-D one, this radius loses no gated pair unless the cap max_radius cuts it.
 
 One-to-one by greedy smallest d2: equivalent to repeatedly accepting every pair that is the best remaining pair
@@ -31,8 +31,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
-from rodo.estimator.errors import InputError, check_finite
-from rodo.estimator.measurements import MODELS, Prediction, polar_to_cartesian_jacobian
+from .errors import InputError, check_finite
+from .measurement_models import MeasurementModel, measurement_model
+from .measurements import Prediction
 
 from . import _association_kernel as _kernel
 
@@ -95,30 +96,12 @@ def innovation_covariance(pred: Prediction, P_pose_vel, R, map_sigma: float = 0.
     return 0.5 * (S + np.swapaxes(S, 1, 2))
 
 
-def _search_radius(model: str, pred: Prediction, S: np.ndarray, gate: float) -> np.ndarray:
-    """KD-tree radius per map point that contains every detection with d2 <= gate (before the cap), (m,).
-
-    Cartesian model: the 3-D marginal of the gate, sqrt(gate * lambda_max(S[:3, :3])).
-    Polar model: with A = d(cartesian)/d(polar) at the prediction, sqrt(gate * lambda_max(A S[:3, :3] A^T))
-    bounds the LINEARISED distance |A e|. The exact chord obeys |dp|^2 = dr^2 + 4 r1 r2 hav(gamma) <=
-    dr^2 + r1 r2 (del^2 + cos(el1) cos(el2) daz^2) <= k^2 |A e|^2 with k^2 = max(1, (r1 + dr_max) / (r1 cos el1)),
-    dr_max = sqrt(gate S_rr), so the radius is multiplied by k (~1 for the usual small range uncertainty).
-    """
-    if model == "cartesian":
-        return np.sqrt(gate * np.maximum(np.linalg.eigvalsh(S[:, :3, :3])[:, -1], 0.0))
-    A = polar_to_cartesian_jacobian(pred.z[:, :3])
-    lam = np.linalg.eigvalsh(A @ S[:, :3, :3] @ np.swapaxes(A, 1, 2))[:, -1]
-    r1, el1 = pred.z[:, 0], pred.z[:, 2]
-    k2 = np.maximum(1.0, (r1 + np.sqrt(gate * S[:, 0, 0])) / (r1 * np.cos(el1)))
-    return np.sqrt(gate * np.maximum(lam, 0.0) * k2)
-
-
 def _greedy_one_to_one(j: np.ndarray, i: np.ndarray, d2: np.ndarray, m: int, n: int) -> np.ndarray:
     """Mask of pairs chosen greedily by smallest d2 (ties: smaller j, then i), each j and i used at most once."""
     return _kernel.greedy_one_to_one(_kernel.order_by_d2(j, i, d2, n), j, i, m, n)
 
 
-def associate(model: str, z_meas, det_points_sensor, pred: Prediction, S, gate: float,
+def associate(model: str | MeasurementModel, z_meas, det_points_sensor, pred: Prediction, S, gate: float,
               max_radius: float = 5.0, max_candidates: int = 16) -> Association:
     """Gated, one-to-one nearest-neighbour association in the Mahalanobis metric (paper eq. 86-88).
 
@@ -137,8 +120,7 @@ def associate(model: str, z_meas, det_points_sensor, pred: Prediction, S, gate: 
 
     Checked by: tests/estimator/test_association.py
     """
-    if model not in MODELS:
-        raise InputError(f"model: expected one of {MODELS}, got {model!r}")
+    model = measurement_model(model)
     z_meas = check_finite("z_meas", z_meas, (4,))
     pts = check_finite("det_points_sensor", det_points_sensor, (3,))
     if z_meas.ndim != 2 or pts.ndim != 2 or len(pts) != len(z_meas):
@@ -161,7 +143,7 @@ def associate(model: str, z_meas, det_points_sensor, pred: Prediction, S, gate: 
         raise InputError("S: not positive definite for every map point") from None
     S_inv = np.linalg.inv(S)
 
-    radius = np.minimum(_search_radius(model, pred, S, gate), max_radius)
+    radius = np.minimum(model.search_radius(pred.z, S, gate), max_radius)
     return match(model, z_meas, cKDTree(pts), pred.z, pred.p_sensor, S_inv, radius, gate, max_candidates)[0]
 
 
@@ -217,7 +199,7 @@ def search(tree: cKDTree, p_sensor: np.ndarray, radius: np.ndarray, k: int, keys
     return Search(keys, p_sensor, bound, idx, dist, full)
 
 
-def match(model: str, z_meas: np.ndarray, tree: cKDTree, z_pred: np.ndarray, p_sensor: np.ndarray,
+def match(model: MeasurementModel, z_meas: np.ndarray, tree: cKDTree, z_pred: np.ndarray, p_sensor: np.ndarray,
           S_inv: np.ndarray, radius: np.ndarray, gate: float, max_candidates: int = 16,
           keys: np.ndarray | None = None, previous: Search | None = None) -> tuple[Association, Search]:
     """The candidate search, gating and one-to-one choice of `associate`, from prepared inputs (no checks):
@@ -245,7 +227,7 @@ def match(model: str, z_meas: np.ndarray, tree: cKDTree, z_pred: np.ndarray, p_s
         return empty, found
     j = np.nonzero(valid)[0].astype(np.int64)
     i = found.idx[valid].astype(np.int64)
-    d2 = _kernel.pair_d2(model == "polar", j, i, z_meas, z_pred, S_inv)  # e^T S^-1 e, azimuth wrapped
+    d2 = _kernel.pair_d2(model.is_polar, j, i, z_meas, z_pred, S_inv)  # e^T S^-1 e, azimuth wrapped
     keep = d2 <= gate
     j, i, d2 = j[keep], i[keep], d2[keep]
     chosen = _greedy_one_to_one(j, i, d2, m, n)

@@ -158,6 +158,11 @@ class OdometryConfig:
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
 
     def __post_init__(self):
+        self._check_model_and_noise()
+        self._check_solver()
+        self._check_association_and_map()
+
+    def _check_model_and_noise(self):
         if self.model not in MODELS:
             raise InputError(f"model: unknown {self.model!r}; known: {', '.join(MODELS)}")
         if not (isinstance(self.window, int) and self.window >= 2):
@@ -179,6 +184,8 @@ class OdometryConfig:
         if len(self.noise.sigma_floor) != 4 or min(self.noise.sigma_floor) <= 0:
             raise InputError("noise.sigma_floor: must be 4 positive numbers [range, azimuth, elevation, "
                              f"radial_velocity], got {list(self.noise.sigma_floor)}")
+
+    def _check_solver(self):
         if not self.solver.step_tolerance > 0:
             raise InputError(f"solver.step_tolerance: must be > 0, got {self.solver.step_tolerance}")
         if self.solver.iterations < 1 or self.solver.refine_iterations < 1:
@@ -192,6 +199,8 @@ class OdometryConfig:
                 raise InputError(f"solver.{name}: must be 3 positive numbers, got {list(v)}")
         if not self.solver.init_velocity_sigma > 0:
             raise InputError("solver.init_velocity_sigma: must be > 0")
+
+    def _check_association_and_map(self):
         if not self.association.max_radius > 0:
             raise InputError(f"association.max_radius: must be > 0, got {self.association.max_radius}")
         if self.association.reassociate < 0 or self.association.doppler_sigma_floor < 0:
@@ -227,11 +236,6 @@ class OdometryConfig:
     @property
     def measurement(self) -> str:
         return self.model.split("-")[1]
-
-    @property
-    def map_sigma(self) -> float:
-        """The map-point sigma of this configuration's measurement model."""
-        return self.noise.map_sigma_polar if self.measurement == "polar" else self.noise.map_sigma_cartesian
 
     @classmethod
     def for_model(cls, model: str, **overrides) -> "OdometryConfig":

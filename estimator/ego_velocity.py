@@ -158,6 +158,38 @@ def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Ge
     Checked by: tests/estimator/test_ego_velocity.py
     """
     azimuth, elevation, radial_velocity = _check_inputs(azimuth, elevation, radial_velocity)
+    threshold = _check_ransac_args(azimuth, rng, sigma_vr, threshold, iterations)
+    near = None if near is None else _check_near(near)
+    n = len(azimuth)
+    if planar is None:
+        planar = bool(n == 0 or np.all(np.abs(elevation) < PLANAR_ELEVATION))
+    dof = 2 if planar else 3
+    if n < dof:
+        return _failure(n, planar)
+    U = _directions(azimuth, elevation)[:, :dof]
+    b = -radial_velocity
+    v = _best_hypothesis(U, b, rng, int(iterations), threshold, near)
+    inl = np.abs(U @ v - b) <= threshold
+    if inl.sum() < dof:
+        return _failure(n, planar)
+    for _ in range(2):
+        v_new = _least_squares(U[inl], b[inl])
+        inl_new = np.abs(U @ v_new - b) <= threshold
+        if inl_new.sum() < dof:  # the refit lost the consensus: keep the previous one
+            break
+        v, inl = v_new, inl_new
+    fit = _fit(U[inl], b[inl], 1e-12, float(sigma_vr)**2, 1e12)
+    if fit is None:
+        return _failure(n, planar)
+    cov = np.zeros((3, 3))
+    cov[:dof, :dof] = fit[1]
+    v_out = np.zeros(3)
+    v_out[:dof] = fit[0]
+    return EgoVelocity(v_out, cov, inl, planar, True)
+
+
+def _check_ransac_args(azimuth, rng, sigma_vr, threshold, iterations) -> np.ndarray:
+    """Checked RANSAC settings; returns the inlier threshold (a number or one per detection)."""
     if not isinstance(rng, np.random.Generator):
         raise InputError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
     sigma_vr = float(check_finite("sigma_vr", sigma_vr))
@@ -170,51 +202,33 @@ def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Ge
         raise InputError(f"threshold: must be > 0, a number or one per detection, got shape {threshold.shape}")
     if isinstance(iterations, (bool, np.bool_)) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
         raise InputError(f"iterations: must be a positive integer, got {iterations}")
-    n = len(azimuth)
-    if planar is None:
-        planar = bool(n == 0 or np.all(np.abs(elevation) < PLANAR_ELEVATION))
-    dof = 2 if planar else 3
-    if n < dof:
-        return _failure(n, planar)
+    return threshold
 
-    U = _directions(azimuth, elevation)[:, :dof]
-    b = -radial_velocity
 
-    # hypotheses from minimal sets, solved in one batch; degenerate sets dropped (a set that repeats a
-    # detection has det = 0, so drawing with replacement is fine)
-    idx = rng.integers(0, n, size=(int(iterations), dof))
+def _check_near(near) -> tuple[np.ndarray, float]:
+    v_near = check_finite("near velocity", near[0], (3,))
+    radius = float(check_finite("near radius", near[1]))
+    if not radius > 0:
+        raise InputError(f"near radius: must be > 0, got {radius}")
+    return v_near, radius
+
+
+def _best_hypothesis(U: np.ndarray, b: np.ndarray, rng: np.random.Generator, iterations: int, threshold,
+                     near) -> np.ndarray:
+    """The hypothesis with the most inliers (ties: the closest to zero, or to the `near` velocity).
+
+    Hypotheses from minimal sets, solved in one batch; degenerate sets dropped (a set that repeats a detection
+    has det = 0, so drawing with replacement is fine). Zero (or the near velocity) is a hypothesis too."""
+    n, dof = U.shape
+    idx = rng.integers(0, n, size=(iterations, dof))
     A = U[idx]                                   # (k, dof, dof)
     good = np.abs(np.linalg.det(A)) > MIN_DET
-    hyps = np.zeros((1, dof))                    # the zero-velocity hypothesis first
-    if near is not None:
-        v_near = check_finite("near velocity", near[0], (3,))[:dof]
-        radius = float(check_finite("near radius", near[1]))
-        if not radius > 0:
-            raise InputError(f"near radius: must be > 0, got {radius}")
-        hyps = v_near[None, :]
+    hyps = np.zeros((1, dof)) if near is None else near[0][None, :dof]
     if np.any(good):
         hyps = np.concatenate([hyps, np.linalg.solve(A[good], b[idx[good]][..., None])[..., 0]])
+    ref = np.zeros(dof) if near is None else near[0][:dof]
     if near is not None:
-        hyps = hyps[np.linalg.norm(hyps - v_near, axis=1) <= radius]
+        hyps = hyps[np.linalg.norm(hyps - ref, axis=1) <= near[1]]
     counts = (np.abs(U @ hyps.T - b[:, None]) <= np.reshape(threshold, (-1, 1))).sum(axis=0)
-    ref = np.zeros(dof) if near is None else v_near
     order = np.lexsort((np.linalg.norm(hyps - ref, axis=1), -counts))  # most inliers, then closest to ref
-    v = hyps[order[0]]
-    inl = np.abs(U @ v - b) <= threshold
-    if inl.sum() < dof:
-        return _failure(n, planar)
-
-    for _ in range(2):
-        v_new = _least_squares(U[inl], b[inl])
-        inl_new = np.abs(U @ v_new - b) <= threshold
-        if inl_new.sum() < dof:  # the refit lost the consensus: keep the previous one
-            break
-        v, inl = v_new, inl_new
-    fit = _fit(U[inl], b[inl], 1e-12, sigma_vr**2, 1e12)
-    if fit is None:
-        return _failure(n, planar)
-    cov = np.zeros((3, 3))
-    cov[:dof, :dof] = fit[1]
-    v_out = np.zeros(3)
-    v_out[:dof] = fit[0]
-    return EgoVelocity(v_out, cov, inl, planar, True)
+    return hyps[order[0]]

@@ -77,6 +77,14 @@ class LocalMap:
         self._ids = np.zeros(0, dtype=np.int64)
         self._next_id = 0
 
+    def cleared(self) -> "LocalMap":
+        """An empty map with the same settings that continues this map's random stream (a re-initialisation).
+
+        Checked by: tests/estimator/test_local_map.py::test_cleared_map_continues_the_random_stream
+        """
+        return LocalMap(self.capacity, self.max_age, self.voxel, rng=self._rng,
+                        max_new_fraction=self.max_new_fraction)
+
     @staticmethod
     def _view(a: np.ndarray) -> np.ndarray:
         v = a.view()
@@ -241,17 +249,17 @@ class LocalMap:
         Checked by: tests/estimator/test_local_map.py::test_prune
         """
         scan = _int_arg("scan", scan)
-        T = check_finite("T_vehicle_world", T_vehicle_world, (4, 4))
-        Tvs = check_finite("T_vehicle_sensor", T_vehicle_sensor, (4, 4))
-        if T.shape != (4, 4) or Tvs.shape != (4, 4):
+        T_vehicle_world = check_finite("T_vehicle_world", T_vehicle_world, (4, 4))
+        T_vehicle_sensor = check_finite("T_vehicle_sensor", T_vehicle_sensor, (4, 4))
+        if T_vehicle_world.shape != (4, 4) or T_vehicle_sensor.shape != (4, 4):
             raise InputError("T_vehicle_world, T_vehicle_sensor: expected single (4, 4) poses")
         max_range = float(check_finite("max_range", max_range))
         if max_range <= 0:
             raise InputError(f"max_range: must be > 0, got {max_range}")
         if len(self) == 0:
             return
-        p_v = self._points @ T[:3, :3].T + T[:3, 3]
-        p_s = (p_v - Tvs[:3, 3]) @ Tvs[:3, :3]
+        p_v = self._points @ T_vehicle_world[:3, :3].T + T_vehicle_world[:3, 3]
+        p_s = (p_v - T_vehicle_sensor[:3, 3]) @ T_vehicle_sensor[:3, :3]
         keep = ((scan - self._last_seen) <= self.max_age) & (p_s[:, 0] > 0) \
             & (np.linalg.norm(p_s, axis=1) <= max_range)
         self._keep(keep)

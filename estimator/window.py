@@ -23,7 +23,9 @@ import scipy.linalg as sla
 from . import _measurement_kernel as _kernel
 from . import _motion_kernel
 from .lie import se3
-from .state import MotionModel, State
+from .measurement_models import MeasurementModel
+from .motion import MotionPrior
+from .state import State
 
 
 @dataclass
@@ -40,11 +42,11 @@ class MeasurementSet:
 
 
 class SlidingWindow:
-    def __init__(self, motion: MotionModel, size: int, measurement_model: str, T_vehicle_sensor: np.ndarray,
-                 robust_c: float = 3.0):
+    def __init__(self, motion: MotionPrior, size: int, measurement_model: MeasurementModel,
+                 T_vehicle_sensor: np.ndarray, robust_c: float = 3.0):
         self.motion = motion
         self.size = size
-        self.model = measurement_model
+        self.measurement_model = measurement_model
         self.T_vehicle_sensor = T_vehicle_sensor
         self.robust_c = robust_c
         self.states: list[State] = []
@@ -77,7 +79,7 @@ class SlidingWindow:
         self._H = None
 
     def set_rate_prior(self, k: int, info: np.ndarray | None) -> None:
-        """A zero-mean term on state k's rates: cost 1/2 t^T info t with t = [varpi; vd] (a standstill seen by
+        """A zero-mean term on state k's rates: cost 1/2 t^T info t with t = [varpi; varpi_dot] (a standstill seen by
         the Doppler: a wheeled vehicle at rest neither moves nor turns; or a moving road vehicle's roll and pitch
         rates), or None to remove it."""
         self.rate_prior[k] = info
@@ -96,7 +98,8 @@ class SlidingWindow:
         """e = x (-) prior_mean and de/dx = diag(J(e_xi)^-1, I)."""
         J = np.eye(self.motion.dim)
         xi, Jm = np.empty(6), np.empty((6, 6))
-        _motion_kernel.se3_log_and_jac_inv(x.T @ se3.inverse(self.prior_mean.T), xi, J[:6, :6], Jm)
+        _motion_kernel.se3_log_and_jac_inv(x.T_vehicle_world @ se3.inverse(self.prior_mean.T_vehicle_world), xi,
+                                           J[:6, :6], Jm)
         return np.concatenate((xi, x.vector_tail() - self.prior_mean.vector_tail())), J
 
     def _measurement_terms(self, ks: list[int]):
@@ -115,11 +118,10 @@ class SlidingWindow:
         _, offsets, p, z, W = self._packed
         fresh = [m.weights is None for m in sets]  # the kernel sets Cauchy weights where they are -1
         w = np.concatenate([np.full(len(m), -1.0) if f else m.weights for m, f in zip(sets, fresh)])
-        T = np.stack([self.states[k].T for k in ks])
+        T = np.stack([self.states[k].T_vehicle_world for k in ks])
         varpi = np.stack([self.states[k].varpi for k in ks])
-        model = _kernel.POLAR if self.model == "polar" else _kernel.CARTESIAN
         d2 = np.empty(len(z))
-        H, b, cost = _kernel.linearize_pairs(model, T, varpi, offsets, p, z, W, self.T_vehicle_sensor, w, d2,
+        H, b, cost = _kernel.linearize_pairs(self.measurement_model.kernel_code, T, varpi, offsets, p, z, W, self.T_vehicle_sensor, w, d2,
                                              float(self.robust_c))
         if any(fresh):
             for m, wk in zip(sets, np.split(w, offsets[1:-1])):
@@ -248,11 +250,11 @@ class SlidingWindow:
 def _oplus_all(states: list[State], d: np.ndarray) -> list[State]:
     """[x_k (+) d_k] for the whole window with one compiled batched exponential (`State.oplus` for all k)."""
     T = np.empty((len(states), 4, 4))
-    _motion_kernel.exp_times(np.ascontiguousarray(d[:, :6]), np.stack([x.T for x in states]), T)
+    _motion_kernel.exp_times(np.ascontiguousarray(d[:, :6]), np.stack([x.T_vehicle_world for x in states]), T)
     out = []
     for k, x in enumerate(states):
-        vd = None if x.vd is None else x.vd + d[k, 12:18]
-        out.append(State(x.t, T[k], x.varpi + d[k, 6:12], vd))
+        varpi_dot = None if x.varpi_dot is None else x.varpi_dot + d[k, 12:18]
+        out.append(State(x.t, T[k], x.varpi + d[k, 6:12], varpi_dot))
     return out
 
 

@@ -194,7 +194,7 @@ class ConstantAccelerationPrior:
         self.Qc = check_qc(Qc)
         self.magnus_order = int(magnus_order)
         self.noise = noise
-        self._noise_code = self.NOISE_MODELS.index(noise)
+        self.noise_code = self.NOISE_MODELS.index(noise)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(magnus_order={self.magnus_order}, noise={self.noise!r})"
@@ -253,7 +253,7 @@ class ConstantAccelerationPrior:
         varpi, varpi_dot = _vec6("varpi", varpi), _vec6("varpi_dot", varpi_dot)
         dt = _check_dt(dt)
         out = np.empty((2, 18, 18))
-        bad = K.ca_into(varpi, varpi_dot, dt, self.Qc, self.magnus_order, self._noise_code, want_q, out)
+        bad = K.ca_into(varpi, varpi_dot, dt, self.Qc, self.magnus_order, self.noise_code, want_q, out)
         if bad:
             raise InputError(f"{('varpi', 'varpi_dot')[bad - 1]}: contains NaN or infinity")
         return out[0], out[1]
@@ -284,7 +284,7 @@ class ConstantAccelerationPrior:
     def _batch(self, varpi, varpi_dot, dt, want_q, out):
         varpi, varpi_dot, dt = self._check_batch(varpi, varpi_dot, dt)
         F, Q = _outputs(out, varpi.shape[0], 18, want_q)
-        K.ca_batch(varpi, varpi_dot, dt, self.Qc, self.magnus_order, self._noise_code, F, Q, want_q)
+        K.ca_batch(varpi, varpi_dot, dt, self.Qc, self.magnus_order, self.noise_code, F, Q, want_q)
         return F, Q
 
     def transition_batch(self, varpi, varpi_dot, dt, out=None) -> np.ndarray:

@@ -211,3 +211,21 @@ def test_fuse_moves_only_the_fused_points_and_exact_points_stay():
         m.fuse(np.array([0]), np.zeros((2, 3)), np.stack([np.eye(3)] * 2), 2)
     with pytest.raises(InputError, match="max_fused"):
         m.fuse(np.array([0]), np.zeros((1, 3)), np.eye(3)[None], 2, max_fused=1)
+
+
+def test_cleared_map_continues_the_random_stream():
+    """A re-initialised map is empty, keeps the settings and draws on from the same random stream (the
+    odometry's runs stay reproducible through a re-initialisation)."""
+    rng_a, rng_b = np.random.default_rng(5), np.random.default_rng(5)
+    a = LocalMap(40, 7, 0.5, rng=rng_a, max_new_fraction=0.25)
+    a.add(np.random.default_rng(1).normal(size=(100, 3)) * 10, 0)
+    b = a.cleared()
+    assert len(b) == 0 and (b.capacity, b.max_age, b.voxel, b.max_new_fraction) == (40, 7, 0.5, 0.25)
+    reference = LocalMap(40, 7, 0.5, rng=rng_b, max_new_fraction=0.25)
+    reference.add(np.random.default_rng(1).normal(size=(100, 3)) * 10, 0)
+    fresh = LocalMap(40, 7, 0.5, rng=rng_b, max_new_fraction=0.25)  # a new map on the same stream position
+    new = np.random.default_rng(2).normal(size=(100, 3)) * 10
+    b.add(new, 1)
+    fresh.add(new, 1)
+    np.testing.assert_array_equal(b.points, fresh.points)
+    assert rng_a.random() == rng_b.random()

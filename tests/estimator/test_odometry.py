@@ -12,6 +12,7 @@ from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
 from tests.estimator import scene
+from tests.strategies import vectors
 
 
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
@@ -142,11 +143,12 @@ def test_standstill_holds_the_pose(model):
 
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
 def test_prepared_association_equals_the_reference(model):
-    """The odometry's compiled association (`_association_kernel.prepare` + `association.match`, one KD-tree per
+    """The odometry's compiled association (`association_kernels.prepare` + `association.match`, one KD-tree per
     scan) gives the pairs, distances and solve information of the readable reference: `measurements.predict`,
     `association.innovation_covariance` plus the map-point term, `association.associate`."""
-    from rodo.estimator import _association_kernel as akernel
+    from rodo.estimator import _association_kernel as akernel  # MERGE
     from rodo.estimator import association
+    from rodo.estimator.scan_association import ScanMeasurements
 
     rng = np.random.default_rng(3)
     t, T, varpi, vd = scene.trajectory(8)
@@ -161,17 +163,19 @@ def test_prepared_association_equals_the_reference(model):
     polar = scene.measure(T[7], varpi[7], vd[7], L, rng)
     z = measurements.to_model_space(odo.config.measurement, polar)
     pts = measurements.polar_to_cartesian(polar)
-    W_map, got = odo._associate(x, P, z, pts, polar, {})
+    assoc = odo.associator
+    W_map, got = assoc.associate(x, P, odo.map, ScanMeasurements.of(polar, odo.measurement))
 
-    pred = measurements.predict(odo.config.measurement, x.T, x.varpi, odo.map.points, odo.T_vs)
-    cov = odo.map.covariances + odo.config.map_sigma**2 * np.eye(3)
-    Smap = odo._R + pred.J_z_p @ cov @ np.swapaxes(pred.J_z_p, 1, 2)
+    pred = measurements.predict(odo.config.measurement, x.T_vehicle_world, x.varpi, odo.map.points,
+                                odo.T_vehicle_sensor)
+    cov = odo.map.covariances + odo.map_sigma**2 * np.eye(3)
+    Smap = assoc.R + pred.J_z_p @ cov @ np.swapaxes(pred.J_z_p, 1, 2)
     S = association.innovation_covariance(pred, P[:12, :12], Smap, 0.0)
-    m_in, d_in = odo._window_masks(pred.p_sensor, polar)
+    m_in, d_in = assoc.window_masks(pred.p_sensor, polar)
     mi, di = np.flatnonzero(m_in), np.flatnonzero(d_in)
     sub = measurements.Prediction(z=pred.z[mi], J_z_xi=pred.J_z_xi[mi], J_z_varpi=pred.J_z_varpi[mi],
                                   J_z_p=pred.J_z_p[mi], p_sensor=pred.p_sensor[mi])
-    ref = association.associate(odo.config.measurement, z[di], pts[di], sub, S[mi], odo.gate,
+    ref = association.associate(odo.config.measurement, z[di], pts[di], sub, S[mi], assoc.gate,
                                 odo.config.association.max_radius)
     assert len(ref.map_idx) > 100
     np.testing.assert_array_equal(got.map_idx, mi[ref.map_idx])
@@ -185,11 +189,12 @@ def test_prepared_association_equals_the_reference(model):
     m = len(odo.map)
     out = [np.empty((m, 4)), np.empty((m, 3)), np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4)),
            np.empty(m)]
-    assert akernel.prepare(model == "ca-polar", x.T, x.varpi, odo.map.points, odo.map.covariances,
-                           odo.config.map_sigma**2, P[:12, :12].copy(), odo._R, odo.T_vs, odo.gate, *out) == -1
+    assert akernel.prepare(odo.measurement.is_polar, x.T_vehicle_world, x.varpi, odo.map.points,
+                           odo.map.covariances, odo.map_sigma**2, P[:12, :12].copy(), assoc.R, odo.T_vehicle_sensor,
+                           assoc.gate, *out) == -1
     np.testing.assert_allclose(out[0], pred.z, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(out[2], S, rtol=1e-10, atol=1e-14)
-    radius = association._search_radius(odo.config.measurement, pred, S, odo.gate)
+    radius = odo.measurement.search_radius(pred.z, S, assoc.gate)
     assert np.all(out[5] >= radius) and np.allclose(out[5], radius, rtol=1e-7)
 
 
@@ -204,13 +209,13 @@ def test_association_window_is_the_same_for_map_points_and_detections():
     az = np.array([0.0, 59.0, 59.7, -59.0, 0.0]) * D
     polar = np.c_[np.full(5, 20.0), az, el, np.zeros(5)]
     p_sensor = measurements.polar_to_cartesian(polar)
-    m_in, d_in = odo._window_masks(p_sensor, polar)
+    m_in, d_in = odo.associator.window_masks(p_sensor, polar)
     np.testing.assert_array_equal(m_in, [False, True, False, True, False])
     np.testing.assert_array_equal(d_in, m_in)
     planar = RadarOdometry(OdometryConfig(), np.eye(4), [0.1, 0.01, 0.17, 0.1], 100.0,
                            fov=((-60 * D, 60 * D), (-1e-4, 1e-4)))
     flat = np.c_[np.full(3, 20.0), np.array([-50.0, 0.0, 50.0]) * D, np.zeros(3), np.zeros(3)]
-    m_in, d_in = planar._window_masks(measurements.polar_to_cartesian(flat) + [0, 0, 0.5], flat)
+    m_in, d_in = planar.associator.window_masks(measurements.polar_to_cartesian(flat) + [0, 0, 0.5], flat)
     assert m_in.all() and d_in.all()
     with pytest.raises(InputError, match="fov"):
         RadarOdometry(OdometryConfig(), np.eye(4), sig, 100.0, fov=((1.0, -1.0), (-0.1, 0.1)))
@@ -258,7 +263,7 @@ def test_a_compact_object_outnumbering_the_world_is_not_taken():
     assert "doppler-consensus-switch" not in events
     # the starting fit picks the world's detections (rows after the truck's), not the truck's
     scan = np.r_[truck_polar, scene.measure(T[0], varpi[0], vd[0], L, rng)]
-    ego = odo._widest_consensus(scan)
+    ego = odo.doppler.widest_consensus(scan)
     assert ego.inliers.shape == (len(scan),) and not ego.inliers[:n_truck].any()
     assert ego.inliers[n_truck:].mean() > 0.9
 
@@ -295,3 +300,19 @@ def test_vehicle_rate_terms_hold_roll_and_pitch(model):
             est = odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
         out[vehicle] = np.abs(se3.log(est.T_vehicle_world @ se3.inverse(T[-1] @ se3.inverse(T[0])))[3:5]).max()
     assert out["default"] < 0.02 and out["off"] > 10 * out["default"]
+
+
+@given(varpi=vectors(6, 5.0), xi=vectors(6, 2.0))
+def test_sensor_velocity_jacobian_matches_finite_differences(varpi, xi):
+    """v_s = -C_vs^T (nu + omega x r_vs) is linear in varpi: J_v_varpi by central differences, and
+    `body_velocity` inverts it for the given omega."""
+    from rodo.estimator.doppler import body_velocity, sensor_velocity
+
+    T_vehicle_sensor = se3.exp(xi)
+    v, J = sensor_velocity(varpi, T_vehicle_sensor)
+    h = 1e-6
+    J_fd = np.stack([(sensor_velocity(varpi + h * e, T_vehicle_sensor)[0]
+                      - sensor_velocity(varpi - h * e, T_vehicle_sensor)[0]) / (2 * h) for e in np.eye(6)], axis=1)
+    np.testing.assert_allclose(J, J_fd, atol=1e-8)
+    np.testing.assert_allclose(J @ varpi, v, atol=1e-12)
+    np.testing.assert_allclose(body_velocity(v, varpi[3:], T_vehicle_sensor), varpi[:3], atol=1e-9)

@@ -10,7 +10,9 @@ from hypothesis import strategies as st
 from rodo.estimator import _measurement_kernel as kernel
 from rodo.estimator import measurements
 from rodo.estimator.lie import se3
-from rodo.estimator.state import MotionModel, State
+from rodo.estimator.measurement_models import PolarModel
+from rodo.estimator.motion import motion_prior
+from rodo.estimator.state import State
 from rodo.estimator.window import MeasurementSet, SlidingWindow
 from tests.estimator import scene
 
@@ -65,8 +67,8 @@ def _window_with_scene(kind="ca", n=4, noisy=True, robust_c=3.0):
     rng = np.random.default_rng(5)
     t, T, varpi, vd = scene.trajectory(n)
     L = scene.landmarks(rng, n=300)
-    motion = MotionModel(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05) if kind == "ca" else (1, .05, .05, .01, .01, .05))
-    win = SlidingWindow(motion, n, "polar", scene.T_VEHICLE_SENSOR, robust_c=robust_c)
+    motion = motion_prior(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05) if kind == "ca" else (1, .05, .05, .01, .01, .05))
+    win = SlidingWindow(motion, n, PolarModel(), scene.T_VEHICLE_SENSOR, robust_c=robust_c)
     x0 = State(t[0], T[0], varpi[0], vd[0] if kind == "ca" else None)
     win.initialize(x0, np.eye(motion.dim) * 1.0)
     R = np.diag(scene.SIGMAS**2)
@@ -121,7 +123,7 @@ def test_gauss_newton_reaches_the_truth_on_noise_free_measurements():
     info = win.optimize(10)
     assert info["iterations"] < 10
     for k, x in enumerate(win.states):
-        assert np.abs(se3.log(x.T @ se3.inverse(T[k]))).max() < 1e-6
+        assert np.abs(se3.log(x.T_vehicle_world @ se3.inverse(T[k]))).max() < 1e-6
         np.testing.assert_allclose(x.varpi, varpi[k], atol=1e-5)
 
 
@@ -145,12 +147,13 @@ def test_marginalisation_keeps_the_solution_and_the_newest_covariance():
 def test_batched_motion_residuals_equal_the_priors_residual(kind):
     """MotionModel.residuals (the window's single path) = the prior's own residual, pair by pair."""
     rng = np.random.default_rng(4)
-    motion = MotionModel(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
+    motion = motion_prior(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
     states = [State(0.1 * k + 0.01 * k**2, se3.exp(rng.normal(size=6) * 0.5), rng.normal(size=6),
                     rng.normal(size=6) if kind == "ca" else None) for k in range(4)]
     E, J1, J2 = motion.residuals(states)
     for k, (a, b) in enumerate(zip(states[:-1], states[1:])):
-        args = (a.T, a.varpi, a.vd, b.T, b.varpi, b.vd) if kind == "ca" else (a.T, a.varpi, b.T, b.varpi)
+        args = (a.T_vehicle_world, a.varpi, a.varpi_dot, b.T_vehicle_world, b.varpi, b.varpi_dot) if kind == "ca" \
+            else (a.T_vehicle_world, a.varpi, b.T_vehicle_world, b.varpi)
         e, j1, j2 = motion.prior.residual(*args, b.t - a.t)
         np.testing.assert_allclose(E[k], e, atol=1e-12)
         np.testing.assert_allclose(J1[k], j1, atol=1e-10)
@@ -182,16 +185,16 @@ def test_window_update_equals_state_oplus(kind):
     from rodo.estimator.window import _oplus_all
 
     rng = np.random.default_rng(5)
-    motion = MotionModel(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
+    motion = motion_prior(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
     states = [State(0.1 * k, se3.exp(rng.normal(size=6)), rng.normal(size=6),
                     rng.normal(size=6) if kind == "ca" else None) for k in range(4)]
     d = rng.normal(size=(4, motion.dim)) * np.array([1e-9, 1e-3, 0.5, 2.0])[:, None]
     for got, x, dk in zip(_oplus_all(states, d), states, d):
         want = x.oplus(dk)
-        np.testing.assert_allclose(got.T, want.T, rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(got.T_vehicle_world, want.T_vehicle_world, rtol=1e-13, atol=1e-13)
         np.testing.assert_array_equal(got.varpi, want.varpi)
         if kind == "ca":
-            np.testing.assert_array_equal(got.vd, want.vd)
+            np.testing.assert_array_equal(got.varpi_dot, want.varpi_dot)
 
 
 @pytest.mark.parametrize("kind", ["ca", "cv"])
@@ -200,7 +203,7 @@ def test_motion_terms_in_the_normal_equations(kind):
     from rodo.estimator import _motion_kernel
 
     rng = np.random.default_rng(6)
-    motion = MotionModel(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
+    motion = motion_prior(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
     d = motion.dim
     states = [State(0.08 * k, se3.exp(rng.normal(size=6)), rng.normal(size=6),
                     rng.normal(size=6) if kind == "ca" else None) for k in range(4)]
@@ -226,9 +229,9 @@ def test_rate_prior_is_a_zero_mean_gaussian_term(kind, roll, pitch, sigma):
     """One state with a Gaussian prior (rates with 1-sigma 0.02 rad/s around roll, pitch) and the zero-mean term
     on its roll and pitch rates (sigma): the solve gives the product of the two Gaussians, mean r s0^2^-1 /
     (s0^-2 + sigma^-2), and the covariance's rate block (s0^-2 + sigma^-2)^-1; nothing else moves."""
-    motion = MotionModel(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
+    motion = motion_prior(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
     d = motion.dim
-    win = SlidingWindow(motion, 4, "polar", scene.T_VEHICLE_SENSOR)
+    win = SlidingWindow(motion, 4, PolarModel(), scene.T_VEHICLE_SENSOR)
     varpi = np.array([-10.0, 0.1, 0.0, roll, pitch, 0.05])
     x0 = State(0.0, se3.exp(np.array([1.0, 2.0, 0.1, 0.01, -0.02, 0.3])), varpi, np.zeros(6) if kind == "ca" else None)
     s0 = 0.02
@@ -241,7 +244,7 @@ def test_rate_prior_is_a_zero_mean_gaussian_term(kind, roll, pitch, sigma):
     shrink = s0**-2 / (s0**-2 + sigma**-2)
     np.testing.assert_allclose(x.varpi[3:5], shrink * varpi[3:5], rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(np.delete(x.varpi, [3, 4]), np.delete(varpi, [3, 4]), atol=1e-12)
-    np.testing.assert_allclose(x.T, x0.T, atol=1e-12)
+    np.testing.assert_allclose(x.T_vehicle_world, x0.T_vehicle_world, atol=1e-12)
     P = win.newest_covariance()
     np.testing.assert_allclose(np.diag(P)[9:11], 1.0 / (s0**-2 + sigma**-2), rtol=1e-9)
 
@@ -252,7 +255,7 @@ def test_replaced_measurement_sets_are_never_read_stale():
     equals that of a fresh window holding the same set. (The cache once compared id()s and read a freed set's
     pairs: a stop_and_go run ended with an improper rotation.)"""
     rng = np.random.default_rng(3)
-    motion = MotionModel("ca", (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
+    motion = motion_prior("ca", (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
     t, T, varpi, vd = scene.trajectory(2)
     x0 = State(t[0], T[0], varpi[0], vd[0])
     R_inv = np.linalg.inv(np.diag(scene.SIGMAS**2))
@@ -262,12 +265,12 @@ def test_replaced_measurement_sets_are_never_read_stale():
         z = measurements.predict("polar", T[0], varpi[0], p, scene.T_VEHICLE_SENSOR).z
         return MeasurementSet(p, z + rng.normal(size=z.shape) * scene.SIGMAS, np.broadcast_to(R_inv, (n, 4, 4)).copy())
 
-    win = SlidingWindow(motion, 4, "polar", scene.T_VEHICLE_SENSOR)
+    win = SlidingWindow(motion, 4, PolarModel(), scene.T_VEHICLE_SENSOR)
     win.initialize(x0, np.eye(18) * 0.01)
     for n in rng.integers(5, 60, 40):
         win.set_measurements(0, None)  # the previous set has no other reference: freed here
         win.set_measurements(0, one_set(int(n)))
-        fresh = SlidingWindow(motion, 4, "polar", scene.T_VEHICLE_SENSOR)
+        fresh = SlidingWindow(motion, 4, PolarModel(), scene.T_VEHICLE_SENSOR)
         fresh.initialize(x0, np.eye(18) * 0.01)
         fresh.set_measurements(0, MeasurementSet(win.meas[0].p_world, win.meas[0].z, win.meas[0].W))
         win.reset_robust_weights()

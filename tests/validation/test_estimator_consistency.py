@@ -41,7 +41,7 @@ import pytest
 from rodo import scenarios
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
-from rodo.estimator.state import MotionModel
+from rodo.estimator.motion import motion_prior
 from rodo.sim import prior_sampling as ps
 from rodo.validation.campaign import trial_seeds
 from rodo.validation.consistency import average_nees, chi2_bounds, nees, nees_sequence, state_error
@@ -133,7 +133,7 @@ def _sample_cv(Qc, T0, varpi0, P0, dt, n, rng, substeps):
 
 @pytest.mark.parametrize("kind", ["ca", "cv"])
 def test_prior_alone_is_consistent_control(kind):
-    """Control: the estimator's own motion prior (MotionModel with the default Qc, the estimator's initial
+    """Control: the estimator's own motion prior (`motion_prior` with the default Qc, the estimator's initial
     covariance), chained over one window (4 scans at 13 Hz) with P <- F P F^T + Q and no measurement, against
     samples of the continuous SDE (10 m/s, turning and accelerating). The average NEES of 1000 samples must lie in
     its 99 % chi-square bounds, for the full state and for the pose and velocity blocks.
@@ -147,7 +147,7 @@ def test_prior_alone_is_consistent_control(kind):
     """
     cfg = OdometryConfig.for_model("ca-polar" if kind == "ca" else "cv-cartesian")
     qc = cfg.noise.qc_ca if kind == "ca" else cfg.noise.qc_cv
-    motion = MotionModel(kind, qc)
+    motion = motion_prior(kind, qc)
     s = cfg.solver
     sig = [1e-4] * 6 + [s.init_velocity_sigma] * 3 + list(s.init_rate_sigma)
     if kind == "ca":
@@ -157,7 +157,7 @@ def test_prior_alone_is_consistent_control(kind):
     vd0 = np.array([-1.0, 0, 0, 0, 0, -0.5])
     x = motion.initial_state(0.0, np.eye(4), varpi0)
     if kind == "ca":
-        x.vd[:] = vd0
+        x.varpi_dot[:] = vd0
     P, dt, steps = P0.copy(), 1 / 13, cfg.window
     for k in range(steps):
         F, Q = motion.transition_and_noise(x, dt)
@@ -168,10 +168,10 @@ def test_prior_alone_is_consistent_control(kind):
     n = 1000
     if kind == "ca":
         T, w, vd = ps.sample_prior(motion.prior, np.eye(4), varpi0, vd0, P0, steps * dt, n, rng, substeps=20 * steps)
-        e = state_error(T, w, x.T, x.varpi, vd, x.vd)
+        e = state_error(T, w, x.T_vehicle_world, x.varpi, vd, x.varpi_dot)
     else:
         T, w = _sample_cv(np.diag(qc), np.eye(4), varpi0, P0, steps * dt, n, rng, substeps=20 * steps)
-        e = state_error(T, w, x.T, x.varpi)
+        e = state_error(T, w, x.T_vehicle_world, x.varpi)
     blocks = block_nees(e, np.broadcast_to(P, (n,) + P.shape))
     for name in ("full", "pose", "velocity"):
         v, d = blocks[name]

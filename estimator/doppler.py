@@ -1,0 +1,196 @@
+"""The odometry's Doppler front end: which detections are static, the scan's own sensor velocity, a
+correction of the predicted velocity when the two disagree, and the standstill test.
+
+Radial velocities see the sensor's velocity directly, v_r = -u . v_s for a static point, with
+
+    v_s = -C_vs^T (nu + omega x r_vs)        (`sensor_velocity`, the one formula; its Jacobian d v_s / d varpi)
+
+(T_vehicle_sensor = [C_vs, r_vs], varpi = [nu; omega]). Per scan (docs/estimator.md, steps 2-4):
+- `DopplerFrontEnd.static_mask`: the largest Doppler consensus near the predicted sensor velocity (a
+  prediction-gated RANSAC), or a free fit when the prediction is uncertain; the consensus switch
+  (`rodo.estimator.consensus`) takes the world back from a co-moving object;
+- `fit`: least-squares sensor velocity of the static detections;
+- `correct`: a Kalman update of the predicted mean when the fit contradicts it (an unmodelled jerk);
+- `standstill_information`: a zero-velocity term when the Doppler says the sensor is at rest.
+
+Checked by: tests/estimator/test_odometry.py::test_hard_braking_is_followed,
+    tests/estimator/test_ego_velocity.py
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import association
+from .config import OdometryConfig
+from .consensus import MIN_STATIC, ConsensusSwitch
+from .ego_velocity import EgoVelocity, estimate_ego_velocity, least_squares_velocity
+from .lie import so3
+from .motion import MotionPrior
+from .radar_geometry import polar_to_cartesian
+from .state import State
+
+
+def sensor_velocity(varpi: np.ndarray, T_vehicle_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The sensor's velocity in its own frame, v_s = -C_vs^T (nu + omega x r_vs), and J_v_varpi (3, 6).
+
+    (The sign: a static point's radial velocity is v_r = -u . v_s with this v_s.)
+
+    Checked by: tests/estimator/test_odometry.py::test_sensor_velocity_jacobian_matches_finite_differences
+    """
+    C, r = T_vehicle_sensor[:3, :3], T_vehicle_sensor[:3, 3]
+    v = -C.T @ (varpi[:3] + np.cross(varpi[3:], r))
+    J = -C.T @ np.c_[np.eye(3), -so3.hat(r)]
+    return v, J
+
+
+def body_velocity(v_sensor: np.ndarray, omega: np.ndarray, T_vehicle_sensor: np.ndarray) -> np.ndarray:
+    """nu such that `sensor_velocity([nu; omega])` is v_sensor: nu = -C_vs v_s - omega x r_vs.
+
+    Checked by: tests/estimator/test_odometry.py::test_sensor_velocity_jacobian_matches_finite_differences
+    """
+    return -T_vehicle_sensor[:3, :3] @ v_sensor - np.cross(omega, T_vehicle_sensor[:3, 3])
+
+
+@dataclass
+class DopplerFit:
+    """Least-squares sensor velocity of a scan's static detections.
+
+    Attributes:
+        v: (dof,) sensor velocity (dof 3, or 2 = [vx, vy] for a planar sensor).
+        cov: (dof, dof) its covariance.
+        radial_velocity: (n,) the static detections' radial velocities.
+    """
+
+    v: np.ndarray
+    cov: np.ndarray
+    radial_velocity: np.ndarray
+
+    @property
+    def dof(self) -> int:
+        return len(self.v)
+
+
+class DopplerFrontEnd:
+    """The Doppler steps of one odometry run: its sensor, noise, random streams and consensus switch.
+
+    Args:
+        config: the odometry's configuration (association and standstill sections).
+        T_vehicle_sensor: (4, 4) extrinsics.
+        sigmas: (4,) the estimator's 1-sigma [range, azimuth, elevation, radial velocity].
+        rng: random stream of the RANSAC fits.
+        consensus_rng: the consensus switch's own stream (its checks change no other draw).
+    """
+
+    def __init__(self, config: OdometryConfig, T_vehicle_sensor: np.ndarray, sigmas: np.ndarray,
+                 rng: np.random.Generator, consensus_rng: np.random.Generator):
+        self.config = config
+        self.T_vehicle_sensor = T_vehicle_sensor
+        self.sigmas = sigmas
+        self.rng = rng
+        self.consensus = ConsensusSwitch(config.association, sigmas[3], consensus_rng)
+        self.update_gate = {d: association.gate_threshold(config.association.doppler_update_probability, d)
+                            for d in (2, 3)}
+        self.still_gate = {d: association.gate_threshold(0.99, d) for d in (2, 3)}
+
+    def _thresholds(self, polar: np.ndarray, v: np.ndarray, Sv: np.ndarray):
+        """Per detection: unit direction u, the test sigma (radial velocity noise, the direction noise seen
+        through the velocity v . du/daz, v . du/del, and the predicted velocity's own uncertainty) and the
+        fit's variance without the prediction's part."""
+        az, el = polar[:, 1], polar[:, 2]
+        u = polar_to_cartesian(np.stack([np.ones(len(polar)), az, el], axis=1))
+        ca, sa, ce, se = np.cos(az), np.sin(az), np.cos(el), np.sin(el)
+        d_az = np.stack([-ce * sa, ce * ca, np.zeros_like(az)], axis=1) @ v
+        d_el = np.stack([-se * ca, -se * sa, ce], axis=1) @ v
+        var_fit = self.sigmas[3] ** 2 + (self.sigmas[1] * d_az) ** 2 + (self.sigmas[2] * d_el) ** 2
+        sigma = np.sqrt(var_fit + np.einsum("ni,ij,nj->n", u, Sv, u))
+        return u, sigma, var_fit
+
+    def static_mask(self, polar: np.ndarray, x: State, P: np.ndarray, scan_dt: float):
+        """Static detections by Doppler: (mask (n,), event note or None).
+
+        A confident prediction (the usual case) seeds a prediction-gated RANSAC: only velocities within the
+        prediction's 3-sigma plus `association.doppler_jerk_margin` compete, so an unmodelled jerk (hard
+        braking, a hand-held sensor) does not split the static world into "moving" detections, and a larger
+        moving consensus (a truck filling the view) is not taken for the world while the world offers
+        MIN_STATIC detections near the prediction. Otherwise, and when an uncertain prediction (after
+        initialisation or an outage) explains too little of the scan, an unconstrained RANSAC fit decides.
+        """
+        acfg = self.config.association
+        az, el, vr = polar[:, 1], polar[:, 2], polar[:, 3]
+        v, J = sensor_velocity(x.varpi, self.T_vehicle_sensor)
+        Sv = J @ P[6:12, 6:12] @ J.T
+        u, sigma, var_fit = self._thresholds(polar, v, Sv)
+        mask = np.abs(vr + u @ v) <= 3.0 * sigma + acfg.doppler_sigma_floor
+        confident = np.sqrt(np.trace(Sv)) < acfg.ransac_above_sigma
+        fit_threshold = 3.0 * np.sqrt(var_fit) + acfg.doppler_sigma_floor
+        if confident:
+            radius = 3.0 * np.sqrt(np.linalg.eigvalsh(Sv)[-1]) + acfg.doppler_jerk_margin
+            ego = estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3], threshold=fit_threshold,
+                                        near=(v, radius))
+            ours = ego.inliers if ego.ok and ego.inliers.sum() >= max(MIN_STATIC, mask.sum()) else mask
+            switch = self.consensus.outvoted(az, el, vr, fit_threshold, ours, u * polar[:, :1], scan_dt)
+            if switch is not None:
+                return switch, "doppler-consensus-switch"
+            if ours.sum() >= MIN_STATIC:
+                return ours, None
+        elif mask.sum() >= MIN_STATIC and mask.sum() >= 0.2 * len(polar):
+            return mask, None
+        ego = self.widest_consensus(polar, fit_threshold)
+        if ego.ok and ego.inliers.sum() > mask.sum():
+            return ego.inliers, "doppler-ransac-fallback"
+        return mask, None
+
+    def widest_consensus(self, polar: np.ndarray, threshold=None) -> EgoVelocity:
+        """The Doppler fit to start from (`ConsensusSwitch.widest`, drawing first from the main stream)."""
+        return self.consensus.widest(polar, self.rng, threshold)
+
+    def fit(self, static: np.ndarray) -> DopplerFit | None:
+        """Least-squares sensor velocity of the static detections (n, 4), or None (fewer than dof + 3
+        detections, degenerate geometry). Planar (dof 2: vx, vy) when the elevations carry no information."""
+        if len(static) < MIN_STATIC:
+            return None
+        fit = least_squares_velocity(static[:, 1], static[:, 2], static[:, 3], variance_floor=self.sigmas[3] ** 2,
+                                     max_cond=1e8)
+        if fit is None or len(static) < len(fit[0]) + 3:
+            return None
+        return DopplerFit(fit[0], fit[1], static[:, 3])
+
+    def correct(self, x: State, P: np.ndarray, fit: DopplerFit | None) -> State:
+        """The predicted state, corrected by the scan's Doppler ego-velocity when the two disagree.
+
+        Association gates the radial velocity at the sensor's few cm/s, so a velocity prediction off by a
+        tenth of a m/s (an unmodelled jerk: hard braking, a hand-held sensor) would reject most true pairs. The
+        fit is compared with the predicted v_s (chi-square at `association.doppler_update_probability`); only
+        when it contradicts it does a Kalman update move the mean. The result is only the linearisation point
+        and the centre of the association gates: P stays the predicted covariance and the solve uses the
+        detections through its own factors, so nothing is counted twice. (Updating P too, or updating at every
+        scan, made the gates follow the least-squares fit's own errors: more pitch drift on the simulated city.)
+        """
+        if fit is None:
+            return x
+        _, J = sensor_velocity(x.varpi, self.T_vehicle_sensor)
+        J = J[:fit.dof]
+        H = np.zeros((fit.dof, len(P)))
+        H[:, 6:12] = J
+        S = H @ P @ H.T + fit.cov
+        innovation = fit.v - J @ x.varpi
+        if innovation @ np.linalg.solve(S, innovation) <= self.update_gate[fit.dof]:
+            return x  # the prediction agrees with the scan's Doppler: nothing to correct
+        K = np.linalg.solve(S, H @ P).T
+        return x.oplus(K @ innovation)
+
+    def standstill_information(self, fit: DopplerFit | None, motion: MotionPrior) -> np.ndarray | None:
+        """Information of the zero-velocity term when the Doppler says the sensor is at rest, else None."""
+        cfg = self.config.standstill
+        if fit is None or cfg.speed <= 0:
+            return None
+        # at rest every static detection's Doppler is noise: a small median, and a fit consistent with zero
+        quiet = np.median(np.abs(fit.radial_velocity)) <= max(0.5 * cfg.speed, self.sigmas[3])
+        if not (quiet and fit.v @ np.linalg.solve(fit.cov, fit.v) <= self.still_gate[fit.dof]):
+            return None
+        sig = motion.tail_sigmas([cfg.sigma_velocity] * 3, [cfg.sigma_rate] * 3, [cfg.sigma_accel] * 3,
+                                 [cfg.sigma_angular_accel] * 3)
+        return np.diag(1.0 / np.square(sig))

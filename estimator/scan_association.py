@@ -1,0 +1,136 @@
+"""Association of the local map with one scan, as the odometry runs it (paper eq. 86-88).
+
+`MapAssociation.associate` windows the map points and the detections to the field of view, evaluates per map
+point the prediction, S = G P G^T + R + map term, its inverse and the search radius in one compiled pass
+(`association_kernels.prepare`; the NumPy reference is `measurements.predict` with
+`association.innovation_covariance` and `MeasurementModel.search_radius`) and matches with
+`association.match`. A `ScanMeasurements` caches the scan's KD-tree and candidates for the re-association.
+
+Checked by: tests/estimator/test_odometry.py::test_prepared_association_equals_the_reference,
+    ::test_association_window_is_the_same_for_map_points_and_detections
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from . import _association_kernel as association_kernels  # MERGE: kernels branch renames
+from . import association
+from .association import Association
+from .lie import se3
+from .local_map import LocalMap
+from .measurement_models import MeasurementModel
+from .radar_geometry import polar_to_cartesian
+from .state import State
+
+NO_PAIRS = Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)
+
+
+@dataclass
+class ScanMeasurements:
+    """A scan's static detections as the solve and association use them.
+
+    Attributes:
+        polar: (n, 4) static detections [r, az, el, v_r].
+        z: (n, 4) the same in the measurement model's space.
+        points: (n, 3) their Cartesian sensor-frame positions.
+        cache: the KD-tree of the detections inside the window and the last search (for the re-association).
+    """
+
+    polar: np.ndarray
+    z: np.ndarray
+    points: np.ndarray
+    cache: dict = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, polar_static: np.ndarray, model: MeasurementModel) -> "ScanMeasurements":
+        if not len(polar_static):
+            return cls(polar_static, np.zeros((0, 4)), np.zeros((0, 3)))
+        return cls(polar_static, model.to_model_space(polar_static), polar_to_cartesian(polar_static))
+
+
+class MapAssociation:
+    """The association settings of one odometry run.
+
+    Args:
+        model: the measurement model.
+        R: (4, 4) its noise.
+        T_vehicle_sensor: (4, 4) extrinsics.
+        gate: chi-square gate of d2 (4 dof).
+        max_radius: cap (m) of the KD-tree search radius.
+        map_sigma: isotropic sigma (m) added to every map point.
+        fov: ((az_min, az_max), (el_min, el_max)) radians or None (no window).
+        angle_sigmas: (2,) the azimuth and elevation 1-sigma (rad) that shrink the window.
+    """
+
+    def __init__(self, model: MeasurementModel, R: np.ndarray, T_vehicle_sensor: np.ndarray, gate: float,
+                 max_radius: float, map_sigma: float, fov, angle_sigmas):
+        self.model = model
+        self.R = R
+        self.T_vehicle_sensor = T_vehicle_sensor
+        self.gate = gate
+        self.max_radius = max_radius
+        self.map_sigma = map_sigma
+        self.fov = fov
+        self.angle_sigmas = angle_sigmas
+
+    def window_masks(self, p_sensor: np.ndarray, polar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Map points (predicted) and detections (measured) inside the field of view shrunk by 3 sigma of the
+        angle noise. Detections exist only inside the field of view but map points are not cut there: a map
+        point that has left it (ground passing below the lower edge) would be paired with the detections at
+        the edge, all on one side of it, a bias the solve turns into pitch. The same window on both sides
+        keeps the pairs symmetric. An angle whose field of view is narrower than the margin (a 2D radar's
+        elevation) is not windowed."""
+        m_in = np.ones(len(p_sensor), bool)
+        d_in = np.ones(len(polar), bool)
+        if self.fov is None:
+            return m_in, d_in
+        r = np.maximum(np.linalg.norm(p_sensor, axis=1), 1e-12)
+        angles = ((np.arctan2(p_sensor[:, 1], p_sensor[:, 0]), polar[:, 1], self.fov[0], self.angle_sigmas[0]),
+                  (np.arcsin(np.clip(p_sensor[:, 2] / r, -1, 1)), polar[:, 2], self.fov[1], self.angle_sigmas[1]))
+        for pred_angle, meas_angle, (lo, hi), sigma in angles:
+            if (hi - lo) - 6 * sigma < 0.1 * (hi - lo):  # the margin would eat the field of view
+                continue
+            lo, hi = lo + 3 * sigma, hi - 3 * sigma
+            m_in &= (pred_angle >= lo) & (pred_angle <= hi)
+            d_in &= (meas_angle >= lo) & (meas_angle <= hi)
+        return m_in, d_in
+
+    def associate(self, x: State, P: np.ndarray, local_map: LocalMap, scan: ScanMeasurements):
+        """Map points and detections paired inside the window: (W_map, Association).
+
+        W_map (len(map), 4, 4) is the information of each map point's pair in the solve, (R + map term)^-1
+        (NaN outside the window); None when nothing could be associated.
+        """
+        if len(local_map) == 0 or len(scan.z) == 0:
+            return None, NO_PAIRS
+        # the window first (positions only), then the compiled pass over the map points inside it
+        T_sensor_world = se3.inverse(self.T_vehicle_sensor) @ x.T_vehicle_world
+        p_sensor = local_map.points @ T_sensor_world[:3, :3].T + T_sensor_world[:3, 3]
+        m_in, d_in = self.window_masks(p_sensor, scan.polar)
+        mi = np.flatnonzero(m_in)
+        m = len(mi)
+        zp, p_s = np.empty((m, 4)), np.empty((m, 3))
+        S, S_inv, W_in = np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4))
+        radius = np.empty(m)
+        bad = association_kernels.prepare(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points[mi],
+                                          local_map.covariances[mi], self.map_sigma**2,
+                                          np.ascontiguousarray(P[:12, :12]), self.R, self.T_vehicle_sensor,
+                                          self.gate, zp, p_s, S, S_inv, W_in, radius)
+        if bad >= 0:  # a map point at the sensor, or an innovation covariance that is not positive definite
+            raise FloatingPointError(f"association: map point {mi[bad % m]} has "
+                                     + ("range 0" if bad < m else "a non positive definite S"))
+        W_map = np.full((len(local_map), 4, 4), np.nan)  # outside the window: never paired, never read
+        W_map[mi] = W_in
+        cache = scan.cache
+        if "tree" not in cache:
+            cache["di"] = np.flatnonzero(d_in)
+            cache["tree"] = cKDTree(scan.points[cache["di"]])
+        di = cache["di"]
+        a, cache["search"] = association.match(self.model, scan.z[di], cache["tree"], zp, p_s, S_inv,
+                                               np.minimum(radius, self.max_radius), self.gate, keys=mi,
+                                               previous=cache.get("search"))
+        return W_map, Association(mi[a.map_idx], di[a.det_idx], a.d2, a.n_candidates)
