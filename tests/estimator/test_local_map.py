@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3, so3
 from rodo.estimator.local_map import LocalMap
+from tests.estimator.strategies import scans_of_points
 
 
 def _rng(seed):
@@ -29,17 +30,16 @@ def test_capacity_and_stalest_dropped_first():
     assert set(m.ids.tolist()) == {4, 5, 6, 7, 8, 9, 10, 11, 12, 13}
 
 
-@given(sizes=st.lists(st.integers(0, 400), min_size=1, max_size=12), seed=st.integers(0, 1000),
-       capacity=st.integers(1, 300))
-def test_capacity_never_exceeded_and_ids_stable(sizes, seed, capacity):
-    rng = _rng(seed)
-    m = LocalMap(capacity=capacity, max_age=3, voxel=0.0, rng=_rng(seed + 1))
+@given(data=st.data(), scans=scans_of_points(12, 400), seed=st.integers(0, 1000), capacity=st.integers(1, 300))
+def test_capacity_never_exceeded_and_ids_stable(data, scans, seed, capacity):
+    m = LocalMap(capacity=capacity, max_age=3, voxel=0.0, rng=_rng(seed))
     id_to_point = {}
-    for scan, k in enumerate(sizes):
-        m.add(rng.uniform(-50, 50, (k, 3)), scan)
+    for scan, points in enumerate(scans):
+        m.add(points, scan)
         assert len(m) <= capacity
         if len(m):
-            m.refresh(rng.choice(len(m), size=min(len(m), 5), replace=False), scan)
+            seen = data.draw(st.lists(st.integers(0, len(m) - 1), min_size=1, max_size=5, unique=True))
+            m.refresh(np.array(seen), scan)
         for i, p in zip(m.ids.tolist(), m.points):
             assert np.array_equal(id_to_point.setdefault(i, p.copy()), p)   # an id keeps its point
         assert len(np.unique(m.ids)) == len(m)
