@@ -34,7 +34,7 @@ from scipy.stats import chi2
 from rodo.estimator.errors import InputError, check_finite
 from rodo.estimator.measurements import MODELS, Prediction, polar_to_cartesian_jacobian
 
-from . import _association_kernel as _kernel
+from . import association_kernels as _kernel
 
 
 @dataclass

@@ -25,7 +25,7 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import _association_kernel as _akernel
+from . import association_kernels as _akernel
 from . import association, measurements
 from .config import OdometryConfig
 from .consensus import MIN_STATIC, ConsensusSwitch  # MIN_STATIC: fewest static detections to use
@@ -204,7 +204,7 @@ class RadarOdometry:
     def _associate(self, x: State, P: np.ndarray, z: np.ndarray, pts: np.ndarray, polar: np.ndarray, scan: dict):
         """Map points and detections paired inside the association window (`_window_masks`).
 
-        Per map point, `_association_kernel.prepare` evaluates the prediction, S = G P G^T + R + map term
+        Per map point, `association_kernels.prepare` evaluates the prediction, S = G P G^T + R + map term
         (`association.innovation_covariance` plus `_map_term`), its inverse and the search radius in one
         compiled pass over the map points inside the window; `association.match` does the rest. `scan` caches the
         KD-tree of this scan's detections and its candidates for the re-association. Returns (W_map,

@@ -12,11 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _motion_kernel
+from . import motion_kernels
 from .lie import se3
 from .priors import ConstantAccelerationPrior, ConstantVelocityPrior
-from .priors import _kernels as _prior_kernels
-from .priors.constant_velocity import _cv_batch
+from .priors import kernels as prior_kernels
 
 
 @dataclass
@@ -80,7 +79,7 @@ class MotionModel:
 
         Same formulas as the priors' `residual` (e = x2 (-) f(x1), J_e_x2 = diag(J(e_xi)^-1, I..),
         J_e_x1 = -diag(J(-e_xi)^-1, I..) F_k): means and F_k from the priors' batched kernels, the SE(3)
-        logarithm and Jacobians from `_motion_kernel`, one pass for the whole window.
+        logarithm and Jacobians from `motion_kernels`, one pass for the whole window.
         """
         T1 = np.stack([x.T for x in states[:-1]])
         T2 = np.stack([x.T for x in states[1:]])
@@ -93,16 +92,16 @@ class MotionModel:
         vd1 = np.ascontiguousarray(tail1[:, 6:]) if self.kind == "ca" else np.zeros((n, 6))
         Tp, wp, vp = np.empty((n, 4, 4)), np.empty((n, 6)), np.empty((n, 6))
         order = self.prior.magnus_order if self.kind == "ca" else 1
-        _prior_kernels.predict_batch(T1, w1, vd1, dt, order, Tp, wp, vp)
+        prior_kernels.predict_batch(T1, w1, vd1, dt, order, Tp, wp, vp)
         F = np.empty((n, self.dim, self.dim))
         if self.kind == "ca":
-            _prior_kernels.ca_batch(w1, vd1, dt, self.prior.Qc, order, self.prior._noise_code, F,
-                                    np.empty((n, 0, 0)), False)
+            prior_kernels.ca_batch(w1, vd1, dt, self.prior.Qc, order, self.prior.noise_code, F,
+                                   np.empty((n, 0, 0)), False)
             tail_pred = np.concatenate([wp, vp], axis=1)
         else:
-            _cv_batch(w1, dt, self.prior.Qc, F, np.empty((n, 0, 0)), False)
+            prior_kernels.cv_batch(w1, dt, self.prior.Qc, F, np.empty((n, 0, 0)), False)
             tail_pred = wp
         d = self.dim
         e, J1, J2 = np.empty((n, d)), np.empty((n, d, d)), np.empty((n, d, d))
-        _motion_kernel.residuals(Tp, tail_pred, T2, np.ascontiguousarray(tail2), F, e, J1, J2)
+        motion_kernels.residuals(Tp, tail_pred, T2, np.ascontiguousarray(tail2), F, e, J1, J2)
         return e, J1, J2

@@ -142,10 +142,10 @@ def test_standstill_holds_the_pose(model):
 
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
 def test_prepared_association_equals_the_reference(model):
-    """The odometry's compiled association (`_association_kernel.prepare` + `association.match`, one KD-tree per
+    """The odometry's compiled association (`association_kernels.prepare` + `association.match`, one KD-tree per
     scan) gives the pairs, distances and solve information of the readable reference: `measurements.predict`,
     `association.innovation_covariance` plus the map-point term, `association.associate`."""
-    from rodo.estimator import _association_kernel as akernel
+    from rodo.estimator import association_kernels as akernel
     from rodo.estimator import association
 
     rng = np.random.default_rng(3)
