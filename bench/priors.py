@@ -70,7 +70,7 @@ def _whitened(Q, Qex):
 
 
 def _fresh_process_first_call() -> float | None:
-    code = ("import time; t=time.perf_counter(); import numpy as np; from estimator.priors import "
+    code = ("import time; t=time.perf_counter(); import numpy as np; from rodo.estimator.priors import "
             "ConstantAccelerationPrior as P; p=P(np.eye(6)); p.transition_and_noise(np.ones(6), np.ones(6), 0.1); "
             "p.transition_and_noise_batch(np.ones((2, 6)), np.ones((2, 6)), 0.1); p.predict(np.eye(4), np.ones(6), "
             "np.ones(6), 0.1); print(time.perf_counter()-t)")

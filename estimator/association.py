@@ -35,7 +35,7 @@ from .errors import InputError, check_finite
 from .measurement_models import MeasurementModel, measurement_model
 from .measurements import Prediction
 
-from . import _association_kernel as _kernel
+from . import association_kernels as _kernel
 
 
 @dataclass

@@ -20,11 +20,10 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from . import _motion_kernel as motion_kernels  # MERGE: kernels branch renames
+from . import motion_kernels
 from .errors import InputError
 from .priors import ConstantAccelerationPrior, ConstantVelocityPrior
-from .priors import _kernels as prior_kernels  # MERGE
-from .priors.constant_velocity import _cv_batch  # MERGE
+from .priors import kernels as prior_kernels
 from .state import State
 
 
@@ -136,7 +135,7 @@ class ConstantVelocityMotion(MotionPrior):
         varpi1 = np.ascontiguousarray(tail1[:, :6])
         Tp, varpi_p, varpi_dot_p = np.empty((n, 4, 4)), np.empty((n, 6)), np.empty((n, 6))
         prior_kernels.predict_batch(T1, varpi1, np.zeros((n, 6)), dt, 1, Tp, varpi_p, varpi_dot_p)
-        _cv_batch(varpi1, dt, self.prior.Qc, F, np.empty((n, 0, 0)), False)
+        prior_kernels.cv_batch(varpi1, dt, self.prior.Qc, F, np.empty((n, 0, 0)), False)
         return Tp, varpi_p
 
 

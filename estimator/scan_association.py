@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import _association_kernel as association_kernels  # MERGE: kernels branch renames
+from . import association_kernels
 from . import association
 from .association import Association
 from .lie import se3

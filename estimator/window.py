@@ -20,8 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from . import _measurement_kernel as _kernel
-from . import _motion_kernel
+from . import measurement_kernels as _kernel
+from . import motion_kernels
+from .lie import kernels as lie_kernels
 from .lie import se3
 from .measurement_models import MeasurementModel
 from .motion import MotionPrior
@@ -98,12 +99,12 @@ class SlidingWindow:
         """e = x (-) prior_mean and de/dx = diag(J(e_xi)^-1, I)."""
         J = np.eye(self.motion.dim)
         xi, Jm = np.empty(6), np.empty((6, 6))
-        _motion_kernel.se3_log_and_jac_inv(x.T_vehicle_world @ se3.inverse(self.prior_mean.T_vehicle_world), xi,
-                                           J[:6, :6], Jm)
+        lie_kernels.se3_log_and_jac_inv(x.T_vehicle_world @ se3.inverse(self.prior_mean.T_vehicle_world), xi,
+                                        J[:6, :6], Jm)
         return np.concatenate((xi, x.vector_tail() - self.prior_mean.vector_tail())), J
 
     def _measurement_terms(self, ks: list[int]):
-        """Measurement blocks of the states ks, linearised in one compiled pass (`_measurement_kernel`).
+        """Measurement blocks of the states ks, linearised in one compiled pass (`measurement_kernels`).
 
         Returns per state (H (12,12), b (12,)) and the total cost; e = z - g(x), J = -[J_z_xi, J_z_varpi].
         """
@@ -148,7 +149,7 @@ class SlidingWindow:
         cost = 0.5 * e @ self.prior_info @ e + self.prior_grad @ e
         if n > 1:
             E, J1s, J2s = self.motion.residuals(self.states)
-            cost += _motion_kernel.accumulate(H, b, E, J1s, J2s, np.stack(self.motion_info))
+            cost += motion_kernels.accumulate(H, b, E, J1s, J2s, np.stack(self.motion_info))
         for k, info in enumerate(self.rate_prior):
             if info is not None:
                 t = self.states[k].vector_tail()
@@ -224,7 +225,7 @@ class SlidingWindow:
         e, J = self._prior_term(x0)
         H[:d, :d] += J.T @ self.prior_info @ J
         b[:d] += J.T @ (self.prior_info @ e + self.prior_grad)
-        _motion_kernel.accumulate(H, b, *self.motion.residuals([x0, x1]), self.motion_info[0][None])
+        motion_kernels.accumulate(H, b, *self.motion.residuals([x0, x1]), self.motion_info[0][None])
         if self.meas[0] is not None:
             (Hm, bm), = self._measurement_terms([0])[0]
             H[:12, :12] += Hm
@@ -250,7 +251,7 @@ class SlidingWindow:
 def _oplus_all(states: list[State], d: np.ndarray) -> list[State]:
     """[x_k (+) d_k] for the whole window with one compiled batched exponential (`State.oplus` for all k)."""
     T = np.empty((len(states), 4, 4))
-    _motion_kernel.exp_times(np.ascontiguousarray(d[:, :6]), np.stack([x.T_vehicle_world for x in states]), T)
+    motion_kernels.exp_times(np.ascontiguousarray(d[:, :6]), np.stack([x.T_vehicle_world for x in states]), T)
     out = []
     for k, x in enumerate(states):
         varpi_dot = None if x.varpi_dot is None else x.varpi_dot + d[k, 12:18]

@@ -1,7 +1,9 @@
 """Motion priors of the paper (sec. IV): constant acceleration (Magnus) and constant velocity.
 
 `ConstantAccelerationPrior(Qc, magnus_order=3)` and `ConstantVelocityPrior(Qc)` are fast (numba kernels);
-`estimator.priors.exact` holds the ODE references and `ExactConstantAccelerationPrior` (same API, slow).
+`estimator.priors.kernels` holds those compiled kernels (Magnus mean, F_k and Q_k fused, batched forms), used
+directly by the solver; `estimator.priors.exact` holds the ODE references and `ExactConstantAccelerationPrior`
+(same API, slow).
 Derivations: docs/priors.md.
 """
 

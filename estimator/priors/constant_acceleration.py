@@ -12,7 +12,7 @@ varpi_dot + zeta}. SDE (eq. 13-14): dT/dt = varpi^ T, d varpi/dt = varpi_dot, d 
   with Gauss-Legendre quadrature over u of the closed-form E(u) L (docs/priors.md); equals scipy expm of the
   36x36 S_M to ~1e-13 relative.
 
-Everything heavy runs in the numba kernels of `_kernels` (F_k and Q_k fused); this module validates inputs once.
+Everything heavy runs in the numba kernels of `kernels` (F_k and Q_k fused); this module validates inputs once.
 
 Checked by: tests/estimator/test_priors_ca.py
 """
@@ -22,12 +22,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from rodo.estimator.errors import InputError, check_finite
+from rodo.estimator.jit import njit
 from rodo.estimator.lie import se3
 
-from . import _kernels as K
+from . import kernels as K
 
 
 # ---------------------------------------------------------------------------------------------- validation
@@ -55,7 +55,8 @@ def pose_problem(T):
     return 0
 
 
-def _check_dt(dt) -> float:
+def check_dt(dt) -> float:
+    """dt as a float; InputError unless it is a finite scalar > 0 seconds."""
     if np.ndim(dt) != 0:
         raise InputError(f"dt: expected a scalar number of seconds, got shape {np.shape(dt)}")
     try:
@@ -67,7 +68,8 @@ def _check_dt(dt) -> float:
     return value
 
 
-def _vec6(name: str, x) -> np.ndarray:
+def vec6(name: str, x) -> np.ndarray:
+    """x as a contiguous float64 (6,) array; InputError (naming `name`) otherwise. Finiteness not checked."""
     try:
         a = np.ascontiguousarray(x, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -132,7 +134,7 @@ def check_pose(name: str, T) -> np.ndarray:
     return T
 
 
-def _single_pose(T, name: str = "T"):
+def single_pose(T, name: str = "T"):
     """A contiguous (4, 4) pose after a cheap check, or None if T is not a single (4, 4) array."""
     if np.shape(T) != (4, 4):
         return None
@@ -148,7 +150,7 @@ def _single_pose(T, name: str = "T"):
     return a
 
 
-def _outputs(out, n: int, d: int, want_q: bool):
+def batch_outputs(out, n: int, d: int, want_q: bool):
     """(F, Q) output arrays (n, d, d): the caller's (checked) or fresh ones (Q a dummy when not wanted)."""
     if out is None:
         return np.empty((n, d, d)), np.empty((n, d, d) if want_q else (n, 0, 0))
@@ -194,7 +196,7 @@ class ConstantAccelerationPrior:
         self.Qc = check_qc(Qc)
         self.magnus_order = int(magnus_order)
         self.noise = noise
-        self.noise_code = self.NOISE_MODELS.index(noise)
+        self.noise_code = self.NOISE_MODELS.index(noise)  # the kernels' code of `noise`
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(magnus_order={self.magnus_order}, noise={self.noise!r})"
@@ -213,11 +215,11 @@ class ConstantAccelerationPrior:
 
         Checked by: tests/estimator/test_priors_ca.py::test_magnus_pose_matches_exact_ode
         """
-        fast = _single_pose(T)
+        fast = single_pose(T)
         if fast is not None and np.shape(varpi) == (6,) and np.shape(varpi_dot) == (6,) and np.ndim(dt) == 0:
-            varpi, varpi_dot = _vec6("varpi", varpi), _vec6("varpi_dot", varpi_dot)
+            varpi, varpi_dot = vec6("varpi", varpi), vec6("varpi_dot", varpi_dot)
             _check_pair(("varpi", "varpi_dot"), varpi, varpi_dot)
-            return K.predict_single(fast, varpi, varpi_dot, _check_dt(dt), self.magnus_order)
+            return K.predict_single(fast, varpi, varpi_dot, check_dt(dt), self.magnus_order)
         T = check_pose("T", T)
         varpi = check_finite("varpi", varpi, (6,))
         varpi_dot = check_finite("varpi_dot", varpi_dot, (6,))
@@ -242,16 +244,16 @@ class ConstantAccelerationPrior:
 
     def magnus_sigma(self, varpi, varpi_dot, dt) -> np.ndarray:
         """The Magnus pose term sigma (6,) with T_k = exp(sigma^) T (eq. 28-30, docs/priors.md)."""
-        varpi, varpi_dot = _vec6("varpi", varpi), _vec6("varpi_dot", varpi_dot)
+        varpi, varpi_dot = vec6("varpi", varpi), vec6("varpi_dot", varpi_dot)
         _check_pair(("varpi", "varpi_dot"), varpi, varpi_dot)
         out = np.empty(6)
-        K.magnus_sigma(varpi, varpi_dot, _check_dt(dt), self.magnus_order, out, np.empty(6), np.empty(6))
+        K.magnus_sigma(varpi, varpi_dot, check_dt(dt), self.magnus_order, out, np.empty(6), np.empty(6))
         return out
 
     # ------------------------------------------------------------------------------------------ F_k, Q_k
     def _single(self, varpi, varpi_dot, dt, want_q):
-        varpi, varpi_dot = _vec6("varpi", varpi), _vec6("varpi_dot", varpi_dot)
-        dt = _check_dt(dt)
+        varpi, varpi_dot = vec6("varpi", varpi), vec6("varpi_dot", varpi_dot)
+        dt = check_dt(dt)
         out = np.empty((2, 18, 18))
         bad = K.ca_into(varpi, varpi_dot, dt, self.Qc, self.magnus_order, self.noise_code, want_q, out)
         if bad:
@@ -283,7 +285,7 @@ class ConstantAccelerationPrior:
 
     def _batch(self, varpi, varpi_dot, dt, want_q, out):
         varpi, varpi_dot, dt = self._check_batch(varpi, varpi_dot, dt)
-        F, Q = _outputs(out, varpi.shape[0], 18, want_q)
+        F, Q = batch_outputs(out, varpi.shape[0], 18, want_q)
         K.ca_batch(varpi, varpi_dot, dt, self.Qc, self.magnus_order, self.noise_code, F, Q, want_q)
         return F, Q
 
@@ -321,11 +323,11 @@ class ConstantAccelerationPrior:
         for name, T in (("T1", T1), ("T2", T2)):
             if T.shape != (4, 4):
                 raise InputError(f"{name}: expected shape (4, 4), got {T.shape}")
-        varpi2, varpi_dot2 = _vec6("varpi2", varpi2), _vec6("varpi_dot2", varpi_dot2)
+        varpi2, varpi_dot2 = vec6("varpi2", varpi2), vec6("varpi_dot2", varpi_dot2)
         _check_pair(("varpi2", "varpi_dot2"), varpi2, varpi_dot2)
-        varpi1, varpi_dot1 = _vec6("varpi1", varpi1), _vec6("varpi_dot1", varpi_dot1)
+        varpi1, varpi_dot1 = vec6("varpi1", varpi1), vec6("varpi_dot1", varpi_dot1)
         _check_pair(("varpi1", "varpi_dot1"), varpi1, varpi_dot1)
-        dt = _check_dt(dt)
+        dt = check_dt(dt)
         T_pred, w_pred, v_pred = self.predict(T1, varpi1, varpi_dot1, dt)
         F = self.transition(varpi1, varpi_dot1, dt)
         e_xi = se3.log(T2 @ se3.inverse(T_pred))

@@ -16,91 +16,16 @@ Checked by: tests/estimator/test_priors_cv.py
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from numba import njit
 
 from rodo.estimator.errors import InputError, check_finite
 from rodo.estimator.lie import se3
 
-from . import _kernels as K
-from .constant_acceleration import (_check_dt, _outputs, _single_pose, _vec6, block_diag3, check_batch, check_pose,
-                                    check_qc, first_nonfinite)
+from . import kernels as K
+from .constant_acceleration import (batch_outputs, block_diag3, check_batch, check_dt, check_pose, check_qc,
+                                    first_nonfinite, single_pose, vec6)
 
 _ZERO6 = np.zeros(6)
-
-
-# ---------------------------------------------------------------------------------------------- kernels
-# Built from the CA module's helpers (_kernels); docs/priors.md sec. 5.
-@njit(cache=True, fastmath=K._FM, error_model="numpy")
-def _cv_core(varpi, dt, Qc, F, Q, want_q, sig, U, Sp, cf, Nd, NQ):
-    """F (12,12) and, if want_q, Q (12,12) for one interval (F, Q zeroed by the caller)."""
-    for i in range(6):
-        sig[i] = dt * varpi[i]
-    K._ub_curly(sig, U[0])
-    K._ub_powers(U[0], Sp)
-    a = math.sqrt(sig[3] * sig[3] + sig[4] * sig[4] + sig[5] * sig[5])
-    K._se3_coeffs(0, a, cf)
-    K._ub_poly(cf, 1.0, Sp, U[1])
-    K._ub_to_dense(U[1], F, 0, 0, 1.0)
-    K._se3_coeffs(1, a, cf)
-    K._ub_poly(cf, 1.0, Sp, U[1])
-    K._ub_to_dense(U[1], F, 0, 6, dt)
-    for i in range(6, 12):
-        F[i, i] = 1.0
-    if not want_q:
-        return
-    # Q11 = dt^3 int u^2 J(u sigma) Qc J^T du (quadrature), Q12 = dt^2 H(sigma) Qc, Q22 = dt Qc
-    qs = K._quad_set(sig)
-    for q in range(K.QUAD_COUNT[qs]):
-        v = K.QUAD_NODES[qs, q]
-        K._se3_coeffs(1, v * a, cf)
-        K._ub_poly(cf, v, Sp, U[1])
-        K._sandwich_acc(U[1], Qc, Nd, NQ, Q, dt * dt * dt * K.QUAD_WEIGHTS[qs, q] * v * v, 0.0, 0.0)
-    K._se3_coeffs(2, a, cf)
-    K._ub_poly(cf, 1.0, Sp, U[1])
-    Nd[:] = 0.0
-    K._ub_to_dense(U[1], Nd, 0, 0, 1.0)
-    for i in range(6):
-        for j in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += Nd[i, k] * Qc[k, j]
-            Q[i, 6 + j] = dt * dt * acc
-            Q[6 + i, 6 + j] = dt * Qc[i, j]
-    for i in range(12):  # mirror the upper triangle
-        for j in range(i):
-            Q[i, j] = Q[j, i]
-
-
-@njit(cache=True, fastmath=K._FM, error_model="numpy")
-def _cv_batch(varpi, dt, Qc, F, Q, want_q):
-    sig = np.empty(6)
-    U = np.empty((2, 2, 3, 3))
-    Sp = np.empty((5, 2, 3, 3))
-    cf = np.empty(5)
-    Nd = np.empty((6, 6))
-    NQ = np.empty((6, 6))
-    for n in range(varpi.shape[0]):
-        F[n] = 0.0
-        if want_q:
-            Q[n] = 0.0
-        _cv_core(varpi[n], dt[n], Qc, F[n], Q[n], want_q, sig, U, Sp, cf, Nd, NQ)
-
-
-@njit(cache=True, fastmath=K._FM, error_model="numpy")
-def _cv_into(varpi, dt, Qc, want_q, out):
-    """One interval into out (2, 12, 12) = (F, Q); returns 0, or 1 if varpi is not finite (nothing computed)."""
-    for i in range(6):
-        if not math.isfinite(varpi[i]):
-            return 1
-    out[0] = 0.0
-    if want_q:
-        out[1] = 0.0
-    _cv_core(varpi, dt, Qc, out[0], out[1], want_q, np.empty(6), np.empty((2, 2, 3, 3)), np.empty((5, 2, 3, 3)),
-             np.empty(5), np.empty((6, 6)), np.empty((6, 6)))
-    return 0
 
 
 class ConstantVelocityPrior:
@@ -122,12 +47,12 @@ class ConstantVelocityPrior:
 
     def predict(self, T, varpi, dt):
         """Mean: T_k = exp(dt varpi^) T, varpi_k = varpi; T (..., 4, 4), varpi (..., 6), dt broadcastable."""
-        fast = _single_pose(T)
+        fast = single_pose(T)
         if fast is not None and np.shape(varpi) == (6,) and np.ndim(dt) == 0:
-            varpi = _vec6("varpi", varpi)
+            varpi = vec6("varpi", varpi)
             if first_nonfinite(varpi, _ZERO6):
                 raise InputError("varpi: contains NaN or infinity")
-            T_k, w_k, _ = K.predict_single(fast, varpi, _ZERO6, _check_dt(dt), 1)
+            T_k, w_k, _ = K.predict_single(fast, varpi, _ZERO6, check_dt(dt), 1)
             return T_k, w_k
         T = check_pose("T", T)
         varpi = check_finite("varpi", varpi, (6,))
@@ -149,10 +74,10 @@ class ConstantVelocityPrior:
         return T_out.reshape(shape + (4, 4)), w_out.reshape(shape + (6,))
 
     def _single(self, varpi, dt, want_q):
-        varpi = _vec6("varpi", varpi)
-        dt = _check_dt(dt)
+        varpi = vec6("varpi", varpi)
+        dt = check_dt(dt)
         out = np.empty((2, 12, 12))
-        if _cv_into(varpi, dt, self.Qc, want_q, out):
+        if K.cv_into(varpi, dt, self.Qc, want_q, out):
             raise InputError("varpi: contains NaN or infinity")
         return out[0], out[1]
 
@@ -176,8 +101,8 @@ class ConstantVelocityPrior:
 
     def _batch(self, varpi, dt, want_q, out):
         varpi, dt = check_batch(("varpi",), 1, (varpi,), dt)
-        F, Q = _outputs(out, varpi.shape[0], 12, want_q)
-        _cv_batch(varpi, dt, self.Qc, F, Q, want_q)
+        F, Q = batch_outputs(out, varpi.shape[0], 12, want_q)
+        K.cv_batch(varpi, dt, self.Qc, F, Q, want_q)
         return F, Q
 
     def transition_batch(self, varpi, dt, out=None) -> np.ndarray:
@@ -205,12 +130,12 @@ class ConstantVelocityPrior:
         for name, T in (("T1", T1), ("T2", T2)):
             if T.shape != (4, 4):
                 raise InputError(f"{name}: expected shape (4, 4), got {T.shape}")
-        varpi2 = _vec6("varpi2", varpi2)
+        varpi2 = vec6("varpi2", varpi2)
         if first_nonfinite(varpi2, _ZERO6):
             raise InputError("varpi2: contains NaN or infinity")
-        dt = _check_dt(dt)
+        dt = check_dt(dt)
         F = self.transition(varpi1, dt)
-        varpi1 = _vec6("varpi1", varpi1)
+        varpi1 = vec6("varpi1", varpi1)
         T_pred, _ = self.predict(T1, varpi1, dt)
         e_xi = se3.log(T2 @ se3.inverse(T_pred))
         e = np.concatenate([e_xi, varpi2 - varpi1])

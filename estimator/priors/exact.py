@@ -23,8 +23,8 @@ from scipy.integrate import solve_ivp
 from rodo.estimator.errors import InputError, check_finite
 from rodo.estimator.lie import se3
 
-from ._kernels import magnus_sigma
-from .constant_acceleration import ConstantAccelerationPrior, _check_dt
+from .constant_acceleration import ConstantAccelerationPrior, check_dt
+from .kernels import magnus_sigma
 
 _ATOL = 1e-15
 
@@ -46,7 +46,7 @@ def _l_matrix(n_blocks: int) -> np.ndarray:
 def _inputs(varpi, varpi_dot, dt):
     varpi = check_finite("varpi", varpi, (6,)).reshape(6)
     varpi_dot = check_finite("varpi_dot", varpi_dot, (6,)).reshape(6)
-    return varpi, varpi_dot, _check_dt(dt)
+    return varpi, varpi_dot, check_dt(dt)
 
 
 def exact_predict(T, varpi, varpi_dot, dt, rtol: float = 1e-13):
@@ -160,20 +160,20 @@ def exact_cv_predict(T, varpi, dt):
     """T_k = expm(dt varpi^) T (scipy expm of the 4x4), varpi_k = varpi."""
     T = check_finite("T", T, (4, 4)).reshape(4, 4)
     varpi = check_finite("varpi", varpi, (6,)).reshape(6)
-    dt = _check_dt(dt)
+    dt = check_dt(dt)
     return sla.expm(dt * se3.hat(varpi)) @ T, varpi.copy()
 
 
 def exact_cv_transition(varpi, dt) -> np.ndarray:
     """F_k = expm(dt A), A = [[curlyhat(varpi), I], [0, 0]] (exact: A is constant), (12, 12)."""
     varpi = check_finite("varpi", varpi, (6,)).reshape(6)
-    return sla.expm(_check_dt(dt) * _cv_a(varpi))
+    return sla.expm(check_dt(dt) * _cv_a(varpi))
 
 
 def exact_cv_process_noise(varpi, dt, Qc) -> np.ndarray:
     """Q_k = int_0^dt Phi(s) L Qc L^T Phi(s)^T ds via Van Loan (exact for constant A), (12, 12)."""
     varpi = check_finite("varpi", varpi, (6,)).reshape(6)
-    dt = _check_dt(dt)
+    dt = check_dt(dt)
     Qc = check_finite("Qc", Qc, (6, 6)).reshape(6, 6)
     L = _l_matrix(2)
     return _van_loan(_cv_a(varpi) * dt, L @ Qc @ L.T * dt)[1]

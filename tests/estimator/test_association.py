@@ -184,7 +184,7 @@ def test_empty_inputs_and_bad_input():
 def test_pair_order_is_lexsort_with_ties(pairs):
     """The compiled ordering of the greedy matching = np.lexsort((i, j, d2)): ascending d2, ties (frequent here:
     d2 takes four values) by map index j, then detection index i."""
-    from rodo.estimator import _association_kernel as kernel
+    from rodo.estimator import association_kernels as kernel
 
     j = np.array([p[0] for p in pairs], dtype=np.int64)
     i = np.array([p[1] for p in pairs], dtype=np.int64)

@@ -146,7 +146,7 @@ def test_prepared_association_equals_the_reference(model):
     """The odometry's compiled association (`association_kernels.prepare` + `association.match`, one KD-tree per
     scan) gives the pairs, distances and solve information of the readable reference: `measurements.predict`,
     `association.innovation_covariance` plus the map-point term, `association.associate`."""
-    from rodo.estimator import _association_kernel as akernel  # MERGE
+    from rodo.estimator import association_kernels as akernel
     from rodo.estimator import association
     from rodo.estimator.scan_association import ScanMeasurements
 

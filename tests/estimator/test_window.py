@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rodo.estimator import _measurement_kernel as kernel
+from rodo.estimator import measurement_kernels as kernel
 from rodo.estimator import measurements
 from rodo.estimator.lie import se3
 from rodo.estimator.measurement_models import PolarModel
@@ -164,7 +164,7 @@ def test_batched_motion_residuals_equal_the_priors_residual(kind):
 def test_motion_kernel_log_and_jacobians_match_lie(scale):
     """The compiled SE(3) logarithm and inverse left Jacobians = estimator.lie's, from the identity through
     the Taylor range (< 1 rad) and the closed forms up to near pi."""
-    from rodo.estimator import _motion_kernel
+    from rodo.estimator.lie import kernels as lie_kernels
 
     rng = np.random.default_rng(int(scale * 1e3) + 1)
     for _ in range(20):
@@ -172,7 +172,7 @@ def test_motion_kernel_log_and_jacobians_match_lie(scale):
         xi[3:] *= scale / np.linalg.norm(xi[3:])
         T = se3.exp(xi)
         out, Jp, Jm = np.empty(6), np.empty((6, 6)), np.empty((6, 6))
-        _motion_kernel.se3_log_and_jac_inv(T, out, Jp, Jm)
+        lie_kernels.se3_log_and_jac_inv(T, out, Jp, Jm)
         ref = se3.log(T)
         np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(Jp, se3.left_jacobian_inv(ref), rtol=1e-9, atol=1e-11)
@@ -200,7 +200,7 @@ def test_window_update_equals_state_oplus(kind):
 @pytest.mark.parametrize("kind", ["ca", "cv"])
 def test_motion_terms_in_the_normal_equations(kind):
     """The compiled accumulation of the motion terms = J^T W J, J^T W e, 1/2 e^T W e summed in NumPy."""
-    from rodo.estimator import _motion_kernel
+    from rodo.estimator import motion_kernels
 
     rng = np.random.default_rng(6)
     motion = motion_prior(kind, (2.0, 0.05, 0.05, 1e-3, 1e-3, 0.05))
@@ -210,7 +210,7 @@ def test_motion_terms_in_the_normal_equations(kind):
     E, J1, J2 = motion.residuals(states)
     W = np.stack([(lambda A: A @ A.T + np.eye(d))(rng.normal(size=(d, d))) for _ in range(3)])
     H, b = np.zeros((4 * d, 4 * d)), np.zeros(4 * d)
-    cost = _motion_kernel.accumulate(H, b, E, J1, J2, W)
+    cost = motion_kernels.accumulate(H, b, E, J1, J2, W)
     H_ref, b_ref, cost_ref = np.zeros_like(H), np.zeros_like(b), 0.0
     for k in range(3):
         J = np.concatenate([J1[k], J2[k]], axis=1)

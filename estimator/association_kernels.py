@@ -9,14 +9,17 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
-from ._measurement_kernel import point_model
+from .jit import njit
+from .measurement_kernels import point_model
 
 
 @njit(cache=True)
 def pair_d2(polar, j, i, z_meas, z_pred, S_inv):
-    """d2_k = e^T S_j^-1 e for candidate pairs (j[k], i[k]), e = z_meas[i] - z_pred[j] (azimuth wrapped)."""
+    """d2_k = e^T S_j^-1 e for candidate pairs (j[k], i[k]), e = z_meas[i] - z_pred[j] (azimuth wrapped).
+
+    Checked by: tests/estimator/test_association.py::test_matches_brute_force_and_is_one_to_one
+    """
     out = np.empty(len(j))
     e = np.empty(4)
     for k in range(len(j)):
@@ -38,7 +41,10 @@ def pair_d2(polar, j, i, z_meas, z_pred, S_inv):
 @njit(cache=True)
 def greedy_one_to_one(order, j, i, m, n):
     """Walk the pairs in `order` (ascending d2, ties by j then i) and take each whose map point and detection
-    are both still free: the global greedy matching by smallest d2."""
+    are both still free: the global greedy matching by smallest d2.
+
+    Checked by: tests/estimator/test_association.py::test_matches_brute_force_and_is_one_to_one
+    """
     used_j = np.zeros(m, dtype=np.bool_)
     used_i = np.zeros(n, dtype=np.bool_)
     chosen = np.zeros(len(j), dtype=np.bool_)
@@ -110,6 +116,8 @@ def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_
     radius (m,) the KD-tree radius that holds every detection with d2 <= gate.
     Returns -1 when all is well, else the index of the first point at the sensor origin (range < 1e-9) or
     with an S that is not positive definite (then m + index).
+
+    Checked by: tests/estimator/test_odometry.py::test_prepared_association_equals_the_reference
     """
     m = p_world.shape[0]
     C = T[:3, :3]
@@ -198,7 +206,10 @@ def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_
 
 def order_by_d2(j, i, d2, n):
     """np.lexsort((i, j, d2)): ascending d2, ties by j, then i; NumPy's sort of d2 (faster than numba's here),
-    then the rare exact ties put in (j, i, index) order."""
+    then the rare exact ties put in (j, i, index) order.
+
+    Checked by: tests/estimator/test_association.py::test_pair_order_is_lexsort_with_ties
+    """
     return _order_ties(np.argsort(d2), j, i, d2, n)
 
 
@@ -224,7 +235,10 @@ def reuse_search(keys, p, radius, prev_keys, prev_p, prev_bound, prev_idx, prev_
     """`association.search` with a previous answer: for each point whose key has a previous row that is not
     full and whose radius plus the distance it moved stays inside that row's bound, copy the row's detections
     with their distances from the new position (bound shrinks by the move). Returns the mask of the other
-    points, which still need a query."""
+    points, which still need a query.
+
+    Checked by: tests/estimator/test_association.py::test_reused_search_equals_a_new_query
+    """
     m, k, n = len(keys), idx.shape[1], len(data)
     todo = np.ones(m, np.bool_)
     r = 0

@@ -16,23 +16,24 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
-from .priors._kernels import _FM  # the IEEE-safe fast-math subset all kernels share
+from .jit import FASTMATH, njit  # the IEEE-safe fast-math subset all kernels share
 
 POLAR, CARTESIAN = 0, 1
 
 
-@njit(cache=True, fastmath=_FM, inline="always")
+@njit(cache=True, fastmath=FASTMATH, inline="always")
 def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
     """The measurement model of one map point p (3,) for a state (C, t, nu, om) and extrinsics (Cvs, rvs),
-    shared by `linearize_pairs` and `_association_kernel.prepare`:
+    shared by `linearize_pairs` and `association_kernels.prepare`:
 
     z (4,) the predicted [r, az, el, v_r] (polar) or [x, y, z, v_r] (Cartesian); J (4, 12) = dz/d[xi, varpi]
     (rows 0-2 have zeros in the velocity columns); Js (3, 3) = dz[:3]/dp_s; am (2, 3) = (dv_r/dp_s,
     dv_r/dp_v through the point's velocity), from which the caller builds dz/dp; A (3, 6) = dp_s/dxi;
     ps (3,) the point in the sensor frame.
     Returns the range r, or 0.0 for a point at the sensor origin (nothing else is written then).
+
+    Checked by: tests/estimator/test_window.py::test_kernel_matches_numpy_linearisation
     """
     pv0 = C[0, 0] * p[0] + C[0, 1] * p[1] + C[0, 2] * p[2] + t[0]
     pv1 = C[1, 0] * p[0] + C[1, 1] * p[1] + C[1, 2] * p[2] + t[1]
@@ -106,7 +107,7 @@ def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
     return r
 
 
-@njit(cache=True, fastmath=_FM)
+@njit(cache=True, fastmath=FASTMATH)
 def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_out, robust_c):
     """H (K, 12, 12), b (K, 12), cost for K states; pairs offsets[k]:offsets[k+1] belong to state k.
 
@@ -114,6 +115,8 @@ def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_ou
     (robust weights held fixed during a solve, see `SlidingWindow.optimize`): cost = 1/2 sum_a w_a d2_a.
     A negative weights[a] is replaced first by the Cauchy weight 1 / (1 + d2_a / robust_c^2) of the current
     residual (1 when robust_c is 0), so a solve sets its weights in its first linearisation.
+
+    Checked by: tests/estimator/test_window.py::test_kernel_matches_numpy_linearisation
     """
     K = T.shape[0]
     H = np.zeros((K, 12, 12))

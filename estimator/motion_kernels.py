@@ -1,0 +1,129 @@
+"""Numba kernel of the motion-prior residuals of a window (the solver's hot path besides the measurements).
+
+For consecutive states the residual is e = x2 (-) f(x1) = [ln(T2 Tp^-1)^vee; tail2 - tail_pred] with
+J_e_x2 = diag(J(e_xi)^-1, I) and J_e_x1 = -diag(J(-e_xi)^-1, I) F_k (the priors' `residual`, docs/priors.md).
+`MotionModel.residuals` passes the predicted means and F_k from `estimator.priors.kernels`; this kernel adds the
+SE(3) logarithm and the inverse left Jacobians (`estimator.lie.kernels.se3_log_and_jac_inv`), which in NumPy cost
+about 0.6 ms per window (many tiny array calls) and here a few microseconds. The same formulas as
+`estimator.lie` (quaternion-based SO(3) logarithm, J from its degree-four curlyhat polynomial with Taylor
+coefficients below 1 rad), so the two agree to round-off.
+
+Checked by: tests/estimator/test_window.py::test_batched_motion_residuals_equal_the_priors_residual,
+    ::test_window_update_equals_state_oplus, ::test_motion_terms_in_the_normal_equations
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .jit import FASTMATH, njit
+from .lie.kernels import matmul_into, se3_exp_into, se3_log_and_jac_inv
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def residuals(T_pred, tail_pred, T2, tail2, F, e, J1, J2):
+    """Motion residuals of n intervals: T_pred, T2 (n, 4, 4), tail_pred, tail2 (n, d - 6), F (n, d, d) ->
+    e (n, d), J1 = J_e_x1, J2 = J_e_x2 (n, d, d), written in place.
+
+    Checked by: tests/estimator/test_window.py::test_batched_motion_residuals_equal_the_priors_residual
+    """
+    n, d = F.shape[0], F.shape[1]
+    D = np.empty((4, 4))
+    xi = np.empty(6)
+    Jp = np.empty((6, 6))
+    Jm = np.empty((6, 6))
+    for s in range(n):
+        # D = T2 Tp^-1 with Tp^-1 = [C^T, -C^T r]
+        for i in range(3):
+            for j in range(3):
+                acc = 0.0
+                for k in range(3):
+                    acc += T2[s, i, k] * T_pred[s, j, k]
+                D[i, j] = acc
+            acc = T2[s, i, 3]
+            for j in range(3):
+                acc -= D[i, j] * T_pred[s, j, 3]
+            D[i, 3] = acc
+        se3_log_and_jac_inv(D, xi, Jp, Jm)
+        for i in range(6):
+            e[s, i] = xi[i]
+        for i in range(d - 6):
+            e[s, 6 + i] = tail2[s, i] - tail_pred[s, i]
+        J2[s] = 0.0
+        for i in range(d):
+            J2[s, i, i] = 1.0
+        for i in range(6):
+            for j in range(6):
+                J2[s, i, j] = Jp[i, j]
+        # J1 = -diag(Jm, I) F
+        for i in range(6):
+            for j in range(d):
+                acc = 0.0
+                for k in range(6):
+                    acc += Jm[i, k] * F[s, k, j]
+                J1[s, i, j] = -acc
+        for i in range(6, d):
+            for j in range(d):
+                J1[s, i, j] = -F[s, i, j]
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def exp_times(xi, T, out):
+    """out[n] = exp(xi[n]^) T[n] for n poses: the solver's state update (left perturbation).
+
+    Checked by: tests/estimator/test_window.py::test_window_update_equals_state_oplus
+    """
+    E = np.empty((4, 4))
+    c3 = np.empty(3)
+    A = np.empty((3, 3))
+    A2 = np.empty((3, 3))
+    for n in range(T.shape[0]):
+        se3_exp_into(xi[n], E, c3, A, A2)
+        matmul_into(E, T[n], out[n])
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def accumulate(H, b, e, J1, J2, W):
+    """Adds the motion terms of consecutive states k, k+1 to the window's normal equations: with
+    J = [J1_k, J2_k] (d x 2d), H[kd:(k+2)d, kd:(k+2)d] += J^T W_k J, b[...] += J^T W_k e_k; returns
+    sum_k 1/2 e_k^T W_k e_k.
+
+    Checked by: tests/estimator/test_window.py::test_motion_terms_in_the_normal_equations
+    """
+    n, d = e.shape[0], e.shape[1]
+    JW = np.empty((2 * d, d))
+    We = np.empty(d)
+    cost = 0.0
+    for k in range(n):
+        for i in range(d):
+            s = 0.0
+            for l in range(d):
+                s += W[k, i, l] * e[k, l]
+            We[i] = s
+            cost += 0.5 * e[k, i] * s
+        for r in range(2 * d):  # JW = J^T W
+            for c in range(d):
+                s = 0.0
+                if r < d:
+                    for l in range(d):
+                        s += J1[k, l, r] * W[k, l, c]
+                else:
+                    for l in range(d):
+                        s += J2[k, l, r - d] * W[k, l, c]
+                JW[r, c] = s
+        o = k * d
+        for r in range(2 * d):
+            s = 0.0
+            for l in range(d):
+                s += (J1[k, l, r] if r < d else J2[k, l, r - d]) * We[l]
+            b[o + r] += s
+            for c in range(2 * d):
+                s = 0.0
+                if c < d:
+                    for l in range(d):
+                        s += JW[r, l] * J1[k, l, c]
+                else:
+                    for l in range(d):
+                        s += JW[r, l] * J2[k, l, c - d]
+                H[o + r, o + c] += s
+    return cost
