@@ -380,7 +380,8 @@ def private_problems(path_name: str, source: str, current: str, is_package: bool
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             for alias in node.names:
-                bound[alias.asname or alias.name.split(".")[0]] = alias.name if alias.asname else alias.name.split(".")[0]
+                top = alias.name.split(".")[0]
+                bound[alias.asname or top] = alias.name if alias.asname else top
         elif isinstance(node, ast.ImportFrom):
             base = _absolute(node.module, node.level, current, is_package)
             for alias in node.names:
@@ -410,7 +411,7 @@ def kernel_decorators(root: Path = ROOT) -> set[str]:
         tree = _parse(jit)
         exported = None
         for node in tree.body:
-            if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets):
+            if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "__all__" for t in node.targets):
                 exported = set(ast.literal_eval(node.value))
         if exported is None:
             exported = set()

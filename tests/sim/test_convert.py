@@ -135,7 +135,8 @@ def _write_radarscenes(folder: Path, radar: int, rng, n_scans=40, per_scan=80, s
     v_sensor = radarscenes.sensor_velocity(radar, vx, w)
     scan = np.repeat(np.arange(n_scans), per_scan)
     az_true = rng.uniform(-1.2, 1.2, len(scan))
-    vr = -(np.cos(az_true) * v_sensor[scan, 0] + np.sin(az_true) * v_sensor[scan, 1]) + rng.normal(0, sigma_vr, len(scan))
+    vr = (-(np.cos(az_true) * v_sensor[scan, 0] + np.sin(az_true) * v_sensor[scan, 1])
+          + rng.normal(0, sigma_vr, len(scan)))
     az = az_true + rng.normal(0, sigma_az, len(scan))
     rows = np.c_[scan + 1, rng.uniform(1, 90, len(scan)), az, vr, rng.normal(-5, 5, len(scan)),
                  np.zeros(len(scan)), np.full(len(scan), 11)]

@@ -85,7 +85,8 @@ def test_noise_free_sensor_file_has_positive_sigmas(small):
 
 
 def test_truth_twist_explains_static_radial_velocities(small):
-    """Per docs/conventions.md: p_vehicle = T p_world, dp_v/dt = nu + omega x p_vehicle, v_r = u . C_vehicle_sensor^T dp_v/dt."""
+    """Per docs/conventions.md: p_vehicle = T p_world, dp_vehicle/dt = nu + omega x p_vehicle,
+    v_r = u . C_vehicle_sensor^T dp_vehicle/dt."""
     cfg = RadarConfig().noise_free()
     seq, truth = _run(small, 1, cfg, duration=3.0)
     C_vehicle_sensor = cfg.T_vehicle_sensor[:3, :3]
@@ -123,8 +124,9 @@ def test_moving_detections_radial_velocity_is_range_rate(small):
         T_world_object = mover.states(np.array([t - h, t, t + h])).T_world_object
         q = se3.transform_points(se3.inverse(T_world_object[1]), truth["det_p_world"][sl][moving])
         T_world_vehicle = profile.sample(np.array([t - h, t + h])).T_world_vehicle
-        r = [np.linalg.norm(se3.transform_points(se3.inverse(T_world_vehicle[i] @ cfg.T_vehicle_sensor) @ T_world_object[2 * i], q),
-                            axis=1) for i in (0, 1)]
+        T_sensor_object = [se3.inverse(T_world_vehicle[i] @ cfg.T_vehicle_sensor) @ T_world_object[2 * i]
+                           for i in (0, 1)]
+        r = [np.linalg.norm(se3.transform_points(T, q), axis=1) for T in T_sensor_object]
         np.testing.assert_allclose(seq.scans[k].radial_velocity[moving], (r[1] - r[0]) / (2 * h), atol=1e-5)
         checked += moving.sum()
     assert checked > 20
