@@ -27,8 +27,8 @@ def _inputs(n: int, seed: int = 0):
     speed = rng.uniform(0, 30, n)
     varpi = np.column_stack([-speed, rng.uniform(-1, 1, (n, 2)), rng.uniform(-0.1, 0.1, (n, 2)),
                              rng.uniform(-0.5, 0.5, n)])
-    vd = np.column_stack([rng.uniform(-3, 3, (n, 3)), rng.uniform(-0.5, 0.5, (n, 3))])
-    return varpi, vd
+    varpi_dot = np.column_stack([rng.uniform(-3, 3, (n, 3)), rng.uniform(-0.5, 0.5, (n, 3))])
+    return varpi, varpi_dot
 
 
 def _median_us(fns: dict, args, repeats: int, blocks: int = 10) -> tuple[dict, dict]:
@@ -98,20 +98,48 @@ def run(quick: bool = False) -> str:
 
 
 def _run(quick: bool, blas_note: str) -> str:
-    from rodo.estimator.lie import se3
     from rodo.estimator.priors import ConstantAccelerationPrior
-    from rodo.estimator.priors import exact as ex
 
     n_acc = 10 if quick else 60
     repeats = 300 if quick else 3000
     n_batch = 1000
-    varpi, vd = _inputs(max(n_acc, n_batch))
+    batch_reps = 5 if quick else 30
+    varpi, varpi_dot = _inputs(max(n_acc, n_batch))
     prior = ConstantAccelerationPrior(QC)
     psub = ConstantAccelerationPrior(QC, noise="subinterval")
-    psub.transition_and_noise(varpi[0], vd[0], DT)
-    args = [(varpi[i], vd[i], DT) for i in range(64)]
+    psub.transition_and_noise(varpi[0], varpi_dot[0], DT)
+    args = [(varpi[i], varpi_dot[i], DT) for i in range(64)]
     prior.transition_and_noise(*args[0])  # compile outside the timing
-    prior.transition_and_noise_batch(varpi[:2], vd[:2], DT)
+    prior.transition_and_noise_batch(varpi[:2], varpi_dot[:2], DT)
+    batch = (varpi[:n_batch], varpi_dot[:n_batch], np.full(n_batch, DT))
+
+    lines = ["## Motion priors (`python -m bench.priors`)", "",
+             f"Vehicle-like intervals at 13 Hz (speed 0-30 m/s, yaw rate <= 0.5 rad/s, accelerations <= 3 m/s^2), "
+             f"Magnus order 3; {repeats} calls per method in 10 alternating blocks: best block median (per-call "
+             "Python overhead included) and the median over blocks of the per-block speed-up. " + blas_note, ""]
+    lines += _timing_table(prior, psub, args, batch, repeats, batch_reps)
+    lines += ["", *_predict_table(args, batch, repeats, batch_reps, varpi[:n_acc], varpi_dot[:n_acc])]
+    lines += ["", f"Accuracy over {n_acc} intervals against the exact ODE / Lyapunov integrals:", "",
+              *_accuracy_table(prior, psub, varpi[:n_acc], varpi_dot[:n_acc])]
+    fresh = None if quick else _fresh_process_first_call()
+    if fresh is not None:
+        lines += ["", f"Fresh process, numba cache warm: import + first calls of the kernels {fresh:.2f} s."]
+    return "\n".join(lines) + "\n"
+
+
+def _per_interval_us(fn, n: int, reps: int) -> float:
+    """Median over `reps` calls of fn(), in microseconds per interval of a batch of n."""
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1e6 * float(np.median(times)) / n
+
+
+def _timing_table(prior, psub, args, batch, repeats: int, batch_reps: int) -> list[str]:
+    """F_k + Q_k for one interval: the baseline, the paper's recipe and ours, single calls and batched."""
+    from rodo.estimator.priors import exact as ex
 
     single, ratio = _median_us({
         "baseline: Van Loan, A at mid-interval (scipy expm 36x36)": lambda w, v, d: ex.van_loan_midpoint(w, v, d, QC),
@@ -121,83 +149,70 @@ def _run(quick: bool, blas_note: str) -> str:
         "ours: process_noise only": prior.process_noise,
         'ours: transition_and_noise, noise="subinterval"': psub.transition_and_noise,
     }, args, repeats)
-    base = single["baseline: Van Loan, A at mid-interval (scipy expm 36x36)"]
     # batched timings are compared with the baseline's best block median (same convention)
-
-    W, V, D = varpi[:n_batch], vd[:n_batch], np.full(n_batch, DT)
-    batch_reps = 5 if quick else 30
+    base = single["baseline: Van Loan, A at mid-interval (scipy expm 36x36)"]
+    n_batch = len(batch[0])
     bufs = (np.empty((n_batch, 18, 18)), np.empty((n_batch, 18, 18)))
     tb, tbo = [], []
-    for _ in range(batch_reps):
-        t0 = time.perf_counter()
-        prior.transition_and_noise_batch(W, V, D)
-        t1 = time.perf_counter()
-        prior.transition_and_noise_batch(W, V, D, out=bufs)
-        t2 = time.perf_counter()
-        tb.append(t1 - t0)
-        tbo.append(t2 - t1)
-    batch_us = 1e6 * float(np.median(tb)) / n_batch
-    batch_out_us = 1e6 * float(np.median(tbo)) / n_batch
-
-    lines = ["## Motion priors (`python -m bench.priors`)", "",
-             f"Vehicle-like intervals at 13 Hz (speed 0-30 m/s, yaw rate <= 0.5 rad/s, accelerations <= 3 m/s^2), "
-             f"Magnus order 3; {repeats} calls per method in 10 alternating blocks: best block median (per-call "
-             "Python overhead included) and the median over blocks of the per-block speed-up. " + blas_note, ""]
+    for _ in range(batch_reps):  # fresh outputs and out= buffers alternate, so load drifts hit both alike
+        tb.append(_per_interval_us(lambda: prior.transition_and_noise_batch(*batch), n_batch, 1))
+        tbo.append(_per_interval_us(lambda: prior.transition_and_noise_batch(*batch, out=bufs), n_batch, 1))
+    batch_us, batch_out_us = float(np.median(tb)), float(np.median(tbo))
     rows = [[k, f"{v:.1f}", f"{ratio[k]:.1f}x"] for k, v in single.items()]
     rows.append([f"ours: transition_and_noise_batch, N = {n_batch}, fresh outputs (per interval)", f"{batch_us:.2f}",
                  f"{base / batch_us:.1f}x"])
     rows.append([f"ours: transition_and_noise_batch, N = {n_batch}, out= buffers (per interval)",
                  f"{batch_out_us:.2f}", f"{base / batch_out_us:.1f}x"])
-    lines += _table(["F_k + Q_k, one interval", "median us", "speed-up vs baseline"], rows)
+    return _table(["F_k + Q_k, one interval", "median us", "speed-up vs baseline"], rows)
 
-    # predict, orders 1-4
+
+def _predict_table(args, batch, repeats: int, batch_reps: int, varpi, varpi_dot) -> list[str]:
+    """predict for Magnus orders 1-4: single and batched timings, pose error against the exact ODE."""
+    from rodo.estimator.lie import se3
+    from rodo.estimator.priors import ConstantAccelerationPrior
+    from rodo.estimator.priors import exact as ex
+
     T = np.eye(4)
     pr = {o: ConstantAccelerationPrior(QC, o) for o in (1, 2, 3, 4)}
     for p in pr.values():
-        p.predict(T, varpi[0], vd[0], DT)
+        p.predict(T, varpi[0], varpi_dot[0], DT)
     pt, _ = _median_us({o: (lambda w, v, d, p=p: p.predict(T, w, v, d)) for o, p in pr.items()}, args, repeats)
-    Tb = np.broadcast_to(T, (n_batch, 4, 4))
-    prow = []
+    W, V, D = batch
+    n_batch = len(W)
+    T_batch = np.broadcast_to(T, (n_batch, 4, 4))
+    rows = []
     for o, p in pr.items():
-        p.predict(Tb[:2], W[:2], V[:2], D[:2])
-        tp = []
-        for _ in range(batch_reps):
-            t0 = time.perf_counter()
-            p.predict(Tb, W, V, D)
-            tp.append(time.perf_counter() - t0)
-        per = 1e6 * float(np.median(tp)) / n_batch
-        errs = [np.linalg.norm(se3.log(p.predict(T, varpi[i], vd[i], DT)[0]
-                                          @ se3.inverse(ex.exact_predict(T, varpi[i], vd[i], DT)[0])))
-                for i in range(n_acc)]
-        prow.append([o, f"{pt[o]:.1f}", f"{per:.2f}", f"{np.max(errs):.1e}"])
-    lines += ["", *_table(["predict: Magnus order", "single call us", f"batched N = {n_batch}, us / interval",
-                           "max pose error vs exact ODE"], prow)]
+        p.predict(T_batch[:2], W[:2], V[:2], D[:2])
+        per = _per_interval_us(lambda p=p: p.predict(T_batch, W, V, D), n_batch, batch_reps)
+        errs = [np.linalg.norm(se3.log(p.predict(T, varpi[i], varpi_dot[i], DT)[0]
+                                          @ se3.inverse(ex.exact_predict(T, varpi[i], varpi_dot[i], DT)[0])))
+                for i in range(len(varpi))]
+        rows.append([o, f"{pt[o]:.1f}", f"{per:.2f}", f"{np.max(errs):.1e}"])
+    return _table(["predict: Magnus order", "single call us", f"batched N = {n_batch}, us / interval",
+                   "max pose error vs exact ODE"], rows)
 
-    # accuracy against the exact integrals
+
+def _accuracy_table(prior, psub, varpi, varpi_dot) -> list[str]:
+    """Whitened error of Q_k and relative error of F_k against the exact integrals, per method."""
+    from rodo.estimator.priors import ConstantAccelerationPrior
+    from rodo.estimator.priors import exact as ex
+
     acc = {"baseline (Van Loan, A at mid-interval)": ([], []), "ours (paper's Magnus F, G F^T)": ([], []),
            "ours, Magnus order 4": ([], []), 'ours, noise="subinterval"': ([], []),
            'ours, noise="subinterval", Magnus order 4': ([], [])}
     p4 = ConstantAccelerationPrior(QC, 4)
     p4s = ConstantAccelerationPrior(QC, 4, noise="subinterval")
-    for i in range(n_acc):
-        Fex = ex.exact_transition(varpi[i], vd[i], DT)
-        Qex = ex.exact_process_noise(varpi[i], vd[i], DT, QC)
-        for key, (F, Q) in zip(acc, (ex.van_loan_midpoint(varpi[i], vd[i], DT, QC),
-                                     prior.transition_and_noise(varpi[i], vd[i], DT),
-                                     p4.transition_and_noise(varpi[i], vd[i], DT),
-                                     psub.transition_and_noise(varpi[i], vd[i], DT),
-                                     p4s.transition_and_noise(varpi[i], vd[i], DT))):
+    for w, v in zip(varpi, varpi_dot):
+        Fex = ex.exact_transition(w, v, DT)
+        Qex = ex.exact_process_noise(w, v, DT, QC)
+        for key, (F, Q) in zip(acc, (ex.van_loan_midpoint(w, v, DT, QC), prior.transition_and_noise(w, v, DT),
+                                     p4.transition_and_noise(w, v, DT), psub.transition_and_noise(w, v, DT),
+                                     p4s.transition_and_noise(w, v, DT))):
             acc[key][0].append(_whitened(Q, Qex))
             acc[key][1].append(np.abs(F - Fex).max() / np.abs(Fex).max())
-    arow = [[k, f"{np.median(q):.1e}", f"{np.max(q):.1e}", f"{np.median(f):.1e}", f"{np.max(f):.1e}"]
+    rows = [[k, f"{np.median(q):.1e}", f"{np.max(q):.1e}", f"{np.median(f):.1e}", f"{np.max(f):.1e}"]
             for k, (q, f) in acc.items()]
-    lines += ["", f"Accuracy over {n_acc} intervals against the exact ODE / Lyapunov integrals:", "",
-              *_table(["method", "Q whitened err (median)", "(max)", "F rel. err (median)", "(max)"], arow)]
-
-    fresh = None if quick else _fresh_process_first_call()
-    if fresh is not None:
-        lines += ["", f"Fresh process, numba cache warm: import + first calls of the kernels {fresh:.2f} s."]
-    return "\n".join(lines) + "\n"
+    return _table(["method", "Q whitened err (median)", "(max)", "F rel. err (median)", "(max)"], rows)
 
 
 def main(argv=None) -> int:

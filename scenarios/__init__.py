@@ -1,7 +1,25 @@
 """Named, versioned simulation scenarios: `scenarios.get(name)`, `scenarios.names()`,
-`scenarios.simulate_to(name, seed, out_dir, duration=None)`. Definitions: scenarios/definitions.py."""
+`scenarios.simulate_to(name, seed, out_dir, duration=None)`.
 
-from . import definitions  # noqa: F401  (registers the scenarios, explicitly)
-from .registry import Parts, Scenario, get, names, register, simulate_to
+The package, file by file:
+    registry.py     `Scenario` (name, version, builder of `Parts`, estimator defaults, default extent),
+                    `Parts` (profile, world, radar config), the explicit registry (`register`, `get`, `names`)
+                    and `simulate_to` (scenario -> simulated sequence on disk); `MARGIN`.
+    definitions.py  the scenario definitions, each registered explicitly at import: `CITY`, `HIGHWAY`,
+                    `HILLS`, `STOP_AND_GO`, `BLOCKAGE` (with its `BLOCKAGE_*` timings), `YAW_ACCEL`;
+                    `MOVER_ID` (first id of moving objects).
 
-__all__ = ["Parts", "Scenario", "get", "names", "register", "simulate_to"]
+Checked by: tests/scenarios/test_registry.py
+"""
+
+from .definitions import (BLOCKAGE, BLOCKAGE_BLACKOUT, BLOCKAGE_DELTA, BLOCKAGE_SLOW, CITY, HIGHWAY, HILLS, MOVER_ID,
+                          STOP_AND_GO, YAW_ACCEL)
+from .registry import MARGIN, Parts, Scenario, get, names, register, simulate_to
+
+__all__ = [
+    # registry.py
+    "MARGIN", "Parts", "Scenario", "get", "names", "register", "simulate_to",
+    # definitions.py
+    "BLOCKAGE", "BLOCKAGE_BLACKOUT", "BLOCKAGE_DELTA", "BLOCKAGE_SLOW", "CITY", "HIGHWAY", "HILLS", "MOVER_ID",
+    "STOP_AND_GO", "YAW_ACCEL",
+]

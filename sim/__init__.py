@@ -1,0 +1,62 @@
+"""The simulator: trajectories, scenes, the radar sensor model, and the sequence format on disk.
+
+The package, file by file (the names below are re-exported here; submodules stay importable as
+`rodo.sim.<file>`):
+    trajectory.py      exact CA-segment trajectories: `Segment`, `Profile`, `Motion`, `ProfileBuilder`, `Route`,
+                       `route_of`, and the profile generators `city`, `highway`, `hills`, `stop_and_go`, `crawl`,
+                       `yaw_accel`.
+    objects.py         scene primitives: `Patches`, `Points`, `MovingBox`, `RigidStates`, `box`, `rectangle`,
+                       `empty_patches`; detection labels `STATIC_SURFACE`, `STATIC_POINT`, `MOVING`, `CLUTTER`.
+    world.py           scenes around a route: `World`, `SceneParams` (`CITY`, `HIGHWAY`, `RURAL`), `build_world`,
+                       traffic (`lead_vehicle`, `oncoming_vehicle`, `overtaking_vehicle`).
+    radar.py           the sensor model: `Radar`, `RadarConfig`, `Detections`, `default_mount`, `sensor_velocity`,
+                       `polar`.
+    simulate.py        profile + world + radar -> sequence and truth: `simulate_sequence` (the module's
+                       `simulate`; the module itself keeps the name `rodo.sim.simulate`), `write_simulation`,
+                       `load_truth`, `TRUTH_NPZ`.
+    prior_sampling.py  Monte Carlo of the CA prior's SDE: `sample_prior`, `propagate_mean_cov`, `nees_bounds`,
+                       `yaw_acceleration_case` (and `errors`, `nees`, `covariance_test` in the module).
+    sequence.py        the sequence format (docs/sequence_format.md): `Sequence`, `SensorConfig`, `NoiseSigmas`,
+                       `RadarScan`, `Trajectory`, `read_sequence`, `write_sequence`, ... (its `__all__`), built on
+                       sequence_types.py, radar_csv.py, sensor_config.py, tum.py and _seqio.py.
+    convert/           real recordings -> the sequence format (`rodo.sim.convert.radarscenes`, `.ti_mmwave`, `.vod`;
+                       not imported here).
+
+Only numpy and scipy are imported (no numba, no plotting).
+"""
+
+from .objects import CLUTTER, MOVING, STATIC_POINT, STATIC_SURFACE, MovingBox, Patches, Points, RigidStates, box, \
+    empty_patches, rectangle
+from .prior_sampling import nees_bounds, propagate_mean_cov, sample_prior, yaw_acceleration_case
+from .radar import Detections, Radar, RadarConfig, default_mount, polar, sensor_velocity
+from .sequence import (GROUNDTRUTH_TXT, RADAR_CSV, SENSOR_TOML, NoiseSigmas, RadarScan, SensorConfig, Sequence,
+                       SequenceFormatError, Trajectory, polar_to_cartesian, read_sequence, read_tum, write_sequence,
+                       write_tum)
+from .simulate import TRUTH_NPZ, load_truth, write_simulation
+from .simulate import simulate as simulate_sequence
+from .trajectory import Motion, Profile, ProfileBuilder, Route, Segment, city, crawl, highway, hills, route_of, \
+    stop_and_go, yaw_accel
+from .world import CITY, HIGHWAY, RURAL, SceneParams, World, build_world, lead_vehicle, oncoming_vehicle, \
+    overtaking_vehicle
+
+__all__ = [
+    # trajectory.py
+    "Motion", "Profile", "ProfileBuilder", "Route", "Segment", "city", "crawl", "highway", "hills", "route_of",
+    "stop_and_go", "yaw_accel",
+    # objects.py
+    "CLUTTER", "MOVING", "STATIC_POINT", "STATIC_SURFACE", "MovingBox", "Patches", "Points", "RigidStates", "box",
+    "empty_patches", "rectangle",
+    # world.py
+    "CITY", "HIGHWAY", "RURAL", "SceneParams", "World", "build_world", "lead_vehicle", "oncoming_vehicle",
+    "overtaking_vehicle",
+    # radar.py
+    "Detections", "Radar", "RadarConfig", "default_mount", "polar", "sensor_velocity",
+    # simulate.py
+    "TRUTH_NPZ", "load_truth", "simulate_sequence", "write_simulation",
+    # prior_sampling.py
+    "nees_bounds", "propagate_mean_cov", "sample_prior", "yaw_acceleration_case",
+    # sequence.py
+    "GROUNDTRUTH_TXT", "RADAR_CSV", "SENSOR_TOML", "NoiseSigmas", "RadarScan", "SensorConfig", "Sequence",
+    "SequenceFormatError", "Trajectory", "polar_to_cartesian", "read_sequence", "read_tum", "write_sequence",
+    "write_tum",
+]

@@ -192,14 +192,14 @@ class MovingBox:
         m = self.carrier.sample(tau[order])
         inv = np.empty_like(order)
         inv[order] = np.arange(order.size)
-        T_wc = se3.inverse(m.T_vehicle_world[inv])
+        T_world_carrier = se3.inverse(m.T_vehicle_world[inv])
         body = -m.varpi[inv]  # usual body twist [v; w] of T_world_carrier
-        T_wo = T_wc @ self.T_carrier_object
-        C = T_wc[:, :3, :3]
+        T_world_object = T_world_carrier @ self.T_carrier_object
+        C = T_world_carrier[:, :3, :3]
         q = self.T_carrier_object[:3, 3]
         v_origin = self.rate * np.einsum("mij,mj->mi", C, body[:, :3] + np.cross(body[:, 3:], q))
         w_world = self.rate * np.einsum("mij,mj->mi", C, body[:, 3:])
-        return RigidStates(T_wo, v_origin, w_world, present)
+        return RigidStates(T_world_object, v_origin, w_world, present)
 
 
 @dataclass(frozen=True)

@@ -3,10 +3,10 @@
 Samples x(t) = {T, varpi, varpi_dot} of dT/dt = varpi^ T, d varpi/dt = varpi_dot, d varpi_dot/dt = w(t),
 w ~ GP(0, Qc delta), from x(0) = x0 (+) gamma0, gamma0 ~ N(0, P0) (left perturbation, eq. 4-5), by fine
 sub-steps of length h with piecewise-constant jerk w_j ~ N(0, Qc / h). Within a sub-step varpi is quadratic
-in time, varpi(s) = varpi_j + s vd_j + s^2/2 w_j, and the pose step is the Magnus expansion of that
+in time, varpi(s) = varpi_j + s varpi_dot_j + s^2/2 w_j, and the pose step is the Magnus expansion of that
 polynomial up to the terms that matter at h ~ 5 ms:
 
-    sigma_j = sigma_CA,4(varpi_j, vd_j, h) + h^3/6 w_j + h^4/24 ad(w_j) varpi_j,
+    sigma_j = sigma_CA,4(varpi_j, varpi_dot_j, h) + h^3/6 w_j + h^4/24 ad(w_j) varpi_j,
 
 (sigma_CA,4 = the order-4 constant-acceleration term, docs/priors.md), so the simulated process converges to
 the SDE as h -> 0 independently of the prior's discretisation that it is used to check.
@@ -32,12 +32,12 @@ def _ad(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                            np.cross(a[..., 3:], b[..., 3:])], axis=-1)
 
 
-def _substep_sigma(varpi, vd, w, h):
-    s = h * varpi + h**2 / 2 * vd + h**3 / 6 * w
-    c = _ad(vd, varpi)
-    s += h**3 / 12 * c + h**5 / 240 * _ad(vd, c)
-    s += h**5 / 720 * _ad(varpi, _ad(varpi, _ad(varpi, vd)))
-    s += h**4 / 24 * _ad(w, varpi)
+def _substep_sigma(varpi, varpi_dot, jerk, h):
+    s = h * varpi + h**2 / 2 * varpi_dot + h**3 / 6 * jerk
+    c = _ad(varpi_dot, varpi)
+    s += h**3 / 12 * c + h**5 / 240 * _ad(varpi_dot, c)
+    s += h**5 / 720 * _ad(varpi, _ad(varpi, _ad(varpi, varpi_dot)))
+    s += h**4 / 24 * _ad(jerk, varpi)
     return s
 
 
@@ -102,13 +102,13 @@ def sample_prior(prior, T0, varpi0, vd0, P0, dt, n_samples: int, rng: np.random.
     g0 = rng.standard_normal((n, 18)) @ root.T
     T = se3.exp(g0[:, :6]) @ T0
     varpi = varpi0 + g0[:, 6:12]
-    vd = vd0 + g0[:, 12:]
+    varpi_dot = vd0 + g0[:, 12:]
     for _ in range(m):
-        w = rng.standard_normal((n, 6)) @ jerk_root.T
-        T = se3.exp(_substep_sigma(varpi, vd, w, h)) @ T
-        varpi = varpi + h * vd + h**2 / 2 * w
-        vd = vd + h * w
-    return T, varpi, vd
+        jerk = rng.standard_normal((n, 6)) @ jerk_root.T
+        T = se3.exp(_substep_sigma(varpi, varpi_dot, jerk, h)) @ T
+        varpi = varpi + h * varpi_dot + h**2 / 2 * jerk
+        varpi_dot = varpi_dot + h * jerk
+    return T, varpi, varpi_dot
 
 
 def propagate_mean_cov(prior, T0, varpi0, vd0, P0, dt):
@@ -128,10 +128,10 @@ def propagate_mean_cov(prior, T0, varpi0, vd0, P0, dt):
 
 def errors(samples, mean) -> np.ndarray:
     """x_i (-) x_mean (eq. 12) for every sample, (n, 18)."""
-    T, varpi, vd = samples
-    T_m, varpi_m, vd_m = mean
-    xi = se3.log(np.asarray(T) @ se3.inverse(np.asarray(T_m)))
-    return np.concatenate([xi, np.asarray(varpi) - varpi_m, np.asarray(vd) - vd_m], axis=-1)
+    T, varpi, varpi_dot = samples
+    T_mean, varpi_mean, varpi_dot_mean = mean
+    xi = se3.log(np.asarray(T) @ se3.inverse(np.asarray(T_mean)))
+    return np.concatenate([xi, np.asarray(varpi) - varpi_mean, np.asarray(varpi_dot) - varpi_dot_mean], axis=-1)
 
 
 def nees(samples, mean, P) -> np.ndarray:

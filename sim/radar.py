@@ -3,10 +3,11 @@ one scan of a `sim.world.World`, computed from geometry only (no estimator code:
 models are checked against this, and vice versa).
 
 Measurement model (sensor frame x boresight, y left, z up; paper eq. 80 and docs/conventions.md):
-    r = |p_s|, azimuth = atan2(y, x), elevation = asin(z / r),
-    v_r = d r / dt = u . (C_sw v_target - v_sensor),   u = p_s / r,
+    r = |p_sensor|, azimuth = atan2(y, x), elevation = asin(z / r),
+    v_r = d r / dt = u . (C_sensor_world v_target - v_sensor),   u = p_sensor / r,
 with v_sensor the velocity of the sensor origin in the sensor frame, from the vehicle twist
-[v; w] = -varpi and the lever arm r_vs: v_sensor = C_vs^T (v + w x r_vs). A static target gives v_r = -u . v_sensor
+[v; w] = -varpi and the lever arm r_vehicle_sensor (translation of T_vehicle_sensor):
+v_sensor = C_vehicle_sensor^T (v + w x r_vehicle_sensor). A static target gives v_r = -u . v_sensor
 (negative when approaching). Then Gaussian noise in polar coordinates.
 
 Per scan: cull patches -> sample surfaces (Poisson counts, density falling as 1/r^2, i.e. a fixed expected
@@ -138,17 +139,18 @@ def empty_detections() -> Detections:
 def sensor_velocity(varpi: np.ndarray, T_vehicle_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Velocity of the sensor origin and angular velocity, both in the sensor frame, from the state's varpi.
 
-    v_s = C_vs^T (v + w x r_vs), w_s = C_vs^T w with [v; w] = -varpi (docs/conventions.md)."""
+    v_sensor = C_vehicle_sensor^T (v + w x r_vehicle_sensor), w_sensor = C_vehicle_sensor^T w with
+    [v; w] = -varpi (docs/conventions.md)."""
     v, w = -varpi[:3], -varpi[3:]
     C, r = T_vehicle_sensor[:3, :3], T_vehicle_sensor[:3, 3]
     return C.T @ (v + np.cross(w, r)), C.T @ w
 
 
-def polar(p_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def polar(p_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Paper eq. 80: (n, 3) sensor-frame points -> range, azimuth, elevation."""
-    r = np.linalg.norm(p_s, axis=-1)
-    az = np.arctan2(p_s[:, 1], p_s[:, 0])
-    el = np.arcsin(np.clip(p_s[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
+    r = np.linalg.norm(p_sensor, axis=-1)
+    az = np.arctan2(p_sensor[:, 1], p_sensor[:, 0])
+    el = np.arcsin(np.clip(p_sensor[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
     return r, az, el
 
 
@@ -276,86 +278,98 @@ class Radar:
         of view, range limits, occlusion, moving targets).
         """
         cfg = self.config
-        T_ws = T_world_vehicle @ cfg.T_vehicle_sensor
-        T_sw = se3.inverse(T_ws)
-        C_sw, t_sw = T_sw[:3, :3], T_sw[:3, 3]
-        v_s, _ = sensor_velocity(np.asarray(varpi, dtype=float), cfg.T_vehicle_sensor)
+        T_sensor_world = se3.inverse(T_world_vehicle @ cfg.T_vehicle_sensor)
+        v_sensor, _ = sensor_velocity(np.asarray(varpi, dtype=float), cfg.T_vehicle_sensor)
+        cand, opaque = _candidates(world, T_sensor_world, cfg, rng, movers or ())
+        p_sensor = cand.p_world @ T_sensor_world[:3, :3].T + T_sensor_world[:3, 3]
+        idx, r, az, el = self._visible(p_sensor, cand.object_id, opaque)
+        pd = cfg.pd(r) * (1.0 if cfg.ideal_detection else cand.pd_own[idx])
+        hit = rng.random(len(idx)) < pd
+        idx, r, az, el = idx[hit], r[hit], az[hit], el[hit]
+        u = p_sensor[idx] / r[:, None]
+        vr = np.einsum("ij,ij->i", u, cand.v_world[idx] @ T_sensor_world[:3, :3].T - v_sensor)
+        true = np.stack([r, az, el, vr], axis=-1)
+        return _noisy_with_clutter(true, cand, idx, cfg, rng)
 
-        # --- candidates: (p_world, v_world, label, object_id, landmark_id, pd_own)
-        p_w, v_w, label, oid, lid, pd_own = [], [], [], [], [], []
-        opaque = []
-        static = _Cull(world.patches, T_sw, cfg)
-        pts, k = static.patches.sample(static.counts(cfg, rng), rng)
-        p_w.append(pts)
-        v_w.append(np.zeros_like(pts))
-        label.append(np.full(len(pts), STATIC_SURFACE))
-        oid.append(static.patches.object_id[k])
-        lid.append(np.full(len(pts), -1))
-        pd_own.append(np.ones(len(pts)))
-        opaque.append(static.sensor.subset(static.sensor.opaque))
-
-        P = world.points
-        p_w.append(P.p)
-        v_w.append(np.zeros_like(P.p))
-        label.append(np.full(len(P), STATIC_POINT))
-        oid.append(np.full(len(P), -1))
-        lid.append(P.landmark_id)
-        pd_own.append(P.pd)
-
-        for mover, T_wo, v_o, w_o in movers or ():
-            body = mover.body_patches.transformed(T_wo)
-            cull = _Cull(body, T_sw, cfg)
-            pts, k = cull.patches.sample(cull.counts(cfg, rng), rng)
-            p_w.append(pts)
-            v_w.append(v_o + np.cross(w_o, pts - T_wo[:3, 3]))
-            label.append(np.full(len(pts), MOVING))
-            oid.append(np.full(len(pts), mover.object_id))
-            lid.append(np.full(len(pts), -1))
-            pd_own.append(np.ones(len(pts)))
-            opaque.append(cull.sensor)
-
-        p_w, v_w = np.concatenate(p_w), np.concatenate(v_w)
-        label, oid, lid, pd_own = (np.concatenate(x) for x in (label, oid, lid, pd_own))
-
-        # --- geometry in the sensor frame, gates
-        p_s = p_w @ C_sw.T + t_sw
-        r, az, el = polar(p_s)
+    def _visible(self, p_sensor: np.ndarray, object_id: np.ndarray, opaque: list[Patches]):
+        """Gates (range, field of view), occlusion by opaque surfaces of other objects in front, then the
+        nearest candidate per cell: indices into the candidates and their range, azimuth, elevation."""
+        cfg = self.config
+        r, az, el = polar(p_sensor)
         keep = ((r >= cfg.min_range) & (r <= cfg.max_range) & (az >= cfg.azimuth_fov[0])
                 & (az <= cfg.azimuth_fov[1]) & (el >= cfg.elevation_fov[0]) & (el <= cfg.elevation_fov[1]))
         idx = np.flatnonzero(keep)
         r, az, el = r[idx], az[idx], el[idx]
         cell = cell_index(az, el, cfg)
-
-        # --- occlusion: opaque surfaces of other objects in front, then the nearest per cell
         depth, owner = _depth_buffer(Patches.concat(opaque), cfg, self._dirs)
-        visible = ~((depth[cell] < r - cfg.occlusion_tolerance) & (owner[cell] != oid[idx]))
+        visible = ~((depth[cell] < r - cfg.occlusion_tolerance) & (owner[cell] != object_id[idx]))
         idx, r, az, el, cell = idx[visible], r[visible], az[visible], el[visible], cell[visible]
         order = np.lexsort((r, cell))
         first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]] if order.size else order
-        idx, r, az, el = idx[first], r[first], az[first], el[first]
+        return idx[first], r[first], az[first], el[first]
 
-        # --- detection probability
-        pd = cfg.pd(r) * (1.0 if cfg.ideal_detection else pd_own[idx])
-        hit = rng.random(len(idx)) < pd
-        idx, r, az, el = idx[hit], r[hit], az[hit], el[hit]
-        u = p_s[idx] / r[:, None]
-        vr = np.einsum("ij,ij->i", u, v_w[idx] @ C_sw.T - v_s)
 
-        # --- noise, clutter, shuffle
-        true = np.stack([r, az, el, vr], axis=-1)
-        meas = true + rng.standard_normal(true.shape) * np.asarray(cfg.sigmas)
-        n_fa = rng.poisson(cfg.clutter_rate) if cfg.clutter_rate > 0 else 0
-        fa = np.stack([rng.uniform(cfg.min_range, cfg.max_range, n_fa),
-                       rng.uniform(*cfg.azimuth_fov, n_fa), rng.uniform(*cfg.elevation_fov, n_fa),
-                       rng.uniform(-cfg.clutter_speed, cfg.clutter_speed, n_fa)], axis=-1)
-        meas = np.concatenate([meas, fa])
-        perm = rng.permutation(len(meas))
-        neg = np.full(n_fa, -1)
-        return Detections(
-            range=meas[perm, 0], azimuth=meas[perm, 1], elevation=meas[perm, 2], radial_velocity=meas[perm, 3],
-            label=np.concatenate([label[idx], np.full(n_fa, CLUTTER)])[perm],
-            object_id=np.concatenate([oid[idx], neg])[perm],
-            landmark_id=np.concatenate([lid[idx], neg])[perm],
-            p_world=np.concatenate([p_w[idx], np.full((n_fa, 3), np.nan)])[perm],
-            true_polar=np.concatenate([true, fa])[perm],
-        )
+@dataclass(frozen=True)
+class _Candidates:
+    """Scatterers that may be detected in one scan (before gates and occlusion), (n,) or (n, 3) each."""
+
+    p_world: np.ndarray
+    v_world: np.ndarray
+    label: np.ndarray
+    object_id: np.ndarray
+    landmark_id: np.ndarray
+    pd_own: np.ndarray
+
+    @staticmethod
+    def concat(parts: list["_Candidates"]) -> "_Candidates":
+        return _Candidates(*(np.concatenate([getattr(c, f) for c in parts])
+                             for f in ("p_world", "v_world", "label", "object_id", "landmark_id", "pd_own")))
+
+
+def _surface_samples(cull: _Cull, cfg: RadarConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Random points on the culled patches (Poisson counts, then positions): (m, 3) and their patch index."""
+    return cull.patches.sample(cull.counts(cfg, rng), rng)
+
+
+def _candidates(world, T_sensor_world: np.ndarray, cfg: RadarConfig, rng: np.random.Generator,
+                movers) -> tuple[_Candidates, list[Patches]]:
+    """Static surface samples, the persistent point scatterers and the movers' surface samples (drawn in that
+    order), with the opaque patches (sensor frame) that may hide them."""
+    static = _Cull(world.patches, T_sensor_world, cfg)
+    pts, k = _surface_samples(static, cfg, rng)
+    n = len(pts)
+    parts = [_Candidates(pts, np.zeros_like(pts), np.full(n, STATIC_SURFACE), static.patches.object_id[k],
+                         np.full(n, -1), np.ones(n))]
+    opaque = [static.sensor.subset(static.sensor.opaque)]
+    P = world.points
+    parts.append(_Candidates(P.p, np.zeros_like(P.p), np.full(len(P), STATIC_POINT), np.full(len(P), -1),
+                             P.landmark_id, P.pd))
+    for mover, T_world_object, v_object, w_object in movers:
+        cull = _Cull(mover.body_patches.transformed(T_world_object), T_sensor_world, cfg)
+        pts, k = _surface_samples(cull, cfg, rng)
+        n = len(pts)
+        parts.append(_Candidates(pts, v_object + np.cross(w_object, pts - T_world_object[:3, 3]),
+                                 np.full(n, MOVING), np.full(n, mover.object_id), np.full(n, -1), np.ones(n)))
+        opaque.append(cull.sensor)
+    return _Candidates.concat(parts), opaque
+
+
+def _noisy_with_clutter(true: np.ndarray, cand: _Candidates, idx: np.ndarray, cfg: RadarConfig,
+                        rng: np.random.Generator) -> Detections:
+    """Polar noise on the detected targets' true (n, 4) measurements, Poisson false alarms, a random order."""
+    meas = true + rng.standard_normal(true.shape) * np.asarray(cfg.sigmas)
+    n_fa = rng.poisson(cfg.clutter_rate) if cfg.clutter_rate > 0 else 0
+    fa = np.stack([rng.uniform(cfg.min_range, cfg.max_range, n_fa),
+                   rng.uniform(*cfg.azimuth_fov, n_fa), rng.uniform(*cfg.elevation_fov, n_fa),
+                   rng.uniform(-cfg.clutter_speed, cfg.clutter_speed, n_fa)], axis=-1)
+    meas = np.concatenate([meas, fa])
+    perm = rng.permutation(len(meas))
+    neg = np.full(n_fa, -1)
+    return Detections(
+        range=meas[perm, 0], azimuth=meas[perm, 1], elevation=meas[perm, 2], radial_velocity=meas[perm, 3],
+        label=np.concatenate([cand.label[idx], np.full(n_fa, CLUTTER)])[perm],
+        object_id=np.concatenate([cand.object_id[idx], neg])[perm],
+        landmark_id=np.concatenate([cand.landmark_id[idx], neg])[perm],
+        p_world=np.concatenate([cand.p_world[idx], np.full((n_fa, 3), np.nan)])[perm],
+        true_polar=np.concatenate([true, fa])[perm],
+    )

@@ -52,7 +52,7 @@ def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random
         raise InputError(f"duration: must be in (0, {profile.duration:.3f}] s, got {duration}")
     t = scan_times(min(duration, profile.duration), config.rate_hz)
     motion = profile.sample(t)
-    T_wv = motion.T_world_vehicle
+    T_world_vehicle = motion.T_world_vehicle
     radar = Radar(config)
     mover_states = [(m, m.states(t)) for m in world.movers]
     scans, dets = [], []
@@ -62,12 +62,12 @@ def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random
         else:
             movers = [(m, s.T_world_object[k], s.v_world[k], s.w_world[k]) for m, s in mover_states
                       if s.present[k]]
-            det = radar.scan(world, T_wv[k], motion.varpi[k], rng, movers)
+            det = radar.scan(world, T_world_vehicle[k], motion.varpi[k], rng, movers)
         dets.append(det)
         scans.append(RadarScan(k, float(tk), det.range, det.azimuth, det.elevation, det.radial_velocity))
         if progress is not None:
             progress.update()
-    seq = Sequence(config.sensor_config(), scans, Trajectory(t, T_wv))
+    seq = Sequence(config.sensor_config(), scans, Trajectory(t, T_world_vehicle))
     truth = truth_arrays(motion, dets, config, mover_states)
     return seq, truth
 

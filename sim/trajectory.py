@@ -108,8 +108,8 @@ class Profile:
         """varpi(t), varpi_dot(t) for times (M,) -> (M, 6), (M, 6); exact piecewise-linear varpi."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         i = self._segment_of(t)
-        vd = self.varpi_dot_seg[i]
-        return self.varpi_seg[i] + (t - self.t_start[i])[:, None] * vd, vd
+        varpi_dot = self.varpi_dot_seg[i]
+        return self.varpi_seg[i] + (t - self.t_start[i])[:, None] * varpi_dot, varpi_dot
 
     def speed_range(self) -> tuple[float, float]:
         """Minimum and maximum forward speed (speed is piecewise linear: the extremes sit at boundaries)."""
@@ -194,9 +194,9 @@ def route_of(profile: Profile, spacing: float = 1.0, dt: float = 0.05) -> Route:
     t = np.arange(0.0, profile.duration + 0.5 * dt, dt)
     t[-1] = min(t[-1], profile.duration)
     m = profile.sample(t)
-    T_wv = m.T_world_vehicle
-    p = T_wv[:, :3, 3]
-    fwd = T_wv[:, :3, 0]
+    T_world_vehicle = m.T_world_vehicle
+    p = T_world_vehicle[:, :3, 3]
+    fwd = T_world_vehicle[:, :3, 0]
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
     keep = np.concatenate([[True], np.diff(s) > 1e-9])
     s, p, fwd, t = s[keep], p[keep], fwd[keep], t[keep]
@@ -235,7 +235,10 @@ class ProfileBuilder:
         return self
 
     def turn(self, angle: float, radius: float, ramp: float = 1.5) -> "ProfileBuilder":
-        """A turn by `angle` rad (> 0 left) at the current speed: yaw rate ramps in, holds, ramps out."""
+        """A turn by `angle` rad (> 0 left) at the current speed: yaw rate ramps in, holds, ramps out.
+        A turn by 0 adds nothing."""
+        if angle == 0:
+            return self
         v = max(self.speed, 1.0)
         rate = np.sign(angle) * v / radius
         hold = abs(angle) / abs(rate) - ramp  # ramps contribute rate * ramp / 2 each

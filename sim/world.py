@@ -107,17 +107,47 @@ def _positions(rng, length: float, spacing: float) -> np.ndarray:
     return np.cumsum(rng.uniform(0.5, 1.5, n) * spacing) - rng.uniform(0, spacing)
 
 
+class _Scene:
+    """What the placement steps share: the route, its kd-tree (clearance tests), the id counters, and the
+    patches and points placed so far."""
+
+    def __init__(self, route: Route, params: SceneParams):
+        self.route = route
+        self.params = params
+        self.ids = _Ids()
+        self.tree = cKDTree(route.p_world[:, :2])
+        self.patches: list[Patches] = []
+        self.points: list[Points] = []
+
+    def clear(self, pts) -> bool:
+        """All points at least `clearance` from the driven path."""
+        d, _ = self.tree.query(np.atleast_2d(pts)[:, :2])
+        return bool(np.all(d >= self.params.clearance))
+
+    def far(self, pts: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """(n,) mask of the points at least `clearance + margin` from the driven path."""
+        return self.tree.query(pts[:, :2])[0] >= self.params.clearance + margin
+
+
 def build_world(rng: np.random.Generator, route: Route, params: SceneParams = CITY) -> World:
-    """A static scene around `route`. Random draws only from `rng` (same rng state -> same world)."""
-    ids = _Ids()
-    tree = cKDTree(route.p_world[:, :2])
-    patches, points = [], []
+    """A static scene around `route`. Random draws only from `rng` (same rng state -> same world), in the
+    order of the steps below."""
+    scene = _Scene(route, params)
+    _add_buildings(scene, rng)
+    _add_poles(scene, rng)
+    _add_trees(scene, rng)
+    if params.parked_car_spacing > 0:
+        _add_parked_cars(scene, rng)
+    if params.guard_rail_offset > 0:
+        _add_guard_rails(scene)
+    _add_roadside_clutter(scene, rng)
+    scene.patches.append(_ground(route, params, scene.ids.next_object()))
+    return World(Patches.concat(scene.patches), Points.concat(scene.points))
 
-    def clear(pts) -> bool:
-        d, _ = tree.query(np.atleast_2d(pts)[:, :2])
-        return bool(np.all(d >= params.clearance))
 
-    # buildings: boxes whose road-facing side is the facade; corners are strong point scatterers
+def _add_buildings(scene: _Scene, rng: np.random.Generator) -> None:
+    """Buildings: boxes whose road-facing side is the facade; corners are strong point scatterers."""
+    route, params = scene.route, scene.params
     for side in (-1.0, 1.0):
         s = rng.uniform(-20.0, 0.0)
         while s < route.length + 40.0:
@@ -125,92 +155,110 @@ def build_world(rng: np.random.Generator, route: Route, params: SceneParams = CI
             if rng.uniform() < params.building_prob:
                 off, depth, height = rng.uniform(*params.building_offset), rng.uniform(8, 15), \
                     rng.uniform(*params.building_height)
-                (g0, g1), (f0, f1), (l0, l1), _ = _frame(route, np.array([s, s + length]))
-                if np.dot(f0, f1) > np.cos(0.15):  # straight enough
-                    a = g0 + side * off * l0
-                    b = g1 + side * off * l1
-                    u = b - a
-                    u[2] = 0.0
-                    yaw = np.arctan2(u[1], u[0])
-                    centre = 0.5 * (a + b) + side * 0.5 * depth * l0
-                    centre[2] = min(a[2], b[2]) - 1.0
-                    size = (np.linalg.norm(u), depth, height + 1.0)
-                    T = se3.from_rotation_translation(so3.exp(np.array([0, 0, yaw])), centre)
-                    corners = se3.transform_points(T, np.array([[sx * size[0] / 2, sy * depth / 2, 1.5]
-                                                                for sx in (-1, 1) for sy in (-1, 1)]))
-                    if clear(corners) and size[0] > 1.0:
-                        patches.append(box(T, size, ids.next_object(), 1.0, opaque=True))
-                        points.append(Points(corners, rng.uniform(0.5, 0.9, 4), ids.landmarks(4)))
+                _add_building(scene, rng, side, s, length, off, depth, height)
             s += length + rng.uniform(*params.building_gap)
 
-    # poles (3 scatterers up the pole) and signs
+
+def _add_building(scene: _Scene, rng: np.random.Generator, side: float, s: float, length: float, off: float,
+                  depth: float, height: float) -> None:
+    """One building from arc length s to s + length, its facade `off` metres to the side (if the road is
+    straight enough there and the building keeps clear of the path)."""
+    (g0, g1), (f0, f1), (l0, l1), _ = _frame(scene.route, np.array([s, s + length]))
+    if not np.dot(f0, f1) > np.cos(0.15):  # not straight enough
+        return
+    a = g0 + side * off * l0
+    b = g1 + side * off * l1
+    u = b - a
+    u[2] = 0.0
+    yaw = np.arctan2(u[1], u[0])
+    centre = 0.5 * (a + b) + side * 0.5 * depth * l0
+    centre[2] = min(a[2], b[2]) - 1.0
+    size = (np.linalg.norm(u), depth, height + 1.0)
+    T_world_building = se3.from_rotation_translation(so3.exp(np.array([0, 0, yaw])), centre)
+    corners = se3.transform_points(T_world_building, np.array([[sx * size[0] / 2, sy * depth / 2, 1.5]
+                                                               for sx in (-1, 1) for sy in (-1, 1)]))
+    if scene.clear(corners) and size[0] > 1.0:
+        scene.patches.append(box(T_world_building, size, scene.ids.next_object(), 1.0, opaque=True))
+        scene.points.append(Points(corners, rng.uniform(0.5, 0.9, 4), scene.ids.landmarks(4)))
+
+
+def _add_poles(scene: _Scene, rng: np.random.Generator) -> None:
+    """Poles (3 scatterers up the pole) and signs."""
+    route, params = scene.route, scene.params
     for side in (-1.0, 1.0):
         s = _positions(rng, route.length, params.pole_spacing)
         g, _, left, _ = _frame(route, s)
         base = g + side * rng.uniform(*params.pole_offset, (len(s), 1)) * left
-        ok = tree.query(base[:, :2])[0] >= params.clearance
-        base = base[ok]
+        base = base[scene.far(base)]
         heights = np.array([0.5, 2.5, 4.5])
         p = (base[:, None, :] + heights[None, :, None] * np.array([0, 0, 1.0])).reshape(-1, 3)
-        points.append(Points(p, rng.uniform(0.6, 0.95, len(p)), ids.landmarks(len(p))))
+        scene.points.append(Points(p, rng.uniform(0.6, 0.95, len(p)), scene.ids.landmarks(len(p))))
 
-    # trees: a trunk scatterer and a few weak canopy scatterers
+
+def _add_trees(scene: _Scene, rng: np.random.Generator) -> None:
+    """Trees: a trunk scatterer and a few weak canopy scatterers."""
+    route, params = scene.route, scene.params
     for side in (-1.0, 1.0):
         s = _positions(rng, route.length, params.tree_spacing)
         g, _, left, _ = _frame(route, s)
         base = g + side * rng.uniform(*params.tree_offset, (len(s), 1)) * left
-        base = base[tree.query(base[:, :2])[0] >= params.clearance + 1.0]
+        base = base[scene.far(base, 1.0)]
         canopy = base[:, None, :] + np.array([0, 0, 4.0]) + rng.normal(0, [1.2, 1.2, 0.8], (len(base), 5, 3))
         trunk = base + np.array([0, 0, 1.0])
         canopy = canopy.reshape(-1, 3)
-        canopy = canopy[tree.query(canopy[:, :2])[0] >= params.clearance]
+        canopy = canopy[scene.far(canopy)]
         p = np.concatenate([trunk, canopy])
         pd = np.concatenate([np.full(len(trunk), 0.6), np.full(len(canopy), 0.3)])
-        points.append(Points(p, pd, ids.landmarks(len(p))))
+        scene.points.append(Points(p, pd, scene.ids.landmarks(len(p))))
 
-    # parked cars: opaque boxes + bumper-corner scatterers
-    if params.parked_car_spacing > 0:
-        for side in (-1.0, 1.0):
-            s = _positions(rng, route.length, params.parked_car_spacing)
-            s = s[rng.uniform(size=len(s)) < 0.6]
-            g, f, left, _ = _frame(route, s)
-            for k in range(len(s)):
-                c = g[k] + side * rng.uniform(*params.parked_car_offset) * left[k]
-                yaw = np.arctan2(f[k, 1], f[k, 0]) + rng.normal(0, 0.03)
-                T = se3.from_rotation_translation(so3.exp(np.array([0, 0, yaw])), c)
-                L, W, _ = CAR_SIZE
-                corners = se3.transform_points(T, np.array([[sx * L / 2, sy * W / 2, 0.5]
-                                                            for sx in (-1, 1) for sy in (-1, 1)]))
-                if clear(corners):
-                    patches.append(box(T, CAR_SIZE, ids.next_object(), 2.0, opaque=True, max_size=2.5))
-                    points.append(Points(corners, np.full(4, 0.7), ids.landmarks(4)))
 
-    # guard rails: two-sided metal strips 0.4-0.75 m above ground, posts every 4 m
-    if params.guard_rail_offset > 0:
-        step = 4
-        for side in (-1.0, 1.0):
-            g, _, left, _ = _frame(route, route.s[::step])
-            base = g + side * params.guard_rail_offset * left
-            oid = ids.next_object()
-            u = np.diff(base, axis=0)
-            n = len(u)
-            o = base[:-1] + np.array([0, 0, 0.4])
-            patches.append(Patches(o, u, np.tile([0, 0, 0.35], (n, 1)), np.full(n, oid), np.full(n, 2.0),
-                                   np.zeros(n, bool), np.ones(n, bool)))
-            posts = base + np.array([0, 0, 0.5])
-            points.append(Points(posts, np.full(len(posts), 0.5), ids.landmarks(len(posts))))
+def _add_parked_cars(scene: _Scene, rng: np.random.Generator) -> None:
+    """Parked cars: opaque boxes + bumper-corner scatterers."""
+    route, params = scene.route, scene.params
+    for side in (-1.0, 1.0):
+        s = _positions(rng, route.length, params.parked_car_spacing)
+        s = s[rng.uniform(size=len(s)) < 0.6]
+        g, f, left, _ = _frame(route, s)
+        for k in range(len(s)):
+            c = g[k] + side * rng.uniform(*params.parked_car_offset) * left[k]
+            yaw = np.arctan2(f[k, 1], f[k, 0]) + rng.normal(0, 0.03)
+            T_world_car = se3.from_rotation_translation(so3.exp(np.array([0, 0, yaw])), c)
+            L, W, _ = CAR_SIZE
+            corners = se3.transform_points(T_world_car, np.array([[sx * L / 2, sy * W / 2, 0.5]
+                                                                  for sx in (-1, 1) for sy in (-1, 1)]))
+            if scene.clear(corners):
+                scene.patches.append(box(T_world_car, CAR_SIZE, scene.ids.next_object(), 2.0, opaque=True,
+                                         max_size=2.5))
+                scene.points.append(Points(corners, np.full(4, 0.7), scene.ids.landmarks(4)))
 
-    # road-side clutter: weak scatterers (bushes, debris, small signs) 3-40 m off the route
+
+def _add_guard_rails(scene: _Scene) -> None:
+    """Guard rails: two-sided metal strips 0.4-0.75 m above ground, posts every 4 m (no random draws)."""
+    route, params = scene.route, scene.params
+    step = 4
+    for side in (-1.0, 1.0):
+        g, _, left, _ = _frame(route, route.s[::step])
+        base = g + side * params.guard_rail_offset * left
+        oid = scene.ids.next_object()
+        u = np.diff(base, axis=0)
+        n = len(u)
+        o = base[:-1] + np.array([0, 0, 0.4])
+        scene.patches.append(Patches(o, u, np.tile([0, 0, 0.35], (n, 1)), np.full(n, oid), np.full(n, 2.0),
+                                     np.zeros(n, bool), np.ones(n, bool)))
+        posts = base + np.array([0, 0, 0.5])
+        scene.points.append(Points(posts, np.full(len(posts), 0.5), scene.ids.landmarks(len(posts))))
+
+
+def _add_roadside_clutter(scene: _Scene, rng: np.random.Generator) -> None:
+    """Road-side clutter: weak scatterers (bushes, debris, small signs) 3-40 m off the route."""
+    route, params = scene.route, scene.params
     n = rng.poisson(params.clutter_per_100m * (route.length + 60.0) / 100.0)
     if n:
         g, _, left, _ = _frame(route, rng.uniform(-20.0, route.length + 40.0, n))
         lateral = rng.choice([-1.0, 1.0], n) * rng.uniform(3.0, 40.0, n)
         p = g + lateral[:, None] * left + np.array([0, 0, 1.0]) * rng.uniform(0.0, 3.0, (n, 1))
-        p = p[tree.query(p[:, :2])[0] >= params.clearance]
-        points.append(Points(p, rng.uniform(0.2, 0.6, len(p)), ids.landmarks(len(p))))
-
-    patches.append(_ground(route, params, ids.next_object()))
-    return World(Patches.concat(patches), Points.concat(points))
+        p = p[scene.far(p)]
+        scene.points.append(Points(p, rng.uniform(0.2, 0.6, len(p)), scene.ids.landmarks(len(p))))
 
 
 def _ground(route: Route, params: SceneParams, object_id: int, step: float = 5.0, width: float = 5.0) -> Patches:

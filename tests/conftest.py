@@ -25,5 +25,5 @@ REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"
 def realdata_dir() -> Path:
     """../shared/realdata, or skip the test with a message saying where it was looked for."""
     if not REALDATA.is_dir():
-        pytest.skip(f"real radar data not found at {REALDATA} (see DEVELOPERS.md); skipping")
+        pytest.skip(f"real radar data not found at {REALDATA} (see docs/realdata.md); skipping")
     return REALDATA

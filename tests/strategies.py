@@ -41,3 +41,47 @@ def vehicle_motion():
         return varpi, np.r_[a, aa]
 
     return st.tuples(speed, lateral, rates, acc, ang_acc).map(build)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Random streams drawn through hypothesis (sim engineer's block; appended, keep separate from the blocks above).
+#
+# Code under test that takes a numpy Generator (e.g. the trajectory profiles `sim.trajectory.city(rng, T)`) can be
+# handed a `HypothesisRng` instead of `np.random.default_rng(seed)`: every draw then comes from hypothesis, so a
+# failure shrinks (towards the low end of each range) instead of being reported as an opaque seed.
+
+
+class HypothesisRng:
+    """The scalar part of numpy's Generator interface (uniform, normal, integers, choice), backed by a
+    hypothesis-controlled `random.Random` (`st.randoms()`). Array draws (`size=`) are drawn element by element."""
+
+    def __init__(self, random):
+        self._random = random
+
+    def _many(self, draw, size):
+        if size is None:
+            return draw()
+        return np.array([draw() for _ in range(int(np.prod(size)))], dtype=float).reshape(size)
+
+    def uniform(self, low=0.0, high=1.0, size=None):
+        return self._many(lambda: low + (high - low) * self._random.random(), size)
+
+    def normal(self, loc=0.0, scale=1.0, size=None):
+        return self._many(lambda: self._random.gauss(loc, scale), size)
+
+    def integers(self, low, high=None, size=None):
+        lo, hi = (0, low) if high is None else (low, high)
+        out = self._many(lambda: self._random.randrange(lo, hi), size)
+        return out if size is None else out.astype(int)
+
+    def choice(self, a, size=None):
+        items = list(a)
+        return self._many(lambda: items[self._random.randrange(len(items))], size)
+
+    def __repr__(self) -> str:
+        return "HypothesisRng(...)"
+
+
+def hypothesis_rngs():
+    """`HypothesisRng`s whose draws hypothesis controls and shrinks (the calls are printed on failure)."""
+    return st.randoms(note_method_calls=True, use_true_random=False).map(HypothesisRng)

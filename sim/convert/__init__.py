@@ -1,4 +1,15 @@
 """Converters of real radar recordings into the sequence format (docs/realdata.md).
 
-One module per source format: `radarscenes`, `ti_mmwave`, `vod`; shared helpers in `_common`.
+The package, file by file:
+    radarscenes.py  RadarScenes (2D + Doppler, 4 radars, odometry): `radarscenes.convert(source, radars, t_max)`.
+    ti_mmwave.py    TI mmWave RIO demo CSV export (4D, no ground truth): `ti_mmwave.convert(source)`.
+    vod.py          View-of-Delft style per-scan point files: `vod.convert(...)`.
+    _common.py      what they share; its public part is re-exported here: `Conversion`, `ConversionReport`,
+                    `CONVERSION_JSON`, `read_csv`, `write_conversion`.
 """
+
+from . import radarscenes, ti_mmwave, vod
+from ._common import CONVERSION_JSON, Conversion, ConversionReport, read_csv, write_conversion
+
+__all__ = ["CONVERSION_JSON", "Conversion", "ConversionReport", "radarscenes", "read_csv", "ti_mmwave", "vod",
+           "write_conversion"]

@@ -141,8 +141,26 @@ def convert_radar(source, radar: int, t_max: float | None = None) -> Conversion:
     det = read_csv(det_path, DET_COLUMNS, int_columns=("scan_idx",))
     report = ConversionReport("radarscenes", str(source))
     report.info["radar"] = radar
+    t, n_scans = _scan_times(odom, odom_path, t_max, report)
+    scan, rng, az, vr, label, rcs = _kept_detections(det, len(t), n_scans, report)
+    scans = scans_from_rows(report, scan, t, rng, az, np.zeros_like(az), vr, {"label": label, "rcs": rcs})
+    sensor = _sensor_config(radar, odom, t, scan, rng, az, vr, label, report)
+    gt, dt = _groundtruth(odom, t, n_scans)
+    report.info["max_abs_odom_time_offset_s"] = float(np.max(np.abs(dt)))
+    report.info["static_fraction"] = float(np.mean(label == STATIC_LABEL)) if len(label) else 0.0
+    report.notes.append("2D radar: elevation written as 0 with sigma 10 deg (unknown)")
+    report.notes.append("sigma_range is nominal (not observable from the data); radial velocity and azimuth "
+                        "sigmas from static Doppler residuals against the odometry (upper bounds)")
+    rows = ["scan,t,t_odom,vx,yaw_rate"]
+    cols = [t, odom["timestamp_odom"], odom["vx_ego"], odom["yaw_rate_ego"]]
+    rows += [f"{k}," + ",".join(repr(float(c[k])) for c in cols) for k in range(n_scans)]
+    seq = Sequence(sensor=sensor, scans=scans, groundtruth=gt)
+    return Conversion(f"radar{radar}", seq, report, {"odom.csv": "\n".join(rows) + "\n"})
 
-    # scans: row i of the odometry file is scan_idx i + 1; the sequence's scan index is row i
+
+def _scan_times(odom: dict, odom_path, t_max: float | None, report: ConversionReport) -> tuple[np.ndarray, int]:
+    """The scan times (row i of the odometry file is scan_idx i + 1; the sequence's scan index is row i),
+    checked, and the number of scans kept with t <= t_max."""
     bad_odom = ~np.all(np.isfinite(np.stack([odom[c] for c in ODOM_COLUMNS])), axis=0)
     if bad_odom.any():
         k = int(np.flatnonzero(bad_odom)[0])
@@ -158,8 +176,14 @@ def convert_radar(source, radar: int, t_max: float | None = None) -> Conversion:
         raise InputError(f"t_max: {t_max} is before the first scan at {t[0]} s")
     if n_scans < len(t):
         report.notes.append(f"kept the {n_scans} scans with t <= {t_max} s of {len(t)}")
+    return t, n_scans
+
+
+def _kept_detections(det: dict, n_rows: int, n_scans: int, report: ConversionReport) -> tuple:
+    """The usable detections (dropped ones counted in the report): scan index, range, azimuth, radial
+    velocity, label, rcs."""
     scan = det["scan_idx"] - 1
-    in_time = (scan >= 0) & (scan < len(t))
+    in_time = (scan >= 0) & (scan < n_rows)
     keep = report.drop("detections whose scan_idx has no row in the odometry file", ~in_time)
     keep &= report.drop("detections after t_max", in_time & (scan >= n_scans))
     values = np.stack([det[c] for c in DET_COLUMNS[1:]])
@@ -167,15 +191,15 @@ def convert_radar(source, radar: int, t_max: float | None = None) -> Conversion:
     rng, az, vr = det["range_m"], det["azimuth_rad"], det["vr_mps"]
     keep &= report.drop("detections with range <= 0", keep & ~(rng > 0))
     keep &= report.drop("detections with azimuth outside [-pi, pi]", keep & ~(np.abs(az) <= np.pi))
+    return scan[keep], rng[keep], az[keep], vr[keep], det["label_id"][keep], det["rcs_dbsm"][keep]
 
-    scan, rng, az, vr = scan[keep], rng[keep], az[keep], vr[keep]
-    label, rcs = det["label_id"][keep], det["rcs_dbsm"][keep]
-    scans = scans_from_rows(report, scan, t, rng, az, np.zeros_like(az), vr, {"label": label, "rcs": rcs})
 
-    # noise from the static detections' Doppler residuals against the odometry
-    v_s = sensor_velocity(radar, odom["vx_ego"], odom["yaw_rate_ego"])
+def _sensor_config(radar: int, odom: dict, t, scan, rng, az, vr, label, report: ConversionReport) -> SensorConfig:
+    """sensor.toml: the mounting, noise from the static detections' Doppler residuals against the odometry
+    (nominal when too few), the field of view and maximum range seen in the data, the median scan rate."""
+    v_sensor = sensor_velocity(radar, odom["vx_ego"], odom["yaw_rate_ego"])
     static = label == STATIC_LABEL
-    sigmas = estimate_noise(az[static], vr[static], v_s[scan[static]])
+    sigmas = estimate_noise(az[static], vr[static], v_sensor[scan[static]])
     if sigmas is None:
         sigmas = NOMINAL_SIGMAS
         report.notes.append(f"too few static detections to estimate the noise: nominal sigmas {NOMINAL_SIGMAS}")
@@ -184,32 +208,25 @@ def convert_radar(source, radar: int, t_max: float | None = None) -> Conversion:
                         radial_velocity=sigma_vr)
     az_lo, az_hi = (float(np.min(az)), float(np.max(az))) if len(az) else (-np.pi / 2, np.pi / 2)
     rate = float(1.0 / np.median(np.diff(t))) if len(t) > 1 else 13.0
-    sensor = SensorConfig(rate_hz=rate, T_vehicle_sensor=T_vehicle_sensor(radar), noise=noise,
-                          azimuth_fov=(az_lo, max(az_hi, az_lo + 1e-6)),
-                          elevation_fov=(-ELEVATION_FOV, ELEVATION_FOV),
-                          max_range=float(np.ceil(np.max(rng))) if len(rng) else 100.0, min_range=0.0)
+    report.info.update({
+        "sigma_radial_velocity_mps": sigma_vr, "sigma_azimuth_rad": sigma_az, "sigma_range_m": RANGE_SIGMA,
+        "sigma_elevation_rad": float(ELEVATION_SIGMA), "rate_hz": rate,
+    })
+    return SensorConfig(rate_hz=rate, T_vehicle_sensor=T_vehicle_sensor(radar), noise=noise,
+                        azimuth_fov=(az_lo, max(az_hi, az_lo + 1e-6)),
+                        elevation_fov=(-ELEVATION_FOV, ELEVATION_FOV),
+                        max_range=float(np.ceil(np.max(rng))) if len(rng) else 100.0, min_range=0.0)
 
-    # ground truth: the odometry pose, moved from the odometry time to the scan time with vx and yaw rate
+
+def _groundtruth(odom: dict, t: np.ndarray, n_scans: int) -> tuple[Trajectory, np.ndarray]:
+    """The odometry pose moved from the odometry time to the scan time with vx and yaw rate; and the time
+    offsets (n_scans,) it was moved by."""
     sl = slice(0, n_scans)
     dt = (t - odom["timestamp_odom"])[sl]
     yaw = odom["yaw_loc"][sl] + odom["yaw_rate_ego"][sl] * dt
     x = odom["x_loc"][sl] + np.cos(odom["yaw_loc"][sl]) * odom["vx_ego"][sl] * dt
     y = odom["y_loc"][sl] + np.sin(odom["yaw_loc"][sl]) * odom["vx_ego"][sl] * dt
-    gt = Trajectory(t[sl], planar_poses(x, y, yaw))
-    report.info.update({
-        "sigma_radial_velocity_mps": sigma_vr, "sigma_azimuth_rad": sigma_az, "sigma_range_m": RANGE_SIGMA,
-        "sigma_elevation_rad": float(ELEVATION_SIGMA), "rate_hz": rate,
-        "max_abs_odom_time_offset_s": float(np.max(np.abs(dt))),
-        "static_fraction": float(np.mean(static)) if len(static) else 0.0,
-    })
-    report.notes.append("2D radar: elevation written as 0 with sigma 10 deg (unknown)")
-    report.notes.append("sigma_range is nominal (not observable from the data); radial velocity and azimuth "
-                        "sigmas from static Doppler residuals against the odometry (upper bounds)")
-    rows = ["scan,t,t_odom,vx,yaw_rate"]
-    cols = [t, odom["timestamp_odom"], odom["vx_ego"], odom["yaw_rate_ego"]]
-    rows += [f"{k}," + ",".join(repr(float(c[k])) for c in cols) for k in range(n_scans)]
-    seq = Sequence(sensor=sensor, scans=scans, groundtruth=gt)
-    return Conversion(f"radar{radar}", seq, report, {"odom.csv": "\n".join(rows) + "\n"})
+    return Trajectory(t[sl], planar_poses(x, y, yaw)), dt
 
 
 def convert(source, radars=(2,), t_max: float | None = None) -> list[Conversion]:

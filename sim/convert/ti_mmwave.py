@@ -75,16 +75,45 @@ def doppler_quantisation(radial_velocity) -> dict:
 def convert(source) -> Conversion:
     """Convert the TI mmWave demo folder (see module docstring) into one Conversion named 'ti_mmwave'.
 
-    Checked by: tests/sim/test_convert.py::test_ti_converts_demo
+    Checked by: tests/sim/test_convert.py::test_ti_times_extrinsics_and_quantisation,
+        ::test_ti_real_demo_converts, ::test_ti_bad_calibration_and_missing_files
     """
     source = Path(source)
     if not source.is_dir():
         raise InputError(f"SOURCE: {source} is not a directory (expected the TI mmWave CSV export)")
-    T_vs, frame_ms = read_calibration(source / CALIB_YAML)
+    T_vehicle_sensor, frame_ms = read_calibration(source / CALIB_YAML)
     sc = read_csv(source / SCANS_CSV, ("scan_idx", "t_trigger_ns"), int_columns=("scan_idx", "t_trigger_ns"))
     det = read_csv(source / DETECTIONS_CSV, ("scan_idx", "x_m", "y_m", "z_m", "intensity", "v_radial_mps"),
                    int_columns=("scan_idx",))
     report = ConversionReport("ti-mmwave", str(source))
+    idx, t_scan, t0_ns = _scan_times(source, sc, frame_ms, report)
+    k, keep, rng, az, el = _kept_detections(det, idx, report)
+    vr = det["v_radial_mps"]
+    scans = scans_from_rows(report, k[keep], t_scan, rng[keep], az[keep], el[keep], vr[keep],
+                            {"snr": det["intensity"][keep]})
+    quant = doppler_quantisation(vr[keep])
+    step = quant["step_mps"] if quant["step_mps"] is not None else DOPPLER_STEP
+    sigma_vr = step / np.sqrt(12.0)
+    noise = NoiseSigmas(range=RANGE_SIGMA, azimuth=float(AZIMUTH_SIGMA), elevation=float(ELEVATION_SIGMA),
+                        radial_velocity=float(sigma_vr))
+    azk, elk = az[keep], el[keep]
+    fov_az = (float(azk.min()), float(azk.max())) if len(azk) else (-np.pi / 2, np.pi / 2)
+    fov_el = (float(elk.min()), float(elk.max())) if len(elk) else (-np.pi / 4, np.pi / 4)
+    rate = float(1.0 / np.median(np.diff(t_scan))) if len(t_scan) > 1 else 10.0
+    sensor = SensorConfig(rate_hz=rate, T_vehicle_sensor=T_vehicle_sensor, noise=noise,
+                          azimuth_fov=(fov_az[0], max(fov_az[1], fov_az[0] + 1e-6)),
+                          elevation_fov=(fov_el[0], max(fov_el[1], fov_el[0] + 1e-6)),
+                          max_range=float(np.ceil(rng[keep].max())) if keep.any() else 20.0)
+    report.info.update({"t0_ns": t0_ns, "time": "trigger + radar_frame_ms / 2, seconds from t0_ns",
+                        "radar_frame_ms": frame_ms, "rate_hz": rate, "doppler_quantisation": quant,
+                        "sigma_radial_velocity_mps": float(sigma_vr)})
+    _add_notes(report, step, quant)
+    return Conversion("ti_mmwave", Sequence(sensor=sensor, scans=scans, groundtruth=None), report)
+
+
+def _scan_times(source: Path, sc: dict, frame_ms: float, report: ConversionReport):
+    """Scan indices in time order (scans whose trigger time does not increase dropped), their times in
+    seconds from the first trigger (trigger + radar_frame_ms / 2), and the first trigger in ns."""
     idx, trig = sc["scan_idx"], sc["t_trigger_ns"]
     if len(idx) == 0:
         raise InputError(f"{source / SCANS_CSV}: no scans")
@@ -98,8 +127,13 @@ def convert(source) -> Conversion:
         idx, trig = idx[good], trig[good]
     t0_ns = int(trig[0])
     t_scan = (trig - t0_ns).astype(np.float64) * 1e-9 + 0.5e-3 * frame_ms  # (S,) s
-    # map scan_idx -> position in the time table
-    pos = np.full(int(max(idx.max(), det["scan_idx"].max(initial=0))) + 1, -1)
+    return idx, t_scan, t0_ns
+
+
+def _kept_detections(det: dict, idx: np.ndarray, report: ConversionReport):
+    """Each detection's position in the scan table (-1: none), the mask of usable detections (dropped ones
+    counted in the report), and range, azimuth, elevation of all rows (float64, from x, y, z)."""
+    pos = np.full(int(max(idx.max(), det["scan_idx"].max(initial=0))) + 1, -1)  # scan_idx -> position
     pos[idx] = np.arange(len(idx))
     s = det["scan_idx"]
     valid = (s >= 0) & (s < len(pos))
@@ -110,28 +144,12 @@ def convert(source) -> Conversion:
     p = np.where(keep[:, None], vals[:3].T, 1.0)
     rng, az, el = polar_from_xyz(p)
     keep &= report.drop("detections at zero range", keep & ~(rng > 1e-6))
-    vr = det["v_radial_mps"]
-    scans = scans_from_rows(report, k[keep], t_scan, rng[keep], az[keep], el[keep], vr[keep],
-                            {"snr": det["intensity"][keep]})
-    quant = doppler_quantisation(vr[keep])
-    step = quant["step_mps"] if quant["step_mps"] is not None else DOPPLER_STEP
-    sigma_vr = step / np.sqrt(12.0)
-    noise = NoiseSigmas(range=RANGE_SIGMA, azimuth=float(AZIMUTH_SIGMA), elevation=float(ELEVATION_SIGMA),
-                        radial_velocity=float(sigma_vr))
-    azk, elk = az[keep], el[keep]
-    fov_az = (float(azk.min()), float(azk.max())) if len(azk) else (-np.pi / 2, np.pi / 2)
-    fov_el = (float(elk.min()), float(elk.max())) if len(elk) else (-np.pi / 4, np.pi / 4)
-    rate = float(1.0 / np.median(np.diff(t_scan))) if len(t_scan) > 1 else 10.0
-    sensor = SensorConfig(rate_hz=rate, T_vehicle_sensor=T_vs, noise=noise,
-                          azimuth_fov=(fov_az[0], max(fov_az[1], fov_az[0] + 1e-6)),
-                          elevation_fov=(fov_el[0], max(fov_el[1], fov_el[0] + 1e-6)),
-                          max_range=float(np.ceil(rng[keep].max())) if keep.any() else 20.0)
-    report.info.update({"t0_ns": t0_ns, "time": "trigger + radar_frame_ms / 2, seconds from t0_ns",
-                        "radar_frame_ms": frame_ms, "rate_hz": rate, "doppler_quantisation": quant,
-                        "sigma_radial_velocity_mps": float(sigma_vr)})
+    return k, keep, rng, az, el
+
+
+def _add_notes(report: ConversionReport, step: float, quant: dict) -> None:
     report.notes.append(f"Doppler step measured {step:.6g} m/s (nominal {DOPPLER_STEP}); on that grid: "
                         f"{100 * quant['fraction_on_grid']:.2f} % of "
                         f"detections, {quant['distinct_values']} distinct values")
     report.notes.append("vehicle frame = IMU body frame; no ground truth (no groundtruth.txt)")
     report.notes.append("range/azimuth/elevation sigmas are nominal; sigma_vr = Doppler step / sqrt(12)")
-    return Conversion("ti_mmwave", Sequence(sensor=sensor, scans=scans, groundtruth=None), report)

@@ -50,7 +50,7 @@ def convert(source, rate_hz: float = 10.0, T_vehicle_sensor=None, noise: NoiseSi
         noise: 1-sigma noise, DEFAULT_SIGMAS by default.
         max_range: sensor.toml's max range (m).
 
-    Checked by: tests/sim/test_convert.py::test_vod_round_trip
+    Checked by: tests/sim/test_convert.py::test_vod_round_trip_times_extras_and_ego_velocity
     """
     source = Path(source)
     if not source.is_dir():

@@ -19,8 +19,7 @@ from rodo.estimator.ego_velocity import estimate_ego_velocity
 from rodo.estimator.errors import InputError
 from rodo import cli
 from rodo.commands import convert as convert_cmd
-from rodo.sim.convert import radarscenes, ti_mmwave, vod
-from rodo.sim.convert._common import CONVERSION_JSON, write_conversion
+from rodo.sim.convert import CONVERSION_JSON, radarscenes, ti_mmwave, vod, write_conversion
 from rodo.sim.sequence import polar_to_cartesian, read_sequence
 
 
@@ -133,10 +132,11 @@ def _write_radarscenes(folder: Path, radar: int, rng, n_scans=40, per_scan=80, s
     lines = ["timestamp_rad,timestamp_odom,x_loc,y_loc,yaw_loc,vx_ego,yaw_rate_ego"]
     lines += [",".join(repr(float(v)) for v in row) for row in odom]
     (folder / f"radar{radar}_timestamp_and_odom.csv").write_text("\n".join(lines) + "\n")
-    v_s = radarscenes.sensor_velocity(radar, vx, w)
+    v_sensor = radarscenes.sensor_velocity(radar, vx, w)
     scan = np.repeat(np.arange(n_scans), per_scan)
     az_true = rng.uniform(-1.2, 1.2, len(scan))
-    vr = -(np.cos(az_true) * v_s[scan, 0] + np.sin(az_true) * v_s[scan, 1]) + rng.normal(0, sigma_vr, len(scan))
+    vr = (-(np.cos(az_true) * v_sensor[scan, 0] + np.sin(az_true) * v_sensor[scan, 1])
+          + rng.normal(0, sigma_vr, len(scan)))
     az = az_true + rng.normal(0, sigma_az, len(scan))
     rows = np.c_[scan + 1, rng.uniform(1, 90, len(scan)), az, vr, rng.normal(-5, 5, len(scan)),
                  np.zeros(len(scan)), np.full(len(scan), 11)]

@@ -48,19 +48,20 @@ def _pose(x, y, yaw):
 @given(vehicle_motion(), st.floats(-3, 3), st.floats(-3, 3), st.floats(-0.3, 0.3))
 def test_noise_free_scan_reproduces_geometry_and_static_radial_velocity(motion, x, y, yaw):
     varpi, _ = motion
-    T_wv = _pose(x, y, yaw)
+    T_world_vehicle = _pose(x, y, yaw)
     radar = Radar(IDEAL)
-    det = radar.scan(_scene(), T_wv, varpi, np.random.default_rng(1))
+    det = radar.scan(_scene(), T_world_vehicle, varpi, np.random.default_rng(1))
     assert len(det) > 100
     assert np.all(det.label < 2)
     # polar coordinates map back to the true scatterer given the true pose
-    T_ws = T_wv @ IDEAL.T_vehicle_sensor
-    p_back = se3.transform_points(T_ws, polar_to_cartesian(det.range, det.azimuth, det.elevation))
+    T_world_sensor = T_world_vehicle @ IDEAL.T_vehicle_sensor
+    p_back = se3.transform_points(T_world_sensor, polar_to_cartesian(det.range, det.azimuth, det.elevation))
     np.testing.assert_allclose(p_back, det.p_world, atol=1e-9)
-    # static radial velocity from docs/conventions.md: dp_v/dt = nu + omega x p_v, dp_s/dt = C_vs^T dp_v/dt
-    p_v = se3.transform_points(se3.inverse(T_wv), det.p_world)
-    C_vs = IDEAL.T_vehicle_sensor[:3, :3]
-    dps = (varpi[:3] + np.cross(varpi[3:], p_v)) @ C_vs
+    # static radial velocity from docs/conventions.md: dp_vehicle/dt = nu + omega x p_vehicle,
+    # dp_sensor/dt = C_vehicle_sensor^T dp_vehicle/dt
+    p_vehicle = se3.transform_points(se3.inverse(T_world_vehicle), det.p_world)
+    C_vehicle_sensor = IDEAL.T_vehicle_sensor[:3, :3]
+    dps = (varpi[:3] + np.cross(varpi[3:], p_vehicle)) @ C_vehicle_sensor
     u = polar_to_cartesian(1.0, det.azimuth, det.elevation)
     np.testing.assert_allclose(det.radial_velocity, np.einsum("ij,ij->i", u, dps), atol=1e-9)
 
@@ -88,9 +89,10 @@ def test_radial_velocity_sign_driving_at_a_point_dead_ahead():
 def test_moving_target_reports_its_own_radial_velocity():
     """A car driving towards a standing radar at 5 m/s along -x: v_r = -5 u_x on its body; with the radar
     driving at 10 m/s towards it, v_r = -15 u_x."""
-    T_wc = _pose(16.0, 0.0, np.pi)  # carrier facing -x
-    car = ob.MovingBox(7, (4.5, 1.8, 1.5), tr.Profile([tr.Segment(5.0)], 5.0, se3.inverse(T_wc)), 0.0, 1.0, 0.0,
-                       5.0, se3.from_rotation_translation(np.eye(3), np.array([1.0, 0.0, -0.5])))
+    T_world_carrier = _pose(16.0, 0.0, np.pi)  # carrier facing -x
+    carrier = tr.Profile([tr.Segment(5.0)], 5.0, se3.inverse(T_world_carrier))
+    car = ob.MovingBox(7, (4.5, 1.8, 1.5), carrier, 0.0, 1.0, 0.0, 5.0,
+                       se3.from_rotation_translation(np.eye(3), np.array([1.0, 0.0, -0.5])))
     state = car.states(np.array([1.0]))
     assert state.present[0]
     np.testing.assert_allclose(state.v_world[0], [-5.0, 0, 0], atol=1e-12)

@@ -37,8 +37,8 @@ def test_truth_is_consistent_with_the_sequence(small):
     # noise-free: every detection maps back to its true scatterer through the true pose
     for k in (0, K // 2, K - 1):
         sc = seq.scans[k]
-        T_ws = seq.groundtruth.T_world_vehicle[k] @ cfg.T_vehicle_sensor
-        p = se3.transform_points(T_ws, polar_to_cartesian(sc.range, sc.azimuth, sc.elevation))
+        T_world_sensor = seq.groundtruth.T_world_vehicle[k] @ cfg.T_vehicle_sensor
+        p = se3.transform_points(T_world_sensor, polar_to_cartesian(sc.range, sc.azimuth, sc.elevation))
         np.testing.assert_allclose(p, truth["det_p_world"][off[k]:off[k + 1]], atol=1e-9)
     assert set(np.unique(truth["det_label"])) <= {0, 1, 2}
     assert (truth["det_label"] == 2).any()  # the oncoming car is seen
@@ -85,18 +85,19 @@ def test_noise_free_sensor_file_has_positive_sigmas(small):
 
 
 def test_truth_twist_explains_static_radial_velocities(small):
-    """Per docs/conventions.md: p_v = T p_world, dp_v/dt = nu + omega x p_v, v_r = u . C_vs^T dp_v/dt."""
+    """Per docs/conventions.md: p_vehicle = T p_world, dp_vehicle/dt = nu + omega x p_vehicle,
+    v_r = u . C_vehicle_sensor^T dp_vehicle/dt."""
     cfg = RadarConfig().noise_free()
     seq, truth = _run(small, 1, cfg, duration=3.0)
-    C_vs = cfg.T_vehicle_sensor[:3, :3]
+    C_vehicle_sensor = cfg.T_vehicle_sensor[:3, :3]
     off = truth["scan_offsets"]
     checked = 0
     for k in range(0, len(truth["t"]), 5):
         sl = slice(off[k], off[k + 1])
         static = truth["det_label"][sl] < 2
-        p_v = se3.transform_points(truth["T_vehicle_world"][k], truth["det_p_world"][sl][static])
+        p_vehicle = se3.transform_points(truth["T_vehicle_world"][k], truth["det_p_world"][sl][static])
         varpi = truth["varpi"][k]
-        dps = (varpi[:3] + np.cross(varpi[3:], p_v)) @ C_vs
+        dps = (varpi[:3] + np.cross(varpi[3:], p_vehicle)) @ C_vehicle_sensor
         sc = seq.scans[k]
         u = polar_to_cartesian(1.0, sc.azimuth[static], sc.elevation[static])
         np.testing.assert_allclose(sc.radial_velocity[static], np.einsum("ij,ij->i", u, dps), atol=1e-9)
@@ -120,11 +121,12 @@ def test_moving_detections_radial_velocity_is_range_rate(small):
         if not moving.any():
             continue
         t = truth["t"][k]
-        T_wo = mover.states(np.array([t - h, t, t + h])).T_world_object
-        q = se3.transform_points(se3.inverse(T_wo[1]), truth["det_p_world"][sl][moving])
-        T_wv = profile.sample(np.array([t - h, t + h])).T_world_vehicle
-        r = [np.linalg.norm(se3.transform_points(se3.inverse(T_wv[i] @ cfg.T_vehicle_sensor) @ T_wo[2 * i], q),
-                            axis=1) for i in (0, 1)]
+        T_world_object = mover.states(np.array([t - h, t, t + h])).T_world_object
+        q = se3.transform_points(se3.inverse(T_world_object[1]), truth["det_p_world"][sl][moving])
+        T_world_vehicle = profile.sample(np.array([t - h, t + h])).T_world_vehicle
+        T_sensor_object = [se3.inverse(T_world_vehicle[i] @ cfg.T_vehicle_sensor) @ T_world_object[2 * i]
+                           for i in (0, 1)]
+        r = [np.linalg.norm(se3.transform_points(T, q), axis=1) for T in T_sensor_object]
         np.testing.assert_allclose(seq.scans[k].radial_velocity[moving], (r[1] - r[0]) / (2 * h), atol=1e-5)
         checked += moving.sum()
     assert checked > 20

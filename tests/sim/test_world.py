@@ -83,8 +83,8 @@ def test_movers_velocity_is_the_derivative_of_their_pose(city, kind):
     np.testing.assert_allclose(s.v_world[0] + np.cross(s.w_world[0], p[0] - s.T_world_object[0, :3, 3]), fd,
                                atol=1e-6)
     if kind == "oncoming":  # level with the ego at t_meet, one lane to the left, facing the other way
-        T_wv = profile.sample(np.array([15.0])).T_world_vehicle[0]
-        rel = se3.inverse(T_wv) @ s.T_world_object[3]
+        T_world_vehicle = profile.sample(np.array([15.0])).T_world_vehicle[0]
+        rel = se3.inverse(T_world_vehicle) @ s.T_world_object[3]
         np.testing.assert_allclose(rel[:3, 3], [1.25, 3.5, -w.GROUND_BELOW], atol=1e-9)
         assert rel[0, 0] == pytest.approx(-1.0)
 
