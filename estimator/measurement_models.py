@@ -167,7 +167,7 @@ MODELS = tuple(MEASUREMENT_MODELS)
 def measurement_model(model: str | MeasurementModel) -> MeasurementModel:
     """The model object for a name ("polar", "cartesian"), or the object itself.
 
-    Checked by: tests/estimator/test_measurements.py::test_unknown_model_is_rejected
+    Checked by: tests/estimator/test_measurements.py::test_bad_input_names_the_argument
     """
     if isinstance(model, MeasurementModel):
         return model

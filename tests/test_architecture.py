@@ -637,3 +637,35 @@ def test_checkers_catch_violations(tmp_path):
                                             ("tests/sim/test_radar.py", "tests.sim.test_radar")])
 def test_module_names(path, expected):
     assert module_name(ROOT / path) == expected
+
+
+# ------------------------------------------------------------------------------------- 8. docs/architecture.md
+
+def test_architecture_doc_references_exist():
+    """Every `rodo.` object and every `tests/...py::test` named in docs/architecture.md exists."""
+    import importlib
+
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    objects = set(re.findall(r"`(rodo\.[\w.]+)`", text))
+    tests = set(re.findall(r"(tests/[\w/]+\.py)::(\w+)", text))
+    assert len(objects) > 15 and len(tests) > 15, (len(objects), len(tests))
+    problems = []
+    for dotted in sorted(objects):
+        parts = dotted.split(".")
+        for cut in range(len(parts), 0, -1):  # the longest importable prefix, then attributes
+            try:
+                obj = importlib.import_module(".".join(parts[:cut]))
+            except ImportError:
+                continue
+            try:
+                for attr in parts[cut:]:
+                    obj = getattr(obj, attr)
+            except AttributeError:
+                problems.append(f"docs/architecture.md names {dotted}, which does not exist")
+            break
+        else:
+            problems.append(f"docs/architecture.md names {dotted}, which cannot be imported")
+    for file, name in sorted(tests):
+        if not (ROOT / file).is_file() or name not in _test_names(ROOT / file):
+            problems.append(f"docs/architecture.md names {file}::{name}, which does not exist")
+    assert not problems, "\n".join(problems)

@@ -130,7 +130,7 @@ def _jac_closed(a):
 
 
 def _h_closed(a):
-    """Paper eq. 72-75 (eq. 71 corrected: H = 1/2 I + sum_i alpha_i S^i, see shared/paper/NOTES.md)."""
+    """Paper eq. 72-75 (eq. 71 corrected: H = 1/2 I + sum_i alpha_i S^i, see docs/paper_notes.md)."""
     s, c = np.sin(a), np.cos(a)
     return np.stack([
         0.5 * np.ones_like(a),

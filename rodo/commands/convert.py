@@ -62,7 +62,7 @@ def _sigmas(text: str):
 def run(args) -> int:
     from pathlib import Path
 
-    from rodo.sim.convert import _common, radarscenes, ti_mmwave, vod
+    from rodo.sim.convert import radarscenes, ti_mmwave, vod, write_conversion
 
     for option, value, owner in (("--radars", args.radars, "radarscenes"), ("--t-max", args.t_max, "radarscenes"),
                                  ("--rate", args.rate, "vod")):
@@ -83,7 +83,7 @@ def run(args) -> int:
         if noise is not None:
             conv.sequence.sensor = dataclasses.replace(conv.sequence.sensor, noise=noise)
             conv.report.notes.append(f"noise sigmas from --sigma {args.sigma}")
-        _common.write_conversion(target, conv)
+        write_conversion(target, conv)
         print(f"{conv.name} -> {target}")
         print(conv.report.summary())
     return 0

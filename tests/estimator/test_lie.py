@@ -91,7 +91,7 @@ def test_h_and_j_against_their_series(phi):
 
 
 def test_h_alpha_reference_values_at_phi_one():
-    """NOTES.md reference: alpha(phi=1) = [0.16647369091, 0.04164241001, 0.00794467572, 0.00134010414]."""
+    """docs/paper_notes.md reference: alpha(phi=1) = [0.16647369091, 0.04164241001, 0.00794467572, 0.00134010414]."""
     alpha_closed = se3._h_closed(np.array(1.0))[1:]
     alpha_taylor = _series.horner(_series.SE3_H, np.array(1.0))[1:]
     ref = [0.16647369091, 0.04164241001, 0.00794467572, 0.00134010414]
