@@ -19,6 +19,7 @@ A map of the package (each module's public names are re-exported here):
     doppler.py          the Doppler front end: static detections, velocity correction, standstill
     local_map.py        LocalMap: the bounded map of points
     window.py           SlidingWindow: Gauss-Newton over prior, motion and measurement terms, marginalisation
+    uncertainty.py      the pose covariance that grows as drift does (relative, absolute, over a span)
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
     scan.py             ScanEstimate, ScanDetail: what a scan returns
     config.py           OdometryConfig and its sections (TOML)
@@ -35,7 +36,7 @@ from importlib import import_module
 # (the simulator's only need) does not import numba and the compiled kernels.
 _EXPORTS = {
     "association": ("Association", "associate", "gate_threshold", "innovation_covariance", "match"),
-    "config": ("MODELS", "OdometryConfig"),
+    "config": ("MODELS", "OdometryConfig", "UncertaintyConfig"),
     "consensus": ("ConsensusSwitch",),
     "doppler": ("DopplerFrontEnd", "body_velocity", "sensor_velocity"),
     "ego_velocity": ("EgoVelocity", "estimate_ego_velocity", "least_squares_velocity"),
@@ -52,6 +53,7 @@ _EXPORTS = {
     "scan_association": ("MapAssociation", "ScanMeasurements"),
     "scan": ("ScanDetail", "ScanEstimate"),
     "state": ("State",),
+    "uncertainty": ("DriftCovariance", "relative_pose_covariance", "span_covariance"),
     "window": ("MeasurementSet", "SlidingWindow"),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}

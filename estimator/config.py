@@ -126,6 +126,21 @@ class VehicleConfig:
 
 
 @dataclass(frozen=True)
+class UncertaintyConfig:
+    """How the reported pose covariance accounts for what the window's covariance leaves out
+    (`rodo.estimator.uncertainty`, docs/consistency.md).
+
+    velocity_correlation_time: tau (s) of the velocity error, which the motion prior keeps correlated from
+        scan to scan so that it integrates into pose; 0 composes the per-scan relative covariances as
+        independent. 0.25 s: CA/P on city, hills, stop_and_go (docs/consistency.md).
+    inflation: factor (>= 1) on each scan's relative pose covariance before it is composed.
+    """
+
+    velocity_correlation_time: float = 0.25  # s
+    inflation: float = 1.0
+
+
+@dataclass(frozen=True)
 class SolverConfig:
     """Gauss-Newton settings and the initial state's uncertainty (vehicle frame, per axis x, y, z / roll,
     pitch, yaw): a vehicle barely rolls or pitches, and an unconstrained initial roll acceleration would be
@@ -156,6 +171,7 @@ class OdometryConfig:
     outage: OutageConfig = field(default_factory=OutageConfig)
     standstill: StandstillConfig = field(default_factory=StandstillConfig)
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    uncertainty: UncertaintyConfig = field(default_factory=UncertaintyConfig)
 
     def __post_init__(self):
         self._check_model_and_noise()
@@ -220,6 +236,11 @@ class OdometryConfig:
             value = getattr(self.association, name)
             if not ok(value):
                 raise InputError(f"association.{name}: must be {rule}, got {value}")
+        if not (np.isfinite(self.uncertainty.inflation) and self.uncertainty.inflation >= 1.0):
+            raise InputError(f"uncertainty.inflation: must be a finite number >= 1, got {self.uncertainty.inflation}")
+        tau = self.uncertainty.velocity_correlation_time
+        if not (np.isfinite(tau) and tau >= 0):
+            raise InputError(f"uncertainty.velocity_correlation_time: must be a finite number >= 0 s, got {tau}")
         if not self.outage.reinit_after >= 0:
             raise InputError(f"outage.reinit_after: must be >= 0 seconds, got {self.outage.reinit_after}")
         if self.map.max_age < 0 or self.map.voxel < 0:
@@ -256,7 +277,7 @@ class OdometryConfig:
     def from_dict(cls, data: dict, source: str = "config") -> "OdometryConfig":
         sections = {"noise": NoiseConfig, "association": AssociationConfig, "map": MapConfig, "solver": SolverConfig,
                     "outage": OutageConfig, "standstill": StandstillConfig,
-                    "vehicle": VehicleConfig}
+                    "vehicle": VehicleConfig, "uncertainty": UncertaintyConfig}
         top = {f.name for f in dataclasses.fields(cls)}
         kwargs = {}
         for key, value in data.items():

@@ -41,6 +41,7 @@ from .motion import motion_prior_for
 from .scan import ScanDetail, ScanEstimate
 from .scan_association import NO_PAIRS, MapAssociation, ScanMeasurements
 from .state import State
+from .uncertainty import DriftCovariance, relative_pose_covariance
 from .window import MeasurementSet, SlidingWindow
 
 
@@ -88,6 +89,9 @@ class RadarOdometry:
         self.map_clock = 0  # counts scans with static detections: the map ages with observations, not time
         self.last_t: float | None = None
         self.scan_dt = 0.1  # s, the latest time between scans (counts the consensus-switch scans)
+        self.drift: DriftCovariance | None = None  # the absolute pose covariance (`uncertainty`)
+        self.restart_relative: np.ndarray | None = None  # relative pose covariance across a re-initialisation
+        self.last_estimate: ScanEstimate | None = None
 
     # --- the per-scan step ------------------------------------------------------------------------------
     def process(self, t: float, polar) -> ScanEstimate:
@@ -104,7 +108,8 @@ class RadarOdometry:
         timings["associate"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
-        W_map, pairs = self._solve(P, scan, W_map, pairs, timings)
+        reuse = float(np.mean(self.map.hits[pairs.map_idx])) if len(pairs.map_idx) else float("nan")
+        W_map, pairs, P_relative = self._solve(P, scan, W_map, pairs, timings)
         timings["solve"] = time.perf_counter() - tic - timings.pop("reassociate", 0.0)
 
         detail = None
@@ -114,7 +119,8 @@ class RadarOdometry:
         tic = time.perf_counter()
         self._update_map(scan, pairs)
         timings["map"] = time.perf_counter() - tic
-        return self._estimate(t, polar, static, pairs, timings, events, detail, still is not None)
+        est = self._estimate(t, polar, static, pairs, timings, events, detail, still is not None)
+        return self._with_uncertainty(est, P_relative, reuse)
 
     # --- stages -----------------------------------------------------------------------------------------
     def _accept(self, t, polar) -> tuple[float, np.ndarray, np.ndarray]:
@@ -188,9 +194,35 @@ class RadarOdometry:
             # from the last solution: the problem changed by a few pairs, and the step after the first is ~1e-5
             self.window.optimize(cfg.solver.refine_iterations, cfg.solver.step_tolerance, check_last=False)
         self.P = self.window.newest_covariance()  # at the solution; marginalising does not change it
+        P_relative = self._relative_covariance()
         while len(self.window.states) > cfg.window:
             self.window.marginalize_oldest()
-        return W_map, pairs
+        return W_map, pairs, P_relative
+
+    def _relative_covariance(self) -> np.ndarray | None:
+        """Covariance of the relative pose since the last scan: from the window's joint covariance of its two
+        newest states, or across a (re-)initialisation the dead-reckoned one (None at the first scan)."""
+        P_pair = self.window.newest_pair_covariance()
+        if P_pair is None:
+            return self.restart_relative
+        x_prev, x_new = self.window.states[-2], self.window.states[-1]
+        return relative_pose_covariance(P_pair, x_prev.T_vehicle_world, x_new.T_vehicle_world, self.motion.dim)
+
+    def _with_uncertainty(self, est: ScanEstimate, P_relative, reuse: float) -> ScanEstimate:
+        """The estimate with its relative and absolute pose covariances (`rodo.estimator.uncertainty`)."""
+        cfg = self.config.uncertainty
+        if P_relative is None or self.drift is None:
+            self.drift = DriftCovariance(est.P[:6, :6], est.P[6:12, 6:12], cfg.velocity_correlation_time)
+            P_relative, P_absolute = np.full((6, 6), np.nan), est.P[:6, :6].copy()
+        else:
+            P_relative = cfg.inflation * P_relative
+            prev = self.last_estimate
+            P_absolute = self.drift.update(prev.T_vehicle_world, est.T_vehicle_world, est.t - prev.t, P_relative,
+                                           est.P[6:12, 6:12])
+        self.last_estimate = est
+        self.restart_relative = None
+        est.P_relative, est.P_pose_absolute, est.map_reuse = P_relative, P_absolute, reuse
+        return est
 
     def _update_map(self, scan: ScanMeasurements, pairs) -> None:
         """Refresh (or fuse) the associated map points, add the unassociated static detections, prune. The map
@@ -241,8 +273,11 @@ class RadarOdometry:
         return MeasurementSet(self.map.points[pairs.map_idx], scan.z[pairs.det_idx], W_map[pairs.map_idx])
 
     def _reinitialise(self, t: float, polar: np.ndarray, reason: str | None = None) -> tuple[State, np.ndarray, list]:
-        """After an outage: dead-reckoned pose, Doppler velocity, last rates, zero acceleration, empty map."""
+        """After an outage: dead-reckoned pose, Doppler velocity, last rates, zero acceleration, empty map. The
+        dead-reckoned pose's uncertainty relative to the last estimate carries the absolute covariance across."""
         T = self.motion.predict(self.window.newest, t).T_vehicle_world
+        F, Q = self.motion.transition_and_noise(self.window.newest, t - self.window.newest.t)
+        self.restart_relative = (F @ self.P @ F.T + Q)[:6, :6]
         x, P, _ = self._initial_state(t, polar, T=T, rates=self.last_with_data.varpi[3:])
         self.map = self.map.cleared()
         if reason is None:

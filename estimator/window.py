@@ -216,6 +216,18 @@ class SlidingWindow:
         P = _solve_spd(H, E)[-d:, :]
         return 0.5 * (P + P.T)
 
+    def newest_pair_covariance(self) -> np.ndarray | None:
+        """Joint posterior covariance (2 dim, 2 dim) of the two newest states [x_{n-2}; x_{n-1}], or None when the
+        window holds one state."""
+        if len(self.states) < 2:
+            return None
+        H = self._H if self._H is not None else self.linearize()[0]
+        d = self.motion.dim
+        E = np.zeros((H.shape[0], 2 * d))
+        E[-2 * d:, :] = np.eye(2 * d)
+        P = _solve_spd(H, E)[-2 * d:, :]
+        return 0.5 * (P + P.T)
+
     def marginalize_oldest(self) -> None:
         """Schur complement of the oldest state into a Gaussian prior on the next one."""
         d = self.motion.dim

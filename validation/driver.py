@@ -128,6 +128,9 @@ def write_run(out_dir: str | Path, result: RunResult) -> None:
         n_associated=np.array([e.n_associated for e in est]),
         nis=np.array([e.nis for e in est]),
         ms_per_scan=result.wall_ms,
+        P_relative=np.stack([_or_nan(e.P_relative) for e in est]),
+        P_pose_absolute=np.stack([_or_nan(e.P_pose_absolute) for e in est]),
+        map_reuse=np.array([e.map_reuse for e in est]),
     )
     tmp = out / ".states.npz.tmp"
     with open(tmp, "wb") as fh:
@@ -136,6 +139,10 @@ def write_run(out_dir: str | Path, result: RunResult) -> None:
     tmp = out / ".summary.json.tmp"
     tmp.write_text(json.dumps(result.summary(), indent=2) + "\n")
     os.replace(tmp, out / "summary.json")
+
+
+def _or_nan(P: np.ndarray | None) -> np.ndarray:
+    return np.full((6, 6), np.nan) if P is None else P
 
 
 def relative_pose_errors(gt: Trajectory, est: Trajectory) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,96 @@
+"""Pose uncertainty that grows as odometry drift does.
+
+The sliding window holds the local map as constants, so its marginal pose covariance says how well the newest
+pose is known RELATIVE TO THE MAP, which was built from earlier estimates: it stays flat while the error
+against the world grows (pose NEES of hundreds on the simulated city). Odometry's honest uncertainty is that
+of its relative motion, accumulated. Two parts make it up (docs/consistency.md has the measurements):
+
+1. the registration of each scan: delta_k = xi_k - Ad(R_k) xi_{k-1}, R_k = T_k T_{k-1}^-1 (left perturbations,
+   T = T_vehicle_world), Sigma_rel,k = A P_pair A^T with A = [-Ad(R_k), I] on the pose blocks of the window's
+   joint covariance of its two newest states (`relative_pose_covariance`);
+2. the velocity error, which the motion prior keeps correlated from scan to scan, so that it integrates into
+   pose: a first-order Gauss-Markov process b with the window's velocity covariance P_varpi,k as its variance
+   and correlation time tau, b_k = phi b_{k-1} + w_k, phi = exp(-dt / tau), Var(w_k) = (1 - phi^2) P_varpi,k.
+
+    xi_k = Ad(R_k) xi_{k-1} + dt phi b_{k-1} + dt w_k + delta_k
+
+`DriftCovariance` runs this recursion over [xi; b] (12 x 12) from scan to scan (the absolute pose covariance)
+and `span_covariance` over any span (the covariance of a relative pose over, e.g., 1 s). tau = 0 drops the
+second part (the per-scan relative errors composed as independent).
+
+Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_known_joint_gaussian,
+    ::test_drift_covariance_matches_monte_carlo_of_the_model, ::test_span_covariance_equals_the_recursion
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .lie import se3
+
+
+def relative_pose_covariance(P_pair: np.ndarray, T_prev: np.ndarray, T_new: np.ndarray, dim: int) -> np.ndarray:
+    """Sigma_rel (6, 6) of delta = xi_new - Ad(T_new T_prev^-1) xi_prev from the joint covariance P_pair
+    (2 dim, 2 dim) of two consecutive states [x_prev; x_new] (pose first in each block of `dim`)."""
+    A = np.hstack([-se3.adjoint(T_new @ se3.inverse(T_prev)), np.eye(6)])
+    idx = np.r_[0:6, dim:dim + 6]
+    S = A @ P_pair[np.ix_(idx, idx)] @ A.T
+    return 0.5 * (S + S.T)
+
+
+def _step(C: np.ndarray, T_prev, T_new, dt: float, Sigma_rel, P_varpi, tau: float) -> np.ndarray:
+    """One scan of the recursion over C = Cov([xi; b]) (12, 12)."""
+    phi = np.exp(-dt / tau) if tau > 0 else 0.0
+    A = np.zeros((12, 12))
+    A[:6, :6] = se3.adjoint(T_new @ se3.inverse(T_prev))
+    A[:6, 6:] = dt * phi * np.eye(6)
+    A[6:, 6:] = phi * np.eye(6)
+    W = (1.0 - phi**2) * P_varpi if tau > 0 else np.zeros((6, 6))
+    Q = np.zeros((12, 12))
+    Q[:6, :6] = dt * dt * W + Sigma_rel
+    Q[:6, 6:] = Q[6:, :6] = dt * W
+    Q[6:, 6:] = W
+    C = A @ C @ A.T + Q
+    return 0.5 * (C + C.T)
+
+
+class DriftCovariance:
+    """The absolute pose covariance of one run, scan by scan (the recursion of the module docstring).
+
+    Args:
+        P_pose0: (6, 6) covariance of the first pose.
+        P_varpi0: (6, 6) covariance of the first velocity.
+        tau: correlation time (s) of the velocity error; 0: none.
+    """
+
+    def __init__(self, P_pose0: np.ndarray, P_varpi0: np.ndarray, tau: float):
+        self.tau = float(tau)
+        self.C = np.zeros((12, 12))
+        self.C[:6, :6] = P_pose0
+        self.C[6:, 6:] = P_varpi0 if self.tau > 0 else 0.0
+
+    def update(self, T_prev, T_new, dt: float, Sigma_rel: np.ndarray, P_varpi: np.ndarray) -> np.ndarray:
+        """Advance by one scan; returns the new absolute pose covariance (6, 6)."""
+        self.C = _step(self.C, T_prev, T_new, dt, Sigma_rel, P_varpi, self.tau)
+        return self.C[:6, :6].copy()
+
+
+def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, start: int,
+                    end: int, tau: float) -> np.ndarray:
+    """Covariance (6, 6) of the relative pose T_end T_start^-1 of a run: the recursion from a known pose at
+    scan `start` (the velocity error at its stationary variance P_varpi[start]) to scan `end`.
+
+    Args:
+        T: (N, 4, 4) estimated T_vehicle_world; t: (N,) times.
+        Sigma_rel: (N, 6, 6) per-scan relative covariances (row j: from scan j-1 to j; NaN rows count as 0).
+        P_varpi: (N, 6, 6) the velocity covariances.
+        start, end: scan indices, start < end.
+        tau: the velocity error's correlation time (s).
+    """
+    C = np.zeros((12, 12))
+    if tau > 0:
+        C[6:, 6:] = P_varpi[start]
+    for j in range(start + 1, end + 1):
+        S = Sigma_rel[j] if np.all(np.isfinite(Sigma_rel[j])) else np.zeros((6, 6))
+        C = _step(C, T[j - 1], T[j], t[j] - t[j - 1], S, P_varpi[j], tau)
+    return C[:6, :6]

@@ -1,0 +1,116 @@
+"""The drift covariance (rodo.estimator.uncertainty): relative covariance from a joint one, the absolute
+recursion and the span covariance against Monte Carlo on SE(3), and the odometry's covariances end to end."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from scipy.stats import chi2
+
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.lie import se3
+from rodo.estimator.odometry import RadarOdometry
+from rodo.estimator.uncertainty import DriftCovariance, relative_pose_covariance, span_covariance
+from tests.estimator import scene
+from tests.strategies import twists
+
+N_MC = 4000
+
+
+def _mean_nees_in_bounds(e: np.ndarray, P: np.ndarray, dof: int = 6, level: float = 0.999):
+    v = np.einsum("ni,ij,nj->n", e, np.linalg.inv(P), e)
+    lo, hi = chi2.ppf([(1 - level) / 2, (1 + level) / 2], len(e) * dof) / len(e)
+    return lo <= v.mean() <= hi, (v.mean(), lo, hi)
+
+
+def _random_cov(rng, scale):
+    A = rng.normal(size=(6, 6)) * scale
+    return A @ A.T + np.eye(6) * scale**2 * 0.1
+
+
+@given(a=twists("vehicle", 5.0), b=twists("vehicle", 5.0))
+@settings(max_examples=10)
+def test_relative_covariance_of_a_known_joint_gaussian(a, b):
+    """Perturb two poses with a correlated joint Gaussian on the left; the relative pose's perturbation
+    log(R' R^-1) has the covariance `relative_pose_covariance` gives (mean NEES in the 99.9 % bounds)."""
+    rng = np.random.default_rng(np.random.SeedSequence(11))
+    T_prev, T_new = se3.exp(a), se3.exp(b)
+    L = rng.normal(size=(12, 12)) * 2e-3
+    P_pair = L @ L.T + 1e-7 * np.eye(12)
+    dim = 6
+    xi = rng.multivariate_normal(np.zeros(12), P_pair, size=N_MC)
+    R = T_new @ se3.inverse(T_prev)
+    Rp = se3.exp(xi[:, 6:]) @ T_new @ se3.inverse(se3.exp(xi[:, :6]) @ T_prev)
+    delta = se3.log(Rp @ se3.inverse(R))
+    ok, info = _mean_nees_in_bounds(delta, relative_pose_covariance(P_pair, T_prev, T_new, dim))
+    assert ok, info
+
+
+def _model_monte_carlo(rng, T, t, Sigma_rel, P_varpi, tau, P0):
+    """Samples of the drift model on SE(3): true poses exp(dt b_k + delta_k) R_k T_{k-1} with the velocity error
+    b a Gauss-Markov process; returns the pose perturbations log(T_true T^-1) at the last scan."""
+    n = len(t)
+    T_true = se3.exp(rng.multivariate_normal(np.zeros(6), P0, size=N_MC)) @ T[0]
+    b = rng.multivariate_normal(np.zeros(6), P_varpi[0], size=N_MC)
+    for k in range(1, n):
+        dt = t[k] - t[k - 1]
+        phi = np.exp(-dt / tau) if tau > 0 else 0.0
+        w = rng.multivariate_normal(np.zeros(6), (1 - phi**2) * P_varpi[k], size=N_MC)
+        b = phi * b + w if tau > 0 else np.zeros_like(b)
+        d = rng.multivariate_normal(np.zeros(6), Sigma_rel[k], size=N_MC)
+        T_true = se3.exp(dt * b + d) @ (T[k] @ se3.inverse(T[k - 1])) @ T_true
+    return se3.log(T_true @ se3.inverse(T[-1]))
+
+
+@pytest.mark.parametrize("tau", [0.0, 0.3, 2.0])
+def test_drift_covariance_matches_monte_carlo_of_the_model(tau):
+    """The absolute recursion against samples of the model it linearises, over 20 turning, accelerating scans."""
+    rng = np.random.default_rng(np.random.SeedSequence(12))
+    t = np.cumsum(np.r_[0.0, rng.uniform(0.05, 0.1, 19)])
+    T = np.stack([se3.exp(np.array([-8.0 * s, 0.3 * s, 0.0, 0.01, -0.02, 0.4 * s])) for s in t])
+    Sigma_rel = np.stack([_random_cov(rng, 3e-3) for _ in t])
+    P_varpi = np.stack([_random_cov(rng, 2e-2) for _ in t])
+    P0 = _random_cov(rng, 1e-3)
+    drift = DriftCovariance(P0, P_varpi[0], tau)
+    for k in range(1, len(t)):
+        P = drift.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
+    xi = _model_monte_carlo(rng, T, t, Sigma_rel, P_varpi, tau, P0)
+    ok, info = _mean_nees_in_bounds(xi, P)
+    assert ok, info
+    # and the velocity part matters when tau > 0: without it the covariance is too small
+    if tau >= 2.0:
+        small = DriftCovariance(P0, P_varpi[0], 0.0)
+        for k in range(1, len(t)):
+            P0_only = small.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
+        assert not _mean_nees_in_bounds(xi, P0_only)[0]
+
+
+def test_span_covariance_equals_the_recursion():
+    """A span from scan s to e is the recursion started at s with a known pose."""
+    rng = np.random.default_rng(np.random.SeedSequence(13))
+    t = np.cumsum(np.r_[0.0, rng.uniform(0.05, 0.1, 14)])
+    T = np.stack([se3.exp(np.array([-8.0 * s, 0.0, 0.0, 0.0, 0.0, 0.3 * s])) for s in t])
+    Sigma_rel = np.stack([_random_cov(rng, 1e-3) for _ in t])
+    Sigma_rel[0] = np.nan
+    P_varpi = np.stack([_random_cov(rng, 1e-2) for _ in t])
+    drift = DriftCovariance(np.zeros((6, 6)), P_varpi[4], 0.5)
+    for k in range(5, 12):
+        P = drift.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
+    np.testing.assert_allclose(span_covariance(T, t, Sigma_rel, P_varpi, 4, 11, 0.5), P, rtol=1e-12, atol=1e-18)
+
+
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+def test_absolute_covariance_grows_while_the_windows_stays_flat(model):
+    """Odometry end to end: the window's pose covariance is relative to the map and stays flat; the absolute
+    one grows with the distance driven (drift), and each scan reports a positive definite relative one."""
+    rng = np.random.default_rng(5)
+    t, T, varpi, vd = scene.trajectory(40)
+    L = scene.landmarks(rng)
+    odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+    est = [odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng)) for k in range(len(t))]
+    assert np.isnan(est[0].P_relative).all()
+    for e in est[1:]:
+        assert np.all(np.linalg.eigvalsh(e.P_relative) > 0)
+    window = [np.trace(e.P[:6, :6]) for e in est]
+    absolute = [np.trace(e.P_pose_absolute) for e in est]
+    assert absolute[-1] > 10 * absolute[5] and absolute[-1] > 10 * window[-1]
+    assert np.all(np.diff(absolute[1:]) > 0)
