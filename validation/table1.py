@@ -65,7 +65,8 @@ def segment_arrays(gt, est, step: int = 10) -> dict:
     Returns:
         dict: kitti_segments (k, 4), kitti_segments_short (m, 4) [first, length, t_err, r_err], path_length_m.
     """
-    from .metrics import associate, path_distances
+    from .association import associate
+    from .metrics import path_distances
 
     ig, ie = associate(gt.t, est.t)
     G, E = gt.T_world_vehicle[ig], est.T_world_vehicle[ie]
