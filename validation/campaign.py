@@ -36,7 +36,7 @@ import numpy as np
 from rodo.estimator.errors import InputError
 
 from .campaign_files import FIELDS, METRICS, append_rows, cell, npz_path, read_results, rewrite_results, save_arrays
-from .consistency import average_nees, chi2_bounds
+from .consistency import average_nees, chi2_bounds, fraction_within
 from .metrics import jsonable
 
 
@@ -291,12 +291,12 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
             mean, count = average_nees(runs)
             b = chi2_bounds(count, dim, alpha)
             fin = np.isfinite(mean)
-            within = (mean[fin] >= b[fin, 0]) & (mean[fin] <= b[fin, 1])
+            within = fraction_within(mean, b)
             pooled = np.concatenate([r[np.isfinite(r)] for r in runs])
             entry["nees"] = {"dim": dim, "runs": len(runs), "mean_over_scans": float(np.mean(mean[fin])),
                              "median_over_scans": float(np.median(mean[fin])),
                              "bounds_for_runs": chi2_bounds(len(runs), dim, alpha).tolist(),
-                             "fraction_scans_within": float(within.mean()) if within.size else None,
+                             "fraction_scans_within": None if np.isnan(within) else within,
                              "pooled_mean": float(pooled.mean()) if pooled.size else None}
             entry["nees_curve"] = {"t": t.tolist(), "mean": mean.tolist(), "count": count.tolist(),
                                    "lower": b[:, 0].tolist(), "upper": b[:, 1].tolist()}

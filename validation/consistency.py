@@ -157,6 +157,29 @@ def chi2_bounds(n_runs, dim: int, alpha: float = 0.05) -> np.ndarray:
     return np.stack([lo, hi], axis=-1)
 
 
+def fraction_within(values, bounds) -> float:
+    """Fraction of the finite values that lie within their bounds, lower <= v <= upper.
+
+    Values that are NaN (no estimate, a P that is not positive definite) or whose bounds are NaN (a count of 0)
+    are left out, not counted as outside.
+
+    Args:
+        values: (N,) e.g. NEES per scan, average NEES per scan, NIS per scan.
+        bounds: (2,) [lower, upper] for all values, or (N, 2) per value (`chi2_bounds`).
+
+    Returns:
+        The fraction in [0, 1], NaN when no value is left.
+
+    Checked by: tests/validation/test_consistency.py::test_fraction_within_skips_missing_values
+    """
+    v = np.asarray(values, dtype=float).reshape(-1)
+    b = np.broadcast_to(np.asarray(bounds, dtype=float), v.shape + (2,))
+    ok = np.isfinite(v) & np.all(np.isfinite(b), axis=1)
+    if not ok.any():
+        return float("nan")
+    return float(np.mean((v[ok] >= b[ok, 0]) & (v[ok] <= b[ok, 1])))
+
+
 def nees_sequence(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
     """Per-scan NEES of a run (states.npz arrays) against the simulator's truth (truth.npz arrays).
 
@@ -231,9 +254,9 @@ def nis_summary(nis, n_associated, alpha: float = 0.05) -> dict:
                 "dof": NIS_DOF}
     mean = float(np.sum(nis[ok] * n[ok]) / total)
     per_scan = chi2_bounds(n[ok], NIS_DOF, alpha)
-    within = (nis[ok] >= per_scan[:, 0]) & (nis[ok] <= per_scan[:, 1])
     return {"mean": mean, "pairs": int(total), "bounds": chi2_bounds(total, NIS_DOF, alpha).tolist(),
-            "fraction_scans_within": float(within.mean()), "dof": NIS_DOF, "gated_mean": gated_mean(NIS_DOF, 0.95)}
+            "fraction_scans_within": fraction_within(nis[ok], per_scan), "dof": NIS_DOF,
+            "gated_mean": gated_mean(NIS_DOF, 0.95)}
 
 
 def gated_mean(dof: int, gate_probability: float) -> float:

@@ -20,7 +20,7 @@ from rodo.estimator.lie import se3
 
 from .alignment import align_to_first
 from .association import DEFAULT_TOLERANCE, associate
-from .consistency import chi2_bounds, nees_sequence, nis_summary, pose_error
+from .consistency import chi2_bounds, fraction_within, nees_sequence, nis_summary, pose_error
 from .kitti import LENGTHS, kitti_errors, trajectory_distances
 
 
@@ -268,7 +268,8 @@ def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, 
         rpe, drift (final, max_abs), matched, and `nees`, `nis`, `velocity`, `ms_per_scan` when available.
         Values that cannot be computed (path shorter than every KITTI length) are NaN.
 
-    Checked by: tests/validation/test_metrics.py::test_evaluate_report_has_the_documented_keys_and_zero_errors_for_truth,
+    Checked by:
+        tests/validation/test_metrics.py::test_evaluate_report_has_the_documented_keys_and_zero_errors_for_truth,
         tests/cli/test_evaluate_cli.py
     """
     ig, ie = associate(gt.t, est.t, tolerance)
@@ -300,8 +301,7 @@ def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, 
                        "mean": float(v.mean()) if v.size else float("nan"),
                        "median": float(np.median(v)) if v.size else float("nan"),
                        "per_scan_bounds": per_scan.tolist(),
-                       "fraction_within": float(np.mean((v >= per_scan[0]) & (v <= per_scan[1])))
-                       if v.size else float("nan"),
+                       "fraction_within": fraction_within(v, per_scan),
                        "time_average_bounds": chi2_bounds(max(v.size, 1), d, alpha).tolist()}
     return out
 

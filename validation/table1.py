@@ -193,7 +193,8 @@ def render_markdown(table: dict, title: str = "Table I (simulated suite)") -> st
         name = row["scenario"]
         if row["lengths"] in notes:
             name += " " + notes[row["lengths"]]
-        cells = [f"**{name}**" if name.startswith("overall") else name, _fmt("{:.3f}", row["distance_km"]), str(row["runs"])]
+        cells = [f"**{name}**" if name.startswith("overall") else name, _fmt("{:.3f}", row["distance_km"]),
+                 str(row["runs"])]
         for key in ("t_err_pct", "r_err_deg_per_m", "ms_per_scan"):
             for lab in labels:
                 v = row[lab][key]

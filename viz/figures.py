@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.validation.consistency import fraction_within
+from rodo.validation.covariance import covariance_axes
 
 SAMPLE = "#3b6fd8"  # Monte Carlo samples (blue, as in the paper)
 MEAN = "#e0479e"  # prior mean / full model (pink, as in the paper)
@@ -39,11 +41,12 @@ def _save(fig, path) -> Path:
 
 
 def ellipse_xy(mean, cov, n_sigma: float = 3.0, n: int = 100) -> np.ndarray:
-    """(n, 2) points of the n-sigma ellipse {x : (x - m)^T cov^-1 (x - m) = n_sigma^2} of a 2x2 covariance."""
-    lam, V = np.linalg.eigh(0.5 * (np.asarray(cov, float) + np.asarray(cov, float).T))
+    """(n, 2) points of the n-sigma ellipse {x : (x - m)^T cov^-1 (x - m) = n_sigma^2} of a 2x2 covariance
+    (axes from `validation.covariance.covariance_axes`)."""
+    half, V = covariance_axes(cov, n_sigma)
     a = np.linspace(0.0, 2 * np.pi, n)
     circle = np.stack([np.cos(a), np.sin(a)], axis=1)
-    return np.asarray(mean, float) + n_sigma * (circle * np.sqrt(np.maximum(lam, 0.0))) @ V.T
+    return np.asarray(mean, float) + (circle * half) @ V.T
 
 
 # ------------------------------------------------------------------------------------------------ NEES
@@ -76,7 +79,7 @@ def plot_nees(path, t, nees_mean, bounds, labels) -> Path:
     ax = fig.add_subplot()
     ax.fill_between(t, lo, hi, color="0.85", label="95 % chi-square band")
     for j, lab in enumerate(labels):
-        inside = np.nanmean((y[:, j] >= lo) & (y[:, j] <= hi)) * 100
+        inside = fraction_within(y[:, j], np.stack([lo, hi], axis=-1)) * 100
         ax.plot(t, y[:, j], lw=1.3, label=f"{lab}: {inside:.0f} % inside")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("average NEES")

@@ -9,8 +9,8 @@ from scipy.stats import chi2
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.validation.alignment import truth_in_estimator_frame
-from rodo.validation.consistency import (average_nees, chi2_bounds, gated_mean, marginal_nees, nees, nees_sequence,
-                                         nis_summary, pose_error, state_error)
+from rodo.validation.consistency import (average_nees, chi2_bounds, fraction_within, gated_mean, marginal_nees, nees,
+                                         nees_sequence, nis_summary, pose_error, state_error)
 from tests.strategies import covariances, twists
 
 
@@ -95,6 +95,14 @@ def test_chi2_bounds_match_chi_square_quantiles(dim, n_runs):
     assert np.allclose(b[0], (lo, hi), rtol=1e-12) and np.isnan(b[1]).all()
     mean = _rng([dim, n_runs]).chisquare(dim, size=(4000, n_runs)).mean(axis=1)
     assert abs(np.mean((mean >= lo) & (mean <= hi)) - 0.95) < 0.02
+
+
+def test_fraction_within_skips_missing_values():
+    v = np.array([1.0, 5.0, np.nan, 2.0, 3.0])
+    assert fraction_within(v, (1.5, 4.0)) == pytest.approx(2 / 4)  # the NaN value is left out, not outside
+    b = np.array([[0.0, 2.0], [0.0, 2.0], [0.0, 2.0], [np.nan, np.nan], [2.5, 3.5]])
+    assert fraction_within(v, b) == pytest.approx(2 / 3)  # NaN bounds (a count of 0) too
+    assert np.isnan(fraction_within([np.nan], (0.0, 1.0))) and np.isnan(fraction_within([], (0.0, 1.0)))
 
 
 def test_nees_is_chi_square_for_sampled_errors():

@@ -1,12 +1,13 @@
 """World-frame position covariance of the state pose and its n-sigma ellipsoid (validation.covariance)."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from rodo.estimator.lie import se3
-from rodo.validation.covariance import covariance_ellipsoid, position_covariance_world
+from rodo.validation.covariance import covariance_axes, covariance_ellipsoid, position_covariance_world
 from tests.strategies import covariances, twists
 
 # pose covariance scales: metres for rho, rotation sd of mrad so that the first-order result holds
@@ -38,3 +39,13 @@ def test_covariance_ellipsoid_reconstructs_sigma(S, n_sigma):
     assert np.all(q[:, 3] >= 0)
     rebuilt = R @ (((half / n_sigma) ** 2)[:, :, None] * np.swapaxes(R, 1, 2))
     assert np.allclose(rebuilt, S, atol=1e-10 * np.abs(S).max())
+
+
+@given(S=covariances(2, 0.01, 3.0), n_sigma=st.floats(0.5, 5.0))
+def test_covariance_axes_of_a_2d_covariance(S, n_sigma):
+    """Points m + V diag(half) [cos a, sin a] lie on the n-sigma ellipse (x - m)^T S^-1 (x - m) = n^2; V proper."""
+    half, V = covariance_axes(S, n_sigma)
+    assert np.linalg.det(V) == pytest.approx(1.0)
+    a = np.linspace(0, 2 * np.pi, 7)
+    x = (np.c_[np.cos(a), np.sin(a)] * half) @ V.T
+    np.testing.assert_allclose(np.einsum("ni,ij,nj->n", x, np.linalg.inv(S), x), n_sigma**2, rtol=1e-6)
