@@ -21,6 +21,7 @@ import numpy as np
 
 from rodo.estimator.errors import InputError, check_finite
 from rodo.estimator.lie import se3
+from rodo.estimator.measurements import polar_to_cartesian
 from rodo.estimator.scan import ScanDetail
 from rodo.validation.alignment import align_to_first
 from rodo.validation.association import match_index
@@ -56,12 +57,6 @@ def detection_classes(detail: ScanDetail, labels: np.ndarray | None = None) -> n
     if labels is not None:
         cls[np.asarray(labels) == TRUTH_CLUTTER] = 3
     return cls
-
-
-def _sensor_points(polar: np.ndarray) -> np.ndarray:
-    r, az, el = polar[:, 0], polar[:, 1], polar[:, 2]
-    ce = np.cos(el)
-    return np.stack([r * ce * np.cos(az), r * ce * np.sin(az), r * np.sin(el)], axis=1)
 
 
 def _quat_xyzw(C: np.ndarray) -> np.ndarray:
@@ -224,11 +219,12 @@ def _log_scans(rec, rr, seq, result, truth: _Truth, detail) -> None:
                     rows = d.rows if d.rows is not None else (np.arange(len(d.polar)) if len(d.polar) == len(scan)
                                                                 else None)
                     labels = all_labels[rows] if rows is not None else None
-            p_s = _sensor_points(d.polar)
-            rec.log("world/vehicle/sensor/scan", rr.Points3D(p_s, class_ids=detection_classes(d, labels), radii=0.15))
+            p_sensor = polar_to_cartesian(d.polar)
+            rec.log("world/vehicle/sensor/scan",
+                    rr.Points3D(p_sensor, class_ids=detection_classes(d, labels), radii=0.15))
             rec.log("world/map", rr.Points3D(d.map_points, colors=[(90, 90, 90)], radii=0.1))
             T_world_sensor = e.T_world_vehicle @ seq.sensor.T_vehicle_sensor
-            a = se3.transform_points(T_world_sensor, p_s[d.det_idx]) if len(d.det_idx) else np.zeros((0, 3))
+            a = se3.transform_points(T_world_sensor, p_sensor[d.det_idx]) if len(d.det_idx) else np.zeros((0, 3))
             strips = np.stack([a, d.map_points[d.map_idx]], axis=1)
             rec.log("world/associations", rr.LineStrips3D(strips, colors=[(40, 200, 60)], radii=0.03))
         elif scan is not None:
