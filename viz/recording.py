@@ -173,8 +173,7 @@ def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
         send("metrics/drift", "metrics/drift", err.drift, ["x drift (m)", "y drift (m)", "z drift (m)"],
              [(220, 50, 50), (40, 170, 40), (40, 90, 230)])
         lo, hi = chi2_bounds(1, 6)
-        v = marginal_nees(np.stack([e.P for e in est]), err.xi,
-                          None if truth.varpi is None else truth.varpi - varpi)
+        v = marginal_nees(np.stack([e.P for e in est]), err.xi, truth.varpi, varpi)
         for key, colour in (("pose", blue), ("velocity", red)):
             if key in v:
                 send("metrics/nees", f"metrics/nees/{key}", np.c_[v[key], np.full(n, lo), np.full(n, hi)],

@@ -119,7 +119,7 @@ def test_nees_is_chi_square_for_sampled_errors():
 
 @given(covariances(18, 0.05, 2.0), twists("vehicle", 3.0), twists("any", 3.0))
 def test_marginal_nees_uses_the_diagonal_blocks(P, xi, varpi_error):
-    out = marginal_nees(P[None], xi[None], varpi_error[None])
+    out = marginal_nees(P[None], xi[None], varpi_error[None], np.zeros((1, 6)))
     assert out["pose"][0] == pytest.approx(xi @ np.linalg.solve(P[:6, :6], xi), rel=1e-8)
     assert out["velocity"][0] == pytest.approx(varpi_error @ np.linalg.solve(P[6:12, 6:12], varpi_error), rel=1e-8)
     assert set(marginal_nees(P[None], xi[None])) == {"pose"}
