@@ -85,3 +85,22 @@ class HypothesisRng:
 def hypothesis_rngs():
     """`HypothesisRng`s whose draws hypothesis controls and shrinks (the calls are printed on failure)."""
     return st.randoms(note_method_calls=True, use_true_random=False).map(HypothesisRng)
+
+
+# Covariances (added for the validation metrics: tests/validation/test_covariance.py, test_consistency.py).
+# Keep additions of other areas in their own block below this one.
+def orthogonal_matrices(d: int):
+    """(d, d) orthogonal matrices: the Q factor of a drawn matrix (orthogonal even when the draw is singular)."""
+    return arrays(np.float64, (d, d), elements=st.floats(-1.0, 1.0, **_finite)).map(lambda A: np.linalg.qr(A)[0])
+
+
+def covariances(d: int, min_sd: float = 0.01, max_sd: float = 3.0):
+    """Symmetric positive-definite (d, d) matrices Q diag(sd^2) Q^T, standard deviations in [min_sd, max_sd]."""
+    sds = arrays(np.float64, (d,), elements=st.floats(min_sd, max_sd, **_finite))
+
+    def build(t):
+        Q, sd = t
+        P = (Q * sd**2) @ Q.T
+        return 0.5 * (P + P.T)
+
+    return st.tuples(orthogonal_matrices(d), sds).map(build)

@@ -11,6 +11,8 @@ shared disk. Layout of out_dir (docs/evaluation.md):
   written atomically *before* its row, so a row always has its arrays;
 - `summary.json`, `summary.md` (`summarize_campaign`, `write_summary`).
 
+The files themselves (format, atomic and fsync'ed writes, reading back a torn row) are `validation.campaign_files`.
+
 Seeds: `trial_seeds(seed, n)` spawns n children of `SeedSequence(seed)`; trial i's integer seed is the first
 64-bit word of child i's state, shifted right by one (so it is a non-negative int63):
 `SeedSequence(seed).spawn(n)[i].generate_state(1, np.uint64)[0] >> 1`. The scenario then derives its own
@@ -22,10 +24,7 @@ Checked by: tests/validation/test_campaign.py
 from __future__ import annotations
 
 import contextlib
-import csv
-import io
 import json
-import os
 import time
 from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, CancelledError, wait
 from dataclasses import dataclass, field
@@ -36,13 +35,9 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 
+from .campaign_files import FIELDS, METRICS, append_rows, cell, npz_path, read_results, rewrite_results, save_arrays
+from .consistency import average_nees, chi2_bounds, fraction_within
 from .metrics import jsonable
-
-FIELDS = ("trial", "seed", "model", "status", "kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m",
-          "rpe_trans_pct", "drift_x_m", "drift_y_m", "drift_z_m", "drift_roll_deg", "drift_pitch_deg",
-          "drift_yaw_deg", "max_abs_z_m", "max_abs_roll_deg", "max_abs_pitch_deg", "nees_mean", "nees_dim",
-          "nis_mean", "nu_rmse_mps", "ms_per_scan", "scans", "path_length_m", "wall_s", "error")
-METRICS = FIELDS[4:-1]
 
 
 @dataclass(frozen=True)
@@ -117,71 +112,6 @@ def make_executor(jobs: int, dask: str | None = None, processes: bool = True):
             yield client.get_executor()
 
 
-def _fsync_append(path: Path, rows: list[dict]) -> None:
-    new = not path.exists() or path.stat().st_size == 0
-    with open(path, "a", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=FIELDS, extrasaction="ignore")
-        if new:
-            w.writeheader()
-        for row in rows:
-            w.writerow({k: _cell(row.get(k, "")) for k in FIELDS})
-        fh.flush()
-        os.fsync(fh.fileno())
-
-
-def _cell(v):
-    if isinstance(v, (float, np.floating)):
-        return repr(float(v))
-    if isinstance(v, str):
-        return " | ".join(v.splitlines())
-    return v
-
-
-def read_results(path: str | Path) -> list[dict]:
-    """Rows of results.csv as dicts of strings; a torn last row (crash while writing) is dropped."""
-    path = Path(path)
-    if not path.exists():
-        return []
-    text = path.read_text()
-    rows = list(csv.reader(io.StringIO(text)))
-    if not rows:
-        return []
-    if tuple(rows[0]) != FIELDS:
-        raise InputError(f"{path}: line 1: unexpected header (expected {','.join(FIELDS)})")
-    body = rows[1:] if text.endswith("\n") else rows[1:-1]  # a final row without its newline is torn: drop it
-    out = []
-    for line, row in enumerate(body, start=2):
-        if len(row) != len(FIELDS) or row[3] not in ("ok", "error"):
-            raise InputError(f"{path}: line {line}: malformed row ({len(row)} fields, status {row[3:4]})")
-        out.append(dict(zip(FIELDS, row)))
-    return out
-
-
-def _rewrite(path: Path, rows: list[dict]) -> None:
-    tmp = path.with_name("." + path.name + ".tmp")
-    with open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=FIELDS)
-        w.writeheader()
-        w.writerows(rows)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
-def npz_path(out_dir: str | Path, trial: int, model: str) -> Path:
-    return Path(out_dir) / "trials" / f"trial_{trial:04d}_{model}.npz"
-
-
-def _save_arrays(path: Path, arrays: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name("." + path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        np.savez_compressed(fh, **{k: np.asarray(v) for k, v in arrays.items()})
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
 def _error_text(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}".strip()
 
@@ -226,8 +156,20 @@ def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[T
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / "results.csv"
-    meta_path = out / "campaign.json"
-    meta = jsonable(meta or {})
+    _check_and_save_meta(out, jsonable(meta or {}), resume)
+    rows = read_results(csv_path) if resume else []
+    if resume and csv_path.exists():
+        rewrite_results(csv_path, rows)  # drops a torn final row
+    todo = _missing_runs(trials, rows)
+    skipped = sum(len(tr.models) for tr in trials) - sum(len(tr.models) for tr in todo)
+    t0 = time.perf_counter()
+    ran = _run_and_persist(trial_fn, todo, executor, out, rows, progress)
+    return CampaignReport(rows, ran, skipped, time.perf_counter() - t0)
+
+
+def _check_and_save_meta(out: Path, meta: dict, resume: bool) -> None:
+    """Refuse to overwrite a campaign (without resume) or to resume a different one; save campaign.json."""
+    csv_path, meta_path = out / "results.csv", out / "campaign.json"
     if csv_path.exists() and not resume:
         raise InputError(f"out: {csv_path} exists; pass --resume to continue that campaign or choose another "
                          "directory")
@@ -240,17 +182,25 @@ def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[T
                              f"{[meta.get(k) for k in diff]})")
     if meta:
         meta_path.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-    rows = read_results(csv_path) if resume else []
-    if resume and csv_path.exists():
-        _rewrite(csv_path, rows)  # drops a torn final row
+
+
+def _missing_runs(trials: list[Trial], rows: list[dict]) -> list[Trial]:
+    """The trials restricted to the models that have no row yet (trials with none left are dropped)."""
     done = {(int(r["trial"]), r["model"]) for r in rows}
     todo = []
     for tr in trials:
         missing = tuple(m for m in tr.models if (tr.index, m) not in done)
         if missing:
             todo.append(Trial(tr.index, tr.seed, missing))
-    skipped = sum(len(tr.models) for tr in trials) - sum(len(tr.models) for tr in todo)
-    t0 = time.perf_counter()
+    return todo
+
+
+def _run_and_persist(trial_fn, todo: list[Trial], executor, out: Path, rows: list[dict], progress) -> int:
+    """Submit every trial, append each one's rows (and arrays) as it finishes; returns the rows written.
+
+    `rows` is extended in place. An interruption cancels the pending trials and propagates.
+    """
+    csv_path = out / "results.csv"
     ran = 0
     pending = {executor.submit(trial_fn, tr): tr for tr in todo}
     try:
@@ -259,8 +209,8 @@ def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[T
             for fut in finished:
                 tr = pending.pop(fut)
                 new_rows = _collect(out, tr, fut)
-                _fsync_append(csv_path, new_rows)
-                rows.extend({k: str(_cell(r.get(k, ""))) for k in FIELDS} for r in new_rows)
+                append_rows(csv_path, new_rows)
+                rows.extend({k: str(cell(r.get(k, ""))) for k in FIELDS} for r in new_rows)
                 ran += len(new_rows)
                 if progress is not None:
                     progress.update(len(new_rows))
@@ -268,7 +218,7 @@ def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[T
         for fut in pending:
             fut.cancel()
         raise
-    return CampaignReport(rows, ran, skipped, time.perf_counter() - t0)
+    return ran
 
 
 def _collect(out: Path, tr: Trial, fut) -> list[dict]:
@@ -289,7 +239,7 @@ def _collect(out: Path, tr: Trial, fut) -> list[dict]:
     for m in tr.models:
         o = by_model[m]
         if o.error is None and o.arrays:
-            _save_arrays(npz_path(out, tr.index, m), o.arrays)
+            save_arrays(npz_path(out, tr.index, m), o.arrays)
         rows.append({**base, "model": m, "status": o.status, **{k: o.metrics.get(k, "") for k in METRICS},
                      "error": o.error or ""})
     return rows
@@ -315,10 +265,8 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
 
     Returns a JSON-ready dict; `nees_curve` per model holds t, mean, count, lower, upper (lists).
 
-    Checked by: tests/validation/test_campaign.py::test_summary_statistics
+    Checked by: tests/validation/test_campaign.py::test_summary_statistics_and_nees_bounds
     """
-    from .consistency import average_nees, chi2_bounds
-
     out = Path(out_dir)
     rows = read_results(out / "results.csv")
     models = list(dict.fromkeys(r["model"] for r in rows))
@@ -343,12 +291,12 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
             mean, count = average_nees(runs)
             b = chi2_bounds(count, dim, alpha)
             fin = np.isfinite(mean)
-            within = (mean[fin] >= b[fin, 0]) & (mean[fin] <= b[fin, 1])
+            within = fraction_within(mean, b)
             pooled = np.concatenate([r[np.isfinite(r)] for r in runs])
             entry["nees"] = {"dim": dim, "runs": len(runs), "mean_over_scans": float(np.mean(mean[fin])),
                              "median_over_scans": float(np.median(mean[fin])),
                              "bounds_for_runs": chi2_bounds(len(runs), dim, alpha).tolist(),
-                             "fraction_scans_within": float(within.mean()) if within.size else None,
+                             "fraction_scans_within": None if np.isnan(within) else within,
                              "pooled_mean": float(pooled.mean()) if pooled.size else None}
             entry["nees_curve"] = {"t": t.tolist(), "mean": mean.tolist(), "count": count.tolist(),
                                    "lower": b[:, 0].tolist(), "upper": b[:, 1].tolist()}

@@ -21,33 +21,53 @@ from scipy.stats import chi2
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 
-from .metrics import DEFAULT_TOLERANCE, associate
+from .alignment import truth_in_estimator_frame
+from .association import DEFAULT_TOLERANCE, associate
 
 NIS_DOF = 4  # one polar detection: range, azimuth, elevation, radial velocity
 
 
-def truth_in_estimator_frame(T_vehicle_world_true: np.ndarray) -> np.ndarray:
-    """T_true,k T_true,0^-1: the true poses in the frame in which the estimator starts at the identity."""
-    T = np.asarray(T_vehicle_world_true, dtype=float)
-    return T @ se3.inverse(T[0])
-
-
-def state_error(T_true, varpi_true, T_est, varpi_est, vd_true=None, vd_est=None) -> np.ndarray:
-    """e = x_true (-) x_est (paper eq. 12), batched: (..., 4, 4), (..., 6) -> (..., 12) or (..., 18) with vd.
+def pose_error(T_true, T_est) -> np.ndarray:
+    """Left-perturbation pose error xi = ln(T_true T_est^-1)^vee of state poses T = T_vehicle_world (paper eq.
+    12, the error the pose covariance describes: T_true = exp(xi^) T_est), batched (..., 4, 4) -> (..., 6).
 
     Checked by: tests/validation/test_consistency.py::test_state_error_is_left_perturbation
     """
-    xi = se3.log(np.asarray(T_true, dtype=float) @ se3.inverse(np.asarray(T_est, dtype=float)))
-    parts = [xi, np.asarray(varpi_true, dtype=float) - np.asarray(varpi_est, dtype=float)]
-    if vd_true is not None and vd_est is not None:
-        parts.append(np.asarray(vd_true, dtype=float) - np.asarray(vd_est, dtype=float))
+    return se3.log(np.asarray(T_true, dtype=float) @ se3.inverse(np.asarray(T_est, dtype=float)))
+
+
+def state_error(T_true, varpi_true, T_est, varpi_est, varpi_dot_true=None, varpi_dot_est=None) -> np.ndarray:
+    """e = x_true (-) x_est (paper eq. 12), batched: (..., 4, 4), (..., 6) -> (..., 12), or (..., 18) when both
+    varpi_dot are given: [pose_error(T_true, T_est); varpi_true - varpi_est; varpi_dot_true - varpi_dot_est].
+
+    Checked by: tests/validation/test_consistency.py::test_state_error_is_left_perturbation
+    """
+    parts = [pose_error(T_true, T_est), np.asarray(varpi_true, dtype=float) - np.asarray(varpi_est, dtype=float)]
+    if varpi_dot_true is not None and varpi_dot_est is not None:
+        parts.append(np.asarray(varpi_dot_true, dtype=float) - np.asarray(varpi_dot_est, dtype=float))
     return np.concatenate(parts, axis=-1)
 
 
 def nees(e: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """e^T P^-1 e, batched (..., d) and (..., d, d) -> (...,). NaN where P is not positive definite or e/P not finite.
+    """Normalised estimation error squared e^T P^-1 e, batched: (..., d) and (..., d, d) -> (...,).
 
-    Checked by: tests/validation/test_consistency.py::test_gaussian_nees_within_bounds
+    Computed through the Cholesky factor of the symmetrised P, 0.5 (P + P^T) = L L^T, as |L^-1 e|^2. NaN (never
+    an exception, never a number from a meaningless inverse) where e or P has a non-finite entry or P is not
+    positive definite (e.g. the first scan, whose pose is fixed with zero covariance); the other entries are
+    unaffected.
+
+    Args:
+        e: (..., d) errors (state_error, pose_error, a velocity difference, ...).
+        P: (..., d, d) their covariances.
+
+    Returns:
+        (...,) NEES values.
+
+    Raises:
+        InputError: shapes that do not match.
+
+    Checked by: tests/validation/test_consistency.py::test_nees_matches_direct_formula_and_flags_singular_p,
+        tests/validation/test_consistency.py::test_nees_is_chi_square_for_sampled_errors
     """
     e = np.asarray(e, dtype=float)
     P = np.asarray(P, dtype=float)
@@ -74,20 +94,92 @@ def nees(e: np.ndarray, P: np.ndarray) -> np.ndarray:
     return out.reshape(e.shape[:-1])
 
 
+def marginal_nees(P, xi=None, varpi_true=None, varpi_est=None) -> dict:
+    """Per-scan NEES of the pose and of the body velocity on their own, each against its marginal covariance
+    (the diagonal blocks P[:6, :6] and P[6:12, 6:12] of the state covariance; 6 dof each).
+
+    Args:
+        P: (N, d, d) state covariances, d in {12, 18}, tangent order [pose; varpi; (varpi_dot)].
+        xi: (N, 6) pose errors (`pose_error`), or None.
+        varpi_true, varpi_est: (N, 6) true and estimated body velocities (error varpi_true - varpi_est, as in
+            `state_error`), or None.
+
+    Returns:
+        dict with `pose` (N,) when xi is given and `velocity` (N,) when both velocities are given (`nees`: NaN
+        where an error is missing or the block is not positive definite).
+
+    Checked by: tests/validation/test_consistency.py::test_marginal_nees_uses_the_diagonal_blocks
+    """
+    P = np.asarray(P, dtype=float)
+    out = {}
+    if xi is not None:
+        out["pose"] = nees(xi, P[..., :6, :6])
+    if varpi_true is not None and varpi_est is not None:
+        velocity_error = np.asarray(varpi_true, dtype=float) - np.asarray(varpi_est, dtype=float)
+        out["velocity"] = nees(velocity_error, P[..., 6:12, 6:12])
+    return out
+
+
 def chi2_bounds(n_runs, dim: int, alpha: float = 0.05) -> np.ndarray:
-    """Two-sided (1 - alpha) bounds of the average of n_runs chi-square(dim) values: chi2.ppf([a/2, 1-a/2], N d)/N.
+    """Two-sided (1 - alpha) chi-square bounds of the average of n_runs independent chi-square(dim) values.
 
-    `n_runs` may be an array (a count per scan); returns (..., 2) [lower, upper] (NaN where n_runs is 0).
+    n_runs * mean ~ chi2(n_runs * dim) for a consistent estimator, so the bounds of the mean are
 
-    Checked by: tests/validation/test_consistency.py::test_chi2_bounds_*
+        chi2.ppf([alpha / 2, 1 - alpha / 2], n_runs * dim) / n_runs   (Bar-Shalom et al. 2001, sec. 5.4.2).
+
+    The one convention of the package: `alpha` is the probability outside the bounds (0.05: the 2.5 % and
+    97.5 % quantiles). n_runs is the number of runs averaged at one scan (Monte Carlo), or of terms of one mean
+    (the associated pairs of a scan's NIS, the scans of a time average).
+
+    Args:
+        n_runs: a count >= 0, or an array of counts (one per scan); a count of 0 gives NaN bounds.
+        dim: degrees of freedom of one term (18 or 12 for a state, 6 for a pose, 4 for a radar detection), >= 1.
+        alpha: in (0, 1).
+
+    Returns:
+        (..., 2) [lower, upper], the shape of n_runs plus the last axis.
+
+    Raises:
+        InputError: dim not a positive integer, a negative count, alpha outside (0, 1).
+
+    Checked by: tests/validation/test_consistency.py::test_chi2_bounds_cover_the_average_of_chi2_samples,
+        tests/validation/test_consistency.py::test_chi2_bounds_match_chi_square_quantiles,
+        tests/validation/test_consistency.py::test_chi2_bounds_vectorised_over_counts
     """
     if not (0 < alpha < 1):
         raise InputError(f"alpha: must be in (0, 1), got {alpha!r}")
+    if isinstance(dim, bool) or int(dim) != dim or dim < 1:
+        raise InputError(f"dim: must be a positive integer, got {dim!r}")
     n = np.asarray(n_runs, dtype=float)
+    if np.any(n < 0) or not np.all(np.isfinite(n)):
+        raise InputError(f"n_runs: counts must be finite and >= 0, got {n_runs!r}")
     with np.errstate(invalid="ignore", divide="ignore"):
         lo = np.where(n > 0, chi2.ppf(alpha / 2, n * dim) / n, np.nan)
         hi = np.where(n > 0, chi2.ppf(1 - alpha / 2, n * dim) / n, np.nan)
     return np.stack([lo, hi], axis=-1)
+
+
+def fraction_within(values, bounds) -> float:
+    """Fraction of the finite values that lie within their bounds, lower <= v <= upper.
+
+    Values that are NaN (no estimate, a P that is not positive definite) or whose bounds are NaN (a count of 0)
+    are left out, not counted as outside.
+
+    Args:
+        values: (N,) e.g. NEES per scan, average NEES per scan, NIS per scan.
+        bounds: (2,) [lower, upper] for all values, or (N, 2) per value (`chi2_bounds`).
+
+    Returns:
+        The fraction in [0, 1], NaN when no value is left.
+
+    Checked by: tests/validation/test_consistency.py::test_fraction_within_skips_missing_values
+    """
+    v = np.asarray(values, dtype=float).reshape(-1)
+    b = np.broadcast_to(np.asarray(bounds, dtype=float), v.shape + (2,))
+    ok = np.isfinite(v) & np.all(np.isfinite(b), axis=1)
+    if not ok.any():
+        return float("nan")
+    return float(np.mean((v[ok] >= b[ok, 0]) & (v[ok] <= b[ok, 1])))
 
 
 def nees_sequence(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
@@ -115,15 +207,15 @@ def nees_sequence(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANC
         raise InputError(f"states: P must be (N, 12, 12) or (N, 18, 18) for N scans, got {P.shape}")
     ia, ib = associate(states["t"], truth["t"], tolerance)
     T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float))
-    use_vd = d == 18
-    if use_vd and ("varpi_dot" not in states or "varpi_dot" not in truth):
+    use_varpi_dot = d == 18
+    if use_varpi_dot and ("varpi_dot" not in states or "varpi_dot" not in truth):
         raise InputError("states, truth: varpi_dot is needed for an 18-dimensional state")
     T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
     finite = np.all(np.isfinite(T_est), axis=(1, 2))
     T_est = np.where(finite[:, None, None], T_est, np.eye(4))  # keep log() away from NaN; masked below
     e = state_error(T_true[ib], np.asarray(truth["varpi"])[ib], T_est, np.asarray(states["varpi"])[ia],
-                    np.asarray(truth["varpi_dot"])[ib] if use_vd else None,
-                    np.asarray(states["varpi_dot"])[ia] if use_vd else None)
+                    np.asarray(truth["varpi_dot"])[ib] if use_varpi_dot else None,
+                    np.asarray(states["varpi_dot"])[ia] if use_varpi_dot else None)
     e[~finite] = np.nan
     return {"t": np.asarray(states["t"], dtype=float)[ia], "nees": nees(e, P[ia]), "dim": d, "error": e}
 
@@ -164,9 +256,9 @@ def nis_summary(nis, n_associated, alpha: float = 0.05) -> dict:
                 "dof": NIS_DOF}
     mean = float(np.sum(nis[ok] * n[ok]) / total)
     per_scan = chi2_bounds(n[ok], NIS_DOF, alpha)
-    within = (nis[ok] >= per_scan[:, 0]) & (nis[ok] <= per_scan[:, 1])
     return {"mean": mean, "pairs": int(total), "bounds": chi2_bounds(total, NIS_DOF, alpha).tolist(),
-            "fraction_scans_within": float(within.mean()), "dof": NIS_DOF, "gated_mean": gated_mean(NIS_DOF, 0.95)}
+            "fraction_scans_within": fraction_within(nis[ok], per_scan), "dof": NIS_DOF,
+            "gated_mean": gated_mean(NIS_DOF, 0.95)}
 
 
 def gated_mean(dof: int, gate_probability: float) -> float:

@@ -128,7 +128,7 @@ def _run(o3d, seq, times, method, mc, vx, n_map, doppler_filter, seed, progress)
     criteria = reg.ICPConvergenceCriteria(relative_fitness=1e-6, relative_rmse=1e-6, max_iteration=MAX_ITERATIONS)
     normal_search = o3d.geometry.KDTreeSearchParamHybrid(radius=3.0 * vx, max_nn=NORMAL_NEIGHBOURS)
     Vec = o3d.utility.Vector3dVector
-    T_vs = np.asarray(seq.sensor.T_vehicle_sensor)
+    T_vehicle_sensor = np.asarray(seq.sensor.T_vehicle_sensor)
     sigma_vr = float(seq.sensor.noise.radial_velocity)
     rng = np.random.default_rng(np.random.SeedSequence(seed))
     by_t = {s.t: s for s in seq.scans}
@@ -143,7 +143,7 @@ def _run(o3d, seq, times, method, mc, vx, n_map, doppler_filter, seed, progress)
             p_sensor = scan.points_sensor
             if doppler_filter:
                 p_sensor = p_sensor[_static_mask(scan, sigma_vr, rng)]
-            p_vehicle = p_sensor @ T_vs[:3, :3].T + T_vs[:3, 3]
+            p_vehicle = p_sensor @ T_vehicle_sensor[:3, :3].T + T_vehicle_sensor[:3, 3]
         else:
             p_vehicle = np.zeros((0, 3))
         if k == 0:

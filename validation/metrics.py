@@ -1,82 +1,27 @@
-"""Trajectory metrics: time association, ATE (Umeyama SE(3) alignment), RPE, per-axis drift, velocity errors.
+"""Trajectory metrics: ATE (Umeyama SE(3) alignment), RPE, per-axis drift, velocity errors.
 
 All trajectories are T_world_vehicle (N, 4, 4) as in TUM files; the estimate's world frame is its own (the
 estimator starts at the identity), the ground truth's the simulator's. Metrics that need a common frame either
 align (ATE) or express both trajectories relative to their first pose (drift), or are relative by nature
-(RPE, KITTI in `validation.kitti`). Definitions and formulas: docs/evaluation.md.
+(RPE, KITTI in `validation.kitti`). Times are matched by `validation.association`, the state's NEES and NIS
+come from `validation.consistency`. Definitions and formulas: docs/evaluation.md.
 
 Checked by: tests/validation/test_metrics.py
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 
-DEFAULT_TOLERANCE = 1e-3  # s
-
-
-def _times(name: str, t) -> np.ndarray:
-    t = np.asarray(t, dtype=float)
-    if t.ndim != 1:
-        raise InputError(f"{name}: expected a 1-D array of times, got shape {t.shape}")
-    if not np.all(np.isfinite(t)):
-        k = int(np.flatnonzero(~np.isfinite(t))[0])
-        raise InputError(f"{name}: time {float(t[k])!r} at index {k} is not finite")
-    if t.size > 1 and np.any(np.diff(t) <= 0):
-        k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-        raise InputError(f"{name}: times must strictly increase (index {k}: {float(t[k])!r} after "
-                         f"{float(t[k - 1])!r})")
-    return t
-
-
-def associate(t_a, t_b, tolerance: float = DEFAULT_TOLERANCE, min_matches: int = 2,
-              min_fraction: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-    """Match two strictly increasing time stamp lists: mutual nearest neighbours within `tolerance`.
-
-    A pair (i, j) is kept when t_b[j] is the nearest stamp of b to t_a[i], t_a[i] the nearest of a to t_b[j],
-    and |t_a[i] - t_b[j]| <= tolerance; so each stamp is used at most once.
-
-    Args:
-        t_a: (N,) times of the first trajectory (e.g. ground truth); t_b: (M,) of the second.
-        tolerance: largest accepted time difference, seconds.
-        min_matches: fewer matches is an error.
-        min_fraction: fewer than this fraction of the shorter list matched is an error (mismatched files).
-
-    Returns:
-        (ia, ib): index arrays of equal length, increasing.
-
-    Raises:
-        InputError naming the argument: non-finite or unsorted times, or too few matches (with both time spans).
-
-    Checked by: tests/validation/test_metrics.py::test_associate_*
-    """
-    t_a, t_b = _times("t_a", t_a), _times("t_b", t_b)
-    if not (np.isfinite(tolerance) and tolerance >= 0):
-        raise InputError(f"tolerance: must be a finite number >= 0, got {tolerance!r}")
-    if t_a.size == 0 or t_b.size == 0:
-        raise InputError(f"t_a, t_b: empty trajectory ({t_a.size} and {t_b.size} poses)")
-
-    def nearest(src, dst):
-        k = np.clip(np.searchsorted(dst, src), 1, max(len(dst) - 1, 1))
-        lo = np.maximum(k - 1, 0)
-        hi = np.minimum(k, len(dst) - 1)
-        return np.where(np.abs(dst[lo] - src) <= np.abs(dst[hi] - src), lo, hi)
-
-    j = nearest(t_a, t_b)
-    back = nearest(t_b, t_a)
-    ia = np.arange(len(t_a))
-    ok = (back[j] == ia) & (np.abs(t_a - t_b[j]) <= tolerance)
-    ia, ib = ia[ok], j[ok]
-    need = max(min_matches, int(np.ceil(min_fraction * min(len(t_a), len(t_b)))))
-    if len(ia) < need:
-        raise InputError(
-            f"t_a, t_b: only {len(ia)} time stamps match within {tolerance:g} s (need {need}); "
-            f"first trajectory spans [{t_a[0]:.6f}, {t_a[-1]:.6f}] s with {len(t_a)} poses, second "
-            f"[{t_b[0]:.6f}, {t_b[-1]:.6f}] s with {len(t_b)}: are these files of the same sequence?")
-    return ia, ib
+from .alignment import align_to_first
+from .association import DEFAULT_TOLERANCE, associate
+from .consistency import chi2_bounds, fraction_within, nees_sequence, nis_summary, pose_error
+from .kitti import LENGTHS, kitti_errors, trajectory_distances
 
 
 def umeyama_se3(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -151,10 +96,7 @@ def _rotation_angle(C: np.ndarray) -> np.ndarray:
     return np.arctan2(0.5 * np.linalg.norm(axial, axis=-1), 0.5 * (np.trace(C, axis1=-2, axis2=-1) - 1.0))
 
 
-def path_distances(T_world_vehicle: np.ndarray) -> np.ndarray:
-    """Cumulative path length (N,) along the positions, metres."""
-    p = T_world_vehicle[:, :3, 3]
-    return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
+path_distances = trajectory_distances  # cumulative path length (N,) in metres: one implementation, the devkit's
 
 
 def rpe(gt: np.ndarray, est: np.ndarray, delta_frames: int = 1, delta_m: float = 10.0) -> dict:
@@ -226,8 +168,8 @@ def drift(gt: np.ndarray, est: np.ndarray) -> dict:
     Checked by: tests/validation/test_metrics.py::test_drift_*
     """
     gt, est = _pair(gt, est)
-    G = se3.inverse(gt[:1]) @ gt
-    E = se3.inverse(est[:1]) @ est
+    G = align_to_first(gt, np.eye(4))
+    E = align_to_first(est, np.eye(4))
     dp = E[:, :3, 3] - G[:, :3, 3]
     da = np.rad2deg(_wrap(euler_zyx(E[:, :3, :3]) - euler_zyx(G[:, :3, :3])))
     series = np.c_[dp, da]
@@ -235,6 +177,46 @@ def drift(gt: np.ndarray, est: np.ndarray) -> dict:
     max_abs = {axis: float(np.max(np.abs(series[:, k]))) for k, axis in enumerate(DRIFT_AXES) if k in (2, 3, 4)}
     return {"final": final, "max_abs": max_abs, "units": "m for x, y, z; deg for roll, pitch, yaw",
             "series": series}
+
+
+@dataclass
+class PoseErrors:
+    """Per-scan errors of an estimate against the truth in the same world frame (rows without truth are NaN).
+
+    Attributes:
+        translation: (N,) |p_est - p_true| in metres.
+        rotation_deg: (N,) angle of C_est^T C_true in degrees.
+        drift: (N, 3) p_est - p_true per world axis x, y, z in metres.
+        xi: (N, 6) `consistency.pose_error` of the state poses T_vehicle_world: ln(T_true T_est^-1)^vee, the
+            error the pose covariance P describes.
+    """
+
+    translation: np.ndarray
+    rotation_deg: np.ndarray
+    drift: np.ndarray
+    xi: np.ndarray
+
+
+def pose_errors(T_world_vehicle_est, T_world_vehicle_true) -> PoseErrors:
+    """Errors of (N, 4, 4) estimates against (N, 4, 4) truth already expressed in the same world frame (e.g.
+    by `alignment.align_to_first`); rows of the truth that are not finite (no truth at that scan) give NaN.
+
+    Checked by: tests/validation/test_metrics.py::test_pose_errors_of_a_known_perturbation
+    """
+    T_est = np.asarray(T_world_vehicle_est, dtype=float)
+    T_true = np.asarray(T_world_vehicle_true, dtype=float)
+    if T_est.shape != T_true.shape or T_est.shape[1:] != (4, 4):
+        raise InputError(f"est, true: expected matching (N, 4, 4) poses, got {T_est.shape} and {T_true.shape}")
+    n = len(T_est)
+    ok = np.all(np.isfinite(T_true.reshape(n, -1)), axis=1)
+    drift_xyz = np.full((n, 3), np.nan)
+    rot = np.full(n, np.nan)
+    xi = np.full((n, 6), np.nan)
+    if ok.any():
+        drift_xyz[ok] = T_est[ok, :3, 3] - T_true[ok, :3, 3]
+        rot[ok] = np.rad2deg(_rotation_angle(np.swapaxes(T_est[ok, :3, :3], 1, 2) @ T_true[ok, :3, :3]))
+        xi[ok] = pose_error(se3.inverse(T_true[ok]), se3.inverse(T_est[ok]))
+    return PoseErrors(np.linalg.norm(drift_xyz, axis=1), rot, drift_xyz, xi)
 
 
 def velocity_errors(t_est, varpi_est, t_true, varpi_true, varpi_dot_est=None, varpi_dot_true=None,
@@ -286,11 +268,10 @@ def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, 
         rpe, drift (final, max_abs), matched, and `nees`, `nis`, `velocity`, `ms_per_scan` when available.
         Values that cannot be computed (path shorter than every KITTI length) are NaN.
 
-    Checked by: tests/validation/test_metrics.py::test_evaluate_report, tests/cli/test_evaluate_cli.py
+    Checked by:
+        tests/validation/test_metrics.py::test_evaluate_report_has_the_documented_keys_and_zero_errors_for_truth,
+        tests/cli/test_evaluate_cli.py
     """
-    from .consistency import chi2_bounds, nees_sequence, nis_summary
-    from .kitti import LENGTHS, kitti_errors
-
     ig, ie = associate(gt.t, est.t, tolerance)
     G, E = gt.T_world_vehicle[ig], est.T_world_vehicle[ie]
     k = kitti_errors(G, E, LENGTHS if lengths is None else lengths, step)
@@ -320,8 +301,7 @@ def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, 
                        "mean": float(v.mean()) if v.size else float("nan"),
                        "median": float(np.median(v)) if v.size else float("nan"),
                        "per_scan_bounds": per_scan.tolist(),
-                       "fraction_within": float(np.mean((v >= per_scan[0]) & (v <= per_scan[1])))
-                       if v.size else float("nan"),
+                       "fraction_within": fraction_within(v, per_scan),
                        "time_average_bounds": chi2_bounds(max(v.size, 1), d, alpha).tolist()}
     return out
 

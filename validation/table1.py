@@ -65,7 +65,8 @@ def segment_arrays(gt, est, step: int = 10) -> dict:
     Returns:
         dict: kitti_segments (k, 4), kitti_segments_short (m, 4) [first, length, t_err, r_err], path_length_m.
     """
-    from .metrics import associate, path_distances
+    from .association import associate
+    from .metrics import path_distances
 
     ig, ie = associate(gt.t, est.t)
     G, E = gt.T_world_vehicle[ig], est.T_world_vehicle[ie]
@@ -192,7 +193,8 @@ def render_markdown(table: dict, title: str = "Table I (simulated suite)") -> st
         name = row["scenario"]
         if row["lengths"] in notes:
             name += " " + notes[row["lengths"]]
-        cells = [f"**{name}**" if name.startswith("overall") else name, _fmt("{:.3f}", row["distance_km"]), str(row["runs"])]
+        cells = [f"**{name}**" if name.startswith("overall") else name, _fmt("{:.3f}", row["distance_km"]),
+                 str(row["runs"])]
         for key in ("t_err_pct", "r_err_deg_per_m", "ms_per_scan"):
             for lab in labels:
                 v = row[lab][key]

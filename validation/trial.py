@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from .campaign import Trial, TrialOutcome, _error_text
+from .consistency import nees_sequence, nis_summary
+from .metrics import evaluate
 
 
 @dataclass(frozen=True)
@@ -64,9 +66,6 @@ class ScenarioTrial:
 
 def evaluate_result(model: str, result, gt, truth: dict, lengths, step: int, wall_s: float) -> TrialOutcome:
     """Metrics row and per-scan arrays of one `validation.driver.RunResult` against the simulator's truth."""
-    from .consistency import nees_sequence, nis_summary
-    from .metrics import evaluate
-
     est = result.estimates
     T = np.stack([e.T_vehicle_world for e in est])
     bad = ~np.all(np.isfinite(T), axis=(1, 2))

@@ -1,13 +1,42 @@
-"""Visual debugging (Rerun recordings) and the paper's figures (matplotlib, Agg backend).
+"""Visual debugging (Rerun recordings) and the paper's figures (matplotlib, Agg backend): viz only draws.
 
 `viz` is the only package that imports rerun or matplotlib, and it imports them only inside the functions that
-need them, so `import viz` (or `rodo run` without `--rerun`) costs nothing.
+draw, so `import rodo.viz` (or `rodo run` without `--rerun`) loads neither. Every number it shows is computed
+in `rodo.validation` (viz sits above validation; validation never imports viz).
 
-- `viz.recording.record_run(path, seq, result, truth=None, detail=None)`: a `.rrd` file of one run
-  (`viz.recording.ScanDetail` carries the per-scan association detail when the estimator provides it);
-- `viz.run_metrics`: the numbers the recording plots (truth alignment, errors, NEES and its chi-square bounds,
-  the world-frame position covariance and its ellipsoid), plain numpy;
-- `viz.figures`: `plot_nees` and the paper's figures 1-4 (`viz.paper_figures`).
+- `viz.recording`: `record_run(path, seq, result, truth=None, detail=None)`, a `.rrd` file of one run (the
+  estimator's `ScanDetail` carries the per-scan association detail), and `record_sequence` for a sequence on
+  its own;
+- `viz.blueprint`: the default layout of a recording;
+- `viz.figures`: `plot_nees` (Monte Carlo summaries) and the paper's figures 1-4 plus our Fig. 5, drawn from
+  the dicts of `validation.experiments`.
 
 Documentation: docs/visualisation.md.
 """
+
+from .figures import (
+    FIGURES,
+    figure1_prior,
+    figure2_measurement_models,
+    figure3_association,
+    figure4_trajectories,
+    figure5_out_of_plane,
+    plot_nees,
+    write_all,
+)
+from .recording import DETECTION_CLASSES, detection_classes, record_run, record_sequence
+
+__all__ = [
+    "DETECTION_CLASSES",
+    "FIGURES",
+    "detection_classes",
+    "figure1_prior",
+    "figure2_measurement_models",
+    "figure3_association",
+    "figure4_trajectories",
+    "figure5_out_of_plane",
+    "plot_nees",
+    "record_run",
+    "record_sequence",
+    "write_all",
+]

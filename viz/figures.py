@@ -2,8 +2,8 @@
 drift with and without the road-vehicle roll and pitch rate terms; not in the paper).
 
 matplotlib is used through `matplotlib.figure.Figure` with the Agg canvas (no pyplot, no global state, no
-display). The numbers come from `viz.paper_data`; each figure function takes an output path (and optionally
-precomputed data) and returns the path written.
+display). viz only draws: each figure function takes an output path and the dict computed by
+`validation.experiments` (`figN_data`, or `figure_data(N, quick)`) and returns the path written.
 
 Checked by: tests/viz/test_figures.py
 """
@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
-
-from . import paper_data
+from rodo.validation.consistency import fraction_within
+from rodo.validation.covariance import covariance_axes
 
 SAMPLE = "#3b6fd8"  # Monte Carlo samples (blue, as in the paper)
 MEAN = "#e0479e"  # prior mean / full model (pink, as in the paper)
@@ -41,11 +41,12 @@ def _save(fig, path) -> Path:
 
 
 def ellipse_xy(mean, cov, n_sigma: float = 3.0, n: int = 100) -> np.ndarray:
-    """(n, 2) points of the n-sigma ellipse {x : (x - m)^T cov^-1 (x - m) = n_sigma^2} of a 2x2 covariance."""
-    lam, V = np.linalg.eigh(0.5 * (np.asarray(cov, float) + np.asarray(cov, float).T))
+    """(n, 2) points of the n-sigma ellipse {x : (x - m)^T cov^-1 (x - m) = n_sigma^2} of a 2x2 covariance
+    (axes from `validation.covariance.covariance_axes`)."""
+    half, V = covariance_axes(cov, n_sigma)
     a = np.linspace(0.0, 2 * np.pi, n)
     circle = np.stack([np.cos(a), np.sin(a)], axis=1)
-    return np.asarray(mean, float) + n_sigma * (circle * np.sqrt(np.maximum(lam, 0.0))) @ V.T
+    return np.asarray(mean, float) + (circle * half) @ V.T
 
 
 # ------------------------------------------------------------------------------------------------ NEES
@@ -56,7 +57,7 @@ def plot_nees(path, t, nees_mean, bounds, labels) -> Path:
         path: output PNG.
         t: (N,) times in seconds.
         nees_mean: (N,) or (N, m) mean NEES of m quantities (e.g. pose, velocity).
-        bounds: (lower, upper) scalars or (N,) arrays (e.g. `viz.run_metrics.nees_bounds(dof, n_runs)`).
+        bounds: (lower, upper) scalars or (N,) arrays (e.g. `validation.consistency.chi2_bounds(n_runs, dof)`).
         labels: a label or m labels (with the dof, e.g. "pose (6 dof)").
 
     Returns:
@@ -78,7 +79,7 @@ def plot_nees(path, t, nees_mean, bounds, labels) -> Path:
     ax = fig.add_subplot()
     ax.fill_between(t, lo, hi, color="0.85", label="95 % chi-square band")
     for j, lab in enumerate(labels):
-        inside = np.nanmean((y[:, j] >= lo) & (y[:, j] <= hi)) * 100
+        inside = fraction_within(y[:, j], np.stack([lo, hi], axis=-1)) * 100
         ax.plot(t, y[:, j], lw=1.3, label=f"{lab}: {inside:.0f} % inside")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("average NEES")
@@ -91,10 +92,10 @@ def plot_nees(path, t, nees_mean, bounds, labels) -> Path:
 
 
 # ------------------------------------------------------------------------------------------------ Fig. 1
-def figure1_prior(path, data: dict | None = None, quick: bool = False) -> Path:
+def figure1_prior(path, data: dict) -> Path:
     """Fig. 1: the CA prior under pure yaw acceleration: Monte Carlo samples (blue) and the prior's mean with
     3-sigma ellipses (pink) for position (top view), velocity and acceleration (forward and yaw components)."""
-    d = paper_data.fig1_data(n_samples=200 if quick else 600) if data is None else data
+    d = data
     fig = _figure(13.0, 4.3)
     ax_p, ax_v, ax_a = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.4, 1, 1]})
     for i, t in enumerate(d["t"]):
@@ -116,7 +117,7 @@ def figure1_prior(path, data: dict | None = None, quick: bool = False) -> Path:
     # vehicle quantities: forward speed v_x = -nu_x, yaw rate w_z = -omega_z (docs/conventions.md)
     for ax, key, title, xl, yl in ((ax_v, "varpi", "velocity", "forward speed -nu_x (m/s)",
                                      "yaw rate -omega_z (rad/s)"),
-                                    (ax_a, "vd", "acceleration", "forward acceleration -nu_dot_x (m/s^2)",
+                                    (ax_a, "varpi_dot", "acceleration", "forward acceleration -nu_dot_x (m/s^2)",
                                      "yaw acceleration -omega_dot_z (rad/s^2)")):
         sel = [0, 5]
         for i, t in enumerate(d["t"]):
@@ -140,10 +141,10 @@ def figure1_prior(path, data: dict | None = None, quick: bool = False) -> Path:
 
 
 # ------------------------------------------------------------------------------------------------ Fig. 2
-def figure2_measurement_models(path, data: dict | None = None, quick: bool = False, magnify: float = 5.0) -> Path:
+def figure2_measurement_models(path, data: dict, magnify: float = 5.0) -> Path:
     """Fig. 2: 3-sigma position ellipses (top view) of a simulated scan under the polar model (true polar noise
     propagated to Cartesian) and the fixed Cartesian model; right: 3-sigma semi-axes against range."""
-    d = paper_data.fig2_data() if data is None else data
+    d = data
     fig = _figure(13.0, 5.0)
     ax, ax_r = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.5, 1]})
     pts = d["points"]
@@ -176,10 +177,10 @@ def figure2_measurement_models(path, data: dict | None = None, quick: bool = Fal
 
 
 # ------------------------------------------------------------------------------------------------ Fig. 3
-def figure3_association(path, data: dict | None = None, quick: bool = False) -> Path:
+def figure3_association(path, data: dict) -> Path:
     """Fig. 3: association ellipses (azimuth-range, 3-sigma) and radial-velocity pdfs predicted with the
     acceleration (S, pink) and ignoring it (S~ = S + b b^T, orange); correct target pink, distractor orange."""
-    d = paper_data.fig3_data() if data is None else data
+    d = data
     fig = _figure(12.0, 4.6)
     ax, ax_v = fig.subplots(1, 2)
     k = np.array([1, 0])  # (azimuth, range)
@@ -217,10 +218,10 @@ def figure3_association(path, data: dict | None = None, quick: bool = False) -> 
 
 
 # ------------------------------------------------------------------------------------------------ Fig. 4
-def figure4_trajectories(path, data: dict | None = None, quick: bool = False) -> Path:
+def figure4_trajectories(path, data: dict) -> Path:
     """Fig. 4: ground truth (black), CV/C (red) and CA/P (blue) trajectories: top view and height over the
-    distance travelled (a simulated sequence; quick: 12 s, else 60 s)."""
-    d = paper_data.fig4_data(duration=12.0 if quick else 60.0) if data is None else data
+    distance travelled (`validation.experiments.fig4_data`)."""
+    d = data
     fig = _figure(12.0, 4.8)
     ax, ax_h = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.2, 1]})
     err = d["final_error"]
@@ -251,11 +252,11 @@ def figure4_trajectories(path, data: dict | None = None, quick: bool = False) ->
     return _save(fig, path)
 
 
-def figure5_out_of_plane(path, data: dict | None = None, quick: bool = False) -> Path:
+def figure5_out_of_plane(path, data: dict) -> Path:
     """Fig. 5 (ours, not the paper's): z, roll and pitch drift over the distance travelled, CV/C (red) and CA/P
     (blue), solid with the road-vehicle roll and pitch rate terms (the default), dashed without them
-    (simulated city, seed 2; quick: 30 s, else 90 s)."""
-    d = paper_data.fig5_data(duration=30.0 if quick else 90.0) if data is None else data
+    (`validation.experiments.fig5_data`)."""
+    d = data
     fig = _figure(12.0, 7.0)
     axes = fig.subplots(3, 1, sharex=True)
     for column, (ax, label, unit) in enumerate(zip(axes, ("z", "roll", "pitch"), ("m", "deg", "deg"))):
@@ -275,12 +276,19 @@ def figure5_out_of_plane(path, data: dict | None = None, quick: bool = False) ->
     return _save(fig, path)
 
 
-FIGURES = (("fig1_prior.png", figure1_prior), ("fig2_measurement_models.png", figure2_measurement_models),
-           ("fig3_association.png", figure3_association), ("fig4_trajectories.png", figure4_trajectories),
-           ("fig5_out_of_plane.png", figure5_out_of_plane))
+FIGURES = ((1, "fig1_prior.png", figure1_prior), (2, "fig2_measurement_models.png", figure2_measurement_models),
+           (3, "fig3_association.png", figure3_association), (4, "fig4_trajectories.png", figure4_trajectories),
+           (5, "fig5_out_of_plane.png", figure5_out_of_plane))
 
 
-def write_all(out_dir, quick: bool = False) -> list[Path]:
-    """Write the figures (the paper's 1-4 and our Fig. 5) into out_dir; returns their paths."""
+def write_all(out_dir, data: dict) -> list[Path]:
+    """Draw the figures whose data is given into out_dir: data[N] is the dict of `validation.experiments`
+    for figure N (1-5, the paper's 1-4 and our Fig. 5); returns the paths written, in figure order.
+
+    Checked by: tests/viz/test_figures.py::test_write_all_draws_the_figures_it_is_given
+    """
+    unknown = sorted(set(data) - {number for number, _, _ in FIGURES})
+    if unknown:
+        raise InputError(f"data: no figure {unknown} (figures 1-5)")
     out = Path(out_dir)
-    return [fn(out / name, quick=quick) for name, fn in FIGURES]
+    return [draw(out / name, data[number]) for number, name, draw in FIGURES if number in data]

@@ -6,6 +6,9 @@ never loads it. Entity paths, colours and what each plot means: docs/visualisati
 
 Timelines: `frame` (scan index k of the run) and `time` (scan time, a duration in seconds).
 
+viz only draws: the truth's time association and alignment, the errors, NEES and bounds, and the covariance
+ellipsoids are computed by `rodo.validation` (association, alignment, metrics, consistency, covariance).
+
 Checked by: tests/viz/test_recording.py (recordings read back with rerun.chunk.RrdReader)
 """
 
@@ -18,9 +21,13 @@ import numpy as np
 
 from rodo.estimator.errors import InputError, check_finite
 from rodo.estimator.lie import se3
+from rodo.estimator.measurements import polar_to_cartesian
 from rodo.estimator.scan import ScanDetail
-
-from . import run_metrics as rm
+from rodo.validation.alignment import align_to_first
+from rodo.validation.association import match_index
+from rodo.validation.consistency import NIS_DOF, chi2_bounds, marginal_nees
+from rodo.validation.covariance import covariance_ellipsoid, position_covariance_world
+from rodo.validation.metrics import pose_errors
 
 # class ids of detections (AnnotationContext on `world`): label, RGB
 DETECTION_CLASSES = {
@@ -52,12 +59,6 @@ def detection_classes(detail: ScanDetail, labels: np.ndarray | None = None) -> n
     return cls
 
 
-def _sensor_points(polar: np.ndarray) -> np.ndarray:
-    r, az, el = polar[:, 0], polar[:, 1], polar[:, 2]
-    ce = np.cos(el)
-    return np.stack([r * ce * np.cos(az), r * ce * np.sin(az), r * np.sin(el)], axis=1)
-
-
 def _quat_xyzw(C: np.ndarray) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
@@ -66,46 +67,51 @@ def _quat_xyzw(C: np.ndarray) -> np.ndarray:
 
 
 class _Truth:
-    """Ground truth matched to the estimates: aligned poses (N, 4, 4; NaN where missing), varpi, vd, and
-    per-scan detection labels when the simulator's truth dict is given."""
+    """Ground truth matched to the estimates (`validation.association.match_index`) and aligned to the first
+    matched estimate (`validation.alignment.align_to_first`): poses T_world_vehicle (N, 4, 4; NaN where
+    missing), varpi and varpi_dot (N, 6), and per-scan detection labels when the simulator's truth dict is
+    given."""
 
     def __init__(self, seq, result, truth: dict | None):
-        t_est = result.t
-        n = len(t_est)
+        n = len(result.t)
         self.T_world_vehicle = None
-        self.varpi = self.vd = None
+        self.varpi = self.varpi_dot = None
         self.labels = None
         if truth is not None:
             for key in ("t", "T_vehicle_world"):
                 if key not in truth:
                     raise InputError(f"truth: missing key {key!r} (expected the dict of sim.simulate)")
             t_truth = np.asarray(truth["t"], dtype=float)
-            T_wv = se3.inverse(check_finite("truth['T_vehicle_world']", truth["T_vehicle_world"], (4, 4)))
+            T_world_vehicle = se3.inverse(check_finite("truth['T_vehicle_world']", truth["T_vehicle_world"], (4, 4)))
         elif seq.groundtruth is not None and len(seq.groundtruth.t):
-            t_truth, T_wv = np.asarray(seq.groundtruth.t, float), np.asarray(seq.groundtruth.T_world_vehicle, float)
+            t_truth = np.asarray(seq.groundtruth.t, float)
+            T_world_vehicle = np.asarray(seq.groundtruth.T_world_vehicle, float)
         else:
             return
-        idx = rm.match_times(t_est, t_truth)
+        idx = match_index(result.t, t_truth)
         self.index = idx
         ok = idx >= 0
         if not ok.any():
             return
         first = int(np.argmax(ok))
-        aligned = np.full((n, 4, 4), np.nan)
-        est0 = result.estimates[first].T_world_vehicle
-        aligned[ok] = (est0 @ se3.inverse(T_wv[idx[first]])) @ T_wv[idx[ok]]
-        self.T_world_vehicle = aligned
+        self.T_world_vehicle = np.full((n, 4, 4), np.nan)
+        self.T_world_vehicle[ok] = align_to_first(T_world_vehicle[idx[ok]], result.estimates[first].T_world_vehicle)
         if truth is not None:
-            if "varpi" in truth:
-                self.varpi = np.full((n, 6), np.nan)
-                self.varpi[ok] = np.asarray(truth["varpi"], float)[idx[ok]]
-            if "varpi_dot" in truth:
-                self.vd = np.full((n, 6), np.nan)
-                self.vd[ok] = np.asarray(truth["varpi_dot"], float)[idx[ok]]
+            self.varpi = self._matched(truth, "varpi", idx)
+            self.varpi_dot = self._matched(truth, "varpi_dot", idx)
             if "det_label" in truth and "scan_offsets" in truth:
                 self._labels = np.asarray(truth["det_label"])
                 self._offsets = np.asarray(truth["scan_offsets"], dtype=np.int64)
                 self.labels = True
+
+    @staticmethod
+    def _matched(truth: dict, key: str, idx: np.ndarray) -> np.ndarray | None:
+        """truth[key] (M, 6) at the matched rows, NaN where a scan has no truth; None when the key is absent."""
+        if key not in truth:
+            return None
+        out = np.full((len(idx), 6), np.nan)
+        out[idx >= 0] = np.asarray(truth[key], float)[idx[idx >= 0]]
+        return out
 
     def scan_labels(self, k: int, n_rows: int) -> np.ndarray | None:
         """Truth labels of the rows of scan k (radar.csv order), None when unknown or inconsistent."""
@@ -114,6 +120,23 @@ class _Truth:
         j = self.index[k]
         lab = self._labels[self._offsets[j]:self._offsets[j + 1]]
         return lab if len(lab) == n_rows else None
+
+
+def _log_world(rec, rr) -> None:
+    """`world`: RIGHT_HAND_Z_UP and the detection classes (static)."""
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log("world", rr.AnnotationContext([(i, label, colour) for i, (label, colour) in DETECTION_CLASSES.items()]),
+            static=True)
+
+
+def _log_frames(rec, rr, seq) -> None:
+    """The extrinsic T_vehicle_sensor under `world/vehicle/sensor` (static, logged once) and the axes of
+    `world/vehicle`."""
+    T_vehicle_sensor = np.asarray(seq.sensor.T_vehicle_sensor, dtype=float)
+    rec.log("world/vehicle/sensor", rr.Transform3D(translation=T_vehicle_sensor[:3, 3],
+                                                   quaternion=_quat_xyzw(T_vehicle_sensor[:3, :3])),
+            rr.TransformAxes3D(axis_length=0.8), static=True)
+    rec.log("world/vehicle", rr.TransformAxes3D(axis_length=2.0), static=True)
 
 
 def _series(rec, rr, path: str, frames, times, values, names, colours=None) -> None:
@@ -134,6 +157,7 @@ def _series(rec, rr, path: str, frames, times, values, names, colours=None) -> N
 def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
     """All the time series; returns the tab origins that got data."""
     est = result.estimates
+    n = len(est)
     logged = set()
 
     def send(tab, path, values, names, colours=None):
@@ -141,25 +165,22 @@ def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
         logged.add(tab)
 
     grey, red, blue, black = (150, 150, 150), (220, 50, 50), ESTIMATE_COLOUR, TRUTH_COLOUR
+    varpi = np.stack([e.varpi for e in est])
     if truth.T_world_vehicle is not None:
-        err = rm.pose_errors(np.stack([e.T_world_vehicle for e in est]), truth.T_world_vehicle)
+        err = pose_errors(np.stack([e.T_world_vehicle for e in est]), truth.T_world_vehicle)
         send("metrics/error", "metrics/error/translation", err.translation[:, None], ["translation error (m)"])
         send("metrics/error", "metrics/error/rotation", err.rotation_deg[:, None], ["rotation error (deg)"])
         send("metrics/drift", "metrics/drift", err.drift, ["x drift (m)", "y drift (m)", "z drift (m)"],
              [(220, 50, 50), (40, 170, 40), (40, 90, 230)])
-        lo, hi = rm.nees_bounds(6)
-        P = np.stack([e.P for e in est])
-        v = rm.nees(err.xi, P[:, :6, :6])
-        send("metrics/nees", "metrics/nees/pose", np.c_[v, np.full_like(v, lo), np.full_like(v, hi)],
-             ["pose NEES (6 dof)", "2.5 % bound", "97.5 % bound"], [blue, grey, grey])
-        if truth.varpi is not None:
-            varpi = np.stack([e.varpi for e in est])
-            v = rm.nees(truth.varpi - varpi, P[:, 6:12, 6:12])
-            send("metrics/nees", "metrics/nees/velocity", np.c_[v, np.full_like(v, lo), np.full_like(v, hi)],
-                 ["velocity NEES (6 dof)", "2.5 % bound", "97.5 % bound"], [red, grey, grey])
+        lo, hi = chi2_bounds(1, 6)
+        v = marginal_nees(np.stack([e.P for e in est]), err.xi, truth.varpi, varpi)
+        for key, colour in (("pose", blue), ("velocity", red)):
+            if key in v:
+                send("metrics/nees", f"metrics/nees/{key}", np.c_[v[key], np.full(n, lo), np.full(n, hi)],
+                     [f"{key} NEES (6 dof)", "2.5 % bound", "97.5 % bound"], [colour, grey, grey])
     nis = np.array([e.nis for e in est], dtype=float)
     n_assoc = np.array([e.n_associated for e in est])
-    bounds = rm.nees_bounds_array(4, n_assoc)
+    bounds = chi2_bounds(n_assoc, NIS_DOF)
     send("metrics/nis", "metrics/nis", np.c_[nis, bounds], ["mean NIS per pair (4 dof)", "2.5 % bound",
                                                             "97.5 % bound"], [blue, grey, grey])
     counts = np.array([[e.n_detections, e.n_static, e.n_associated] for e in est], dtype=float)
@@ -167,10 +188,9 @@ def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
     stages = ("predict", "associate", "solve", "map")
     ms = np.c_[result.wall_ms, np.array([[e.timings.get(s, np.nan) * 1e3 for s in stages] for e in est])]
     send("metrics/timing", "metrics/timing", ms, ["total (ms)"] + [f"{s} (ms)" for s in stages])
-    varpi = np.stack([e.varpi for e in est])
-    vd = np.stack([e.varpi_dot for e in est]) if all(e.varpi_dot is not None for e in est) else None
+    varpi_dot = np.stack([e.varpi_dot for e in est]) if all(e.varpi_dot is not None for e in est) else None
     for group, names, e_val, t_val in (("velocity", VELOCITY_NAMES, varpi, truth.varpi),
-                                       ("acceleration", ACCEL_NAMES, vd, truth.vd)):
+                                       ("acceleration", ACCEL_NAMES, varpi_dot, truth.varpi_dot)):
         for i, name in enumerate(names):
             cols, labels, colours = [], [], []
             if e_val is not None:
@@ -198,11 +218,12 @@ def _log_scans(rec, rr, seq, result, truth: _Truth, detail) -> None:
                     rows = d.rows if d.rows is not None else (np.arange(len(d.polar)) if len(d.polar) == len(scan)
                                                                 else None)
                     labels = all_labels[rows] if rows is not None else None
-            p_s = _sensor_points(d.polar)
-            rec.log("world/vehicle/sensor/scan", rr.Points3D(p_s, class_ids=detection_classes(d, labels), radii=0.15))
+            p_sensor = polar_to_cartesian(d.polar)
+            rec.log("world/vehicle/sensor/scan",
+                    rr.Points3D(p_sensor, class_ids=detection_classes(d, labels), radii=0.15))
             rec.log("world/map", rr.Points3D(d.map_points, colors=[(90, 90, 90)], radii=0.1))
-            T_ws = e.T_world_vehicle @ seq.sensor.T_vehicle_sensor
-            a = se3.transform_points(T_ws, p_s[d.det_idx]) if len(d.det_idx) else np.zeros((0, 3))
+            T_world_sensor = e.T_world_vehicle @ seq.sensor.T_vehicle_sensor
+            a = se3.transform_points(T_world_sensor, p_sensor[d.det_idx]) if len(d.det_idx) else np.zeros((0, 3))
             strips = np.stack([a, d.map_points[d.map_idx]], axis=1)
             rec.log("world/associations", rr.LineStrips3D(strips, colors=[(40, 200, 60)], radii=0.03))
         elif scan is not None:
@@ -225,7 +246,7 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
     by its first pose), `world/vehicle` (estimated T_world_vehicle per frame), `world/vehicle/sensor` (the
     extrinsic, static, logged once), `world/vehicle/sensor/scan` (detections in the sensor frame, class ids of
     DETECTION_CLASSES), `world/map`, `world/associations`, `world/estimate/covariance` (3-sigma ellipsoid of
-    the vehicle's world position, Sigma_w = C^T P_rho C, see `run_metrics.position_covariance_world`),
+    the vehicle's world position, Sigma_w = C^T P_rho C, see `validation.covariance.position_covariance_world`),
     `world/truth/vehicle`; time series under `metrics/...`, `velocity/...`, `acceleration/...`; `events`.
 
     Args:
@@ -243,7 +264,7 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
     Raises:
         InputError: empty result, detail of the wrong length, malformed truth.
 
-    Checked by: tests/viz/test_recording.py::test_recording_contents_match_the_run (and the tests after it)
+    Checked by: tests/viz/test_recording.py::test_recording_has_every_entity_and_a_blueprint (and the tests after it)
     """
     import rerun as rr
 
@@ -291,24 +312,19 @@ def record_sequence(path, seq, truth: dict | None = None, recording_id: str | No
     rec = rr.RecordingStream("rodo", recording_id=recording_id)
     rec.save(tmp)
     try:
-        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        rec.log("world", rr.AnnotationContext([(i, label, colour) for i, (label, colour) in
-                                               DETECTION_CLASSES.items()]), static=True)
-        T_vs = np.asarray(seq.sensor.T_vehicle_sensor, dtype=float)
-        rec.log("world/vehicle/sensor", rr.Transform3D(translation=T_vs[:3, 3], quaternion=_quat_xyzw(T_vs[:3, :3])),
-                rr.TransformAxes3D(axis_length=0.8), static=True)
-        rec.log("world/vehicle", rr.TransformAxes3D(axis_length=2.0), static=True)
+        _log_world(rec, rr)
+        _log_frames(rec, rr, seq)
         pos = gt.T_world_vehicle[:, :3, 3]
         rec.log("world/truth/trajectory", rr.LineStrips3D([pos], colors=[TRUTH_COLOUR], radii=0.08), static=True)
         frames = np.arange(len(gt.t))
         rec.send_columns("world/vehicle",
                          indexes=[rr.TimeColumn("frame", sequence=frames), rr.TimeColumn("time", duration=gt.t)],
-                         columns=rr.Transform3D.columns(translation=pos, quaternion=_quat_xyzw(gt.T_world_vehicle[:, :3, :3])))
+                         columns=rr.Transform3D.columns(translation=pos,
+                                                        quaternion=_quat_xyzw(gt.T_world_vehicle[:, :3, :3])))
         offsets = None if truth is None else np.asarray(truth["scan_offsets"])
-        frame_of = {round(float(t), 6): k for k, t in enumerate(gt.t)}
-        for scan in seq.scans:
-            k = frame_of.get(round(float(scan.t), 6))
-            if k is None:
+        frame_of = match_index([s.t for s in seq.scans], gt.t) if seq.scans else []
+        for scan, k in zip(seq.scans, frame_of):
+            if k < 0:
                 continue
             rec.set_time("frame", sequence=k)
             rec.set_time("time", duration=float(scan.t))
@@ -335,24 +351,20 @@ def _write(rec, rr, seq, result, truth_m: _Truth, detail) -> None:
     n = len(est)
     frames = np.arange(n)
     times = result.t.astype(float)
-    T_wv = np.stack([e.T_world_vehicle for e in est])
-    positions = T_wv[:, :3, 3]
-    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    rec.log("world", rr.AnnotationContext([(i, label, colour) for i, (label, colour) in DETECTION_CLASSES.items()]),
-            static=True)
-    T_vs = np.asarray(seq.sensor.T_vehicle_sensor, dtype=float)
-    rec.log("world/vehicle/sensor", rr.Transform3D(translation=T_vs[:3, 3], quaternion=_quat_xyzw(T_vs[:3, :3])),
-            rr.TransformAxes3D(axis_length=0.8), static=True)
-    rec.log("world/vehicle", rr.TransformAxes3D(axis_length=2.0), static=True)
+    T_world_vehicle = np.stack([e.T_world_vehicle for e in est])
+    positions = T_world_vehicle[:, :3, 3]
+    _log_world(rec, rr)
+    _log_frames(rec, rr, seq)
     rec.log("world/estimate/trajectory", rr.LineStrips3D([positions], colors=[ESTIMATE_COLOUR], radii=0.08,
                                                          labels=[f"estimate ({result.config.model})"],
                                                          show_labels=False), static=True)
     index = [rr.TimeColumn("frame", sequence=frames), rr.TimeColumn("time", duration=times)]
     rec.send_columns("world/vehicle", indexes=index,
-                     columns=rr.Transform3D.columns(translation=positions, quaternion=_quat_xyzw(T_wv[:, :3, :3])))
-    Sigma = rm.position_covariance_world(np.stack([e.T_vehicle_world for e in est]),
-                                         np.stack([e.P[:3, :3] for e in est]))
-    half, quat = rm.covariance_ellipsoid(Sigma, 3.0)
+                     columns=rr.Transform3D.columns(translation=positions,
+                                                    quaternion=_quat_xyzw(T_world_vehicle[:, :3, :3])))
+    Sigma = position_covariance_world(np.stack([e.T_vehicle_world for e in est]),
+                                      np.stack([e.P[:3, :3] for e in est]))
+    half, quat = covariance_ellipsoid(Sigma, 3.0)
     rec.log("world/estimate/covariance", rr.Ellipsoids3D.from_fields(
         colors=[(40, 120, 255)], fill_mode=rr.components.FillMode.MajorWireframe), static=True)
     rec.send_columns("world/estimate/covariance", indexes=index,

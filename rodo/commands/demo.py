@@ -36,31 +36,58 @@ def _step(msg: str) -> float:
     return time.perf_counter()
 
 
+MODELS = ("ca-polar", "cv-cartesian")  # the paper's method and its baseline
+
+
 def main(args) -> int:
+    out = _check_args(args)
+    report = {"prior_montecarlo": _prior_montecarlo(args, out)}
+    seq, truth = _simulate(args, out)
+    results = {model: _run_and_evaluate(model, seq, truth, out) for model in MODELS}
+    print("\n" + _table(results))
+    report["runs"] = {m: {k: _jsonable(ev.get(k)) for k in ("kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m",
+                                                             "drift")} for m, (_, ev) in results.items()}
+    rrd = _record(out, seq, truth, results["ca-polar"][0])
+    if not args.no_figures:
+        _figures(out)
+    (out / "demo.json").write_text(json.dumps(_jsonable(report), indent=2) + "\n")
+    print(f"\nDone. Results in {out}/ (demo.json, per-model estimate.txt / states.npz / summary.json / "
+          f"evaluation.json).\nOpen the recording with:  rodo view {rrd}   (or: rerun {rrd})")
+    return 0
+
+
+def _check_args(args) -> Path:
+    """Fail on a bad scenario, duration or output directory before any work; returns the output directory."""
     import numpy as np
 
     from rodo import scenarios
-    from rodo.sim.sequence import read_sequence
-    from rodo.sim.simulate import load_truth
-    from rodo.validation.driver import run_sequence, scan_times, write_run
-    from rodo.validation.metrics import evaluate
-
     from rodo.commands.run import check_out_dir
 
     if args.scenario not in scenarios.names():
         scenarios.get(args.scenario)  # raises InputError listing the known names
     if not (np.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
-    out = check_out_dir(args.out)
-    report: dict = {}
+    return check_out_dir(args.out)
 
-    tic = _step("prior Monte Carlo (paper Fig. 1): CA prior under pure yaw acceleration, 2000 samples")
+
+def _prior_montecarlo(args, out: Path) -> dict:
+    """Step 1: the CA prior's Monte Carlo under pure yaw acceleration (`rodo prior`); returns its report."""
     from rodo.commands import prior
 
+    tic = _step("prior Monte Carlo (paper Fig. 1): CA prior under pure yaw acceleration, 2000 samples")
     prior.run(argparse.Namespace(samples=2000, seed=args.seed, dt=1.0, substeps=200, magnus_order=3,
                                  noise="paper", out=out / "prior"))
-    report["prior_montecarlo"] = json.loads((out / "prior" / "prior_montecarlo.json").read_text())
     print(f"    {time.perf_counter() - tic:.1f} s")
+    return json.loads((out / "prior" / "prior_montecarlo.json").read_text())
+
+
+def _simulate(args, out: Path):
+    """Step 2: simulate the scenario into out/<scenario>_seed<seed>; returns (sequence, truth) read back."""
+    import numpy as np
+
+    from rodo import scenarios
+    from rodo.sim.sequence import read_sequence
+    from rodo.sim.simulate import load_truth
 
     tic = _step(f"simulating {args.scenario} (seed {args.seed}, {args.duration:.0f} s)")
     seq_dir = out / f"{args.scenario}_seed{args.seed}"
@@ -69,42 +96,48 @@ def main(args) -> int:
     truth = load_truth(seq_dir)
     print(f"    {len(seq.scans)} scans, median {np.median([len(s) for s in seq.scans]):.0f} detections per scan, "
           f"{time.perf_counter() - tic:.1f} s -> {seq_dir}")
+    return seq, truth
 
-    results = {}
-    for model in ("ca-polar", "cv-cartesian"):
-        tic = _step(f"running {model}")
-        with Progress(len(scan_times(seq)), model) as bar:
-            res = run_sequence(seq, OdometryConfig.for_model(model), progress=bar, record_detail=model == "ca-polar")
-        run_dir = out / model
-        write_run(run_dir, res)
-        states = dict(np.load(run_dir / "states.npz"))
-        path_len = float(np.sum(np.linalg.norm(np.diff(seq.groundtruth.T_world_vehicle[:, :3, 3], axis=0), axis=1)))
-        lengths = [L for L in (50.0, 100.0, 200.0, 400.0, 800.0) if L < 0.9 * path_len] or [path_len / 2]
-        ev = evaluate(seq.groundtruth, res.trajectory(), lengths=lengths, states=states, truth=truth)
-        (run_dir / "evaluation.json").write_text(json.dumps(_jsonable(ev), indent=2) + "\n")
-        results[model] = (res, ev)
-        print(f"    {time.perf_counter() - tic:.1f} s -> {run_dir}")
 
-    print("\n" + _table(results))
-    report["runs"] = {m: {k: _jsonable(ev.get(k)) for k in ("kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m",
-                                                             "drift")} for m, (_, ev) in results.items()}
-    rrd = out / "ca-polar.rrd"
-    tic = _step("writing the Rerun recording of the CA/P run")
+def _run_and_evaluate(model: str, seq, truth: dict, out: Path):
+    """Step 3: run one model, write its run directory and evaluation.json; returns (RunResult, evaluation)."""
+    import numpy as np
+
+    from rodo.validation.driver import run_sequence, scan_times, write_run
+    from rodo.validation.metrics import evaluate
+
+    tic = _step(f"running {model}")
+    with Progress(len(scan_times(seq)), model) as bar:
+        res = run_sequence(seq, OdometryConfig.for_model(model), progress=bar, record_detail=model == "ca-polar")
+    run_dir = out / model
+    write_run(run_dir, res)
+    states = dict(np.load(run_dir / "states.npz"))
+    path_len = float(np.sum(np.linalg.norm(np.diff(seq.groundtruth.T_world_vehicle[:, :3, 3], axis=0), axis=1)))
+    lengths = [L for L in (50.0, 100.0, 200.0, 400.0, 800.0) if L < 0.9 * path_len] or [path_len / 2]
+    ev = evaluate(seq.groundtruth, res.trajectory(), lengths=lengths, states=states, truth=truth)
+    (run_dir / "evaluation.json").write_text(json.dumps(_jsonable(ev), indent=2) + "\n")
+    print(f"    {time.perf_counter() - tic:.1f} s -> {run_dir}")
+    return res, ev
+
+
+def _record(out: Path, seq, truth: dict, res) -> Path:
+    """Step 4a: the Rerun recording of the CA/P run (with its association detail); returns its path."""
     from rodo.viz.recording import record_run
 
-    res = results["ca-polar"][0]
+    rrd = out / "ca-polar.rrd"
+    tic = _step("writing the Rerun recording of the CA/P run")
     record_run(rrd, seq, res, truth=truth, detail=[e.detail for e in res.estimates])
     print(f"    {time.perf_counter() - tic:.1f} s -> {rrd}")
-    if not args.no_figures:
-        tic = _step("paper figures (quick versions)")
-        from rodo.viz.figures import write_all
+    return rrd
 
-        paths = write_all(out / "figures", quick=True)
-        print(f"    {time.perf_counter() - tic:.1f} s -> {', '.join(str(p) for p in paths)}")
-    (out / "demo.json").write_text(json.dumps(_jsonable(report), indent=2) + "\n")
-    print(f"\nDone. Results in {out}/ (demo.json, per-model estimate.txt / states.npz / summary.json / "
-          f"evaluation.json).\nOpen the recording with:  rodo view {rrd}   (or: rerun {rrd})")
-    return 0
+
+def _figures(out: Path) -> None:
+    """Step 4b: the paper's figures and our Fig. 5, quick versions (`rodo figures --quick`)."""
+    from rodo.commands.figures import write_figures
+
+    tic = _step("paper figures (quick versions)")
+    paths = list(write_figures(out / "figures", quick=True))
+    print(f"    {time.perf_counter() - tic:.1f} s -> {', '.join(str(p) for p in paths)}")
 
 
 def _table(results) -> str:

@@ -14,7 +14,8 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 from rodo.sim.sequence import read_tum
-from rodo.validation.metrics import DEFAULT_TOLERANCE, associate, evaluate, jsonable
+from rodo.validation.association import DEFAULT_TOLERANCE, associate
+from rodo.validation.metrics import evaluate, jsonable
 
 
 def register(sub: argparse._SubParsersAction) -> None:

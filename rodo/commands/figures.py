@@ -1,7 +1,8 @@
 """`rodo figures --out DIR [--quick]`: write the paper's figures 1-4 and our Fig. 5 (out-of-plane drift) as PNG
 files and print their paths.
 
-Parse, call, print: the numbers are computed in `viz.paper_data`, drawn in `viz.figures` (docs/visualisation.md).
+Parse, call, print: the numbers are computed in `validation.experiments`, drawn in `viz.figures`
+(docs/visualisation.md).
 --quick uses fewer Monte Carlo samples, a 12 s sequence for Fig. 4 and 30 s of city for Fig. 5 (about a minute
 in all); the full run simulates 60 s for Fig. 4 and 90 s for Fig. 5 (a few minutes on two cores).
 """
@@ -9,6 +10,7 @@ in all); the full run simulates 60 s for Fig. 4 and 90 s for Fig. 5 (a few minut
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def register(subparsers) -> None:
@@ -23,11 +25,19 @@ def register(subparsers) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from rodo.viz.figures import write_all  # viz is the only package importing matplotlib
-
     from rodo.commands.run import check_out_dir
 
-    check_out_dir(args.out)
-    for path in write_all(args.out, quick=args.quick):
-        print(path)
+    out = check_out_dir(args.out)
+    for path in write_figures(out, quick=args.quick):
+        print(path, flush=True)
     return 0
+
+
+def write_figures(out_dir, quick: bool = False):
+    """Compute each figure's data (`validation.experiments.figure_data`) and draw it (`viz.figures`); yields the
+    paths one by one as they are written."""
+    from rodo.validation import experiments
+    from rodo.viz.figures import FIGURES  # viz is the only package importing matplotlib
+
+    for number, name, draw in FIGURES:
+        yield draw(Path(out_dir) / name, experiments.figure_data(number, quick=quick))

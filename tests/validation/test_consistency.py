@@ -3,13 +3,15 @@
 import numpy as np
 import pytest
 from hypothesis import given
+from hypothesis import strategies as st
 from scipy.stats import chi2
 
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
-from tests.strategies import twists
-from rodo.validation.consistency import (average_nees, chi2_bounds, gated_mean, nees, nees_sequence, nis_summary,
-                                    state_error, truth_in_estimator_frame)
+from rodo.validation.alignment import truth_in_estimator_frame
+from rodo.validation.consistency import (average_nees, chi2_bounds, fraction_within, gated_mean, marginal_nees, nees,
+                                         nees_sequence, nis_summary, pose_error, state_error)
+from tests.strategies import covariances, twists
 
 
 def _rng(seed):
@@ -28,6 +30,7 @@ def test_state_error_is_left_perturbation(xi, base):
     e = state_error(T_true, np.arange(6.0), T_est, np.zeros(6), np.ones(6), np.zeros(6))
     np.testing.assert_allclose(e[:6], xi, atol=1e-9)
     np.testing.assert_allclose(e[6:], np.r_[np.arange(6.0), np.ones(6)])
+    np.testing.assert_allclose(pose_error(T_true, T_est), e[:6])
     assert state_error(T_true, np.zeros(6), T_est, np.zeros(6)).shape == (12,)
 
 
@@ -75,8 +78,52 @@ def test_chi2_bounds_cover_the_average_of_chi2_samples(n, d):
 def test_chi2_bounds_vectorised_over_counts():
     b = chi2_bounds(np.array([0, 1, 10]), 6)
     assert np.all(np.isnan(b[0])) and b[2] == pytest.approx(chi2_bounds(10, 6))
-    with pytest.raises(InputError, match="alpha"):
-        chi2_bounds(3, 6, alpha=1.5)
+    for kwargs, name in ((dict(alpha=1.5), "alpha"), (dict(alpha=0.0), "alpha"), (dict(dim=0), "dim"),
+                         (dict(dim=2.5), "dim"), (dict(n_runs=-1), "n_runs"), (dict(n_runs=np.nan), "n_runs")):
+        with pytest.raises(InputError, match=name):
+            chi2_bounds(**{"n_runs": 3, "dim": 6, **kwargs})
+
+
+@given(dim=st.integers(1, 12), n_runs=st.integers(1, 40))
+def test_chi2_bounds_match_chi_square_quantiles(dim, n_runs):
+    """The default alpha = 0.05: the 2.5 % and 97.5 % quantiles of chi2(n d) / n, which the mean of n chi2(d)
+    draws falls between 95 % of the time; the array form gives the same numbers per entry."""
+    lo, hi = chi2_bounds(n_runs, dim)
+    assert lo == pytest.approx(chi2.ppf(0.025, dim * n_runs) / n_runs, rel=1e-12)
+    assert hi == pytest.approx(chi2.ppf(0.975, dim * n_runs) / n_runs, rel=1e-12)
+    b = chi2_bounds([n_runs, 0], dim)
+    assert np.allclose(b[0], (lo, hi), rtol=1e-12) and np.isnan(b[1]).all()
+    mean = _rng([dim, n_runs]).chisquare(dim, size=(4000, n_runs)).mean(axis=1)
+    assert abs(np.mean((mean >= lo) & (mean <= hi)) - 0.95) < 0.02
+
+
+def test_fraction_within_skips_missing_values():
+    v = np.array([1.0, 5.0, np.nan, 2.0, 3.0])
+    assert fraction_within(v, (1.5, 4.0)) == pytest.approx(2 / 4)  # the NaN value is left out, not outside
+    b = np.array([[0.0, 2.0], [0.0, 2.0], [0.0, 2.0], [np.nan, np.nan], [2.5, 3.5]])
+    assert fraction_within(v, b) == pytest.approx(2 / 3)  # NaN bounds (a count of 0) too
+    assert np.isnan(fraction_within([np.nan], (0.0, 1.0))) and np.isnan(fraction_within([], (0.0, 1.0)))
+
+
+def test_nees_is_chi_square_for_sampled_errors():
+    rng = _rng(11)
+    Q, _ = np.linalg.qr(rng.standard_normal((6, 6)))
+    P = (Q * np.array([0.1, 0.5, 2.0, 0.01, 0.02, 0.05]) ** 2) @ Q.T
+    err = rng.multivariate_normal(np.zeros(6), P, size=20000)
+    v = nees(err, np.broadcast_to(P, (len(err), 6, 6)))
+    assert v.mean() == pytest.approx(6.0, abs=0.1)   # chi2(6): mean 6, sd of the mean 0.024
+    assert v.var() == pytest.approx(12.0, rel=0.06)
+    err[3] = np.nan
+    assert np.isnan(nees(err[:5], np.broadcast_to(P, (5, 6, 6)))[3])
+
+
+@given(covariances(18, 0.05, 2.0), twists("vehicle", 3.0), twists("any", 3.0))
+def test_marginal_nees_uses_the_diagonal_blocks(P, xi, varpi_error):
+    out = marginal_nees(P[None], xi[None], varpi_error[None], np.zeros((1, 6)))
+    assert out["pose"][0] == pytest.approx(xi @ np.linalg.solve(P[:6, :6], xi), rel=1e-8)
+    assert out["velocity"][0] == pytest.approx(varpi_error @ np.linalg.solve(P[6:12, 6:12], varpi_error), rel=1e-8)
+    assert set(marginal_nees(P[None], xi[None])) == {"pose"}
+    assert np.isnan(marginal_nees(np.zeros((1, 12, 12)), xi[None])["pose"][0])  # not positive definite
 
 
 @pytest.mark.parametrize("d", [12, 18])

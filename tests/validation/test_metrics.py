@@ -1,4 +1,4 @@
-"""Trajectory metrics: association, Umeyama/ATE, RPE, per-axis drift, velocity errors, the combined report."""
+"""Trajectory metrics: Umeyama/ATE, RPE, per-axis drift, velocity errors, the combined report."""
 
 import json
 
@@ -12,8 +12,8 @@ from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3, so3
 from rodo.sim.sequence import Trajectory
 from tests.strategies import twists
-from rodo.validation.metrics import (DRIFT_AXES, associate, ate, drift, euler_zyx, evaluate, jsonable, rpe, umeyama_se3,
-                                velocity_errors)
+from rodo.validation.metrics import (DRIFT_AXES, ate, drift, euler_zyx, evaluate, jsonable, pose_errors, rpe,
+                                    umeyama_se3, velocity_errors)
 
 
 def _rng(seed):
@@ -31,42 +31,6 @@ def _drive(seed, n=200):
     rng = _rng(seed)
     xi = np.c_[rng.uniform(0.5, 1.5, n - 1), rng.normal(0, 0.05, (n - 1, 2)), rng.normal(0, 0.02, (n - 1, 3))]
     return _chain(xi)
-
-
-# ---------------------------------------------------------------- association
-@given(st.integers(0, 2**32 - 1), st.floats(0.0, 0.9e-3))
-def test_associate_recovers_true_pairs_under_jitter(seed, jitter):
-    rng = _rng(seed)
-    t = np.cumsum(rng.uniform(0.05, 0.1, 80))
-    keep_a = np.sort(rng.choice(80, 60, replace=False))
-    keep_b = np.sort(rng.choice(80, 60, replace=False))
-    t_a = t[keep_a]
-    t_b = t[keep_b] + rng.uniform(-jitter, jitter, 60)
-    ia, ib = associate(t_a, t_b)
-    common = np.intersect1d(keep_a, keep_b)
-    np.testing.assert_array_equal(keep_a[ia], common)
-    np.testing.assert_array_equal(keep_b[ib], common)
-    assert np.all(np.abs(t_a[ia] - t_b[ib]) <= 1e-3)
-
-
-def test_associate_uses_each_stamp_once():
-    # two stamps of a within tolerance of one stamp of b: only the nearer is matched
-    ia, ib = associate([0.0, 0.0004, 1.0, 2.0], [0.0003, 1.0, 2.0], min_fraction=0)
-    np.testing.assert_array_equal(ia, [1, 2, 3])
-    np.testing.assert_array_equal(ib, [0, 1, 2])
-
-
-@pytest.mark.parametrize("t_a, t_b, match", [
-    ([0.0, 2.0, 1.0], [0.0, 1.0, 2.0], "t_a: times must strictly increase"),
-    ([0.0, 1.0, 2.0], [0.0, np.nan, 2.0], "t_b: time nan at index 1"),
-    ([0.0, 1.0, 2.0], [0.5, 1.5, 2.5], "only 0 time stamps match"),
-    (np.arange(10.0), np.arange(10.0) + 0.002, "same sequence"),
-    ([[0.0, 1.0]], [0.0, 1.0], "t_a: expected a 1-D"),
-    ([], [0.0], "empty"),
-])
-def test_associate_errors_name_the_problem(t_a, t_b, match):
-    with pytest.raises(InputError, match=match):
-        associate(t_a, t_b)
 
 
 # ---------------------------------------------------------------- Umeyama / ATE
@@ -107,6 +71,26 @@ def test_ate_of_a_perfect_estimate_in_another_frame_is_zero():
     est = se3.exp(np.array([10.0, -4, 2, 0.3, -0.1, 2.0])) @ gt
     assert ate(gt, est)["ate_rmse_m"] < 1e-9
     assert ate(gt, est, align=False)["ate_rmse_m"] > 1.0
+
+
+@given(twists("vehicle", 2.0), st.integers(0, 199))
+def test_pose_errors_of_a_known_perturbation(xi, k):
+    """T_true = exp(xi^) T_est for state poses T = T_vehicle_world: pose_errors recovers xi, the rotation angle
+    |phi| and the position difference; rows without truth (NaN) give NaN."""
+    T_wv_true = _drive(1)
+    T_vw_est = se3.exp(-xi) @ se3.inverse(T_wv_true)
+    T_wv_est = se3.inverse(T_vw_est)
+    T_wv_true = T_wv_true.copy()
+    T_wv_true[k] = np.nan
+    err = pose_errors(T_wv_est, T_wv_true)
+    ok = np.arange(200) != k
+    np.testing.assert_allclose(err.xi[ok], np.broadcast_to(xi, (199, 6)), atol=1e-8)
+    np.testing.assert_allclose(err.rotation_deg[ok], np.degrees(np.linalg.norm(xi[3:])), atol=1e-7)
+    np.testing.assert_allclose(err.drift[ok], T_wv_est[ok, :3, 3] - T_wv_true[ok, :3, 3])
+    np.testing.assert_allclose(err.translation[ok], np.linalg.norm(err.drift[ok], axis=1))
+    assert np.isnan(err.xi[k]).all() and np.isnan(err.translation[k]) and np.isnan(err.rotation_deg[k])
+    with pytest.raises(InputError, match="est, true"):
+        pose_errors(T_wv_est, T_wv_true[:5])
 
 
 # ---------------------------------------------------------------- RPE

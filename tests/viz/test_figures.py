@@ -1,4 +1,5 @@
-"""The paper's figures: the numbers behind them (viz.paper_data) and the PNG files (viz.figures, rodo figures)."""
+"""The PNG files of the paper's figures (viz.figures draws the dicts of validation.experiments, whose numbers
+are tested in tests/validation/test_experiments.py), the NEES plot, and `rodo figures`."""
 
 from __future__ import annotations
 
@@ -7,14 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
-from rodo.estimator import measurements
 from rodo.estimator.errors import InputError
-from rodo.estimator.lie import se3
-from rodo.viz import figures, paper_data
-from rodo.viz.run_metrics import nees_bounds
+from rodo.validation import experiments
+from rodo.validation.consistency import chi2_bounds
+from rodo.viz import figures
 
 
 def assert_png(path, min_bytes: int = 20_000):
@@ -26,158 +24,53 @@ def assert_png(path, min_bytes: int = 20_000):
     assert len(data) >= min_bytes, f"{path.name}: only {len(data)} bytes"
 
 
-# ------------------------------------------------------------------------------------------------ Fig. 1
+def fake_fig4() -> dict:
+    """A dict shaped like experiments.fig4_data (viz only draws: no simulation needed)."""
+    s = np.linspace(0.0, 100.0, 60)
+    truth = np.c_[s, 5 * np.sin(s / 20), 0.02 * s]
+    cv, ca = truth + np.c_[0 * s, 0.01 * s, -0.01 * s], truth + np.c_[0 * s, 0.003 * s, 0.002 * s]
+    return dict(t=s / 10, truth=truth, cv=cv, ca=ca, distance=s, path_length=100.0, scenario="hills", seed=0,
+                duration=6.0, final_error={"cv-cartesian": 1.4, "ca-polar": 0.4})
+
+
+def fake_fig5() -> dict:
+    """A dict shaped like experiments.fig5_data."""
+    d = np.linspace(0.0, 240.0, 80)
+    runs, final = {}, {}
+    for k, name in enumerate(("CV/C", "CA/P", "CV/C, no roll/pitch rate terms", "CA/P, no roll/pitch rate terms")):
+        series = np.outer(d / 240.0, [0.5, -0.3, 0.1 * (k + 1), 0.5 * (k + 1), -0.3 * (k + 1), 1.0])
+        runs[name] = series
+        final[name] = dict(zip(("z", "roll", "pitch"), series[-1, 2:5]))
+    return dict(distance=d, runs=runs, final=final, path_length=240.0, scenario="city", seed=2, duration=30.0)
+
+
 @pytest.fixture(scope="module")
-def fig1():
-    return paper_data.fig1_data(n_samples=300, n_times=2, horizon=1.0, substeps=40)
+def data() -> dict:
+    """Figures 1-3 from small experiments, 4 and 5 from the dicts above."""
+    return {1: experiments.fig1_data(n_samples=150, n_times=2, horizon=1.0, substeps=20), 2: experiments.fig2_data(),
+            3: experiments.fig3_data(), 4: fake_fig4(), 5: fake_fig5()}
 
 
-def test_fig1_samples_agree_with_the_propagated_prior(fig1):
-    """Monte Carlo of the SDE vs the prior's mean and covariance (world position and velocity)."""
-    n = fig1["samples_pos"].shape[1]
-    for i in range(len(fig1["t"])):
-        for samples, mean, cov in ((fig1["samples_pos"][i], fig1["mean_pos"][i], fig1["cov_pos"][i]),
-                                   (fig1["samples_varpi"][i], fig1["mean_varpi"][i], fig1["cov_varpi"][i])):
-            L = np.linalg.cholesky(cov)
-            z = np.linalg.solve(L, (samples - mean).T).T   # whitened: ~ N(0, I) if the prior is right
-            assert np.all(np.abs(z.mean(axis=0)) < 5 / np.sqrt(n))
-            assert np.abs(np.cov(z.T) - np.eye(len(mean))).max() < 0.35
-    assert np.allclose(fig1["mean_path"][-1], fig1["mean_pos"][-1], atol=1e-9)
-    # pure yaw acceleration to the left: the mean turns left (y > 0) while yawing faster
-    assert fig1["mean_pos"][-1, 1] > 0 and -fig1["mean_varpi"][-1, 5] > -fig1["mean_varpi"][0, 5] > 0
+@pytest.mark.parametrize("number", [1, 2, 3, 4, 5])
+def test_figure_png(number, data, tmp_path):
+    _, name, draw = figures.FIGURES[number - 1]
+    assert_png(draw(tmp_path / name, data[number]))
 
 
-def test_fig1_png(fig1, tmp_path):
-    assert_png(figures.figure1_prior(tmp_path / "f1.png", fig1))
+def test_write_all_draws_the_figures_it_is_given(data, tmp_path):
+    paths = figures.write_all(tmp_path, {3: data[3], 1: data[1]})
+    assert [p.name for p in paths] == ["fig1_prior.png", "fig3_association.png"]
+    for p in paths:
+        assert_png(p)
+    with pytest.raises(InputError, match="no figure"):
+        figures.write_all(tmp_path, {7: {}})
 
 
-# ------------------------------------------------------------------------------------------------ Fig. 2
-@pytest.fixture(scope="module")
-def fig2():
-    return paper_data.fig2_data()
-
-
-def test_fig2_cartesian_is_too_large_near_and_too_small_far(fig2):
-    r = fig2["polar"][:, 0]
-    c2 = fig2["cartesian_sigma"] ** 2
-    r_star = fig2["crossover_range"]
-    assert r_star == pytest.approx(fig2["cartesian_sigma"] / fig2["sigmas"][1])
-    near, far = r < 0.5 * r_star, r > 1.05 * r_star
-    assert near.sum() >= 5 and far.sum() >= 1
-    # near: c^2 I - Sigma_polar positive definite (the Cartesian ellipse contains the polar one)
-    assert np.all(np.linalg.eigvalsh(fig2["cov_cartesian"] - fig2["cov_polar"][near]) > 0)
-    # far: the polar lateral variance exceeds c^2 (the Cartesian model is over-confident across the beam)
-    assert np.all(np.linalg.eigvalsh(fig2["cov_polar"][far, :2, :2])[:, -1] > c2)
-    sweep = fig2["semi_polar"][:, 1] > fig2["semi_cartesian"]
-    assert np.array_equal(sweep, fig2["ranges"] > r_star)
-
-
-def test_fig2_polar_covariance_matches_monte_carlo(fig2):
-    """The plotted polar ellipse of the farthest detection against sampled polar noise."""
-    i = int(np.argmax(fig2["polar"][:, 0]))
-    rng = np.random.default_rng(np.random.SeedSequence(2))
-    noisy = fig2["polar"][i, :3] + rng.standard_normal((20000, 3)) * fig2["sigmas"][:3]
-    S_mc = np.cov(measurements.polar_to_cartesian(noisy).T)
-    L = np.linalg.cholesky(fig2["cov_polar"][i])
-    W = np.linalg.solve(L, np.linalg.solve(L, S_mc).T)
-    assert np.abs(W - np.eye(3)).max() < 0.05
-
-
-def test_fig2_png(fig2, tmp_path):
-    assert_png(figures.figure2_measurement_models(tmp_path / "f2.png", fig2))
-
-
-# ------------------------------------------------------------------------------------------------ Fig. 3
-@given(yaw_accel=st.floats(0.2, 2.0), azimuth_deg=st.floats(-50.0, 50.0), target_range=st.floats(20.0, 120.0))
-def test_fig3_bias_is_the_linearised_effect_of_the_ignored_acceleration(yaw_accel, azimuth_deg, target_range):
-    """b = g(x') - g(x) = G dx to first order (eq. 90-91), dx = [ln(T' T^-1); varpi' - varpi] with
-    varpi' - varpi = -dt vd exactly and the yaw part of the pose difference = yaw_accel dt^2 / 2."""
-    d = paper_data.fig3_data(yaw_accel=yaw_accel, target_azimuth=np.radians(azimuth_deg), target_range=target_range)
-    dt = d["dt"]
-    (T_k, varpi_k, _), (T_n, varpi_n) = d["x_k"], d["x_noacc"]
-    dx = np.r_[se3.log(T_n @ se3.inverse(T_k)), varpi_n - varpi_k]
-    assert np.allclose(dx[6:], -dt * d["vd0"], atol=1e-12)
-    assert dx[5] == pytest.approx(yaw_accel * dt**2 / 2, rel=1e-6)
-    pred = measurements.predict("polar", T_k, varpi_k, d["p_world"][None], d["T_vehicle_sensor"])
-    expected = np.concatenate([pred.J_z_xi[0], pred.J_z_varpi[0]], axis=1) @ dx
-    # azimuth and radial velocity carry the effect; the rest is second order in the acceleration (the
-    # product of the pose and rate errors on the lever arm: about 1e-3 m/s at 1 rad/s^2)
-    for j, second_order in ((1, 1e-6), (3, 2e-3)):
-        assert abs(d["bias"][j] - expected[j]) <= 0.03 * abs(expected[j]) + second_order * yaw_accel**2
-    # physics: the yaw-rate error dw = dt yaw_accel acting on the sensor's lever arm r_x gives
-    # dv_r = dw r_x sin(azimuth); the pose error (yaw_accel dt^2 / 2) adds at most about speed yaw_accel dt^2
-    lever = dt * yaw_accel * d["T_vehicle_sensor"][0, 3] * np.sin(np.radians(azimuth_deg))
-    speed = -d["varpi0"][0]
-    assert abs(d["bias"][3] - lever) <= 0.1 * abs(lever) + speed * yaw_accel * dt**2 + 1e-3
-
-
-def test_fig3_ignoring_acceleration_picks_the_distractor():
-    d = paper_data.fig3_data()
-    assert d["d2_full"][0] == pytest.approx(0.0, abs=1e-12)
-    assert np.argmin(d["d2_full"]) == 0      # the full model associates the correct target
-    assert np.argmin(d["d2_noacc"]) == 1     # ignoring acceleration associates the distractor
-    # S~ is inflated by exactly the outer product of the bias (eq. 92) and is larger than S along b
-    b = d["bias"]
-    assert b @ np.linalg.solve(d["S_tilde"], b) < b @ np.linalg.solve(d["S"], b)
-
-
-def test_fig3_png(tmp_path):
-    assert_png(figures.figure3_association(tmp_path / "f3.png"))
-
-
-# ------------------------------------------------------------------------------------------------ Fig. 4
-@pytest.fixture(scope="module")
-def fig4():
-    return paper_data.fig4_data(duration=2.0)
-
-
-def test_fig4_trajectories_start_together_and_stay_close(fig4):
-    from rodo.sim.simulate import path_length
-    from rodo import scenarios
-
-    assert np.allclose(fig4["ca"][0], fig4["truth"][0]) and np.allclose(fig4["cv"][0], fig4["truth"][0])
-    assert np.all(np.diff(fig4["distance"]) >= 0)
-    seq, _ = scenarios.get("hills").simulate(0, duration=2.0)
-    assert np.allclose(fig4["truth"], seq.groundtruth.T_world_vehicle[:, :3, 3])
-    assert fig4["path_length"] == pytest.approx(path_length(seq.groundtruth.T_world_vehicle))
-    for model, err in fig4["final_error"].items():
-        assert err < 0.05 * fig4["path_length"], (model, err)
-
-
-def test_fig4_png(fig4, tmp_path):
-    assert_png(figures.figure4_trajectories(tmp_path / "f4.png", fig4))
-
-
-# ------------------------------------------------------------------------------------------------ Fig. 5
-@pytest.fixture(scope="module")
-def fig5():
-    return paper_data.fig5_data(duration=30.0)  # as `rodo figures --quick`
-
-
-def test_fig5_the_rate_terms_hold_roll_and_pitch(fig5):
-    """30 s of city seed 2 (240 m): the drift series start at zero and cover every scan, and with the roll and
-    pitch rate terms both models keep roll and pitch within half the error they reach without them (measured,
-    max |roll|, |pitch|: CA/P 0.61, 0.43 deg vs 3.74, 1.70 deg; CV/C 0.98, 1.11 vs 4.62, 1.93 deg)."""
-    n = len(fig5["distance"])
-    assert set(fig5["runs"]) == {"CV/C", "CA/P", "CV/C, no roll/pitch rate terms", "CA/P, no roll/pitch rate terms"}
-    for series in fig5["runs"].values():
-        assert series.shape == (n, 6) and np.all(series[0] == 0.0) and np.all(np.isfinite(series))
-    for name in ("CV/C", "CA/P"):
-        on, off = fig5["runs"][name], fig5["runs"][name + ", no roll/pitch rate terms"]
-        worst_on, worst_off = np.abs(on[:, 3:5]).max(axis=0), np.abs(off[:, 3:5]).max(axis=0)
-        assert worst_on.max() < 0.5 * worst_off.max(), (name, worst_on, worst_off)
-
-
-def test_fig5_png(fig5, tmp_path):
-    assert_png(figures.figure5_out_of_plane(tmp_path / "f5.png", fig5))
-
-
-# ------------------------------------------------------------------------------------------------ NEES, CLI
 def test_plot_nees(tmp_path):
     t = np.arange(50) * 0.1
     rng = np.random.default_rng(np.random.SeedSequence(3))
     y = rng.chisquare(60, size=(50, 2)) / 10
-    assert_png(figures.plot_nees(tmp_path / "nees.png", t, y, nees_bounds(6, 10), ["pose (6 dof)", "velocity"]))
+    assert_png(figures.plot_nees(tmp_path / "nees.png", t, y, chi2_bounds(10, 6), ["pose (6 dof)", "velocity"]))
     assert_png(figures.plot_nees(tmp_path / "one.png", t, y[:, 0], (np.full(50, 4.0), 8.0), "pose"))
     with pytest.raises(InputError, match="nees_mean"):
         figures.plot_nees(tmp_path / "bad.png", t, y[:10], (4, 8), "pose")
@@ -185,14 +78,19 @@ def test_plot_nees(tmp_path):
         figures.plot_nees(tmp_path / "bad.png", t, y, (4, 8), ["one"])
 
 
-def test_rodo_figures_writes_five_pngs(tmp_path, monkeypatch, capsys, fig4, fig5):
+def test_rodo_figures_writes_five_pngs(tmp_path, monkeypatch, capsys, data):
+    """The command computes each figure through validation.experiments and draws it (the experiments are
+    replaced by the data above, so this checks the wiring, not the simulations)."""
     from rodo import cli
     from rodo.commands import figures as command
 
-    monkeypatch.setattr(paper_data, "fig4_data", lambda **kw: fig4)  # the short sequences above
-    monkeypatch.setattr(paper_data, "fig5_data", lambda **kw: fig5)
+    asked = []
+    monkeypatch.setattr(experiments, "fig1_data", lambda **kw: asked.append((1, kw)) or data[1])
+    monkeypatch.setattr(experiments, "fig4_data", lambda **kw: asked.append((4, kw)) or data[4])
+    monkeypatch.setattr(experiments, "fig5_data", lambda **kw: asked.append((5, kw)) or data[5])
     assert cli.main(["figures", "--out", str(tmp_path / "figs"), "--quick"], commands=[command]) == 0
     printed = capsys.readouterr().out.split()
     assert len(printed) == 5
     for p in printed:
         assert_png(Path(p))
+    assert [n for n, _ in asked] == [1, 4, 5] and asked[0][1]["n_samples"] == 200  # the quick sizes

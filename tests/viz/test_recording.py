@@ -1,4 +1,5 @@
-"""Rerun recordings read back with rerun.chunk.RrdReader, and the numbers they plot (viz.run_metrics)."""
+"""Rerun recordings read back with rerun.chunk.RrdReader. The numbers they plot are computed in rodo.validation
+(tested in tests/validation/); here they are recomputed independently from the truth and the run."""
 
 from __future__ import annotations
 
@@ -8,94 +9,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 from scipy.stats import chi2
 
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
-from rodo.sim.sequence import Sequence
-from tests.strategies import twists
-from rodo.validation.driver import run_sequence
-from rodo.viz import run_metrics as rm
 from rodo.estimator.scan import ScanDetail
+from rodo.sim.sequence import Sequence
+from rodo.validation.driver import run_sequence
 from rodo.viz.recording import DETECTION_CLASSES, detection_classes, record_run
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-# ------------------------------------------------------------------------------------------- run_metrics
-@given(dof=st.integers(1, 12), n_runs=st.integers(1, 40))
-def test_nees_bounds_match_chi_square_quantiles(dof, n_runs):
-    lo, hi = rm.nees_bounds(dof, n_runs)
-    assert lo == pytest.approx(chi2.ppf(0.025, dof * n_runs) / n_runs, rel=1e-12)
-    assert hi == pytest.approx(chi2.ppf(0.975, dof * n_runs) / n_runs, rel=1e-12)
-    assert np.allclose(rm.nees_bounds_array(dof, [n_runs, 0])[0], (lo, hi), rtol=1e-12)
-    assert np.isnan(rm.nees_bounds_array(dof, [n_runs, 0])[1]).all()
-    # coverage: the mean of n_runs chi2(dof) draws falls inside 95 % of the time
-    rng = np.random.default_rng(np.random.SeedSequence([dof, n_runs]))
-    mean = rng.chisquare(dof, size=(4000, n_runs)).mean(axis=1)
-    assert abs(np.mean((mean >= lo) & (mean <= hi)) - 0.95) < 0.02
-
-
-def test_nees_bounds_reject_bad_arguments():
-    for kwargs, name in ((dict(dof=0), "dof"), (dict(dof=6, n_runs=0), "n_runs"), (dict(dof=6, prob=1.0), "prob")):
-        with pytest.raises(InputError, match=name):
-            rm.nees_bounds(**kwargs)
-
-
-def _random_spd(rng, d, scales):
-    A = rng.standard_normal((d, d))
-    Q, _ = np.linalg.qr(A)
-    return (Q * scales**2) @ Q.T
-
-
-def test_nees_is_chi_square_for_sampled_errors():
-    rng = np.random.default_rng(np.random.SeedSequence(11))
-    P = _random_spd(rng, 6, np.array([0.1, 0.5, 2.0, 0.01, 0.02, 0.05]))
-    err = rng.multivariate_normal(np.zeros(6), P, size=20000)
-    v = rm.nees(err, np.broadcast_to(P, (len(err), 6, 6)))
-    assert v.mean() == pytest.approx(6.0, abs=0.1)   # chi2(6): mean 6, sd of the mean 0.024
-    assert v.var() == pytest.approx(12.0, rel=0.06)
-    err[3] = np.nan
-    assert np.isnan(rm.nees(err[:5], np.broadcast_to(P, (5, 6, 6)))[3])
-
-
-@given(xi=twists("vehicle", translation_scale=50.0), seed=st.integers(0, 2**32 - 1))
-def test_position_covariance_world_monte_carlo(xi, seed):
-    """Sigma_w = C^T P_rho C against samples of T' = exp(gamma^) T, gamma ~ N(0, P) (first order)."""
-    T = se3.exp(np.asarray(xi))
-    rng = np.random.default_rng(np.random.SeedSequence(seed))
-    A = rng.standard_normal((6, 6)) * np.array([0.3, 0.5, 0.2, 3e-3, 3e-3, 5e-3])[:, None]
-    P = A @ A.T / 6 + np.diag([1e-4] * 3 + [1e-8] * 3)  # rotation sd of mrad: first order holds
-    gamma = rng.multivariate_normal(np.zeros(6), P, size=4000)
-    r_w = se3.inverse(se3.exp(gamma) @ T)[:, :3, 3]
-    S_mc = np.cov(r_w.T)
-    S = rm.position_covariance_world(T, P[:3, :3])
-    # same shape: whiten the sample covariance by S (4000 samples: entries within ~0.1 of I)
-    L = np.linalg.cholesky(S)
-    W = np.linalg.solve(L, np.linalg.solve(L, S_mc).T)
-    assert np.abs(W - np.eye(3)).max() < 0.15
-
-
-@given(seed=st.integers(0, 2**32 - 1), n_sigma=st.floats(0.5, 5.0))
-def test_covariance_ellipsoid_reconstructs_sigma(seed, n_sigma):
-    rng = np.random.default_rng(np.random.SeedSequence(seed))
-    S = np.stack([_random_spd(rng, 3, rng.uniform(0.01, 3.0, 3)) for _ in range(5)])
-    half, q = rm.covariance_ellipsoid(S, n_sigma)
-    from scipy.spatial.transform import Rotation
-
-    R = Rotation.from_quat(q).as_matrix()
-    assert np.allclose(np.linalg.det(R), 1.0)
-    assert np.all(q[:, 3] >= 0)
-    rebuilt = R @ (((half / n_sigma) ** 2)[:, :, None] * np.swapaxes(R, 1, 2))
-    assert np.allclose(rebuilt, S, atol=1e-10 * np.abs(S).max())
-
-
-def test_match_times_nearest_within_tolerance():
-    idx = rm.match_times([0.0, 0.1, 0.25, 0.3 + 1e-9], [0.3, 0.0, 0.1, 0.2])
-    assert idx.tolist() == [1, 2, -1, 0]
 
 
 # ------------------------------------------------------------------------------------------- recordings
@@ -144,25 +68,28 @@ def _synthetic_detail(seq, truth, result, rng):
     return out
 
 
-@pytest.fixture
-def strict_rerun():
-    """rerun's strict mode (raise on malformed data) for one test, restored afterwards."""
-    import rerun as rr
-
-    before = rr.strict_mode()
-    rr.set_strict_mode(True)
-    yield
-    rr.set_strict_mode(before)
-
-
-def test_recording_contents_match_the_run(run, tmp_path, strict_rerun):
+@pytest.fixture(scope="module")
+def recorded(run, tmp_path_factory):
+    """A recording of the run with truth and synthetic detail, written in rerun's strict mode (raise on malformed
+    data; restored afterwards): (path, chunks, detail)."""
     import rerun as rr
 
     seq, truth, result = run
     detail = _synthetic_detail(seq, truth, result, np.random.default_rng(np.random.SeedSequence(5)))
-    path = record_run(tmp_path / "a" / "run.rrd", seq, result, truth=truth, detail=detail)
+    before = rr.strict_mode()
+    rr.set_strict_mode(True)
+    try:
+        path = record_run(tmp_path_factory.mktemp("a") / "run.rrd", seq, result, truth=truth, detail=detail)
+    finally:
+        rr.set_strict_mode(before)
     assert rr.get_global_data_recording() is None  # an explicit stream, never the global one
-    chunks = _chunks(path)
+    return path, _chunks(path), detail
+
+
+def test_recording_has_every_entity_and_a_blueprint(recorded):
+    from rerun.chunk import RrdReader
+
+    path, chunks, _ = recorded
     paths = {ch.entity_path for ch in chunks}
     for entity in ("/world", "/world/vehicle", "/world/vehicle/sensor", "/world/vehicle/sensor/scan", "/world/map",
                    "/world/associations", "/world/estimate/trajectory", "/world/truth/trajectory",
@@ -170,10 +97,16 @@ def test_recording_contents_match_the_run(run, tmp_path, strict_rerun):
                    "/metrics/drift", "/metrics/nees/pose", "/metrics/nees/velocity", "/metrics/nis",
                    "/metrics/counts", "/metrics/timing", "/velocity/nu_x", "/acceleration/omega_dot_z", "/events"):
         assert entity in paths, entity
-    n = len(result.estimates)
-    T_wv = np.stack([e.T_world_vehicle for e in result.estimates])
+    assert any(s.kind == "blueprint" for s in RrdReader(path).blueprints())
 
-    # world frame convention and the trajectories
+
+def test_recording_world_frame_trajectories_and_extrinsic(run, recorded):
+    import rerun as rr
+
+    seq, truth, result = run
+    _, chunks, _ = recorded
+    n = len(result.estimates)
+    T_world_vehicle = np.stack([e.T_world_vehicle for e in result.estimates])
     xyz = _column(chunks, "/world", "ViewCoordinates:xyz", static=True)
     z_up = [d.value for d in rr.components.ViewCoordinates.RIGHT_HAND_Z_UP.coordinates]
     assert np.ravel(xyz).tolist() == z_up and z_up[2] == rr.components.ViewCoordinates.FLU.coordinates[2].value
@@ -181,12 +114,12 @@ def test_recording_contents_match_the_run(run, tmp_path, strict_rerun):
     assert np.allclose(strip, result.trajectory().T_world_vehicle[:, :3, 3], atol=1e-4)
     gt = np.array(_column(chunks, "/world/truth/trajectory", "LineStrips3D:strips", static=True)[0][0])
     assert np.allclose(gt[0], strip[0], atol=1e-5)  # aligned at the first pose
-    T_gt = se3.inverse(truth["T_vehicle_world"])
-    expected = (T_wv[0] @ se3.inverse(T_gt[0])) @ T_gt
+    T_world_vehicle_truth = se3.inverse(truth["T_vehicle_world"])
+    T_estimate_truth = T_world_vehicle[0] @ se3.inverse(T_world_vehicle_truth[0])  # world frames e <- g
+    expected = T_estimate_truth @ T_world_vehicle_truth
     assert np.allclose(gt, expected[:, :3, 3], atol=1e-4)
     trans = np.array(_column(chunks, "/world/vehicle", "Transform3D:translation")).reshape(n, 3)
-    assert np.allclose(trans, T_wv[:, :3, 3], atol=1e-4)
-
+    assert np.allclose(trans, T_world_vehicle[:, :3, 3], atol=1e-4)
     # the extrinsic: static, logged exactly once
     ext = [ch for ch in chunks if ch.entity_path == "/world/vehicle/sensor"
            and "Transform3D:translation" in ch.to_record_batch().schema.names]
@@ -194,58 +127,68 @@ def test_recording_contents_match_the_run(run, tmp_path, strict_rerun):
     assert np.allclose(_column(chunks, "/world/vehicle/sensor", "Transform3D:translation", static=True)[0][0],
                        seq.sensor.T_vehicle_sensor[:3, 3], atol=1e-6)
 
-    # NEES: bounds are the chi-square quantiles; values recomputed independently from the truth dict
+
+def test_recording_nees_and_nis_match_an_independent_computation(run, recorded):
+    """NEES: bounds are the chi-square quantiles; values recomputed independently from the truth dict."""
+    _, truth, result = run
+    _, chunks, _ = recorded
+    n = len(result.estimates)
     nees = np.array(_column(chunks, "/metrics/nees/pose", "Scalars:scalars"))
     assert nees.shape == (n, 3)
     assert np.allclose(nees[:, 1], chi2.ppf(0.025, 6)) and np.allclose(nees[:, 2], chi2.ppf(0.975, 6))
-    T_e_g = result.estimates[0].T_world_vehicle @ truth["T_vehicle_world"][0]
+    T_estimate_truth = result.estimates[0].T_world_vehicle @ truth["T_vehicle_world"][0]
     for k in (0, n // 2, n - 1):
         e = result.estimates[k]
-        xi = se3.log(truth["T_vehicle_world"][k] @ se3.inverse(T_e_g) @ se3.inverse(e.T_vehicle_world))
+        xi = se3.log(truth["T_vehicle_world"][k] @ se3.inverse(T_estimate_truth) @ se3.inverse(e.T_vehicle_world))
         assert nees[k, 0] == pytest.approx(xi @ np.linalg.solve(e.P[:6, :6], xi), rel=1e-6, abs=1e-9)
     assert nees[0, 0] == pytest.approx(0.0, abs=1e-9)
     nis = np.array(_column(chunks, "/metrics/nis", "Scalars:scalars"))
     assoc = [e.n_associated for e in result.estimates if np.isfinite(e.nis)]
     assert nis[-1, 2] == pytest.approx(chi2.ppf(0.975, 4 * assoc[-1]) / assoc[-1])
 
-    # 3-sigma ellipsoid of the world position: C^T P_rho C
+
+def test_recording_covariance_ellipsoid_is_the_world_position_covariance(run, recorded):
+    """3-sigma ellipsoid of the world position: C^T P_rho C."""
+    from scipy.spatial.transform import Rotation
+
+    _, _, result = run
+    _, chunks, _ = recorded
+    n = len(result.estimates)
     half = np.array(_column(chunks, "/world/estimate/covariance", "Ellipsoids3D:half_sizes")).reshape(n, 3)
     e = result.estimates[-1]
     C = e.T_vehicle_world[:3, :3]
     assert np.allclose(np.sort(half[-1]), 3 * np.sqrt(np.linalg.eigvalsh(C.T @ e.P[:3, :3] @ C)), rtol=1e-5)
-    from scipy.spatial.transform import Rotation
-
     quat = np.array(_column(chunks, "/world/estimate/covariance", "Ellipsoids3D:quaternions")).reshape(n, 4)
     R = Rotation.from_quat(quat[-1]).as_matrix()   # the ellipsoid's axes rebuild C^T P_rho C
     assert np.allclose(R @ np.diag((half[-1] / 3) ** 2) @ R.T, C.T @ e.P[:3, :3] @ C,
                        rtol=1e-4, atol=1e-6 * np.abs(e.P[:3, :3]).max())
     assert np.array_equal(_column(chunks, "/world/estimate/covariance", "Ellipsoids3D:centers")[-1][0],
-                          np.float32(T_wv[-1, :3, 3]))
+                          np.float32(e.T_world_vehicle[:3, 3]))
 
+
+def test_recording_timelines_scan_classes_and_associations(run, recorded):
+    from rodo.estimator.measurements import polar_to_cartesian
+
+    seq, truth, result = run
+    _, chunks, detail = recorded
     # both timelines; time = scan time
     ts = [ch for ch in chunks if ch.entity_path == "/metrics/counts" and not ch.is_static][0].to_record_batch()
     assert {"frame", "time"} <= set(ts.schema.names)
     t_logged = np.array([x.total_seconds() if hasattr(x, "total_seconds") else x / 1e9
                          for x in ts.column("time").to_pylist()])
     assert np.allclose(t_logged, result.t, atol=1e-6)
-
     # scan classes and association lines
     cls = _column(chunks, "/world/vehicle/sensor/scan", "Points3D:class_ids")
-    k = n - 1
+    k = len(result.estimates) - 1
     lab = truth["det_label"][truth["scan_offsets"][k]:truth["scan_offsets"][k + 1]]
     assert np.array_equal(cls[k], detection_classes(detail[k], lab))
     assert set(np.unique(np.concatenate(cls))) <= set(DETECTION_CLASSES)
     lines = np.array(_column(chunks, "/world/associations", "LineStrips3D:strips")[k])
     d = detail[k]
-    T_ws = result.estimates[k].T_world_vehicle @ seq.sensor.T_vehicle_sensor
-    from rodo.estimator.measurements import polar_to_cartesian
-
-    assert np.allclose(lines[:, 0], se3.transform_points(T_ws, polar_to_cartesian(d.polar[d.det_idx])), atol=1e-3)
+    T_world_sensor = result.estimates[k].T_world_vehicle @ seq.sensor.T_vehicle_sensor
+    p_world = se3.transform_points(T_world_sensor, polar_to_cartesian(d.polar[d.det_idx]))
+    assert np.allclose(lines[:, 0], p_world, atol=1e-3)
     assert np.allclose(lines[:, 1], d.map_points[d.map_idx], atol=1e-4)
-
-    from rerun.chunk import RrdReader
-
-    assert any(s.kind == "blueprint" for s in RrdReader(path).blueprints())
 
 
 def test_recording_without_detail_or_truth(run, tmp_path):
@@ -298,8 +241,9 @@ def test_detection_classes():
 
 
 def test_importing_viz_and_commands_loads_neither_rerun_nor_matplotlib():
-    code = ("import sys, rodo.viz, rodo.viz.recording, rodo.viz.figures, rodo.viz.paper_data, rodo.commands.view, "
-            "rodo.commands.figures, rodo.commands.run; "
+    code = ("import sys, rodo.viz, rodo.viz.recording, rodo.viz.figures, rodo.viz.blueprint, rodo.validation, "
+            "rodo.validation.experiments, rodo.commands.view, rodo.commands.figures, rodo.commands.demo, "
+            "rodo.commands.run; "
             "bad = [m for m in ('rerun', 'matplotlib') if m in sys.modules]; assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
 

@@ -1,10 +1,12 @@
-"""The numbers behind the paper's figures 1-4 and our Fig. 5 (no plotting here: `viz.figures` draws them).
+"""The experiments behind the paper's figures 1-4 and our Fig. 5: they sample the prior, simulate scenarios and
+run the estimators, and return plain dicts of arrays. `viz.figures` only draws them; the commands (`rodo
+figures`, `rodo demo`) call `figure_data` and hand the result to `viz.figures`.
 
-Each `figN_data(...)` returns a plain dict of arrays; the tests check these numbers, the figures only draw them.
+Each `figN_data(...)` returns a plain dict of arrays; the tests check these numbers.
 Conventions (docs/conventions.md): T = T_vehicle_world, varpi = [nu; omega] (driving forward: nu_x < 0;
 yawing left: omega_z < 0), left perturbation, radial velocity negative when approaching.
 
-Checked by: tests/viz/test_figures.py
+Checked by: tests/validation/test_experiments.py
 """
 
 from __future__ import annotations
@@ -15,7 +17,9 @@ from rodo.estimator import measurements
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 
-from .run_metrics import align_to_first, position_covariance_world
+from .alignment import align_to_first
+from .covariance import position_covariance_world
+from .metrics import drift, path_distances
 
 
 # ----------------------------------------------------------------------------------------------- Fig. 1
@@ -26,12 +30,12 @@ def fig1_data(n_samples: int = 400, n_times: int = 4, horizon: float = 2.0, seed
     For horizons t_i = i horizon / n_times (i = 1..n_times) the SDE is sampled from x0 (+) N(0, P0) and the prior's
     Gaussian is propagated (mean f(x0), P = F P0 F^T + Q). The vehicle's world position of a sample is
     r_w = -C^T r of its T_vehicle_world; the propagated world-position covariance is C^T P_rho C
-    (`run_metrics.position_covariance_world`).
+    (`validation.covariance.position_covariance_world`).
 
     Returns:
-        dict: t (n_times,); samples_pos (n_times, n, 3); samples_varpi, samples_vd (n_times, n, 6);
-        mean_pos (n_times, 3); cov_pos (n_times, 3, 3); mean_varpi, mean_vd (n_times, 6);
-        cov_varpi, cov_vd (n_times, 6, 6); mean_path (50, 3) the mean position over [0, horizon];
+        dict: t (n_times,); samples_pos (n_times, n, 3); samples_varpi, samples_varpi_dot (n_times, n, 6);
+        mean_pos (n_times, 3); cov_pos (n_times, 3, 3); mean_varpi, mean_varpi_dot (n_times, 6);
+        cov_varpi, cov_varpi_dot (n_times, 6, 6); mean_path (50, 3) the mean position over [0, horizon];
         case (the set-up dict).
     """
     from rodo.estimator.priors import ConstantAccelerationPrior
@@ -41,21 +45,22 @@ def fig1_data(n_samples: int = 400, n_times: int = 4, horizon: float = 2.0, seed
     prior = ConstantAccelerationPrior(case["Qc"])
     rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(n_times)]
     t = float(horizon) * np.arange(1, n_times + 1) / n_times
-    out = {k: [] for k in ("samples_pos", "samples_varpi", "samples_vd", "mean_pos", "cov_pos", "mean_varpi",
-                           "mean_vd", "cov_varpi", "cov_vd")}
+    out = {k: [] for k in ("samples_pos", "samples_varpi", "samples_varpi_dot", "mean_pos", "cov_pos", "mean_varpi",
+                           "mean_varpi_dot", "cov_varpi", "cov_varpi_dot")}
     for ti, rng in zip(t, rngs):
-        T, varpi, vd = sample_prior(prior, case["T0"], case["varpi0"], case["vd0"], case["P0"], ti, n_samples,
-                                    rng, substeps=substeps)
-        (Tm, varpi_m, vd_m), P = propagate_mean_cov(prior, case["T0"], case["varpi0"], case["vd0"], case["P0"], ti)
+        T, varpi, varpi_dot = sample_prior(prior, case["T0"], case["varpi0"], case["vd0"], case["P0"], ti,
+                                           n_samples, rng, substeps=substeps)
+        (Tm, varpi_m, varpi_dot_m), P = propagate_mean_cov(prior, case["T0"], case["varpi0"], case["vd0"],
+                                                           case["P0"], ti)
         out["samples_pos"].append(se3.inverse(T)[:, :3, 3])
         out["samples_varpi"].append(varpi)
-        out["samples_vd"].append(vd)
+        out["samples_varpi_dot"].append(varpi_dot)
         out["mean_pos"].append(se3.inverse(Tm)[:3, 3])
         out["cov_pos"].append(position_covariance_world(Tm, P[:3, :3]))
         out["mean_varpi"].append(varpi_m)
-        out["mean_vd"].append(vd_m)
+        out["mean_varpi_dot"].append(varpi_dot_m)
         out["cov_varpi"].append(P[6:12, 6:12])
-        out["cov_vd"].append(P[12:, 12:])
+        out["cov_varpi_dot"].append(P[12:, 12:])
     data = {k: np.stack(v) for k, v in out.items()}
     ts = np.linspace(1e-3, float(horizon), 50)
     Tm = prior.predict(np.broadcast_to(case["T0"], (50, 4, 4)), case["varpi0"], case["vd0"], ts)[0]
@@ -111,10 +116,10 @@ def fig3_data(yaw_accel: float = 1.0, speed: float = 10.0, yaw_rate: float = 0.2
               target_range: float = 40.0, target_azimuth: float = np.radians(25.0)) -> dict:
     """Association with and without acceleration in the state (paper eq. 86-92, Fig. 3).
 
-    From x_{k-1} = {I, varpi, vd} (driving forward at `speed`, yawing left at `yaw_rate` and accelerating the
-    yaw at `yaw_accel`), the CA prior predicts x_k = {T_k, varpi_k, vd} and P_k = F P0 F^T + Q. Ignoring the
-    acceleration (x = {T, varpi, 0}, as a CV prior does) predicts x'_k = {exp(dt varpi^), varpi, 0}. A static
-    map point seen at (target_range, target_azimuth) from the true x_k is predicted from both:
+    From x_{k-1} = {I, varpi, varpi_dot} (driving forward at `speed`, yawing left at `yaw_rate` and accelerating
+    the yaw at `yaw_accel`), the CA prior predicts x_k = {T_k, varpi_k, varpi_dot} and P_k = F P0 F^T + Q.
+    Ignoring the acceleration (x = {T, varpi, 0}, as a CV prior does) predicts x'_k = {exp(dt varpi^), varpi, 0}.
+    A static map point seen at (target_range, target_azimuth) from the true x_k is predicted from both:
 
         z = g(x_k, p),  z' = g(x'_k, p),  b = z' - z  (the bias of the acceleration-free prediction),
         S = G P G^T + R  (eq. 87),        S~ = S + b b^T  (eq. 92: E[e_bar e_bar^T] = b b^T).
@@ -124,31 +129,31 @@ def fig3_data(yaw_accel: float = 1.0, speed: float = 10.0, yaw_rate: float = 0.2
 
     Returns:
         dict: z, z_noacc, bias (4,); S, S_tilde (4, 4); detections (2, 4) [correct, distractor];
-        d2_full, d2_noacc (2,); p_world (3,); T_vehicle_sensor (4, 4); x_k (T, varpi, vd); x_noacc (T, varpi);
-        dt, yaw_accel, varpi0, vd0.
+        d2_full, d2_noacc (2,); p_world (3,); T_vehicle_sensor (4, 4); x_k (T, varpi, varpi_dot); x_noacc (T, varpi);
+        dt, yaw_accel, varpi0, varpi_dot0.
     """
     from rodo.estimator.config import NoiseConfig
     from rodo.estimator.priors import ConstantAccelerationPrior
     from rodo.sim.radar import RadarConfig
 
     radar = RadarConfig()
-    T_vs = np.asarray(radar.T_vehicle_sensor, dtype=float)
+    T_vehicle_sensor = np.asarray(radar.T_vehicle_sensor, dtype=float)
     sigmas = np.asarray(radar.sigmas, dtype=float)
     noise = NoiseConfig()
     varpi0 = np.array([-speed, 0.0, 0.0, 0.0, 0.0, -yaw_rate])
-    vd0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, -yaw_accel])
+    varpi_dot0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, -yaw_accel])
     prior = ConstantAccelerationPrior(np.diag(noise.qc_ca))
-    T_k, varpi_k, vd_k = prior.predict(np.eye(4), varpi0, vd0, dt)
-    F, Q = prior.transition_and_noise(varpi0, vd0, dt)
+    T_k, varpi_k, varpi_dot_k = prior.predict(np.eye(4), varpi0, varpi_dot0, dt)
+    F, Q = prior.transition_and_noise(varpi0, varpi_dot0, dt)
     std0 = np.r_[[0.02] * 3, [0.002] * 3, [0.05] * 3, [0.005] * 3, [0.2] * 3, [0.05] * 3]
     P = F @ np.diag(std0**2) @ F.T + Q
     T_nacc, varpi_nacc = se3.exp(dt * varpi0) @ np.eye(4), varpi0.copy()
 
     # the map point: at (range, azimuth, elevation 0) from the sensor of the true state x_k
     p_sensor = target_range * np.array([np.cos(target_azimuth), np.sin(target_azimuth), 0.0])
-    p_world = se3.transform_points(se3.inverse(T_k) @ T_vs, p_sensor[None])[0]
-    pred = measurements.predict("polar", T_k, varpi_k, p_world[None], T_vs)
-    pred_n = measurements.predict("polar", T_nacc, varpi_nacc, p_world[None], T_vs)
+    p_world = se3.transform_points(se3.inverse(T_k) @ T_vehicle_sensor, p_sensor[None])[0]
+    pred = measurements.predict("polar", T_k, varpi_k, p_world[None], T_vehicle_sensor)
+    pred_n = measurements.predict("polar", T_nacc, varpi_nacc, p_world[None], T_vehicle_sensor)
     R = measurements.noise_covariance("polar", np.zeros((1, 4)) + [1, 0, 0, 0], sigmas, noise.cartesian_sigma)[0]
     S = measurements_S(pred, P[:12, :12], R)
     S_n = measurements_S(pred_n, P[:12, :12], R)
@@ -163,8 +168,9 @@ def fig3_data(yaw_accel: float = 1.0, speed: float = 10.0, yaw_rate: float = 0.2
         return np.einsum("ni,ij,nj->n", e, np.linalg.inv(cov), e)
 
     return dict(z=z, z_noacc=z_n, bias=bias, S=S, S_tilde=S_tilde, detections=dets, d2_full=d2(z, S),
-                d2_noacc=d2(z_n, S_tilde), p_world=p_world, T_vehicle_sensor=T_vs, x_k=(T_k, varpi_k, vd_k),
-                x_noacc=(T_nacc, varpi_nacc), dt=dt, yaw_accel=yaw_accel, varpi0=varpi0, vd0=vd0)
+                d2_noacc=d2(z_n, S_tilde), p_world=p_world, T_vehicle_sensor=T_vehicle_sensor,
+                x_k=(T_k, varpi_k, varpi_dot_k), x_noacc=(T_nacc, varpi_nacc), dt=dt, yaw_accel=yaw_accel,
+                varpi0=varpi0, varpi_dot0=varpi_dot0)
 
 
 def measurements_S(pred, P12: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -185,7 +191,8 @@ def fig4_data(scenario: str = "hills", seed: int = 0, duration: float = 12.0, pr
     """
     from rodo import scenarios
     from rodo.estimator.config import OdometryConfig
-    from rodo.validation.driver import run_sequence
+
+    from .driver import run_sequence
 
     seq, _ = scenarios.get(scenario).simulate(seed, duration=duration)
     gt = seq.groundtruth
@@ -202,7 +209,7 @@ def fig4_data(scenario: str = "hills", seed: int = 0, duration: float = 12.0, pr
     p = gt.T_world_vehicle[:, :3, 3]
     out["t"] = np.asarray(gt.t)
     out["truth"] = p
-    out["distance"] = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
+    out["distance"] = path_distances(gt.T_world_vehicle)
     out["path_length"] = float(out["distance"][-1])
     return out
 
@@ -223,8 +230,8 @@ def fig5_data(scenario: str = "city", seed: int = 2, duration: float = 30.0, pro
     """
     from rodo import scenarios
     from rodo.estimator.config import OdometryConfig
-    from rodo.validation.driver import run_sequence
-    from rodo.validation.metrics import drift
+
+    from .driver import run_sequence
 
     seq, _ = scenarios.get(scenario).simulate(seed, duration=duration)
     gt = seq.groundtruth.T_world_vehicle
@@ -235,7 +242,23 @@ def fig5_data(scenario: str = "city", seed: int = 2, duration: float = 30.0, pro
             d = drift(gt, result.trajectory().T_world_vehicle)
             out["runs"][name + suffix] = d["series"]
             out["final"][name + suffix] = {axis: d["final"][axis] for axis in ("z", "roll", "pitch")}
-    p = gt[:, :3, 3]
-    out["distance"] = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))))
+    out["distance"] = path_distances(gt)
     out["path_length"] = float(out["distance"][-1])
     return out
+
+
+# ----------------------------------------------------------------------------------------------- all figures
+def figure_data(number: int, quick: bool = False, progress=None) -> dict:
+    """The data of figure `number` (1-5) at the size `rodo figures` uses: quick (about a minute for all five:
+    200 prior samples, 12 s of hills for Fig. 4, 30 s of city for Fig. 5) or full (600 samples, 60 s, 90 s).
+
+    Checked by: tests/viz/test_figures.py::test_rodo_figures_writes_five_pngs
+    """
+    experiments = {1: lambda: fig1_data(n_samples=200 if quick else 600),
+                   2: lambda: fig2_data(),
+                   3: lambda: fig3_data(),
+                   4: lambda: fig4_data(duration=12.0 if quick else 60.0, progress=progress),
+                   5: lambda: fig5_data(duration=30.0 if quick else 90.0, progress=progress)}
+    if number not in experiments:
+        raise InputError(f"number: no figure {number!r} (figures 1-5)")
+    return experiments[number]()

@@ -1,0 +1,93 @@
+"""The files of a Monte Carlo campaign directory: `results.csv` (one row per trial and model, appended with
+flush + fsync) and `trials/trial_XXXX_MODEL.npz` (per-scan arrays, written atomically). Layout:
+docs/evaluation.md, "Monte Carlo campaigns"; the runner is `validation.campaign`.
+
+Checked by: tests/validation/test_campaign.py
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+from rodo.estimator.errors import InputError
+
+FIELDS = ("trial", "seed", "model", "status", "kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m",
+          "rpe_trans_pct", "drift_x_m", "drift_y_m", "drift_z_m", "drift_roll_deg", "drift_pitch_deg",
+          "drift_yaw_deg", "max_abs_z_m", "max_abs_roll_deg", "max_abs_pitch_deg", "nees_mean", "nees_dim",
+          "nis_mean", "nu_rmse_mps", "ms_per_scan", "scans", "path_length_m", "wall_s", "error")
+METRICS = FIELDS[4:-1]
+
+
+def append_rows(path: Path, rows: list[dict]) -> None:
+    """Append rows to results.csv (header first if the file is new), flushed and fsync'ed before returning."""
+    new = not path.exists() or path.stat().st_size == 0
+    with open(path, "a", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=FIELDS, extrasaction="ignore")
+        if new:
+            w.writeheader()
+        for row in rows:
+            w.writerow({k: cell(row.get(k, "")) for k in FIELDS})
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
+def cell(v):
+    """A CSV cell: floats by repr (round trip), multi-line text on one line."""
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v))
+    if isinstance(v, str):
+        return " | ".join(v.splitlines())
+    return v
+
+
+def read_results(path: str | Path) -> list[dict]:
+    """Rows of results.csv as dicts of strings; a torn last row (crash while writing) is dropped."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    text = path.read_text()
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows:
+        return []
+    if tuple(rows[0]) != FIELDS:
+        raise InputError(f"{path}: line 1: unexpected header (expected {','.join(FIELDS)})")
+    body = rows[1:] if text.endswith("\n") else rows[1:-1]  # a final row without its newline is torn: drop it
+    out = []
+    for line, row in enumerate(body, start=2):
+        if len(row) != len(FIELDS) or row[3] not in ("ok", "error"):
+            raise InputError(f"{path}: line {line}: malformed row ({len(row)} fields, status {row[3:4]})")
+        out.append(dict(zip(FIELDS, row)))
+    return out
+
+
+def rewrite_results(path: Path, rows: list[dict]) -> None:
+    """Replace results.csv by these rows, atomically (write a temporary file, fsync, rename)."""
+    tmp = path.with_name("." + path.name + ".tmp")
+    with open(tmp, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=FIELDS)
+        w.writeheader()
+        w.writerows(rows)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def npz_path(out_dir: str | Path, trial: int, model: str) -> Path:
+    """trials/trial_XXXX_MODEL.npz of one run."""
+    return Path(out_dir) / "trials" / f"trial_{trial:04d}_{model}.npz"
+
+
+def save_arrays(path: Path, arrays: dict) -> None:
+    """Write a run's per-scan arrays as .npz, atomically."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name("." + path.name + ".tmp")
+    with open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **{k: np.asarray(v) for k, v in arrays.items()})
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
