@@ -112,7 +112,8 @@ def make_executor(jobs: int, dask: str | None = None, processes: bool = True):
             yield client.get_executor()
 
 
-def _error_text(exc: BaseException) -> str:
+def error_text(exc: BaseException) -> str:
+    """One line naming an exception: `Type: message` (campaign rows record failures with it)."""
     return f"{type(exc).__name__}: {exc}".strip()
 
 
@@ -233,7 +234,7 @@ def _collect(out: Path, tr: Trial, fut) -> list[dict]:
     except (BrokenExecutor, CancelledError):
         raise
     except Exception as exc:  # noqa: BLE001 - a failed trial is data, not a reason to stop
-        text = _error_text(exc)
+        text = error_text(exc)
         return [{**base, "model": m, "status": "error", "error": text} for m in tr.models]
     rows = []
     for m in tr.models:

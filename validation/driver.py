@@ -131,6 +131,7 @@ def write_run(out_dir: str | Path, result: RunResult) -> None:
         P_relative=np.stack([_or_nan(e.P_relative) for e in est]),
         P_pose_absolute=np.stack([_or_nan(e.P_pose_absolute) for e in est]),
         map_reuse=np.array([e.map_reuse for e in est]),
+        velocity_correlation_time=np.float64(result.config.uncertainty.velocity_correlation_time),
     )
     tmp = out / ".states.npz.tmp"
     with open(tmp, "wb") as fh:

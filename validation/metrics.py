@@ -21,6 +21,7 @@ from rodo.estimator.lie import se3
 from .alignment import align_to_first
 from .association import DEFAULT_TOLERANCE, associate
 from .consistency import chi2_bounds, fraction_within, nees_sequence, nis_summary, pose_error
+from .odometry_consistency import odometry_nees, summarise
 from .kitti import LENGTHS, kitti_errors, trajectory_distances
 
 
@@ -265,7 +266,8 @@ def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, 
 
     Returns:
         dict with kitti_t_err_pct, kitti_r_err_deg_per_m, kitti_segments, segments (per length), ate_*,
-        rpe, drift (final, max_abs), matched, and `nees`, `nis`, `velocity`, `ms_per_scan` when available.
+        rpe, drift (final, max_abs), matched, and `nees`, `nis`, `velocity`, `consistency` (the odometry
+        measures of `odometry_consistency`, 1 s span), `ms_per_scan` when available.
         Values that cannot be computed (path shorter than every KITTI length) are NaN.
 
     Checked by:
@@ -303,6 +305,8 @@ def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, 
                        "per_scan_bounds": per_scan.tolist(),
                        "fraction_within": fraction_within(v, per_scan),
                        "time_average_bounds": chi2_bounds(max(v.size, 1), d, alpha).tolist()}
+        tau = float(states["velocity_correlation_time"]) if "velocity_correlation_time" in states else 0.25
+        out["consistency"] = summarise(odometry_nees(states, truth, span=1.0, tau=tau, tolerance=tolerance), alpha)
     return out
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .campaign import Trial, TrialOutcome, _error_text
+from .campaign import Trial, TrialOutcome, error_text
 from .consistency import nees_sequence, nis_summary
 from .metrics import evaluate
 
@@ -55,7 +55,7 @@ class ScenarioTrial:
             except Exception as exc:  # noqa: BLE001 - recorded per model
                 frames = traceback.extract_tb(exc.__traceback__)
                 where = next((f for f in reversed(frames) if not f.filename.endswith("errors.py")), frames[-1])
-                outcomes.append(TrialOutcome(model, error=f"{_error_text(exc)} (at {Path(where.filename).name}:"
+                outcomes.append(TrialOutcome(model, error=f"{error_text(exc)} (at {Path(where.filename).name}:"
                                                           f"{where.lineno})"))
         return outcomes
 

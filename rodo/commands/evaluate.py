@@ -88,6 +88,15 @@ def table(rep: dict) -> str:
         rows.append((f"NEES (d={n['dim']})", f"mean {_fmt(n['mean'])}, per-scan bounds "
                                              f"[{_fmt(n['per_scan_bounds'][0])}, {_fmt(n['per_scan_bounds'][1])}], "
                                              f"{_fmt(100 * n['fraction_within'], '.0f')} % of scans within"))
+    if "consistency" in rep:
+        c = rep["consistency"]
+        lo, hi = c["bounds_per_dof"]
+        rows.append(("NEES / dof per measure", f"per-scan 95 % bounds [{_fmt(lo)}, {_fmt(hi)}]"))
+        for name in ("pose", "relative_scan", "relative_span", "velocity", "acceleration", "pose_window"):
+            m = c[name]
+            if m["scans"]:
+                rows.append((f"  {name}", f"mean {_fmt(m['mean_per_dof'])}, {_fmt(100 * m['within'], '.0f')} % of "
+                                          f"scans within ({m['scans']} scans)"))
     if "nis" in rep:
         n = rep["nis"]
         rows.append(("NIS per pair (dof 4)", f"mean {_fmt(n['mean'])} over {n['pairs']} pairs, bounds "

@@ -1,0 +1,114 @@
+"""Consistency measures that fit odometry (docs/consistency.md).
+
+An odometry estimate drifts: its error against the world grows without bound, and the sliding window's own
+pose covariance (relative to its local map) says nothing about that. So the measures are, per scan, each the
+NEES e^T P^-1 e of a 6-dof error (left perturbations, T = T_vehicle_world):
+
+    velocity        varpi_true - varpi                               P[6:12, 6:12]
+    acceleration    varpi_dot_true - varpi_dot (CA only)             P[12:18, 12:18]
+    relative_scan   ln(R_true R_est^-1), R = T_k T_{k-1}^-1            `uncertainty.span_covariance` over 1 scan
+    relative_span   the same over `span` seconds, T_k T_{k-n}^-1      `uncertainty.span_covariance`
+    pose            ln(T_true T_est^-1) in the estimator's world      P_pose_absolute[k]
+    pose_window     the same against the window's marginal P[:6, :6] (relative to the map: not a drift bound)
+
+For N runs, the average of a measure at one scan lies within `consistency.chi2_bounds(N, 6)` when consistent.
+
+Checked by: tests/validation/test_odometry_consistency.py::test_measures_are_chi_square_on_consistent_synthetic_runs,
+    ::test_measures_detect_an_overconfident_run
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.estimator.uncertainty import span_covariance
+
+from .alignment import truth_in_estimator_frame
+from .association import DEFAULT_TOLERANCE, associate
+from .consistency import nees
+
+MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
+DOF = 6
+
+
+def _check(states: dict, truth: dict) -> None:
+    for key in ("t", "T_vehicle_world", "varpi", "P"):
+        if key not in states:
+            raise InputError(f"states: missing array {key!r}")
+    for key in ("t", "T_vehicle_world", "varpi"):
+        if key not in truth:
+            raise InputError(f"truth: missing array {key!r}")
+
+
+def _relative_errors(T_true: np.ndarray, T_est: np.ndarray, n: int) -> np.ndarray:
+    """ln(R_true R_est^-1) of the relative poses over n scans ending at scans n .. N-1, (N - n, 6)."""
+    R_true = T_true[n:] @ se3.inverse(T_true[:-n])
+    R_est = T_est[n:] @ se3.inverse(T_est[:-n])
+    return se3.log(R_true @ se3.inverse(R_est))
+
+
+def _span_nees(T_true, T_est, t, states, n: int, tau: float) -> np.ndarray:
+    out = np.full(len(t), np.nan)
+    if "P_relative" not in states or n >= len(t):
+        return out
+    e = _relative_errors(T_true, T_est, n)
+    Sigma_rel = np.asarray(states["P_relative"], dtype=float)
+    P_varpi = np.asarray(states["P"], dtype=float)[:, 6:12, 6:12]
+    P = np.stack([span_covariance(T_est, t, Sigma_rel, P_varpi, k - n, k, tau) for k in range(n, len(t))])
+    out[n:] = nees(e, P)
+    return out
+
+
+def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.25,
+                  tolerance: float = DEFAULT_TOLERANCE) -> dict:
+    """Per-scan NEES of every measure (module docstring) of one run against the simulator's truth.
+
+    Args:
+        states: states.npz arrays (t, T_vehicle_world, varpi, varpi_dot, P; P_relative and P_pose_absolute
+            when the run wrote them, else those measures are NaN).
+        truth: truth.npz arrays (t, T_vehicle_world, varpi, varpi_dot).
+        span: seconds of the relative_span measure (rounded to whole scans).
+        tau: the velocity error's correlation time the run used (config `uncertainty`).
+        tolerance: seconds within which a state and a truth time match.
+
+    Returns:
+        dict: t (K,) the matched scan times, dof 6, span (s), and one (K,) array per measure (NaN where it is
+        undefined: the first scans of a span, a singular covariance, acceleration of a CV run).
+    """
+    _check(states, truth)
+    ia, ib = associate(states["t"], truth["t"], tolerance)
+    t = np.asarray(states["t"], dtype=float)[ia]
+    T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
+    T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
+    P = np.asarray(states["P"], dtype=float)[ia]
+    sub = {k: np.asarray(v)[ia] for k, v in states.items() if np.ndim(v) >= 1 and len(v) == len(states["t"])}
+    xi = se3.log(T_true @ se3.inverse(T_est))
+    out = {"t": t, "dof": DOF, "span": float(span)}
+    out["velocity"] = nees(np.asarray(truth["varpi"])[ib] - sub["varpi"], P[:, 6:12, 6:12])
+    out["acceleration"] = np.full(len(t), np.nan)
+    if P.shape[-1] == 18 and "varpi_dot" in truth and "varpi_dot" in sub:
+        out["acceleration"] = nees(np.asarray(truth["varpi_dot"])[ib] - sub["varpi_dot"], P[:, 12:18, 12:18])
+    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau)
+    n = max(1, int(round(span / np.median(np.diff(t))))) if len(t) > 1 else 1
+    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau)
+    out["pose"] = nees(xi, sub["P_pose_absolute"]) if "P_pose_absolute" in sub else np.full(len(t), np.nan)
+    out["pose_window"] = nees(xi, P[:, :6, :6])
+    return out
+
+
+def summarise(measures: dict, alpha: float = 0.05) -> dict:
+    """Per measure of one run: mean NEES/dof over the scans, the fraction of scans inside the per-scan
+    (1 - alpha) bounds of chi2(6), and the number of finite scans."""
+    from .consistency import chi2_bounds, fraction_within
+
+    bounds = chi2_bounds(1, DOF, alpha)
+    out = {}
+    for name in MEASURES:
+        v = np.asarray(measures[name], dtype=float)
+        fin = v[np.isfinite(v)]
+        out[name] = {"mean_per_dof": float(fin.mean() / DOF) if fin.size else None,
+                     "within": fraction_within(v, bounds) if fin.size else None, "scans": int(fin.size)}
+    out["bounds_per_dof"] = (bounds / DOF).tolist()
+    return out
