@@ -67,7 +67,11 @@ class HypothesisRng:
         return self._many(lambda: low + (high - low) * self._random.random(), size)
 
     def normal(self, loc=0.0, scale=1.0, size=None):
-        return self._many(lambda: self._random.gauss(loc, scale), size)
+        # Box-Muller from two uniforms: |z| <= 8.6 (hypothesis's own gauss() may return any float, e.g. 1e300)
+        def draw():
+            u1, u2 = 1.0 - self._random.random(), self._random.random()
+            return loc + scale * np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+        return self._many(draw, size)
 
     def integers(self, low, high=None, size=None):
         lo, hi = (0, low) if high is None else (low, high)

@@ -12,6 +12,7 @@ from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
 from tests.estimator import scene
+from tests.estimator.strategies import cartesian_points
 from tests.strategies import vectors
 
 
@@ -268,15 +269,15 @@ def test_a_compact_object_outnumbering_the_world_is_not_taken():
     assert ego.inliers[n_truck:].mean() > 0.9
 
 
-@given(st.integers(0, 2**32 - 1), st.integers(0, 80), st.floats(0.3, 5.0), st.floats(1.0, 500.0))
+@given(unit=cartesian_points(0, 80, 1.0), voxel=st.floats(0.3, 5.0), extent=st.floats(1.0, 500.0))
 @settings(max_examples=30)
-def test_support_counts_the_occupied_voxels(seed, n, voxel, extent):
+def test_support_counts_the_occupied_voxels(unit, voxel, extent):
     """The space a consensus covers (`consensus.support`) = the number of distinct voxel rows, also for
     negative coordinates and points on voxel faces."""
     from rodo.estimator.consensus import support as _support
 
-    rng = np.random.default_rng(seed)
-    p = rng.uniform(-extent, extent, size=(n, 3))
+    n = len(unit)
+    p = unit * extent
     p[: n // 4] = np.round(p[: n // 4] / voxel) * voxel  # exactly on faces
     want = len(np.unique(np.floor(p / voxel).astype(np.int64), axis=0)) if n else 0
     assert _support(p, voxel) == want

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from rodo.estimator.errors import InputError
 from rodo.validation.association import associate, match_index
@@ -13,14 +14,15 @@ def _rng(seed):
     return np.random.default_rng(np.random.SeedSequence(seed))
 
 
-@given(st.integers(0, 2**32 - 1), st.floats(0.0, 0.9e-3))
-def test_associate_recovers_true_pairs_under_jitter(seed, jitter):
-    rng = _rng(seed)
-    t = np.cumsum(rng.uniform(0.05, 0.1, 80))
-    keep_a = np.sort(rng.choice(80, 60, replace=False))
-    keep_b = np.sort(rng.choice(80, 60, replace=False))
+_keep = st.lists(st.integers(0, 79), min_size=60, max_size=60, unique=True).map(lambda v: np.sort(v))
+
+
+@given(steps=arrays(np.float64, (80,), elements=st.floats(0.05, 0.1)), keep_a=_keep, keep_b=_keep,
+       jitter=arrays(np.float64, (60,), elements=st.floats(-0.9e-3, 0.9e-3)))
+def test_associate_recovers_true_pairs_under_jitter(steps, keep_a, keep_b, jitter):
+    t = np.cumsum(steps)
     t_a = t[keep_a]
-    t_b = t[keep_b] + rng.uniform(-jitter, jitter, 60)
+    t_b = t[keep_b] + jitter
     ia, ib = associate(t_a, t_b)
     common = np.intersect1d(keep_a, keep_b)
     np.testing.assert_array_equal(keep_a[ia], common)
