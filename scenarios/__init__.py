@@ -6,14 +6,15 @@ The package, file by file:
                     `Parts` (profile, world, radar config), the explicit registry (`register`, `get`, `names`)
                     and `simulate_to` (scenario -> simulated sequence on disk); `MARGIN`.
     definitions.py  the scenario definitions, each registered explicitly at import: `CITY`, `HIGHWAY`,
-                    `HILLS`, `STOP_AND_GO`, `BLOCKAGE` (with its `BLOCKAGE_*` timings), `YAW_ACCEL`;
+                    `HILLS`, `STOP_AND_GO`, `BLOCKAGE` (with its `BLOCKAGE_*` timings), `YAW_ACCEL`,
+                    `PRIOR_CA`, `PRIOR_CV` (motion drawn from the prior's SDE, parameter `qc`);
                     `MOVER_ID` (first id of moving objects).
 
 Checked by: tests/scenarios/test_registry.py
 """
 
 from .definitions import (BLOCKAGE, BLOCKAGE_BLACKOUT, BLOCKAGE_DELTA, BLOCKAGE_SLOW, CITY, HIGHWAY, HILLS, MOVER_ID,
-                          STOP_AND_GO, YAW_ACCEL)
+                          PRIOR_CA, PRIOR_CV, STOP_AND_GO, YAW_ACCEL)
 from .registry import MARGIN, Parts, Scenario, get, names, register, simulate_to
 
 __all__ = [
@@ -21,5 +22,5 @@ __all__ = [
     "MARGIN", "Parts", "Scenario", "get", "names", "register", "simulate_to",
     # definitions.py
     "BLOCKAGE", "BLOCKAGE_BLACKOUT", "BLOCKAGE_DELTA", "BLOCKAGE_SLOW", "CITY", "HIGHWAY", "HILLS", "MOVER_ID",
-    "STOP_AND_GO", "YAW_ACCEL",
+    "PRIOR_CA", "PRIOR_CV", "STOP_AND_GO", "YAW_ACCEL",
 ]

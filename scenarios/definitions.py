@@ -1,5 +1,8 @@
 """The scenario definitions (each registered explicitly at import; see docs/simulator.md for what they test).
 
+`prior_ca` / `prior_cv` draw the motion from the estimator's own prior SDE (sim/sde_trajectory.py) with a `qc`
+parameter: `scenarios.get("prior_ca").simulate(seed, qc=[...])`.
+
 Mover ids start at MOVER_ID (well above any static object id) so truth ids never collide.
 """
 
@@ -7,13 +10,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from rodo.sim import sde_trajectory as sde
 from rodo.sim import trajectory as traj
 from rodo.sim import world as w
+from rodo.sim.radar import RadarConfig
 
 from .registry import Scenario, register
 
 MOVER_ID = 1_000_000
 CA_POLAR = {"model": "ca-polar"}
+CV_POLAR = {"model": "cv-polar"}
 
 
 def _route(profile):
@@ -89,6 +95,25 @@ def _yaw_world(rng, profile, duration):
     return w.build_world(rng, _route(profile), w.RURAL)
 
 
+def _prior_profile(kind: str):
+    """The profile builder of prior_<kind>: the motion drawn from the prior's SDE with diagonal Qc `qc`
+    (default `sim.sde_trajectory.DEFAULT_QC[kind]`), on a grid aligned with the scan times."""
+    def profile(rng, duration, qc=None):
+        qc = sde.DEFAULT_QC[kind] if qc is None else qc
+        return sde.draw(kind, qc, duration, rng, rate_hz=RadarConfig().rate_hz)
+
+    profile.__name__ = f"prior_{kind}"
+    return profile
+
+
+def _prior_world(rng, profile, duration):
+    return w.build_world(rng, _route(profile), w.CITY)
+
+
+def _prior_truth(profile) -> dict:
+    return profile.truth_arrays()
+
+
 CITY = register(Scenario(
     "city", 1, "urban driving 0-50 km/h: buildings, parked cars, poles, turns, stops, oncoming traffic",
     traj.city, _city_world, estimator_defaults=dict(CA_POLAR), length=950.0))
@@ -107,3 +132,11 @@ BLOCKAGE = register(Scenario(
 YAW_ACCEL = register(Scenario(
     "yaw_accel", 1, "the paper's Fig. 1 manoeuvre: 10 m/s with constant yaw acceleration 0.05 rad/s^2",
     traj.yaw_accel, _yaw_world, estimator_defaults=dict(CA_POLAR), duration=10.0))
+PRIOR_CA = register(Scenario(
+    "prior_ca", 1, "motion drawn from the CA prior's SDE (white jerk, Qc = diag(qc)), city scene, no movers",
+    _prior_profile("ca"), _prior_world, estimator_defaults=dict(CA_POLAR), duration=60.0, params=("qc",),
+    extra_truth=_prior_truth))
+PRIOR_CV = register(Scenario(
+    "prior_cv", 1, "motion drawn from the CV prior's SDE (white acceleration, Qc = diag(qc)), city scene",
+    _prior_profile("cv"), _prior_world, estimator_defaults=dict(CV_POLAR), duration=60.0, params=("qc",),
+    extra_truth=_prior_truth))

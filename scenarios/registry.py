@@ -3,7 +3,9 @@
 
 A scenario is a small definition: name, version, one-line description, a builder of (trajectory profile,
 world, radar config), estimator defaults (a plain dict), and its default extent: a path length (metres,
-KITTI-style sequences) or a duration (short manoeuvres). Randomness: `SeedSequence(seed)` spawns three
+KITTI-style sequences) or a duration (short manoeuvres). A scenario may take keyword parameters (`params`,
+e.g. `qc` of the prior-consistent scenarios), passed to its profile builder; `extra_truth` adds arrays about
+the profile to the truth (e.g. the Qc used). Randomness: `SeedSequence(seed)` spawns three
 independent streams (trajectory, world, radar), so the same seed gives the same bytes.
 
 Checked by: tests/scenarios/test_registry.py
@@ -48,6 +50,8 @@ class Scenario:
         estimator_defaults: plain dict of estimator settings suited to the scenario.
         length: default path length in metres (the duration is chosen to drive it), or None.
         duration: default duration in seconds when `length` is None.
+        params: names of the keyword parameters the profile builder accepts (e.g. ("qc",)); None = default.
+        extra_truth: optional (profile) -> dict of arrays added to the truth (truth.npz).
     """
 
     name: str
@@ -59,20 +63,30 @@ class Scenario:
     estimator_defaults: dict = field(default_factory=dict)
     length: float | None = None
     duration: float | None = None
+    params: tuple[str, ...] = ()
+    extra_truth: Callable | None = None
 
     def _rngs(self, seed: int):
         if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise InputError(f"seed: expected an integer >= 0, got {seed!r}")
         return [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(3)]
 
-    def default_duration(self, seed: int) -> float:
+    def _params(self, params: dict) -> dict:
+        """The given parameters, checked against `params` (InputError naming an unknown one); None dropped."""
+        for key in params:
+            if key not in self.params:
+                takes = ", ".join(self.params) if self.params else "none"
+                raise InputError(f"{key}: scenario {self.name!r} takes no parameter {key!r} (it takes: {takes})")
+        return {k: v for k, v in params.items() if v is not None}
+
+    def default_duration(self, seed: int, **params) -> float:
         """The duration that drives `length` metres for this seed (or the fixed `duration`)."""
         if self.length is None:
             return float(self.duration)
         rng = self._rngs(seed)[0]
         guess = 60.0
         while True:  # profiles extend the same random draw, so a longer profile has the same prefix
-            profile = self.profile(rng, guess)
+            profile = self.profile(rng, guess, **self._params(params))
             if profile.path_length() >= self.length:
                 break
             guess *= 2
@@ -83,24 +97,30 @@ class Scenario:
             lo, hi = (mid, hi) if profile.path_length(mid) < self.length else (lo, mid)
         return float(np.ceil(hi * 10) / 10)
 
-    def build(self, seed: int, duration: float | None = None) -> Parts:
-        """Profile, world and radar for `seed` (same seed -> identical parts)."""
+    def build(self, seed: int, duration: float | None = None, **params) -> Parts:
+        """Profile, world and radar for `seed` (same seed and parameters -> identical parts)."""
+        params = self._params(params)
         if duration is not None and not (np.isfinite(duration) and duration > 0):
             raise InputError(f"duration: must be a positive number of seconds, got {duration!r}")
-        duration = self.default_duration(seed) if duration is None else float(duration)
+        duration = self.default_duration(seed, **params) if duration is None else float(duration)
         rng_traj, rng_world, _ = self._rngs(seed)
-        profile = self.profile(rng_traj, duration + MARGIN)
+        profile = self.profile(rng_traj, duration + MARGIN, **params)
         world = self.world(rng_world, profile, duration)
         return Parts(profile, world, self.radar(), duration)
 
-    def simulate(self, seed: int, duration: float | None = None, progress=None, radar: RadarConfig | None = None):
+    def simulate(self, seed: int, duration: float | None = None, progress=None, radar: RadarConfig | None = None,
+                 **params):
         """Simulate the scenario: returns (Sequence, truth dict) (see sim.simulate.simulate).
 
-        `radar` overrides the scenario's radar, e.g. `RadarConfig().noise_free()` for model checks."""
-        parts = self.build(seed, duration)
+        `radar` overrides the scenario's radar, e.g. `RadarConfig().noise_free()` for model checks; `params`
+        are the scenario's own parameters (e.g. `qc=` for prior_ca / prior_cv)."""
+        parts = self.build(seed, duration, **params)
         rng_radar = self._rngs(seed)[2]
-        return simulate(parts.world, parts.profile, parts.radar if radar is None else radar, rng_radar,
-                        parts.duration, progress)
+        seq, truth = simulate(parts.world, parts.profile, parts.radar if radar is None else radar, rng_radar,
+                              parts.duration, progress)
+        if self.extra_truth is not None:
+            truth.update(self.extra_truth(parts.profile))
+        return seq, truth
 
     def summary(self) -> str:
         extent = f"{self.length:.0f} m" if self.length is not None else f"{self.duration:.0f} s"
@@ -130,10 +150,10 @@ def get(name: str) -> Scenario:
         raise InputError(f"unknown scenario {name!r}; known scenarios: {', '.join(names())}") from None
 
 
-def simulate_to(name: str, seed: int, out_dir, duration: float | None = None, progress=None):
-    """Simulate scenario `name` with `seed` and write the sequence directory (radar.csv, sensor.toml,
-    groundtruth.txt, truth.npz) to out_dir. Returns (Sequence, truth)."""
+def simulate_to(name: str, seed: int, out_dir, duration: float | None = None, progress=None, **params):
+    """Simulate scenario `name` with `seed` (and its `params`, e.g. qc=) and write the sequence directory
+    (radar.csv, sensor.toml, groundtruth.txt, truth.npz) to out_dir. Returns (Sequence, truth)."""
     scenario = get(name)
-    seq, truth = scenario.simulate(seed, duration, progress)
+    seq, truth = scenario.simulate(seed, duration, progress, **params)
     write_simulation(Path(out_dir), seq, truth)
     return seq, truth

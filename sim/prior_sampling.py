@@ -11,6 +11,9 @@ polynomial up to the terms that matter at h ~ 5 ms:
 (sigma_CA,4 = the order-4 constant-acceleration term, docs/priors.md), so the simulated process converges to
 the SDE as h -> 0 independently of the prior's discretisation that it is used to check.
 
+The stepping (`substep_sigma`, `ca_substeps`, `cv_substeps`, `compose_poses`) is shared with
+`sim.sde_trajectory`, which draws whole vehicle trajectories from the same SDEs.
+
 `propagate_mean_cov` gives the prior's Gaussian (mean f(x0), P = F P0 F^T + Q), `nees` the normalised
 errors of samples against it, `covariance_test` a likelihood-ratio test of the sample covariance.
 
@@ -32,13 +35,59 @@ def _ad(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                            np.cross(a[..., 3:], b[..., 3:])], axis=-1)
 
 
-def _substep_sigma(varpi, varpi_dot, jerk, h):
+def substep_sigma(varpi, varpi_dot, jerk, h):
+    """Pose increment sigma of one sub-step, T(s + h) = exp(sigma^) T(s), for varpi quadratic in time
+    (the module docstring's formula). varpi, varpi_dot, jerk (..., 6); h > 0, scalar or broadcastable
+    (e.g. (..., 1) for a partial step per row). A constant-velocity step is jerk = 0, varpi_dot = the step's
+    acceleration."""
     s = h * varpi + h**2 / 2 * varpi_dot + h**3 / 6 * jerk
     c = _ad(varpi_dot, varpi)
     s += h**3 / 12 * c + h**5 / 240 * _ad(varpi_dot, c)
     s += h**5 / 720 * _ad(varpi, _ad(varpi, _ad(varpi, varpi_dot)))
     s += h**4 / 24 * _ad(jerk, varpi)
     return s
+
+
+def ca_substeps(varpi0, vd0, jerk, h: float):
+    """The CA SDE path over m sub-steps of piecewise-constant jerk (d varpi_dot = jerk dt on each).
+
+    Args:
+        varpi0, vd0: (..., 6) velocity and acceleration at the first knot.
+        jerk: (m, ..., 6) jerk of each sub-step (for the SDE: w_j ~ N(0, Qc / h)).
+        h: sub-step length, s.
+
+    Returns:
+        varpi (m + 1, ..., 6) and varpi_dot (m + 1, ..., 6) at the knots, and sigma (m, ..., 6) with
+        T_{j+1} = exp(sigma_j^) T_j (`compose_poses`).
+    """
+    zero = np.zeros_like(jerk[:1])
+    vd = vd0 + np.concatenate([zero, np.cumsum(h * jerk, axis=0)])
+    varpi = varpi0 + np.concatenate([zero, np.cumsum(h * vd[:-1] + h**2 / 2 * jerk, axis=0)])
+    return varpi, vd, substep_sigma(varpi[:-1], vd[:-1], jerk, h)
+
+
+def cv_substeps(varpi0, acc, h: float):
+    """The CV SDE path over m sub-steps of piecewise-constant acceleration (d varpi = acc dt on each).
+
+    Args: varpi0 (..., 6); acc (m, ..., 6) (for the SDE: a_j ~ N(0, Qc / h)); h: sub-step length, s.
+
+    Returns:
+        varpi (m + 1, ..., 6) at the knots and sigma (m, ..., 6) (`compose_poses`).
+    """
+    zero = np.zeros_like(acc[:1])
+    varpi = varpi0 + np.concatenate([zero, np.cumsum(h * acc, axis=0)])
+    return varpi, substep_sigma(varpi[:-1], acc, zero, h)
+
+
+def compose_poses(T0, sigma) -> np.ndarray:
+    """Poses at the knots, T_0 = T0 and T_{j+1} = exp(sigma_j^) T_j: T0 (..., 4, 4), sigma (m, ..., 6)
+    -> (m + 1, ..., 4, 4)."""
+    steps = se3.exp(sigma)
+    out = np.empty((len(sigma) + 1,) + np.shape(T0))
+    out[0] = T0
+    for j in range(len(sigma)):
+        out[j + 1] = steps[j] @ out[j]
+    return out
 
 
 def _check_state(T0, varpi0, vd0, P0):
@@ -104,10 +153,10 @@ def sample_prior(prior, T0, varpi0, vd0, P0, dt, n_samples: int, rng: np.random.
     varpi = varpi0 + g0[:, 6:12]
     varpi_dot = vd0 + g0[:, 12:]
     for _ in range(m):
-        jerk = rng.standard_normal((n, 6)) @ jerk_root.T
-        T = se3.exp(_substep_sigma(varpi, varpi_dot, jerk, h)) @ T
-        varpi = varpi + h * varpi_dot + h**2 / 2 * jerk
-        varpi_dot = varpi_dot + h * jerk
+        jerk = rng.standard_normal((1, n, 6)) @ jerk_root.T
+        v, vd, sigma = ca_substeps(varpi, varpi_dot, jerk, h)
+        T = compose_poses(T, sigma)[1]
+        varpi, varpi_dot = v[1], vd[1]
     return T, varpi, varpi_dot
 
 
@@ -158,10 +207,16 @@ def covariance_test(samples, mean, P) -> tuple[float, int, float]:
     under H0 (large n). Returns (stat, dof, p_value).
     """
     L = np.linalg.cholesky(np.asarray(P, dtype=float))
-    z = np.linalg.solve(L, errors(samples, mean).T)
-    n = z.shape[1]
-    d = z.shape[0]
-    S = z @ z.T / n
+    return whitened_covariance_test(np.linalg.solve(L, errors(samples, mean).T).T)
+
+
+def whitened_covariance_test(z) -> tuple[float, int, float]:
+    """Likelihood-ratio test of H0: z_i ~ N(0, I) (mean known) for whitened errors z (n, d) against an
+    unrestricted covariance: stat = n (tr S - ln det S - d), S = mean(z z^T), ~ chi2(d (d + 1) / 2) under H0
+    (large n). Returns (stat, dof, p_value)."""
+    z = np.asarray(z, dtype=float)
+    n, d = z.shape
+    S = z.T @ z / n
     stat = float(n * (np.trace(S) - np.linalg.slogdet(S)[1] - d))
     dof = d * (d + 1) // 2
     return stat, dof, float(stats.chi2.sf(stat, dof))

@@ -1,5 +1,5 @@
 """`rodo scenarios` (list the registered scenarios) and `rodo simulate SCENARIO --seed N --out DIR
-[--duration S]` (write a sequence directory and print a summary). Parse, call, print: the work is in
+[--duration S] [--qc a,b,c,d,e,f]` (write a sequence directory and print a summary). Parse, call, print: the work is in
 `scenarios` and `sim`."""
 
 from __future__ import annotations
@@ -25,6 +25,10 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output sequence directory")
     p.add_argument("--duration", type=float, default=None,
                    help="seconds to simulate (default: the scenario's own length)")
+    p.add_argument("--qc", metavar="X,Y,Z,RX,RY,RZ", default=None,
+                   help="diagonal of the prior's Qc for prior_ca (jerk PSD) / prior_cv (acceleration PSD): 6 positive "
+                        "numbers, body frame [linear x,y,z, angular x,y,z] (default: the scenario's, see "
+                        "docs/simulator.md)")
     p.add_argument("--rerun", metavar="OUT.rrd", help="also write a Rerun recording of the simulated sequence")
     p.set_defaults(func=run_simulate)
 
@@ -37,6 +41,25 @@ def run_scenarios(args: argparse.Namespace) -> int:
     return 0
 
 
+def parse_qc(text: str | None, scenario) -> dict:
+    """--qc "a,b,c,d,e,f" -> {"qc": [6 floats]} for a scenario with a `qc` parameter; InputError naming --qc."""
+    from rodo import scenarios
+
+    if text is None:
+        return {}
+    if "qc" not in scenario.params:
+        takes = [n for n in scenarios.names() if "qc" in scenarios.get(n).params]
+        raise InputError(f"--qc: scenario {scenario.name!r} has no Qc parameter (only {', '.join(takes)})")
+    try:
+        qc = [float(x) for x in text.split(",")]
+    except ValueError:
+        qc = []
+    if len(qc) != 6 or not all(np.isfinite(qc)) or min(qc) <= 0:
+        raise InputError(f"--qc: expected 6 positive finite numbers separated by commas "
+                         f"(linear x,y,z, angular x,y,z), got {text!r}")
+    return {"qc": qc}
+
+
 def run_simulate(args: argparse.Namespace) -> int:
     from rodo import scenarios
     from rodo.progress import Progress
@@ -45,15 +68,21 @@ def run_simulate(args: argparse.Namespace) -> int:
     scenario = scenarios.get(args.scenario)  # InputError listing the known names -> exit 2
     if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
-    duration = scenario.default_duration(args.seed) if args.duration is None else args.duration
+    params = parse_qc(args.qc, scenario)
+    duration = scenario.default_duration(args.seed, **params) if args.duration is None else args.duration
     n_scans = int(np.floor(duration * scenario.radar().rate_hz + 1e-9)) + 1
     with Progress(n_scans, f"simulate {scenario.name}") as bar:
-        seq, truth = scenarios.simulate_to(scenario.name, args.seed, args.out, duration, progress=bar)
+        seq, truth = scenarios.simulate_to(scenario.name, args.seed, args.out, duration, progress=bar, **params)
     counts = np.diff(truth["scan_offsets"])
     print(f"{scenario.name} v{scenario.version} seed {args.seed} -> {args.out}")
     print(f"scans {len(counts)} ({truth['t'][-1]:.1f} s), detections per scan median {np.median(counts):.0f} "
           f"(min {counts.min()}, max {counts.max()}), empty scans {int(np.sum(counts == 0))}, "
           f"path length {path_length(seq.groundtruth.T_world_vehicle):.1f} m")
+    if "prior_kind" in truth:
+        speed = -truth["varpi"][:, 0]
+        print(f"motion from the {str(truth['prior_kind'][0]).upper()} prior SDE, Qc = diag("
+              f"{', '.join(f'{q:g}' for q in truth['prior_qc'])}); forward speed {speed.min():.1f} to "
+              f"{speed.max():.1f} m/s (recorded in truth.npz: prior_kind, prior_qc)")
     if args.rerun:
         from rodo.viz.recording import record_sequence  # viz is the only package importing rerun
 
