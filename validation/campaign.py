@@ -35,7 +35,8 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 
-from .campaign_files import FIELDS, METRICS, append_rows, cell, npz_path, read_results, rewrite_results, save_arrays
+from .campaign_consistency import campaign_consistency, consistency_lines
+from .campaign_files import CONSISTENCY_FIELDS, FIELDS, METRICS, append_rows, cell, npz_path, read_results, rewrite_results, save_arrays
 from .consistency import average_nees, chi2_bounds, fraction_within
 from .metrics import jsonable
 
@@ -248,7 +249,7 @@ def _collect(out: Path, tr: Trial, fut) -> list[dict]:
 
 SUMMARY_METRICS = ("kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m", "rpe_trans_pct", "drift_z_m",
                    "max_abs_z_m", "max_abs_roll_deg", "max_abs_pitch_deg", "drift_yaw_deg", "nees_mean", "nis_mean",
-                   "nu_rmse_mps", "ms_per_scan", "wall_s")
+                   "nu_rmse_mps", "ms_per_scan", "wall_s") + CONSISTENCY_FIELDS
 
 
 def _describe(x: np.ndarray) -> dict:
@@ -262,9 +263,12 @@ def _describe(x: np.ndarray) -> dict:
 
 def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
     """Per model: mean, median and 95 % interval (2.5/97.5 percentiles) of every metric over the ok trials, the
-    error count, and the average NEES over runs per scan against chi2_bounds(runs at that scan, d, alpha).
+    error count, the average NEES over runs per scan against chi2_bounds(runs at that scan, d, alpha), and the
+    same per odometry consistency measure (`campaign_consistency`).
 
-    Returns a JSON-ready dict; `nees_curve` per model holds t, mean, count, lower, upper (lists).
+    Returns a JSON-ready dict; `nees_curve` per model holds t, mean, count, lower, upper (lists); `consistency`
+    per model the summary of each measure and `consistency_curves` their curves (t, and per measure mean,
+    count, lower, upper).
 
     Checked by: tests/validation/test_campaign.py::test_summary_statistics_and_nees_bounds
     """
@@ -274,12 +278,13 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
     summary = {"trials": len({r["trial"] for r in rows}), "alpha": alpha, "models": {}}
     for m in models:
         mine = [r for r in rows if r["model"] == m]
-        ok = [r for r in mine if r["status"] == "ok"]
+        ok = sorted((r for r in mine if r["status"] == "ok"), key=lambda r: int(r["trial"]))  # completion order
+        # differs between a resumed and an uninterrupted campaign: sums in trial order make their summaries equal
         num = lambda k: np.array([float(r[k]) if r[k] not in ("", "None") else np.nan for r in ok])  # noqa: E731
         entry = {"runs": len(mine), "ok": len(ok), "errors": len(mine) - len(ok),
                  "error_examples": sorted({r["error"] for r in mine if r["status"] == "error"})[:3],
                  "metrics": {k: _describe(num(k)) for k in SUMMARY_METRICS}}
-        runs, t, dim = [], np.zeros(0), None
+        runs, t, dim, arrays = [], np.zeros(0), None, []
         for r in ok:
             p = npz_path(out, int(r["trial"]), m)
             if not p.exists():
@@ -288,6 +293,8 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
                 runs.append(z["nees"])
                 dim = int(z["nees_dim"])
                 t = z["t"] if len(z["t"]) > len(t) else t
+                arrays.append({k: z[k] for k in z.files if k == "t" or k.startswith("nees_")})
+        entry["consistency"], entry["consistency_curves"] = campaign_consistency(arrays, alpha)
         if runs:
             mean, count = average_nees(runs)
             b = chi2_bounds(count, dim, alpha)
@@ -308,7 +315,7 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
 def write_summary(out_dir, summary: dict, plot_note: str = "") -> None:
     """Write summary.json and summary.md (a table per model; `plot_note` is added, e.g. where the NEES plot is)."""
     out = Path(out_dir)
-    slim = {**summary, "models": {m: {k: v for k, v in e.items() if k != "nees_curve"}
+    slim = {**summary, "models": {m: {k: v for k, v in e.items() if k not in ("nees_curve", "consistency_curves")}
                                   for m, e in summary["models"].items()}}
     (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
@@ -334,6 +341,8 @@ def write_summary(out_dir, summary: dict, plot_note: str = "") -> None:
                           f"{fmt(n['mean_over_scans'])}, median {fmt(n['median_over_scans'])}; bounds for "
                           f"{n['runs']} runs [{fmt(lo)}, {fmt(hi)}]; scans within their bounds: "
                           f"{fmt(None if n['fraction_scans_within'] is None else 100 * n['fraction_scans_within'])} %."]
+        if any(c["runs"] for c in e.get("consistency", {}).values()):
+            lines += consistency_lines(e["consistency"], fmt)
         lines.append("")
     if plot_note:
         lines += [plot_note, ""]

@@ -16,10 +16,16 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 
-FIELDS = ("trial", "seed", "model", "status", "kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m",
-          "rpe_trans_pct", "drift_x_m", "drift_y_m", "drift_z_m", "drift_roll_deg", "drift_pitch_deg",
-          "drift_yaw_deg", "max_abs_z_m", "max_abs_roll_deg", "max_abs_pitch_deg", "nees_mean", "nees_dim",
-          "nis_mean", "nu_rmse_mps", "ms_per_scan", "scans", "path_length_m", "wall_s", "error")
+# the columns of results.csv before the odometry consistency measures (a campaign started then still resumes:
+# read_results fills the new columns with "", and resume rewrites the file with the current header)
+FIELDS_V1 = ("trial", "seed", "model", "status", "kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m",
+             "rpe_trans_pct", "drift_x_m", "drift_y_m", "drift_z_m", "drift_roll_deg", "drift_pitch_deg",
+             "drift_yaw_deg", "max_abs_z_m", "max_abs_roll_deg", "max_abs_pitch_deg", "nees_mean", "nees_dim",
+             "nis_mean", "nu_rmse_mps", "ms_per_scan", "scans", "path_length_m", "wall_s", "error")
+# mean NEES / dof over a run's scans of each `validation.odometry_consistency` measure (docs/evaluation.md)
+CONSISTENCY_FIELDS = ("nees_velocity_per_dof", "nees_acceleration_per_dof", "nees_relative_scan_per_dof",
+                      "nees_relative_span_per_dof", "nees_pose_per_dof", "nees_pose_window_per_dof")
+FIELDS = FIELDS_V1[:-1] + CONSISTENCY_FIELDS + ("error",)
 METRICS = FIELDS[4:-1]
 
 
@@ -46,7 +52,8 @@ def cell(v):
 
 
 def read_results(path: str | Path) -> list[dict]:
-    """Rows of results.csv as dicts of strings; a torn last row (crash while writing) is dropped."""
+    """Rows of results.csv as dicts of strings (every key of FIELDS; a file with the older header FIELDS_V1 gets
+    "" in the consistency columns); a torn last row (crash while writing) is dropped."""
     path = Path(path)
     if not path.exists():
         return []
@@ -54,14 +61,15 @@ def read_results(path: str | Path) -> list[dict]:
     rows = list(csv.reader(io.StringIO(text)))
     if not rows:
         return []
-    if tuple(rows[0]) != FIELDS:
+    header = tuple(rows[0])
+    if header not in (FIELDS, FIELDS_V1):
         raise InputError(f"{path}: line 1: unexpected header (expected {','.join(FIELDS)})")
     body = rows[1:] if text.endswith("\n") else rows[1:-1]  # a final row without its newline is torn: drop it
     out = []
     for line, row in enumerate(body, start=2):
-        if len(row) != len(FIELDS) or row[3] not in ("ok", "error"):
+        if len(row) != len(header) or row[3] not in ("ok", "error"):
             raise InputError(f"{path}: line {line}: malformed row ({len(row)} fields, status {row[3:4]})")
-        out.append(dict(zip(FIELDS, row)))
+        out.append({**dict.fromkeys(FIELDS, ""), **dict(zip(header, row))})
     return out
 
 

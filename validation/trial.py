@@ -18,6 +18,10 @@ import numpy as np
 from .campaign import Trial, TrialOutcome, error_text
 from .consistency import nees_sequence, nis_summary
 from .metrics import evaluate
+from .odometry_consistency import DOF, MEASURES, summarise
+from .run_consistency import run_states, scan_measures
+
+SPAN = 1.0  # s, the span of the relative_span measure
 
 
 @dataclass(frozen=True)
@@ -72,12 +76,8 @@ def evaluate_result(model: str, result, gt, truth: dict, lengths, step: int, wal
     if bad.any():
         k = int(np.flatnonzero(bad)[0])
         return TrialOutcome(model, error=f"non-finite estimate from scan {k} (t = {est[k].t:.3f} s)")
-    d = est[0].P.shape[0]
-    states = {"t": result.t, "T_vehicle_world": T, "varpi": np.stack([e.varpi for e in est]),
-              "varpi_dot": np.stack([e.varpi_dot if e.varpi_dot is not None else np.zeros(6) for e in est]),
-              "P": np.stack([e.P for e in est]).reshape(len(est), d, d),
-              "nis": np.array([e.nis for e in est], dtype=float),
-              "n_associated": np.array([e.n_associated for e in est]), "ms_per_scan": result.wall_ms}
+    states = run_states(result)
+    d = states["P"].shape[-1]
     rep = evaluate(gt, result.trajectory(), lengths, step, states, truth)
     ns = nees_sequence(states, truth)
     fin, mx = rep["drift"]["final"], rep["drift"]["max_abs"]
@@ -93,4 +93,24 @@ def evaluate_result(model: str, result, gt, truth: dict, lengths, step: int, wal
     arrays = {"t": ns["t"], "nees": ns["nees"], "nees_dim": d, "nis": states["nis"],
               "n_associated": states["n_associated"], "ms_per_scan": result.wall_ms,
               "nis_pairs": nis["pairs"], "T_world_vehicle_est": result.trajectory().T_world_vehicle}
+    metrics_c, arrays_c = consistency_of(states, truth, ns["t"])
+    metrics.update(metrics_c)
+    arrays.update(arrays_c)
     return TrialOutcome(model, metrics, arrays)
+
+
+def consistency_of(states: dict, truth: dict, t: np.ndarray) -> tuple[dict, dict]:
+    """The odometry consistency measures of one run (`odometry_consistency.odometry_nees`, relative_span over
+    SPAN seconds) for a campaign: the results.csv columns `nees_<measure>_per_dof` (mean NEES / 6 over the
+    run's scans, "" where undefined) and the trial npz arrays `nees_<measure>` (per scan, on the times t of
+    `nees`), `nees_measure_dof` and `nees_span`.
+
+    Checked by: tests/validation/test_campaign.py::test_run_consistency_per_scan_and_ellipsoid_coverage
+    """
+    m = scan_measures(states, truth, span=SPAN)
+    keep = np.isin(m["t"], t)
+    s = summarise({k: m[k][keep] for k in MEASURES})
+    metrics = {f"nees_{k}_per_dof": "" if s[k]["mean_per_dof"] is None else s[k]["mean_per_dof"] for k in MEASURES}
+    arrays = {f"nees_{k}": m[k][keep] for k in MEASURES}
+    arrays.update({"nees_measure_dof": DOF, "nees_span": m["span"]})
+    return metrics, arrays

@@ -13,6 +13,7 @@ SERIES_TABS = (
     ("metrics/error", "error vs truth"),
     ("metrics/drift", "drift per axis"),
     ("metrics/nees", "NEES"),
+    ("metrics/ellipsoid", "truth in 3-sigma ellipsoid"),
     ("metrics/nis", "NIS"),
     ("metrics/counts", "detections"),
     ("metrics/timing", "ms per scan"),

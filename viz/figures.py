@@ -50,18 +50,24 @@ def ellipse_xy(mean, cov, n_sigma: float = 3.0, n: int = 100) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------------ NEES
-def plot_nees(path, t, nees_mean, bounds, labels) -> Path:
+def plot_nees(path, t, nees_mean, bounds, labels, title: str = "Normalised estimation error squared",
+              ylabel: str = "average NEES", log_scale: bool | None = None) -> Path:
     """Average NEES over time with its chi-square band (Monte Carlo summaries).
 
     Args:
         path: output PNG.
         t: (N,) times in seconds.
-        nees_mean: (N,) or (N, m) mean NEES of m quantities (e.g. pose, velocity).
+        nees_mean: (N,) or (N, m) mean NEES of m quantities (e.g. the consistency measures of one model, each
+            divided by its dof so that they share one band).
         bounds: (lower, upper) scalars or (N,) arrays (e.g. `validation.consistency.chi2_bounds(n_runs, dof)`).
         labels: a label or m labels (with the dof, e.g. "pose (6 dof)").
+        title, ylabel: of the axes.
+        log_scale: a logarithmic y axis; None: when the curves reach over 20 times the upper bound (an
+            overconfident measure would otherwise flatten the others).
 
     Returns:
-        path. The legend gives each series' fraction of time inside the band (about 95 % when consistent).
+        path. The legend gives each series' fraction of time inside the band (about 95 % when consistent);
+        columns with no finite value are left out of the plot (e.g. acceleration of a CV model).
     """
     t = np.asarray(t, dtype=float).reshape(-1)
     y = np.asarray(nees_mean, dtype=float)
@@ -79,19 +85,27 @@ def plot_nees(path, t, nees_mean, bounds, labels) -> Path:
     ax = fig.add_subplot()
     ax.fill_between(t, lo, hi, color="0.85", label="95 % chi-square band")
     for j, lab in enumerate(labels):
+        if not np.isfinite(y[:, j]).any():
+            continue
         inside = fraction_within(y[:, j], np.stack([lo, hi], axis=-1)) * 100
         ax.plot(t, y[:, j], lw=1.3, label=f"{lab}: {inside:.0f} % inside")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel("average NEES")
-    top = np.nanmax(np.r_[hi, y.ravel()]) if np.isfinite(y).any() else float(hi.max())
-    ax.set_ylim(0, 1.1 * top)
+    ax.set_ylabel(ylabel)
+    top = np.nanmax(np.r_[hi, y.ravel()]) if np.isfinite(y).any() else float(np.nanmax(hi))
+    if log_scale is None:
+        log_scale = bool(np.isfinite(top) and top > 20 * np.nanmax(hi))
+    if log_scale:
+        floor = np.nanmin(lo) if np.isfinite(lo).any() and np.nanmin(lo) > 0 else 1.0
+        ax.set_yscale("log")
+        ax.set_ylim(0.05 * floor, 2 * top)  # values far below the band are clipped at the bottom
+    else:
+        ax.set_ylim(0, 1.1 * top)
     ax.grid(alpha=0.3)
     ax.legend(loc="upper left", fontsize=8)
-    ax.set_title("Normalised estimation error squared")
+    ax.set_title(title)
     return _save(fig, path)
 
 
-# ------------------------------------------------------------------------------------------------ Fig. 1
 def figure1_prior(path, data: dict) -> Path:
     """Fig. 1: the CA prior under pure yaw acceleration: Monte Carlo samples (blue) and the prior's mean with
     3-sigma ellipses (pink) for position (top view), velocity and acceleration (forward and yaw components)."""

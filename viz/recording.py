@@ -25,9 +25,12 @@ from rodo.estimator.measurements import polar_to_cartesian
 from rodo.estimator.scan import ScanDetail
 from rodo.validation.alignment import align_to_first
 from rodo.validation.association import match_index
-from rodo.validation.consistency import NIS_DOF, chi2_bounds, marginal_nees
+from rodo.validation.consistency import NIS_DOF, chi2_bounds
 from rodo.validation.covariance import covariance_ellipsoid, position_covariance_world
 from rodo.validation.metrics import pose_errors
+from rodo.validation.run_consistency import run_states
+
+from .recording_metrics import ELLIPSOID_SIGMA, log_consistency, send_series
 
 # class ids of detections (AnnotationContext on `world`): label, RGB
 DETECTION_CLASSES = {
@@ -113,6 +116,15 @@ class _Truth:
         out[idx >= 0] = np.asarray(truth[key], float)[idx[idx >= 0]]
         return out
 
+    def truth_dict(self, t: np.ndarray, ok: np.ndarray) -> dict:
+        """The matched truth at the scans `ok` as a truth.npz-like dict (t, T_vehicle_world; varpi and
+        varpi_dot when known, else NaN velocities), for `validation.run_consistency.scan_measures`."""
+        out = {"t": np.asarray(t, dtype=float)[ok], "T_vehicle_world": se3.inverse(self.T_world_vehicle[ok])}
+        out["varpi"] = self.varpi[ok] if self.varpi is not None else np.full((int(ok.sum()), 6), np.nan)
+        if self.varpi_dot is not None:
+            out["varpi_dot"] = self.varpi_dot[ok]
+        return out
+
     def scan_labels(self, k: int, n_rows: int) -> np.ndarray | None:
         """Truth labels of the rows of scan k (radar.csv order), None when unknown or inconsistent."""
         if not self.labels or self.index[k] < 0:
@@ -139,21 +151,6 @@ def _log_frames(rec, rr, seq) -> None:
     rec.log("world/vehicle", rr.TransformAxes3D(axis_length=2.0), static=True)
 
 
-def _series(rec, rr, path: str, frames, times, values, names, colours=None) -> None:
-    """Send a time series (N, c) as columns; rows whose first value is NaN are left out (gaps)."""
-    values = np.asarray(values, dtype=float).reshape(len(frames), -1)
-    keep = np.isfinite(values[:, 0])
-    if not keep.any():
-        return
-    style = {"names": list(names)}
-    if colours is not None:
-        style["colors"] = list(colours)
-    rec.log(path, rr.SeriesLines(**style), static=True)
-    rec.send_columns(path, indexes=[rr.TimeColumn("frame", sequence=frames[keep]),
-                                    rr.TimeColumn("time", duration=times[keep])],
-                     columns=rr.Scalars.columns(scalars=values[keep]))
-
-
 def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
     """All the time series; returns the tab origins that got data."""
     est = result.estimates
@@ -161,10 +158,10 @@ def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
     logged = set()
 
     def send(tab, path, values, names, colours=None):
-        _series(rec, rr, path, frames, times, values, names, colours)
-        logged.add(tab)
+        if send_series(rec, rr, path, frames, times, values, names, colours):
+            logged.add(tab)
 
-    grey, red, blue, black = (150, 150, 150), (220, 50, 50), ESTIMATE_COLOUR, TRUTH_COLOUR
+    grey, blue, black = (150, 150, 150), ESTIMATE_COLOUR, TRUTH_COLOUR
     varpi = np.stack([e.varpi for e in est])
     if truth.T_world_vehicle is not None:
         err = pose_errors(np.stack([e.T_world_vehicle for e in est]), truth.T_world_vehicle)
@@ -172,12 +169,10 @@ def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
         send("metrics/error", "metrics/error/rotation", err.rotation_deg[:, None], ["rotation error (deg)"])
         send("metrics/drift", "metrics/drift", err.drift, ["x drift (m)", "y drift (m)", "z drift (m)"],
              [(220, 50, 50), (40, 170, 40), (40, 90, 230)])
-        lo, hi = chi2_bounds(1, 6)
-        v = marginal_nees(np.stack([e.P for e in est]), err.xi, truth.varpi, varpi)
-        for key, colour in (("pose", blue), ("velocity", red)):
-            if key in v:
-                send("metrics/nees", f"metrics/nees/{key}", np.c_[v[key], np.full(n, lo), np.full(n, hi)],
-                     [f"{key} NEES (6 dof)", "2.5 % bound", "97.5 % bound"], [colour, grey, grey])
+        ok = np.all(np.isfinite(truth.T_world_vehicle.reshape(n, -1)), axis=1)
+        if ok.sum() >= 2:  # odometry_nees needs two matched scans
+            logged |= log_consistency(rec, rr, run_states(result), truth.truth_dict(result.t, ok), frames, times,
+                                      truth.T_world_vehicle[:, :3, 3])
     nis = np.array([e.nis for e in est], dtype=float)
     n_assoc = np.array([e.n_associated for e in est])
     bounds = chi2_bounds(n_assoc, NIS_DOF)
@@ -246,8 +241,11 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
     by its first pose), `world/vehicle` (estimated T_world_vehicle per frame), `world/vehicle/sensor` (the
     extrinsic, static, logged once), `world/vehicle/sensor/scan` (detections in the sensor frame, class ids of
     DETECTION_CLASSES), `world/map`, `world/associations`, `world/estimate/covariance` (3-sigma ellipsoid of
-    the vehicle's world position, Sigma_w = C^T P_rho C, see `validation.covariance.position_covariance_world`),
-    `world/truth/vehicle`; time series under `metrics/...`, `velocity/...`, `acceleration/...`; `events`.
+    the vehicle's world position, Sigma_w = C^T P_rho C with P_rho the position block of the estimate's
+    `P_pose_absolute`, the covariance that grows with the drift, see
+    `validation.covariance.position_covariance_world`; a point where the estimator gave none),
+    `world/truth/vehicle`; time series under `metrics/...` (`metrics/nees/<measure>` for every
+    measure of `validation.odometry_consistency`, `metrics/ellipsoid/...`: `viz.recording_metrics`), `velocity/...`, `acceleration/...`; `events`.
 
     Args:
         path: output .rrd file (parent directories are created).
@@ -362,9 +360,9 @@ def _write(rec, rr, seq, result, truth_m: _Truth, detail) -> None:
     rec.send_columns("world/vehicle", indexes=index,
                      columns=rr.Transform3D.columns(translation=positions,
                                                     quaternion=_quat_xyzw(T_world_vehicle[:, :3, :3])))
-    Sigma = position_covariance_world(np.stack([e.T_vehicle_world for e in est]),
-                                      np.stack([e.P[:3, :3] for e in est]))
-    half, quat = covariance_ellipsoid(Sigma, 3.0)
+    P_abs = np.stack([e.P_pose_absolute[:3, :3] if e.P_pose_absolute is not None else np.zeros((3, 3)) for e in est])
+    Sigma = position_covariance_world(np.stack([e.T_vehicle_world for e in est]), np.nan_to_num(P_abs))
+    half, quat = covariance_ellipsoid(Sigma, ELLIPSOID_SIGMA)
     rec.log("world/estimate/covariance", rr.Ellipsoids3D.from_fields(
         colors=[(40, 120, 255)], fill_mode=rr.components.FillMode.MajorWireframe), static=True)
     rec.send_columns("world/estimate/covariance", indexes=index,

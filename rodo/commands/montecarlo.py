@@ -48,9 +48,16 @@ def parse_models(text: str) -> tuple[str, ...]:
     return models
 
 
+def _nan(v):
+    import numpy as np
+
+    return np.array([np.nan if x is None else x for x in v], dtype=float)
+
+
 def plot_summary(out_dir, summary: dict) -> str:
-    """Plot the average NEES per model through viz.figures.plot_nees when it exists; returns a note for
-    summary.md (where the plot is, or why there is none)."""
+    """Plot the average NEES per model (nees_MODEL.png) and its odometry consistency measures
+    (consistency_MODEL.png, each measure divided by its 6 dof, with the band of its N runs) through
+    viz.figures.plot_nees; returns a note for summary.md (where the plots are, or why there are none)."""
     try:
         from rodo.viz.figures import plot_nees  # viz is the only package that imports matplotlib
     except ImportError as exc:
@@ -58,20 +65,54 @@ def plot_summary(out_dir, summary: dict) -> str:
     curves = {m: e for m, e in summary["models"].items() if "nees_curve" in e}
     if not curves:
         return "No NEES plot: no successful run."
-    import numpy as np
-
-    nan = lambda v: np.array([np.nan if x is None else x for x in v], dtype=float)  # noqa: E731
     written = []
     for m, e in curves.items():  # one figure per model: the bounds depend on the state dimension
         c = e["nees_curve"]
         name = f"nees_{m}.png"
         try:
-            plot_nees(os.path.join(out_dir, name), nan(c["t"]), nan(c["mean"]), (nan(c["lower"]), nan(c["upper"])),
+            plot_nees(os.path.join(out_dir, name), _nan(c["t"]), _nan(c["mean"]), (_nan(c["lower"]), _nan(c["upper"])),
                       f"{m} ({e['nees']['dim']} dof)")
+            written += [name] + plot_consistency(out_dir, m, e, plot_nees)
         except Exception as exc:  # noqa: BLE001 - a plot is never worth losing the summary
             return f"No NEES plot: viz.figures.plot_nees failed ({type(exc).__name__}: {exc})."
-        written.append(name)
     return "Average NEES over time with its bounds: " + ", ".join(written) + "."
+
+
+def plot_consistency(out_dir, model: str, entry: dict, plot_nees) -> list[str]:
+    """consistency_MODEL.png: every measure with runs, average NEES / dof per scan, the band of N runs / dof
+    (the widest: the runs of the measure with the most); [] when no measure has a run."""
+    import numpy as np
+
+    cons, curves = entry.get("consistency", {}), entry.get("consistency_curves", {})
+    names = [k for k, c in cons.items() if c["runs"] and k in curves]
+    if not names:
+        return []
+    t = _nan(curves["t"])
+    y = np.full((len(t), len(names)), np.nan)
+    for j, k in enumerate(names):
+        mean = _nan(curves[k]["mean"]) / cons[k]["dof"]
+        y[:len(mean), j] = mean
+    runs = max(cons[k]["runs"] for k in names)
+    lo, hi = next(cons[k]["bounds_per_dof"] for k in names if cons[k]["runs"] == runs)
+    name = f"consistency_{model}.png"
+    plot_nees(os.path.join(out_dir, name), t, y, (lo, hi), [f"{k} ({cons[k]['runs']} runs)" for k in names],
+              title=f"{model}: odometry consistency ({runs} runs, 6 dof each)", ylabel="average NEES / dof")
+    return [name]
+
+
+def _num(v, digits: int = 2) -> str:
+    return "-" if v is None else f"{v:.{digits}f}"
+
+
+def print_consistency(summary: dict) -> None:
+    """One line per model and measure: mean NEES/dof over scans of the run average, bounds for N runs, the
+    fraction of scans inside their bounds ("-" where undefined)."""
+    for m, e in summary["models"].items():
+        for k, c in e.get("consistency", {}).items():
+            lo, hi = c["bounds_per_dof"]
+            within = None if c["fraction_scans_within"] is None else 100 * c["fraction_scans_within"]
+            print(f"  {m:<14} {k:<14} NEES/dof {_num(c['mean_per_dof']):>8}  bounds/dof for {c['runs']} runs "
+                  f"[{_num(lo)}, {_num(hi)}]  scans within {_num(within, 0)} %")
 
 
 def check_campaign_options(args) -> None:
@@ -106,7 +147,10 @@ def main(args) -> int:
     for m, e in summary["models"].items():
         k = e["metrics"]["kitti_t_err_pct"]
         nees = e.get("nees", {})
-        print(f"{m:<14} ok {e['ok']:>4}/{e['runs']:<4} t_err median {k['median']} %  "
-              f"NEES mean {nees.get('mean_over_scans')} bounds {nees.get('bounds_for_runs')}")
+        lo, hi = nees.get("bounds_for_runs", (None, None))
+        print(f"{m:<14} ok {e['ok']:>4}/{e['runs']:<4} t_err median {_num(k['median'])} %  "
+              f"NEES mean {_num(nees.get('mean_over_scans'))} bounds [{_num(lo)}, {_num(hi)}]")
+    print("odometry consistency (average over runs per scan; 6 dof each, shown per dof):")
+    print_consistency(summary)
     print(f"wrote {args.out}/results.csv, summary.md, summary.json")
     return 0

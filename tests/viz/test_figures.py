@@ -78,6 +78,26 @@ def test_plot_nees(tmp_path):
         figures.plot_nees(tmp_path / "bad.png", t, y, (4, 8), ["one"])
 
 
+def test_plot_nees_of_several_measures_per_dof(tmp_path, monkeypatch):
+    """(N, m) curves per dof with the N-run band: a measure with no value is left out of the legend, one far
+    above the band switches to a log axis."""
+    t = np.arange(40) * 0.1
+    rng = np.random.default_rng(np.random.SeedSequence(4))
+    y = np.c_[rng.chisquare(60, 40) / 60, np.full(40, np.nan), 100 * rng.chisquare(60, 40) / 60]
+    drawn = []
+    save = figures._save
+    monkeypatch.setattr(figures, "_save", lambda fig, path: (drawn.append(fig), save(fig, path))[1])
+    lo, hi = chi2_bounds(10, 6) / 6
+    assert_png(figures.plot_nees(tmp_path / "c.png", t, y, (lo, hi), ["velocity", "acceleration", "pose_window"],
+                                 title="m", ylabel="average NEES / dof"))
+    ax = drawn[-1].axes[0]
+    labels = [x.get_text() for x in ax.get_legend().get_texts()]
+    assert ax.get_yscale() == "log" and ax.get_ylabel() == "average NEES / dof"
+    assert any(x.startswith("velocity") for x in labels) and not any(x.startswith("acceleration") for x in labels)
+    assert_png(figures.plot_nees(tmp_path / "lin.png", t, y[:, :1], (lo, hi), "velocity"))
+    assert drawn[-1].axes[0].get_yscale() == "linear"
+
+
 def test_rodo_figures_writes_five_pngs(tmp_path, monkeypatch, capsys, data):
     """The command computes each figure through validation.experiments and draws it (the experiments are
     replaced by the data above, so this checks the wiring, not the simulations)."""

@@ -94,7 +94,8 @@ def test_recording_has_every_entity_and_a_blueprint(recorded):
     for entity in ("/world", "/world/vehicle", "/world/vehicle/sensor", "/world/vehicle/sensor/scan", "/world/map",
                    "/world/associations", "/world/estimate/trajectory", "/world/truth/trajectory",
                    "/world/estimate/covariance", "/world/truth/vehicle", "/metrics/error/translation",
-                   "/metrics/drift", "/metrics/nees/pose", "/metrics/nees/velocity", "/metrics/nis",
+                   "/metrics/drift", "/metrics/nees/pose", "/metrics/nees/velocity", "/metrics/nees/pose_window",
+                   "/metrics/nees/relative_scan", "/metrics/ellipsoid/fraction", "/metrics/nis",
                    "/metrics/counts", "/metrics/timing", "/velocity/nu_x", "/acceleration/omega_dot_z", "/events"):
         assert entity in paths, entity
     assert any(s.kind == "blueprint" for s in RrdReader(path).blueprints())
@@ -128,27 +129,83 @@ def test_recording_world_frame_trajectories_and_extrinsic(run, recorded):
                        seq.sensor.T_vehicle_sensor[:3, 3], atol=1e-6)
 
 
+def _by_frame(chunks, entity, column="Scalars:scalars"):
+    """{frame: row} of a temporal column (frames whose row was left out as a gap are absent)."""
+    out = {}
+    for ch in chunks:
+        if ch.entity_path == entity and not ch.is_static:
+            rb = ch.to_record_batch()
+            out.update(zip(rb.column("frame").to_pylist(), rb.column(column).to_pylist()))
+    return {k: np.asarray(v, dtype=float) for k, v in out.items()}
+
+
+def _xi(truth, result, k):
+    """Left pose error ln(T_true T_est^-1) at scan k, the truth aligned at the first pose (independently)."""
+    T_estimate_truth = result.estimates[0].T_world_vehicle @ truth["T_vehicle_world"][0]
+    e = result.estimates[k]
+    return se3.log(truth["T_vehicle_world"][k] @ se3.inverse(T_estimate_truth) @ se3.inverse(e.T_vehicle_world))
+
+
 def test_recording_nees_and_nis_match_an_independent_computation(run, recorded):
-    """NEES: bounds are the chi-square quantiles; values recomputed independently from the truth dict."""
+    """NEES: bounds are the chi-square quantiles; values recomputed independently from the truth dict: the pose
+    against P_pose_absolute, pose_window against the window's marginal P[:6, :6]."""
     _, truth, result = run
     _, chunks, _ = recorded
     n = len(result.estimates)
-    nees = np.array(_column(chunks, "/metrics/nees/pose", "Scalars:scalars"))
-    assert nees.shape == (n, 3)
-    assert np.allclose(nees[:, 1], chi2.ppf(0.025, 6)) and np.allclose(nees[:, 2], chi2.ppf(0.975, 6))
-    T_estimate_truth = result.estimates[0].T_world_vehicle @ truth["T_vehicle_world"][0]
-    for k in (0, n // 2, n - 1):
-        e = result.estimates[k]
-        xi = se3.log(truth["T_vehicle_world"][k] @ se3.inverse(T_estimate_truth) @ se3.inverse(e.T_vehicle_world))
-        assert nees[k, 0] == pytest.approx(xi @ np.linalg.solve(e.P[:6, :6], xi), rel=1e-6, abs=1e-9)
-    assert nees[0, 0] == pytest.approx(0.0, abs=1e-9)
+    window = np.array(_column(chunks, "/metrics/nees/pose_window", "Scalars:scalars"))
+    assert window.shape == (n, 3)
+    assert np.allclose(window[:, 1], chi2.ppf(0.025, 6)) and np.allclose(window[:, 2], chi2.ppf(0.975, 6))
+    pose = _by_frame(chunks, "/metrics/nees/pose")
+    assert len(pose) >= n - 1
+    for k in (1, n // 2, n - 1):
+        e, xi = result.estimates[k], _xi(truth, result, k)
+        assert window[k, 0] == pytest.approx(xi @ np.linalg.solve(e.P[:6, :6], xi), rel=1e-6, abs=1e-9)
+        assert pose[k][0] == pytest.approx(xi @ np.linalg.solve(e.P_pose_absolute, xi), rel=1e-6, abs=1e-9)
+        assert np.allclose(pose[k][1:], chi2.ppf([0.025, 0.975], 6))
+    assert window[0, 0] == pytest.approx(0.0, abs=1e-9)
     nis = np.array(_column(chunks, "/metrics/nis", "Scalars:scalars"))
     assoc = [e.n_associated for e in result.estimates if np.isfinite(e.nis)]
     assert nis[-1, 2] == pytest.approx(chi2.ppf(0.975, 4 * assoc[-1]) / assoc[-1])
 
 
+def test_recording_has_every_consistency_measure(run, recorded):
+    """Every measure of odometry_nees under metrics/nees (equal to validation's per-scan values at the matched
+    scans), and the truth-inside-the-ellipsoid series recomputed from the drawn ellipsoid."""
+    from rodo.validation.odometry_consistency import MEASURES, odometry_nees
+    from rodo.validation.run_consistency import run_states
+
+    _, truth, result = run
+    _, chunks, _ = recorded
+    states = run_states(result)
+    ref = odometry_nees(states, truth, span=1.0, tau=float(states["velocity_correlation_time"]))
+    frame_of = {float(t): k for k, t in enumerate(result.t)}
+    for name in MEASURES:
+        got = _by_frame(chunks, f"/metrics/nees/{name}")
+        assert got, name
+        for t, v in zip(ref["t"], ref[name]):
+            k = frame_of[float(t)]
+            assert (np.isnan(v) and k not in got) or got[k][0] == pytest.approx(v, rel=1e-9, abs=1e-12), name
+    n = len(result.estimates)
+    half = np.array(_column(chunks, "/world/estimate/covariance", "Ellipsoids3D:half_sizes")).reshape(n, 3)
+    inside = _by_frame(chunks, "/metrics/ellipsoid/inside")
+    fraction = _by_frame(chunks, "/metrics/ellipsoid/fraction")
+    T_estimate_truth = result.estimates[0].T_world_vehicle @ truth["T_vehicle_world"][0]
+    flags = []
+    for k in sorted(inside):
+        e = result.estimates[k]
+        C = e.T_vehicle_world[:3, :3]
+        d = T_estimate_truth @ se3.inverse(truth["T_vehicle_world"][k])[:, 3] - e.T_world_vehicle[:, 3]
+        Sigma_w = C.T @ e.P_pose_absolute[:3, :3] @ C
+        assert inside[k][0] == float(d[:3] @ np.linalg.solve(Sigma_w, d[:3]) <= 9.0)
+        assert np.allclose(np.sort(half[k]), 3 * np.sqrt(np.linalg.eigvalsh(Sigma_w)), rtol=1e-5)
+        flags.append(inside[k][0])
+        assert fraction[k][0] == pytest.approx(100 * np.mean(flags))
+        assert fraction[k][1] == pytest.approx(100 * chi2.cdf(9.0, 3))
+    assert len(inside) >= n - 1
+
+
 def test_recording_covariance_ellipsoid_is_the_world_position_covariance(run, recorded):
-    """3-sigma ellipsoid of the world position: C^T P_rho C."""
+    """3-sigma ellipsoid of the world position from the absolute pose covariance: C^T P_pose_absolute[:3, :3] C."""
     from scipy.spatial.transform import Rotation
 
     _, _, result = run
@@ -157,11 +214,12 @@ def test_recording_covariance_ellipsoid_is_the_world_position_covariance(run, re
     half = np.array(_column(chunks, "/world/estimate/covariance", "Ellipsoids3D:half_sizes")).reshape(n, 3)
     e = result.estimates[-1]
     C = e.T_vehicle_world[:3, :3]
-    assert np.allclose(np.sort(half[-1]), 3 * np.sqrt(np.linalg.eigvalsh(C.T @ e.P[:3, :3] @ C)), rtol=1e-5)
+    Sigma_w = C.T @ e.P_pose_absolute[:3, :3] @ C
+    assert np.allclose(np.sort(half[-1]), 3 * np.sqrt(np.linalg.eigvalsh(Sigma_w)), rtol=1e-5)
+    assert not np.allclose(np.sort(half[-1]), 3 * np.sqrt(np.linalg.eigvalsh(C.T @ e.P[:3, :3] @ C)), rtol=1e-2)
     quat = np.array(_column(chunks, "/world/estimate/covariance", "Ellipsoids3D:quaternions")).reshape(n, 4)
-    R = Rotation.from_quat(quat[-1]).as_matrix()   # the ellipsoid's axes rebuild C^T P_rho C
-    assert np.allclose(R @ np.diag((half[-1] / 3) ** 2) @ R.T, C.T @ e.P[:3, :3] @ C,
-                       rtol=1e-4, atol=1e-6 * np.abs(e.P[:3, :3]).max())
+    R = Rotation.from_quat(quat[-1]).as_matrix()   # the ellipsoid's axes rebuild C^T P_abs C
+    assert np.allclose(R @ np.diag((half[-1] / 3) ** 2) @ R.T, Sigma_w, rtol=1e-4, atol=1e-6 * np.abs(Sigma_w).max())
     assert np.array_equal(_column(chunks, "/world/estimate/covariance", "Ellipsoids3D:centers")[-1][0],
                           np.float32(e.T_world_vehicle[:3, 3]))
 
