@@ -93,7 +93,8 @@ def _markdown(report: dict) -> str:
                          f"{ln['a']:.4g}, {ln['b_per_m']:.2g} ({ln['b_stderr']:.2g}) | {c['range_dependent']} |")
         lines += ["", f"sensor_sigma_scale = {m['sensor_sigma_scale']:.4g}"]
     else:
-        lines += ["| iteration | Qc in | Qc out | change | expected log-likelihood |", "| --- | --- | --- | --- | --- |"]
+        lines += ["| iteration | Qc in | Qc out | change | expected log-likelihood |",
+                  "| --- | --- | --- | --- | --- |"]
         for i, h in enumerate(report["iterations"], 1):
             lines.append(f"| {i} | {vec(h['qc_in'])} | {vec(h['qc_out'])} | {h['change']:.3g} | {h['loglik']:.6g} |")
     return "\n".join(lines) + "\n"
