@@ -26,6 +26,7 @@ from rodo.estimator.lie import se3
 from rodo.estimator.priors import ConstantAccelerationPrior, ConstantVelocityPrior
 
 PRIORS = {"ca": ConstantAccelerationPrior, "cv": ConstantVelocityPrior}
+COMPONENTS = ("x", "y", "z", "roll", "pitch", "yaw")  # the diagonal of Qc: linear, then angular, body axes
 DEFAULT_FLOOR = 1e-9  # lower bound of every q_i (a component the data never excites goes there)
 
 
@@ -146,11 +147,12 @@ def expected_log_likelihood(q, B, S) -> tuple[float, np.ndarray]:
     return float(value), 0.5 * np.einsum("kiab,kba->i", B, M)
 
 
-def fit_qc(B, S, floor: float = DEFAULT_FLOOR, qc0=None) -> QcFit:
+def fit_qc(B, S, floor: float = DEFAULT_FLOOR, qc0=None, fixed=None) -> QcFit:
     """Maximise L(q) (module docstring) over q_i >= floor, from qc0 (default: a moment estimate).
 
     Args:
         B: (K, 6, d, d) noise basis (`transitions_and_basis`); S: (K, d, d) second moments of the residuals.
+        fixed: optional (6,) bool mask of components held at qc0 (which must then be given).
 
     Checked by: tests/validation/test_calibrate.py::test_ml_recovers_qc_of_ca_sde_trajectories
     """
@@ -161,6 +163,8 @@ def fit_qc(B, S, floor: float = DEFAULT_FLOOR, qc0=None) -> QcFit:
         diag_b = np.einsum("kiaa->ia", B)
         qc0 = np.einsum("kaa->a", S) @ diag_b.T / np.maximum((diag_b**2).sum(axis=1), 1e-300)
     theta0 = np.log(np.maximum(np.asarray(qc0, dtype=float), floor))
+    fixed = np.zeros(6, bool) if fixed is None else np.asarray(fixed, dtype=bool)
+    bounds = [(t, t) if f else (np.log(floor), np.log(1e8)) for t, f in zip(theta0, fixed)]
     scale = float(B.shape[0] * S.shape[-1])
 
     def objective(theta):
@@ -168,10 +172,11 @@ def fit_qc(B, S, floor: float = DEFAULT_FLOOR, qc0=None) -> QcFit:
         return -value / scale, -grad * np.exp(theta) / scale
 
     res = optimize.minimize(objective, theta0, jac=True, method="L-BFGS-B",
-                            bounds=[(np.log(floor), np.log(1e8))] * 6, options=dict(maxiter=500, gtol=1e-10))
-    qc = np.exp(res.x)
+                            bounds=bounds, options=dict(maxiter=500, gtol=1e-10))
+    qc = np.where(fixed, np.asarray(qc0, dtype=float), np.exp(res.x))
     value, _ = expected_log_likelihood(qc, B, S)
-    return QcFit(qc, value, int(B.shape[0]), [bool(x <= floor * 1.01) for x in qc], int(res.nit))
+    return QcFit(qc, value, int(B.shape[0]), [bool(x <= floor * 1.01 and not f) for x, f in zip(qc, fixed)],
+                 int(res.nit))
 
 
 def fit_qc_to_truth(kind: str, tracks, floor: float = DEFAULT_FLOOR) -> QcFit:
@@ -295,12 +300,14 @@ def aitken_step(step: np.ndarray, previous: np.ndarray | None, max_factor: float
 
 
 def em_qc(run, kind: str, qc0, iterations: int = 5, tolerance: float = 0.05, floor: float = DEFAULT_FLOOR,
-          accelerate: bool = True, on_iteration=None) -> list[EmIteration]:
+          accelerate: bool = True, on_iteration=None, learn=None) -> list[EmIteration]:
     """EM over the estimator's posteriors: `run(qc) -> StateTrack` (with P; or a list of them) is the E-step's
     estimator run with Qc = diag(qc); the M-step is `fit_qc` on `expected_noise_moments`. Stops after
     `iterations` or when the M-step changes every q_i by less than `tolerance` (relative). With `accelerate`
     the next run uses the Aitken extrapolation of the EM steps (`aitken_step`). Returns the iterations; the
-    result is the last qc_out. `on_iteration(EmIteration)`, if given, is called after each iteration.
+    result is the last qc_out. `on_iteration(EmIteration)`, if given, is called after each iteration. `learn`:
+    optional (6,) bool mask of the components to learn; the others stay at qc0 (components the estimator barely
+    observes, e.g. roll and pitch jerk, whose overconfident posteriors would inflate them; docs/calibration.md).
 
     Checked by: tests/validation/test_calibrate.py::test_em_recovers_qc_with_a_kalman_filter
     """
@@ -309,13 +316,15 @@ def em_qc(run, kind: str, qc0, iterations: int = 5, tolerance: float = 0.05, flo
     qc = np.asarray(qc0, dtype=float)
     if qc.shape != (6,) or not np.all(np.isfinite(qc)) or not np.all(qc > 0):
         raise InputError(f"qc0: must be 6 positive numbers, got {qc0!r}")
+    if learn is not None and (np.shape(learn) != (6,) or not np.any(learn)):
+        raise InputError(f"learn: expected 6 booleans, at least one true, got {learn!r}")
     history, previous = [], None
     for _ in range(int(iterations)):
         tracks = run(qc)
         moments = [expected_noise_moments(kind, tr, qc)
                    for tr in ([tracks] if isinstance(tracks, StateTrack) else tracks)]
         fit = fit_qc(np.concatenate([B for _, B in moments]), np.concatenate([S for S, _ in moments]), floor,
-                     qc0=qc)
+                     qc0=qc, fixed=None if learn is None else ~np.asarray(learn, dtype=bool))
         step = np.log(fit.qc) - np.log(qc)
         jump = aitken_step(step, previous) if accelerate else step
         qc_next = np.clip(qc * np.exp(jump), floor, None)

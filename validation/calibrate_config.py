@@ -92,9 +92,9 @@ def estimator_track(seq: Sequence, config: OdometryConfig) -> cal.StateTrack:
 
 def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: int = 5, tolerance: float = 0.05,
                             duration: float | None = None, floor: float = cal.DEFAULT_FLOOR,
-                            progress=None) -> tuple[OdometryConfig, dict]:
+                            progress=None, learn=None) -> tuple[OdometryConfig, dict]:
     """EM for the Qc of the config's prior; returns (config, report). `progress(EmIteration)` is called after
-    each iteration."""
+    each iteration; `learn` (6,) bool: the components to learn (default all; `calibrate.em_qc`)."""
     seq = truncate(seq, duration)
     field = f"qc_{config.prior}"
 
@@ -102,9 +102,11 @@ def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: i
         return estimator_track(seq, config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)})))
 
     history = cal.em_qc(run, config.prior, getattr(config.noise, field), iterations, tolerance, floor,
-                        on_iteration=progress)
+                        on_iteration=progress, learn=learn)
     qc = history[-1].qc_out
+    learned = [c for c, on in zip(cal.COMPONENTS, np.ones(6, bool) if learn is None else learn) if on]
     report = {"mode": "EM without ground truth", "prior": config.prior, "field": field, "floor": floor,
+              "learned_components": learned,
               "converged": history[-1].change < tolerance, "tolerance": tolerance,
               "iterations": [{"qc_in": h.qc_in.tolist(), "qc_out": h.qc_out.tolist(), "loglik": h.loglik,
                               "change": h.change, "intervals": h.intervals} for h in history]}

@@ -15,7 +15,7 @@ from rodo.estimator.config import MODELS
 from rodo.estimator.errors import InputError
 from rodo.sim.sequence import read_sequence
 from rodo.sim.simulate import TRUTH_NPZ, load_truth
-from rodo.validation.calibrate import DEFAULT_FLOOR
+from rodo.validation.calibrate import COMPONENTS, DEFAULT_FLOOR
 from rodo.validation.calibrate_config import calibrate_with_truth, calibrate_without_truth, config_toml
 
 from .run import load_config
@@ -36,6 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tolerance", type=float, default=0.05, help="EM stops below this relative change of Qc "
                                                                  "(%(default)s)")
     p.add_argument("--duration", type=float, default=None, help="use the first S seconds only")
+    p.add_argument("--learn", default=",".join(COMPONENTS), metavar="x,y,...",
+                   help="EM: the Qc components to learn, the others keep the base config's (%(default)s)")
     p.add_argument("--floor", type=float, default=DEFAULT_FLOOR, help="lower bound of each Qc element "
                                                                       "(%(default)s)")
     p.set_defaults(func=main)
@@ -60,6 +62,14 @@ def _check_args(args) -> Path:
     return out
 
 
+def parse_learn(text: str) -> np.ndarray:
+    names = [x.strip() for x in text.split(",") if x.strip()]
+    unknown = [x for x in names if x not in COMPONENTS]
+    if unknown or not names:
+        raise InputError(f"--learn: expected names from {','.join(COMPONENTS)}, got {text!r}")
+    return np.array([c in names for c in COMPONENTS])
+
+
 def _header(report: dict, seq_dir: str, model: str) -> list[str]:
     lines = [f"rodo calibrate {seq_dir} --model {model}: {report['mode']}."]
     if report["mode"] == "ground truth":
@@ -70,7 +80,8 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                   "per-channel sigmas are in the .json/.md report."]
     else:
         it = report["iterations"]
-        lines += [f"noise.{report['field']}: EM over the estimator's posteriors, {len(it)} iteration(s), last "
+        lines += [f"noise.{report['field']} ({', '.join(report['learned_components'])}): EM over the estimator's "
+                  f"posteriors, {len(it)} iteration(s), last "
                   f"relative change {it[-1]['change']:.3g} ({'converged' if report['converged'] else 'NOT converged'}"
                   f" at {report['tolerance']:g}).",
                   "Everything else (including the measurement noise) as in the base config."]
@@ -108,13 +119,14 @@ def _write(path: Path, text: str) -> None:
 
 def main(args) -> int:
     out = _check_args(args)
+    learn = parse_learn(args.learn)
     config = load_config(args)
     seq = read_sequence(args.sequence)
     if args.no_truth:
         def say(h):
             print(f"EM iteration: qc {np.array2string(h.qc_out, precision=4)}, change {h.change:.3g}")
         config, report = calibrate_without_truth(seq, config, args.iterations, args.tolerance, args.duration,
-                                                 args.floor, progress=say)
+                                                 args.floor, progress=say, learn=learn)
     else:
         if not (Path(args.sequence) / TRUTH_NPZ).is_file():
             raise InputError(f"{Path(args.sequence) / TRUTH_NPZ}: not found (ground truth for the calibration); "

@@ -54,7 +54,7 @@ def test_calibrate_without_truth_runs_em(seq, tmp_path, capsys):
     base.write_text("window = 3\n[noise]\nqc_ca = [1.0, 0.1, 0.1, 0.001, 0.001, 0.01]\n")
     out = tmp_path / "em.toml"
     assert main(["calibrate", str(seq), "--no-truth", "--config", str(base), "--iterations", "2",
-                 "--duration", "1.0", "--out", str(out)]) == 0
+                 "--duration", "1.0", "--learn", "x,y,z,yaw", "--out", str(out)]) == 0
     assert "EM iteration" in capsys.readouterr().out
     config = OdometryConfig.from_toml(out)
     report = json.loads(out.with_suffix(".json").read_text())
@@ -62,6 +62,8 @@ def test_calibrate_without_truth_runs_em(seq, tmp_path, capsys):
     assert 1 <= len(its) <= 2 and its[0]["qc_in"] == [1.0, 0.1, 0.1, 0.001, 0.001, 0.01]
     assert config.window == 3 and config.noise.qc_ca == tuple(its[-1]["qc_out"])
     assert config.noise.qc_cv == OdometryConfig().noise.qc_cv  # the other prior is left alone
+    assert config.noise.qc_ca[3:5] == (0.001, 0.001) and report["learned_components"] == ["x", "y", "z", "yaw"]
+    assert "(x, y, z, yaw)" in out.read_text().splitlines()[1]
     assert np.all(np.isfinite(its[-1]["qc_out"])) and its[-1]["intervals"] >= 10
     assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
 
@@ -76,6 +78,7 @@ def test_calibrate_bad_input(seq, tmp_path, capsys):
     _fails(capsys, ["calibrate", seq, "--out", out, "--iterations", "0"], "--iterations")
     _fails(capsys, ["calibrate", seq, "--out", out, "--duration", "-1"], "--duration")
     _fails(capsys, ["calibrate", seq, "--out", out, "--floor", "0"], "--floor")
+    _fails(capsys, ["calibrate", seq, "--out", out, "--no-truth", "--learn", "x,jaw"], "--learn", "jaw")
     _fails(capsys, ["calibrate", seq, "--out", tmp_path], "--out", "is a directory")
     _fails(capsys, ["calibrate", seq, "--out", tmp_path / "missing" / "c.toml"], "--out", "does not exist")
     _fails(capsys, ["calibrate", seq, "--out", tmp_path / "c.json"], "--out", "overwritten")

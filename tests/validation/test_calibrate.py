@@ -224,12 +224,24 @@ def test_em_stays_at_the_truth(em_setup):
     np.testing.assert_allclose(history[0].qc_out, ml, rtol=0.15)
 
 
+def test_em_keeps_the_components_it_does_not_learn(em_setup):
+    _, run = em_setup
+    learn = np.array([True, False, False, False, False, True])
+    history = cal.em_qc(run, "ca", 2 * QC, iterations=2, learn=learn)
+    for h in history:
+        np.testing.assert_array_equal(h.qc_out[~learn], 2 * QC[~learn])
+        np.testing.assert_array_equal(h.qc_next[~learn], 2 * QC[~learn])
+    assert np.all(history[-1].qc_out[learn] < 2 * QC[learn])  # the learned ones move toward the truth
+
+
 def test_em_rejects_bad_arguments(em_setup):
     _, run = em_setup
     with pytest.raises(cal.InputError, match="iterations"):
         cal.em_qc(run, "ca", QC, iterations=0)
     with pytest.raises(cal.InputError, match="qc0"):
         cal.em_qc(run, "ca", -QC)
+    with pytest.raises(cal.InputError, match="learn"):
+        cal.em_qc(run, "ca", QC, learn=np.zeros(6, bool))
     with pytest.raises(cal.InputError, match="covariances P"):
         cal.expected_noise_moments("ca", em_setup[0][0], QC)
 
