@@ -15,7 +15,8 @@ from rodo.cli import main
 
 # commands whose bad-input paths are exercised below; `scenarios` takes no input
 COVERED = {"run", "simulate", "evaluate", "montecarlo", "ego-velocity", "prior-montecarlo", "figures", "view",
-           "demo", "convert", "table1"}
+           "demo", "convert", "table1",
+           "calibrate"}  # calibrate: tests/cli/test_calibrate_cli.py::test_calibrate_bad_input
 NO_INPUT = {"scenarios"}
 
 

@@ -1,0 +1,140 @@
+"""`rodo calibrate SEQ_DIR --out CONFIG.toml [--model M] [--config BASE.toml] [--no-truth] [--iterations N]
+[--duration S] [--floor Q]`: learn the noise from a sequence and write a config for `rodo run --config`
+(docs/calibration.md), with CONFIG.json and CONFIG.md reports beside it."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from rodo.estimator.config import MODELS
+from rodo.estimator.errors import InputError
+from rodo.sim.sequence import read_sequence
+from rodo.sim.simulate import TRUTH_NPZ, load_truth
+from rodo.validation.calibrate import COMPONENTS, DEFAULT_FLOOR
+from rodo.validation.calibrate_config import calibrate_with_truth, calibrate_without_truth, config_toml
+
+from .run import load_config
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("calibrate", help="learn Qc (and R) from a sequence; write a config for rodo run --config",
+                       description="With truth.npz (simulated sequences): maximum-likelihood Qc of both motion "
+                                   "priors from the true states, and the measurement noise from the static "
+                                   "detections. With --no-truth: EM over the estimator's posteriors for the "
+                                   "Qc of the model's prior. Writes CONFIG.toml, CONFIG.json and CONFIG.md.")
+    p.add_argument("sequence", metavar="SEQ_DIR", help="sequence directory (radar.csv, sensor.toml[, truth.npz])")
+    p.add_argument("--model", choices=MODELS, default=None, help="the config's model (default ca-polar)")
+    p.add_argument("--out", required=True, metavar="CONFIG.toml", help="the config to write")
+    p.add_argument("--config", metavar="FILE", help="base TOML config (its other settings are kept)")
+    p.add_argument("--no-truth", action="store_true", help="ignore truth.npz; EM without ground truth")
+    p.add_argument("--iterations", type=int, default=5, help="EM iterations at most (%(default)s)")
+    p.add_argument("--tolerance", type=float, default=0.05, help="EM stops below this relative change of Qc "
+                                                                 "(%(default)s)")
+    p.add_argument("--duration", type=float, default=None, help="use the first S seconds only")
+    p.add_argument("--learn", default=",".join(COMPONENTS), metavar="x,y,...",
+                   help="EM: the Qc components to learn, the others keep the base config's (%(default)s)")
+    p.add_argument("--floor", type=float, default=DEFAULT_FLOOR, help="lower bound of each Qc element "
+                                                                      "(%(default)s)")
+    p.set_defaults(func=main)
+
+
+def _check_args(args) -> Path:
+    if args.iterations < 1:
+        raise InputError(f"--iterations: must be >= 1, got {args.iterations}")
+    if not (np.isfinite(args.tolerance) and args.tolerance > 0):
+        raise InputError(f"--tolerance: must be > 0, got {args.tolerance}")
+    if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
+        raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
+    if not (np.isfinite(args.floor) and args.floor > 0):
+        raise InputError(f"--floor: must be > 0, got {args.floor}")
+    out = Path(args.out)
+    if out.is_dir():
+        raise InputError(f"--out: {out} is a directory, expected a .toml file name")
+    if out.suffix in (".json", ".md"):
+        raise InputError(f"--out: {out} would be overwritten by the report; name the config CONFIG.toml")
+    if not out.parent.is_dir():
+        raise InputError(f"--out: directory {out.parent} does not exist")
+    return out
+
+
+def parse_learn(text: str) -> np.ndarray:
+    names = [x.strip() for x in text.split(",") if x.strip()]
+    unknown = [x for x in names if x not in COMPONENTS]
+    if unknown or not names:
+        raise InputError(f"--learn: expected names from {','.join(COMPONENTS)}, got {text!r}")
+    return np.array([c in names for c in COMPONENTS])
+
+
+def _header(report: dict, seq_dir: str, model: str) -> list[str]:
+    lines = [f"rodo calibrate {seq_dir} --model {model}: {report['mode']}."]
+    if report["mode"] == "ground truth":
+        lines += [f"noise.qc_ca, noise.qc_cv: maximum likelihood of the true states' prior residuals "
+                  f"({report['qc_ca']['intervals']} intervals); elements at the floor {report['floor']:g} were "
+                  "not excited by the trajectory.",
+                  "noise.sensor_sigma_scale: ML common factor on sensor.toml's sigmas from the static detections; "
+                  "per-channel sigmas are in the .json/.md report."]
+    else:
+        it = report["iterations"]
+        lines += [f"noise.{report['field']} ({', '.join(report['learned_components'])}): EM over the estimator's "
+                  f"posteriors, {len(it)} iteration(s), last "
+                  f"relative change {it[-1]['change']:.3g} ({'converged' if report['converged'] else 'NOT converged'}"
+                  f" at {report['tolerance']:g}).",
+                  "Everything else (including the measurement noise) as in the base config."]
+    return lines + ["The learned values and likelihoods are in the .json and .md files beside this one.", ""]
+
+
+def _markdown(report: dict) -> str:
+    vec = lambda v: ", ".join(f"{x:.4g}" for x in v)  # noqa: E731
+    lines = [f"# rodo calibrate: {report['mode']}", ""]
+    if report["mode"] == "ground truth":
+        for key in ("qc_ca", "qc_cv"):
+            r = report[key]
+            lines.append(f"- {key} = [{vec(r['qc'])}] (log-likelihood {r['loglik']:.6g}, {r['intervals']} intervals)")
+        m = report["measurement"]
+        lines += ["", "| channel | sigma | sensor.toml | mean | a + b r: a, b per m (stderr) | range dependent |",
+                  "| --- | --- | --- | --- | --- | --- |"]
+        for name, c in m["channels"].items():
+            ln = c["line"]
+            lines.append(f"| {name} | {c['sigma']:.4g} | {m['sensor_toml_sigmas'][name]:.4g} | {c['mean']:.2g} | "
+                         f"{ln['a']:.4g}, {ln['b_per_m']:.2g} ({ln['b_stderr']:.2g}) | {c['range_dependent']} |")
+        lines += ["", f"sensor_sigma_scale = {m['sensor_sigma_scale']:.4g}"]
+    else:
+        lines += ["| iteration | Qc in | Qc out | change | expected log-likelihood |",
+                  "| --- | --- | --- | --- | --- |"]
+        for i, h in enumerate(report["iterations"], 1):
+            lines.append(f"| {i} | {vec(h['qc_in'])} | {vec(h['qc_out'])} | {h['change']:.3g} | {h['loglik']:.6g} |")
+    return "\n".join(lines) + "\n"
+
+
+def _write(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def main(args) -> int:
+    out = _check_args(args)
+    learn = parse_learn(args.learn)
+    config = load_config(args)
+    seq = read_sequence(args.sequence)
+    if args.no_truth:
+        def say(h):
+            print(f"EM iteration: qc {np.array2string(h.qc_out, precision=4)}, change {h.change:.3g}")
+        config, report = calibrate_without_truth(seq, config, args.iterations, args.tolerance, args.duration,
+                                                 args.floor, progress=say, learn=learn)
+    else:
+        if not (Path(args.sequence) / TRUTH_NPZ).is_file():
+            raise InputError(f"{Path(args.sequence) / TRUTH_NPZ}: not found (ground truth for the calibration); "
+                             "use --no-truth for EM without ground truth")
+        config, report = calibrate_with_truth(seq, load_truth(args.sequence), config, args.duration, args.floor)
+    _write(out, config_toml(config, _header(report, args.sequence, config.model)))
+    _write(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
+    _write(out.with_suffix(".md"), _markdown(report))
+    print(_markdown(report), end="")
+    print(f"wrote {out}, {out.with_suffix('.json')}, {out.with_suffix('.md')}")
+    return 0

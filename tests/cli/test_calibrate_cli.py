@@ -1,0 +1,93 @@
+"""`rodo calibrate`: the config it writes is accepted by `rodo run --config` and round-trips through
+OdometryConfig.from_toml; the reports beside it; bad input exits 2 naming the file, option or field."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from rodo import scenarios
+from rodo.cli import main
+from rodo.estimator.config import OdometryConfig
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory):
+    """A 2 s city sequence (27 scans) with truth.npz."""
+    d = tmp_path_factory.mktemp("cal") / "city"
+    scenarios.simulate_to("city", 2, d, duration=2.0)
+    return d
+
+
+def _fails(capsys, argv, *needles):
+    rc = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert err.startswith(f"rodo {argv[0]}: error: ") and "Traceback" not in err and err.count("\n") == 1, err
+    for needle in needles:
+        assert str(needle) in err, f"{needle!r} not in {err!r}"
+
+
+@pytest.mark.slow
+def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, capsys):
+    out = tmp_path / "learned.toml"
+    assert main(["calibrate", str(seq), "--model", "cv-polar", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert text.startswith("# rodo calibrate") and "ground truth" in text.splitlines()[0]
+    config = OdometryConfig.from_toml(out)
+    report = json.loads(out.with_suffix(".json").read_text())
+    assert config.model == "cv-polar"
+    assert config.noise.qc_ca == tuple(report["qc_ca"]["qc"]) and config.noise.qc_cv == tuple(report["qc_cv"]["qc"])
+    assert config.noise.sensor_sigma_scale == pytest.approx(1.0, rel=0.10)
+    assert report["measurement"]["channels"]["range"]["sigma"] == pytest.approx(0.02, rel=0.10)
+    assert "| range |" in out.with_suffix(".md").read_text()
+    capsys.readouterr()
+    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["model"] == "cv-polar" and summary["config"] == config.to_dict()
+
+
+@pytest.mark.slow
+def test_calibrate_without_truth_runs_em(seq, tmp_path, capsys):
+    base = tmp_path / "base.toml"
+    base.write_text("window = 3\n[noise]\nqc_ca = [1.0, 0.1, 0.1, 0.001, 0.001, 0.01]\n")
+    out = tmp_path / "em.toml"
+    assert main(["calibrate", str(seq), "--no-truth", "--config", str(base), "--iterations", "2",
+                 "--duration", "1.0", "--learn", "x,y,z,yaw", "--out", str(out)]) == 0
+    assert "EM iteration" in capsys.readouterr().out
+    config = OdometryConfig.from_toml(out)
+    report = json.loads(out.with_suffix(".json").read_text())
+    its = report["iterations"]
+    assert 1 <= len(its) <= 2 and its[0]["qc_in"] == [1.0, 0.1, 0.1, 0.001, 0.001, 0.01]
+    assert config.window == 3 and config.noise.qc_ca == tuple(its[-1]["qc_out"])
+    assert config.noise.qc_cv == OdometryConfig().noise.qc_cv  # the other prior is left alone
+    assert config.noise.qc_ca[3:5] == (0.001, 0.001) and report["learned_components"] == ["x", "y", "z", "yaw"]
+    assert "(x, y, z, yaw)" in out.read_text().splitlines()[1]
+    assert np.all(np.isfinite(its[-1]["qc_out"])) and its[-1]["intervals"] >= 10
+    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+
+
+def test_calibrate_bad_input(seq, tmp_path, capsys):
+    out = tmp_path / "c.toml"
+    _fails(capsys, ["calibrate", tmp_path / "nope", "--out", out], "nope", "not a sequence directory")
+    no_truth = tmp_path / "no_truth"
+    shutil.copytree(seq, no_truth)
+    (no_truth / "truth.npz").unlink()
+    _fails(capsys, ["calibrate", no_truth, "--out", out], "truth.npz", "--no-truth")
+    _fails(capsys, ["calibrate", seq, "--out", out, "--iterations", "0"], "--iterations")
+    _fails(capsys, ["calibrate", seq, "--out", out, "--duration", "-1"], "--duration")
+    _fails(capsys, ["calibrate", seq, "--out", out, "--floor", "0"], "--floor")
+    _fails(capsys, ["calibrate", seq, "--out", out, "--no-truth", "--learn", "x,jaw"], "--learn", "jaw")
+    _fails(capsys, ["calibrate", seq, "--out", tmp_path], "--out", "is a directory")
+    _fails(capsys, ["calibrate", seq, "--out", tmp_path / "missing" / "c.toml"], "--out", "does not exist")
+    _fails(capsys, ["calibrate", seq, "--out", tmp_path / "c.json"], "--out", "overwritten")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[noise]\nqc_ca = [1, 2]\n")
+    _fails(capsys, ["calibrate", seq, "--config", bad, "--out", out], "bad.toml", "noise.qc_ca")
+    other = tmp_path / "other"
+    shutil.copytree(seq, other)
+    lines = (other / "radar.csv").read_text().splitlines()
+    (other / "radar.csv").write_text("\n".join(lines[:-5]) + "\n")  # truth.npz no longer matches radar.csv
+    _fails(capsys, ["calibrate", other, "--out", out], "truth.npz", "radar.csv")
+    assert not out.exists()

@@ -1,0 +1,338 @@
+"""Learning the motion prior's power spectral density Qc from data (`rodo calibrate`, docs/calibration.md).
+
+Q_k is linear in Qc (Q_k = int Phi L Qc L^T Phi^T), so with a diagonal Qc = diag(q),
+Q_k(q) = sum_i q_i B_k^(i), B_k^(i) = Q_k(e_i e_i^T) (`noise_basis`). Given the second moments S_k of the
+prior residuals e_k = x_k (-) f(x_{k-1}) (eq. 12, 31-34), `fit_qc` maximises
+
+    L(q) = -1/2 sum_k [log det Q_k(q) + tr(Q_k(q)^-1 S_k) + d log 2 pi]
+
+over q >= floor (L-BFGS-B on log q, analytic gradient). With ground truth S_k = e_k e_k^T and L is the
+likelihood of the true trajectory under the prior (`fit_qc_to_truth`). Without it, `em_qc` alternates, as
+Wong et al. (RA-L 2020) do, an E-step (run the estimator with the current q; S_k = E[w_k w_k^T | scans] from
+its per-scan posteriors, `expected_noise_moments`) and this M-step, until q changes by less than `tolerance`.
+
+Checked by: tests/validation/test_calibrate.py
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize
+
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.estimator.priors import ConstantAccelerationPrior, ConstantVelocityPrior
+
+PRIORS = {"ca": ConstantAccelerationPrior, "cv": ConstantVelocityPrior}
+COMPONENTS = ("x", "y", "z", "roll", "pitch", "yaw")  # the diagonal of Qc: linear, then angular, body axes
+DEFAULT_FLOOR = 1e-9  # lower bound of every q_i (a component the data never excites goes there)
+
+
+@dataclass(frozen=True)
+class StateTrack:
+    """States at times t: T_vehicle_world (N, 4, 4), varpi (N, 6), varpi_dot (N, 6) (zeros for CV), and
+    optionally posterior covariances P (N, d, d) (left perturbation, [pose; velocity; acceleration]) and a mask
+    `valid` (N - 1,) of the intervals to use (False: e.g. the estimator re-initialised at the later state)."""
+
+    t: np.ndarray
+    T_vehicle_world: np.ndarray
+    varpi: np.ndarray
+    varpi_dot: np.ndarray
+    P: np.ndarray | None = None
+    valid: np.ndarray | None = None
+
+    def __post_init__(self):
+        n = len(self.t)
+        if n < 2 or np.any(np.diff(self.t) <= 0):
+            raise InputError(f"states: need >= 2 states at strictly increasing times, got {n}")
+        for name, shape in (("T_vehicle_world", (n, 4, 4)), ("varpi", (n, 6)), ("varpi_dot", (n, 6))):
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.shape != shape or not np.all(np.isfinite(a)):
+                raise InputError(f"states.{name}: expected finite shape {shape}, got {a.shape}")
+
+    def intervals(self) -> np.ndarray:
+        """Indices k of the used intervals (x_{k-1}, x_k), k >= 1."""
+        k = np.arange(1, len(self.t))
+        return k if self.valid is None else k[np.asarray(self.valid, dtype=bool)]
+
+
+@dataclass
+class QcFit:
+    """A fitted diagonal Qc: q (6,), the log-likelihood L(q), the number of intervals, which components sit at
+    the floor, and the optimiser's iterations."""
+
+    qc: np.ndarray
+    loglik: float
+    intervals: int
+    at_floor: list[bool] = field(default_factory=list)
+    iterations: int = 0
+
+
+def make_prior(kind: str, qc):
+    """The prior "ca" or "cv" with Qc = diag(qc)."""
+    if kind not in PRIORS:
+        raise InputError(f"prior: expected one of {tuple(PRIORS)}, got {kind!r}")
+    return PRIORS[kind](np.diag(np.asarray(qc, dtype=float)))
+
+
+def _predict(prior, track: StateTrack, k: np.ndarray):
+    """(T_pred, varpi_pred, varpi_dot_pred, dt) of f(x_{k-1}) for the intervals k."""
+    dt = np.diff(track.t)[k - 1]
+    T, w, vd = track.T_vehicle_world[k - 1], track.varpi[k - 1], track.varpi_dot[k - 1]
+    if isinstance(prior, ConstantVelocityPrior):
+        T_pred, w_pred = prior.predict(T, w, dt)
+        return T_pred, w_pred, np.zeros_like(w_pred), dt
+    T_pred, w_pred, vd_pred = prior.predict(T, w, vd, dt)
+    return T_pred, w_pred, vd_pred, dt
+
+
+def prior_residuals(kind: str, track: StateTrack) -> np.ndarray:
+    """e_k = x_k (-) f(x_{k-1}) = [ln(T_k T_pred^-1)^vee; varpi_k - varpi_pred; (vd_k - vd_pred)] for the
+    track's intervals, (K, 12) for "cv", (K, 18) for "ca" (the priors' `residual`, batched).
+
+    Checked by: tests/validation/test_calibrate.py::test_residuals_equal_the_priors_residual
+    """
+    k = track.intervals()
+    T_pred, w_pred, vd_pred, _ = _predict(make_prior(kind, np.ones(6)), track, k)
+    xi = se3.log(track.T_vehicle_world[k] @ se3.inverse(T_pred))
+    parts = [xi, track.varpi[k] - w_pred]
+    if kind == "ca":
+        parts.append(track.varpi_dot[k] - vd_pred)
+    return np.concatenate(parts, axis=-1)
+
+
+def transitions_and_basis(kind: str, track: StateTrack, qc) -> tuple[np.ndarray, np.ndarray]:
+    """F_k (K, d, d) at x_{k-1} and the noise basis B (K, 6, d, d), B[k, i] = Q_k(e_i e_i^T), so that
+    Q_k(q) = sum_i q_i B[k, i] (Q_k is linear in Qc; each B from Q_k(e_i e_i^T + c I) - Q_k(c I), as the
+    priors need a positive-definite Qc). `qc` only sets c (1e-3 of its smallest element)."""
+    k = track.intervals()
+    dt = np.diff(track.t)[k - 1]
+    w, vd = track.varpi[k - 1], track.varpi_dot[k - 1]
+    c = 1e-3 * float(np.min(qc))
+
+    def batch(q):
+        prior = make_prior(kind, q)
+        return prior.transition_and_noise_batch(w, dt) if kind == "cv" else \
+            prior.transition_and_noise_batch(w, vd, dt)
+
+    F, Q0 = batch(np.full(6, c))
+    B = np.stack([batch(c + np.eye(6)[i])[1] - Q0 for i in range(6)], axis=1)
+    return F, 0.5 * (B + np.swapaxes(B, -1, -2))
+
+
+def _whitened_terms(q, B, S):
+    """Q^-1 (K, d, d) and the log-likelihood of S under Q(q) = sum q_i B_i (Jacobi-scaled Cholesky)."""
+    Q = np.einsum("i,kiab->kab", q, B)
+    D = 1.0 / np.sqrt(np.einsum("kaa->ka", Q))
+    Qs = Q * D[:, :, None] * D[:, None, :]
+    L = np.linalg.cholesky(Qs)
+    Ls_inv = np.linalg.inv(L)
+    Qs_inv = np.swapaxes(Ls_inv, -1, -2) @ Ls_inv
+    Q_inv = Qs_inv * D[:, :, None] * D[:, None, :]
+    logdet = 2 * np.log(np.einsum("kaa->ka", L)).sum() - 2 * np.log(D).sum()
+    trace = np.einsum("kab,kba->", Q_inv, S)
+    d = S.shape[-1]
+    return Q_inv, -0.5 * (logdet + trace + S.shape[0] * d * np.log(2 * np.pi))
+
+
+def expected_log_likelihood(q, B, S) -> tuple[float, np.ndarray]:
+    """L(q) and dL/dq_i = 1/2 sum_k tr(B_ki (Q^-1 S Q^-1 - Q^-1)).
+
+    Checked by: tests/validation/test_calibrate.py::test_likelihood_gradient_matches_finite_differences
+    """
+    Q_inv, value = _whitened_terms(np.asarray(q, dtype=float), B, S)
+    M = Q_inv @ S @ Q_inv - Q_inv
+    return float(value), 0.5 * np.einsum("kiab,kba->i", B, M)
+
+
+def fit_qc(B, S, floor: float = DEFAULT_FLOOR, qc0=None, fixed=None) -> QcFit:
+    """Maximise L(q) (module docstring) over q_i >= floor, from qc0 (default: a moment estimate).
+
+    Args:
+        B: (K, 6, d, d) noise basis (`transitions_and_basis`); S: (K, d, d) second moments of the residuals.
+        fixed: optional (6,) bool mask of components held at qc0 (which must then be given).
+
+    Checked by: tests/validation/test_calibrate.py::test_ml_recovers_qc_of_ca_sde_trajectories
+    """
+    B, S = np.asarray(B, dtype=float), np.asarray(S, dtype=float)
+    if B.ndim != 4 or B.shape[1] != 6 or S.shape != (B.shape[0], *B.shape[2:]) or B.shape[0] == 0:
+        raise InputError(f"fit_qc: B (K, 6, d, d) and S (K, d, d) do not match: {B.shape}, {S.shape}")
+    if qc0 is None:  # each q_i alone explaining the matching diagonal part of S
+        diag_b = np.einsum("kiaa->ia", B)
+        qc0 = np.einsum("kaa->a", S) @ diag_b.T / np.maximum((diag_b**2).sum(axis=1), 1e-300)
+    theta0 = np.log(np.maximum(np.asarray(qc0, dtype=float), floor))
+    fixed = np.zeros(6, bool) if fixed is None else np.asarray(fixed, dtype=bool)
+    bounds = [(t, t) if f else (np.log(floor), np.log(1e8)) for t, f in zip(theta0, fixed)]
+    scale = float(B.shape[0] * S.shape[-1])
+
+    def objective(theta):
+        value, grad = expected_log_likelihood(np.exp(theta), B, S)
+        return -value / scale, -grad * np.exp(theta) / scale
+
+    res = optimize.minimize(objective, theta0, jac=True, method="L-BFGS-B",
+                            bounds=bounds, options=dict(maxiter=500, gtol=1e-10))
+    qc = np.where(fixed, np.asarray(qc0, dtype=float), np.exp(res.x))
+    value, _ = expected_log_likelihood(qc, B, S)
+    return QcFit(qc, value, int(B.shape[0]), [bool(x <= floor * 1.01 and not f) for x, f in zip(qc, fixed)],
+                 int(res.nit))
+
+
+def fit_qc_to_truth(kind: str, tracks, floor: float = DEFAULT_FLOOR) -> QcFit:
+    """Maximum-likelihood diagonal Qc of the prior `kind` from true trajectories (one `StateTrack` or several:
+    their intervals are pooled), S_k = e_k e_k^T, B_k linearised at the true states.
+
+    Checked by: tests/validation/test_calibrate.py::test_ml_recovers_qc_of_ca_sde_trajectories,
+    ::test_ml_recovers_qc_of_cv_sde_trajectories
+    """
+    tracks = [tracks] if isinstance(tracks, StateTrack) else list(tracks)
+    if not tracks:
+        raise InputError("fit_qc_to_truth: no trajectories")
+    Bs, Ss = [], []
+    for track in tracks:
+        e = prior_residuals(kind, track)
+        Bs.append(transitions_and_basis(kind, track, np.ones(6))[1])
+        Ss.append(e[:, :, None] * e[:, None, :])
+    return fit_qc(np.concatenate(Bs), np.concatenate(Ss), floor)
+
+
+# ------------------------------------------------------------------------------------ EM without ground truth
+def _state_delta(kind: str, T, w, vd, T_ref, w_ref, vd_ref) -> np.ndarray:
+    """x (-) x_ref for one state, (d,)."""
+    parts = [se3.log(T @ se3.inverse(T_ref)), w - w_ref]
+    return np.concatenate(parts + ([vd - vd_ref] if kind == "ca" else []))
+
+
+def smooth(kind: str, track: StateTrack, qc) -> tuple[StateTrack, np.ndarray]:
+    """Rauch-Tung-Striebel backward pass over per-scan filtered posteriors (x_k, P_k), first order on the
+    manifold: C_k = P_k F^T (P^-)^-1, P^- = F P_k F^T + Q (F, Q of the interval k -> k + 1 at the filtered x_k,
+    with Qc = diag(qc)), x_k^s = x_k (+) C_k (x_{k+1}^s (-) f(x_k)), P_k^s = P_k + C_k (P_{k+1}^s - P^-) C_k^T.
+    An invalid interval starts a new segment (no smoothing across it).
+
+    Returns:
+        the smoothed track (same t, valid) and the cross-covariances cov(x_{k-1}, x_k) = C_{k-1} P_k^s, (N-1, d, d).
+
+    Checked by: tests/validation/test_calibrate.py::test_smoother_of_a_single_interval_matches_the_joint_gaussian
+    """
+    d = PRIORS[kind].state_dim
+    n = len(track.t)
+    P = np.array(track.P, dtype=float)
+    if P.shape != (n, d, d):
+        raise InputError(f"states.P: expected shape ({n}, {d}, {d}) for the {kind} prior, got {P.shape}")
+    every = StateTrack(track.t, track.T_vehicle_world, track.varpi, track.varpi_dot)
+    F, B = transitions_and_basis(kind, every, qc)
+    Q = np.einsum("i,kiab->kab", np.asarray(qc, dtype=float), B)
+    T_pred, w_pred, vd_pred, _ = _predict(make_prior(kind, qc), every, every.intervals())
+    T, w, vd = (np.array(a, dtype=float) for a in (track.T_vehicle_world, track.varpi, track.varpi_dot))
+    valid = np.ones(n - 1, bool) if track.valid is None else np.asarray(track.valid, dtype=bool)
+    cross = np.zeros((n - 1, d, d))
+    for k in range(n - 2, -1, -1):
+        if not valid[k]:
+            continue
+        P_minus = F[k] @ P[k] @ F[k].T + Q[k]
+        C = np.linalg.solve(P_minus, F[k] @ P[k]).T
+        dx = C @ _state_delta(kind, T[k + 1], w[k + 1], vd[k + 1], T_pred[k], w_pred[k], vd_pred[k])
+        T[k], w[k] = se3.exp(dx[:6]) @ T[k], w[k] + dx[6:12]
+        if kind == "ca":
+            vd[k] = vd[k] + dx[12:]
+        P[k] = P[k] + C @ (P[k + 1] - P_minus) @ C.T
+        P[k] = 0.5 * (P[k] + P[k].T)
+        cross[k] = C @ P[k + 1]
+    return StateTrack(track.t, T, w, vd, P, track.valid), cross
+
+
+def expected_noise_moments(kind: str, track: StateTrack, qc) -> tuple[np.ndarray, np.ndarray]:
+    """E-step: S_k = E[e_k e_k^T | all scans] of the prior residual of each valid interval, and the basis B.
+
+    The per-scan filtered posteriors (the estimator's newest state and its covariance after each scan, run with
+    Qc = diag(qc)) are smoothed (`smooth`); then, to first order (J_e_x2 = I, J_e_x1 = -F_k: the pose tangent
+    factor J(e)^-1 dropped), S_k = e_k e_k^T + P_k^s + F P_{k-1}^s F^T - F C - C^T F^T with e_k the residual of
+    the smoothed means and C = cov(x_{k-1}, x_k). Per-state covariances alone, without the cross-covariance,
+    would not do: an odometry's pose covariance grows without bound while Q_k stays small. Each S_k is
+    projected onto the PSD cone (an estimator is not an exact Kalman filter).
+
+    Checked by: tests/validation/test_calibrate.py::test_em_recovers_qc_with_a_kalman_filter
+    """
+    if track.P is None:
+        raise InputError("states: the E-step needs the posterior covariances P")
+    smoothed, cross = smooth(kind, track, qc)
+    k = smoothed.intervals()
+    e = prior_residuals(kind, smoothed)
+    F, B = transitions_and_basis(kind, smoothed, qc)
+    P, C = smoothed.P, cross[k - 1]
+    FC = F @ C
+    S = e[:, :, None] * e[:, None, :] + P[k] + F @ P[k - 1] @ np.swapaxes(F, -1, -2) - FC - np.swapaxes(FC, -1, -2)
+    S = 0.5 * (S + np.swapaxes(S, -1, -2))
+    vals, vecs = np.linalg.eigh(S)
+    S = (vecs * np.clip(vals, 0.0, None)[:, None, :]) @ np.swapaxes(vecs, -1, -2)
+    return S, B
+
+
+@dataclass
+class EmIteration:
+    """One EM iteration: the Qc the estimator ran with (qc_in), the M-step's Qc (qc_out), the expected
+    log-likelihood at qc_out, the largest relative change max_i |qc_out - qc_in| / qc_in, and the Qc of the
+    next run (qc_next: qc_out, or its Aitken extrapolation)."""
+
+    qc_in: np.ndarray
+    qc_out: np.ndarray
+    loglik: float
+    change: float
+    intervals: int
+    qc_next: np.ndarray
+
+
+def aitken_step(step: np.ndarray, previous: np.ndarray | None, max_factor: float = 5.0) -> np.ndarray:
+    """Accelerated EM step in log q, per component: an EM sequence converging geometrically with ratio
+    r = step / previous (0 < r < 1) has its limit step / (1 - r) ahead (Aitken's delta-squared, as in
+    McLachlan & Krishnan, "The EM Algorithm and Extensions", sec. 4.8); the factor is capped at max_factor
+    (also for r >= 1) and only used when both steps point the same way. The fixed points are EM's.
+
+    Checked by: tests/validation/test_calibrate.py::test_aitken_step_reaches_a_geometric_limit
+    """
+    if previous is None:
+        return step
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(np.abs(previous) > 1e-12, step / previous, 0.0)
+    factor = np.where(r > 0, 1.0 / np.maximum(1.0 - r, 1.0 / max_factor), 1.0)
+    return step * factor
+
+
+def em_qc(run, kind: str, qc0, iterations: int = 5, tolerance: float = 0.05, floor: float = DEFAULT_FLOOR,
+          accelerate: bool = True, on_iteration=None, learn=None) -> list[EmIteration]:
+    """EM over the estimator's posteriors: `run(qc) -> StateTrack` (with P; or a list of them) is the E-step's
+    estimator run with Qc = diag(qc); the M-step is `fit_qc` on `expected_noise_moments`. Stops after
+    `iterations` or when the M-step changes every q_i by less than `tolerance` (relative). With `accelerate`
+    the next run uses the Aitken extrapolation of the EM steps (`aitken_step`). Returns the iterations; the
+    result is the last qc_out. `on_iteration(EmIteration)`, if given, is called after each iteration. `learn`:
+    optional (6,) bool mask of the components to learn; the others stay at qc0 (components the estimator barely
+    observes, e.g. roll and pitch jerk, whose overconfident posteriors would inflate them; docs/calibration.md).
+
+    Checked by: tests/validation/test_calibrate.py::test_em_recovers_qc_with_a_kalman_filter
+    """
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
+        raise InputError(f"iterations: must be an integer >= 1, got {iterations!r}")
+    qc = np.asarray(qc0, dtype=float)
+    if qc.shape != (6,) or not np.all(np.isfinite(qc)) or not np.all(qc > 0):
+        raise InputError(f"qc0: must be 6 positive numbers, got {qc0!r}")
+    if learn is not None and (np.shape(learn) != (6,) or not np.any(learn)):
+        raise InputError(f"learn: expected 6 booleans, at least one true, got {learn!r}")
+    history, previous = [], None
+    for _ in range(int(iterations)):
+        tracks = run(qc)
+        moments = [expected_noise_moments(kind, tr, qc)
+                   for tr in ([tracks] if isinstance(tracks, StateTrack) else tracks)]
+        fit = fit_qc(np.concatenate([B for _, B in moments]), np.concatenate([S for S, _ in moments]), floor,
+                     qc0=qc, fixed=None if learn is None else ~np.asarray(learn, dtype=bool))
+        step = np.log(fit.qc) - np.log(qc)
+        jump = aitken_step(step, previous) if accelerate else step
+        qc_next = np.clip(qc * np.exp(jump), floor, None)
+        change = float(np.max(np.abs(fit.qc - qc) / qc))
+        history.append(EmIteration(qc, fit.qc, fit.loglik, change, fit.intervals, qc_next))
+        if on_iteration is not None:
+            on_iteration(history[-1])
+        if change < tolerance:
+            break
+        qc, previous = qc_next, step
+    return history

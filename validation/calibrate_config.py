@@ -1,0 +1,142 @@
+"""`rodo calibrate`'s pipeline: learn the noise of a sequence and write an estimator config (docs/calibration.md).
+
+- `calibrate_with_truth(seq, truth, config)`: ML Qc of both priors from the true states of truth.npz
+  (`calibrate.fit_qc_to_truth`) and the measurement noise from the static detections
+  (`calibrate_sensor`); the config gets both Qc and `noise.sensor_sigma_scale`.
+- `calibrate_without_truth(seq, config)`: EM (`calibrate.em_qc`) over the estimator's posteriors, for the
+  Qc of the config's own prior; R is left as configured (the odometry does not expose per-pair residuals).
+- `config_toml(config, header)`: the complete config as TOML that `OdometryConfig.from_toml` reads back.
+
+Checked by: tests/validation/test_calibrate.py::test_config_toml_round_trips,
+    tests/cli/test_calibrate_cli.py
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.errors import InputError
+from rodo.sim.sequence import Sequence, Trajectory
+
+from . import calibrate as cal
+from . import calibrate_sensor as cs
+from .driver import run_sequence
+
+
+def truncate(seq: Sequence, duration: float | None) -> Sequence:
+    """The first `duration` seconds of a sequence (all of it when None)."""
+    if duration is None:
+        return seq
+    if not (np.isfinite(duration) and duration > 0):
+        raise InputError(f"--duration: must be a positive number of seconds, got {duration}")
+    times = [s.t for s in seq.scans] + ([] if seq.groundtruth is None else list(seq.groundtruth.t))
+    end = min(times) + duration if times else 0.0
+    gt = seq.groundtruth
+    if gt is not None:
+        keep = gt.t <= end
+        gt = Trajectory(gt.t[keep], gt.T_world_vehicle[keep]) if keep.sum() else None
+    return Sequence(sensor=seq.sensor, scans=[s for s in seq.scans if s.t <= end], groundtruth=gt)
+
+
+def truth_track(truth: dict, end: float | None = None) -> cal.StateTrack:
+    """The true states of truth.npz (scans at t <= end) as a StateTrack."""
+    for key in ("t", "T_vehicle_world", "varpi", "varpi_dot"):
+        if key not in truth:
+            raise InputError(f"truth.npz: missing array {key!r} (needed for the motion prior's Qc)")
+    t = np.asarray(truth["t"], dtype=float)
+    n = len(t) if end is None else int(np.searchsorted(t, end, side="right"))
+    return cal.StateTrack(t[:n], truth["T_vehicle_world"][:n], truth["varpi"][:n], truth["varpi_dot"][:n])
+
+
+def _qc_report(fit: cal.QcFit) -> dict:
+    return {"qc": fit.qc.tolist(), "loglik": fit.loglik, "intervals": fit.intervals, "at_floor": fit.at_floor}
+
+
+def calibrate_with_truth(seq: Sequence, truth: dict, config: OdometryConfig, duration: float | None = None,
+                         floor: float = cal.DEFAULT_FLOOR) -> tuple[OdometryConfig, dict]:
+    """Learn qc_ca, qc_cv and sensor_sigma_scale from ground truth; returns (config, report)."""
+    seq = truncate(seq, duration)
+    end = max(s.t for s in seq.scans) if seq.scans else None
+    track = truth_track(truth, end)
+    fits = {kind: cal.fit_qc_to_truth(kind, track, floor) for kind in ("ca", "cv")}
+    res, r = cs.detection_residuals(seq, truth, scans=len(track.t))
+    sensor = seq.sensor.noise.as_array()
+    scale = cs.sigma_scale(res, sensor)
+    noise = dataclasses.replace(config.noise, qc_ca=tuple(fits["ca"].qc), qc_cv=tuple(fits["cv"].qc),
+                                sensor_sigma_scale=scale)
+    report = {
+        "mode": "ground truth", "scans": len(track.t), "floor": floor,
+        "qc_ca": _qc_report(fits["ca"]), "qc_cv": _qc_report(fits["cv"]),
+        "measurement": {"channels": cs.channel_noise(res, r),
+                        "sensor_toml_sigmas": dict(zip(cs.CHANNELS, sensor.tolist())),
+                        "sensor_sigma_scale": scale},
+    }
+    return config.replace(noise=noise), report
+
+
+def estimator_track(seq: Sequence, config: OdometryConfig) -> cal.StateTrack:
+    """Run the estimator; its per-scan posteriors as a StateTrack, intervals ending in an (re-)initialisation
+    marked invalid."""
+    result = run_sequence(seq, config)
+    est = result.estimates
+    if len(est) < 2:
+        raise InputError("sequence: EM needs at least 2 scans")
+    reinit = np.array([any("initialised" in ev for ev in e.events) for e in est[1:]])
+    return cal.StateTrack(result.t, np.stack([e.T_vehicle_world for e in est]), np.stack([e.varpi for e in est]),
+                          np.stack([e.varpi_dot if e.varpi_dot is not None else np.zeros(6) for e in est]),
+                          np.stack([e.P for e in est]), ~reinit)
+
+
+def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: int = 5, tolerance: float = 0.05,
+                            duration: float | None = None, floor: float = cal.DEFAULT_FLOOR,
+                            progress=None, learn=None) -> tuple[OdometryConfig, dict]:
+    """EM for the Qc of the config's prior; returns (config, report). `progress(EmIteration)` is called after
+    each iteration; `learn` (6,) bool: the components to learn (default all; `calibrate.em_qc`)."""
+    seq = truncate(seq, duration)
+    field = f"qc_{config.prior}"
+
+    def run(qc):
+        return estimator_track(seq, config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)})))
+
+    history = cal.em_qc(run, config.prior, getattr(config.noise, field), iterations, tolerance, floor,
+                        on_iteration=progress, learn=learn)
+    qc = history[-1].qc_out
+    learned = [c for c, on in zip(cal.COMPONENTS, np.ones(6, bool) if learn is None else learn) if on]
+    report = {"mode": "EM without ground truth", "prior": config.prior, "field": field, "floor": floor,
+              "learned_components": learned,
+              "converged": history[-1].change < tolerance, "tolerance": tolerance,
+              "iterations": [{"qc_in": h.qc_in.tolist(), "qc_out": h.qc_out.tolist(), "loglik": h.loglik,
+                              "change": h.change, "intervals": h.intervals} for h in history]}
+    return config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)})), report
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(float(v))
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    raise InputError(f"config: cannot write {v!r} as TOML")
+
+
+def config_toml(config: OdometryConfig, header: list[str] = ()) -> str:
+    """The complete config as TOML (every field; floats as repr, so `from_toml` gives the same config back),
+    after `header` lines written as comments.
+
+    Checked by: tests/validation/test_calibrate.py::test_config_toml_round_trips
+    """
+    lines = [f"# {h}" if h else "#" for h in header]
+    data = config.to_dict()
+    tables = {k: v for k, v in data.items() if isinstance(v, dict)}
+    lines += [f"{k} = {_toml_value(v)}" for k, v in data.items() if k not in tables]
+    for name, table in tables.items():
+        lines += ["", f"[{name}]"] + [f"{k} = {_toml_value(v)}" for k, v in table.items()]
+    return "\n".join(lines) + "\n"

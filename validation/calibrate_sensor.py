@@ -1,0 +1,103 @@
+"""Learning the radar's measurement noise R from a simulated sequence with ground truth (`rodo calibrate`,
+docs/calibration.md).
+
+Residuals measured minus noise-free polar (truth.npz `det_true_polar`, azimuth wrapped) of the static
+detections (`det_label` 0 static surface, 1 static point scatterer) give per channel the maximum-likelihood
+zero-mean sigma sqrt(mean(res^2)), the mean (a bias), per-range-bin sigmas and a straight-line fit
+sigma(r) = a + b r to |res| sqrt(pi / 2) (E|res| = sigma sqrt(2 / pi) for a Gaussian), with b's standard error,
+to tell whether the spread depends on range. `sigma_scale` is the single factor s on the sensor.toml sigmas
+that maximises the likelihood of all channels together (what `noise.sensor_sigma_scale` can express).
+
+Checked by: tests/validation/test_calibrate.py::test_measurement_noise_recovered_on_city
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rodo.estimator.errors import InputError
+
+CHANNELS = ("range", "azimuth", "elevation", "radial_velocity")
+STATIC_LABELS = (0, 1)  # truth.npz det_label: 0 static surface, 1 static point scatterer, 2 mover, 3 clutter
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Angles into [-pi, pi)."""
+    return (np.asarray(a, dtype=float) + np.pi) % (2 * np.pi) - np.pi
+
+
+def detection_residuals(seq, truth: dict, scans: int | None = None,
+                        labels=STATIC_LABELS) -> tuple[np.ndarray, np.ndarray]:
+    """(res (M, 4), true range (M,)) of the detections with the given labels in the first `scans` scans of the
+    truth (all when None; `seq` holds exactly those scans); res = measured - true polar, azimuth wrapped.
+
+    Raises:
+        InputError: radar.csv and truth.npz do not hold the same detections (counts per scan differ).
+    """
+    for key in ("det_true_polar", "det_label", "scan_offsets"):
+        if key not in truth:
+            raise InputError(f"truth.npz: missing array {key!r} (needed for the measurement noise)")
+    offsets = np.asarray(truth["scan_offsets"])
+    measured = np.concatenate([s.polar for s in seq.scans]) if seq.scans else np.zeros((0, 4))
+    true = np.asarray(truth["det_true_polar"], dtype=float)
+    if len(offsets) == 0 or offsets[-1] != len(true) or true.ndim != 2 or true.shape[1] != 4:
+        raise InputError("truth.npz: scan_offsets and det_true_polar disagree")
+    n = len(true) if scans is None else int(offsets[min(scans, len(offsets) - 1)])
+    if len(measured) != n:
+        raise InputError(f"truth.npz: det_true_polar has {n} detections in these scans, radar.csv {len(measured)}: "
+                         "not the same sequence")
+    keep = np.isin(np.asarray(truth["det_label"])[:n], labels)
+    res = measured[:n][keep] - true[:n][keep]
+    res[:, 1] = wrap_angle(res[:, 1])
+    return res, true[:n][keep, 0]
+
+
+def _range_fit(abs_res: np.ndarray, r: np.ndarray) -> dict:
+    """Least squares |res| sqrt(pi/2) = a + b r, with b's standard error."""
+    y = abs_res * np.sqrt(np.pi / 2)
+    X = np.stack([np.ones_like(r), r], axis=1)
+    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+    resid = y - X @ coef
+    dof = max(len(y) - 2, 1)
+    cov = np.linalg.inv(X.T @ X) * float(resid @ resid) / dof
+    return {"a": float(coef[0]), "b_per_m": float(coef[1]), "b_stderr": float(np.sqrt(cov[1, 1]))}
+
+
+def channel_noise(res: np.ndarray, r: np.ndarray, bins: int = 6) -> dict:
+    """Per channel: sigma (ML, zero mean), mean, count, sigma per range bin (equal counts), the line
+    sigma(r) = a + b r and `range_dependent` (|b| above 4 standard errors and b (r_max - r_min) above 5 % of
+    sigma).
+
+    Checked by: tests/validation/test_calibrate.py::test_range_dependence_is_detected
+    """
+    res, r = np.asarray(res, dtype=float), np.asarray(r, dtype=float)
+    if res.ndim != 2 or res.shape[1] != 4 or res.shape[0] != r.shape[0] or res.shape[0] < 2 * bins:
+        raise InputError(f"measurement noise: need >= {2 * bins} static detections with truth, got {len(res)}")
+    edges = np.quantile(r, np.linspace(0, 1, bins + 1))
+    which = np.clip(np.searchsorted(edges, r, side="right") - 1, 0, bins - 1)
+    out = {}
+    for c, name in enumerate(CHANNELS):
+        x = res[:, c]
+        sigma = float(np.sqrt(np.mean(x**2)))
+        fit = _range_fit(np.abs(x), r)
+        span = float(r.max() - r.min())
+        out[name] = {
+            "sigma": sigma, "mean": float(np.mean(x)), "count": int(len(x)),
+            "bins": [{"range_m": [float(edges[j]), float(edges[j + 1])],
+                      "sigma": float(np.sqrt(np.mean(x[which == j]**2)))} for j in range(bins)],
+            "line": fit,
+            "range_dependent": bool(abs(fit["b_per_m"]) > 4 * fit["b_stderr"]
+                                    and abs(fit["b_per_m"]) * span > 0.05 * sigma),
+        }
+    return out
+
+
+def sigma_scale(res: np.ndarray, sensor_sigmas) -> float:
+    """ML single scale s of the sensor sigmas over all channels: s^2 = mean((res / sigma_sensor)^2).
+
+    Checked by: tests/validation/test_calibrate.py::test_measurement_noise_recovered_on_city
+    """
+    sig = np.asarray(sensor_sigmas, dtype=float)
+    if sig.shape != (4,) or not np.all(sig > 0):
+        raise InputError(f"sensor sigmas: expected 4 positive numbers, got {sensor_sigmas!r}")
+    return float(np.sqrt(np.mean((np.asarray(res, dtype=float) / sig) ** 2)))
