@@ -17,7 +17,12 @@ Modules:
   `evaluate`, `jsonable`;
 - `campaign`, `campaign_files`, `trial`, `table1`: Monte Carlo campaigns and the paper's Table I;
 - `driver`: `run_sequence`, `write_run`; `icp_baseline`: `run_icp`;
-- `experiments`: `fig1_data` ... `fig5_data`, `figure_data`.
+- `experiments`: `fig1_data` ... `fig5_data`, `figure_data`;
+- `odometry_consistency`: `odometry_nees`, `summarise` (NEES of velocity, acceleration, relative pose over a
+  scan and a span, absolute pose: docs/consistency.md); `run_consistency` (the same for a run in memory, the
+  ellipsoid coverage); `campaign_consistency` (over N runs);
+- `calibrate`, `calibrate_sensor`, `calibrate_config`: noise learned from data (`rodo calibrate`,
+  docs/calibration.md).
 
 Documentation: docs/evaluation.md (metrics, campaigns), docs/visualisation.md (figures).
 """
@@ -69,6 +74,12 @@ from .metrics import (
     umeyama_se3,
     velocity_errors,
 )
+from .calibrate import QcFit, StateTrack, em_qc, fit_qc, fit_qc_to_truth
+from .calibrate_config import calibrate_with_truth, calibrate_without_truth, config_toml
+from .calibrate_sensor import channel_noise, detection_residuals, sigma_scale
+from .campaign_consistency import campaign_consistency
+from .odometry_consistency import MEASURES, odometry_nees, summarise
+from .run_consistency import ellipsoid_coverage, run_states, scan_measures
 from .table1 import Table1Trial, build_table, render_markdown, write_table
 from .trial import ScenarioTrial, evaluate_result
 
@@ -83,4 +94,7 @@ __all__ = [
     "run_icp", "run_sequence", "RunResult", "scan_times", "ScenarioTrial", "state_error", "summarize_campaign",
     "Table1Trial", "trajectory_distances", "Trial", "trial_seeds", "TrialOutcome", "truth_in_estimator_frame",
     "umeyama_se3", "velocity_errors", "write_run", "write_summary", "write_table",
+    "QcFit", "StateTrack", "em_qc", "fit_qc", "fit_qc_to_truth", "calibrate_with_truth", "calibrate_without_truth",
+    "config_toml", "channel_noise", "detection_residuals", "sigma_scale", "campaign_consistency", "MEASURES",
+    "odometry_nees", "summarise", "ellipsoid_coverage", "run_states", "scan_measures",
 ]

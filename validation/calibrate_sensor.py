@@ -16,14 +16,10 @@ from __future__ import annotations
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.estimator.radar_geometry import wrap_angle
 
 CHANNELS = ("range", "azimuth", "elevation", "radial_velocity")
 STATIC_LABELS = (0, 1)  # truth.npz det_label: 0 static surface, 1 static point scatterer, 2 mover, 3 clutter
-
-
-def wrap_angle(a: np.ndarray) -> np.ndarray:
-    """Angles into [-pi, pi)."""
-    return (np.asarray(a, dtype=float) + np.pi) % (2 * np.pi) - np.pi
 
 
 def detection_residuals(seq, truth: dict, scans: int | None = None,
