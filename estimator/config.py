@@ -38,6 +38,8 @@ class NoiseConfig:
         polar model, 0.3 m widened the gates enough to admit systematically offset pairs on resampled ground
         and guard rails, which pulled the pitch (highway, 1 km: 25 m of z drift at 0.3, 4.7 m at 0.1).
     sensor_sigma_scale: multiplies the sensor's 1-sigma noise from sensor.toml (tuning, as in the paper).
+    sensor_sigma_scales: per channel [range, azimuth, elevation, radial velocity] factors on top of it (what
+        `rodo calibrate` learns when the channels differ).
     sigma_floor: lower bounds of the 1-sigma [range m, azimuth rad, elevation rad, radial velocity m/s] the
         estimator uses (a noise-free sensor.toml must not make the information matrix singular).
     """
@@ -48,6 +50,7 @@ class NoiseConfig:
     map_sigma_polar: float = 0.1
     map_sigma_cartesian: float = 0.3
     sensor_sigma_scale: float = 1.0
+    sensor_sigma_scales: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
     sigma_floor: tuple[float, ...] = (0.005, 5e-4, 5e-4, 0.005)
 
 
@@ -197,6 +200,10 @@ class OdometryConfig:
             raise InputError("noise.map_sigma_polar, noise.map_sigma_cartesian: must be >= 0")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise InputError(f"seed: must be an integer >= 0, got {self.seed!r}")
+        scales = self.noise.sensor_sigma_scales
+        if len(scales) != 4 or not all(np.isfinite(scales)) or min(scales) <= 0:
+            raise InputError(f"noise.sensor_sigma_scales: must be 4 positive numbers [range, azimuth, elevation, "
+                             f"radial_velocity], got {list(scales)}")
         if len(self.noise.sigma_floor) != 4 or min(self.noise.sigma_floor) <= 0:
             raise InputError("noise.sigma_floor: must be 4 positive numbers [range, azimuth, elevation, "
                              f"radial_velocity], got {list(self.noise.sigma_floor)}")

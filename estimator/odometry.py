@@ -65,7 +65,8 @@ class RadarOdometry:
         sig = check_finite("sensor_sigmas", sensor_sigmas, (4,))
         if np.any(sig <= 0):
             raise InputError(f"sensor_sigmas: must be > 0, got {sig}")
-        self.sigmas = np.maximum(sig * config.noise.sensor_sigma_scale, config.noise.sigma_floor)
+        self.sigmas = np.maximum(sig * config.noise.sensor_sigma_scale * np.asarray(config.noise.sensor_sigma_scales),
+                                 config.noise.sigma_floor)
         self.max_range = float(max_range)
         self.record_detail = record_detail
         self.motion = motion_prior_for(config)

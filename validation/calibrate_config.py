@@ -2,7 +2,7 @@
 
 - `calibrate_with_truth(seq, truth, config)`: ML Qc of both priors from the true states of truth.npz
   (`calibrate.fit_qc_to_truth`) and the measurement noise from the static detections
-  (`calibrate_sensor`); the config gets both Qc and `noise.sensor_sigma_scale`.
+  (`calibrate_sensor`); the config gets both Qc, `noise.sensor_sigma_scales` (per channel) and `noise.cartesian_sigma`.
 - `calibrate_without_truth(seq, config)`: EM (`calibrate.em_qc`) over the estimator's posteriors, for the
   Qc of the config's own prior; R is left as configured (the odometry does not expose per-pair residuals).
 - `config_toml(config, header)`: the complete config as TOML that `OdometryConfig.from_toml` reads back.
@@ -57,7 +57,8 @@ def _qc_report(fit: cal.QcFit) -> dict:
 
 def calibrate_with_truth(seq: Sequence, truth: dict, config: OdometryConfig, duration: float | None = None,
                          floor: float = cal.DEFAULT_FLOOR) -> tuple[OdometryConfig, dict]:
-    """Learn qc_ca, qc_cv and sensor_sigma_scale from ground truth; returns (config, report)."""
+    """Learn qc_ca, qc_cv, the per-channel sensor sigma factors and the Cartesian sigma from ground truth;
+    returns (config, report)."""
     seq = truncate(seq, duration)
     end = max(s.t for s in seq.scans) if seq.scans else None
     track = truth_track(truth, end)
@@ -65,14 +66,18 @@ def calibrate_with_truth(seq: Sequence, truth: dict, config: OdometryConfig, dur
     res, r = cs.detection_residuals(seq, truth, scans=len(track.t))
     sensor = seq.sensor.noise.as_array()
     scale = cs.sigma_scale(res, sensor)
+    channels = cs.channel_noise(res, r)
+    scales = tuple(float(channels[c]["sigma"] / s) for c, s in zip(cs.CHANNELS, sensor))
+    cart = cs.cartesian_sigma(res, r)
     noise = dataclasses.replace(config.noise, qc_ca=tuple(fits["ca"].qc), qc_cv=tuple(fits["cv"].qc),
-                                sensor_sigma_scale=scale)
+                                sensor_sigma_scale=1.0, sensor_sigma_scales=scales, cartesian_sigma=cart)
     report = {
         "mode": "ground truth", "scans": len(track.t), "floor": floor,
         "qc_ca": _qc_report(fits["ca"]), "qc_cv": _qc_report(fits["cv"]),
-        "measurement": {"channels": cs.channel_noise(res, r),
+        "measurement": {"channels": channels,
                         "sensor_toml_sigmas": dict(zip(cs.CHANNELS, sensor.tolist())),
-                        "sensor_sigma_scale": scale},
+                        "sensor_sigma_scale": scale, "sensor_sigma_scales": list(scales),
+                        "cartesian_sigma": cart},
     }
     return config.replace(noise=noise), report
 

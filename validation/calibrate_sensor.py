@@ -48,6 +48,19 @@ def detection_residuals(seq, truth: dict, scans: int | None = None,
     return res, true[:n][keep, 0]
 
 
+def cartesian_sigma(res: np.ndarray, r: np.ndarray) -> float:
+    """ML isotropic Cartesian sigma c of the detections' position errors (the CV/C baseline's fixed R):
+    c^2 = mean over detections and axes of the squared Cartesian error, to first order the polar residuals
+    seen through d(x, y, z)/d(r, az, el) at the true range (azimuth and elevation near boresight are enough for
+    the trace: |dp|^2 = dr^2 + r^2 (cos^2(el) daz^2 + del^2), with cos(el) ~ 1 for a radar's elevations).
+
+    Checked by: tests/validation/test_calibrate.py::test_cartesian_sigma_is_the_ml_isotropic_sigma
+    """
+    res = np.asarray(res, dtype=float)
+    sq = res[:, 0] ** 2 + np.asarray(r, dtype=float) ** 2 * (res[:, 1] ** 2 + res[:, 2] ** 2)
+    return float(np.sqrt(np.mean(sq) / 3.0))
+
+
 def _range_fit(abs_res: np.ndarray, r: np.ndarray) -> dict:
     """Least squares |res| sqrt(pi/2) = a + b r, with b's standard error."""
     y = abs_res * np.sqrt(np.pi / 2)

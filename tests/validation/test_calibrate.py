@@ -270,8 +270,25 @@ def test_calibrate_with_truth_sets_the_noise(city):
     config, report = calibrate_with_truth(seq, truth, OdometryConfig.for_model("cv-polar"), duration=2.0)
     assert config.model == "cv-polar"
     assert config.noise.qc_ca == tuple(report["qc_ca"]["qc"]) and config.noise.qc_cv == tuple(report["qc_cv"]["qc"])
-    assert config.noise.sensor_sigma_scale == pytest.approx(1.0, rel=0.10)
+    assert config.noise.sensor_sigma_scale == 1.0
+    np.testing.assert_allclose(config.noise.sensor_sigma_scales, 1.0, rtol=0.10)  # sensor.toml is the truth
     assert report["scans"] == int(np.sum(truth["t"] <= truth["t"][0] + 2.0))
+
+
+def test_cartesian_sigma_is_the_ml_isotropic_sigma(city):
+    """The learned Cartesian sigma equals the RMS of the detections' true Cartesian position errors per axis
+    (computed directly from radar.csv and the truth's noise-free polar), within 2 %."""
+    from rodo.estimator.radar_geometry import polar_to_cartesian
+
+    seq, truth = city
+    measured = np.concatenate([s.polar for s in seq.scans])
+    true = np.asarray(truth["det_true_polar"])
+    static = np.isin(np.asarray(truth["det_label"]), cs.STATIC_LABELS)
+    d = polar_to_cartesian(measured[static]) - polar_to_cartesian(true[static])
+    want = np.sqrt(np.mean(d**2))
+    res, r = cs.detection_residuals(seq, truth)
+    assert cs.cartesian_sigma(res, r) == pytest.approx(want, rel=0.02)
+    assert cs.cartesian_sigma(2 * res, r) == pytest.approx(2 * want, rel=0.02)
 
 
 @settings(max_examples=10)
