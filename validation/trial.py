@@ -37,10 +37,21 @@ class ScenarioTrial:
     duration: float | None = None
     lengths: tuple[float, ...] | None = None
     step: int = 10
+    configs: tuple[tuple[str, str], ...] = ()  # (label, TOML text): that label runs this config
+
+    def config(self, label: str):
+        """The OdometryConfig of a model label: its TOML from `configs`, else the named model's defaults."""
+        import tomllib
+
+        from rodo.estimator.config import OdometryConfig
+
+        text = dict(self.configs).get(label)
+        if text is None:
+            return OdometryConfig.for_model(label)
+        return OdometryConfig.from_dict(tomllib.loads(text), source=f"config of {label}")
 
     def __call__(self, trial: Trial) -> list[TrialOutcome]:
         from rodo import scenarios
-        from rodo.estimator.config import OdometryConfig
         from rodo.sim.sequence import Trajectory
 
         from .driver import run_sequence
@@ -51,7 +62,7 @@ class ScenarioTrial:
         for model in trial.models:
             t0 = time.perf_counter()
             try:
-                result = run_sequence(seq, OdometryConfig.for_model(model))
+                result = run_sequence(seq, self.config(model))
                 out = evaluate_result(model, result, gt, truth, self.lengths, self.step, time.perf_counter() - t0)
                 if out.error is None:
                     out.arrays.update(self.extra_arrays(gt, result))

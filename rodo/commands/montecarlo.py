@@ -21,7 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "model, persisted at once), DIR/trials/*.npz, DIR/summary.md and summary.json.")
     p.add_argument("scenario", metavar="SCENARIO", help="scenario name (rodo simulate --list)")
     p.add_argument("--runs", type=int, required=True, help="number of trials")
-    p.add_argument("--models", default="ca-polar,cv-cartesian", help="comma-separated models (%(default)s)")
+    p.add_argument("--models", default="ca-polar,cv-cartesian",
+                   help="comma-separated models (%(default)s), or LABEL=CONFIG.toml to run a config under a label "
+                        "(e.g. ca-learned=ca.toml from rodo calibrate)")
     add_campaign_options(p)
     p.set_defaults(func=main)
 
@@ -38,14 +40,33 @@ def add_campaign_options(p) -> None:
 
 
 def parse_models(text: str) -> tuple[str, ...]:
-    models = tuple(m.strip() for m in text.split(",") if m.strip())
-    bad = [m for m in models if m not in MODELS]
+    """The campaign's model labels: model names, or LABEL=CONFIG.toml entries (`parse_configs`)."""
+    models = tuple(m.strip().split("=", 1)[0].strip() for m in text.split(",") if m.strip())
+    bad = [m for m, entry in zip(models, text.split(",")) if m not in MODELS and "=" not in entry]
     if not models or bad:
         raise InputError(f"--models: unknown model(s) {', '.join(bad) or '(none given)'}; choose from "
-                         f"{', '.join(MODELS)}")
+                         f"{', '.join(MODELS)}, or give LABEL=CONFIG.toml")
     if len(set(models)) != len(models):
         raise InputError(f"--models: a model is listed twice: {text}")
     return models
+
+
+def parse_configs(text: str) -> tuple[tuple[str, str], ...]:
+    """(label, TOML text) of every LABEL=CONFIG.toml entry of --models: that label runs the config's model
+    with its settings (e.g. noise learned by `rodo calibrate`). The text is checked here and saved in
+    campaign.json, so a resume with an edited config is refused."""
+    from pathlib import Path
+
+    from rodo.estimator.config import OdometryConfig
+
+    out = []
+    for entry in (e.strip() for e in text.split(",") if "=" in e):
+        label, path = (x.strip() for x in entry.split("=", 1))
+        if not label or not all(c.isalnum() or c in "-_." for c in label):
+            raise InputError(f"--models: label {label!r} of {entry!r}: use letters, digits, '-', '_', '.'")
+        OdometryConfig.from_toml(path)  # a clear error naming the file, now rather than in a worker
+        out.append((label, Path(path).read_text(encoding="utf-8")))
+    return tuple(out)
 
 
 def _nan(v):
@@ -131,10 +152,13 @@ def main(args) -> int:
 
     scenarios.get(args.scenario)  # unknown names fail here, listing the known ones
     models = parse_models(args.models)
+    configs = parse_configs(args.models)
     trials = make_trials(args.seed, args.runs, models)
     meta = {"scenario": args.scenario, "runs": args.runs, "models": list(models), "seed": args.seed,
             "duration": args.duration}
-    trial_fn = ScenarioTrial(args.scenario, args.duration)
+    if configs:
+        meta["configs"] = dict(configs)
+    trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs)
     total = remaining(trials, args.out) if args.resume else len(trials) * len(models)
     with Progress(total, f"montecarlo {args.scenario}") as bar, \
             make_executor(args.jobs, args.dask) as executor:

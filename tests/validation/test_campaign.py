@@ -437,3 +437,29 @@ def test_results_with_the_older_header_are_read_and_resumed(tmp_path):
     with open(tmp_path / "results.csv", newline="") as fh:
         assert next(csv.reader(fh)) == list(FIELDS)
     assert [r["model"] for r in read_results(tmp_path / "results.csv")] == list(MODELS)
+
+
+@pytest.mark.slow
+def test_campaign_runs_a_config_under_a_label(tmp_path, capsys):
+    """--models LABEL=CONFIG.toml runs that config (here CA/P with a 3x range sigma) beside a model name; the
+    config is saved in campaign.json and a resume with an edited config is refused."""
+    from rodo.cli import main
+    from rodo.commands import montecarlo
+
+    cfg = tmp_path / "wide.toml"
+    cfg.write_text('model = "ca-polar"\n[noise]\nsensor_sigma_scales = [3.0, 1.0, 1.0, 1.0]\n')
+    out = tmp_path / "mc"
+    argv = ["montecarlo", "city", "--runs", "1", "--models", f"ca-polar,ca-wide={cfg}", "--jobs", "1",
+            "--duration", "1.0", "--seed", "4", "--out", str(out)]
+    assert main(argv, commands=[montecarlo]) == 0
+    rows = {r["model"]: r for r in read_results(out / "results.csv")}
+    assert set(rows) == {"ca-polar", "ca-wide"} and all(r["status"] == "ok" for r in rows.values())
+    assert rows["ca-polar"]["nis_mean"] != rows["ca-wide"]["nis_mean"]  # the config was used
+    assert "sensor_sigma_scales" in json.loads((out / "campaign.json").read_text())["configs"]["ca-wide"]
+    cfg.write_text('model = "ca-polar"\n[noise]\nsensor_sigma_scales = [2.0, 1.0, 1.0, 1.0]\n')
+    capsys.readouterr()
+    assert main(argv + ["--resume"], commands=[montecarlo]) == 2
+    assert "campaign.json" in capsys.readouterr().err
+    bad = tmp_path / "missing.toml"
+    assert main(argv[:5] + [f"x={bad}"] + argv[6:], commands=[montecarlo]) == 2
+    assert "missing.toml" in capsys.readouterr().err
