@@ -182,6 +182,17 @@ def fraction_within(values, bounds) -> float:
     return float(np.mean((v[ok] >= b[ok, 0]) & (v[ok] <= b[ok, 1])))
 
 
+def require_arrays(states: dict, truth: dict) -> None:
+    """InputError naming the first array a run's states (t, T_vehicle_world, varpi, P) or the truth (t,
+    T_vehicle_world, varpi) lacks."""
+    for key in ("t", "T_vehicle_world", "varpi", "P"):
+        if key not in states:
+            raise InputError(f"states: missing array {key!r}")
+    for key in ("t", "T_vehicle_world", "varpi"):
+        if key not in truth:
+            raise InputError(f"truth: missing array {key!r}")
+
+
 def nees_sequence(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
     """Per-scan NEES of a run (states.npz arrays) against the simulator's truth (truth.npz arrays).
 
@@ -195,12 +206,7 @@ def nees_sequence(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANC
 
     Checked by: tests/validation/test_consistency.py::test_nees_sequence_*
     """
-    for key in ("t", "T_vehicle_world", "varpi", "P"):
-        if key not in states:
-            raise InputError(f"states: missing array {key!r}")
-    for key in ("t", "T_vehicle_world", "varpi"):
-        if key not in truth:
-            raise InputError(f"truth: missing array {key!r}")
+    require_arrays(states, truth)
     P = np.asarray(states["P"], dtype=float)
     d = P.shape[-1]
     if d not in (12, 18) or P.shape != (len(states["t"]), d, d):

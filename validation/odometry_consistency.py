@@ -21,25 +21,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.estimator.uncertainty import span_covariance
 
 from .alignment import truth_in_estimator_frame
 from .association import DEFAULT_TOLERANCE, associate
-from .consistency import nees
+from .consistency import nees, require_arrays
 
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
-
-
-def _check(states: dict, truth: dict) -> None:
-    for key in ("t", "T_vehicle_world", "varpi", "P"):
-        if key not in states:
-            raise InputError(f"states: missing array {key!r}")
-    for key in ("t", "T_vehicle_world", "varpi"):
-        if key not in truth:
-            raise InputError(f"truth: missing array {key!r}")
 
 
 def _relative_errors(T_true: np.ndarray, T_est: np.ndarray, n: int) -> np.ndarray:
@@ -77,7 +67,7 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
         dict: t (K,) the matched scan times, dof 6, span (s), and one (K,) array per measure (NaN where it is
         undefined: the first scans of a span, a singular covariance, acceleration of a CV run).
     """
-    _check(states, truth)
+    require_arrays(states, truth)
     ia, ib = associate(states["t"], truth["t"], tolerance)
     t = np.asarray(states["t"], dtype=float)[ia]
     T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
