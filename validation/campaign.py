@@ -323,7 +323,9 @@ def write_summary(out_dir, summary: dict, plot_note: str = "") -> None:
     meta_path = out / "campaign.json"
     if meta_path.exists():
         meta = json.loads(meta_path.read_text())
-        lines += ["Parameters: " + ", ".join(f"{k}={v}" for k, v in sorted(meta.items())), ""]
+        shown = {k: (", ".join(f"{label} (config in campaign.json)" for label in v) if k == "configs" else v)
+                 for k, v in meta.items()}
+        lines += ["Parameters: " + ", ".join(f"{k}={v}" for k, v in sorted(shown.items())), ""]
     lines += [f"{summary['trials']} trials; intervals are the 2.5 and 97.5 percentiles over the ok runs; NEES "
               f"bounds are two-sided {100 * (1 - summary['alpha']):.0f} % chi-square bounds of the average.", ""]
     for m, e in slim["models"].items():
