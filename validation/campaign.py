@@ -37,6 +37,7 @@ from rodo.estimator.errors import InputError
 
 from .campaign_consistency import campaign_consistency, consistency_lines
 from .campaign_files import CONSISTENCY_FIELDS, FIELDS, METRICS, append_rows, cell, npz_path, read_results, rewrite_results, save_arrays
+from .campaign_compare import compare_models, comparison_lines
 from .consistency import average_nees, chi2_bounds, fraction_within
 from .metrics import jsonable
 
@@ -309,6 +310,7 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
             entry["nees_curve"] = {"t": t.tolist(), "mean": mean.tolist(), "count": count.tolist(),
                                    "lower": b[:, 0].tolist(), "upper": b[:, 1].tolist()}
         summary["models"][m] = entry
+    summary["comparisons"] = compare_models(rows)
     return jsonable(summary)
 
 
@@ -346,6 +348,7 @@ def write_summary(out_dir, summary: dict, plot_note: str = "") -> None:
         if any(c["runs"] for c in e.get("consistency", {}).values()):
             lines += consistency_lines(e["consistency"], fmt)
         lines.append("")
+    lines += comparison_lines(summary.get("comparisons", []), fmt)
     if plot_note:
         lines += [plot_note, ""]
     (out / "summary.md").write_text("\n".join(lines))
