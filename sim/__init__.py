@@ -16,6 +16,8 @@ The package, file by file (the names below are re-exported here; submodules stay
                        `load_truth`, `TRUTH_NPZ`.
     prior_sampling.py  Monte Carlo of the CA prior's SDE: `sample_prior`, `propagate_mean_cov`, `nees_bounds`,
                        `yaw_acceleration_case` (and `errors`, `nees`, `covariance_test` in the module).
+    sde_trajectory.py  trajectories drawn from the CA or CV prior's own SDE (the prior_ca / prior_cv scenarios):
+                       `draw_sde_trajectory` (the module's `draw`), `SdeTrajectory`.
     sequence.py        the sequence format (docs/sequence_format.md): `Sequence`, `SensorConfig`, `NoiseSigmas`,
                        `RadarScan`, `Trajectory`, `read_sequence`, `write_sequence`, ... (its `__all__`), built on
                        sequence_types.py, radar_csv.py, sensor_config.py, tum.py and _seqio.py.
@@ -28,6 +30,8 @@ Only numpy and scipy are imported (no numba, no plotting).
 from .objects import CLUTTER, MOVING, STATIC_POINT, STATIC_SURFACE, MovingBox, Patches, Points, RigidStates, box, \
     empty_patches, rectangle
 from .prior_sampling import nees_bounds, propagate_mean_cov, sample_prior, yaw_acceleration_case
+from .sde_trajectory import SdeTrajectory
+from .sde_trajectory import draw as draw_sde_trajectory
 from .radar import Detections, Radar, RadarConfig, default_mount, polar, sensor_velocity
 from .sequence import (GROUNDTRUTH_TXT, RADAR_CSV, SENSOR_TOML, NoiseSigmas, RadarScan, SensorConfig, Sequence,
                        SequenceFormatError, Trajectory, polar_to_cartesian, read_sequence, read_tum, write_sequence,
@@ -55,6 +59,8 @@ __all__ = [
     "TRUTH_NPZ", "load_truth", "simulate_sequence", "write_simulation",
     # prior_sampling.py
     "nees_bounds", "propagate_mean_cov", "sample_prior", "yaw_acceleration_case",
+    # sde_trajectory.py
+    "SdeTrajectory", "draw_sde_trajectory",
     # sequence.py
     "GROUNDTRUTH_TXT", "RADAR_CSV", "SENSOR_TOML", "NoiseSigmas", "RadarScan", "SensorConfig", "Sequence",
     "SequenceFormatError", "Trajectory", "polar_to_cartesian", "read_sequence", "read_tum", "write_sequence",
