@@ -41,6 +41,27 @@ class RunResult:
     def t(self) -> np.ndarray:
         return np.array([e.t for e in self.estimates])
 
+    def state_arrays(self) -> dict:
+        """The per-scan arrays of states.npz (docs: README "Reading the results", docs/consistency.md)."""
+        est = self.estimates
+        d = est[0].P.shape[0]
+        return dict(
+            t=self.t,
+            T_vehicle_world=np.stack([e.T_vehicle_world for e in est]),
+            varpi=np.stack([e.varpi for e in est]),
+            varpi_dot=np.stack([e.varpi_dot if e.varpi_dot is not None else np.zeros(6) for e in est]),
+            P=np.stack([e.P for e in est]).reshape(len(est), d, d),
+            n_detections=np.array([e.n_detections for e in est]),
+            n_static=np.array([e.n_static for e in est]),
+            n_associated=np.array([e.n_associated for e in est]),
+            nis=np.array([e.nis for e in est], dtype=float),
+            ms_per_scan=np.asarray(self.wall_ms),
+            P_relative=np.stack([_or_nan(e.P_relative) for e in est]),
+            P_pose_absolute=np.stack([_or_nan(e.P_pose_absolute) for e in est]),
+            map_reuse=np.array([e.map_reuse for e in est]),
+            velocity_correlation_time=np.float64(self.config.uncertainty.velocity_correlation_time),
+        )
+
     def trajectory(self) -> Trajectory:
         return Trajectory(self.t, np.stack([e.T_world_vehicle for e in self.estimates]))
 
@@ -115,24 +136,7 @@ def write_run(out_dir: str | Path, result: RunResult) -> None:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_tum(out / "estimate.txt", result.trajectory())
-    est = result.estimates
-    d = est[0].P.shape[0]
-    arrays = dict(
-        t=result.t,
-        T_vehicle_world=np.stack([e.T_vehicle_world for e in est]),
-        varpi=np.stack([e.varpi for e in est]),
-        varpi_dot=np.stack([e.varpi_dot if e.varpi_dot is not None else np.zeros(6) for e in est]),
-        P=np.stack([e.P for e in est]).reshape(len(est), d, d),
-        n_detections=np.array([e.n_detections for e in est]),
-        n_static=np.array([e.n_static for e in est]),
-        n_associated=np.array([e.n_associated for e in est]),
-        nis=np.array([e.nis for e in est]),
-        ms_per_scan=result.wall_ms,
-        P_relative=np.stack([_or_nan(e.P_relative) for e in est]),
-        P_pose_absolute=np.stack([_or_nan(e.P_pose_absolute) for e in est]),
-        map_reuse=np.array([e.map_reuse for e in est]),
-        velocity_correlation_time=np.float64(result.config.uncertainty.velocity_correlation_time),
-    )
+    arrays = result.state_arrays()
     tmp = out / ".states.npz.tmp"
     with open(tmp, "wb") as fh:
         np.savez_compressed(fh, **arrays)

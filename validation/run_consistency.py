@@ -24,25 +24,10 @@ from .odometry_consistency import MEASURES, odometry_nees
 DEFAULT_TAU = 0.25  # s, the estimator's default velocity_correlation_time (older runs did not record theirs)
 
 
-def _or_nan(P, shape=(6, 6)) -> np.ndarray:
-    return np.full(shape, np.nan) if P is None else np.asarray(P, dtype=float)
-
-
 def run_states(result) -> dict:
-    """The arrays `validation.driver.write_run` writes to states.npz, of a RunResult in memory: t, T_vehicle_world,
-    varpi, varpi_dot (zeros for CV), P (N, d, d), nis, n_associated, ms_per_scan, P_relative and P_pose_absolute
-    (N, 6, 6; NaN where the estimator gave none) and velocity_correlation_time."""
-    est = result.estimates
-    d = est[0].P.shape[0]
-    return {"t": result.t, "T_vehicle_world": np.stack([e.T_vehicle_world for e in est]),
-            "varpi": np.stack([e.varpi for e in est]),
-            "varpi_dot": np.stack([e.varpi_dot if e.varpi_dot is not None else np.zeros(6) for e in est]),
-            "P": np.stack([e.P for e in est]).reshape(len(est), d, d),
-            "nis": np.array([e.nis for e in est], dtype=float),
-            "n_associated": np.array([e.n_associated for e in est]), "ms_per_scan": np.asarray(result.wall_ms),
-            "P_relative": np.stack([_or_nan(e.P_relative) for e in est]),
-            "P_pose_absolute": np.stack([_or_nan(e.P_pose_absolute) for e in est]),
-            "velocity_correlation_time": np.float64(result.config.uncertainty.velocity_correlation_time)}
+    """The arrays `validation.driver.write_run` writes to states.npz, of a RunResult in memory
+    (`RunResult.state_arrays`): the inputs of `odometry_consistency.odometry_nees`."""
+    return result.state_arrays()
 
 
 def scan_measures(states: dict, truth: dict, span: float = 1.0, tolerance: float = DEFAULT_TOLERANCE) -> dict:
