@@ -137,10 +137,14 @@ class UncertaintyConfig:
         scan to scan so that it integrates into pose; 0 composes the per-scan relative covariances as
         independent. 0.25 s: CA/P on city, hills, stop_and_go (docs/consistency.md).
     inflation: factor (>= 1) on each scan's relative pose covariance before it is composed.
+    measurement_inflation: factor (>= 1) on every associated pair's covariance in the solve (not in the gates):
+        a scan's pairs share map errors (points made in one scan share its pose error, surfaces are resampled),
+        so they carry less information than counted as independent. 1 leaves the solve as the paper's.
     """
 
     velocity_correlation_time: float = 0.25  # s
     inflation: float = 1.0
+    measurement_inflation: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -245,6 +249,9 @@ class OdometryConfig:
                 raise InputError(f"association.{name}: must be {rule}, got {value}")
         if not (np.isfinite(self.uncertainty.inflation) and self.uncertainty.inflation >= 1.0):
             raise InputError(f"uncertainty.inflation: must be a finite number >= 1, got {self.uncertainty.inflation}")
+        kappa = self.uncertainty.measurement_inflation
+        if not (np.isfinite(kappa) and kappa >= 1.0):
+            raise InputError(f"uncertainty.measurement_inflation: must be a finite number >= 1, got {kappa}")
         tau = self.uncertainty.velocity_correlation_time
         if not (np.isfinite(tau) and tau >= 0):
             raise InputError(f"uncertainty.velocity_correlation_time: must be a finite number >= 0 s, got {tau}")

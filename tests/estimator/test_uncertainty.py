@@ -114,3 +114,26 @@ def test_absolute_covariance_grows_while_the_windows_stays_flat(model):
     absolute = [np.trace(e.P_pose_absolute) for e in est]
     assert absolute[-1] > 10 * absolute[5] and absolute[-1] > 10 * window[-1]
     assert np.all(np.diff(absolute[1:]) > 0)
+
+
+def test_measurement_inflation_scales_the_information_of_the_pairs():
+    """uncertainty.measurement_inflation kappa divides every pair's information in the solve: the
+    relative pose covariance grows by up to kappa (the prior keeps its share), the estimate stays close, and a
+    kappa below 1 is refused."""
+    from rodo.estimator.config import UncertaintyConfig
+    from rodo.estimator.errors import InputError
+
+    rng_scene = np.random.default_rng(5)
+    t, T, varpi, vd = scene.trajectory(12)
+    L = scene.landmarks(rng_scene)
+    scans = [scene.measure(T[k], varpi[k], vd[k], L, np.random.default_rng(k)) for k in range(len(t))]
+    out = {}
+    for kappa in (1.0, 4.0):
+        cfg = OdometryConfig.for_model("ca-polar").replace(uncertainty=UncertaintyConfig(measurement_inflation=kappa))
+        odo = RadarOdometry(cfg, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+        out[kappa] = [odo.process(t[k], scans[k]) for k in range(len(t))][-1]
+    ratio = np.trace(out[4.0].P_relative) / np.trace(out[1.0].P_relative)
+    assert 2.0 < ratio < 4.5, ratio  # measured 2.46: the motion prior and the rate terms keep some information
+    assert np.abs(se3.log(out[4.0].T_vehicle_world @ se3.inverse(out[1.0].T_vehicle_world))).max() < 0.05
+    with pytest.raises(InputError, match="measurement_inflation"):
+        OdometryConfig.for_model("ca-polar").replace(uncertainty=UncertaintyConfig(measurement_inflation=0.5))
