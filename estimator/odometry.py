@@ -39,7 +39,7 @@ from .local_map import LocalMap
 from .measurement_models import measurement_model
 from .motion import motion_prior_for
 from .scan import ScanDetail, ScanEstimate
-from .scan_association import NO_PAIRS, MapAssociation, ScanMeasurements
+from .scan_association import MapAssociation, ScanMeasurements
 from .state import State
 from .uncertainty import DriftCovariance, relative_pose_covariance
 from .window import MeasurementSet, SlidingWindow
@@ -194,16 +194,15 @@ class RadarOdometry:
             timings["reassociate"] = timings.get("reassociate", 0.0) + elapsed
             # from the last solution: the problem changed by a few pairs, and the step after the first is ~1e-5
             self.window.optimize(cfg.solver.refine_iterations, cfg.solver.step_tolerance, check_last=False)
-        self.P = self.window.newest_covariance()  # at the solution; marginalising does not change it
-        P_relative = self._relative_covariance()
+        self.P, P_pair = self.window.newest_covariances()  # at the solution; marginalising does not change them
+        P_relative = self._relative_covariance(P_pair)
         while len(self.window.states) > cfg.window:
             self.window.marginalize_oldest()
         return W_map, pairs, P_relative
 
-    def _relative_covariance(self) -> np.ndarray | None:
+    def _relative_covariance(self, P_pair: np.ndarray | None) -> np.ndarray | None:
         """Covariance of the relative pose since the last scan: from the window's joint covariance of its two
         newest states, or across a (re-)initialisation the dead-reckoned one (None at the first scan)."""
-        P_pair = self.window.newest_pair_covariance()
         if P_pair is None:
             return self.restart_relative
         x_prev, x_new = self.window.states[-2], self.window.states[-1]

@@ -209,24 +209,22 @@ class SlidingWindow:
 
     def newest_covariance(self) -> np.ndarray:
         """Posterior covariance of the newest state (left perturbation), from the window's information."""
-        H = self._H if self._H is not None else self.linearize()[0]
-        d = self.motion.dim
-        E = np.zeros((H.shape[0], d))
-        E[-d:, :] = np.eye(d)
-        P = _solve_spd(H, E)[-d:, :]
-        return 0.5 * (P + P.T)
+        return self.newest_covariances()[0]
 
-    def newest_pair_covariance(self) -> np.ndarray | None:
-        """Joint posterior covariance (2 dim, 2 dim) of the two newest states [x_{n-2}; x_{n-1}], or None when the
-        window holds one state."""
-        if len(self.states) < 2:
-            return None
+    def newest_covariances(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """(P of the newest state, joint covariance (2 dim, 2 dim) of the two newest states [x_{n-2}; x_{n-1}] or
+        None when the window holds one state), from one solve of the window's information. (The newest block of
+        the joint solve equals a solve for the newest state alone, bit for bit: each right-hand side column is
+        solved on its own.)"""
         H = self._H if self._H is not None else self.linearize()[0]
         d = self.motion.dim
-        E = np.zeros((H.shape[0], 2 * d))
-        E[-2 * d:, :] = np.eye(2 * d)
-        P = _solve_spd(H, E)[-2 * d:, :]
-        return 0.5 * (P + P.T)
+        k = min(len(self.states), 2) * d
+        E = np.zeros((H.shape[0], k))
+        E[-k:, :] = np.eye(k)
+        X = _solve_spd(H, E)[-k:, :]
+        P = X[-d:, -d:]
+        P_pair = 0.5 * (X + X.T) if k == 2 * d else None
+        return 0.5 * (P + P.T), P_pair
 
     def marginalize_oldest(self) -> None:
         """Schur complement of the oldest state into a Gaussian prior on the next one."""

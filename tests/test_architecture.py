@@ -1,13 +1,13 @@
 """The structural rules of the code base, checked by reading the source (ast), not by convention.
 
-1. One import namespace: the folders import only as rodo.sim, rodo.estimator, ...; no module loaded twice.
-2. Every package folder is listed in pyproject's [tool.setuptools] packages, and vice versa.
+1.-2. One import namespace and the packages pyproject lists: tests/test_namespace.py.
 3. Layers: estimator <- sim <- scenarios <- validation <- viz <- CLI (rodo/cli.py, rodo/commands); imports
    anywhere in a file count (also inside functions); no import cycle between modules.
 4. No private name taken from another module (tests exempt).
 5. No module over 400 lines, no function over 60 lines (compiled kernels exempt).
-6. Every "Checked by:" reference names an existing test file and test function.
-7. Paper corrections the code relies on are cited inside the repository (docs/paper_notes.md), never outside.
+
+The references from code and docs to tests and docs (Checked by, paper citations, docs/architecture.md) are
+checked in tests/test_doc_references.py.
 
 Each check collects every violation as "file:line: what" and fails with the whole list. The checkers are plain
 functions of (path, source) so `test_checkers_catch_violations` can show that each one can fail.
@@ -16,13 +16,6 @@ functions of (path, source) so `test_checkers_catch_violations` can show that ea
 from __future__ import annotations
 
 import ast
-import fnmatch
-import json
-import os
-import re
-import subprocess
-import sys
-import textwrap
 import tomllib
 from pathlib import Path
 
@@ -129,116 +122,6 @@ def _top_level_nodes(tree: ast.AST):
 
 def _parse(path: Path) -> ast.Module:
     return ast.parse(path.read_text(), filename=str(path))
-
-
-# --------------------------------------------------------------------------------------- 1. one namespace
-
-def test_bare_folder_names_do_not_import_outside_the_repository(tmp_path):
-    """From a directory outside the repository, `import sim` etc. fail and `import rodo.sim` etc. work."""
-    code = textwrap.dedent(f"""
-        import importlib, json
-        out = {{}}
-        for name in {list(BARE)!r}:
-            for full in (name, "rodo." + name):
-                try:
-                    importlib.import_module(full)
-                    out[full] = "ok"
-                except ModuleNotFoundError as e:
-                    out[full] = "ModuleNotFoundError: " + str(e)
-                except Exception as e:
-                    out[full] = type(e).__name__ + ": " + str(e)
-        print(json.dumps(out))
-    """)
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
-                          timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    result = json.loads(proc.stdout.strip().splitlines()[-1])
-    problems = [f"`import {name}` works from outside the repository (it must be rodo.{name} only)"
-                for name in BARE if not result[name].startswith("ModuleNotFoundError")]
-    problems += [f"`import rodo.{name}` fails: {result['rodo.' + name]}" for name in BARE
-                 if result["rodo." + name] != "ok"]
-    assert not problems, "\n".join(problems)
-
-
-def test_no_module_is_loaded_twice_under_two_names():
-    """With the repository root on sys.path (as pytest has it), importing every module of rodo and every test
-    module loads each repository file once, and never as a bare `sim`, `estimator`, ..."""
-    code = textwrap.dedent(f"""
-        import importlib, json, os, pkgutil, sys
-        sys.path.insert(0, {str(ROOT)!r})
-        failed = []
-        names = {sorted(PACKAGES)!r}
-        for package in list(names):
-            mod = importlib.import_module(package)
-            for info in pkgutil.walk_packages(mod.__path__, package + ".", onerror=failed.append):
-                if not info.name.endswith("__main__"):  # importing it would run the program
-                    names.append(info.name)
-        names += {sorted(module_name(p) for p in _py_files("tests"))!r}
-        for name in names:
-            try:
-                importlib.import_module(name)
-            except Exception as e:
-                failed.append(name + ": " + type(e).__name__ + ": " + str(e))
-        files = {{}}
-        for name, mod in list(sys.modules.items()):
-            f = getattr(mod, "__file__", None)
-            f = os.path.realpath(f) if f else ""
-            if f.startswith({str(ROOT) + os.sep!r}) and f[{len(str(ROOT)) + 1}:].split(os.sep)[0] in {OWN_DIRS!r}:
-                files.setdefault(f, []).append(name)
-        print(json.dumps({{"failed": [str(x) for x in failed], "files": files,
-                           "bare": sorted(m for m in sys.modules if m.split(".")[0] in {list(BARE)!r})}}))
-    """)
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
-                          timeout=900)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    result = json.loads(proc.stdout.strip().splitlines()[-1])
-    problems = [f"import failed: {f}" for f in result["failed"]]
-    problems += [f"{Path(f).relative_to(ROOT)}: loaded as {sorted(names)}" for f, names in result["files"].items()
-                 if len(names) > 1]
-    problems += [f"bare top-level module in sys.modules: {m}" for m in result["bare"]]
-    assert not problems, "\n".join(problems)
-
-
-# ------------------------------------------------------------------------------------ 2. packages listed
-
-def package_problems(root: Path, package_dir: dict[str, str], packages: list[str]) -> list[str]:
-    """Folders with an __init__.py that pyproject does not list, listed packages without one, and folders
-    of .py files that are not packages (they would not be installed)."""
-    def name_of(folder: Path) -> str | None:
-        rel = folder.relative_to(root).parts
-        for package, pfolder in sorted(package_dir.items(), key=lambda kv: -len(Path(kv[1]).parts)):
-            fparts = Path(pfolder).parts
-            if rel[:len(fparts)] == fparts:
-                return ".".join([package, *rel[len(fparts):]])
-        return None
-
-    problems = []
-    found = {}
-    for top in {Path(f).parts[0] for f in package_dir.values()}:
-        for folder in [root / top, *sorted(p for p in (root / top).rglob("*")
-                                           if p.is_dir() and "__pycache__" not in p.parts)]:
-            has_init = (folder / "__init__.py").exists()
-            name = name_of(folder)
-            if has_init and name is not None:
-                found[name] = folder
-            elif not has_init and any(folder.glob("*.py")):
-                problems.append(f"{folder.relative_to(root)}/: .py files but no __init__.py (not installed)")
-    for name, folder in sorted(found.items()):
-        if name not in packages:
-            problems.append(f"{folder.relative_to(root)}/__init__.py: package {name} is not in pyproject's "
-                            "[tool.setuptools] packages")
-    for name in packages:
-        if name not in found:
-            problems.append(f"pyproject.toml: [tool.setuptools] packages lists {name}, which has no folder "
-                            "with an __init__.py")
-    return problems
-
-
-def test_every_package_folder_is_listed_in_pyproject():
-    problems = package_problems(ROOT, PACKAGE_DIR, PACKAGES)
-    assert not problems, "\n".join(problems)
 
 
 # ------------------------------------------------------------------------------------------------ 3. layers
@@ -462,112 +345,6 @@ def test_module_and_function_sizes():
     assert not problems, "\n".join(problems)
 
 
-# ------------------------------------------------------------------------------------ 6. "Checked by:" links
-
-CHECKED_BY = re.compile(r"Checked by:?")
-REFERENCE = re.compile(r"(tests/[\w/]+\.py)(?:::([\w*]+))?|::([\w*]+)")
-
-
-def _docstrings(tree: ast.AST):
-    """(first line, text) of every module, class and function docstring."""
-    for node in ast.walk(tree):
-        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
-            first = node.body[0]
-            if (isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant)
-                    and isinstance(first.value.value, str)):
-                yield first.lineno, first.value.value
-
-
-def checked_by_references(source: str):
-    """(line, test file, test name or None) for each reference: `Checked by: tests/a.py::test_x, ::test_y`,
-    continued on the next line while a line ends with a comma."""
-    for first_line, doc in _docstrings(ast.parse(source)):
-        lines = doc.splitlines()
-        for i, text in enumerate(lines):
-            m = CHECKED_BY.search(text)
-            if not m:
-                continue
-            chunk, j = [(i, text[m.end():])], i
-            while chunk[-1][1].rstrip().endswith(",") and j + 1 < len(lines):
-                j += 1
-                chunk.append((j, lines[j]))
-            current = None
-            for k, part in chunk:
-                for ref in REFERENCE.finditer(part):
-                    file, name, cont = ref.groups()
-                    if file:
-                        current = file
-                        yield first_line + k, file, name
-                    else:
-                        yield first_line + k, current, cont
-
-
-def _test_names(path: Path) -> set[str]:
-    names = set()
-    for node in _parse(path).body:
-        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-            names.add(node.name)
-        elif isinstance(node, ast.ClassDef):
-            names |= {f"{node.name}::{f.name}" for f in node.body if isinstance(f, ast.FunctionDef)}
-    return names
-
-
-def checked_by_problems(path_name: str, source: str, root: Path = ROOT) -> list[str]:
-    problems = []
-    for line, file, name in checked_by_references(source):
-        if file is None:
-            problems.append(f"{path_name}:{line}: 'Checked by' ::{name} without a test file before it")
-            continue
-        test_file = root / file
-        if not test_file.is_file():
-            problems.append(f"{path_name}:{line}: 'Checked by' names {file}, which does not exist")
-            continue
-        if name is not None and not fnmatch.filter(_test_names(test_file), name):
-            problems.append(f"{path_name}:{line}: 'Checked by' names {file}::{name}, which {file} does not define")
-    return problems
-
-
-def test_checked_by_references_exist():
-    problems, count = [], 0
-    for path in _py_files(*SIZE_DIRS):
-        source = path.read_text()
-        count += sum(1 for _ in checked_by_references(source))
-        problems += checked_by_problems(_rel(path), source)
-    assert count > 50, f"only {count} 'Checked by' references found: is the parser still reading them?"
-    assert not problems, "\n".join(problems)
-
-
-# ------------------------------------------------------------------------------------- 7. paper citations
-
-OUTSIDE = re.compile(r"shared/paper|(?<![\w/])NOTES\.md|(?<![\w.])\.\./(?!shared/realdata)[\w./-]+|/work/\w+")
-DOCS = re.compile(r"(?<![\w./-])docs/[\w./-]*\w")
-
-
-def citation_problems(path_name: str, source: str, root: Path = ROOT) -> list[str]:
-    """Citations of files outside the repository (the paper's notes, ../ paths; the real-data folder
-    ../shared/realdata is data, not a citation) and cited docs/ files that do not exist."""
-    problems = []
-    for i, text in enumerate(source.splitlines(), 1):
-        for m in OUTSIDE.finditer(text):
-            problems.append(f"{path_name}:{i}: cites {m.group(0)!r}, outside the repository (cite docs/paper_notes.md "
-                            "or another file in docs/)")
-        for m in DOCS.finditer(text):
-            cited = m.group(0).split("#")[0]
-            if not (root / cited).exists():
-                problems.append(f"{path_name}:{i}: cites {cited}, which does not exist")
-    return problems
-
-
-def test_paper_citations_stay_in_the_repository():
-    assert (ROOT / "docs" / "paper_notes.md").is_file()
-    problems = []
-    for path in _py_files(*SIZE_DIRS, "tests"):
-        if path == Path(__file__).resolve():
-            continue
-        problems += citation_problems(_rel(path), path.read_text())
-    assert not problems, "\n".join(problems)
-
-
 # ------------------------------------------------------------------------------------ the checks can fail
 
 def test_checkers_catch_violations(tmp_path):
@@ -600,35 +377,6 @@ def test_checkers_catch_violations(tmp_path):
     assert size_problems("x.py", "@numba.njit(cache=True)\n" + long_fn, NUMBA_DECORATORS) == []
     assert size_problems("x.py", "x = 1\n" * 401, NUMBA_DECORATORS) == ["x.py:1: module has 401 lines (limit 400)"]
 
-    test_file = tmp_path / "tests" / "test_a.py"
-    test_file.parent.mkdir()
-    test_file.write_text("def test_one():\n    pass\n\ndef test_two_b():\n    pass\n")
-    doc = ('"""Doc.\n\nChecked by: tests/test_a.py::test_one,\n    ::test_two_*, ::test_three\n"""\n\n'
-           'def f():\n    """Checked by: tests/test_b.py"""\n')
-    assert checked_by_problems("x.py", doc, tmp_path) == [
-        "x.py:4: 'Checked by' names tests/test_a.py::test_three, which tests/test_a.py does not define",
-        "x.py:8: 'Checked by' names tests/test_b.py, which does not exist"]
-
-    (tmp_path / "docs").mkdir()
-    (tmp_path / "docs" / "paper_notes.md").write_text("notes\n")
-    cite = '"""Eq. 71 corrected, see shared/paper/NOTES.md.\n\nDetails: docs/paper_notes.md, docs/gone.md."""\n'
-    assert citation_problems("x.py", "# see NOTES.md\n", tmp_path)[0].startswith("x.py:1: cites 'NOTES.md'")
-    assert citation_problems("x.py", cite, tmp_path) == [
-        "x.py:1: cites 'shared/paper', outside the repository (cite docs/paper_notes.md or another file in docs/)",
-        "x.py:3: cites docs/gone.md, which does not exist"]
-    assert citation_problems("x.py", "'../shared/realdata is the data folder'\n", tmp_path) == []
-
-    pkg = tmp_path / "pkg"
-    (pkg / "sub").mkdir(parents=True)
-    (pkg / "__init__.py").write_text("")
-    (pkg / "sub" / "__init__.py").write_text("")
-    (pkg / "loose").mkdir()
-    (pkg / "loose" / "m.py").write_text("")
-    assert package_problems(tmp_path, {"rodo.pkg": "pkg"}, ["rodo.pkg", "rodo.gone"]) == [
-        "pkg/loose/: .py files but no __init__.py (not installed)",
-        "pkg/sub/__init__.py: package rodo.pkg.sub is not in pyproject's [tool.setuptools] packages",
-        "pyproject.toml: [tool.setuptools] packages lists rodo.gone, which has no folder with an __init__.py"]
-
 
 @pytest.mark.parametrize("path, expected", [("sim/convert/vod.py", "rodo.sim.convert.vod"),
                                             ("rodo/commands/__init__.py", "rodo.commands"),
@@ -637,35 +385,3 @@ def test_checkers_catch_violations(tmp_path):
                                             ("tests/sim/test_radar.py", "tests.sim.test_radar")])
 def test_module_names(path, expected):
     assert module_name(ROOT / path) == expected
-
-
-# ------------------------------------------------------------------------------------- 8. docs/architecture.md
-
-def test_architecture_doc_references_exist():
-    """Every `rodo.` object and every `tests/...py::test` named in docs/architecture.md exists."""
-    import importlib
-
-    text = (ROOT / "docs" / "architecture.md").read_text()
-    objects = set(re.findall(r"`(rodo\.[\w.]+)`", text))
-    tests = set(re.findall(r"(tests/[\w/]+\.py)::(\w+)", text))
-    assert len(objects) > 15 and len(tests) > 15, (len(objects), len(tests))
-    problems = []
-    for dotted in sorted(objects):
-        parts = dotted.split(".")
-        for cut in range(len(parts), 0, -1):  # the longest importable prefix, then attributes
-            try:
-                obj = importlib.import_module(".".join(parts[:cut]))
-            except ImportError:
-                continue
-            try:
-                for attr in parts[cut:]:
-                    obj = getattr(obj, attr)
-            except AttributeError:
-                problems.append(f"docs/architecture.md names {dotted}, which does not exist")
-            break
-        else:
-            problems.append(f"docs/architecture.md names {dotted}, which cannot be imported")
-    for file, name in sorted(tests):
-        if not (ROOT / file).is_file() or name not in _test_names(ROOT / file):
-            problems.append(f"docs/architecture.md names {file}::{name}, which does not exist")
-    assert not problems, "\n".join(problems)

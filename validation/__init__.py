@@ -10,7 +10,7 @@ Modules:
 - `association`: `associate` (mutual nearest time stamps), `match_index` (the same pairs per stamp);
 - `alignment`: `align_to_first`, `truth_in_estimator_frame`;
 - `covariance`: `position_covariance_world`, `covariance_axes`, `covariance_ellipsoid`;
-- `consistency`: `pose_error`, `state_error`, `nees`, `marginal_nees`, `chi2_bounds` (the one convention:
+- `consistency`: `pose_error`, `state_error`, `nees`, `chi2_bounds` (the one convention:
   two-sided, `alpha` outside, N runs), `fraction_within`, `nees_sequence`, `average_nees`, `nis_summary`,
   `gated_mean`;
 - `kitti`: devkit-exact KITTI drift; `metrics`: `ate`, `rpe`, `drift`, `pose_errors`, `velocity_errors`,
@@ -48,7 +48,6 @@ from .consistency import (
     chi2_bounds,
     fraction_within,
     gated_mean,
-    marginal_nees,
     nees,
     nees_sequence,
     nis_summary,
@@ -88,7 +87,7 @@ __all__ = [
     "covariance_axes", "covariance_ellipsoid", "DEFAULT_TOLERANCE", "drift", "DRIFT_AXES", "euler_zyx",
     "evaluate", "evaluate_result", "FIELDS", "fig1_data", "fig2_data", "fig3_data", "fig4_data", "fig5_data",
     "figure_data", "fraction_within", "gated_mean", "jsonable", "kitti_errors", "KittiResult", "LENGTHS",
-    "make_executor", "make_trials", "marginal_nees", "match_index", "nees", "nees_sequence", "NIS_DOF",
+    "make_executor", "make_trials", "match_index", "nees", "nees_sequence", "NIS_DOF",
     "nis_summary", "npz_path", "path_distances", "pose_error", "pose_errors", "PoseErrors",
     "position_covariance_world", "read_results", "remaining", "render_markdown", "rpe", "run_campaign",
     "run_icp", "run_sequence", "RunResult", "scan_times", "ScenarioTrial", "state_error", "summarize_campaign",

@@ -12,7 +12,7 @@ have it:
 - `fraction_scans_within`: the fraction of scans whose average lies within its bounds (about 1 - alpha when
   consistent).
 
-Checked by: tests/validation/test_campaign.py::test_campaign_consistency_per_measure_consistent_and_overconfident
+Checked by: tests/validation/test_campaign_consistency.py::test_campaign_consistency_per_measure_consistent_and_overconfident
 """
 
 from __future__ import annotations

@@ -94,32 +94,6 @@ def nees(e: np.ndarray, P: np.ndarray) -> np.ndarray:
     return out.reshape(e.shape[:-1])
 
 
-def marginal_nees(P, xi=None, varpi_true=None, varpi_est=None) -> dict:
-    """Per-scan NEES of the pose and of the body velocity on their own, each against its marginal covariance
-    (the diagonal blocks P[:6, :6] and P[6:12, 6:12] of the state covariance; 6 dof each).
-
-    Args:
-        P: (N, d, d) state covariances, d in {12, 18}, tangent order [pose; varpi; (varpi_dot)].
-        xi: (N, 6) pose errors (`pose_error`), or None.
-        varpi_true, varpi_est: (N, 6) true and estimated body velocities (error varpi_true - varpi_est, as in
-            `state_error`), or None.
-
-    Returns:
-        dict with `pose` (N,) when xi is given and `velocity` (N,) when both velocities are given (`nees`: NaN
-        where an error is missing or the block is not positive definite).
-
-    Checked by: tests/validation/test_consistency.py::test_marginal_nees_uses_the_diagonal_blocks
-    """
-    P = np.asarray(P, dtype=float)
-    out = {}
-    if xi is not None:
-        out["pose"] = nees(xi, P[..., :6, :6])
-    if varpi_true is not None and varpi_est is not None:
-        velocity_error = np.asarray(varpi_true, dtype=float) - np.asarray(varpi_est, dtype=float)
-        out["velocity"] = nees(velocity_error, P[..., 6:12, 6:12])
-    return out
-
-
 def chi2_bounds(n_runs, dim: int, alpha: float = 0.05) -> np.ndarray:
     """Two-sided (1 - alpha) chi-square bounds of the average of n_runs independent chi-square(dim) values.
 

@@ -7,7 +7,7 @@ what the Rerun recording draws (docs/evaluation.md, "Consistency in campaigns"; 
   covariance (`covariance.position_covariance_world` of `P_pose_absolute`), and the running fraction of scans
   where it does, against the fraction the ellipsoid claims, chi2.cdf(n^2, 3) (97.1 % for 3 sigma).
 
-Checked by: tests/validation/test_campaign.py::test_run_consistency_per_scan_and_ellipsoid_coverage,
+Checked by: tests/validation/test_campaign_consistency.py::test_run_consistency_per_scan_and_ellipsoid_coverage,
     tests/viz/test_recording.py::test_recording_has_every_consistency_measure
 """
 

@@ -116,7 +116,7 @@ def consistency_of(states: dict, truth: dict, t: np.ndarray) -> tuple[dict, dict
     run's scans, "" where undefined) and the trial npz arrays `nees_<measure>` (per scan, on the times t of
     `nees`), `nees_measure_dof` and `nees_span`.
 
-    Checked by: tests/validation/test_campaign.py::test_run_consistency_per_scan_and_ellipsoid_coverage
+    Checked by: tests/validation/test_campaign_consistency.py::test_run_consistency_per_scan_and_ellipsoid_coverage
     """
     m = scan_measures(states, truth, span=SPAN)
     keep = np.isin(m["t"], t)

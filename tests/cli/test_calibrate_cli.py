@@ -40,6 +40,7 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
     assert config.model == "cv-polar"
     assert config.noise.qc_ca == tuple(report["qc_ca"]["qc"]) and config.noise.qc_cv == tuple(report["qc_cv"]["qc"])
     assert config.noise.sensor_sigma_scale == pytest.approx(1.0, rel=0.10)
+    np.testing.assert_allclose(config.noise.sensor_sigma_scales, 1.0, rtol=0.10)  # sensor.toml is the truth
     assert report["measurement"]["channels"]["range"]["sigma"] == pytest.approx(0.02, rel=0.10)
     assert "| range |" in out.with_suffix(".md").read_text()
     capsys.readouterr()

@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 from hypothesis import given
-from hypothesis import strategies as st
 
 from rodo.estimator import measurements
 from rodo.estimator import measurements as ms

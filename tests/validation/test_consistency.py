@@ -9,7 +9,7 @@ from scipy.stats import chi2
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.validation.alignment import truth_in_estimator_frame
-from rodo.validation.consistency import (average_nees, chi2_bounds, fraction_within, gated_mean, marginal_nees, nees,
+from rodo.validation.consistency import (average_nees, chi2_bounds, fraction_within, gated_mean, nees,
                                          nees_sequence, nis_summary, pose_error, state_error)
 from tests.strategies import covariances, twists
 
@@ -118,12 +118,21 @@ def test_nees_is_chi_square_for_sampled_errors():
 
 
 @given(covariances(18, 0.05, 2.0), twists("vehicle", 3.0), twists("any", 3.0))
-def test_marginal_nees_uses_the_diagonal_blocks(P, xi, varpi_error):
-    out = marginal_nees(P[None], xi[None], varpi_error[None], np.zeros((1, 6)))
-    assert out["pose"][0] == pytest.approx(xi @ np.linalg.solve(P[:6, :6], xi), rel=1e-8)
-    assert out["velocity"][0] == pytest.approx(varpi_error @ np.linalg.solve(P[6:12, 6:12], varpi_error), rel=1e-8)
-    assert set(marginal_nees(P[None], xi[None])) == {"pose"}
-    assert np.isnan(marginal_nees(np.zeros((1, 12, 12)), xi[None])["pose"][0])  # not positive definite
+def test_pose_window_and_velocity_use_the_diagonal_blocks(P, xi, varpi_error):
+    """odometry_nees's `pose_window` and `velocity` are NEES against the window's diagonal blocks P[:6, :6] and
+    P[6:12, 6:12]; a block that is not positive definite gives NaN."""
+    from rodo.validation.odometry_consistency import odometry_nees
+
+    T1 = se3.exp(np.array([-5.0, 0.2, 0.0, 0.0, 0.0, 0.1]))
+    truth = {"t": np.array([0.0, 0.1]), "T_vehicle_world": np.stack([np.eye(4), se3.exp(xi) @ T1]),
+             "varpi": np.stack([np.zeros(6), varpi_error])}
+    states = {"t": truth["t"], "T_vehicle_world": np.stack([np.eye(4), T1]), "varpi": np.zeros((2, 6)),
+              "P": np.stack([P, P])}
+    out = odometry_nees(states, truth)
+    assert out["pose_window"][1] == pytest.approx(xi @ np.linalg.solve(P[:6, :6], xi), rel=1e-8)
+    assert out["velocity"][1] == pytest.approx(varpi_error @ np.linalg.solve(P[6:12, 6:12], varpi_error), rel=1e-8)
+    states["P"] = np.zeros((2, 12, 12))
+    assert np.isnan(odometry_nees(states, truth)["pose_window"][1])  # not positive definite
 
 
 @pytest.mark.parametrize("d", [12, 18])

@@ -1,0 +1,124 @@
+"""The odometry consistency measures in campaigns: per measure over N runs against chi2_bounds(N, 6), on fake
+and on synthetic odometry trials, and a run's per-scan layout and ellipsoid coverage (validation.campaign,
+validation.campaign_consistency, validation.run_consistency)."""
+
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from rodo.validation.campaign import Trial, TrialOutcome, make_trials, read_results, run_campaign, \
+    summarize_campaign, write_summary
+from rodo.validation.consistency import chi2_bounds
+from rodo.validation.odometry_consistency import MEASURES
+from tests.validation.test_campaign import MODELS, FakeTrial
+
+
+@pytest.mark.parametrize("scale", [1.0, 4.0])
+def test_campaign_consistency_per_measure_consistent_and_overconfident(tmp_path, scale):
+    """Per model and measure: the average over N runs per scan against chi2_bounds(N, 6); a consistent trial set
+    lies inside, one whose NEES is 4 times chi2(6) (a covariance 4 times too small) outside; a CV model has no
+    acceleration measure; summary.md has the table."""
+    trials = make_trials(3, 12, MODELS)
+    with ProcessPoolExecutor(2) as ex:
+        run_campaign(FakeTrial(scans=40, scale=scale), trials, ex, tmp_path)
+    s = summarize_campaign(tmp_path)
+    lo, hi = chi2_bounds(12, 6)
+    for m in MODELS:
+        cons, curves = s["models"][m]["consistency"], s["models"][m]["consistency_curves"]
+        assert set(cons) == set(MEASURES) and len(curves["t"]) == 40
+        for name in MEASURES:
+            c = cons[name]
+            if name == "acceleration" and m == "cv-cartesian":
+                assert c["runs"] == 0 and c["mean_per_dof"] is None and c["fraction_scans_within"] is None
+                assert name not in curves
+                continue
+            assert c["runs"] == 12 and c["dof"] == 6
+            assert c["bounds_for_runs"] == pytest.approx([lo, hi]) and c["bounds_per_dof"] == pytest.approx([lo / 6, hi / 6])
+            curve = curves[name]
+            assert curve["upper"][-1] == pytest.approx(hi) and curve["count"][-1] == 12
+            if scale == 1.0:
+                assert lo / 6 < c["mean_per_dof"] < hi / 6 and c["fraction_scans_within"] >= 0.85, (m, name, c)
+            else:
+                assert c["mean_per_dof"] > hi / 6 and c["fraction_scans_within"] <= 0.05, (m, name, c)
+            rows = [r for r in read_results(tmp_path / "results.csv") if r["model"] == m]
+            assert all(float(r[f"nees_{name}_per_dof"]) > 0 for r in rows)
+    write_summary(tmp_path, s)
+    md = (tmp_path / "summary.md").read_text()
+    assert "| relative_span | 12 |" in md and "| acceleration | 0 | - |" in md
+
+
+@dataclass(frozen=True)
+class SyntheticOdometryTrial:
+    """Runs whose errors are drawn from the covariances they report (times report_scale), measured by the real
+    `odometry_nees` through `trial.consistency_of` (the construction of test_odometry_consistency)."""
+
+    report_scale: float = 1.0
+
+    def __call__(self, trial: Trial):
+        from rodo.validation.trial import consistency_of
+        from tests.validation.test_odometry_consistency import _run
+
+        states, truth = _run(np.random.default_rng(trial.seed), self.report_scale)
+        states["velocity_correlation_time"] = 0.0  # the synthetic runs compose without a velocity term
+        metrics, arrays = consistency_of(states, truth, states["t"])
+        return [TrialOutcome(m, metrics, {"t": states["t"], "nees": np.zeros(len(states["t"])), "nees_dim": 18,
+                                          **arrays}) for m in trial.models]
+
+
+@pytest.mark.parametrize("report_scale", [1.0, 0.25])
+def test_campaign_consistency_of_synthetic_odometry_runs(tmp_path, report_scale):
+    runs = 40
+    with ProcessPoolExecutor(2) as ex:
+        run_campaign(SyntheticOdometryTrial(report_scale), make_trials(8, runs, MODELS[:1]), ex, tmp_path)
+    cons = summarize_campaign(tmp_path)["models"]["ca-polar"]["consistency"]
+    lo, hi = chi2_bounds(runs, 6) / 6
+    for name in ("velocity", "relative_scan", "relative_span", "pose"):
+        c = cons[name]
+        assert c["runs"] == runs
+        if report_scale == 1.0:
+            assert 0.8 < c["mean_per_dof"] < 1.25 and c["fraction_scans_within"] >= 0.75, (name, c)
+        else:
+            assert c["mean_per_dof"] > 2 * hi and c["fraction_scans_within"] <= 0.1, (name, c)
+
+
+def test_run_consistency_per_scan_and_ellipsoid_coverage():
+    """scan_measures lays odometry_nees out per state row (NaN where a scan has no truth); consistency_of gives
+    the columns and arrays; the ellipsoid of Gaussian position errors holds the truth chi2.cdf(9, 3) of the
+    time."""
+    from scipy.stats import chi2
+
+    from rodo.estimator.lie import se3
+    from rodo.validation.odometry_consistency import odometry_nees
+    from rodo.validation.run_consistency import ellipsoid_coverage, scan_measures
+    from rodo.validation.trial import consistency_of
+    from tests.validation.test_odometry_consistency import _run
+
+    states, truth = _run(np.random.default_rng(1))
+    states["velocity_correlation_time"] = 0.0
+    cut = {k: np.delete(v, 5, axis=0) for k, v in truth.items()}  # scan 5 has no truth
+    m = scan_measures(states, cut, span=0.5)
+    ref = odometry_nees(states, cut, span=0.5, tau=0.0)
+    assert len(m["pose"]) == len(states["t"]) and np.isnan(m["velocity"][5])
+    np.testing.assert_array_equal(np.delete(m["velocity"], 5), ref["velocity"])
+    metrics, arrays = consistency_of(states, truth, states["t"])
+    assert set(metrics) == {f"nees_{k}_per_dof" for k in MEASURES}
+    assert metrics["nees_pose_per_dof"] == pytest.approx(np.nanmean(arrays["nees_pose"]) / 6)
+    assert arrays["nees_measure_dof"] == 6 and arrays["nees_span"] == 1.0
+    rng = np.random.default_rng(2)
+    n = 4000
+    T = se3.exp(rng.normal(size=(n, 6)))
+    P = np.zeros((n, 6, 6))
+    P[:, :3, :3] = np.diag([0.5, 2.0, 0.1])
+    C = T[:, :3, :3]
+    Sigma_w = np.swapaxes(C, 1, 2) @ P[:, :3, :3] @ C
+    p_est = rng.normal(size=(n, 3))
+    p_true = p_est + np.einsum("nij,nj->ni", np.linalg.cholesky(Sigma_w), rng.normal(size=(n, 3)))
+    P[0] = 0.0  # a singular covariance: undefined, left out
+    cov = ellipsoid_coverage(p_est, p_true, T, P)
+    assert np.isnan(cov["inside"][0]) and np.isnan(cov["running_fraction"][0])
+    assert cov["claimed"] == pytest.approx(chi2.cdf(9.0, 3))
+    assert abs(cov["fraction"] - cov["claimed"]) < 0.01 and cov["running_fraction"][-1] == cov["fraction"]
+    far = ellipsoid_coverage(p_est, p_est + 10.0, T, P)
+    assert far["fraction"] == 0.0
