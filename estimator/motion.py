@@ -56,6 +56,19 @@ class MotionPrior(ABC):
         rate (3)], and [accel (3); angular accel (3)] where the state has an acceleration."""
         return list(velocity) + list(rate)
 
+    @abstractmethod
+    def predict_batch(self, T_vehicle_world, varpi, varpi_dot, dt) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The mean of the prior for arrays of states (calibration, analysis): (T, varpi, varpi_dot) after dt,
+        varpi_dot zeros for a state without acceleration."""
+
+    @abstractmethod
+    def transition_and_noise_batch(self, varpi, varpi_dot, dt) -> tuple[np.ndarray, np.ndarray]:
+        """F_k and Q_k (n, dim, dim) of n intervals from arrays of states (varpi_dot ignored without one)."""
+
+    def tail(self, varpi, varpi_dot) -> np.ndarray:
+        """The Euclidean part of states in this layout, (..., dim - 6): `State.vector_tail` for arrays."""
+        return np.asarray(varpi, dtype=float)
+
     def residuals(self, states: list[State]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The prior residual of all consecutive pairs of `states`: e (n-1, d), J_e_x1, J_e_x2 (n-1, d, d).
 
@@ -100,6 +113,15 @@ class ConstantAccelerationMotion(MotionPrior):
     def tail_sigmas(self, velocity, rate, accel, angular_accel):
         return list(velocity) + list(rate) + list(accel) + list(angular_accel)
 
+    def tail(self, varpi, varpi_dot):
+        return np.concatenate([np.asarray(varpi, dtype=float), np.asarray(varpi_dot, dtype=float)], axis=-1)
+
+    def predict_batch(self, T_vehicle_world, varpi, varpi_dot, dt):
+        return self.prior.predict(T_vehicle_world, varpi, varpi_dot, dt)
+
+    def transition_and_noise_batch(self, varpi, varpi_dot, dt):
+        return self.prior.transition_and_noise_batch(varpi, varpi_dot, dt)
+
     def _batch_means(self, T1, tail1, dt, F):
         n, order = len(dt), self.prior.magnus_order
         varpi1, varpi_dot1 = np.ascontiguousarray(tail1[:, :6]), np.ascontiguousarray(tail1[:, 6:])
@@ -129,6 +151,13 @@ class ConstantVelocityMotion(MotionPrior):
 
     def transition_and_noise(self, x, dt):
         return self.prior.transition_and_noise(x.varpi, dt)
+
+    def predict_batch(self, T_vehicle_world, varpi, varpi_dot, dt):
+        T, varpi = self.prior.predict(T_vehicle_world, varpi, dt)
+        return T, varpi, np.zeros_like(varpi)
+
+    def transition_and_noise_batch(self, varpi, varpi_dot, dt):
+        return self.prior.transition_and_noise_batch(varpi, dt)
 
     def _batch_means(self, T1, tail1, dt, F):
         n = len(dt)

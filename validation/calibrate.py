@@ -23,9 +23,7 @@ from scipy import optimize
 
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
-from rodo.estimator.priors import ConstantAccelerationPrior, ConstantVelocityPrior
-
-PRIORS = {"ca": ConstantAccelerationPrior, "cv": ConstantVelocityPrior}
+from rodo.estimator.motion import MotionPrior, motion_prior
 COMPONENTS = ("x", "y", "z", "roll", "pitch", "yaw")  # the diagonal of Qc: linear, then angular, body axes
 DEFAULT_FLOOR = 1e-9  # lower bound of every q_i (a component the data never excites goes there)
 
@@ -71,21 +69,15 @@ class QcFit:
 
 
 def make_prior(kind: str, qc):
-    """The prior "ca" or "cv" with Qc = diag(qc)."""
-    if kind not in PRIORS:
-        raise InputError(f"prior: expected one of {tuple(PRIORS)}, got {kind!r}")
-    return PRIORS[kind](np.diag(np.asarray(qc, dtype=float)))
+    """The array-level prior "ca" or "cv" with Qc = diag(qc) (`motion_prior(kind, qc).prior`)."""
+    return motion_prior(kind, qc).prior
 
 
-def _predict(prior, track: StateTrack, k: np.ndarray):
+def _predict(motion: MotionPrior, track: StateTrack, k: np.ndarray):
     """(T_pred, varpi_pred, varpi_dot_pred, dt) of f(x_{k-1}) for the intervals k."""
     dt = np.diff(track.t)[k - 1]
-    T, w, vd = track.T_vehicle_world[k - 1], track.varpi[k - 1], track.varpi_dot[k - 1]
-    if isinstance(prior, ConstantVelocityPrior):
-        T_pred, w_pred = prior.predict(T, w, dt)
-        return T_pred, w_pred, np.zeros_like(w_pred), dt
-    T_pred, w_pred, vd_pred = prior.predict(T, w, vd, dt)
-    return T_pred, w_pred, vd_pred, dt
+    return (*motion.predict_batch(track.T_vehicle_world[k - 1], track.varpi[k - 1], track.varpi_dot[k - 1], dt),
+            dt)
 
 
 def prior_residuals(kind: str, track: StateTrack) -> np.ndarray:
@@ -95,12 +87,11 @@ def prior_residuals(kind: str, track: StateTrack) -> np.ndarray:
     Checked by: tests/validation/test_calibrate.py::test_residuals_equal_the_priors_residual
     """
     k = track.intervals()
-    T_pred, w_pred, vd_pred, _ = _predict(make_prior(kind, np.ones(6)), track, k)
+    motion = motion_prior(kind, np.ones(6))
+    T_pred, w_pred, vd_pred, _ = _predict(motion, track, k)
     xi = se3.log(track.T_vehicle_world[k] @ se3.inverse(T_pred))
-    parts = [xi, track.varpi[k] - w_pred]
-    if kind == "ca":
-        parts.append(track.varpi_dot[k] - vd_pred)
-    return np.concatenate(parts, axis=-1)
+    return np.concatenate([xi, motion.tail(track.varpi[k], track.varpi_dot[k]) - motion.tail(w_pred, vd_pred)],
+                          axis=-1)
 
 
 def transitions_and_basis(kind: str, track: StateTrack, qc) -> tuple[np.ndarray, np.ndarray]:
@@ -113,9 +104,7 @@ def transitions_and_basis(kind: str, track: StateTrack, qc) -> tuple[np.ndarray,
     c = 1e-3 * float(np.min(qc))
 
     def batch(q):
-        prior = make_prior(kind, q)
-        return prior.transition_and_noise_batch(w, dt) if kind == "cv" else \
-            prior.transition_and_noise_batch(w, vd, dt)
+        return motion_prior(kind, q).transition_and_noise_batch(w, vd, dt)
 
     F, Q0 = batch(np.full(6, c))
     B = np.stack([batch(c + np.eye(6)[i])[1] - Q0 for i in range(6)], axis=1)
@@ -198,10 +187,9 @@ def fit_qc_to_truth(kind: str, tracks, floor: float = DEFAULT_FLOOR) -> QcFit:
 
 
 # ------------------------------------------------------------------------------------ EM without ground truth
-def _state_delta(kind: str, T, w, vd, T_ref, w_ref, vd_ref) -> np.ndarray:
+def _state_delta(motion: MotionPrior, T, w, vd, T_ref, w_ref, vd_ref) -> np.ndarray:
     """x (-) x_ref for one state, (d,)."""
-    parts = [se3.log(T @ se3.inverse(T_ref)), w - w_ref]
-    return np.concatenate(parts + ([vd - vd_ref] if kind == "ca" else []))
+    return np.concatenate([se3.log(T @ se3.inverse(T_ref)), motion.tail(w, vd) - motion.tail(w_ref, vd_ref)])
 
 
 def smooth(kind: str, track: StateTrack, qc) -> tuple[StateTrack, np.ndarray]:
@@ -215,7 +203,8 @@ def smooth(kind: str, track: StateTrack, qc) -> tuple[StateTrack, np.ndarray]:
 
     Checked by: tests/validation/test_calibrate.py::test_smoother_of_a_single_interval_matches_the_joint_gaussian
     """
-    d = PRIORS[kind].state_dim
+    motion = motion_prior(kind, qc)
+    d = motion.dim
     n = len(track.t)
     P = np.array(track.P, dtype=float)
     if P.shape != (n, d, d):
@@ -223,7 +212,7 @@ def smooth(kind: str, track: StateTrack, qc) -> tuple[StateTrack, np.ndarray]:
     every = StateTrack(track.t, track.T_vehicle_world, track.varpi, track.varpi_dot)
     F, B = transitions_and_basis(kind, every, qc)
     Q = np.einsum("i,kiab->kab", np.asarray(qc, dtype=float), B)
-    T_pred, w_pred, vd_pred, _ = _predict(make_prior(kind, qc), every, every.intervals())
+    T_pred, w_pred, vd_pred, _ = _predict(motion, every, every.intervals())
     T, w, vd = (np.array(a, dtype=float) for a in (track.T_vehicle_world, track.varpi, track.varpi_dot))
     valid = np.ones(n - 1, bool) if track.valid is None else np.asarray(track.valid, dtype=bool)
     cross = np.zeros((n - 1, d, d))
@@ -232,10 +221,9 @@ def smooth(kind: str, track: StateTrack, qc) -> tuple[StateTrack, np.ndarray]:
             continue
         P_minus = F[k] @ P[k] @ F[k].T + Q[k]
         C = np.linalg.solve(P_minus, F[k] @ P[k]).T
-        dx = C @ _state_delta(kind, T[k + 1], w[k + 1], vd[k + 1], T_pred[k], w_pred[k], vd_pred[k])
+        dx = C @ _state_delta(motion, T[k + 1], w[k + 1], vd[k + 1], T_pred[k], w_pred[k], vd_pred[k])
         T[k], w[k] = se3.exp(dx[:6]) @ T[k], w[k] + dx[6:12]
-        if kind == "ca":
-            vd[k] = vd[k] + dx[12:]
+        vd[k, :len(dx) - 12] += dx[12:]  # no acceleration (CV): nothing to add
         P[k] = P[k] + C @ (P[k + 1] - P_minus) @ C.T
         P[k] = 0.5 * (P[k] + P[k].T)
         cross[k] = C @ P[k + 1]
