@@ -1,3 +1,8 @@
 """rodo: a testbed for radar odometry on SE(3). The command line lives in rodo.cli."""
 
-__version__ = "0.1.0"
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("rodo")  # one source: pyproject.toml's [project] version
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "unknown"

@@ -8,6 +8,7 @@ import sys
 
 from rodo.estimator.errors import InputError
 
+from . import extras
 from .commands import (calibrate, convert, demo, ego_velocity, evaluate, figures, montecarlo, prior, run, simulate,
                        table1, view)
 
@@ -17,10 +18,22 @@ COMMANDS = [demo, simulate, run, evaluate, montecarlo, table1, convert, ego_velo
 
 def build_parser(commands=None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rodo", description="Radar odometry on SE(3): a testbed.")
+    parser.add_argument("--version", action="version", version=f"rodo {version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in COMMANDS if commands is None else commands:
         module.register(sub)
     return parser
+
+
+def version() -> str:
+    """The installed distribution's version (importlib.metadata), the one pyproject.toml declares."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("rodo")
+    except PackageNotFoundError:  # running from a source tree that was never installed
+        return "unknown (not installed)"
 
 
 def main(argv: list[str] | None = None, commands=None) -> int:
@@ -28,9 +41,17 @@ def main(argv: list[str] | None = None, commands=None) -> int:
     parser = build_parser(commands)
     args = parser.parse_args(argv)
     try:
+        extras.check_command(args)  # a missing optional dependency fails before any work
         return int(args.func(args) or 0)
     except InputError as exc:
         print(f"rodo {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as exc:  # an optional dependency reached past check_command
+        extra = extras.extra_for(exc.name)
+        if extra is None:
+            raise
+        print(f"rodo {args.command}: error: {extras.message(extra, f'rodo {args.command}', [exc.name])}",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"rodo {args.command}: interrupted", file=sys.stderr)

@@ -17,7 +17,8 @@ The first estimate is the identity, as the estimator's. Timing per scan covers s
 BLAS and open3d's thread pool are limited to one thread for the run, as in `validation.driver.run_sequence`,
 so the timings compare like with like on a shared machine.
 
-`open3d` is imported inside `run_icp` only (importing it takes about 2 s).
+`open3d` is imported inside `run_icp` only (importing it takes about 2 s); it is optional (`pip install 'rodo[icp]'`)
+and its absence raises ModuleNotFoundError naming that extra.
 
 Checked by: tests/validation/test_icp_baseline.py
 """
@@ -101,7 +102,13 @@ def run_icp(seq: Sequence, method: str = "point_to_plane", max_correspondence: f
     times = scan_times(seq)
     if len(times) == 0:
         raise InputError("seq: no scans (radar.csv has no rows and there is no groundtruth.txt)")
-    import open3d as o3d
+    try:
+        import open3d as o3d
+    except ModuleNotFoundError as exc:  # an optional dependency: rodo[icp]
+        if exc.name != "open3d":
+            raise
+        raise ModuleNotFoundError("run_icp needs open3d, the optional dependency of rodo[icp]: "
+                                  "pip install 'rodo[icp]'", name="open3d") from None
 
     before = o3d.utility.get_max_threads() if hasattr(o3d.utility, "get_max_threads") else None
     try:
