@@ -35,7 +35,7 @@ def test_citation_prefers_the_paper():
     paper = cff["preferred-citation"]
     first_line = (ROOT.parent / "shared" / "paper").glob("*.txt")
     title = next((p.read_text().strip().splitlines()[0] for p in first_line), None)
-    if title is not None:  # the paper's own title line (with its TeX $SE(3)$), where ../shared is present
+    if title is not None:  # the paper's own title line (with its TeX $SE(3)$), where the paper text is present
         assert paper["title"] == title.replace("$", "")
     assert [a["family-names"] for a in paper["authors"]] == ["Retan", "Loshaj", "Heizmann"]
 

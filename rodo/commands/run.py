@@ -1,15 +1,24 @@
-"""`rodo run SEQ_DIR --model ca-polar|cv-cartesian --out OUT_DIR [--config FILE]`: odometry on a sequence."""
+"""`rodo run SEQ_DIR --model MODEL --out OUT_DIR [--config FILE] [--rerun OUT.rrd]`: odometry on a sequence.
+
+Writes OUT_DIR/estimate.txt (TUM), estimate.kitti.txt (the same poses, KITTI layout), states.npz and summary.json;
+on a sequence with groundtruth.txt it ends with the KITTI drift and ATE that `rodo evaluate` reports for them.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
+import sys
 from pathlib import Path
+
+import numpy as np
 
 from rodo.estimator.config import MODELS, OdometryConfig
 from rodo.estimator.errors import InputError
 from rodo.progress import Progress
-from rodo.sim.sequence import read_sequence
+from rodo.sim.kitti_poses import write_kitti_poses
+from rodo.sim.sequence import GROUNDTRUTH_TXT, read_sequence, read_tum
 from rodo.sim.simulate import TRUTH_NPZ, load_truth
 from rodo.validation.driver import run_sequence, scan_times, write_run
 
@@ -18,10 +27,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run the estimator on a sequence directory and write estimate.txt, "
                                    "states.npz, summary.json",
                        description="Run radar odometry on a sequence (docs/sequence_format.md). Writes "
-                                   "OUT/estimate.txt (TUM, T_world_vehicle), OUT/states.npz and OUT/summary.json.")
+                                   "OUT/estimate.txt (TUM, T_world_vehicle), OUT/estimate.kitti.txt (the same poses "
+                                   "as KITTI 3x4 rows), OUT/states.npz and OUT/summary.json; with groundtruth.txt "
+                                   "in SEQ_DIR it prints the KITTI drift and ATE (as `rodo evaluate`).")
     p.add_argument("sequence", metavar="SEQ_DIR", help="sequence directory (radar.csv, sensor.toml)")
-    p.add_argument("--model", choices=MODELS, default=None,
-                   help="ca-polar (the paper's method, default) or cv-cartesian (its baseline)")
+    p.add_argument("--model", choices=MODELS, default=None, metavar="MODEL",
+                   help="motion prior / measurement model: ca-polar (the paper's method, default), cv-cartesian "
+                        "(its baseline), ca-cartesian, cv-polar (the two other combinations)")
     p.add_argument("--out", required=True, metavar="OUT_DIR", help="output directory (created)")
     p.add_argument("--config", metavar="FILE", help="TOML file overriding the estimator defaults")
     p.add_argument("--rerun", metavar="OUT.rrd", help="also write a Rerun recording of the run")
@@ -63,6 +75,7 @@ def main(args) -> int:
     with Progress(len(scan_times(seq)), f"rodo run {config.model}") as bar:
         result = run_sequence(seq, config, progress=bar, record_detail=bool(args.rerun))
     write_run(args.out, result)
+    write_kitti_poses(Path(args.out) / KITTI_POSES, result.trajectory().T_world_vehicle)
     if args.rerun:
         from rodo.viz.recording import record_run  # viz is the only package importing rerun
 
@@ -70,9 +83,50 @@ def main(args) -> int:
         truth = load_truth(args.sequence) if truth_path.exists() else None
         details = [e.detail for e in result.estimates]
         record_run(args.rerun, seq, result, truth=truth, detail=details)
-        print(f"wrote {args.rerun} (open it with: rodo view {args.rerun})")
+        print(f"wrote {args.rerun} (open it with: {rodo_command()} view {args.rerun})")
     s = result.summary()
     print(json.dumps({k: s[k] for k in ("model", "scans", "median_associations", "median_ms_per_scan",
                                         "p95_ms_per_scan")}))
-    print(f"wrote {args.out}/estimate.txt, states.npz, summary.json")
+    print(f"wrote {args.out}/estimate.txt, {KITTI_POSES}, states.npz, summary.json")
+    if seq.groundtruth is not None:
+        print(accuracy_line(Path(args.sequence) / GROUNDTRUTH_TXT, Path(args.out) / "estimate.txt"))
     return 0
+
+
+KITTI_POSES = "estimate.kitti.txt"
+
+
+def accuracy_line(gt_path: Path, est_path: Path) -> str:
+    """KITTI drift and ATE of the written estimate against the ground truth: `rodo evaluate`'s numbers for the
+    same files at its defaults (validation.metrics.evaluate, formatted as its table)."""
+    from rodo.validation.kitti import LENGTHS
+    from rodo.validation.metrics import evaluate
+
+    rep = evaluate(read_tum(gt_path), read_tum(est_path))
+    if rep["kitti_segments"]:
+        kitti = (f"KITTI t_err {_fmt(rep['kitti_t_err_pct'])} %, r_err {_fmt(rep['kitti_r_err_deg_per_m'])} deg/m "
+                 f"({rep['kitti_segments']} segments)")
+    else:
+        kitti = f"KITTI -: the path ({_fmt(rep['path_length_m'], '.1f')} m) is shorter than {LENGTHS[0]:g} m"
+    return (f"against {gt_path} ({rep['matched']} poses): {kitti}; ATE rmse {_fmt(rep['ate_rmse_m'])} m "
+            f"(all metrics: rodo evaluate --gt {gt_path} --est {est_path})")
+
+
+def _fmt(v, spec: str = ".4g") -> str:
+    """A number as `rodo evaluate`'s table prints it ("-" when undefined)."""
+    return "-" if v is None or not np.isfinite(v) else format(v, spec)
+
+
+def rodo_command() -> str:
+    """How to call rodo from the user's shell: `rodo` when that is this installation on PATH, else the path of
+    the `rodo` script next to this interpreter (e.g. .venv/bin/rodo after `make demo`)."""
+    script = Path(sys.executable).parent / "rodo"
+    found = shutil.which("rodo")
+    if found and Path(found).resolve() == script.resolve():
+        return "rodo"
+    if not script.is_file():
+        return f"{sys.executable} -m rodo"
+    try:
+        return str(script.relative_to(Path.cwd()))
+    except ValueError:
+        return str(script)
