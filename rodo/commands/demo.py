@@ -51,8 +51,11 @@ def main(args) -> int:
     if not args.no_figures:
         _figures(out)
     (out / "demo.json").write_text(json.dumps(_jsonable(report), indent=2) + "\n")
+    from rodo.commands.run import rodo_command
+
     print(f"\nDone. Results in {out}/ (demo.json, per-model estimate.txt / states.npz / summary.json / "
-          f"evaluation.json).\nOpen the recording with:  rodo view {rrd}   (or: rerun {rrd})")
+          f"evaluation.json).\nOpen the recording with:  {rodo_command()} view {rrd}   (or: "
+          f"{rodo_command('rerun')} {rrd})")
     return 0
 
 

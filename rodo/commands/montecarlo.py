@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Simulate SCENARIO with N seeds (one SeedSequence(seed).spawn(N)), run each "
                                    "model, evaluate against truth. Writes DIR/results.csv (a row per trial and "
                                    "model, persisted at once), DIR/trials/*.npz, DIR/summary.md and summary.json.")
-    p.add_argument("scenario", metavar="SCENARIO", help="scenario name (rodo simulate --list)")
+    p.add_argument("scenario", metavar="SCENARIO", help="scenario name (list them with `rodo scenarios`)")
     p.add_argument("--runs", type=int, required=True, help="number of trials")
     p.add_argument("--models", default="ca-polar,cv-cartesian",
                    help="comma-separated models (%(default)s), or LABEL=CONFIG.toml to run a config under a label "

@@ -117,15 +117,16 @@ def _fmt(v, spec: str = ".4g") -> str:
     return "-" if v is None or not np.isfinite(v) else format(v, spec)
 
 
-def rodo_command() -> str:
-    """How to call rodo from the user's shell: `rodo` when that is this installation on PATH, else the path of
-    the `rodo` script next to this interpreter (e.g. .venv/bin/rodo after `make demo`)."""
-    script = Path(sys.executable).parent / "rodo"
-    found = shutil.which("rodo")
+def rodo_command(name: str = "rodo") -> str:
+    """How to call the installed script `name` (rodo, or rerun-sdk's `rerun` viewer) from the user's shell:
+    `name` when that is this installation's on PATH, else the path of the script next to this interpreter
+    (e.g. .venv/bin/rodo after `make demo`, where .venv/bin is not on PATH)."""
+    script = Path(sys.executable).parent / name
+    found = shutil.which(name)
     if found and Path(found).resolve() == script.resolve():
-        return "rodo"
+        return name
     if not script.is_file():
-        return f"{sys.executable} -m rodo"
+        return f"{sys.executable} -m rodo" if name == "rodo" else name
     try:
         return str(script.relative_to(Path.cwd()))
     except ValueError:

@@ -87,5 +87,7 @@ def run_simulate(args: argparse.Namespace) -> int:
         from rodo.viz.recording import record_sequence  # viz is the only package importing rerun
 
         record_sequence(args.rerun, seq, truth)
-        print(f"wrote {args.rerun} (open it with: rodo view {args.rerun})")
+        from rodo.commands.run import rodo_command
+
+        print(f"wrote {args.rerun} (open it with: {rodo_command()} view {args.rerun})")
     return 0

@@ -50,7 +50,7 @@ def main(args: argparse.Namespace) -> int:
         return subprocess.call([viewer, str(path)])
     reason = "no display (DISPLAY/WAYLAND_DISPLAY unset)" if viewer else "the `rerun` viewer is not installed"
     print(f"rodo view: cannot open a window here: {reason}.")
-    print("On a machine with a display (pip install rerun-sdk>=0.41), run:")
+    print("On a machine with a display (the viewer comes with pip install 'rodo[viz]'), run:")
     print(f"    rerun {path.resolve()}")
     print("or headless, for a screenshot: xvfb-run -a -s \"-screen 0 1600x1000x24\" rerun "
           f"{path} --window-size 1200x800 --screenshot-to shot.png")
