@@ -79,10 +79,12 @@ def plot_summary(out_dir, summary: dict) -> str:
     """Plot the average NEES per model (nees_MODEL.png) and its odometry consistency measures
     (consistency_MODEL.png, each measure divided by its 6 dof, with the band of its N runs) through
     viz.figures.plot_nees; returns a note for summary.md (where the plots are, or why there are none)."""
-    try:
-        from rodo.viz.figures import plot_nees  # viz is the only package that imports matplotlib
-    except ImportError as exc:
-        return f"No NEES plot: viz.figures.plot_nees is not available ({exc})."
+    from rodo import extras
+
+    if not extras.is_installed("matplotlib"):
+        return f"No NEES plot: matplotlib is not installed ({extras.install_hint('viz')} adds the plots)."
+    from rodo.viz.figures import plot_nees  # viz is the only package that imports matplotlib
+
     curves = {m: e for m, e in summary["models"].items() if "nees_curve" in e}
     if not curves:
         return "No NEES plot: no successful run."

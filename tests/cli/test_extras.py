@@ -77,6 +77,18 @@ def test_core_commands_run_without_any_extra(core_run):
     assert "KITTI t_err" in procs[2].stdout
 
 
+def test_a_campaign_runs_on_the_core_and_says_how_to_get_its_plots(tmp_path):
+    """montecarlo on a process pool needs no extra; its summary names the extra that adds the NEES plots."""
+    out = tmp_path / "mc"
+    proc = rodo_without(ALL_EXTRA_MODULES, "montecarlo", "city", "--runs", 1, "--duration", 1, "--jobs", 1,
+                        "--models", "cv-cartesian", "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    assert "cv-cartesian   ok    1/1" in proc.stdout
+    summary = (out / "summary.md").read_text()
+    assert "No NEES plot: matplotlib is not installed (pip install 'rodo[viz]' adds the plots)" in summary
+    assert not list(out.glob("*.png"))
+
+
 @pytest.mark.parametrize("argv, extra, absent", [
     (["simulate", "city", "--duration", "1", "--out", "{tmp}/seq", "--rerun", "{tmp}/x.rrd"], "viz", ["rerun"]),
     (["run", "{tmp}/seq", "--out", "{tmp}/run", "--rerun", "{tmp}/x.rrd"], "viz", ["matplotlib"]),
