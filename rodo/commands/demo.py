@@ -23,7 +23,7 @@ from rodo.progress import Progress
 def register(sub) -> None:
     p = sub.add_parser("demo", help="simulate, run CA/P and CV/C, evaluate, record, plot (the main job)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", default="results/demo", help="output directory (default results/demo)")
+    p.add_argument("--out", default="results/demo", metavar="DIR", help="output directory (default results/demo)")
     p.add_argument("--scenario", default="city", help="scenario to simulate (default city; see rodo scenarios)")
     p.add_argument("--duration", type=float, default=45.0, help="simulated seconds (default 45)")
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")

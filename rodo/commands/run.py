@@ -1,6 +1,6 @@
-"""`rodo run SEQ_DIR --model MODEL --out OUT_DIR [--config FILE] [--rerun OUT.rrd]`: odometry on a sequence.
+"""`rodo run SEQ_DIR --model MODEL --out DIR [--config FILE] [--rerun OUT.rrd]`: odometry on a sequence.
 
-Writes OUT_DIR/estimate.txt (TUM), estimate.kitti.txt (the same poses, KITTI layout), states.npz and summary.json;
+Writes DIR/estimate.txt (TUM), estimate.kitti.txt (the same poses, KITTI layout), states.npz and summary.json;
 on a sequence with groundtruth.txt it ends with the KITTI drift and ATE that `rodo evaluate` reports for them.
 """
 
@@ -27,14 +27,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run the estimator on a sequence directory and write estimate.txt, "
                                    "states.npz, summary.json",
                        description="Run radar odometry on a sequence (docs/sequence_format.md). Writes "
-                                   "OUT/estimate.txt (TUM, T_world_vehicle), OUT/estimate.kitti.txt (the same poses "
-                                   "as KITTI 3x4 rows), OUT/states.npz and OUT/summary.json; with groundtruth.txt "
+                                   "DIR/estimate.txt (TUM, T_world_vehicle), DIR/estimate.kitti.txt (the same poses "
+                                   "as KITTI 3x4 rows), DIR/states.npz and DIR/summary.json; with groundtruth.txt "
                                    "in SEQ_DIR it prints the KITTI drift and ATE (as `rodo evaluate`).")
     p.add_argument("sequence", metavar="SEQ_DIR", help="sequence directory (radar.csv, sensor.toml)")
     p.add_argument("--model", choices=MODELS, default=None, metavar="MODEL",
                    help="motion prior / measurement model: ca-polar (the paper's method, default), cv-cartesian "
                         "(its baseline), ca-cartesian, cv-polar (the two other combinations)")
-    p.add_argument("--out", required=True, metavar="OUT_DIR", help="output directory (created)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory (created)")
     p.add_argument("--config", metavar="FILE", help="TOML file overriding the estimator defaults")
     p.add_argument("--rerun", metavar="OUT.rrd", help="also write a Rerun recording of the run")
     p.set_defaults(func=main)

@@ -22,7 +22,7 @@ def register(subparsers) -> None:
                                           "groundtruth.txt and truth.npz into --out.")
     p.add_argument("scenario", help="scenario name (see `rodo scenarios`)")
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed -> same bytes; default 0)")
-    p.add_argument("--out", required=True, help="output sequence directory")
+    p.add_argument("--out", required=True, metavar="SEQ_DIR", help="output sequence directory")
     p.add_argument("--duration", type=float, default=None,
                    help="seconds to simulate (default: the scenario's own length)")
     p.add_argument("--qc", metavar="X,Y,Z,RX,RY,RZ", default=None,

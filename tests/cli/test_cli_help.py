@@ -63,3 +63,13 @@ def test_printed_commands_work_from_the_users_shell(tmp_path, monkeypatch):
     monkeypatch.setenv("PATH", str(tmp_path))
     monkeypatch.chdir(tmp_path)  # outside the venv: the absolute path
     assert rodo_command() == str(bin_dir / "rodo")
+
+
+def test_outputs_follow_one_metavar_convention():
+    """--out is SEQ_DIR for a sequence, DIR for another directory, NAME.ext for a file."""
+    choices, _ = _commands()
+    for name, parser in choices.items():
+        for action in parser._actions:
+            if "--out" in action.option_strings:
+                mv = action.metavar
+                assert mv in ("DIR", "SEQ_DIR") or re.fullmatch(r"[A-Z_]+\.[a-z]+", mv or ""), (name, mv)
