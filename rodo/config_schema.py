@@ -230,7 +230,8 @@ def render_markdown() -> str:
            "`rodo config dump [--model MODEL]` prints every key with its default as commented TOML, a complete",
            "file to start from. The defaults are the same for every model except `model` itself; keys marked",
            "*CA*, *CV*, *polar* or *Cartesian* are read only by the models with that prior or measurement model.",
-           f"The models: {', '.join(f'`{m}`' for m in MODELS)}.", ""]
+           f"The models: {', '.join(f'`{m}`' for m in MODELS)}. An example that changes two keys:",
+           "[examples/handheld.toml](examples/handheld.toml) (a hand-held sensor).", ""]
     for section in schema():
         out += [f"## {'[' + section.name + ']' if section.name else 'Top level'}", ""]
         if section.description:

@@ -76,6 +76,13 @@ def test_keys_not_read_by_the_model_are_marked():
     assert "not used by" not in text[:text.index("\nqc_cv =")].rsplit("\n# qc_cv", 1)[1]
 
 
+def test_the_example_file_loads_and_changes_only_what_it_says():
+    cfg = OdometryConfig.from_toml(ROOT / "docs" / "examples" / "handheld.toml")
+    default = OdometryConfig.for_model("ca-polar")
+    assert cfg == default.replace(vehicle=dataclasses.replace(default.vehicle, sigma_roll_rate=0.0,
+                                                              sigma_pitch_rate=0.0))
+
+
 @dataclass(frozen=True)
 class _NewSection:
     """A section as another engineer might add one.
