@@ -60,6 +60,7 @@ class RunResult:
             P_pose_absolute=np.stack([_or_nan(e.P_pose_absolute) for e in est]),
             map_reuse=np.array([e.map_reuse for e in est]),
             velocity_correlation_time=np.float64(self.config.uncertainty.velocity_correlation_time),
+            drift_rate_sigma=np.asarray(self.config.uncertainty.drift_rate_sigma, dtype=float),
         )
 
     def trajectory(self) -> Trajectory:
