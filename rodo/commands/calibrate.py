@@ -132,8 +132,8 @@ def _consistency_markdown(c: dict) -> list[str]:
     d = c["drift_rate"]
     vec = ", ".join(f"{x:.3g}" for x in d["sigma"])
     return lines + ["", f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m",
-                    "tau grid (relative pose over the span): "
-                    + ", ".join(f"{t} s: {r:.3g}" for t, r in c["tau_grid"].items())]
+                    "tau grid (median ratio of the relative pose over the span / of the absolute pose): "
+                    + ", ".join(f"{t} s: {r['relative_span']:.3g} / {r['pose']:.3g}" for t, r in c["tau_grid"].items())]
 
 
 def _write(path: Path, text: str) -> None:

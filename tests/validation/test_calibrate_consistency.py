@@ -86,3 +86,37 @@ def test_kappa_compensates_information_counted_too_often(city):
     assert fitted.uncertainty.velocity_correlation_time == report["velocity_correlation_time"]
     assert fitted.uncertainty.drift_rate_sigma == tuple(report["drift_rate"]["sigma"])
     assert report["velocity_correlation_time"] in cc.TAUS
+
+
+@pytest.fixture(scope="module")
+def city_run(city):
+    from rodo.validation.driver import run_sequence
+    from rodo.validation.run_consistency import run_states
+
+    seq, truth = city
+    config = OdometryConfig.for_model("ca-polar")
+    config = config.replace(uncertainty=dataclasses.replace(
+        config.uncertainty, velocity_correlation_time=0.4, drift_rate_sigma=(1e-4, 1e-4, 5e-4, 3e-5, 3e-5, 1e-5)))
+    return run_states(run_sequence(seq, config)), truth
+
+
+def test_absolute_covariances_replay_the_run(city_run):
+    """Replayed with the run's own tau and drift rate, the stored relative and velocity covariances give the
+    absolute covariances the run reported; another tau gives others (what `fit_tau` compares)."""
+    states, _ = city_run
+    drift = states["drift_rate_sigma"]
+    replay = cc.absolute_covariances(states, 0.4, drift)
+    np.testing.assert_allclose(replay, states["P_pose_absolute"], rtol=1e-9, atol=1e-15)
+    assert not np.allclose(cc.absolute_covariances(states, 0.05, drift), states["P_pose_absolute"], rtol=1e-3)
+
+
+def test_fit_tau_takes_the_grid_point_nearest_consistency(city_run):
+    """The chosen tau minimises |ln r_span| + |ln r_pose| over the grid it reports."""
+    states, truth = city_run
+    tau, grid = cc.fit_tau(states, truth, drift_rate_sigma=states["drift_rate_sigma"])
+    cost = {t: abs(np.log(r[0])) + abs(np.log(r[1])) for t, r in grid.items()}
+    assert set(grid) == {float(t) for t in cc.TAUS}
+    assert cost[tau] == min(cost.values())
+    # a longer correlation time integrates more velocity error: more covariance, smaller ratios
+    spans = [grid[t][0] for t in sorted(grid)]
+    assert spans[0] > spans[-1]
