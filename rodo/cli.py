@@ -8,11 +8,11 @@ import sys
 
 from rodo.estimator.errors import InputError
 
-from .commands import (calibrate, convert, demo, ego_velocity, evaluate, figures, montecarlo, prior, run, simulate,
-                       table1, view)
+from .commands import (calibrate, convert, demo, ego_velocity, evaluate, export, figures, montecarlo, prior, run,
+                       simulate, table1, view)
 
 COMMANDS = [demo, simulate, run, evaluate, montecarlo, table1, convert, ego_velocity, prior, figures, view,
-            calibrate]  # modules with register(subparsers); see rodo/commands/
+            calibrate, export]  # modules with register(subparsers); see rodo/commands/
 
 
 def build_parser(commands=None) -> argparse.ArgumentParser:

@@ -16,7 +16,8 @@ from rodo.cli import main
 # commands whose bad-input paths are exercised below; `scenarios` takes no input
 COVERED = {"run", "simulate", "evaluate", "montecarlo", "ego-velocity", "prior-montecarlo", "figures", "view",
            "demo", "convert", "table1",
-           "calibrate"}  # calibrate: tests/cli/test_calibrate_cli.py::test_calibrate_bad_input
+           "calibrate",  # calibrate: tests/cli/test_calibrate_cli.py::test_calibrate_bad_input
+           "export"}  # export: tests/sim/test_export.py::test_export_bad_inputs
 NO_INPUT = {"scenarios"}
 
 
