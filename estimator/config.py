@@ -140,11 +140,15 @@ class UncertaintyConfig:
     measurement_inflation: factor (>= 1) on every associated pair's covariance in the solve (not in the gates):
         a scan's pairs share map errors (points made in one scan share its pose error, surfaces are resampled),
         so they carry less information than counted as independent. 1 leaves the solve as the paper's.
+    drift_rate_sigma: sigma of the registration's systematic error per metre driven, unknown but constant
+        over a run ([x, y, z] m/m, [roll, pitch, yaw] rad/m, vehicle frame): the absolute pose's error grows
+        with the distance, not its square root. Not in the solve.
     """
 
     velocity_correlation_time: float = 0.25  # s
     inflation: float = 1.0
     measurement_inflation: float = 1.0
+    drift_rate_sigma: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -255,6 +259,10 @@ class OdometryConfig:
         tau = self.uncertainty.velocity_correlation_time
         if not (np.isfinite(tau) and tau >= 0):
             raise InputError(f"uncertainty.velocity_correlation_time: must be a finite number >= 0 s, got {tau}")
+        drift = np.asarray(self.uncertainty.drift_rate_sigma, dtype=float)
+        if drift.shape != (6,) or not (np.all(np.isfinite(drift)) and np.all(drift >= 0)):
+            raise InputError("uncertainty.drift_rate_sigma: must be 6 finite numbers >= 0 (m/m x3, rad/m x3), "
+                             f"got {self.uncertainty.drift_rate_sigma}")
         if not self.outage.reinit_after >= 0:
             raise InputError(f"outage.reinit_after: must be >= 0 seconds, got {self.outage.reinit_after}")
         if self.map.max_age < 0 or self.map.voxel < 0:

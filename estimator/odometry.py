@@ -212,7 +212,8 @@ class RadarOdometry:
         """The estimate with its relative and absolute pose covariances (`rodo.estimator.uncertainty`)."""
         cfg = self.config.uncertainty
         if P_relative is None or self.drift is None:
-            self.drift = DriftCovariance(est.P[:6, :6], est.P[6:12, 6:12], cfg.velocity_correlation_time)
+            self.drift = DriftCovariance(est.P[:6, :6], est.P[6:12, 6:12], cfg.velocity_correlation_time,
+                                         cfg.drift_rate_sigma)
             P_relative, P_absolute = np.full((6, 6), np.nan), est.P[:6, :6].copy()
         else:
             P_relative = cfg.inflation * P_relative

@@ -10,13 +10,17 @@ of its relative motion, accumulated. Two parts make it up (docs/consistency.md h
    joint covariance of its two newest states (`relative_pose_covariance`);
 2. the velocity error, which the motion prior keeps correlated from scan to scan, so that it integrates into
    pose: a first-order Gauss-Markov process b with the window's velocity covariance P_varpi,k as its variance
-   and correlation time tau, b_k = phi b_{k-1} + w_k, phi = exp(-dt / tau), Var(w_k) = (1 - phi^2) P_varpi,k.
+   and correlation time tau, b_k = phi b_{k-1} + w_k, phi = exp(-dt / tau), Var(w_k) = (1 - phi^2) P_varpi,k;
+3. a drift rate beta (per metre travelled, vehicle frame), unknown but constant over a run, beta ~ N(0,
+   diag(drift_rate_sigma^2)): the registration's systematic error (scan-to-map association on resampled
+   surfaces makes every scan's relative pose err the same way; KITTI-style drift is its visible part), which
+   grows the error in proportion to the distance s_k = |t(R_k)| driven, not its square root.
 
-    xi_k = Ad(R_k) xi_{k-1} + dt phi b_{k-1} + dt w_k + delta_k
+    xi_k = Ad(R_k) xi_{k-1} + dt phi b_{k-1} + dt w_k + s_k beta + delta_k
 
-`DriftCovariance` runs this recursion over [xi; b] (12 x 12) from scan to scan (the absolute pose covariance)
-and `span_covariance` over any span (the covariance of a relative pose over, e.g., 1 s). tau = 0 drops the
-second part (the per-scan relative errors composed as independent).
+`DriftCovariance` runs this recursion over [xi; b; beta] (18 x 18) from scan to scan (the absolute pose
+covariance) and `span_covariance` over any span (the covariance of a relative pose over, e.g., 1 s). tau = 0
+drops the second part (the per-scan relative errors composed as independent), drift_rate_sigma = 0 the third.
 
 Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_known_joint_gaussian,
     ::test_drift_covariance_matches_monte_carlo_of_the_model, ::test_span_covariance_equals_the_recursion
@@ -38,18 +42,37 @@ def relative_pose_covariance(P_pair: np.ndarray, T_prev: np.ndarray, T_new: np.n
     return 0.5 * (S + S.T)
 
 
+def _initial(P_pose: np.ndarray, P_varpi: np.ndarray, tau: float, drift_rate_sigma) -> np.ndarray:
+    """C = Cov([xi; b; beta]) (18, 18) at a start: the pose's, the velocity error at its stationary variance
+    (when tau > 0), the drift rate at its prior."""
+    C = np.zeros((18, 18))
+    C[:6, :6] = P_pose
+    if tau > 0:
+        C[6:12, 6:12] = P_varpi
+    C[12:, 12:] = np.diag(np.square(drift_rate_sigma_array(drift_rate_sigma)))
+    return C
+
+
+def drift_rate_sigma_array(drift_rate_sigma) -> np.ndarray:
+    """(6,) sigma of the drift rate: [x, y, z] in m/m, [roll, pitch, yaw] in rad/m; None means zero."""
+    return np.zeros(6) if drift_rate_sigma is None else np.asarray(drift_rate_sigma, dtype=float).reshape(6)
+
+
 def _step(C: np.ndarray, T_prev, T_new, dt: float, Sigma_rel, P_varpi, tau: float) -> np.ndarray:
-    """One scan of the recursion over C = Cov([xi; b]) (12, 12)."""
+    """One scan of the recursion over C = Cov([xi; b; beta]) (18, 18)."""
     phi = np.exp(-dt / tau) if tau > 0 else 0.0
-    A = np.zeros((12, 12))
-    A[:6, :6] = se3.adjoint(T_new @ se3.inverse(T_prev))
-    A[:6, 6:] = dt * phi * np.eye(6)
-    A[6:, 6:] = phi * np.eye(6)
+    R = T_new @ se3.inverse(T_prev)
+    A = np.zeros((18, 18))
+    A[:6, :6] = se3.adjoint(R)
+    A[:6, 6:12] = dt * phi * np.eye(6)
+    A[6:12, 6:12] = phi * np.eye(6)
+    A[:6, 12:] = np.linalg.norm(R[:3, 3]) * np.eye(6)
+    A[12:, 12:] = np.eye(6)
     W = (1.0 - phi**2) * P_varpi if tau > 0 else np.zeros((6, 6))
-    Q = np.zeros((12, 12))
+    Q = np.zeros((18, 18))
     Q[:6, :6] = dt * dt * W + Sigma_rel
-    Q[:6, 6:] = Q[6:, :6] = dt * W
-    Q[6:, 6:] = W
+    Q[:6, 6:12] = Q[6:12, :6] = dt * W
+    Q[6:12, 6:12] = W
     C = A @ C @ A.T + Q
     return 0.5 * (C + C.T)
 
@@ -61,13 +84,12 @@ class DriftCovariance:
         P_pose0: (6, 6) covariance of the first pose.
         P_varpi0: (6, 6) covariance of the first velocity.
         tau: correlation time (s) of the velocity error; 0: none.
+        drift_rate_sigma: (6,) sigma of the constant drift rate per metre (m/m, rad/m); None: none.
     """
 
-    def __init__(self, P_pose0: np.ndarray, P_varpi0: np.ndarray, tau: float):
+    def __init__(self, P_pose0: np.ndarray, P_varpi0: np.ndarray, tau: float, drift_rate_sigma=None):
         self.tau = float(tau)
-        self.C = np.zeros((12, 12))
-        self.C[:6, :6] = P_pose0
-        self.C[6:, 6:] = P_varpi0 if self.tau > 0 else 0.0
+        self.C = _initial(P_pose0, P_varpi0, self.tau, drift_rate_sigma)
 
     def update(self, T_prev, T_new, dt: float, Sigma_rel: np.ndarray, P_varpi: np.ndarray) -> np.ndarray:
         """Advance by one scan; returns the new absolute pose covariance (6, 6)."""
@@ -76,9 +98,10 @@ class DriftCovariance:
 
 
 def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, start: int,
-                    end: int, tau: float) -> np.ndarray:
+                    end: int, tau: float, drift_rate_sigma=None) -> np.ndarray:
     """Covariance (6, 6) of the relative pose T_end T_start^-1 of a run: the recursion from a known pose at
-    scan `start` (the velocity error at its stationary variance P_varpi[start]) to scan `end`.
+    scan `start` (the velocity error at its stationary variance P_varpi[start], the drift rate at its prior)
+    to scan `end`.
 
     Args:
         T: (N, 4, 4) estimated T_vehicle_world; t: (N,) times.
@@ -86,10 +109,9 @@ def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi
         P_varpi: (N, 6, 6) the velocity covariances.
         start, end: scan indices, start < end.
         tau: the velocity error's correlation time (s).
+        drift_rate_sigma: (6,) sigma of the drift rate per metre; None: none.
     """
-    C = np.zeros((12, 12))
-    if tau > 0:
-        C[6:, 6:] = P_varpi[start]
+    C = _initial(np.zeros((6, 6)), P_varpi[start], tau, drift_rate_sigma)
     for j in range(start + 1, end + 1):
         S = Sigma_rel[j] if np.all(np.isfinite(Sigma_rel[j])) else np.zeros((6, 6))
         C = _step(C, T[j - 1], T[j], t[j] - t[j - 1], S, P_varpi[j], tau)

@@ -9,11 +9,11 @@ import sys
 from rodo.estimator.errors import InputError
 
 from . import extras
-from .commands import (calibrate, config, convert, demo, ego_velocity, evaluate, figures, montecarlo, prior, run,
-                       simulate, table1, view)
+from .commands import (calibrate, config, convert, demo, ego_velocity, evaluate, export, figures, montecarlo, prior,
+                       run, simulate, table1, view)
 
 COMMANDS = [demo, simulate, run, evaluate, montecarlo, table1, convert, ego_velocity, prior, figures, view,
-            calibrate, config]  # modules with register(subparsers); see rodo/commands/
+            calibrate, export, config]  # modules with register(subparsers); see rodo/commands/
 
 
 def build_parser(commands=None) -> argparse.ArgumentParser:

@@ -1,11 +1,13 @@
 """The optional dependencies (pyproject's extras) and the commands and flags that need them.
 
 The core (numpy, scipy, numba, threadpoolctl) imports rodo and runs `rodo simulate`, `rodo run`, `rodo evaluate`,
-... Three extras add the rest; `[all]` is all three, and `make demo` / `make test` install it:
+... The extras add the rest; `[all]` is all of them, and `make demo` / `make test` install it:
 
-- `viz`: rerun-sdk and matplotlib, for Rerun recordings (`--rerun`, `rodo demo`) and figures (`rodo figures`);
+- `viz`: rerun-sdk and matplotlib, for Rerun recordings (`--rerun`, `rodo demo`), live streams (`rodo run
+  --connect / --serve`) and figures (`rodo figures`);
 - `icp`: open3d, for the ICP baseline (`rodo.validation.icp_baseline.run_icp`, `make bench`);
-- `dask`: dask.distributed, for campaigns on a Dask cluster (`--dask`).
+- `dask`: dask.distributed, for campaigns on a Dask cluster (`--dask`);
+- `ros`: rosbags, for `rodo convert rosbag` (its converter names the package itself when it is missing).
 
 `check_command` runs before a command does its work, so a missing extra fails at once with exit code 2 and a
 message naming it, not after minutes of simulation; `extra_for` names the extra of a module that failed to
@@ -24,10 +26,12 @@ EXTRAS = {  # extra -> the top-level modules it provides
     "viz": ("rerun", "matplotlib"),
     "icp": ("open3d",),
     "dask": ("dask", "distributed"),
+    "ros": ("rosbags",),
 }
 
 COMMAND_EXTRAS = {"demo": "viz", "figures": "viz"}  # commands that always need an extra
-FLAG_EXTRAS = {"rerun": "viz", "dask": "dask"}      # flags (argparse dest) that need one when given
+FLAG_EXTRAS = {"rerun": "viz", "connect": "viz", "serve": "viz", "dask": "dask"}  # flags (argparse dest) that
+# need one when given: any value but None and False (`--connect` alone gives "")
 
 
 def is_installed(module: str) -> bool:
@@ -65,7 +69,7 @@ def check_command(args) -> None:
     if command in COMMAND_EXTRAS:
         require(COMMAND_EXTRAS[command], f"rodo {command}")
     for dest, extra in FLAG_EXTRAS.items():
-        if getattr(args, dest, None):
+        if getattr(args, dest, None) not in (None, False):
             require(extra, f"--{dest}")
 
 

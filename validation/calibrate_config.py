@@ -2,7 +2,9 @@
 
 - `calibrate_with_truth(seq, truth, config)`: ML Qc of both priors from the true states of truth.npz
   (`calibrate.fit_qc_to_truth`) and the measurement noise from the static detections
-  (`calibrate_sensor`); the config gets both Qc, `noise.sensor_sigma_scales` (per channel) and `noise.cartesian_sigma`.
+  (`calibrate_sensor`); the config gets both Qc, `noise.sensor_sigma_scales` (per channel) and `noise.cartesian_sigma`;
+  then, unless told not to, the uncertainty parameters at that noise (`calibrate_consistency`: the pairs'
+  effective count kappa, the drift rate, the velocity correlation time).
 - `calibrate_without_truth(seq, config)`: EM (`calibrate.em_qc`) over the estimator's posteriors, for the
   Qc of the config's own prior; R is left as configured (the odometry does not expose per-pair residuals).
 - `config_toml(config, header)`: the complete config as TOML that `OdometryConfig.from_toml` reads back.
@@ -22,6 +24,7 @@ from rodo.estimator.errors import InputError
 from rodo.sim.sequence import Sequence, Trajectory
 
 from . import calibrate as cal
+from . import calibrate_consistency as cc
 from . import calibrate_sensor as cs
 from .driver import run_sequence
 
@@ -56,9 +59,11 @@ def _qc_report(fit: cal.QcFit) -> dict:
 
 
 def calibrate_with_truth(seq: Sequence, truth: dict, config: OdometryConfig, duration: float | None = None,
-                         floor: float = cal.DEFAULT_FLOOR) -> tuple[OdometryConfig, dict]:
-    """Learn qc_ca, qc_cv, the per-channel sensor sigma factors and the Cartesian sigma from ground truth;
-    returns (config, report)."""
+                         floor: float = cal.DEFAULT_FLOOR, consistency: bool = True,
+                         progress=None) -> tuple[OdometryConfig, dict]:
+    """Learn qc_ca, qc_cv, the per-channel sensor sigma factors and the Cartesian sigma from ground truth, then
+    (`consistency`) the uncertainty section at that noise; returns (config, report). `progress` gets each
+    `calibrate_consistency.ConsistencyStep`."""
     seq = truncate(seq, duration)
     end = max(s.t for s in seq.scans) if seq.scans else None
     track = truth_track(truth, end)
@@ -79,7 +84,10 @@ def calibrate_with_truth(seq: Sequence, truth: dict, config: OdometryConfig, dur
                         "sensor_sigma_scale": scale, "sensor_sigma_scales": list(scales),
                         "cartesian_sigma": cart},
     }
-    return config.replace(noise=noise), report
+    config = config.replace(noise=noise)
+    if consistency:
+        config, report["consistency"] = cc.fit_consistency(seq, truth, config, progress=progress)
+    return config, report
 
 
 def estimator_track(seq: Sequence, config: OdometryConfig) -> cal.StateTrack:

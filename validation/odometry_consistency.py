@@ -39,20 +39,21 @@ def _relative_errors(T_true: np.ndarray, T_est: np.ndarray, n: int) -> np.ndarra
     return se3.log(R_true @ se3.inverse(R_est))
 
 
-def _span_nees(T_true, T_est, t, states, n: int, tau: float) -> np.ndarray:
+def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma) -> np.ndarray:
     out = np.full(len(t), np.nan)
     if "P_relative" not in states or n >= len(t):
         return out
     e = _relative_errors(T_true, T_est, n)
     Sigma_rel = np.asarray(states["P_relative"], dtype=float)
     P_varpi = np.asarray(states["P"], dtype=float)[:, 6:12, 6:12]
-    P = np.stack([span_covariance(T_est, t, Sigma_rel, P_varpi, k - n, k, tau) for k in range(n, len(t))])
+    P = np.stack([span_covariance(T_est, t, Sigma_rel, P_varpi, k - n, k, tau, drift_rate_sigma)
+                  for k in range(n, len(t))])
     out[n:] = nees(e, P)
     return out
 
 
 def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.25,
-                  tolerance: float = DEFAULT_TOLERANCE) -> dict:
+                  tolerance: float = DEFAULT_TOLERANCE, drift_rate_sigma=None) -> dict:
     """Per-scan NEES of every measure (module docstring) of one run against the simulator's truth.
 
     Args:
@@ -61,6 +62,8 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
         truth: truth.npz arrays (t, T_vehicle_world, varpi, varpi_dot).
         span: seconds of the relative_span measure (rounded to whole scans).
         tau: the velocity error's correlation time the run used (config `uncertainty`).
+        drift_rate_sigma: (6,) the drift rate sigma for the span measures; None: the run's own (states'
+            `drift_rate_sigma`, none when absent).
         tolerance: seconds within which a state and a truth time match.
 
     Returns:
@@ -68,21 +71,25 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
         undefined: the first scans of a span, a singular covariance, acceleration of a CV run).
     """
     require_arrays(states, truth)
+    if drift_rate_sigma is None and "drift_rate_sigma" in states:
+        drift_rate_sigma = np.asarray(states["drift_rate_sigma"], dtype=float)
+    per_scan = {k for k, v in states.items()
+                if k != "drift_rate_sigma" and np.ndim(v) >= 1 and len(v) == len(states["t"])}
     ia, ib = associate(states["t"], truth["t"], tolerance)
     t = np.asarray(states["t"], dtype=float)[ia]
     T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
     T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
     P = np.asarray(states["P"], dtype=float)[ia]
-    sub = {k: np.asarray(v)[ia] for k, v in states.items() if np.ndim(v) >= 1 and len(v) == len(states["t"])}
+    sub = {k: np.asarray(states[k])[ia] for k in per_scan}
     xi = se3.log(T_true @ se3.inverse(T_est))
     out = {"t": t, "dof": DOF, "span": float(span)}
     out["velocity"] = nees(np.asarray(truth["varpi"])[ib] - sub["varpi"], P[:, 6:12, 6:12])
     out["acceleration"] = np.full(len(t), np.nan)
     if P.shape[-1] == 18 and "varpi_dot" in truth and "varpi_dot" in sub:
         out["acceleration"] = nees(np.asarray(truth["varpi_dot"])[ib] - sub["varpi_dot"], P[:, 12:18, 12:18])
-    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau)
+    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau, drift_rate_sigma)
     n = max(1, int(round(span / np.median(np.diff(t))))) if len(t) > 1 else 1
-    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau)
+    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau, drift_rate_sigma)
     out["pose"] = nees(xi, sub["P_pose_absolute"]) if "P_pose_absolute" in sub else np.full(len(t), np.nan)
     out["pose_window"] = nees(xi, P[:, :6, :6])
     return out

@@ -32,6 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="CONFIG.toml", help="the config to write")
     p.add_argument("--config", metavar="FILE", help="base TOML config (its other settings are kept)")
     p.add_argument("--no-truth", action="store_true", help="ignore truth.npz; EM without ground truth")
+    p.add_argument("--no-consistency", action="store_true",
+                   help="with truth: skip the uncertainty section (kappa, drift rate, tau; a few estimator runs)")
     p.add_argument("--iterations", type=int, default=5, help="EM iterations at most (%(default)s)")
     p.add_argument("--tolerance", type=float, default=0.05, help="EM stops below this relative change of Qc "
                                                                  "(%(default)s)")
@@ -78,6 +80,11 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                   "not excited by the trajectory.",
                   "noise.sensor_sigma_scale: ML common factor on sensor.toml's sigmas from the static detections; "
                   "per-channel sigmas are in the .json/.md report."]
+        if "consistency" in report:
+            c = report["consistency"]
+            lines.append(f"uncertainty: measurement_inflation {c['measurement_inflation']:.3g}, drift_rate_sigma and "
+                         f"velocity_correlation_time {c['velocity_correlation_time']:g} s fitted so that the "
+                         "estimator's NEES against the truth is consistent (docs/calibration.md).")
     else:
         it = report["iterations"]
         lines += [f"noise.{report['field']} ({', '.join(report['learned_components'])}): EM over the estimator's "
@@ -103,12 +110,30 @@ def _markdown(report: dict) -> str:
             lines.append(f"| {name} | {c['sigma']:.4g} | {m['sensor_toml_sigmas'][name]:.4g} | {c['mean']:.2g} | "
                          f"{ln['a']:.4g}, {ln['b_per_m']:.2g} ({ln['b_stderr']:.2g}) | {c['range_dependent']} |")
         lines += ["", f"sensor_sigma_scale = {m['sensor_sigma_scale']:.4g}"]
+        if "consistency" in report:
+            lines += [""] + _consistency_markdown(report["consistency"])
     else:
         lines += ["| iteration | Qc in | Qc out | change | expected log-likelihood |",
                   "| --- | --- | --- | --- | --- |"]
         for i, h in enumerate(report["iterations"], 1):
             lines.append(f"| {i} | {vec(h['qc_in'])} | {vec(h['qc_out'])} | {h['change']:.3g} | {h['loglik']:.6g} |")
     return "\n".join(lines) + "\n"
+
+
+def _consistency_markdown(c: dict) -> list[str]:
+    """The uncertainty fit's table: per estimator run, kappa, tau and the median NEES ratios."""
+    names = ("velocity", "relative_scan", "relative_span", "pose")
+    lines = ["## Uncertainty (median NEES / median of chi2(6): 1 is consistent)", "",
+             "| run | measurement_inflation | tau (s) | " + " | ".join(names) + " |",
+             "| --- | --- | --- |" + " --- |" * len(names)]
+    for i, s in enumerate(c["steps"], 1):
+        ratios = " | ".join(f"{s['median_ratio'][n]:.3g}" for n in names)
+        lines.append(f"| {i} | {s['kappa']:.3g} | {s['tau']:g} | {ratios} |")
+    d = c["drift_rate"]
+    vec = ", ".join(f"{x:.3g}" for x in d["sigma"])
+    return lines + ["", f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m",
+                    "tau grid (median ratio of the relative pose over the span / of the absolute pose): "
+                    + ", ".join(f"{t} s: {r['relative_span']:.3g} / {r['pose']:.3g}" for t, r in c["tau_grid"].items())]
 
 
 def _write(path: Path, text: str) -> None:
@@ -131,7 +156,11 @@ def main(args) -> int:
         if not (Path(args.sequence) / TRUTH_NPZ).is_file():
             raise InputError(f"{Path(args.sequence) / TRUTH_NPZ}: not found (ground truth for the calibration); "
                              "use --no-truth for EM without ground truth")
-        config, report = calibrate_with_truth(seq, load_truth(args.sequence), config, args.duration, args.floor)
+        def step(s):
+            print(f"uncertainty: measurement_inflation {s.kappa:.3g}, median NEES ratio "
+                  + ", ".join(f"{k} {v:.3g}" for k, v in s.ratios.items()))
+        config, report = calibrate_with_truth(seq, load_truth(args.sequence), config, args.duration, args.floor,
+                                              consistency=not args.no_consistency, progress=step)
     _write(out, config_toml(config, _header(report, args.sequence, config.model)))
     _write(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     _write(out.with_suffix(".md"), _markdown(report))

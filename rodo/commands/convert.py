@@ -12,7 +12,7 @@ import dataclasses
 
 from rodo.estimator.errors import InputError
 
-FORMATS = ("radarscenes", "ti-mmwave", "vod")
+FORMATS = ("radarscenes", "ti-mmwave", "vod", "rosbag")
 
 HELP = """\
 Convert a real radar recording into a sequence directory (radar.csv, sensor.toml, groundtruth.txt when the
@@ -27,6 +27,11 @@ Formats:
                IMU body frame; no ground truth.
   vod          directory of View-of-Delft radar *.bin files (float32 N x 7: x,y,z,RCS,v_r,v_r_comp,time),
                one per scan in file-name order, t = k / --rate.
+  rosbag       ROS 1 .bag, ROS 2 bag directory (sqlite3 or mcap) or .mcap file (needs: pip install rosbags);
+               --topic names a sensor_msgs/PointCloud2 topic with x,y,z (--xyz) or range,azimuth,elevation
+               (--polar) fields and a Doppler field (--doppler; negative = approaching, else --flip-doppler).
+               Time: header stamps, or the bag's record time when the stamps are zero (--time). Vehicle frame
+               = sensor frame, nominal noise, no ground truth.
 """
 
 
@@ -34,14 +39,29 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("convert", help="convert real radar data into a sequence directory",
                               description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("format", choices=FORMATS, metavar="FORMAT", help=" | ".join(FORMATS))
-    p.add_argument("source", metavar="SOURCE", help="source folder")
+    p.add_argument("source", metavar="SOURCE", help="source folder (rosbag: the bag)")
     p.add_argument("--out", required=True, metavar="SEQ_DIR", help="output sequence directory")
     p.add_argument("--radars", default=None, help="radarscenes: radar numbers 1-4, e.g. 2 or 2,3 (default 2)")
     p.add_argument("--t-max", type=float, default=None, help="radarscenes: keep scans with t <= T_MAX seconds")
     p.add_argument("--rate", type=float, default=None, help="vod: scan rate in Hz (default 10)")
     p.add_argument("--sigma", default=None, metavar="R,AZ,EL,VR",
                    help="override the 1-sigma noise: range (m), azimuth (rad), elevation (rad), radial velocity (m/s)")
+    _add_rosbag_options(p)
     p.set_defaults(func=run)
+
+
+def _add_rosbag_options(p) -> None:
+    p.add_argument("--topic", default=None, help="rosbag: the sensor_msgs/PointCloud2 topic (required)")
+    p.add_argument("--xyz", default=None, metavar="X,Y,Z", help="rosbag: Cartesian field names (default x,y,z)")
+    p.add_argument("--polar", default=None, metavar="R,AZ,EL",
+                   help="rosbag: polar field names (m, rad) used instead of --xyz")
+    p.add_argument("--doppler", default=None, metavar="FIELD",
+                   help="rosbag: Doppler field (default: the first of velocity, doppler, radial_velocity, v_r, vr)")
+    p.add_argument("--flip-doppler", action="store_true", default=None,
+                   help="rosbag: negate the Doppler (sensors reporting positive when approaching)")
+    p.add_argument("--time", default=None, choices=("auto", "header", "record"),
+                   help="rosbag: scan time from the header stamps or the bag's record time (default auto: "
+                        "header unless the stamps are zero)")
 
 
 def _sigmas(text: str):
@@ -59,13 +79,39 @@ def _sigmas(text: str):
         raise InputError(f"--sigma: {exc}") from None
 
 
+def _rosbag_options(args) -> list[tuple]:
+    return [(option, getattr(args, option[2:].replace("-", "_")), "rosbag")
+            for option in ("--topic", "--xyz", "--polar", "--doppler", "--flip-doppler", "--time")]
+
+
+def _names(option: str, text: str | None, n: int):
+    if text is None:
+        return None
+    names = [s.strip() for s in text.split(",")]
+    if len(names) != n or not all(names):
+        raise InputError(f"{option}: expected {n} comma-separated field names, got {text!r}")
+    return tuple(names)
+
+
+def _rosbag(args):
+    from rodo.sim.convert import rosbag
+
+    if not args.topic:
+        raise InputError("--topic: required for the rosbag format (a sensor_msgs/PointCloud2 topic)")
+    if args.xyz is not None and args.polar is not None:
+        raise InputError("--xyz and --polar: give one of them")
+    return rosbag.convert(args.source, args.topic, xyz=_names("--xyz", args.xyz, 3) or ("x", "y", "z"),
+                          polar=_names("--polar", args.polar, 3), doppler=args.doppler,
+                          flip_doppler=bool(args.flip_doppler), time=args.time or "auto")
+
+
 def run(args) -> int:
     from pathlib import Path
 
     from rodo.sim.convert import radarscenes, ti_mmwave, vod, write_conversion
 
     for option, value, owner in (("--radars", args.radars, "radarscenes"), ("--t-max", args.t_max, "radarscenes"),
-                                 ("--rate", args.rate, "vod")):
+                                 ("--rate", args.rate, "vod"), *_rosbag_options(args)):
         if value is not None and args.format != owner:
             raise InputError(f"{option}: only for the {owner} format, not {args.format}")
     noise = _sigmas(args.sigma) if args.sigma is not None else None
@@ -76,6 +122,8 @@ def run(args) -> int:
         targets = [out] if len(convs) == 1 else [out / c.name for c in convs]
     elif args.format == "ti-mmwave":
         convs, targets = [ti_mmwave.convert(args.source)], [out]
+    elif args.format == "rosbag":
+        convs, targets = [_rosbag(args)], [out]
     else:
         convs = [vod.convert(args.source, rate_hz=10.0 if args.rate is None else args.rate)]
         targets = [out]

@@ -37,6 +37,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created)")
     p.add_argument("--config", metavar="FILE", help="TOML file overriding the estimator defaults")
     p.add_argument("--rerun", metavar="OUT.rrd", help="also write a Rerun recording of the run")
+    p.add_argument("--connect", nargs="?", const="", default=None, metavar="URL",
+                   help="stream the run live to a running Rerun viewer (default rerun+http://127.0.0.1:9876/proxy; "
+                        "a port or HOST:PORT also works)")
+    p.add_argument("--serve", action="store_true",
+                   help="stream the run live to a web viewer served by this process (stops with Ctrl-C)")
     p.set_defaults(func=main)
 
 
@@ -67,13 +72,41 @@ def check_out_dir(path, create: bool = True) -> Path:
     return out
 
 
+def wait_for_interrupt() -> None:
+    """Keep the process (and its web viewer) alive until Ctrl-C."""
+    import time
+
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+
+
 def main(args) -> int:
     config = load_config(args)
     check_out_dir(args.out, create=False)
+    if args.connect is not None and args.serve:
+        raise InputError("--connect and --serve: give one of them")
+    live_stream = args.connect is not None or args.serve
+    if args.connect:
+        from rodo.viz.live import grpc_url
+
+        grpc_url(args.connect)  # a bad address fails before the work
     seq = read_sequence(args.sequence)
     check_out_dir(args.out)
+    live = None
+    if live_stream:
+        from rodo.viz.live import LiveRun  # viz is the only package importing rerun
+
+        live = LiveRun(seq, connect=args.connect, serve=args.serve)
+        print(f"streaming live to {live.url}" if args.connect is not None else
+              f"serving the web viewer (gRPC {live.url})")
     with Progress(len(scan_times(seq)), f"rodo run {config.model}") as bar:
-        result = run_sequence(seq, config, progress=bar, record_detail=bool(args.rerun))
+        result = run_sequence(seq, config, progress=bar, record_detail=bool(args.rerun) or live_stream,
+                              on_scan=live.on_scan if live is not None else None)
+    if live is not None:
+        live.close()
     write_run(args.out, result)
     write_kitti_poses(Path(args.out) / KITTI_POSES, result.trajectory().T_world_vehicle)
     if args.rerun:
@@ -90,6 +123,9 @@ def main(args) -> int:
     print(f"wrote {args.out}/estimate.txt, {KITTI_POSES}, states.npz, summary.json")
     if seq.groundtruth is not None:
         print(accuracy_line(Path(args.sequence) / GROUNDTRUTH_TXT, Path(args.out) / "estimate.txt"))
+    if args.serve:
+        print("the web viewer keeps serving the run: Ctrl-C to stop")
+        wait_for_interrupt()
     return 0
 
 

@@ -17,6 +17,7 @@ from rodo.cli import main
 COVERED = {"run", "simulate", "evaluate", "montecarlo", "ego-velocity", "prior-montecarlo", "figures", "view",
            "demo", "convert", "table1",
            "calibrate",  # calibrate: tests/cli/test_calibrate_cli.py::test_calibrate_bad_input
+           "export",  # export: tests/sim/test_export.py::test_export_bad_inputs
            "config"}  # config: tests/cli/test_config_cli.py::test_config_bad_input
 NO_INPUT = {"scenarios"}
 

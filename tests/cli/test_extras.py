@@ -92,6 +92,8 @@ def test_a_campaign_runs_on_the_core_and_says_how_to_get_its_plots(tmp_path):
 @pytest.mark.parametrize("argv, extra, absent", [
     (["simulate", "city", "--duration", "1", "--out", "{tmp}/seq", "--rerun", "{tmp}/x.rrd"], "viz", ["rerun"]),
     (["run", "{tmp}/seq", "--out", "{tmp}/run", "--rerun", "{tmp}/x.rrd"], "viz", ["matplotlib"]),
+    (["run", "{tmp}/seq", "--out", "{tmp}/run", "--connect"], "viz", ["rerun"]),
+    (["run", "{tmp}/seq", "--out", "{tmp}/run", "--serve"], "viz", ["rerun"]),
     (["figures", "--out", "{tmp}/fig", "--quick"], "viz", ["matplotlib"]),
     (["demo", "--out", "{tmp}/demo"], "viz", ["rerun", "matplotlib"]),
     (["montecarlo", "city", "--runs", "1", "--dask", "local", "--out", "{tmp}/mc"], "dask", ["distributed"]),
@@ -129,7 +131,7 @@ def test_pyproject_extras_match_the_module_map():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     optional = project["optional-dependencies"]
     dist_of = {"rerun": "rerun-sdk", "matplotlib": "matplotlib", "open3d": "open3d", "dask": "dask",
-               "distributed": "dask[distributed]"}
+               "distributed": "dask[distributed]", "rosbags": "rosbags"}
     for extra, modules in extras.EXTRAS.items():
         declared = " ".join(optional[extra])
         assert all(dist_of[m] in declared for m in modules), (extra, declared)

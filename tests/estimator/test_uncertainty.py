@@ -45,24 +45,30 @@ def test_relative_covariance_of_a_known_joint_gaussian(a, b):
     assert ok, info
 
 
-def _model_monte_carlo(rng, T, t, Sigma_rel, P_varpi, tau, P0):
-    """Samples of the drift model on SE(3): true poses exp(dt b_k + delta_k) R_k T_{k-1} with the velocity error
-    b a Gauss-Markov process; returns the pose perturbations log(T_true T^-1) at the last scan."""
+def _model_monte_carlo(rng, T, t, Sigma_rel, P_varpi, tau, P0, drift_rate_sigma=np.zeros(6)):
+    """Samples of the drift model on SE(3): true poses exp(dt b_k + s_k beta + delta_k) R_k T_{k-1} with the
+    velocity error b a Gauss-Markov process and the drift rate beta constant per sample (s_k = |t(R_k)|);
+    returns the pose perturbations log(T_true T^-1) at the last scan."""
     n = len(t)
     T_true = se3.exp(rng.multivariate_normal(np.zeros(6), P0, size=N_MC)) @ T[0]
     b = rng.multivariate_normal(np.zeros(6), P_varpi[0], size=N_MC)
+    beta = rng.normal(size=(N_MC, 6)) * drift_rate_sigma
     for k in range(1, n):
         dt = t[k] - t[k - 1]
         phi = np.exp(-dt / tau) if tau > 0 else 0.0
         w = rng.multivariate_normal(np.zeros(6), (1 - phi**2) * P_varpi[k], size=N_MC)
         b = phi * b + w if tau > 0 else np.zeros_like(b)
         d = rng.multivariate_normal(np.zeros(6), Sigma_rel[k], size=N_MC)
-        T_true = se3.exp(dt * b + d) @ (T[k] @ se3.inverse(T[k - 1])) @ T_true
+        R = T[k] @ se3.inverse(T[k - 1])
+        T_true = se3.exp(dt * b + np.linalg.norm(R[:3, 3]) * beta + d) @ R @ T_true
     return se3.log(T_true @ se3.inverse(T[-1]))
 
 
-@pytest.mark.parametrize("tau", [0.0, 0.3, 2.0])
-def test_drift_covariance_matches_monte_carlo_of_the_model(tau):
+DRIFT_RATE = np.array([2e-3, 1e-3, 3e-3, 2e-4, 3e-4, 1e-4])  # per metre: large, so that it shows in 20 scans
+
+
+@pytest.mark.parametrize("tau, drift_rate_sigma", [(0.0, None), (0.3, None), (2.0, None), (0.3, DRIFT_RATE)])
+def test_drift_covariance_matches_monte_carlo_of_the_model(tau, drift_rate_sigma):
     """The absolute recursion against samples of the model it linearises, over 20 turning, accelerating scans."""
     rng = np.random.default_rng(np.random.SeedSequence(12))
     t = np.cumsum(np.r_[0.0, rng.uniform(0.05, 0.1, 19)])
@@ -70,12 +76,18 @@ def test_drift_covariance_matches_monte_carlo_of_the_model(tau):
     Sigma_rel = np.stack([_random_cov(rng, 3e-3) for _ in t])
     P_varpi = np.stack([_random_cov(rng, 2e-2) for _ in t])
     P0 = _random_cov(rng, 1e-3)
-    drift = DriftCovariance(P0, P_varpi[0], tau)
+    drift = DriftCovariance(P0, P_varpi[0], tau, drift_rate_sigma)
     for k in range(1, len(t)):
         P = drift.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
-    xi = _model_monte_carlo(rng, T, t, Sigma_rel, P_varpi, tau, P0)
+    xi = _model_monte_carlo(rng, T, t, Sigma_rel, P_varpi, tau, P0,
+                            np.zeros(6) if drift_rate_sigma is None else drift_rate_sigma)
     ok, info = _mean_nees_in_bounds(xi, P)
     assert ok, info
+    if drift_rate_sigma is not None:  # the drift rate matters here: without it the covariance is too small
+        without = DriftCovariance(P0, P_varpi[0], tau)
+        for k in range(1, len(t)):
+            P_without = without.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
+        assert not _mean_nees_in_bounds(xi, P_without)[0]
     # and the velocity part matters when tau > 0: without it the covariance is too small
     if tau >= 2.0:
         small = DriftCovariance(P0, P_varpi[0], 0.0)
@@ -92,10 +104,12 @@ def test_span_covariance_equals_the_recursion():
     Sigma_rel = np.stack([_random_cov(rng, 1e-3) for _ in t])
     Sigma_rel[0] = np.nan
     P_varpi = np.stack([_random_cov(rng, 1e-2) for _ in t])
-    drift = DriftCovariance(np.zeros((6, 6)), P_varpi[4], 0.5)
-    for k in range(5, 12):
-        P = drift.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
-    np.testing.assert_allclose(span_covariance(T, t, Sigma_rel, P_varpi, 4, 11, 0.5), P, rtol=1e-12, atol=1e-18)
+    for drift_rate_sigma in (None, DRIFT_RATE):
+        drift = DriftCovariance(np.zeros((6, 6)), P_varpi[4], 0.5, drift_rate_sigma)
+        for k in range(5, 12):
+            P = drift.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
+        np.testing.assert_allclose(span_covariance(T, t, Sigma_rel, P_varpi, 4, 11, 0.5, drift_rate_sigma), P,
+                                   rtol=1e-12, atol=1e-18)
 
 
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])

@@ -1,0 +1,185 @@
+"""Point-cloud export of a sequence for other tools: `.ply` (open3d, CloudCompare) and the KITTI odometry layout
+(velodyne `.bin`, times.txt, calib.txt, poses/00.txt) that kiss-icp reads unchanged. Docs: docs/export.md.
+
+Our own small writers (binary little-endian PLY, float32 `.bin`): no dependency beyond numpy.
+
+Checked by: tests/sim/test_export.py
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from rodo.estimator.errors import InputError
+from rodo.estimator.lie import se3
+from rodo.sim.sequence import RadarScan, Sequence, Trajectory
+
+PLY_TYPES = {"f4": "float", "f8": "double", "i4": "int", "u4": "uint", "i2": "short", "u2": "ushort",
+             "i1": "char", "u1": "uchar"}
+TIME_MATCH_S = 1e-6  # a pose within 1 us of a scan time is that scan's pose (TUM files keep 9 decimals)
+KITTI_SEQUENCE = "00"
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+
+
+def _mkdir(path: Path) -> Path:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot create the directory ({exc.strerror or exc})") from None
+    return path
+
+
+def ply_bytes(columns: dict[str, np.ndarray]) -> bytes:
+    """A binary little-endian PLY with one `vertex` element whose properties are `columns` (name -> (n,)
+    array, in order; x, y, z first for point-cloud readers). Types follow the arrays' dtypes (PLY_TYPES)."""
+    names = list(columns)
+    arrays = [np.asarray(columns[k]) for k in names]
+    n = len(arrays[0]) if arrays else 0
+    formats = []
+    for name, a in zip(names, arrays):
+        if a.shape != (n,) or a.dtype.kind + str(a.dtype.itemsize) not in PLY_TYPES:
+            raise InputError(f"PLY property {name!r}: expected ({n},) of {sorted(PLY_TYPES)}, got {a.shape} "
+                             f"{a.dtype}")
+        formats.append("<" + a.dtype.kind + str(a.dtype.itemsize))
+    record = np.zeros(n, dtype=np.dtype({"names": names, "formats": formats}))
+    for name, a in zip(names, arrays):
+        record[name] = a
+    header = ["ply", "format binary_little_endian 1.0", "comment written by rodo", f"element vertex {n}"]
+    header += [f"property {PLY_TYPES[f[1:]]} {name}" for name, f in zip(names, formats)]
+    header.append("end_header")
+    return ("\n".join(header) + "\n").encode("ascii") + record.tobytes()
+
+
+def scan_columns(scan: RadarScan, T_out_sensor: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The PLY properties of one scan: x, y, z (sensor frame, or T_out_sensor @ p_sensor), radial_velocity
+    (the Doppler, m/s, negative when approaching), scan_time (s), scan, range, azimuth, elevation, then the
+    scan's extra columns. Doubles except the scan index (int).
+
+    The time is named `scan_time`, not `time` or `t`: kiss-icp reads those as per-point deskew stamps.
+    """
+    p = scan.points_sensor
+    if T_out_sensor is not None:
+        p = se3.transform_points(T_out_sensor, p)
+    n = len(scan)
+    cols = {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "radial_velocity": scan.radial_velocity,
+            "scan_time": np.full(n, scan.t), "scan": np.full(n, scan.scan, dtype=np.int32),
+            "range": scan.range, "azimuth": scan.azimuth, "elevation": scan.elevation}
+    for name, values in scan.extra.items():
+        if name not in cols:
+            cols[name] = values
+    return {k: np.ascontiguousarray(v, dtype=np.int32 if k == "scan" else np.float64) for k, v in cols.items()}
+
+
+def poses_at_scans(seq: Sequence, trajectory: Trajectory, where: str) -> np.ndarray:
+    """(S, 4, 4) T_world_vehicle of every scan, taken from `trajectory` at the scan times (within 1 us).
+
+    Raises:
+        InputError naming `where` and the first scan without a pose.
+    """
+    t_scan = np.array([s.t for s in seq.scans])
+    t_traj = trajectory.t
+    if len(t_traj) == 0:
+        raise InputError(f"{where}: no poses")
+    j = np.searchsorted(t_traj, t_scan)
+    lo, hi = np.clip(j - 1, 0, len(t_traj) - 1), np.clip(j, 0, len(t_traj) - 1)
+    idx = np.where(np.abs(t_traj[lo] - t_scan) <= np.abs(t_traj[hi] - t_scan), lo, hi)  # the nearest pose
+    bad = np.abs(t_traj[idx] - t_scan) > TIME_MATCH_S
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{where}: no pose at the time of scan {seq.scans[k].scan} (t = {t_scan[k]!r} s; "
+                         f"poses cover {t_traj[0]!r} .. {t_traj[-1]!r} s)")
+    return trajectory.T_world_vehicle[idx]
+
+
+def export_ply(seq: Sequence, out_dir, trajectory: Trajectory | None = None, where: str = "trajectory") -> dict:
+    """Write OUT/scans/<scan:06d>.ply (sensor frame, one per scan) and, given a trajectory, OUT/map.ply: every
+    scan in the world frame, p_world = T_world_vehicle(t_k) T_vehicle_sensor p_sensor (the aggregated map).
+
+    Returns:
+        {"scans": number of scan files, "points": total points, "map": path of map.ply or None}.
+
+    Checked by: tests/sim/test_export.py::test_ply_scans_read_back_with_open3d,
+        ::test_ply_map_is_the_scans_in_the_world_frame
+    """
+    if not seq.scans:
+        raise InputError("SEQ_DIR: the sequence has no scans with detections: nothing to export")
+    T_world_vehicle = None if trajectory is None else poses_at_scans(seq, trajectory, where)  # fail early
+    out = _mkdir(Path(out_dir))
+    scans_dir = _mkdir(out / "scans")
+    for scan in seq.scans:
+        _atomic_write(scans_dir / f"{scan.scan:06d}.ply", ply_bytes(scan_columns(scan)))
+    map_path = None
+    if T_world_vehicle is not None:
+        T_world_sensor = T_world_vehicle @ seq.sensor.T_vehicle_sensor
+        parts = [scan_columns(s, T) for s, T in zip(seq.scans, T_world_sensor)]
+        names = [k for k in parts[0] if all(k in p for p in parts)]
+        map_path = out / "map.ply"
+        _atomic_write(map_path, ply_bytes({k: np.concatenate([p[k] for p in parts]) for k in names}))
+    return {"scans": len(seq.scans), "points": sum(len(s) for s in seq.scans), "map": map_path}
+
+
+def kitti_pose_rows(T_world_sensor: np.ndarray) -> str:
+    """KITTI poses text: per line the first 3 rows of T_0_k = T_world_sensor[0]^-1 T_world_sensor[k]
+    (12 numbers, row-major), the sensor's pose in its first frame."""
+    T_0_k = se3.inverse(T_world_sensor[0]) @ T_world_sensor
+    return "".join(" ".join(f"{v:.12e}" for v in T[:3].ravel()) + "\n" for T in T_0_k)
+
+
+def export_kitti(seq: Sequence, out_dir, intensity: str | None = None) -> dict:
+    """Write the KITTI odometry layout for sequence 00 (sensor frame = KITTI's velodyne = camera, Tr identity):
+
+        OUT/sequences/00/velodyne/<k:06d>.bin  float32 x, y, z, intensity (one file per scan, k = 0, 1, ...)
+        OUT/sequences/00/times.txt            scan time in s, one per line
+        OUT/sequences/00/calib.txt            `Tr:` identity (3 x 4)
+        OUT/poses/00.txt                      ground-truth sensor poses in the first sensor frame (3 x 4 per
+                                              line), when groundtruth.txt has a pose at every scan time
+
+    Args:
+        intensity: the column written as intensity: 'radial_velocity', an extra column (e.g. 'snr'), or None
+            for 'snr' when the sequence has it, else zeros.
+
+    Returns:
+        {"scans": S, "points": total, "poses": path of poses/00.txt or None, "intensity": the column or None}.
+
+    Checked by: tests/sim/test_export.py::test_kitti_bin_times_and_poses
+    """
+    if not seq.scans:
+        raise InputError("SEQ_DIR: the sequence has no scans with detections: nothing to export")
+    extras = set(seq.scans[0].extra)
+    if intensity is None and "snr" in extras:
+        intensity = "snr"
+    if intensity is not None and intensity != "radial_velocity" and intensity not in extras:
+        raise InputError(f"--intensity: no column {intensity!r} in the sequence (radial_velocity"
+                         f"{''.join(', ' + e for e in sorted(extras))})")
+    seq_dir = _mkdir(Path(out_dir) / "sequences" / KITTI_SEQUENCE)
+    velodyne = _mkdir(seq_dir / "velodyne")
+    for k, scan in enumerate(seq.scans):
+        p = scan.points_sensor
+        i = np.zeros(len(scan)) if intensity is None else (
+            scan.radial_velocity if intensity == "radial_velocity" else scan.extra[intensity])
+        _atomic_write(velodyne / f"{k:06d}.bin", np.c_[p, i].astype("<f4").tobytes())
+    _atomic_write(seq_dir / "times.txt", "".join(f"{s.t:.9e}\n" for s in seq.scans).encode("ascii"))
+    _atomic_write(seq_dir / "calib.txt", b"Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
+    poses = None
+    if seq.groundtruth is not None:
+        try:
+            T_world_vehicle = poses_at_scans(seq, seq.groundtruth, "groundtruth.txt")
+        except InputError:
+            T_world_vehicle = None  # ground truth not at every scan time: no poses file (reported)
+        if T_world_vehicle is not None:
+            poses = _mkdir(Path(out_dir) / "poses") / f"{KITTI_SEQUENCE}.txt"
+            rows = kitti_pose_rows(T_world_vehicle @ seq.sensor.T_vehicle_sensor)
+            _atomic_write(poses, rows.encode("ascii"))
+    return {"scans": len(seq.scans), "points": sum(len(s) for s in seq.scans), "poses": poses,
+            "intensity": intensity}

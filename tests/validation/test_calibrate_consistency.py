@@ -1,0 +1,122 @@
+"""The uncertainty fit of `rodo calibrate` (rodo.validation.calibrate_consistency): the median NEES ratio, the
+drift rate of a run with a known one, and kappa compensating information that is counted too often."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.stats import chi2
+
+from rodo import scenarios
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.lie import se3
+from rodo.validation import calibrate_consistency as cc
+
+
+def _rng(*key):
+    return np.random.default_rng(np.random.SeedSequence([2026, 15, *key]))
+
+
+@given(scale=st.floats(0.2, 20.0), seed=st.integers(0, 2**16))
+@settings(max_examples=20)
+def test_median_ratio_is_the_scale_of_a_scaled_chi_square(scale, seed):
+    """NEES values scale * chi2(6): the ratio is the scale (5000 samples: within 6 %), NaNs ignored."""
+    v = scale * chi2.rvs(6, size=5000, random_state=_rng(seed))
+    v[::50] = np.nan
+    assert cc.median_ratio(v) == pytest.approx(scale, rel=0.06)
+    assert np.isnan(cc.median_ratio([np.nan, np.inf]))
+
+
+def _drive(rng, n):
+    """True state poses of a vehicle driving 0.6-1 m per scan through gentle turns and slopes."""
+    T = [se3.exp(rng.normal(size=6))]
+    for _ in range(n - 1):
+        step = np.array([-rng.uniform(0.6, 1.0), 0.0, rng.normal(0, 0.01), rng.normal(0, 0.002),
+                         rng.normal(0, 0.003), rng.normal(0, 0.02)])
+        T.append(se3.exp(step) @ T[-1])
+    return np.stack(T)
+
+
+@given(seed=st.integers(0, 2**16))
+@settings(max_examples=10, deadline=None)
+def test_drift_rate_of_a_run_with_a_known_one(seed):
+    """An estimate whose every scan errs by s_k beta + noise (e_k = ln(R_true R_est^-1)): the fit returns beta
+    within 4 standard errors, and a sigma at least |beta|."""
+    rng = _rng(seed)
+    n = 400
+    T_true = _drive(rng, n)
+    beta = rng.normal(size=6) * np.array([1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4])
+    T_est = [T_true[0]]
+    for k in range(1, n):
+        R = T_true[k] @ se3.inverse(T_true[k - 1])
+        e = np.linalg.norm(R[:3, 3]) * beta + rng.normal(size=6) * np.array([2e-3] * 3 + [2e-4] * 3)
+        T_est.append(se3.exp(-e) @ R @ T_est[-1])
+    t = 0.1 * np.arange(n)
+    fit = cc.fit_drift_rate({"t": t, "T_vehicle_world": np.stack(T_est)}, {"t": t, "T_vehicle_world": T_true})
+    err = np.abs(np.array(fit["beta"]) - beta)
+    assert np.all(err <= 4 * np.array(fit["se"])), (fit, beta)
+    assert np.all(np.array(fit["sigma"]) >= np.abs(fit["beta"]))
+    assert fit["distance"] == pytest.approx(np.sum(np.linalg.norm(
+        (T_true[1:] @ se3.inverse(T_true[:-1]))[:, :3, 3], axis=1)))
+
+
+@pytest.fixture(scope="module")
+def city():
+    return scenarios.get("city").simulate(1, duration=12.0)
+
+
+@pytest.mark.slow
+def test_kappa_compensates_information_counted_too_often(city):
+    """With the estimator's sensor sigmas at half the simulator's (every pair's information 4x too large), the
+    run is over-confident; the fit raises kappa until the velocity and one-scan relative pose are consistent
+    (median ratios within [0.7, 1.45]), and the fitted config is what the report says."""
+    seq, truth = city
+    base = OdometryConfig.for_model("ca-polar")
+    config = base.replace(noise=dataclasses.replace(base.noise, sensor_sigma_scales=(0.5, 0.5, 0.5, 0.5)))
+    fitted, report = cc.fit_consistency(seq, truth, config, iterations=4)
+    first, last = report["steps"][0], report["steps"][-1]
+    assert first["kappa"] == 1.0
+    assert max(first["median_ratio"][m] for m in cc.FIXED_POINT_MEASURES) > 1.6  # over-confident at kappa 1
+    assert report["measurement_inflation"] > 2.0
+    for m in cc.FIXED_POINT_MEASURES:
+        assert 0.7 <= last["median_ratio"][m] <= 1.45, report
+    assert fitted.uncertainty.measurement_inflation == report["measurement_inflation"]
+    assert fitted.uncertainty.velocity_correlation_time == report["velocity_correlation_time"]
+    assert fitted.uncertainty.drift_rate_sigma == tuple(report["drift_rate"]["sigma"])
+    assert report["velocity_correlation_time"] in cc.TAUS
+
+
+@pytest.fixture(scope="module")
+def city_run(city):
+    from rodo.validation.driver import run_sequence
+    from rodo.validation.run_consistency import run_states
+
+    seq, truth = city
+    config = OdometryConfig.for_model("ca-polar")
+    config = config.replace(uncertainty=dataclasses.replace(
+        config.uncertainty, velocity_correlation_time=0.4, drift_rate_sigma=(1e-4, 1e-4, 5e-4, 3e-5, 3e-5, 1e-5)))
+    return run_states(run_sequence(seq, config)), truth
+
+
+def test_absolute_covariances_replay_the_run(city_run):
+    """Replayed with the run's own tau and drift rate, the stored relative and velocity covariances give the
+    absolute covariances the run reported; another tau gives others (what `fit_tau` compares)."""
+    states, _ = city_run
+    drift = states["drift_rate_sigma"]
+    replay = cc.absolute_covariances(states, 0.4, drift)
+    np.testing.assert_allclose(replay, states["P_pose_absolute"], rtol=1e-9, atol=1e-15)
+    assert not np.allclose(cc.absolute_covariances(states, 0.05, drift), states["P_pose_absolute"], rtol=1e-3)
+
+
+def test_fit_tau_takes_the_grid_point_nearest_consistency(city_run):
+    """The chosen tau minimises |ln r_span| + |ln r_pose| over the grid it reports."""
+    states, truth = city_run
+    tau, grid = cc.fit_tau(states, truth, drift_rate_sigma=states["drift_rate_sigma"])
+    cost = {t: abs(np.log(r[0])) + abs(np.log(r[1])) for t, r in grid.items()}
+    assert set(grid) == {float(t) for t in cc.TAUS}
+    assert cost[tau] == min(cost.values())
+    # a longer correlation time integrates more velocity error: more covariance, smaller ratios
+    spans = [grid[t][0] for t in sorted(grid)]
+    assert spans[0] > spans[-1]

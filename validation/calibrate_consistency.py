@@ -1,0 +1,171 @@
+"""`rodo calibrate`'s last step with ground truth: the two uncertainty parameters that Qc and R do not cover.
+
+Qc and R say how noisy the motion and each detection are; two more things decide whether the reported
+covariance tells the truth (docs/consistency.md):
+
+- `uncertainty.measurement_inflation` kappa: a scan's ~500 pairs are not independent (points made in one scan
+  share its pose error, a map point is reused for several scans, surfaces are resampled), so they carry less
+  information than counted. kappa divides every pair's information in the solve; it is the effective number of
+  pairs per independent one. Fitted by a fixed point: run, measure how over-confident the velocity and the
+  one-scan relative pose are (the median NEES over the median of chi2(6): robust to the few scans where an
+  association fails outright), multiply kappa by that ratio, run again. kappa >= 1: it models over-counting
+  only (a cautious run is left as it is, and the report says so).
+- `uncertainty.drift_rate_sigma`: the registration's systematic error per metre driven (the absolute pose's
+  error grows with the distance, not its square root). Its one realisation on the sequence is the least-squares
+  fit beta = sum_k e_k / sum_k s_k of the one-scan relative errors e_k over the distances s_k; the sigma
+  per axis is sqrt(beta^2 + se^2), se its standard error (a prior for the unknown drift of another run).
+- `uncertainty.velocity_correlation_time` tau: how long the velocity error stays correlated, which decides how
+  the per-scan covariances compose into the drift (the relative pose over a span and the absolute pose). It
+  does not change the estimate: chosen on a grid, without running again, so that the relative pose over `span`
+  seconds and the absolute pose are as consistent as one tau can make them (the sum of |ln ratio|).
+
+The ratios are measured against the truth, so this needs truth.npz; on real data, carry kappa and tau over from
+a simulated sequence like it (docs/calibration.md).
+
+Checked by: tests/validation/test_calibrate_consistency.py
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.lie import se3
+from rodo.estimator.uncertainty import DriftCovariance
+from rodo.sim.sequence import Sequence
+
+from .alignment import truth_in_estimator_frame
+from .association import DEFAULT_TOLERANCE, associate
+from .driver import run_sequence
+from .odometry_consistency import DOF, odometry_nees
+from .run_consistency import run_states
+
+TAUS = (0.0, 0.02, 0.05, 0.1, 0.15, 0.25, 0.5, 1.0, 2.0)  # s, the grid of velocity correlation times
+KAPPA_RANGE = (1.0, 100.0)
+FIXED_POINT_MEASURES = ("velocity", "relative_scan")
+REPORTED = ("velocity", "relative_scan", "relative_span", "pose")
+MEDIAN_CHI2 = float(chi2.median(DOF))
+
+
+def median_ratio(values) -> float:
+    """median(NEES) / median of chi2(6): 1 when consistent, > 1 over-confident, NaN without finite values."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return float(np.median(v) / MEDIAN_CHI2) if v.size else float("nan")
+
+
+@dataclass(frozen=True)
+class ConsistencyStep:
+    """One run of the fixed point: the kappa it ran with and each REPORTED measure's median ratio."""
+
+    kappa: float
+    tau: float
+    ratios: dict
+
+    def as_dict(self) -> dict:
+        return {"kappa": self.kappa, "tau": self.tau, "median_ratio": self.ratios}
+
+
+def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=None) -> OdometryConfig:
+    drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
+    unc = dataclasses.replace(config.uncertainty, measurement_inflation=float(kappa),
+                              velocity_correlation_time=float(tau), drift_rate_sigma=tuple(float(x) for x in drift))
+    return config.replace(uncertainty=unc)
+
+
+def fit_drift_rate(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
+    """The drift rate of one run: beta (6,) = sum_k e_k / sum_k s_k, e_k = ln(R_true R_est^-1) the one-scan
+    relative error (vehicle frame) and s_k the true distance of the scan; its standard error se (6,) from the
+    scatter of e_k - s_k beta (scans as independent); sigma = sqrt(beta^2 + se^2); distance (m)."""
+    ia, ib = associate(states["t"], truth["t"], tolerance)
+    T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
+    T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
+    R_true = T_true[1:] @ se3.inverse(T_true[:-1])
+    e = se3.log(R_true @ se3.inverse(T_est[1:] @ se3.inverse(T_est[:-1])))
+    s = np.linalg.norm(R_true[:, :3, 3], axis=1)
+    distance = float(s.sum())
+    if len(e) < 2 or distance <= 0:
+        return {"beta": [0.0] * 6, "se": [0.0] * 6, "sigma": [0.0] * 6, "distance": distance}
+    beta = e.sum(axis=0) / distance
+    se = np.sqrt(np.sum(np.square(e - s[:, None] * beta), axis=0)) / distance
+    return {"beta": beta.tolist(), "se": se.tolist(), "sigma": np.hypot(beta, se).tolist(), "distance": distance}
+
+
+def _measure(seq: Sequence, truth: dict, config: OdometryConfig, span: float) -> tuple[dict, dict]:
+    """Run once; (states, median ratio of every REPORTED measure at the config's tau)."""
+    states = run_states(run_sequence(seq, config))
+    m = odometry_nees(states, truth, span=span, tau=config.uncertainty.velocity_correlation_time)
+    return states, {name: median_ratio(m[name]) for name in REPORTED}
+
+
+def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None) -> np.ndarray:
+    """(N, 6, 6) the absolute pose covariances a run would have reported with this tau and drift rate
+    (`DriftCovariance` over its stored relative and velocity covariances; row 0: the first pose's)."""
+    T = np.asarray(states["T_vehicle_world"], dtype=float)
+    t = np.asarray(states["t"], dtype=float)
+    P = np.asarray(states["P"], dtype=float)
+    S = np.asarray(states["P_relative"], dtype=float)
+    drift = DriftCovariance(P[0, :6, :6], P[0, 6:12, 6:12], tau, drift_rate_sigma)
+    out = [P[0, :6, :6]]
+    for k in range(1, len(t)):
+        rel = S[k] if np.all(np.isfinite(S[k])) else np.zeros((6, 6))
+        out.append(drift.update(T[k - 1], T[k], t[k] - t[k - 1], rel, P[k, 6:12, 6:12]))
+    return np.stack(out)
+
+
+def fit_tau(states: dict, truth: dict, span: float = 1.0, taus=TAUS, drift_rate_sigma=None) -> tuple[float, dict]:
+    """The tau of the grid that makes the relative pose over `span` seconds and the absolute pose most
+    consistent: the least |ln r_span| + |ln r_pose| of their median ratios; returns (tau, {tau: (r_span,
+    r_pose)})."""
+    ratios = {}
+    for tau in taus:
+        trial = dict(states, P_pose_absolute=absolute_covariances(states, tau, drift_rate_sigma))
+        m = odometry_nees(trial, truth, span=span, tau=tau, drift_rate_sigma=drift_rate_sigma)
+        ratios[float(tau)] = (median_ratio(m["relative_span"]), median_ratio(m["pose"]))
+    finite = {tau: r for tau, r in ratios.items() if np.all(np.isfinite(r)) and min(r) > 0}
+    if not finite:
+        return float(states.get("velocity_correlation_time", TAUS[5])), ratios
+    return min(finite, key=lambda tau: float(np.sum(np.abs(np.log(finite[tau]))))), ratios
+
+
+def fit_consistency(seq: Sequence, truth: dict, config: OdometryConfig, iterations: int = 4,
+                    tolerance: float = 0.1, span: float = 1.0, progress=None) -> tuple[OdometryConfig, dict]:
+    """Fit kappa (fixed point), then the drift rate and tau (grid) on a simulated sequence; returns
+    (config, report).
+
+    Each iteration runs the estimator once. It stops when the geometric mean r of the FIXED_POINT_MEASURES'
+    median ratios is within `tolerance` of 1 (|ln r| < ln(1 + tolerance)), when kappa is at a bound of
+    KAPPA_RANGE and r points beyond it, or after `iterations` runs. A last run at the fitted kappa and tau
+    gives the ratios the report ends with. `progress(ConsistencyStep)` is called after every run.
+    """
+    kappa = float(np.clip(config.uncertainty.measurement_inflation, *KAPPA_RANGE))
+    tau = config.uncertainty.velocity_correlation_time
+    steps = []
+    for _ in range(iterations):
+        states, ratios = _measure(seq, truth, _with(config, kappa, tau), span)
+        steps.append(ConsistencyStep(kappa, tau, ratios))
+        if progress is not None:
+            progress(steps[-1])
+        r = float(np.exp(np.mean(np.log([ratios[m] for m in FIXED_POINT_MEASURES]))))
+        new = float(np.clip(kappa * r, *KAPPA_RANGE))
+        if not np.isfinite(r) or abs(np.log(r)) < np.log1p(tolerance) or new == kappa:
+            break
+        kappa = new
+    else:
+        states, ratios = _measure(seq, truth, _with(config, kappa, tau), span)
+    drift = fit_drift_rate(states, truth)
+    tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"])
+    fitted = _with(config, kappa, tau, drift["sigma"])
+    _, final = _measure(seq, truth, fitted, span)
+    steps.append(ConsistencyStep(kappa, tau, final))
+    if progress is not None:
+        progress(steps[-1])
+    report = {"measurement_inflation": kappa, "velocity_correlation_time": tau, "drift_rate": drift, "span": span,
+              "tolerance": tolerance, "at_lower_bound": kappa == KAPPA_RANGE[0],
+              "steps": [s.as_dict() for s in steps],
+              "tau_grid": {f"{t:g}": {"relative_span": r[0], "pose": r[1]} for t, r in tau_ratios.items()}}
+    return fitted, report
