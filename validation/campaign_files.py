@@ -67,7 +67,7 @@ def read_results(path: str | Path) -> list[dict]:
     body = rows[1:] if text.endswith("\n") else rows[1:-1]  # a final row without its newline is torn: drop it
     out = []
     for line, row in enumerate(body, start=2):
-        if len(row) != len(header) or row[3] not in ("ok", "error"):
+        if len(row) != len(header) or row[3] not in ("ok", "error") or not row[0].isdigit():
             raise InputError(f"{path}: line {line}: malformed row ({len(row)} fields, status {row[3:4]})")
         out.append({**dict.fromkeys(FIELDS, ""), **dict(zip(header, row))})
     return out

@@ -10,6 +10,7 @@ import os
 from rodo.estimator.config import MODELS
 from rodo.estimator.errors import InputError
 from rodo.progress import Progress
+from rodo.validation.campaign_dir import campaign_lock
 from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign, summarize_campaign, write_summary
 from rodo.validation.trial import ScenarioTrial
 
@@ -159,12 +160,14 @@ def main(args) -> int:
     if configs:
         meta["configs"] = dict(configs)
     trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs)
-    total = remaining(trials, args.out) if args.resume else len(trials) * len(models)
-    with Progress(total, f"montecarlo {args.scenario}") as bar, \
-            make_executor(args.jobs, args.dask) as executor:
-        report = run_campaign(trial_fn, trials, executor, args.out, resume=args.resume, progress=bar, meta=meta)
-    summary = summarize_campaign(args.out)
-    write_summary(args.out, summary, plot_summary(args.out, summary))
+    with campaign_lock(args.out):  # held over the run and the summary: a second writer is refused
+        total = remaining(trials, args.out) if args.resume else len(trials) * len(models)
+        with Progress(total, f"montecarlo {args.scenario}") as bar, \
+                make_executor(args.jobs, args.dask) as executor:
+            report = run_campaign(trial_fn, trials, executor, args.out, resume=args.resume, progress=bar,
+                                  meta=meta)
+        summary = summarize_campaign(args.out)
+        write_summary(args.out, summary, plot_summary(args.out, summary))
     errors = sum(r["status"] == "error" for r in report.rows)
     print(f"ran {report.ran} (trial, model) runs, skipped {report.skipped} already done, {errors} errors, "
           f"{report.wall_s:.1f} s")
