@@ -39,7 +39,8 @@ from rodo.estimator.errors import InputError
 
 from .campaign_dir import campaign_lock, check_and_save_meta
 from .campaign_consistency import campaign_consistency, consistency_lines
-from .campaign_files import CONSISTENCY_FIELDS, FIELDS, METRICS, append_rows, cell, npz_path, read_results, rewrite_results, save_arrays
+from .campaign_files import (CONSISTENCY_FIELDS, FIELDS, METRICS, append_rows, cell, load_trial_arrays, npz_path,
+                             read_results, rewrite_results, save_arrays)
 from .campaign_compare import compare_models, comparison_lines
 from .consistency import average_nees, chi2_bounds, fraction_within
 from .metrics import jsonable
@@ -291,11 +292,11 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
             p = npz_path(out, int(r["trial"]), m)
             if not p.exists():
                 continue
-            with np.load(p) as z:
-                runs.append(z["nees"])
-                dim = int(z["nees_dim"])
-                t = z["t"] if len(z["t"]) > len(t) else t
-                arrays.append({k: z[k] for k in z.files if k == "t" or k.startswith("nees_")})
+            z = load_trial_arrays(p, ("t", "nees", "nees_dim"))
+            runs.append(z["nees"])
+            dim = int(z["nees_dim"])
+            t = z["t"] if len(z["t"]) > len(t) else t
+            arrays.append({k: v for k, v in z.items() if k == "t" or k.startswith("nees_")})
         entry["consistency"], entry["consistency_curves"] = campaign_consistency(arrays, alpha)
         if runs:
             mean, count = average_nees(runs)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import io
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -99,3 +100,18 @@ def save_arrays(path: Path, arrays: dict) -> None:
         fh.flush()
         os.fsync(fh.fileno())
     os.replace(tmp, path)
+
+
+def load_trial_arrays(path: Path, needed: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """A run's per-scan arrays (np.load with allow_pickle=False); an InputError naming the file if it is
+    truncated, corrupt or lacks one of `needed`, with the way out."""
+    way_out = "delete it and rerun the campaign into a fresh directory, or restore the file"
+    try:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # our handle: closed on a bad file too
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError, TypeError, EOFError, zipfile.BadZipFile) as exc:  # TypeError: a .npy, not .npz
+        raise InputError(f"{path}: unreadable trial arrays ({type(exc).__name__}: {exc}); {way_out}") from None
+    missing = [k for k in needed if k not in arrays]
+    if missing:
+        raise InputError(f"{path}: no {', '.join(missing)} array in the trial arrays; {way_out}")
+    return arrays

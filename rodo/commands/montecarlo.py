@@ -145,6 +145,10 @@ def check_campaign_options(args) -> None:
         raise InputError(f"--jobs: must be >= 1, got {args.jobs}")
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration: must be > 0 seconds, got {args.duration}")
+    from rodo.scenarios.registry import MAX_DURATION
+
+    if args.duration is not None and not args.duration <= MAX_DURATION:  # NaN and inf too
+        raise InputError(f"--duration: at most {MAX_DURATION:g} s per trial, got {args.duration}")
 
 
 def main(args) -> int:

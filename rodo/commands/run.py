@@ -8,6 +8,7 @@ from pathlib import Path
 
 from rodo.estimator.config import MODELS, OdometryConfig
 from rodo.estimator.errors import InputError
+from rodo.outputs import check_output_file
 from rodo.progress import Progress
 from rodo.sim.sequence import read_sequence
 from rodo.sim.simulate import TRUTH_NPZ, load_truth
@@ -58,6 +59,8 @@ def check_out_dir(path, create: bool = True) -> Path:
 def main(args) -> int:
     config = load_config(args)
     check_out_dir(args.out, create=False)
+    if args.rerun:
+        check_output_file(args.rerun, "--rerun")  # before the run, not after the estimate is written
     seq = read_sequence(args.sequence)
     check_out_dir(args.out)
     with Progress(len(scan_times(seq)), f"rodo run {config.model}") as bar:

@@ -133,11 +133,9 @@ def _scan_times(source: Path, sc: dict, frame_ms: float, report: ConversionRepor
 def _kept_detections(det: dict, idx: np.ndarray, report: ConversionReport):
     """Each detection's position in the scan table (-1: none), the mask of usable detections (dropped ones
     counted in the report), and range, azimuth, elevation of all rows (float64, from x, y, z)."""
-    pos = np.full(int(max(idx.max(), det["scan_idx"].max(initial=0))) + 1, -1)  # scan_idx -> position
-    pos[idx] = np.arange(len(idx))
     s = det["scan_idx"]
-    valid = (s >= 0) & (s < len(pos))
-    k = np.where(valid, pos[np.clip(s, 0, len(pos) - 1)], -1)
+    j = np.clip(np.searchsorted(idx, s), 0, len(idx) - 1)  # idx is sorted: no table as long as the largest index
+    k = np.where(idx[j] == s, j, -1)
     keep = report.drop("detections whose scan has no (valid) trigger time", k < 0)
     vals = np.stack([det[c] for c in ("x_m", "y_m", "z_m", "intensity", "v_radial_mps")])
     keep &= report.drop("detections with NaN or infinity", keep & ~np.all(np.isfinite(vals), axis=0))
