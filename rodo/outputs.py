@@ -20,15 +20,22 @@ from rodo.estimator.errors import InputError
 from rodo.sim.sequence import atomic_write_bytes
 
 
-def check_output_file(path, option: str) -> Path:
-    """The output file `path`, or an InputError naming `option` and why it cannot be written."""
+def check_output_file(path, option: str, parents: bool = False) -> Path:
+    """The output file `path`, or an InputError naming `option` and why it cannot be written.
+
+    parents: the writer creates missing directories (rodo run --rerun inside --out), so the nearest existing
+    one must be a writable directory; otherwise the file's directory must exist.
+    """
     out = Path(path)
     if out.is_dir():
         raise InputError(f"{option}: {out} is a directory; give a file name")
     parent = out.parent
+    if parents:
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
     if not parent.is_dir():
         what = "is not a directory" if parent.exists() else "does not exist"
-        raise InputError(f"{option}: cannot write {out}: directory {parent} {what}")
+        raise InputError(f"{option}: cannot write {out}: {parent} {what}")
     try:
         fd, probe = tempfile.mkstemp(dir=parent, prefix=f".{out.name}.", suffix=".probe")
     except OSError as exc:

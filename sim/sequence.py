@@ -47,7 +47,7 @@ def read_sequence(path, *, use_cache: bool = True) -> Sequence:
     Args:
         path: the directory holding radar.csv, sensor.toml and optionally groundtruth.txt.
         use_cache: load/store the parsed radar.csv in `.radar.csv.npz` next to it (invalidated when the CSV's
-            size, mtime_ns or first/last KiB change).
+            size, mtime_ns or content hash change; a cache whose values fail the checks is not used).
 
     Returns:
         Sequence with one RadarScan per scan index that has rows, in order; groundtruth None when

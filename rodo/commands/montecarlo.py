@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
+from concurrent.futures import BrokenExecutor
 
 from rodo.estimator.config import MODELS
 from rodo.estimator.errors import InputError
@@ -151,7 +153,23 @@ def check_campaign_options(args) -> None:
         raise InputError(f"--duration: at most {MAX_DURATION:g} s per trial, got {args.duration}")
 
 
+def worker_died(command: str, out: str, exc: BaseException) -> int:
+    """Exit code 1 and one line on stderr for a campaign whose worker process died (killed, out of memory):
+    what happened and that --resume runs the rest (finished trials are saved, unfinished ones not recorded)."""
+    print(f"rodo {command}: error: a worker process died ({type(exc).__name__}: {exc}; killed, or out of "
+          f"memory?); the trials finished before are saved in {out}: run the same command with --resume to run "
+          "the rest", file=sys.stderr)
+    return 1
+
+
 def main(args) -> int:
+    try:
+        return run_montecarlo(args)
+    except BrokenExecutor as exc:
+        return worker_died("montecarlo", args.out, exc)
+
+
+def run_montecarlo(args) -> int:
     check_campaign_options(args)
     from rodo import scenarios
 

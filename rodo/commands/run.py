@@ -60,7 +60,7 @@ def main(args) -> int:
     config = load_config(args)
     check_out_dir(args.out, create=False)
     if args.rerun:
-        check_output_file(args.rerun, "--rerun")  # before the run, not after the estimate is written
+        check_output_file(args.rerun, "--rerun", parents=True)  # before the run, not after the estimate is written
     seq = read_sequence(args.sequence)
     check_out_dir(args.out)
     with Progress(len(scan_times(seq)), f"rodo run {config.model}") as bar:

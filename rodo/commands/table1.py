@@ -10,10 +10,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+from concurrent.futures import BrokenExecutor
 
 from rodo.estimator.errors import InputError
 from rodo.progress import Progress
-from rodo.commands.montecarlo import add_campaign_options, check_campaign_options
+from rodo.commands.montecarlo import add_campaign_options, check_campaign_options, worker_died
 from rodo.validation.campaign_dir import campaign_lock
 from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign
 from rodo.validation.table1 import MODELS, SCENARIOS, Table1Trial, build_table, load_runs, write_table
@@ -46,6 +47,13 @@ def parse_scenarios(text: str) -> list[str]:
 
 
 def main(args) -> int:
+    try:
+        return run_table1(args)
+    except BrokenExecutor as exc:
+        return worker_died("table1", args.out, exc)
+
+
+def run_table1(args) -> int:
     check_campaign_options(args)
     names = parse_scenarios(args.scenarios)
     trials = make_trials(args.seed, args.runs, MODELS)

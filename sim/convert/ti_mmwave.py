@@ -52,8 +52,12 @@ def read_calibration(path) -> tuple[np.ndarray, float]:
     if not np.all(np.isfinite(q)) or abs(norm - 1.0) > 1e-3:
         raise InputError(f"{path}, line {values['q_b_r_x'][1]}, field 'q_b_r': not a unit quaternion "
                          f"(|q| = {norm:.6g})")
-    if not v["radar_frame_ms"] >= 0:
-        raise InputError(f"{path}, line {values['radar_frame_ms'][1]}, field 'radar_frame_ms': must be >= 0")
+    if not 0 <= v["radar_frame_ms"] < np.inf:
+        raise InputError(f"{path}, line {values['radar_frame_ms'][1]}, field 'radar_frame_ms': must be a finite "
+                         f"number >= 0, got {v['radar_frame_ms']}")
+    bad = [k for k in ("l_b_r_x", "l_b_r_y", "l_b_r_z") if not np.isfinite(v[k])]
+    if bad:
+        raise InputError(f"{path}, line {values[bad[0]][1]}, field '{bad[0]}': must be a finite number")
     T = np.eye(4)
     T[:3, :3] = so3.from_quaternion(q / norm) @ C_RIO_TI
     T[:3, 3] = v["l_b_r_x"], v["l_b_r_y"], v["l_b_r_z"]

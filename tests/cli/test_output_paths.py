@@ -92,8 +92,10 @@ def test_evaluate_json_path_is_checked_before_any_work(seq, tmp_path, capsys):
 
 
 def test_rerun_path_is_checked_before_the_run(seq, tmp_path, capsys):
-    bad = tmp_path / "missing" / "run.rrd"
-    _fails(capsys, ["run", seq, "--out", tmp_path / "o", "--rerun", bad], "--rerun", str(bad.parent))
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x\n")
+    bad = a_file / "sub" / "run.rrd"  # missing directories are created, but not under a file
+    _fails(capsys, ["run", seq, "--out", tmp_path / "o", "--rerun", bad], "--rerun", str(a_file), "not a directory")
     assert not (tmp_path / "o").exists()  # refused before the estimate was written
     _fails(capsys, ["simulate", "city", "--duration", "0.3", "--out", tmp_path / "s", "--rerun", "/proc/x.rrd"],
            "--rerun", "not writable")
