@@ -175,3 +175,38 @@ def test_cli_resume_with_a_corrupt_campaign_json_exits_2(tmp_path, capsys):
     assert main(argv, commands=[montecarlo]) == 2
     err = capsys.readouterr().err
     assert f"{tmp_path / 'campaign.json'}: line 1 column 2: not valid JSON" in err and "Traceback" not in err
+
+
+TIMING = {"ms_per_scan", "wall_s"}  # measured, so different in any two runs
+
+
+def _without_timing(summary: dict) -> dict:
+    models = {m: {**e, "metrics": {k: v for k, v in e["metrics"].items() if k not in TIMING}}
+              for m, e in summary["models"].items()}
+    comparisons = [c for c in summary["comparisons"] if c.get("metric") not in TIMING]
+    return {**summary, "models": models, "comparisons": comparisons}
+
+
+@pytest.mark.slow
+def test_cli_resume_with_more_runs_equals_a_fresh_campaign(tmp_path, capsys):
+    from rodo.cli import main
+    from rodo.commands import montecarlo
+
+    def argv(out, runs):
+        return ["montecarlo", "yaw_accel", "--runs", str(runs), "--duration", "1.0", "--jobs", "1", "--seed", "3",
+                "--out", str(out)]
+
+    assert main(argv(tmp_path / "grown", 1), commands=[montecarlo]) == 0
+    assert main(argv(tmp_path / "grown", 2) + ["--resume"], commands=[montecarlo]) == 0
+    assert "ran 2 (trial, model) runs, skipped 2 already done" in capsys.readouterr().out
+    assert main(argv(tmp_path / "grown", 1) + ["--resume"], commands=[montecarlo]) == 2
+    assert "--runs: 1 is fewer than the 2 runs" in capsys.readouterr().err
+    assert main(argv(tmp_path / "fresh", 2), commands=[montecarlo]) == 0
+    grown, fresh = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("grown", "fresh"))
+    assert grown["trials"] == 2 and _without_timing(grown) == _without_timing(fresh)
+    rows = {d: {(r["trial"], r["model"]): r for r in read_results(tmp_path / d / "results.csv")}
+            for d in ("grown", "fresh")}
+    assert rows["grown"].keys() == rows["fresh"].keys()
+    for key, r in rows["grown"].items():  # every estimate and metric bit for bit, the timings aside
+        assert {k: v for k, v in r.items() if k not in TIMING} == \
+            {k: v for k, v in rows["fresh"][key].items() if k not in TIMING}
