@@ -85,6 +85,12 @@ def _fmt(v, spec=".4g") -> str:
     return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, spec)
 
 
+def _skipped(nees: dict) -> str:
+    """What the NEES leaves out: scans whose NEES is not finite (a NaN or infinite covariance, no truth)."""
+    k = nees["scans"] - nees["finite"]
+    return f"; {k} skipped: NEES not finite (NaN or inf in P or the state)" if k else ""
+
+
 def table(rep: dict) -> str:
     rows = [("matched poses", f"{rep['matched']} (gt {rep['gt_poses']}, est {rep['est_poses']})"),
             ("path length", f"{_fmt(rep['path_length_m'], '.1f')} m"),
@@ -107,7 +113,8 @@ def table(rep: dict) -> str:
         n = rep["nees"]
         rows.append((f"NEES (d={n['dim']})", f"mean {_fmt(n['mean'])}, per-scan bounds "
                                              f"[{_fmt(n['per_scan_bounds'][0])}, {_fmt(n['per_scan_bounds'][1])}], "
-                                             f"{_fmt(100 * n['fraction_within'], '.0f')} % of scans within"))
+                                             f"{_fmt(100 * n['fraction_within'], '.0f')} % of scans within "
+                                             f"(over {n['finite']} of {n['scans']} scans{_skipped(n)})"))
     if "consistency" in rep:
         c = rep["consistency"]
         lo, hi = c["bounds_per_dof"]

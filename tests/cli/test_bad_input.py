@@ -110,3 +110,27 @@ def test_ti_calibration_special_floats_are_named_not_missing(tmp_path, key, valu
     _write_ti(tmp_path, np.random.default_rng(0), calib=calib)
     with pytest.raises(InputError, match=rf"line \d+, field '{key}': must be a finite number"):
         ti_mmwave.convert(tmp_path)
+
+
+def test_evaluate_says_how_many_scans_its_nees_skipped(tmp_path, capsys):
+    import numpy as np
+
+    from rodo import scenarios
+
+    seq = tmp_path / "seq"
+    scenarios.simulate_to("city", 0, seq, duration=0.5)
+    assert main(["run", str(seq), "--model", "cv-cartesian", "--out", str(tmp_path / "o")]) == 0
+    with np.load(tmp_path / "o" / "states.npz", allow_pickle=False) as z:
+        states = dict(z)
+    states["P"][2, 0, 0] = np.nan  # one scan's covariance broken
+    np.savez(tmp_path / "bad.npz", **states)
+    argv = ["evaluate", "--gt", str(seq / "groundtruth.txt"), "--est", str(tmp_path / "o" / "estimate.txt"),
+            "--truth", str(seq / "truth.npz"), "--states"]
+    capsys.readouterr()
+    assert main(argv + [str(tmp_path / "o" / "states.npz")]) == 0
+    n = len(states["t"])
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("NEES (d="))
+    assert line.endswith(f"(over {n} of {n} scans)"), line
+    assert main(argv + [str(tmp_path / "bad.npz")]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("NEES (d="))
+    assert line.endswith(f"(over {n - 1} of {n} scans; 1 skipped: NEES not finite (NaN or inf in P or the state))")
