@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from rodo.estimator.config import MODELS, OdometryConfig
@@ -56,6 +57,25 @@ def check_out_dir(path, create: bool = True) -> Path:
     return out
 
 
+def input_warnings(seq, summary: dict) -> list[str]:
+    """Degenerate input that runs but cannot give odometry: said on stderr, the run still writes its output."""
+    import numpy as np
+
+    ranges = np.concatenate([sc.range for sc in seq.scans]) if seq.scans else np.zeros(0)
+    out = []
+    if ranges.size == 0:
+        out.append("radar.csv holds no detections: the estimate is the initial state carried by the motion prior")
+    elif not np.any(ranges > 0):
+        out.append(f"every detection in radar.csv has range 0 m ({ranges.size} detections): no geometry to "
+                   "estimate motion from")
+    if len(seq.scans) < 2:
+        out.append(f"radar.csv has {len(seq.scans)} scan(s): odometry needs at least 2")
+    elif ranges.size and not summary.get("median_associations", 0) > 0:
+        out.append("the median scan associated no detection with the map: the estimate is mostly dead reckoning "
+                   "(check radar.csv units and sensor.toml extrinsics, noise and field of view)")
+    return out
+
+
 def main(args) -> int:
     config = load_config(args)
     check_out_dir(args.out, create=False)
@@ -75,6 +95,8 @@ def main(args) -> int:
         record_run(args.rerun, seq, result, truth=truth, detail=details)
         print(f"wrote {args.rerun} (open it with: rodo view {args.rerun})")
     s = result.summary()
+    for text in input_warnings(seq, s):
+        print(f"rodo run: warning: {text}", file=sys.stderr)
     print(json.dumps({k: s[k] for k in ("model", "scans", "median_associations", "median_ms_per_scan",
                                         "p95_ms_per_scan")}))
     print(f"wrote {args.out}/estimate.txt, states.npz, summary.json")

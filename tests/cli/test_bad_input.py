@@ -134,3 +134,20 @@ def test_evaluate_says_how_many_scans_its_nees_skipped(tmp_path, capsys):
     assert main(argv + [str(tmp_path / "bad.npz")]) == 0
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("NEES (d="))
     assert line.endswith(f"(over {n - 1} of {n} scans; 1 skipped: NEES not finite (NaN or inf in P or the state))")
+
+
+def test_run_warns_about_degenerate_input(tmp_path, capsys):
+    from rodo import scenarios
+
+    seq = tmp_path / "seq"
+    scenarios.simulate_to("city", 0, seq, duration=0.5)
+    assert main(["run", str(seq), "--out", str(tmp_path / "good")]) == 0
+    assert "warning" not in capsys.readouterr().err
+    lines = (seq / "radar.csv").read_text().splitlines()
+    col = lines[0].split(",").index("range")
+    zeroed = [lines[0]] + [",".join(f if i != col else "0.0" for i, f in enumerate(x.split(","))) for x in lines[1:]]
+    (seq / "radar.csv").write_text("\n".join(zeroed) + "\n")
+    assert main(["run", str(seq), "--out", str(tmp_path / "zero")]) == 0  # it runs, and says what is wrong
+    err = capsys.readouterr().err
+    assert "rodo run: warning: every detection in radar.csv has range 0 m" in err
+    assert "associated no detection" in err and (tmp_path / "zero" / "estimate.txt").exists()
