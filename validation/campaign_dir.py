@@ -20,6 +20,7 @@ import os
 from pathlib import Path
 
 from rodo.estimator.errors import InputError
+from rodo.sim.sequence import atomic_write_bytes
 
 LOCK_NAME = ".campaign.lock"
 _held: dict[str, int] = {}  # lock files held by this process -> nesting depth (re-entrancy)
@@ -129,9 +130,7 @@ def check_and_save_meta(out: Path, meta: dict, resume: bool) -> None:
                              f"{', '.join(diff)}: saved {[saved.get(k) for k in diff]}, now "
                              f"{[meta.get(k) for k in diff]})")
     if meta:
-        tmp = meta_path.with_name("." + meta_path.name + ".tmp")
-        tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-        os.replace(tmp, meta_path)
+        atomic_write_bytes(meta_path, (json.dumps(meta, indent=2, sort_keys=True) + "\n").encode("utf-8"))
 
 
 def _check_runs(meta_path: Path, saved, now) -> None:

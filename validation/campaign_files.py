@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.sim.sequence import atomic_write_bytes
 
 # the columns of results.csv before the odometry consistency measures (a campaign started then still resumes:
 # read_results fills the new columns with "", and resume rewrites the file with the current header)
@@ -75,15 +76,13 @@ def read_results(path: str | Path) -> list[dict]:
 
 
 def rewrite_results(path: Path, rows: list[dict]) -> None:
-    """Replace results.csv by these rows, atomically (write a temporary file, fsync, rename)."""
-    tmp = path.with_name("." + path.name + ".tmp")
-    with open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=FIELDS)
-        w.writeheader()
-        w.writerows(rows)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    """Replace results.csv by these rows, atomically (`atomic_write_bytes`: a uniquely named temporary file,
+    fsync, rename; the temporary file removed on failure)."""
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=FIELDS)
+    w.writeheader()
+    w.writerows(rows)
+    atomic_write_bytes(path, buf.getvalue().encode("utf-8"))
 
 
 def npz_path(out_dir: str | Path, trial: int, model: str) -> Path:
@@ -92,14 +91,11 @@ def npz_path(out_dir: str | Path, trial: int, model: str) -> Path:
 
 
 def save_arrays(path: Path, arrays: dict) -> None:
-    """Write a run's per-scan arrays as .npz, atomically."""
+    """Write a run's per-scan arrays as .npz, atomically (`atomic_write_bytes`)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name("." + path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        np.savez_compressed(fh, **{k: np.asarray(v) for k, v in arrays.items()})
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{k: np.asarray(v) for k, v in arrays.items()})
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def load_trial_arrays(path: Path, needed: tuple[str, ...] = ()) -> dict[str, np.ndarray]:

@@ -124,3 +124,27 @@ def test_unreadable_trial_arrays_name_the_file(tmp_path):
     np.savez(p, t=np.zeros(3))  # readable, but not a trial's arrays
     with pytest.raises(InputError, match=f"{p}: no nees, nees_dim array"):
         summarize_campaign(tmp_path)
+
+
+def test_campaign_files_are_written_atomically_without_leftovers(tmp_path, monkeypatch, umask):
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rodo.validation.campaign_files import rewrite_results, save_arrays
+
+    umask(0o022)
+    with ProcessPoolExecutor(1) as ex:
+        run_campaign(FakeTrial(), make_trials(0, 2, MODELS), ex, tmp_path, meta={"runs": 2})
+    for p in (tmp_path / "results.csv", tmp_path / "campaign.json", npz_path(tmp_path, 0, MODELS[0])):
+        assert _mode(p) == 0o644, p
+    before = (tmp_path / "results.csv").read_bytes()
+
+    def fail(*_):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", fail)
+    with pytest.raises(OSError, match="No space"):
+        rewrite_results(tmp_path / "results.csv", [])
+    with pytest.raises(OSError, match="No space"):
+        save_arrays(npz_path(tmp_path, 5, MODELS[0]), {"t": np.zeros(2)})
+    assert (tmp_path / "results.csv").read_bytes() == before  # the old file stands
+    assert not _leftovers(tmp_path) and not _leftovers(tmp_path / "trials")
