@@ -124,9 +124,25 @@ def error_text(exc: BaseException) -> str:
 
 
 def remaining(trials: list[Trial], out_dir) -> int:
-    """How many (trial, model) runs of `trials` are not yet in out_dir/results.csv (for a progress bar)."""
-    done = {(int(r["trial"]), r["model"]) for r in read_results(Path(out_dir) / "results.csv")}
+    """How many (trial, model) runs of `trials` a resume runs (for a progress bar): those not yet in
+    out_dir/results.csv, and those whose trial arrays are unreadable."""
+    rows = read_results(Path(out_dir) / "results.csv")
+    done = {(int(r["trial"]), r["model"]) for r in rows} - unreadable_runs(Path(out_dir), rows)
     return sum((tr.index, m) not in done for tr in trials for m in tr.models)
+
+
+def unreadable_runs(out: Path, rows: list[dict]) -> set[tuple[int, str]]:
+    """(trial, model) of the ok rows whose trials/*.npz exists but cannot be read (truncated, corrupt):
+    resume runs them again."""
+    bad = set()
+    for r in rows:
+        p = npz_path(out, int(r["trial"]), r["model"])
+        if r["status"] == "ok" and p.exists():
+            try:
+                load_trial_arrays(p)
+            except InputError:
+                bad.add((int(r["trial"]), r["model"]))
+    return bad
 
 
 @dataclass
@@ -150,7 +166,8 @@ def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[T
         executor: any concurrent.futures.Executor (ProcessPoolExecutor, Dask's Client.get_executor()).
         out_dir: campaign directory (created), locked for the call (`campaign_dir.campaign_lock`: a second
             writer in another process is refused).
-        resume: continue a campaign in out_dir, skipping (trial, model) rows already written (ok or error).
+        resume: continue a campaign in out_dir, skipping (trial, model) rows already written (ok or error),
+            except ok rows whose trial arrays are unreadable (their file is removed and the run done again).
             Without it, an existing results.csv is an error (nothing is overwritten). A resumed row whose seed
             differs from its trial's is an error (another campaign).
         progress: optional object with update(n) (rodo.progress.Progress), called once per (trial, model).
@@ -169,6 +186,10 @@ def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[T
         check_and_save_meta(out, jsonable(meta or {}), resume)
         rows = read_results(csv_path) if resume else []
         _check_seeds(csv_path, rows, trials)
+        broken = unreadable_runs(out, rows)
+        for trial, model in broken:  # a truncated or corrupt trial file: the run is done again
+            npz_path(out, trial, model).unlink()
+        rows = [r for r in rows if (int(r["trial"]), r["model"]) not in broken]
         if resume and csv_path.exists():
             rewrite_results(csv_path, rows)  # drops a torn final row
         todo = _missing_runs(trials, rows)

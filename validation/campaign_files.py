@@ -101,7 +101,7 @@ def save_arrays(path: Path, arrays: dict) -> None:
 def load_trial_arrays(path: Path, needed: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
     """A run's per-scan arrays (np.load with allow_pickle=False); an InputError naming the file if it is
     truncated, corrupt or lacks one of `needed`, with the way out."""
-    way_out = "delete it and rerun the campaign into a fresh directory, or restore the file"
+    way_out = "resume the campaign (--resume) to run that trial again"
     try:
         with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # our handle: closed on a bad file too
             arrays = {k: z[k] for k in z.files}

@@ -210,3 +210,19 @@ def test_cli_resume_with_more_runs_equals_a_fresh_campaign(tmp_path, capsys):
     for key, r in rows["grown"].items():  # every estimate and metric bit for bit, the timings aside
         assert {k: v for k, v in r.items() if k not in TIMING} == \
             {k: v for k, v in rows["fresh"][key].items() if k not in TIMING}
+
+
+def test_resume_reruns_a_trial_whose_arrays_are_unreadable(tmp_path):
+    from rodo.validation.campaign import npz_path, remaining
+
+    _campaign(tmp_path / "fresh", 3)
+    _campaign(tmp_path, 3)
+    p = npz_path(tmp_path, 1, MODELS[1])
+    p.write_bytes(p.read_bytes()[:50])  # truncated, as by a disk full or a careless copy
+    with pytest.raises(InputError, match=rf"{p}: unreadable trial arrays .*\(--resume\) to run that trial again"):
+        summarize_campaign(tmp_path)
+    assert remaining(make_trials(5, 3, MODELS), tmp_path) == 1
+    rep = _campaign(tmp_path, 3, resume=True)
+    assert rep.ran == 1 and rep.skipped == 5
+    assert p.read_bytes() == npz_path(tmp_path / "fresh", 1, MODELS[1]).read_bytes()
+    assert summarize_campaign(tmp_path) == summarize_campaign(tmp_path / "fresh")
