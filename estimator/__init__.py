@@ -23,6 +23,7 @@ A map of the package (each module's public names are re-exported here):
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
     scan.py             ScanEstimate, ScanDetail: what a scan returns
     config.py           OdometryConfig and its sections (TOML)
+    config_rules.py     every config value's type, finiteness and range (one table, checked at load)
     errors.py           InputError, check_finite
 
 Configurations: `OdometryConfig.for_model("ca-polar")` (the paper's method), `"cv-cartesian"` (its baseline),
@@ -37,6 +38,7 @@ from importlib import import_module
 _EXPORTS = {
     "association": ("Association", "associate", "gate_threshold", "innovation_covariance", "match"),
     "config": ("MODELS", "OdometryConfig", "UncertaintyConfig"),
+    "config_rules": ("RULES", "Rule", "check_values"),
     "consensus": ("ConsensusSwitch",),
     "doppler": ("DopplerFrontEnd", "body_velocity", "sensor_velocity"),
     "ego_velocity": ("EgoVelocity", "estimate_ego_velocity", "least_squares_velocity"),

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .config_rules import check_values
 from .errors import InputError
 
 MODELS = ("ca-polar", "cv-cartesian", "ca-cartesian", "cv-polar")
@@ -185,9 +186,11 @@ class OdometryConfig:
     uncertainty: UncertaintyConfig = field(default_factory=UncertaintyConfig)
 
     def __post_init__(self):
-        self._check_model_and_noise()
+        check_values(self, ranges=False)  # every value's type first (estimator/config_rules.py), so that the
+        self._check_model_and_noise()  # checks below compare numbers
         self._check_solver()
         self._check_association_and_map()
+        check_values(self)  # every value finite and in its range (estimator/config_rules.py)
 
     def _check_model_and_noise(self):
         if self.model not in MODELS:
@@ -236,9 +239,7 @@ class OdometryConfig:
             raise InputError(f"association.max_radius: must be > 0, got {self.association.max_radius}")
         if self.association.reassociate < 0 or self.association.doppler_sigma_floor < 0:
             raise InputError("association.reassociate, association.doppler_sigma_floor: must be >= 0")
-        st = self.standstill
-        if st.speed < 0 or min(st.sigma_velocity, st.sigma_rate, st.sigma_accel, st.sigma_angular_accel) <= 0:
-            raise InputError("standstill: speed must be >= 0 (0 disables it) and the sigmas > 0")
+        # [standstill]: speed >= 0 (0 disables it), the sigmas > 0: config_rules.RULES
         for name in ("sigma_roll_rate", "sigma_pitch_rate"):
             if not getattr(self.vehicle, name) >= 0:
                 raise InputError(f"vehicle.{name}: must be >= 0 rad/s (0 disables it), "

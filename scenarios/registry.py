@@ -26,6 +26,7 @@ from rodo.sim.trajectory import Profile
 from rodo.sim.world import World
 
 MARGIN = 5.0  # s of extra trajectory past the simulated duration (movers may look ahead)
+MAX_DURATION = 3600.0  # s: a simulation's memory grows with its length (about 1 GB per hour of scans)
 
 
 @dataclass(frozen=True)
@@ -102,6 +103,9 @@ class Scenario:
         params = self._params(params)
         if duration is not None and not (np.isfinite(duration) and duration > 0):
             raise InputError(f"duration: must be a positive number of seconds, got {duration!r}")
+        if duration is not None and duration > MAX_DURATION:  # bounded before anything is allocated
+            raise InputError(f"duration: at most {MAX_DURATION:g} s (one hour) per simulation, got {duration:g} s; "
+                             "simulate shorter sequences (or several seeds)")
         duration = self.default_duration(seed, **params) if duration is None else float(duration)
         rng_traj, rng_world, _ = self._rngs(seed)
         profile = self.profile(rng_traj, duration + MARGIN, **params)

@@ -7,7 +7,7 @@ tests/sim/test_sequence_fuzz.py, tests/sim/test_tum.py.
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from pathlib import Path
 
 from rodo.estimator.errors import InputError
@@ -81,10 +81,29 @@ def read_text(path) -> str:
     return decode_text(path, data)
 
 
+def create_temp(directory, name: str) -> tuple[int, str]:
+    """A new, uniquely named file `.NAME.<random>.tmp` in `directory`, opened for writing: O_EXCL and
+    O_NOFOLLOW (never an existing file or a symlink), mode 0666 less the umask (the permissions open() gives,
+    not mkstemp's 0600). Returns (fd, path)."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    for _ in range(100):
+        tmp = os.path.join(directory, f".{name}.{secrets.token_hex(6)}.tmp")
+        try:
+            return os.open(tmp, flags, 0o666), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary name for {name} in {directory}")
+
+
 def atomic_write_bytes(path, data: bytes) -> None:
-    """Write `data` to `path` atomically: a temporary file in the same directory, fsync, then os.replace."""
+    """Write `data` to `path` atomically: a temporary file in the same directory, fsync, then os.replace.
+
+    The temporary file has a unique name (`create_temp`: O_EXCL, no symlink followed) and is removed on any
+    failure; the result has the permissions of a file created by open() (0666 less the umask, e.g. 0644).
+    Checked by: tests/cli/test_output_paths.py::test_sequence_files_respect_the_umask
+    """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = create_temp(path.parent, path.name)
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)

@@ -23,8 +23,8 @@ from ._seqio import SequenceFormatError, atomic_write_bytes, decode_text
 from .sequence_types import REQUIRED_COLUMNS, RadarScan
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-_CACHE_VERSION = 1
-_HASH_BYTES = 1024
+_CACHE_VERSION = 2  # 2: the signature hashes the whole file, and a loaded cache is re-validated
+_HASH_CHUNK = 1 << 20
 _ANGLE_BOUNDS = {"azimuth": np.pi, "elevation": np.pi / 2}
 
 
@@ -193,22 +193,21 @@ def split_scans(cols: dict[str, np.ndarray]) -> list[RadarScan]:
 # ------------------------------------------------------------------------------------------------- cache
 
 
-def _signature(size: int, mtime_ns: int, data_head: bytes, data_tail: bytes) -> str:
-    h = hashlib.sha256(data_head)
-    h.update(data_tail)
-    return f"v{_CACHE_VERSION}:{size}:{mtime_ns}:{h.hexdigest()}"
+def _signature(size: int, mtime_ns: int, digest: str) -> str:
+    return f"v{_CACHE_VERSION}:{size}:{mtime_ns}:{digest}"
 
 
 def _file_signature(csv_path) -> str | None:
+    """Size, mtime_ns and the SHA-256 of the whole content (hashing is ~100x faster than parsing)."""
     try:
         st = os.stat(csv_path)
+        h = hashlib.sha256()
         with open(csv_path, "rb") as fh:
-            head = fh.read(_HASH_BYTES)
-            fh.seek(max(st.st_size - _HASH_BYTES, 0))
-            tail = fh.read(_HASH_BYTES)
+            for chunk in iter(lambda: fh.read(_HASH_CHUNK), b""):
+                h.update(chunk)
     except OSError:
         return None
-    return _signature(st.st_size, st.st_mtime_ns, head, tail)
+    return _signature(st.st_size, st.st_mtime_ns, h.hexdigest())
 
 
 def _load_cache(csv_path) -> dict[str, np.ndarray] | None:
@@ -224,9 +223,23 @@ def _load_cache(csv_path) -> dict[str, np.ndarray] | None:
             cols = {name: npz[f"col{k}"] for k, name in enumerate(names)}
     except Exception:  # noqa: BLE001 - a corrupt or foreign cache is simply not used
         return None
-    if any(name not in cols for name in REQUIRED_COLUMNS):
+    if any(name not in cols for name in REQUIRED_COLUMNS) or not _cache_columns_valid(csv_path, cols):
         return None
     return cols
+
+
+def _cache_columns_valid(csv_path, cols: dict[str, np.ndarray]) -> bool:
+    """A loaded cache obeys the reader's rules (dtypes, lengths, values): a cache that does not is not used
+    (the CSV is parsed instead), so a damaged or forged cache never yields what the CSV could not."""
+    n = len(cols["scan"])
+    if any(c.ndim != 1 or len(c) != n for c in cols.values()) or cols["scan"].dtype != np.int64 or \
+            any(c.dtype != np.float64 for k, c in cols.items() if k != "scan"):
+        return False
+    try:
+        _check_values(csv_path, cols)
+    except InputError:
+        return False
+    return True
 
 
 def _store_cache(csv_path, signature: str, cols: dict[str, np.ndarray]) -> None:
@@ -242,8 +255,8 @@ def _store_cache(csv_path, signature: str, cols: dict[str, np.ndarray]) -> None:
 def read_radar_csv(path, *, use_cache: bool = True) -> list[RadarScan]:
     """Read and validate a radar.csv (see docs/sequence_format.md) into RadarScans, one per scan index.
 
-    With `use_cache`, a valid `.radar.csv.npz` next to the file (same size, mtime_ns and hash of the first and
-    last KiB as when it was made) is loaded instead of parsing; otherwise the CSV is parsed and the cache
+    With `use_cache`, a valid `.radar.csv.npz` next to the file (same size, mtime_ns and SHA-256 of the whole
+    file as when it was made, and values that pass the reader's checks) is loaded instead of parsing; otherwise the CSV is parsed and the cache
     (re)written atomically. Caching never changes the result.
 
     Raises:
@@ -265,8 +278,7 @@ def read_radar_csv(path, *, use_cache: bool = True) -> list[RadarScan]:
         raise SequenceFormatError(path, f"cannot read ({exc.strerror or exc})") from None
     cols = parse_radar_csv(path, decode_text(path, data))
     if use_cache and len(data) == st.st_size:
-        tail = data[max(len(data) - _HASH_BYTES, 0):]
-        _store_cache(path, _signature(st.st_size, st.st_mtime_ns, data[:_HASH_BYTES], tail), cols)
+        _store_cache(path, _signature(st.st_size, st.st_mtime_ns, hashlib.sha256(data).hexdigest()), cols)
     return split_scans(cols)
 
 

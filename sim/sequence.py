@@ -36,7 +36,7 @@ GROUNDTRUTH_TXT = "groundtruth.txt"
 
 __all__ = [
     "GROUNDTRUTH_TXT", "RADAR_CSV", "SENSOR_TOML", "NoiseSigmas", "RadarScan", "SensorConfig", "Sequence",
-    "SequenceFormatError", "Trajectory", "cache_path", "polar_to_cartesian", "read_radar_csv",
+    "SequenceFormatError", "atomic_write_bytes", "Trajectory", "cache_path", "polar_to_cartesian", "read_radar_csv",
     "read_sensor_config", "read_sequence", "read_tum", "write_sensor_config", "write_sequence", "write_tum",
 ]
 
@@ -47,7 +47,7 @@ def read_sequence(path, *, use_cache: bool = True) -> Sequence:
     Args:
         path: the directory holding radar.csv, sensor.toml and optionally groundtruth.txt.
         use_cache: load/store the parsed radar.csv in `.radar.csv.npz` next to it (invalidated when the CSV's
-            size, mtime_ns or first/last KiB change).
+            size, mtime_ns or content hash change; a cache whose values fail the checks is not used).
 
     Returns:
         Sequence with one RadarScan per scan index that has rows, in order; groundtruth None when
@@ -56,6 +56,7 @@ def read_sequence(path, *, use_cache: bool = True) -> Sequence:
     Raises:
         SequenceFormatError (InputError): missing directory or required file, or any malformed content
         (message names file, line and field).
+        InputError: the scans and the ground truth do not overlap in time (names both files).
 
     Checked by: tests/sim/test_sequence.py::test_round_trip_is_bit_exact_and_deterministic
     """
@@ -66,7 +67,22 @@ def read_sequence(path, *, use_cache: bool = True) -> Sequence:
     scans = read_radar_csv(path / RADAR_CSV, use_cache=use_cache)
     gt_path = path / GROUNDTRUTH_TXT
     groundtruth = read_tum(gt_path) if gt_path.exists() else None
+    if groundtruth is not None and scans and len(groundtruth.t):
+        _check_time_bases(path, scans[0].t, scans[-1].t, float(groundtruth.t[0]), float(groundtruth.t[-1]))
     return Sequence(sensor=sensor, scans=scans, groundtruth=groundtruth)
+
+
+TIME_BASE_TOLERANCE = 1e-3  # s, as validation.association.DEFAULT_TOLERANCE
+
+
+def _check_time_bases(path: Path, t0: float, t1: float, g0: float, g1: float) -> None:
+    """Scans in [t0, t1] and ground truth in [g0, g1] must share some time: files on different clocks
+    would make every evaluation (and an initialisation from the truth) silently wrong. A gap below
+    TIME_BASE_TOLERANCE is no other clock (groundtruth.txt keeps 9 decimals, radar.csv every digit)."""
+    if t1 < g0 - TIME_BASE_TOLERANCE or t0 > g1 + TIME_BASE_TOLERANCE:
+        raise InputError(f"{path / RADAR_CSV} (scans at {t0:.6g} to {t1:.6g} s) and {path / GROUNDTRUTH_TXT} "
+                         f"(poses at {g0:.6g} to {g1:.6g} s) do not overlap in time: different clocks or time "
+                         "offsets? Give both files the same time base")
 
 
 def write_sequence(path, seq: Sequence) -> None:

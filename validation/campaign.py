@@ -5,7 +5,9 @@ One runner, `run_campaign(trial_fn, trials, executor, out_dir, resume)`, serves 
 (`make_executor`). Workers only compute; the calling process writes every file, so a remote Dask worker needs no
 shared disk. Layout of out_dir (docs/evaluation.md):
 
-- `campaign.json`: the campaign's parameters (checked on resume: resuming a different campaign is an error);
+- `.campaign.lock`: flock'ed while a writer runs (`validation.campaign_dir`: a second writer is refused);
+- `campaign.json`: the campaign's parameters (checked on resume: resuming a different campaign is an error; a
+  larger number of runs extends the campaign);
 - `results.csv`: one row per (trial, model), appended, flushed and fsync'ed as soon as the trial finishes;
 - `trials/trial_XXXX_MODEL.npz`: per-scan arrays of the run (t, nees, nis, n_associated, ms_per_scan, ...),
   written atomically *before* its row, so a row always has its arrays;
@@ -35,8 +37,10 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 
+from .campaign_dir import campaign_lock, check_and_save_meta
 from .campaign_consistency import campaign_consistency, consistency_lines
-from .campaign_files import CONSISTENCY_FIELDS, FIELDS, METRICS, append_rows, cell, npz_path, read_results, rewrite_results, save_arrays
+from .campaign_files import (CONSISTENCY_FIELDS, FIELDS, METRICS, append_rows, cell, load_trial_arrays, npz_path,
+                             read_results, rewrite_results, save_arrays)
 from .campaign_compare import compare_models, comparison_lines
 from .consistency import average_nees, chi2_bounds, fraction_within
 from .metrics import jsonable
@@ -120,9 +124,25 @@ def error_text(exc: BaseException) -> str:
 
 
 def remaining(trials: list[Trial], out_dir) -> int:
-    """How many (trial, model) runs of `trials` are not yet in out_dir/results.csv (for a progress bar)."""
-    done = {(int(r["trial"]), r["model"]) for r in read_results(Path(out_dir) / "results.csv")}
+    """How many (trial, model) runs of `trials` a resume runs (for a progress bar): those not yet in
+    out_dir/results.csv, and those whose trial arrays are unreadable."""
+    rows = read_results(Path(out_dir) / "results.csv")
+    done = {(int(r["trial"]), r["model"]) for r in rows} - unreadable_runs(Path(out_dir), rows)
     return sum((tr.index, m) not in done for tr in trials for m in tr.models)
+
+
+def unreadable_runs(out: Path, rows: list[dict]) -> set[tuple[int, str]]:
+    """(trial, model) of the ok rows whose trials/*.npz exists but cannot be read (truncated, corrupt):
+    resume runs them again."""
+    bad = set()
+    for r in rows:
+        p = npz_path(out, int(r["trial"]), r["model"])
+        if r["status"] == "ok" and p.exists():
+            try:
+                load_trial_arrays(p)
+            except InputError:
+                bad.add((int(r["trial"]), r["model"]))
+    return bad
 
 
 @dataclass
@@ -144,11 +164,16 @@ def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[T
             nothing recorded for the unfinished trials, so that resume runs them.
         trials: the campaign's trials (make_trials).
         executor: any concurrent.futures.Executor (ProcessPoolExecutor, Dask's Client.get_executor()).
-        out_dir: campaign directory (created).
-        resume: continue a campaign in out_dir, skipping (trial, model) rows already written (ok or error).
-            Without it, an existing results.csv is an error (nothing is overwritten).
+        out_dir: campaign directory (created), locked for the call (`campaign_dir.campaign_lock`: a second
+            writer in another process is refused).
+        resume: continue a campaign in out_dir, skipping (trial, model) rows already written (ok or error),
+            except ok rows whose trial arrays are unreadable (their file is removed and the run done again).
+            Without it, an existing results.csv is an error (nothing is overwritten). A resumed row whose seed
+            differs from its trial's is an error (another campaign).
         progress: optional object with update(n) (rodo.progress.Progress), called once per (trial, model).
-        meta: the campaign's parameters, saved as campaign.json; on resume they must equal the saved ones.
+        meta: the campaign's parameters, saved as campaign.json; on resume they must equal the saved ones,
+            except meta["runs"], which may grow (the campaign is extended; trial seeds do not depend on the
+            number of runs) but not shrink (`campaign_dir.check_and_save_meta`).
 
     Returns:
         CampaignReport. An interruption (KeyboardInterrupt, or an exception from `progress`) cancels the
@@ -156,35 +181,33 @@ def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[T
 
     Checked by: tests/validation/test_campaign.py
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = out / "results.csv"
-    _check_and_save_meta(out, jsonable(meta or {}), resume)
-    rows = read_results(csv_path) if resume else []
-    if resume and csv_path.exists():
-        rewrite_results(csv_path, rows)  # drops a torn final row
-    todo = _missing_runs(trials, rows)
-    skipped = sum(len(tr.models) for tr in trials) - sum(len(tr.models) for tr in todo)
-    t0 = time.perf_counter()
-    ran = _run_and_persist(trial_fn, todo, executor, out, rows, progress)
+    with campaign_lock(out_dir) as out:
+        csv_path = out / "results.csv"
+        check_and_save_meta(out, jsonable(meta or {}), resume)
+        rows = read_results(csv_path) if resume else []
+        _check_seeds(csv_path, rows, trials)
+        broken = unreadable_runs(out, rows)
+        for trial, model in broken:  # a truncated or corrupt trial file: the run is done again
+            npz_path(out, trial, model).unlink()
+        rows = [r for r in rows if (int(r["trial"]), r["model"]) not in broken]
+        if resume and csv_path.exists():
+            rewrite_results(csv_path, rows)  # drops a torn final row
+        todo = _missing_runs(trials, rows)
+        skipped = sum(len(tr.models) for tr in trials) - sum(len(tr.models) for tr in todo)
+        t0 = time.perf_counter()
+        ran = _run_and_persist(trial_fn, todo, executor, out, rows, progress)
     return CampaignReport(rows, ran, skipped, time.perf_counter() - t0)
 
 
-def _check_and_save_meta(out: Path, meta: dict, resume: bool) -> None:
-    """Refuse to overwrite a campaign (without resume) or to resume a different one; save campaign.json."""
-    csv_path, meta_path = out / "results.csv", out / "campaign.json"
-    if csv_path.exists() and not resume:
-        raise InputError(f"out: {csv_path} exists; pass --resume to continue that campaign or choose another "
-                         "directory")
-    if resume and meta_path.exists() and meta:
-        saved = json.loads(meta_path.read_text())
-        diff = sorted(k for k in set(saved) | set(meta) if saved.get(k) != meta.get(k))
-        if diff:
-            raise InputError(f"resume: {meta_path} was written for a different campaign (differs in "
-                             f"{', '.join(diff)}: saved {[saved.get(k) for k in diff]}, now "
-                             f"{[meta.get(k) for k in diff]})")
-    if meta:
-        meta_path.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+def _check_seeds(csv_path: Path, rows: list[dict], trials: list[Trial]) -> None:
+    """A resumed row must have been run with the seed its trial has now (else it is another campaign)."""
+    seeds = {tr.index: tr.seed for tr in trials}
+    for line, r in enumerate(rows, start=2):
+        i = int(r["trial"])
+        if i in seeds and r["seed"] != str(seeds[i]):
+            raise InputError(f"resume: {csv_path}: line {line}: trial {i} was run with seed {r['seed']}, but this "
+                             f"campaign gives it seed {seeds[i]} (another --seed?); resume with the campaign's "
+                             "parameters or choose another directory")
 
 
 def _missing_runs(trials: list[Trial], rows: list[dict]) -> list[Trial]:
@@ -290,11 +313,11 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
             p = npz_path(out, int(r["trial"]), m)
             if not p.exists():
                 continue
-            with np.load(p) as z:
-                runs.append(z["nees"])
-                dim = int(z["nees_dim"])
-                t = z["t"] if len(z["t"]) > len(t) else t
-                arrays.append({k: z[k] for k in z.files if k == "t" or k.startswith("nees_")})
+            z = load_trial_arrays(p, ("t", "nees", "nees_dim"))
+            runs.append(z["nees"])
+            dim = int(z["nees_dim"])
+            t = z["t"] if len(z["t"]) > len(t) else t
+            arrays.append({k: v for k, v in z.items() if k == "t" or k.startswith("nees_")})
         entry["consistency"], entry["consistency_curves"] = campaign_consistency(arrays, alpha)
         if runs:
             mean, count = average_nees(runs)

@@ -10,11 +10,13 @@ from __future__ import annotations
 import csv
 import io
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.sim.sequence import atomic_write_bytes
 
 # the columns of results.csv before the odometry consistency measures (a campaign started then still resumes:
 # read_results fills the new columns with "", and resume rewrites the file with the current header)
@@ -67,22 +69,20 @@ def read_results(path: str | Path) -> list[dict]:
     body = rows[1:] if text.endswith("\n") else rows[1:-1]  # a final row without its newline is torn: drop it
     out = []
     for line, row in enumerate(body, start=2):
-        if len(row) != len(header) or row[3] not in ("ok", "error"):
+        if len(row) != len(header) or row[3] not in ("ok", "error") or not row[0].isdigit():
             raise InputError(f"{path}: line {line}: malformed row ({len(row)} fields, status {row[3:4]})")
         out.append({**dict.fromkeys(FIELDS, ""), **dict(zip(header, row))})
     return out
 
 
 def rewrite_results(path: Path, rows: list[dict]) -> None:
-    """Replace results.csv by these rows, atomically (write a temporary file, fsync, rename)."""
-    tmp = path.with_name("." + path.name + ".tmp")
-    with open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=FIELDS)
-        w.writeheader()
-        w.writerows(rows)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    """Replace results.csv by these rows, atomically (`atomic_write_bytes`: a uniquely named temporary file,
+    fsync, rename; the temporary file removed on failure)."""
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=FIELDS)
+    w.writeheader()
+    w.writerows(rows)
+    atomic_write_bytes(path, buf.getvalue().encode("utf-8"))
 
 
 def npz_path(out_dir: str | Path, trial: int, model: str) -> Path:
@@ -91,11 +91,23 @@ def npz_path(out_dir: str | Path, trial: int, model: str) -> Path:
 
 
 def save_arrays(path: Path, arrays: dict) -> None:
-    """Write a run's per-scan arrays as .npz, atomically."""
+    """Write a run's per-scan arrays as .npz, atomically (`atomic_write_bytes`)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name("." + path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        np.savez_compressed(fh, **{k: np.asarray(v) for k, v in arrays.items()})
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{k: np.asarray(v) for k, v in arrays.items()})
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def load_trial_arrays(path: Path, needed: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """A run's per-scan arrays (np.load with allow_pickle=False); an InputError naming the file if it is
+    truncated, corrupt or lacks one of `needed`, with the way out."""
+    way_out = "resume the campaign (--resume) to run that trial again"
+    try:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # our handle: closed on a bad file too
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError, TypeError, EOFError, zipfile.BadZipFile) as exc:  # TypeError: a .npy, not .npz
+        raise InputError(f"{path}: unreadable trial arrays ({type(exc).__name__}: {exc}); {way_out}") from None
+    missing = [k for k in needed if k not in arrays]
+    if missing:
+        raise InputError(f"{path}: no {', '.join(missing)} array in the trial arrays; {way_out}")
+    return arrays

@@ -13,8 +13,8 @@ loop, timing, results on disk), and the CLI (`rodo run`). Outputs of `write_run(
 
 from __future__ import annotations
 
+import io
 import json
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +27,7 @@ from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
 from rodo.estimator.scan import ScanEstimate
-from rodo.sim.sequence import Sequence, Trajectory, write_tum
+from rodo.sim.sequence import Sequence, Trajectory, atomic_write_bytes, write_tum
 
 
 @dataclass
@@ -141,14 +141,10 @@ def write_run(out_dir: str | Path, result: RunResult) -> None:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_tum(out / "estimate.txt", result.trajectory())
-    arrays = result.state_arrays()
-    tmp = out / ".states.npz.tmp"
-    with open(tmp, "wb") as fh:
-        np.savez_compressed(fh, **arrays)
-    os.replace(tmp, out / "states.npz")
-    tmp = out / ".summary.json.tmp"
-    tmp.write_text(json.dumps(result.summary(), indent=2) + "\n")
-    os.replace(tmp, out / "summary.json")
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **result.state_arrays())
+    atomic_write_bytes(out / "states.npz", buf.getvalue())  # unique temporary names, removed on failure
+    atomic_write_bytes(out / "summary.json", (json.dumps(result.summary(), indent=2) + "\n").encode())
 
 
 def _or_nan(P: np.ndarray | None) -> np.ndarray:

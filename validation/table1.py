@@ -38,6 +38,7 @@ import numpy as np
 from rodo.estimator.errors import InputError
 
 from .campaign import npz_path, read_results
+from .campaign_files import load_trial_arrays
 from .trial import ScenarioTrial
 from .kitti import LENGTHS, kitti_errors
 from .metrics import jsonable
@@ -225,14 +226,13 @@ def load_runs(out_dir, scenarios_order) -> list[dict]:
             p = npz_path(d, int(r["trial"]), r["model"])
             if not p.exists():
                 raise InputError(f"{p}: missing trial arrays for the ok row of trial {r['trial']} ({r['model']})")
-            with np.load(p) as z:
-                if "kitti_segments" not in z.files:
-                    raise InputError(f"{p}: no kitti_segments array (written by another campaign than "
-                                     "rodo table1?)")
-                runs.append({"scenario": sc, "model": r["model"], "trial": int(r["trial"]),
-                             "path_length_m": float(z["path_length_m"]),
-                             "kitti_segments": z["kitti_segments"], "kitti_segments_short": z["kitti_segments_short"],
-                             "ms_per_scan": z["ms_per_scan"]})
+            z = load_trial_arrays(p)
+            if "kitti_segments" not in z:
+                raise InputError(f"{p}: no kitti_segments array (written by another campaign than rodo table1?)")
+            runs.append({"scenario": sc, "model": r["model"], "trial": int(r["trial"]),
+                         "path_length_m": float(z["path_length_m"]),
+                         "kitti_segments": z["kitti_segments"], "kitti_segments_short": z["kitti_segments_short"],
+                         "ms_per_scan": z["ms_per_scan"]})
     return runs
 
 

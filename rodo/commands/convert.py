@@ -27,7 +27,7 @@ Formats:
                IMU body frame; no ground truth.
   vod          directory of View-of-Delft radar *.bin files (float32 N x 7: x,y,z,RCS,v_r,v_r_comp,time),
                one per scan in file-name order, t = k / --rate.
-  rosbag       ROS 1 .bag, ROS 2 bag directory (sqlite3 or mcap) or .mcap file (needs: pip install rosbags);
+  rosbag       ROS 1 .bag, ROS 2 bag directory (sqlite3 or mcap) or .mcap file (needs: pip install 'rodo[ros]');
                --topic names a sensor_msgs/PointCloud2 topic with x,y,z (--xyz) or range,azimuth,elevation
                (--polar) fields and a Doppler field (--doppler; negative = approaching, else --flip-doppler).
                Time: header stamps, or the bag's record time when the stamps are zero (--time). Vehicle frame
@@ -108,12 +108,18 @@ def _rosbag(args):
 def run(args) -> int:
     from pathlib import Path
 
+    import numpy as np
+
     from rodo.sim.convert import radarscenes, ti_mmwave, vod, write_conversion
 
     for option, value, owner in (("--radars", args.radars, "radarscenes"), ("--t-max", args.t_max, "radarscenes"),
                                  ("--rate", args.rate, "vod"), *_rosbag_options(args)):
         if value is not None and args.format != owner:
             raise InputError(f"{option}: only for the {owner} format, not {args.format}")
+    if args.t_max is not None and not (np.isfinite(args.t_max) and args.t_max > 0):
+        raise InputError(f"--t-max: must be a positive finite number of seconds, got {args.t_max}")
+    if args.rate is not None and not (np.isfinite(args.rate) and 1e-3 <= args.rate <= 1e4):
+        raise InputError(f"--rate: must be > 0, a finite scan rate from 0.001 to 10000 Hz, got {args.rate}")
     noise = _sigmas(args.sigma) if args.sigma is not None else None
     out = Path(args.out)
     if args.format == "radarscenes":

@@ -114,7 +114,8 @@ def _run_and_evaluate(model: str, seq, truth: dict, out: Path):
         res = run_sequence(seq, OdometryConfig.for_model(model), progress=bar, record_detail=model == "ca-polar")
     run_dir = out / model
     write_run(run_dir, res)
-    states = dict(np.load(run_dir / "states.npz"))
+    with np.load(run_dir / "states.npz", allow_pickle=False) as z:
+        states = dict(z)
     path_len = float(np.sum(np.linalg.norm(np.diff(seq.groundtruth.T_world_vehicle[:, :3, 3], axis=0), axis=1)))
     lengths = [L for L in (50.0, 100.0, 200.0, 400.0, 800.0) if L < 0.9 * path_len] or [path_len / 2]
     ev = evaluate(seq.groundtruth, res.trajectory(), lengths=lengths, states=states, truth=truth)

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import zipfile
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import numpy as np
 from rodo.estimator.errors import InputError
 from rodo.sim.sequence import read_tum
 from rodo.validation.association import DEFAULT_TOLERANCE, associate
+from rodo.outputs import check_output_file, write_text_atomic
 from rodo.validation.metrics import evaluate, jsonable
 
 
@@ -58,11 +58,37 @@ def load_npz(path: str, option: str, required: tuple[str, ...]) -> dict:
     missing = [k for k in required if k not in arrays]
     if missing:
         raise InputError(f"{option} {path}: missing array(s) {', '.join(missing)} (has {', '.join(arrays)})")
+    check_state_shapes(arrays, f"{option} {path}")
     return arrays
+
+
+def check_state_shapes(arrays: dict, where: str) -> None:
+    """InputError naming the array unless t is (N,) and T_vehicle_world (N, 4, 4), varpi (N, 6), P (N, d, d)
+    with d >= 6, numeric, as states.npz and truth.npz hold them."""
+    t = np.asarray(arrays["t"])
+    n = len(t) if t.ndim == 1 else -1
+    want = {"t": (n,), "T_vehicle_world": (n, 4, 4), "varpi": (n, 6)}
+    P = arrays.get("P")
+    if P is not None and np.ndim(P) == 3:
+        want["P"] = (n, max(P.shape[1], 6), max(P.shape[1], 6))
+    elif P is not None:
+        want["P"] = (n, "d", "d")
+    for key, shape in want.items():
+        a = np.asarray(arrays[key])
+        if a.shape != shape or not np.issubdtype(a.dtype, np.number):
+            shown = "(" + ", ".join("N" if i == 0 else str(s) for i, s in enumerate(shape)) + ")"
+            raise InputError(f"{where}: array {key} has shape {a.shape} and dtype {a.dtype}, expected {shown} "
+                             f"numbers{' with N = len(t)' if key != 't' else ''}")
 
 
 def _fmt(v, spec=".4g") -> str:
     return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, spec)
+
+
+def _skipped(nees: dict) -> str:
+    """What the NEES leaves out: scans whose NEES is not finite (a NaN or infinite covariance, no truth)."""
+    k = nees["scans"] - nees["finite"]
+    return f"; {k} skipped: NEES not finite (NaN or inf in P or the state)" if k else ""
 
 
 def table(rep: dict) -> str:
@@ -87,7 +113,8 @@ def table(rep: dict) -> str:
         n = rep["nees"]
         rows.append((f"NEES (d={n['dim']})", f"mean {_fmt(n['mean'])}, per-scan bounds "
                                              f"[{_fmt(n['per_scan_bounds'][0])}, {_fmt(n['per_scan_bounds'][1])}], "
-                                             f"{_fmt(100 * n['fraction_within'], '.0f')} % of scans within"))
+                                             f"{_fmt(100 * n['fraction_within'], '.0f')} % of scans within "
+                                             f"(over {n['finite']} of {n['scans']} scans{_skipped(n)})"))
     if "consistency" in rep:
         c = rep["consistency"]
         lo, hi = c["bounds_per_dof"]
@@ -124,6 +151,8 @@ def main(args) -> int:
         raise InputError(f"--step: must be >= 1, got {args.step}")
     if not (np.isfinite(args.tolerance) and args.tolerance >= 0):
         raise InputError(f"--tolerance: must be >= 0 seconds, got {args.tolerance}")
+    if args.json:
+        check_output_file(args.json, "--json")  # before any work
     gt = read_tum(args.gt)
     est = read_tum(args.est)
     states = load_npz(args.states, "--states", ("t", "T_vehicle_world", "varpi", "P")) if args.states else None
@@ -135,10 +164,6 @@ def main(args) -> int:
     rep = evaluate(gt, est, lengths, args.step, states, truth, args.tolerance)
     print(table(rep))
     if args.json:
-        tmp = args.json + ".tmp"
-        with open(tmp, "w") as fh:
-            json.dump(jsonable(rep), fh, indent=1)
-            fh.write("\n")
-        os.replace(tmp, args.json)
+        write_text_atomic(args.json, json.dumps(jsonable(rep), indent=1) + "\n")
         print(f"wrote {args.json}")
     return 0

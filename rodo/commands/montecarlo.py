@@ -6,10 +6,13 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
+from concurrent.futures import BrokenExecutor
 
 from rodo.estimator.config import MODELS
 from rodo.estimator.errors import InputError
 from rodo.progress import Progress
+from rodo.validation.campaign_dir import campaign_lock
 from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign, summarize_campaign, write_summary
 from rodo.validation.trial import ScenarioTrial
 
@@ -146,9 +149,29 @@ def check_campaign_options(args) -> None:
         raise InputError(f"--jobs: must be >= 1, got {args.jobs}")
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration: must be > 0 seconds, got {args.duration}")
+    from rodo.scenarios.registry import MAX_DURATION
+
+    if args.duration is not None and not args.duration <= MAX_DURATION:  # NaN and inf too
+        raise InputError(f"--duration: at most {MAX_DURATION:g} s per trial, got {args.duration}")
+
+
+def worker_died(command: str, out: str, exc: BaseException) -> int:
+    """Exit code 1 and one line on stderr for a campaign whose worker process died (killed, out of memory):
+    what happened and that --resume runs the rest (finished trials are saved, unfinished ones not recorded)."""
+    print(f"rodo {command}: error: a worker process died ({type(exc).__name__}: {exc}; killed, or out of "
+          f"memory?); the trials finished before are saved in {out}: run the same command with --resume to run "
+          "the rest", file=sys.stderr)
+    return 1
 
 
 def main(args) -> int:
+    try:
+        return run_montecarlo(args)
+    except BrokenExecutor as exc:
+        return worker_died("montecarlo", args.out, exc)
+
+
+def run_montecarlo(args) -> int:
     check_campaign_options(args)
     from rodo import scenarios
 
@@ -161,12 +184,14 @@ def main(args) -> int:
     if configs:
         meta["configs"] = dict(configs)
     trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs)
-    total = remaining(trials, args.out) if args.resume else len(trials) * len(models)
-    with Progress(total, f"montecarlo {args.scenario}") as bar, \
-            make_executor(args.jobs, args.dask) as executor:
-        report = run_campaign(trial_fn, trials, executor, args.out, resume=args.resume, progress=bar, meta=meta)
-    summary = summarize_campaign(args.out)
-    write_summary(args.out, summary, plot_summary(args.out, summary))
+    with campaign_lock(args.out):  # held over the run and the summary: a second writer is refused
+        total = remaining(trials, args.out) if args.resume else len(trials) * len(models)
+        with Progress(total, f"montecarlo {args.scenario}") as bar, \
+                make_executor(args.jobs, args.dask) as executor:
+            report = run_campaign(trial_fn, trials, executor, args.out, resume=args.resume, progress=bar,
+                                  meta=meta)
+        summary = summarize_campaign(args.out)
+        write_summary(args.out, summary, plot_summary(args.out, summary))
     errors = sum(r["status"] == "error" for r in report.rows)
     print(f"ran {report.ran} (trial, model) runs, skipped {report.skipped} already done, {errors} errors, "
           f"{report.wall_s:.1f} s")

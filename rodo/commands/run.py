@@ -16,6 +16,7 @@ import numpy as np
 
 from rodo.estimator.config import MODELS, OdometryConfig
 from rodo.estimator.errors import InputError
+from rodo.outputs import check_output_file
 from rodo.progress import Progress
 from rodo.sim.kitti_poses import write_kitti_poses
 from rodo.sim.sequence import GROUNDTRUTH_TXT, read_sequence, read_tum
@@ -83,6 +84,23 @@ def wait_for_interrupt() -> None:
         pass
 
 
+def input_warnings(seq, summary: dict) -> list[str]:
+    """Degenerate input that runs but cannot give odometry: said on stderr, the run still writes its output."""
+    ranges = np.concatenate([sc.range for sc in seq.scans]) if seq.scans else np.zeros(0)
+    out = []
+    if ranges.size == 0:
+        out.append("radar.csv holds no detections: the estimate is the initial state carried by the motion prior")
+    elif not np.any(ranges > 0):
+        out.append(f"every detection in radar.csv has range 0 m ({ranges.size} detections): no geometry to "
+                   "estimate motion from")
+    if len(seq.scans) < 2:
+        out.append(f"radar.csv has {len(seq.scans)} scan(s): odometry needs at least 2")
+    elif ranges.size and not summary.get("median_associations", 0) > 0:
+        out.append("the median scan associated no detection with the map: the estimate is mostly dead reckoning "
+                   "(check radar.csv units and sensor.toml extrinsics, noise and field of view)")
+    return out
+
+
 def main(args) -> int:
     config = load_config(args)
     check_out_dir(args.out, create=False)
@@ -93,6 +111,8 @@ def main(args) -> int:
         from rodo.viz.live import grpc_url
 
         grpc_url(args.connect)  # a bad address fails before the work
+    if args.rerun:
+        check_output_file(args.rerun, "--rerun", parents=True)  # before the run, not after the estimate is written
     seq = read_sequence(args.sequence)
     check_out_dir(args.out)
     live = None
@@ -118,6 +138,8 @@ def main(args) -> int:
         record_run(args.rerun, seq, result, truth=truth, detail=details)
         print(f"wrote {args.rerun} (open it with: {rodo_command()} view {args.rerun})")
     s = result.summary()
+    for text in input_warnings(seq, s):
+        print(f"rodo run: warning: {text}", file=sys.stderr)
     print(json.dumps({k: s[k] for k in ("model", "scans", "median_associations", "median_ms_per_scan",
                                         "p95_ms_per_scan")}))
     print(f"wrote {args.out}/estimate.txt, {KITTI_POSES}, states.npz, summary.json")

@@ -69,6 +69,10 @@ def run_simulate(args: argparse.Namespace) -> int:
     if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
     params = parse_qc(args.qc, scenario)
+    if args.rerun:
+        from rodo.outputs import check_output_file
+
+        check_output_file(args.rerun, "--rerun", parents=True)  # before the simulation
     duration = scenario.default_duration(args.seed, **params) if args.duration is None else args.duration
     n_scans = int(np.floor(duration * scenario.radar().rate_hz + 1e-9)) + 1
     with Progress(n_scans, f"simulate {scenario.name}") as bar:

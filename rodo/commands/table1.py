@@ -8,11 +8,14 @@ DIR/table1.md and DIR/table1.json, and the table on stdout.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+from concurrent.futures import BrokenExecutor
 
 from rodo.estimator.errors import InputError
 from rodo.progress import Progress
-from rodo.commands.montecarlo import add_campaign_options, check_campaign_options
+from rodo.commands.montecarlo import add_campaign_options, check_campaign_options, worker_died
+from rodo.validation.campaign_dir import campaign_lock
 from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign
 from rodo.validation.table1 import MODELS, SCENARIOS, Table1Trial, build_table, load_runs, write_table
 
@@ -44,6 +47,13 @@ def parse_scenarios(text: str) -> list[str]:
 
 
 def main(args) -> int:
+    try:
+        return run_table1(args)
+    except BrokenExecutor as exc:
+        return worker_died("table1", args.out, exc)
+
+
+def run_table1(args) -> int:
     check_campaign_options(args)
     names = parse_scenarios(args.scenarios)
     trials = make_trials(args.seed, args.runs, MODELS)
@@ -53,6 +63,22 @@ def main(args) -> int:
         if taken:  # checked before any work, so a refused run leaves nothing half done
             raise InputError(f"--out: {os.path.join(out, taken[0], 'results.csv')} exists; pass --resume to "
                              "continue, or choose another directory")
+    with contextlib.ExitStack() as locks:  # DIR and every DIR/<scenario>, held over the whole run
+        for d in [out] + [os.path.join(out, s) for s in names]:
+            locks.enter_context(campaign_lock(d))
+        ran, skipped, errors = _run_campaigns(args, names, trials)
+        table = build_table(load_runs(out, names), names)
+        meta = {"scenarios": ",".join(names), "runs": args.runs, "seed": args.seed, "duration": args.duration}
+        text = write_table(out, table, meta)
+    print(text)
+    print(f"ran {ran} (trial, model) runs, skipped {skipped} already done, {errors} errors")
+    print(f"wrote {os.path.join(out, 'table1.md')} and table1.json")
+    return 0
+
+
+def _run_campaigns(args, names: list[str], trials) -> tuple[int, int, int]:
+    """One campaign per scenario in DIR/<scenario>/ on one executor; (rows ran, rows skipped, error rows)."""
+    out = args.out
     total = sum(remaining(trials, os.path.join(out, s)) for s in names) if args.resume \
         else len(names) * len(trials) * len(MODELS)
     ran = skipped = errors = 0
@@ -67,10 +93,4 @@ def main(args) -> int:
             for r in rep.rows:
                 if r["status"] == "error":
                     print(f"error in {s} trial {r['trial']} ({r['model']}): {r['error']}")
-    table = build_table(load_runs(out, names), names)
-    meta = {"scenarios": ",".join(names), "runs": args.runs, "seed": args.seed, "duration": args.duration}
-    text = write_table(out, table, meta)
-    print(text)
-    print(f"ran {ran} (trial, model) runs, skipped {skipped} already done, {errors} errors")
-    print(f"wrote {os.path.join(out, 'table1.md')} and table1.json")
-    return 0
+    return ran, skipped, errors

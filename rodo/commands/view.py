@@ -33,6 +33,9 @@ def find_viewer() -> str | None:
     return shutil.which("rerun")
 
 
+RRD_MAGIC = b"RRF"
+
+
 def has_display(environ=None) -> bool:
     """True where a window can be shown: macOS, Windows, or an X11/Wayland display in the environment."""
     env = os.environ if environ is None else environ
@@ -45,6 +48,14 @@ def main(args: argparse.Namespace) -> int:
     path = Path(args.recording)
     if not path.is_file():
         raise InputError(f"{path}: recording not found (write one with `rodo run SEQ --out DIR --rerun {path}`)")
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if not head.startswith(RRD_MAGIC):  # an .rrd file starts with "RRF" and a format version
+        raise InputError(f"{path}: not a Rerun recording (it starts with {head!r}, a recording with {RRD_MAGIC!r}); "
+                         f"write one with `rodo run SEQ --out DIR --rerun {path}`")
     viewer = find_viewer()
     if viewer is not None and has_display():
         return subprocess.call([viewer, str(path)])

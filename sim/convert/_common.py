@@ -144,6 +144,9 @@ def read_csv(path, required: tuple[str, ...], int_columns: tuple[str, ...] = ())
     return out
 
 
+YAML_SPECIAL_FLOATS = {".inf": "inf", "-.inf": "-inf", ".nan": "nan"}
+
+
 def read_flat_yaml(path) -> dict[str, tuple[float, int]]:
     """Parse a flat `key: number` YAML file (comments allowed) -> {key: (value, line)}; strings are skipped."""
     path = Path(path)
@@ -155,6 +158,7 @@ def read_flat_yaml(path) -> dict[str, tuple[float, int]]:
         if not line or ":" not in line:
             continue
         key, value = (s.strip() for s in line.split(":", 1))
+        value = YAML_SPECIAL_FLOATS.get(value.lower().lstrip("+"), value)  # .inf, -.inf, .nan are numbers
         try:
             out[key] = (float(value), number)
         except ValueError:

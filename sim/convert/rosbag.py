@@ -56,7 +56,7 @@ def _rosbags():
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
     except ImportError:
-        raise InputError("reading ROS bags needs the rosbags package: pip install rosbags") from None
+        raise InputError("reading ROS bags needs the rosbags package: pip install 'rodo[ros]'") from None
     return AnyReader, Stores, get_typestore
 
 

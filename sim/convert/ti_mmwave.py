@@ -52,8 +52,12 @@ def read_calibration(path) -> tuple[np.ndarray, float]:
     if not np.all(np.isfinite(q)) or abs(norm - 1.0) > 1e-3:
         raise InputError(f"{path}, line {values['q_b_r_x'][1]}, field 'q_b_r': not a unit quaternion "
                          f"(|q| = {norm:.6g})")
-    if not v["radar_frame_ms"] >= 0:
-        raise InputError(f"{path}, line {values['radar_frame_ms'][1]}, field 'radar_frame_ms': must be >= 0")
+    if not 0 <= v["radar_frame_ms"] < np.inf:
+        raise InputError(f"{path}, line {values['radar_frame_ms'][1]}, field 'radar_frame_ms': must be a finite "
+                         f"number >= 0, got {v['radar_frame_ms']}")
+    bad = [k for k in ("l_b_r_x", "l_b_r_y", "l_b_r_z") if not np.isfinite(v[k])]
+    if bad:
+        raise InputError(f"{path}, line {values[bad[0]][1]}, field '{bad[0]}': must be a finite number")
     T = np.eye(4)
     T[:3, :3] = so3.from_quaternion(q / norm) @ C_RIO_TI
     T[:3, 3] = v["l_b_r_x"], v["l_b_r_y"], v["l_b_r_z"]
@@ -133,11 +137,9 @@ def _scan_times(source: Path, sc: dict, frame_ms: float, report: ConversionRepor
 def _kept_detections(det: dict, idx: np.ndarray, report: ConversionReport):
     """Each detection's position in the scan table (-1: none), the mask of usable detections (dropped ones
     counted in the report), and range, azimuth, elevation of all rows (float64, from x, y, z)."""
-    pos = np.full(int(max(idx.max(), det["scan_idx"].max(initial=0))) + 1, -1)  # scan_idx -> position
-    pos[idx] = np.arange(len(idx))
     s = det["scan_idx"]
-    valid = (s >= 0) & (s < len(pos))
-    k = np.where(valid, pos[np.clip(s, 0, len(pos) - 1)], -1)
+    j = np.clip(np.searchsorted(idx, s), 0, len(idx) - 1)  # idx is sorted: no table as long as the largest index
+    k = np.where(idx[j] == s, j, -1)
     keep = report.drop("detections whose scan has no (valid) trigger time", k < 0)
     vals = np.stack([det[c] for c in ("x_m", "y_m", "z_m", "intensity", "v_radial_mps")])
     keep &= report.drop("detections with NaN or infinity", keep & ~np.all(np.isfinite(vals), axis=0))

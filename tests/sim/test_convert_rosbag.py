@@ -241,5 +241,5 @@ def test_rosbag_bad_inputs(tmp_path, capsys):
 
 def test_missing_rosbags_names_the_install_command(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "rosbags.highlevel", None)  # import fails as when it is not installed
-    with pytest.raises(InputError, match="needs the rosbags package: pip install rosbags"):
+    with pytest.raises(InputError, match=r"needs the rosbags package: pip install 'rodo\[ros\]'"):
         rosbag.convert(tmp_path / "any.bag", "/radar")

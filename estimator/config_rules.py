@@ -1,0 +1,171 @@
+"""Every value of an `OdometryConfig` checked for type, finiteness and range, by one table of rules.
+
+`check_values(config)` walks every section (a dataclass field of OdometryConfig) and every key in it: numbers
+must be numbers (not booleans, integers where the default is one), finite (TOML accepts `nan` and `inf`, which
+the estimator cannot), and inside the range that `RULES` gives for "section.key". A key without a rule (one
+added since) still gets the type and finiteness checks. The error names the section and key as in the TOML
+file, `[noise] map_sigma_polar = nan: must be a finite number >= 0`; `OdometryConfig.from_dict` prefixes the
+file. The checks read the values and never change them (results stay bit-identical).
+
+Checked by: tests/cli/test_bad_config.py
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+
+
+@dataclass(frozen=True)
+class Rule:
+    """A range: lo < x (lo <= x if lo_closed), x < hi (x <= hi if hi_closed); `size` elements for a list."""
+
+    lo: float = -math.inf
+    hi: float = math.inf
+    lo_closed: bool = True
+    hi_closed: bool = True
+    size: int | None = None
+    also: tuple = ()  # values allowed outside the range (e.g. 0 = disabled)
+
+    def holds(self, x: float) -> bool:
+        if x in self.also:
+            return True
+        above = x >= self.lo if self.lo_closed else x > self.lo
+        below = x <= self.hi if self.hi_closed else x < self.hi
+        return above and below
+
+    def text(self) -> str:
+        parts = []
+        if self.lo > -math.inf:
+            parts.append(f"{'>=' if self.lo_closed else '>'} {_num(self.lo)}")
+        if self.hi < math.inf:
+            parts.append(f"{'<=' if self.hi_closed else '<'} {_num(self.hi)}")
+        also = f" (or {', '.join(_num(a) for a in self.also)})" if self.also else ""
+        return " and ".join(parts) + also
+
+
+def _num(x) -> str:
+    return str(int(x)) if float(x).is_integer() and abs(x) < 2**63 else f"{x:g}"
+
+
+POSITIVE = Rule(0.0, lo_closed=False)
+NONNEGATIVE = Rule(0.0)
+PROBABILITY = Rule(0.0, 1.0, lo_closed=False, hi_closed=False)
+
+# "section.key" -> range; a list's rule applies to each element and fixes its length
+RULES: dict[str, Rule] = {
+    "window": Rule(2, 1000),
+    "seed": Rule(0, 2**63 - 1),
+    "noise.qc_ca": Rule(0.0, lo_closed=False, size=6),
+    "noise.qc_cv": Rule(0.0, lo_closed=False, size=6),
+    "noise.cartesian_sigma": POSITIVE,
+    "noise.map_sigma_polar": NONNEGATIVE,
+    "noise.map_sigma_cartesian": NONNEGATIVE,
+    "noise.sensor_sigma_scale": POSITIVE,
+    "noise.sensor_sigma_scales": Rule(0.0, lo_closed=False, size=4),
+    "noise.sigma_floor": Rule(0.0, lo_closed=False, size=4),
+    "association.gate_probability": PROBABILITY,
+    "association.max_radius": POSITIVE,
+    "association.doppler_sigma_floor": NONNEGATIVE,
+    "association.reassociate": Rule(0, 100),
+    "association.ransac_above_sigma": NONNEGATIVE,
+    "association.doppler_jerk_margin": POSITIVE,
+    "association.consensus_switch_after": NONNEGATIVE,
+    "association.consensus_switch_ratio": Rule(1.0, lo_closed=False),
+    "association.consensus_voxel": POSITIVE,
+    "association.doppler_update_probability": PROBABILITY,
+    "map.capacity": Rule(10, 10_000_000),
+    "map.max_age": Rule(0, 1_000_000),
+    "map.voxel": NONNEGATIVE,
+    "map.max_fused": Rule(2, 1_000_000, also=(0,)),
+    "outage.reinit_after": NONNEGATIVE,
+    "standstill.speed": NONNEGATIVE,
+    "standstill.sigma_velocity": POSITIVE,
+    "standstill.sigma_rate": POSITIVE,
+    "standstill.sigma_accel": POSITIVE,
+    "standstill.sigma_angular_accel": POSITIVE,
+    "vehicle.sigma_roll_rate": NONNEGATIVE,
+    "vehicle.sigma_pitch_rate": NONNEGATIVE,
+    "uncertainty.velocity_correlation_time": NONNEGATIVE,
+    "uncertainty.inflation": Rule(1.0),
+    "uncertainty.measurement_inflation": Rule(1.0),
+    "uncertainty.drift_rate_sigma": Rule(0.0, size=6),
+    "solver.iterations": Rule(1, 1000),
+    "solver.step_tolerance": POSITIVE,
+    "solver.refine_iterations": Rule(1, 1000),
+    "solver.robust_c": NONNEGATIVE,
+    "solver.init_velocity_sigma": POSITIVE,
+    "solver.init_rate_sigma": Rule(0.0, lo_closed=False, size=3),
+    "solver.init_accel_sigma": Rule(0.0, lo_closed=False, size=3),
+    "solver.init_angular_accel_sigma": Rule(0.0, lo_closed=False, size=3),
+}
+
+_INTEGER = (int, np.integer)
+_NUMBER = (int, float, np.integer, np.floating)
+
+
+def check_values(config, ranges: bool = True) -> None:
+    """InputError naming `[section] key = value` for the first value of wrong type, non-finite or out of range.
+
+    ranges=False checks the types only (OdometryConfig runs it before its own checks, which compare numbers).
+
+    Checked by: tests/cli/test_bad_config.py::test_every_rule_refuses_out_of_range_and_non_finite_values
+    """
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if dataclasses.is_dataclass(value):
+            defaults = type(value)()
+            for g in dataclasses.fields(value):
+                check_value(f.name, g.name, getattr(value, g.name), getattr(defaults, g.name), ranges)
+        elif f.name in RULES:
+            check_value(None, f.name, value, 0, ranges)
+
+
+def check_value(section: str | None, key: str, value, default, ranges: bool = True) -> None:
+    """One value against its default's type and, if ranges, finiteness and its rule (`RULES`), if any."""
+    name = f"[{section}] {key}" if section else key
+    rule = RULES.get(f"{section}.{key}" if section else key)
+    shown = f"{name} = {_toml(value)}"
+    if isinstance(default, bool):
+        if not isinstance(value, (bool, np.bool_)):
+            raise InputError(f"{shown}: expected true or false")
+        return
+    if isinstance(default, str):
+        return  # the model name, checked against MODELS by OdometryConfig
+    if isinstance(default, tuple):
+        if not isinstance(value, (tuple, list)):
+            raise InputError(f"{shown}: expected a list of numbers")
+        if ranges and rule is not None and rule.size is not None and len(value) != rule.size:
+            raise InputError(f"{shown}: expected {rule.size} numbers, got {len(value)}")
+        items = list(value)
+    else:
+        items = [value]
+    want_int = isinstance(default, _INTEGER) and not isinstance(default, bool)
+    for x in items:
+        if isinstance(x, (bool, np.bool_)) or not isinstance(x, _INTEGER if want_int else _NUMBER):
+            raise InputError(f"{shown}: expected {'an integer' if want_int else 'a number'}"
+                             f"{' in every element' if isinstance(default, tuple) else ''}")
+    for x in items if ranges else ():
+        each = "each element " if isinstance(default, tuple) else ""
+        if not math.isfinite(x):
+            raise InputError(f"{shown}: {each}must be a finite number{' ' + rule.text() if rule else ''}")
+        if rule is not None and not rule.holds(x):
+            raise InputError(f"{shown}: {each}must be {rule.text()}")
+
+
+def _toml(value) -> str:
+    """A value as it reads in TOML (nan, inf, true, [1.0, 2.0])."""
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    if isinstance(value, (float, np.floating)) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else "inf" if value > 0 else "-inf"
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    return repr(value)

@@ -1,0 +1,150 @@
+"""Output paths are checked before any work starts (exit code 2 naming the option and the path), outputs are
+written atomically with the permissions open() gives (0666 less the umask, not mkstemp's 0600), temporary
+files never outlive a failure, and unreadable campaign arrays are an error naming the file."""
+
+import os
+import stat
+
+import numpy as np
+import pytest
+
+from rodo import scenarios
+from rodo.estimator.errors import InputError
+from rodo.sim.sequence import atomic_write_bytes
+from rodo.validation.campaign import make_trials, npz_path, run_campaign, summarize_campaign
+from tests.cli.test_cli_errors import _fails
+from tests.validation.test_campaign import MODELS, FakeTrial
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory):
+    d = tmp_path_factory.mktemp("seq")
+    scenarios.simulate_to("city", 0, d, duration=0.5)
+    return d
+
+
+@pytest.fixture
+def umask():
+    """Set a umask for the test and restore the previous one."""
+    old = os.umask(0o022)
+    yield lambda m: os.umask(m)
+    os.umask(old)
+
+
+def _mode(path) -> int:
+    return stat.S_IMODE(os.stat(path).st_mode)
+
+
+def _leftovers(directory) -> list[str]:
+    return [p.name for p in directory.iterdir() if p.name.endswith((".tmp", ".probe"))]
+
+
+@pytest.mark.parametrize("mask, mode", [(0o022, 0o644), (0o027, 0o640), (0o002, 0o664)])
+def test_sequence_files_respect_the_umask(tmp_path, umask, mask, mode):
+    umask(mask)
+    scenarios.simulate_to("city", 0, tmp_path, duration=0.3)
+    for name in ("radar.csv", "sensor.toml", "groundtruth.txt"):
+        assert _mode(tmp_path / name) == mode, name
+    assert not _leftovers(tmp_path)
+
+
+def test_run_outputs_respect_the_umask(seq, tmp_path, umask, capsys):
+    from rodo.cli import main
+
+    umask(0o022)
+    assert main(["run", str(seq), "--model", "cv-cartesian", "--out", str(tmp_path / "o")]) == 0
+    for name in ("estimate.txt", "states.npz", "summary.json"):
+        assert _mode(tmp_path / "o" / name) == 0o644, name
+    assert not _leftovers(tmp_path / "o")
+    gt = seq / "groundtruth.txt"
+    assert main(["evaluate", "--gt", str(gt), "--est", str(tmp_path / "o" / "estimate.txt"), "--json",
+                 str(tmp_path / "ev.json")]) == 0
+    assert _mode(tmp_path / "ev.json") == 0o644 and not _leftovers(tmp_path)
+
+
+def test_atomic_write_removes_its_temporary_file_on_failure_and_follows_no_symlink(tmp_path, monkeypatch):
+    target = tmp_path / "victim.txt"
+    target.write_text("keep me\n")
+    link = tmp_path / "out.txt"
+    link.symlink_to(target)
+    atomic_write_bytes(link, b"new\n")  # replaces the link itself, never writes through it
+    assert target.read_text() == "keep me\n" and not link.is_symlink() and link.read_text() == "new\n"
+
+    def fail(*_):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", fail)
+    with pytest.raises(OSError, match="No space"):
+        atomic_write_bytes(tmp_path / "x.txt", b"data")
+    assert not (tmp_path / "x.txt").exists() and not _leftovers(tmp_path)
+
+
+def test_evaluate_json_path_is_checked_before_any_work(seq, tmp_path, capsys):
+    gt = seq / "groundtruth.txt"
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x\n")
+    argv = ["evaluate", "--gt", gt, "--est", gt, "--json"]
+    _fails(capsys, argv + [tmp_path], "--json", "is a directory")
+    _fails(capsys, argv + [tmp_path / "missing" / "r.json"], "--json", "missing", "does not exist")
+    _fails(capsys, argv + [a_file / "r.json"], "--json", "is not a directory")
+    _fails(capsys, argv + ["/proc/r.json"], "--json", "/proc", "not writable")
+    assert not _leftovers(tmp_path)
+
+
+def test_rerun_path_is_checked_before_the_run(seq, tmp_path, capsys):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x\n")
+    bad = a_file / "sub" / "run.rrd"  # missing directories are created, but not under a file
+    _fails(capsys, ["run", seq, "--out", tmp_path / "o", "--rerun", bad], "--rerun", str(a_file), "not a directory")
+    assert not (tmp_path / "o").exists()  # refused before the estimate was written
+    _fails(capsys, ["simulate", "city", "--duration", "0.3", "--out", tmp_path / "s", "--rerun", "/proc/x.rrd"],
+           "--rerun", "not writable")
+    assert not (tmp_path / "s").exists()
+
+
+def test_campaign_out_that_is_a_file_or_unwritable(tmp_path, capsys):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x\n")
+    for cmd in (["montecarlo", "city", "--runs", "1"], ["table1", "--runs", "1", "--scenarios", "city"]):
+        _fails(capsys, cmd + ["--out", a_file], "--out", str(a_file), "not a directory")
+        _fails(capsys, cmd + ["--out", a_file / "sub"], "--out", "cannot create")
+        _fails(capsys, cmd + ["--out", "/proc/campaign"], "--out", "/proc/campaign")
+    assert a_file.read_text() == "x\n"
+
+
+def test_unreadable_trial_arrays_name_the_file(tmp_path):
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1) as ex:
+        run_campaign(FakeTrial(), make_trials(0, 2, MODELS), ex, tmp_path)
+    p = npz_path(tmp_path, 1, MODELS[0])
+    p.write_bytes(p.read_bytes()[:100])  # truncated
+    with pytest.raises(InputError, match=f"{p}: unreadable trial arrays .*BadZipFile.*--resume"):
+        summarize_campaign(tmp_path)
+    np.savez(p, t=np.zeros(3))  # readable, but not a trial's arrays
+    with pytest.raises(InputError, match=f"{p}: no nees, nees_dim array"):
+        summarize_campaign(tmp_path)
+
+
+def test_campaign_files_are_written_atomically_without_leftovers(tmp_path, monkeypatch, umask):
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rodo.validation.campaign_files import rewrite_results, save_arrays
+
+    umask(0o022)
+    with ProcessPoolExecutor(1) as ex:
+        run_campaign(FakeTrial(), make_trials(0, 2, MODELS), ex, tmp_path, meta={"runs": 2})
+    for p in (tmp_path / "results.csv", tmp_path / "campaign.json", npz_path(tmp_path, 0, MODELS[0])):
+        assert _mode(p) == 0o644, p
+    before = (tmp_path / "results.csv").read_bytes()
+
+    def fail(*_):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", fail)
+    with pytest.raises(OSError, match="No space"):
+        rewrite_results(tmp_path / "results.csv", [])
+    with pytest.raises(OSError, match="No space"):
+        save_arrays(npz_path(tmp_path, 5, MODELS[0]), {"t": np.zeros(2)})
+    assert (tmp_path / "results.csv").read_bytes() == before  # the old file stands
+    assert not _leftovers(tmp_path) and not _leftovers(tmp_path / "trials")
