@@ -15,6 +15,7 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
+from rodo.sim.kitti_poses import format_kitti_poses
 from rodo.sim.sequence import RadarScan, Sequence, Trajectory
 
 PLY_TYPES = {"f4": "float", "f8": "double", "i4": "int", "u4": "uint", "i2": "short", "u2": "ushort",
@@ -130,10 +131,9 @@ def export_ply(seq: Sequence, out_dir, trajectory: Trajectory | None = None, whe
 
 
 def kitti_pose_rows(T_world_sensor: np.ndarray) -> str:
-    """KITTI poses text: per line the first 3 rows of T_0_k = T_world_sensor[0]^-1 T_world_sensor[k]
-    (12 numbers, row-major), the sensor's pose in its first frame."""
-    T_0_k = se3.inverse(T_world_sensor[0]) @ T_world_sensor
-    return "".join(" ".join(f"{v:.12e}" for v in T[:3].ravel()) + "\n" for T in T_0_k)
+    """KITTI poses text (`kitti_poses.format_kitti_poses`) of T_0_k = T_world_sensor[0]^-1 T_world_sensor[k],
+    the sensor's pose in its first frame."""
+    return format_kitti_poses(se3.inverse(T_world_sensor[0]) @ T_world_sensor)
 
 
 def export_kitti(seq: Sequence, out_dir, intensity: str | None = None) -> dict:
