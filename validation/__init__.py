@@ -22,7 +22,8 @@ Modules:
   scan and a span, absolute pose: docs/consistency.md); `run_consistency` (the same for a run in memory, the
   ellipsoid coverage); `campaign_consistency` (over N runs);
 - `calibrate`, `calibrate_sensor`, `calibrate_config`: noise learned from data (`rodo calibrate`,
-  docs/calibration.md).
+  docs/calibration.md); `calibrate_consistency`: the uncertainty parameters (kappa, drift rate, tau) fitted
+  against the truth.
 
 Documentation: docs/evaluation.md (metrics, campaigns), docs/visualisation.md (figures).
 """
