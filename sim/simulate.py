@@ -71,21 +71,33 @@ def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random
         dets.append(det)
         if progress is not None:
             progress.update()
-    faulted = None
-    if faults is not None and faults.active:
-        faults.check_rate(config.rate_hz)
-        if fault_seed is None:
-            raise InputError("simulate: faults need a fault_seed (a SeedSequence)")
-        faulted = apply_faults(faults, dets, t, config, fault_seed)
-        dets = [empty_detections() if gone else d for d, gone in zip(faulted.dets, faulted.dropped)]
-    t_rec = t if faulted is None else faulted.t_recorded
-    scans = [RadarScan(k, float(t_rec[k]), d.range, d.azimuth, d.elevation, d.radial_velocity)
-             for k, d in enumerate(dets) if faulted is None or not faulted.dropped[k]]
-    seq = Sequence(config.sensor_config(), scans, Trajectory(t, T_world_vehicle))
-    truth = truth_arrays(motion, dets, config, mover_states)
-    if faulted is not None:
-        truth.update(fault_t_recorded=faulted.t_recorded, fault_dropped=faulted.dropped)
+    scans, trajectory, extra = _recorded(dets, t, T_world_vehicle, profile, config, faults, fault_seed)
+    seq = Sequence(config.sensor_config(), scans, trajectory)
+    truth = truth_arrays(motion, extra.pop("dets"), config, mover_states)
+    truth.update(extra)
     return seq, truth
+
+
+def _recorded(dets, t, T_world_vehicle, profile, config, faults, fault_seed):
+    """What is recorded: the scans (faults applied), the ground-truth trajectory, and for the truth the
+    per-scan detections plus, with faults, `fault_t_recorded` and `fault_dropped` (docs/simulator.md)."""
+    if faults is None or not faults.active:
+        scans = [RadarScan(k, float(tk), d.range, d.azimuth, d.elevation, d.radial_velocity)
+                 for k, (tk, d) in enumerate(zip(t, dets))]
+        return scans, Trajectory(t, T_world_vehicle), {"dets": dets}
+    faults.check_rate(config.rate_hz)
+    if fault_seed is None:
+        raise InputError("simulate: faults need a fault_seed (a SeedSequence)")
+    faulted = apply_faults(faults, dets, t, config, fault_seed)
+    dets = [empty_detections() if gone else d for d, gone in zip(faulted.dets, faulted.dropped)]
+    t_rec = np.clip(faulted.t_recorded, 0.0, profile.duration)
+    scans = [RadarScan(k, float(t_rec[k]), d.range, d.azimuth, d.elevation, d.radial_velocity)
+             for k, d in enumerate(dets) if not faulted.dropped[k]]
+    if faults.jitter > 0:  # groundtruth.txt: the true poses at the recorded times (the true times: truth.npz)
+        trajectory = Trajectory(t_rec, profile.sample(t_rec).T_world_vehicle)
+    else:
+        trajectory = Trajectory(t, T_world_vehicle)
+    return scans, trajectory, {"dets": dets, "fault_t_recorded": t_rec, "fault_dropped": faulted.dropped}
 
 
 def truth_arrays(motion, dets, config: RadarConfig, mover_states) -> dict:
