@@ -73,6 +73,11 @@ class Faults:
         """True when anything differs from the clean simulation."""
         return self != Faults()
 
+    @property
+    def changes_scans(self) -> bool:
+        """True when ghosts, dropped scans, jitter or outages are on (clutter lives in the radar config)."""
+        return replace(self, clutter=None).active
+
     def radar(self, config: RadarConfig) -> RadarConfig:
         """The radar with the clutter rate applied (the same object when clutter is not set)."""
         return config if self.clutter is None else replace(config, clutter_rate=float(self.clutter))

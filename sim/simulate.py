@@ -81,7 +81,7 @@ def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random
 def _recorded(dets, t, T_world_vehicle, profile, config, faults, fault_seed):
     """What is recorded: the scans (faults applied), the ground-truth trajectory, and for the truth the
     per-scan detections plus, with faults, `fault_t_recorded` and `fault_dropped` (docs/simulator.md)."""
-    if faults is None or not faults.active:
+    if faults is None or not faults.changes_scans:
         scans = [RadarScan(k, float(tk), d.range, d.azimuth, d.elevation, d.radial_velocity)
                  for k, (tk, d) in enumerate(zip(t, dets))]
         return scans, Trajectory(t, T_world_vehicle), {"dets": dets}
