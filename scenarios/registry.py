@@ -8,7 +8,7 @@ e.g. `qc` of the prior-consistent scenarios), passed to its profile builder; `ex
 the profile to the truth (e.g. the Qc used). Randomness: `SeedSequence(seed)` spawns three
 independent streams (trajectory, world, radar), so the same seed gives the same bytes.
 
-Checked by: tests/scenarios/test_registry.py
+Checked by: tests/scenarios/test_registry.py, tests/scenarios/test_faults_scenarios.py (faults)
 """
 
 from __future__ import annotations
