@@ -141,3 +141,27 @@ def test_estimator_stays_finite_through_each_fault(name):
     if name in ("clutter", "ghosts", "jitter"):
         T_true = np.linalg.inv(truth["T_vehicle_world"][-1])
         assert np.linalg.norm(T[-1, :3, 3] - T_true[:3, 3]) < 2.0
+
+
+def test_montecarlo_takes_faults_into_every_trial(tmp_path, capsys):
+    """`rodo montecarlo --fault` simulates each trial with the faults (saved in campaign.json); jitter and bad
+    values are refused before anything is written."""
+    import json
+
+    from rodo.commands import montecarlo
+    from rodo.validation.campaign import read_results
+
+    base = ["montecarlo", "city", "--runs", "1", "--models", "ca-polar", "--jobs", "1", "--duration", "1.5"]
+    rows = {}
+    for name, extra in (("clean", []), ("faulty", ["--fault", "clutter=300", "--fault", "outage=0.5:0.5"])):
+        assert cli.main(base + ["--out", str(tmp_path / name)] + extra, commands=[montecarlo]) == 0
+        rows[name] = read_results(tmp_path / name / "results.csv")[0]
+        assert rows[name]["status"] == "ok"
+    meta = json.loads((tmp_path / "faulty" / "campaign.json").read_text())
+    assert meta["faults"] == ["clutter=300", "outage=0.5:0.5"]
+    assert "faults" not in json.loads((tmp_path / "clean" / "campaign.json").read_text())
+    assert rows["clean"]["nis_mean"] != rows["faulty"]["nis_mean"]
+    for value, named in (("jitter=0.001", "jitter"), ("dropped=2", "dropped")):
+        capsys.readouterr()
+        assert cli.main(base + ["--out", str(tmp_path / value), "--fault", value], commands=[montecarlo]) == 2
+        assert f"--fault {named}" in capsys.readouterr().err and not (tmp_path / value).exists()
