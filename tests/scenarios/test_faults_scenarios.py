@@ -161,6 +161,9 @@ def test_montecarlo_takes_faults_into_every_trial(tmp_path, capsys):
     assert meta["faults"] == ["clutter=300", "outage=0.5:0.5"]
     assert "faults" not in json.loads((tmp_path / "clean" / "campaign.json").read_text())
     assert rows["clean"]["nis_mean"] != rows["faulty"]["nis_mean"]
+    capsys.readouterr()
+    assert cli.main(base + ["--out", str(tmp_path / "faulty"), "--resume"], commands=[montecarlo]) == 2
+    assert "campaign.json" in capsys.readouterr().err  # resumed without the faults: refused
     for value, named in (("jitter=0.001", "jitter"), ("dropped=2", "dropped")):
         capsys.readouterr()
         assert cli.main(base + ["--out", str(tmp_path / value), "--fault", value], commands=[montecarlo]) == 2
