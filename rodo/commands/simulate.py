@@ -1,5 +1,6 @@
 """`rodo scenarios` (list the registered scenarios) and `rodo simulate SCENARIO --seed N --out DIR
-[--duration S] [--qc a,b,c,d,e,f] [--fault NAME=VALUE ...]` (write a sequence directory and print a summary). Parse, call, print: the work is in
+[--duration S] [--qc a,b,c,d,e,f]
+[--fault NAME=VALUE ...]` (write a sequence directory and print a summary). Parse, call, print: the work is in
 `scenarios` and `sim`."""
 
 from __future__ import annotations
@@ -9,7 +10,6 @@ import argparse
 import numpy as np
 
 from rodo.estimator.errors import InputError
-from rodo.sim.faults import parse_faults
 
 
 def register(subparsers) -> None:
@@ -90,6 +90,7 @@ def describe_faults(faults, truth: dict) -> str:
 def run_simulate(args: argparse.Namespace) -> int:
     from rodo import scenarios
     from rodo.progress import Progress
+    from rodo.sim.faults import parse_faults
     from rodo.sim.simulate import path_length
 
     scenario = scenarios.get(args.scenario)  # InputError listing the known names -> exit 2
