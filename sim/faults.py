@@ -64,7 +64,13 @@ class Faults:
         _check("ghosts", self.ghosts, 0.0, MAX_RATE, "ghosts per scan")
         _check("dropped", self.dropped, 0.0, 1.0, "probability", hi_open=True)
         _check("jitter", self.jitter, 0.0, 1.0, "sigma in seconds")
-        for start, duration in self.outage:
+        try:
+            outage = tuple((start, duration) for start, duration in self.outage)
+        except (TypeError, ValueError):
+            raise InputError(f"--fault outage: expected (start, duration) pairs in seconds, got {self.outage!r}") \
+                from None
+        object.__setattr__(self, "outage", outage)
+        for start, duration in outage:
             _check("outage", start, 0.0, np.inf, "start in seconds", hi_open=True)
             _check("outage", duration, 0.0, np.inf, "duration in seconds", lo_open=True, hi_open=True)
 

@@ -37,6 +37,13 @@ def test_bad_values_are_input_errors_naming_the_fault(text, named):
     assert named in str(err.value) and "--fault" in str(err.value)
 
 
+def test_python_outages_are_checked_and_normalised():
+    assert fl.Faults(outage=[[1.0, 2.0]]).outage == ((1.0, 2.0),)
+    for bad in ((5.0, 2.0), [(1.0, 2.0, 3.0)], 7, [(1.0, float("nan"))]):
+        with pytest.raises(InputError, match="--fault outage"):
+            fl.Faults(outage=bad)
+
+
 def test_jitter_is_bounded_by_the_scan_period():
     fl.Faults(jitter=0.15 / 13.0 * 0.99).check_rate(13.0)
     with pytest.raises(InputError, match="jitter"):
