@@ -8,7 +8,7 @@ e.g. `qc` of the prior-consistent scenarios), passed to its profile builder; `ex
 the profile to the truth (e.g. the Qc used). Randomness: `SeedSequence(seed)` spawns three
 independent streams (trajectory, world, radar), so the same seed gives the same bytes.
 
-Checked by: tests/scenarios/test_registry.py
+Checked by: tests/scenarios/test_registry.py, tests/scenarios/test_faults_scenarios.py (faults)
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.sim.faults import Faults
 from rodo.sim.radar import RadarConfig
 from rodo.sim.simulate import simulate, write_simulation
 from rodo.sim.trajectory import Profile
@@ -68,9 +69,7 @@ class Scenario:
     extra_truth: Callable | None = None
 
     def _rngs(self, seed: int):
-        if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise InputError(f"seed: expected an integer >= 0, got {seed!r}")
-        return [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(3)]
+        return [np.random.default_rng(s) for s in _streams(seed)[:3]]
 
     def _params(self, params: dict) -> dict:
         """The given parameters, checked against `params` (InputError naming an unknown one); None dropped."""
@@ -113,15 +112,20 @@ class Scenario:
         return Parts(profile, world, self.radar(), duration)
 
     def simulate(self, seed: int, duration: float | None = None, progress=None, radar: RadarConfig | None = None,
-                 **params):
+                 faults: Faults | None = None, **params):
         """Simulate the scenario: returns (Sequence, truth dict) (see sim.simulate.simulate).
 
-        `radar` overrides the scenario's radar, e.g. `RadarConfig().noise_free()` for model checks; `params`
-        are the scenario's own parameters (e.g. `qc=` for prior_ca / prior_cv)."""
+        `radar` overrides the scenario's radar, e.g. `RadarConfig().noise_free()` for model checks; `faults`
+        (`sim.faults.Faults`, default off) injects clutter, ghosts, dropped scans, jitter and outages, drawn
+        from a fourth stream `SeedSequence(seed).spawn(4)[3]` (the first three are the clean streams, so the
+        clean output is unchanged); `params` are the scenario's own parameters (e.g. `qc=` for prior_ca)."""
+        faults = Faults() if faults is None else faults
         parts = self.build(seed, duration, **params)
+        config = faults.radar(parts.radar if radar is None else radar)
+        faults.check_rate(config.rate_hz)  # before the simulation
         rng_radar = self._rngs(seed)[2]
-        seq, truth = simulate(parts.world, parts.profile, parts.radar if radar is None else radar, rng_radar,
-                              parts.duration, progress)
+        seq, truth = simulate(parts.world, parts.profile, config, rng_radar, parts.duration, progress,
+                              faults, _streams(seed)[3])
         if self.extra_truth is not None:
             truth.update(self.extra_truth(parts.profile))
         return seq, truth
@@ -129,6 +133,13 @@ class Scenario:
     def summary(self) -> str:
         extent = f"{self.length:.0f} m" if self.length is not None else f"{self.duration:.0f} s"
         return f"{self.name:<12} v{self.version:<3} {extent:>7}  {self.description}"
+
+
+def _streams(seed: int) -> list[np.random.SeedSequence]:
+    """SeedSequence(seed).spawn(4): trajectory, world, radar, faults (spawn(3) gives the same first three)."""
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"seed: expected an integer >= 0, got {seed!r}")
+    return np.random.SeedSequence(int(seed)).spawn(4)
 
 
 _REGISTRY: dict[str, Scenario] = {}
@@ -154,10 +165,11 @@ def get(name: str) -> Scenario:
         raise InputError(f"unknown scenario {name!r}; known scenarios: {', '.join(names())}") from None
 
 
-def simulate_to(name: str, seed: int, out_dir, duration: float | None = None, progress=None, **params):
-    """Simulate scenario `name` with `seed` (and its `params`, e.g. qc=) and write the sequence directory
-    (radar.csv, sensor.toml, groundtruth.txt, truth.npz) to out_dir. Returns (Sequence, truth)."""
+def simulate_to(name: str, seed: int, out_dir, duration: float | None = None, progress=None,
+                faults: Faults | None = None, **params):
+    """Simulate scenario `name` with `seed` (its `params`, e.g. qc=, and optional `faults`) and write the
+    sequence directory (radar.csv, sensor.toml, groundtruth.txt, truth.npz) to out_dir. Returns (Sequence, truth)."""
     scenario = get(name)
-    seq, truth = scenario.simulate(seed, duration, progress, **params)
+    seq, truth = scenario.simulate(seed, duration, progress, faults=faults, **params)
     write_simulation(Path(out_dir), seq, truth)
     return seq, truth

@@ -17,6 +17,8 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 
+from .faults import Faults
+from .faults import apply as apply_faults
 from .radar import Radar, RadarConfig, empty_detections
 from .sequence import RadarScan, Sequence, Trajectory, write_sequence
 from .trajectory import Profile
@@ -32,7 +34,8 @@ def scan_times(duration: float, rate_hz: float) -> np.ndarray:
 
 
 def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random.Generator,
-             duration: float | None = None, progress=None) -> tuple[Sequence, dict]:
+             duration: float | None = None, progress=None, faults: Faults | None = None,
+             fault_seed: np.random.SeedSequence | None = None) -> tuple[Sequence, dict]:
     """Simulate a radar sequence.
 
     Args:
@@ -42,6 +45,8 @@ def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random
         rng: random generator for all measurement randomness (consumed scan by scan).
         duration: seconds to simulate (default: the whole profile); must not exceed the profile.
         progress: optional object with update() called once per scan (e.g. rodo.progress.Progress).
+        faults: optional `sim.faults.Faults` (ghosts, dropped scans, jitter, outages; clutter is the caller's
+            radar config, `Faults.radar`), drawn from `fault_seed` (required with faults). Off: no change.
 
     Returns:
         (sequence, truth): the `sim.sequence.Sequence` (all scans, empty ones included, ground truth
@@ -55,7 +60,7 @@ def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random
     T_world_vehicle = motion.T_world_vehicle
     radar = Radar(config)
     mover_states = [(m, m.states(t)) for m in world.movers]
-    scans, dets = [], []
+    dets = []
     for k, tk in enumerate(t):
         if world.blacked_out(tk):
             det = empty_detections()
@@ -64,12 +69,35 @@ def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random
                       if s.present[k]]
             det = radar.scan(world, T_world_vehicle[k], motion.varpi[k], rng, movers)
         dets.append(det)
-        scans.append(RadarScan(k, float(tk), det.range, det.azimuth, det.elevation, det.radial_velocity))
         if progress is not None:
             progress.update()
-    seq = Sequence(config.sensor_config(), scans, Trajectory(t, T_world_vehicle))
-    truth = truth_arrays(motion, dets, config, mover_states)
+    scans, trajectory, extra = _recorded(dets, t, T_world_vehicle, profile, config, faults, fault_seed)
+    seq = Sequence(config.sensor_config(), scans, trajectory)
+    truth = truth_arrays(motion, extra.pop("dets"), config, mover_states)
+    truth.update(extra)
     return seq, truth
+
+
+def _recorded(dets, t, T_world_vehicle, profile, config, faults, fault_seed):
+    """What is recorded: the scans (faults applied), the ground-truth trajectory, and for the truth the
+    per-scan detections plus, with faults, `fault_t_recorded` and `fault_dropped` (docs/simulator.md)."""
+    if faults is None or not faults.changes_scans:
+        scans = [RadarScan(k, float(tk), d.range, d.azimuth, d.elevation, d.radial_velocity)
+                 for k, (tk, d) in enumerate(zip(t, dets))]
+        return scans, Trajectory(t, T_world_vehicle), {"dets": dets}
+    faults.check_rate(config.rate_hz)
+    if fault_seed is None:
+        raise InputError("simulate: faults need a fault_seed (a SeedSequence)")
+    faulted = apply_faults(faults, dets, t, config, fault_seed)
+    dets = [empty_detections() if gone else d for d, gone in zip(faulted.dets, faulted.dropped)]
+    t_rec = np.clip(faulted.t_recorded, 0.0, profile.duration)
+    scans = [RadarScan(k, float(t_rec[k]), d.range, d.azimuth, d.elevation, d.radial_velocity)
+             for k, d in enumerate(dets) if not faulted.dropped[k]]
+    if faults.jitter > 0:  # groundtruth.txt: the true poses at the recorded times (the true times: truth.npz)
+        trajectory = Trajectory(t_rec, profile.sample(t_rec).T_world_vehicle)
+    else:
+        trajectory = Trajectory(t, T_world_vehicle)
+    return scans, trajectory, {"dets": dets, "fault_t_recorded": t_rec, "fault_dropped": faulted.dropped}
 
 
 def truth_arrays(motion, dets, config: RadarConfig, mover_states) -> dict:

@@ -38,6 +38,7 @@ class ScenarioTrial:
     lengths: tuple[float, ...] | None = None
     step: int = 10
     configs: tuple[tuple[str, str], ...] = ()  # (label, TOML text): that label runs this config
+    faults: tuple[str, ...] = ()  # `--fault NAME=VALUE` strings (sim.faults.parse_faults), default none
 
     def config(self, label: str):
         """The OdometryConfig of a model label: its TOML from `configs`, else the named model's defaults."""
@@ -56,7 +57,10 @@ class ScenarioTrial:
 
         from .driver import run_sequence
 
-        seq, truth = scenarios.get(self.scenario).simulate(trial.seed, self.duration)
+        from rodo.sim.faults import parse_faults
+
+        faults = parse_faults(self.faults)
+        seq, truth = scenarios.get(self.scenario).simulate(trial.seed, self.duration, faults=faults)
         gt = Trajectory(truth["t"], np.linalg.inv(truth["T_vehicle_world"]))
         outcomes = []
         for model in trial.models:

@@ -27,6 +27,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--models", default="ca-polar,cv-cartesian",
                    help="comma-separated models (%(default)s), or LABEL=CONFIG.toml to run a config under a label "
                         "(e.g. ca-learned=ca.toml from rodo calibrate)")
+    p.add_argument("--fault", metavar="NAME=VALUE", action="append", default=[],
+                   help="a sensor fault in every trial, as in `rodo simulate --fault` (clutter, ghosts, dropped, "
+                        "outage; repeatable; saved in campaign.json). jitter is refused: the evaluation matches "
+                        "estimates to the true scan times")
     add_campaign_options(p)
     p.set_defaults(func=main)
 
@@ -171,6 +175,16 @@ def main(args) -> int:
         return worker_died("montecarlo", args.out, exc)
 
 
+def check_faults(texts) -> tuple[str, ...]:
+    """The --fault strings, checked before any work (InputError naming --fault NAME); jitter refused."""
+    from rodo.sim.faults import parse_faults
+
+    if parse_faults(texts).jitter > 0:
+        raise InputError("--fault jitter: not supported by montecarlo (the evaluation matches estimates to the "
+                         "true scan times); simulate with `rodo simulate --fault jitter=...` and `rodo run` instead")
+    return tuple(texts)
+
+
 def run_montecarlo(args) -> int:
     check_campaign_options(args)
     from rodo import scenarios
@@ -178,12 +192,15 @@ def run_montecarlo(args) -> int:
     scenarios.get(args.scenario)  # unknown names fail here, listing the known ones
     models = parse_models(args.models)
     configs = parse_configs(args.models)
+    faults = check_faults(args.fault)
     trials = make_trials(args.seed, args.runs, models)
     meta = {"scenario": args.scenario, "runs": args.runs, "models": list(models), "seed": args.seed,
             "duration": args.duration}
     if configs:
         meta["configs"] = dict(configs)
-    trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs)
+    if faults:
+        meta["faults"] = list(faults)  # only when given: older campaign.json files still resume
+    trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs, faults=faults)
     with campaign_lock(args.out):  # held over the run and the summary: a second writer is refused
         total = remaining(trials, args.out) if args.resume else len(trials) * len(models)
         with Progress(total, f"montecarlo {args.scenario}") as bar, \

@@ -1,5 +1,6 @@
 """`rodo scenarios` (list the registered scenarios) and `rodo simulate SCENARIO --seed N --out DIR
-[--duration S] [--qc a,b,c,d,e,f]` (write a sequence directory and print a summary). Parse, call, print: the work is in
+[--duration S] [--qc a,b,c,d,e,f]
+[--fault NAME=VALUE ...]` (write a sequence directory and print a summary). Parse, call, print: the work is in
 `scenarios` and `sim`."""
 
 from __future__ import annotations
@@ -29,6 +30,13 @@ def register(subparsers) -> None:
                    help="diagonal of the prior's Qc for prior_ca (jerk PSD) / prior_cv (acceleration PSD): 6 positive "
                         "numbers, body frame [linear x,y,z, angular x,y,z] (default: the scenario's, see "
                         "docs/simulator.md)")
+    p.add_argument("--fault", metavar="NAME=VALUE", action="append", default=[],
+                   help="inject a sensor fault (repeatable; all off by default, see docs/simulator.md, Faults): "
+                        "clutter=RATE false alarms per scan (replaces the radar's 20); ghosts=RATE multipath "
+                        "ghosts per scan (a real detection copied 1-10 m farther); dropped=P each scan missing "
+                        "from radar.csv with probability P in [0, 1); jitter=SIGMA s on the recorded scan times "
+                        "(clipped to +-0.45 scan periods so times stay increasing; SIGMA <= 0.15 periods); "
+                        "outage=START:DURATION s of empty scans (repeat for several)")
     p.add_argument("--rerun", metavar="OUT.rrd", help="also write a Rerun recording of the simulated sequence")
     p.set_defaults(func=run_simulate)
 
@@ -60,15 +68,37 @@ def parse_qc(text: str | None, scenario) -> dict:
     return {"qc": qc}
 
 
+def describe_faults(faults, truth: dict) -> str:
+    """One line on the injected faults, with what they did (counts from the truth)."""
+    from rodo.sim.faults import GHOST
+    from rodo.sim.objects import CLUTTER
+
+    parts = []
+    if faults.clutter is not None:
+        parts.append(f"clutter {faults.clutter:g}/scan ({int(np.sum(truth['det_label'] == CLUTTER))} false alarms)")
+    if faults.ghosts > 0:
+        parts.append(f"ghosts {faults.ghosts:g}/scan ({int(np.sum(truth['det_label'] == GHOST))} ghosts)")
+    if faults.dropped > 0:
+        parts.append(f"dropped p={faults.dropped:g} ({int(np.sum(truth['fault_dropped']))} scans dropped)")
+    if faults.jitter > 0:
+        parts.append(f"jitter {faults.jitter:g} s")
+    for start, dur in faults.outage:
+        parts.append(f"outage {start:g}-{start + dur:g} s")
+    return "; ".join(parts)
+
+
 def run_simulate(args: argparse.Namespace) -> int:
     from rodo import scenarios
     from rodo.progress import Progress
+    from rodo.sim.faults import parse_faults
     from rodo.sim.simulate import path_length
 
     scenario = scenarios.get(args.scenario)  # InputError listing the known names -> exit 2
     if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
     params = parse_qc(args.qc, scenario)
+    faults = parse_faults(args.fault)  # InputError naming --fault NAME -> exit 2
+    faults.check_rate(faults.radar(scenario.radar()).rate_hz)
     if args.rerun:
         from rodo.outputs import check_output_file
 
@@ -76,12 +106,15 @@ def run_simulate(args: argparse.Namespace) -> int:
     duration = scenario.default_duration(args.seed, **params) if args.duration is None else args.duration
     n_scans = int(np.floor(duration * scenario.radar().rate_hz + 1e-9)) + 1
     with Progress(n_scans, f"simulate {scenario.name}") as bar:
-        seq, truth = scenarios.simulate_to(scenario.name, args.seed, args.out, duration, progress=bar, **params)
+        seq, truth = scenarios.simulate_to(scenario.name, args.seed, args.out, duration, progress=bar,
+                                           faults=faults, **params)
     counts = np.diff(truth["scan_offsets"])
     print(f"{scenario.name} v{scenario.version} seed {args.seed} -> {args.out}")
     print(f"scans {len(counts)} ({truth['t'][-1]:.1f} s), detections per scan median {np.median(counts):.0f} "
           f"(min {counts.min()}, max {counts.max()}), empty scans {int(np.sum(counts == 0))}, "
           f"path length {path_length(seq.groundtruth.T_world_vehicle):.1f} m")
+    if faults.active:
+        print(f"faults: {describe_faults(faults, truth)}")
     if "prior_kind" in truth:
         speed = -truth["varpi"][:, 0]
         print(f"motion from the {str(truth['prior_kind'][0]).upper()} prior SDE, Qc = diag("

@@ -184,6 +184,19 @@ def test_simulate_non_finite_duration(tmp_path, capsys, value):
     _fails(capsys, ["simulate", "city", "--duration", value, "--out", tmp_path / "s"], "duration")
 
 
+@pytest.mark.parametrize("fault, needles", [
+    ("clutter=nan", ("--fault clutter", "nan")), ("clutter=-1", ("--fault clutter", "[0, 10000]")),
+    ("ghosts=inf", ("--fault ghosts",)), ("ghosts=1e300", ("--fault ghosts",)),
+    ("dropped=1", ("--fault dropped", "[0, 1)")), ("dropped=x", ("--fault dropped", "'x'")),
+    ("jitter=1", ("--fault jitter", "0.15 scan periods")), ("jitter=-0.001", ("--fault jitter",)),
+    ("outage=2", ("--fault outage", "START:DURATION")), ("outage=2:0", ("--fault outage", "duration")),
+    ("outage=nan:1", ("--fault outage", "start")), ("blur=1", ("--fault", "clutter, ghosts")),
+])
+def test_simulate_bad_faults(tmp_path, capsys, fault, needles):
+    _fails(capsys, ["simulate", "city", "--duration", "0.2", "--fault", fault, "--out", tmp_path / "s"], *needles)
+    assert not (tmp_path / "s").exists()
+
+
 # ---------------------------------------------------------------- rodo evaluate
 
 
@@ -200,6 +213,8 @@ def test_evaluate_missing_files(tmp_path, capsys):
     (["--runs", "1", "--models", "ca-polar,foo"], ("--models", "foo", "cv-cartesian")),
     (["--runs", "1", "--models", "ca-polar,ca-polar"], ("--models", "twice")),
     (["--runs", "1", "--duration", "-2"], ("--duration",)),
+    (["--runs", "1", "--fault", "dropped=-1"], ("--fault dropped",)),
+    (["--runs", "1", "--fault", "jitter=0.001"], ("--fault jitter", "not supported")),
 ])
 def test_montecarlo_bad_inputs(tmp_path, capsys, extra, needles):
     _fails(capsys, ["montecarlo", "city", *extra, "--out", tmp_path / "m"], *needles)
