@@ -5,6 +5,7 @@ docs/evaluation.md)."""
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from concurrent.futures import BrokenExecutor
@@ -127,7 +128,8 @@ def plot_consistency(out_dir, model: str, entry: dict, plot_nees) -> list[str]:
 
 
 def _num(v, digits: int = 2) -> str:
-    return "-" if v is None else f"{v:.{digits}f}"
+    """`v` rounded to `digits` decimals, or "-" where it is undefined (None, nan, inf)."""
+    return "-" if v is None or not math.isfinite(v) else f"{v:.{digits}f}"
 
 
 def print_consistency(summary: dict) -> None:
@@ -186,7 +188,7 @@ def run_montecarlo(args) -> int:
     trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs)
     with campaign_lock(args.out):  # held over the run and the summary: a second writer is refused
         total = remaining(trials, args.out) if args.resume else len(trials) * len(models)
-        with Progress(total, f"montecarlo {args.scenario}") as bar, \
+        with Progress(total, f"montecarlo {args.scenario}", unit="run") as bar, \
                 make_executor(args.jobs, args.dask) as executor:
             report = run_campaign(trial_fn, trials, executor, args.out, resume=args.resume, progress=bar,
                                   meta=meta)
