@@ -82,7 +82,9 @@ def _run_campaigns(args, names: list[str], trials) -> tuple[int, int, int]:
     total = sum(remaining(trials, os.path.join(out, s)) for s in names) if args.resume \
         else len(names) * len(trials) * len(MODELS)
     ran = skipped = errors = 0
-    with Progress(total, "table1", unit="run") as bar, make_executor(args.jobs, args.dask) as executor:
+    with Progress(total, "table1", unit="run") as bar, make_executor(
+            args.jobs, args.dask, dashboard=args.dashboard,
+            on_dashboard=lambda link: bar.print(f"Dask dashboard: {link}")) as executor:
         for s in names:
             meta = {"scenario": s, "runs": args.runs, "models": list(MODELS), "seed": args.seed,
                     "duration": args.duration, "table": "table1"}
