@@ -34,17 +34,18 @@ class Progress:
     """`with Progress(total, "label") as bar: ... bar.update()`; shows count, rate and ETA on a terminal.
 
     Args:
-        total: number of steps expected (>= 0); a resumed campaign with nothing left passes 0.
+        total: number of steps expected (>= 0; a resumed campaign with nothing left passes 0), or None when
+            unknown (count and rate only, e.g. the messages of a bag).
         label: shown before the bar.
         stream: where the bar goes (default sys.stderr).
         enabled: force the bar on or off; default: on only when `stream` is a terminal.
         unit: the name of one step ("scan", "run", "figure").
     """
 
-    def __init__(self, total: int, label: str, stream=None, enabled: bool | None = None, unit: str = "it"):
+    def __init__(self, total: int | None, label: str, stream=None, enabled: bool | None = None, unit: str = "it"):
         self.stream = stream if stream is not None else sys.stderr
         self.enabled = is_terminal(self.stream) if enabled is None else bool(enabled)
-        self.total = max(int(total), 0)
+        self.total = None if total is None else max(int(total), 0)
         self.label = label
         self.done = 0
         self._bar = _Bar(total=self.total, desc=label, file=self.stream, disable=not self.enabled, unit=unit,

@@ -2,7 +2,7 @@
 else (a file, a pipe, captured output) they write nothing at all, so no carriage-return spam in logs.
 Campaign summaries print rounded numbers and "-" where a value is undefined, never None or nan.
 
-Sizing: two 1 s simulations; a few seconds.
+Sizing: two 1 s simulations and two conversions of a 4-message bag; a few seconds.
 """
 
 import io
@@ -84,3 +84,26 @@ def test_simulate_shows_progress_on_a_terminal_only(tmp_path, capsys, monkeypatc
 def test_summary_numbers_are_rounded_or_a_dash():
     assert montecarlo_cmd._num(None) == "-" and montecarlo_cmd._num(float("nan")) == "-"
     assert montecarlo_cmd._num(1.23456) == "1.23" and montecarlo_cmd._num(12.7, 0) == "13"
+
+
+def test_convert_rosbag_counts_messages_on_a_terminal(tmp_path, capsys, monkeypatch):
+    """`rodo convert rosbag` shows the messages read (the total is unknown before reading) and the sequences
+    converted; off a terminal it writes nothing on stderr."""
+    import numpy as np
+
+    from rodo.commands import convert as convert_cmd
+    from tests.sim.test_convert_rosbag import _rng, _static_scene, _write_bag
+
+    rng, v = _rng(1), np.array([3.0, -0.4, 0.1])
+    stamps = [1_700_000_000_000_000_000 + 50_000_000 * k for k in range(4)]
+    bag = _write_bag(tmp_path / "bag", "sqlite3", [(_static_scene(rng, 20, v), s) for s in stamps])
+    argv = ["convert", "rosbag", str(bag), "--topic", "/radar", "--out"]
+    term = FakeTerminal()
+    monkeypatch.setattr(sys, "stderr", term)
+    assert main([*argv, str(tmp_path / "a")], commands=[convert_cmd]) == 0
+    monkeypatch.undo()
+    text = term.getvalue()
+    assert "reading /radar: 4msg" in text and "convert rosbag" in text and "1/1" in text
+    assert main([*argv, str(tmp_path / "b")], commands=[convert_cmd]) == 0
+    cap = capsys.readouterr()
+    assert cap.err == "" and cap.out.count("rosbag -> ") == 2
