@@ -1,6 +1,6 @@
-"""`rodo montecarlo SCENARIO --runs N --models ca-polar,cv-cartesian [--jobs J] [--dask ADDRESS|local]
-[--duration S] [--seed S] --out DIR [--resume]`: a Monte Carlo campaign (validation/campaign.py,
-docs/evaluation.md)."""
+"""`rodo montecarlo SCENARIO --runs N --models ca-polar,cv-cartesian [--jobs J]
+[--dask ADDRESS|local [--dashboard [ADDR]]] [--duration S] [--seed S] --out DIR [--resume]`:
+a Monte Carlo campaign (validation/campaign.py, docs/evaluation.md)."""
 
 from __future__ import annotations
 

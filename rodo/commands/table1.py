@@ -1,5 +1,6 @@
-"""`rodo table1 [--runs N] [--scenarios city,highway,hills,stop_and_go,blockage] [--jobs J] [--dask ADDRESS|local]
-[--duration S] [--seed S] --out DIR [--resume]`: the paper's Table I on the simulated suite (validation/table1.py).
+"""`rodo table1 [--runs N] [--scenarios city,highway,hills,stop_and_go,blockage] [--jobs J]
+[--dask ADDRESS|local [--dashboard [ADDR]]] [--duration S] [--seed S] --out DIR [--resume]`:
+the paper's Table I on the simulated suite (validation/table1.py).
 
 One resumable campaign per scenario in DIR/<scenario>/ (both models, N seeds from SeedSequence(seed)), then
 DIR/table1.md and DIR/table1.json, and the table on stdout.
