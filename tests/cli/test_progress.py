@@ -107,3 +107,19 @@ def test_convert_rosbag_counts_messages_on_a_terminal(tmp_path, capsys, monkeypa
     assert main([*argv, str(tmp_path / "b")], commands=[convert_cmd]) == 0
     cap = capsys.readouterr()
     assert cap.err == "" and cap.out.count("rosbag -> ") == 2
+
+
+def test_figures_counts_figures_and_prints_each_path(tmp_path, capsys, monkeypatch):
+    """`rodo figures`: a bar over the figures on a terminal, each path on stdout (the drawing is replaced by a
+    stub here: the real run takes a minute and is covered by the figure tests)."""
+    from rodo.commands import figures as figures_cmd
+    from rodo.viz.figures import FIGURES
+
+    monkeypatch.setattr(figures_cmd, "write_figures",
+                        lambda out, quick=False: (out / name for _, name, _ in FIGURES))
+    term = FakeTerminal()
+    monkeypatch.setattr(sys, "stderr", term)
+    assert main(["figures", "--out", str(tmp_path / "f"), "--quick"], commands=[figures_cmd]) == 0
+    n = len(FIGURES)
+    assert "figures" in term.getvalue() and f"{n}/{n}" in term.getvalue()
+    assert capsys.readouterr().out.splitlines() == [str(tmp_path / "f" / name) for _, name, _ in FIGURES]
