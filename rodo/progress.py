@@ -1,42 +1,74 @@
-"""A minimal progress bar on stderr: shown only when stderr is a terminal (so logs and CI stay clean)."""
+"""Progress bars on stderr through tqdm: shown only when the stream is a terminal (so logs, CI and captured
+output stay clean: no carriage returns, nothing at all).
+
+`Progress` keeps rodo's small interface (`with Progress(total, label) as bar: ... bar.update(n)`) so the
+library code takes any object with `update(n)` and never imports tqdm.
+
+Checked by: tests/cli/test_progress.py
+"""
 
 from __future__ import annotations
 
 import sys
-import time
+
+from tqdm import tqdm
+
+
+class _Bar(tqdm):
+    """tqdm without its monitor thread: a campaign forks worker processes after the bar starts, and forking a
+    process that runs extra threads may deadlock."""
+
+    monitor_interval = 0
+
+
+def is_terminal(stream) -> bool:
+    """True when `stream` says it is a terminal (`isatty()`); False for files, pipes and StringIO."""
+    isatty = getattr(stream, "isatty", None)
+    try:
+        return bool(isatty()) if callable(isatty) else False
+    except ValueError:  # a closed stream
+        return False
 
 
 class Progress:
-    """`with Progress(total, "label") as bar: ... bar.update()`; prints rate and ETA."""
+    """`with Progress(total, "label") as bar: ... bar.update()`; shows count, rate and ETA on a terminal.
 
-    def __init__(self, total: int, label: str, stream=None, enabled: bool | None = None):
-        self.total = max(int(total), 1)
-        self.label = label
+    Args:
+        total: number of steps expected (>= 0; a resumed campaign with nothing left passes 0), or None when
+            unknown (count and rate only, e.g. the messages of a bag).
+        label: shown before the bar.
+        stream: where the bar goes (default sys.stderr).
+        enabled: force the bar on or off; default: on only when `stream` is a terminal.
+        unit: the name of one step ("scan", "run", "figure").
+    """
+
+    def __init__(self, total: int | None, label: str, stream=None, enabled: bool | None = None, unit: str = "it"):
         self.stream = stream if stream is not None else sys.stderr
-        self.enabled = self.stream.isatty() if enabled is None else enabled
+        self.enabled = is_terminal(self.stream) if enabled is None else bool(enabled)
+        self.total = None if total is None else max(int(total), 0)
+        self.label = label
         self.done = 0
-        self._t0 = time.perf_counter()
-        self._last = 0.0
+        self._bar = _Bar(total=self.total, desc=label, file=self.stream, disable=not self.enabled, unit=unit,
+                         mininterval=0.1, dynamic_ncols=True, leave=True)
 
     def update(self, n: int = 1) -> None:
         self.done += n
-        now = time.perf_counter()
-        if not self.enabled or (now - self._last < 0.1 and self.done < self.total):
-            return
-        self._last = now
-        elapsed = now - self._t0
-        rate = self.done / elapsed if elapsed > 0 else 0.0
-        eta = (self.total - self.done) / rate if rate > 0 else float("inf")
-        width = 30
-        fill = int(width * self.done / self.total)
-        self.stream.write(f"\r{self.label} [{'#' * fill}{'.' * (width - fill)}] {self.done}/{self.total}"
-                          f" {rate:6.1f}/s ETA {eta:5.0f}s")
-        self.stream.flush()
+        self._bar.update(n)
+
+    def print(self, text: str, file=None) -> None:
+        """Print a line (default on stdout) without breaking the bar: tqdm clears it, prints, redraws."""
+        file = file if file is not None else sys.stdout
+        if self.enabled:
+            tqdm.write(text, file=file)
+            file.flush()
+        else:
+            print(text, file=file, flush=True)
+
+    def close(self) -> None:
+        self._bar.close()
 
     def __enter__(self):
         return self
 
     def __exit__(self, *exc):
-        if self.enabled:
-            self.stream.write("\n")
-            self.stream.flush()
+        self.close()

@@ -26,6 +26,7 @@ Checked by: tests/validation/test_campaign.py
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import json
 import time
 from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, CancelledError, wait
@@ -90,11 +91,19 @@ def make_trials(seed: int, runs: int, models: Iterable[str]) -> list[Trial]:
 
 
 @contextlib.contextmanager
-def make_executor(jobs: int, dask: str | None = None, processes: bool = True):
+def make_executor(jobs: int, dask: str | None = None, processes: bool = True, dashboard: str | None = None,
+                  on_dashboard=None):
     """A concurrent.futures Executor: ProcessPoolExecutor(jobs), or Dask (`dask="local"`: a LocalCluster of
-    `jobs` workers with one thread each, processes unless processes=False; `dask="tcp://host:port"`: connect)."""
+    `jobs` workers with one thread each, processes unless processes=False; `dask="tcp://host:port"`: connect).
+
+    `dashboard` (LocalCluster only) is the address its dashboard serves on ("localhost:8787"; ":8787" listens
+    on every interface; None: no dashboard); `on_dashboard(link)` is then called with the dashboard's URL.
+    Dask moves tasks and results by pickle: connect only to a scheduler you trust (docs/evaluation.md)."""
     if int(jobs) < 1:
         raise InputError(f"jobs: must be >= 1, got {jobs!r}")
+    if dashboard is not None and dask != "local":
+        raise InputError("dashboard: only with dask='local' (a remote scheduler serves its own dashboard: "
+                         "`dask scheduler --dashboard-address :8787`)")
     if dask is None:
         from concurrent.futures import ProcessPoolExecutor
 
@@ -104,8 +113,12 @@ def make_executor(jobs: int, dask: str | None = None, processes: bool = True):
     from distributed import Client, LocalCluster
 
     if dask == "local":
-        with LocalCluster(n_workers=int(jobs), threads_per_worker=1, processes=processes, dashboard_address=None,
-                          silence_logs=40) as cluster, Client(cluster) as client:
+        if dashboard is not None and importlib.util.find_spec("bokeh") is None:
+            raise InputError("dashboard: Dask's dashboard needs bokeh: pip install 'dask[diagnostics]'")
+        with LocalCluster(n_workers=int(jobs), threads_per_worker=1, processes=processes,
+                          dashboard_address=dashboard, silence_logs=40) as cluster, Client(cluster) as client:
+            if dashboard is not None and on_dashboard is not None:
+                on_dashboard(cluster.dashboard_link)
             yield client.get_executor()
     else:
         if "://" not in dask:

@@ -9,7 +9,8 @@ Checked by: tests/validation/test_covariance.py
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from rodo.estimator.lie import so3
 
 
 def position_covariance_world(T_vehicle_world, P_rho) -> np.ndarray:
@@ -73,6 +74,4 @@ def covariance_ellipsoid(Sigma, n_sigma: float = 3.0) -> tuple[np.ndarray, np.nd
     Checked by: tests/validation/test_covariance.py::test_covariance_ellipsoid_reconstructs_sigma
     """
     half, V = covariance_axes(Sigma, n_sigma)
-    q = Rotation.from_matrix(V.reshape(-1, 3, 3)).as_quat().reshape(V.shape[:-2] + (4,))
-    q = np.where(q[..., 3:4] < 0, -q, q)
-    return half, q
+    return half, so3.to_quaternion(V)  # V is a rotation: covariance_axes makes det(V) = +1

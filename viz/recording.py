@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError, check_finite
-from rodo.estimator.lie import se3
+from rodo.estimator.lie import se3, so3
 from rodo.estimator.measurements import polar_to_cartesian
 from rodo.estimator.scan import ScanDetail
 from rodo.validation.alignment import align_to_first
@@ -60,13 +60,6 @@ def detection_classes(detail: ScanDetail, labels: np.ndarray | None = None) -> n
     if labels is not None:
         cls[np.asarray(labels) == TRUTH_CLUTTER] = 3
     return cls
-
-
-def _quat_xyzw(C: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    q = Rotation.from_matrix(C).as_quat()
-    return np.where(q[..., 3:4] < 0, -q, q)
 
 
 class _Truth:
@@ -146,7 +139,7 @@ def _log_frames(rec, rr, seq) -> None:
     `world/vehicle`."""
     T_vehicle_sensor = np.asarray(seq.sensor.T_vehicle_sensor, dtype=float)
     rec.log("world/vehicle/sensor", rr.Transform3D(translation=T_vehicle_sensor[:3, 3],
-                                                   quaternion=_quat_xyzw(T_vehicle_sensor[:3, :3])),
+                                                   quaternion=so3.to_quaternion(T_vehicle_sensor[:3, :3])),
             rr.TransformAxes3D(axis_length=0.8), static=True)
     rec.log("world/vehicle", rr.TransformAxes3D(axis_length=2.0), static=True)
 
@@ -318,7 +311,7 @@ def record_sequence(path, seq, truth: dict | None = None, recording_id: str | No
         rec.send_columns("world/vehicle",
                          indexes=[rr.TimeColumn("frame", sequence=frames), rr.TimeColumn("time", duration=gt.t)],
                          columns=rr.Transform3D.columns(translation=pos,
-                                                        quaternion=_quat_xyzw(gt.T_world_vehicle[:, :3, :3])))
+                                                        quaternion=so3.to_quaternion(gt.T_world_vehicle[:, :3, :3])))
         offsets = None if truth is None else np.asarray(truth["scan_offsets"])
         frame_of = match_index([s.t for s in seq.scans], gt.t) if seq.scans else []
         for scan, k in zip(seq.scans, frame_of):
@@ -359,7 +352,7 @@ def _write(rec, rr, seq, result, truth_m: _Truth, detail) -> None:
     index = [rr.TimeColumn("frame", sequence=frames), rr.TimeColumn("time", duration=times)]
     rec.send_columns("world/vehicle", indexes=index,
                      columns=rr.Transform3D.columns(translation=positions,
-                                                    quaternion=_quat_xyzw(T_world_vehicle[:, :3, :3])))
+                                                    quaternion=so3.to_quaternion(T_world_vehicle[:, :3, :3])))
     P_abs = np.stack([e.P_pose_absolute[:3, :3] if e.P_pose_absolute is not None else np.zeros((3, 3)) for e in est])
     Sigma = position_covariance_world(np.stack([e.T_vehicle_world for e in est]), np.nan_to_num(P_abs))
     half, quat = covariance_ellipsoid(Sigma, ELLIPSOID_SIGMA)
@@ -378,7 +371,8 @@ def _write(rec, rr, seq, result, truth_m: _Truth, detail) -> None:
         rec.send_columns("world/truth/vehicle",
                          indexes=[rr.TimeColumn("frame", sequence=frames[ok]),
                                   rr.TimeColumn("time", duration=times[ok])],
-                         columns=rr.Transform3D.columns(translation=Tt[:, :3, 3], quaternion=_quat_xyzw(Tt[:, :3, :3])))
+                         columns=rr.Transform3D.columns(translation=Tt[:, :3, 3],
+                                                        quaternion=so3.to_quaternion(Tt[:, :3, :3])))
     logged = _log_series(rec, rr, result, truth_m, frames, times)
     _log_scans(rec, rr, seq, result, truth_m, detail)
     pts = positions if truth_m.T_world_vehicle is None else np.r_[positions, truth_m.T_world_vehicle[:, :3, 3]]

@@ -3,7 +3,10 @@
 All functions accept single inputs ((3,) or (3, 3)) and batches ((..., 3) or (..., 3, 3)).
 Small angles use exact Taylor series (see `_series`), so results are accurate at phi -> 0; `log`
 goes through a quaternion (Shepperd's method), so it is accurate near pi as well.
-Quaternions are [qx, qy, qz, qw] (scipy and TUM order).
+Quaternions are [qx, qy, qz, qw] (TUM, Rerun and scipy order; Hamilton convention, so q and the matrix
+C = from_quaternion(q) rotate vectors the same way), written with qw >= 0. These two functions are rodo's only
+quaternion implementation: the TUM and sensor.toml readers and writers, the covariance ellipsoids and the
+Rerun recording all use them (docs/conventions.md).
 
 Checked by: tests/estimator/test_lie.py
 """
@@ -84,7 +87,13 @@ def left_jacobian_inv(phi: np.ndarray) -> np.ndarray:
 
 
 def to_quaternion(C: np.ndarray) -> np.ndarray:
-    """Rotation matrix -> unit quaternion [qx, qy, qz, qw] with qw >= 0 (Shepperd's method)."""
+    """Rotation matrix -> unit quaternion [qx, qy, qz, qw] with qw >= 0 (Shepperd's method).
+
+    (..., 3, 3) -> (..., 4). Of the two quaternions of a rotation, the one with qw >= 0 (for a half turn,
+    qw = 0, either sign may come out).
+
+    Checked by: tests/estimator/test_lie.py::test_quaternion_round_trip, ::test_quaternion_agrees_with_scipy
+    """
     C = np.asarray(C, dtype=float)
     tr = C[..., 0, 0] + C[..., 1, 1] + C[..., 2, 2]
     diag = np.stack([C[..., 0, 0], C[..., 1, 1], C[..., 2, 2], tr], axis=-1)
@@ -113,7 +122,12 @@ def to_quaternion(C: np.ndarray) -> np.ndarray:
 
 
 def from_quaternion(q: np.ndarray) -> np.ndarray:
-    """Unit quaternion [qx, qy, qz, qw] -> rotation matrix (the quaternion is normalised first)."""
+    """Unit quaternion [qx, qy, qz, qw] -> rotation matrix (the quaternion is normalised first).
+
+    (..., 4) -> (..., 3, 3); q and -q give the same matrix.
+
+    Checked by: tests/estimator/test_lie.py::test_quaternion_agrees_with_scipy
+    """
     q = np.asarray(q, dtype=float)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]

@@ -94,15 +94,31 @@ def _names(option: str, text: str | None, n: int):
 
 
 def _rosbag(args):
+    from rodo.progress import Progress
     from rodo.sim.convert import rosbag
 
     if not args.topic:
         raise InputError("--topic: required for the rosbag format (a sensor_msgs/PointCloud2 topic)")
     if args.xyz is not None and args.polar is not None:
         raise InputError("--xyz and --polar: give one of them")
-    return rosbag.convert(args.source, args.topic, xyz=_names("--xyz", args.xyz, 3) or ("x", "y", "z"),
-                          polar=_names("--polar", args.polar, 3), doppler=args.doppler,
-                          flip_doppler=bool(args.flip_doppler), time=args.time or "auto")
+    xyz, polar = _names("--xyz", args.xyz, 3) or ("x", "y", "z"), _names("--polar", args.polar, 3)
+    with Progress(None, f"reading {args.topic}", unit="msg") as bar:
+        return rosbag.convert(args.source, args.topic, xyz=xyz, polar=polar, doppler=args.doppler,
+                              flip_doppler=bool(args.flip_doppler), time=args.time or "auto", progress=bar)
+
+
+def _conversions(args) -> list:
+    """One function per output sequence that converts it (the slow part), run one by one under the bar."""
+    from rodo.sim.convert import radarscenes, ti_mmwave, vod
+
+    if args.format == "radarscenes":
+        radars = radarscenes.parse_radars(args.radars if args.radars is not None else "2")
+        return [lambda r=r: radarscenes.convert_radar(args.source, r, t_max=args.t_max) for r in radars]
+    if args.format == "ti-mmwave":
+        return [lambda: ti_mmwave.convert(args.source)]
+    if args.format == "rosbag":
+        return [lambda: _rosbag(args)]
+    return [lambda: vod.convert(args.source, rate_hz=10.0 if args.rate is None else args.rate)]
 
 
 def run(args) -> int:
@@ -110,7 +126,8 @@ def run(args) -> int:
 
     import numpy as np
 
-    from rodo.sim.convert import radarscenes, ti_mmwave, vod, write_conversion
+    from rodo.progress import Progress
+    from rodo.sim.convert import write_conversion
 
     for option, value, owner in (("--radars", args.radars, "radarscenes"), ("--t-max", args.t_max, "radarscenes"),
                                  ("--rate", args.rate, "vod"), *_rosbag_options(args)):
@@ -122,18 +139,14 @@ def run(args) -> int:
         raise InputError(f"--rate: must be > 0, a finite scan rate from 0.001 to 10000 Hz, got {args.rate}")
     noise = _sigmas(args.sigma) if args.sigma is not None else None
     out = Path(args.out)
-    if args.format == "radarscenes":
-        radars = radarscenes.parse_radars(args.radars if args.radars is not None else "2")
-        convs = radarscenes.convert(args.source, radars, t_max=args.t_max)
-        targets = [out] if len(convs) == 1 else [out / c.name for c in convs]
-    elif args.format == "ti-mmwave":
-        convs, targets = [ti_mmwave.convert(args.source)], [out]
-    elif args.format == "rosbag":
-        convs, targets = [_rosbag(args)], [out]
-    else:
-        convs = [vod.convert(args.source, rate_hz=10.0 if args.rate is None else args.rate)]
-        targets = [out]
-    for conv, target in zip(convs, targets):
+    jobs = _conversions(args)
+    with Progress(len(jobs), f"convert {args.format}", unit="sequence") as bar:
+        convs = []
+        for convert in jobs:  # all converted before anything is written: a failure leaves no partial output
+            convs.append(convert())
+            bar.update()
+    for conv in convs:
+        target = out if len(convs) == 1 else out / conv.name
         if noise is not None:
             conv.sequence.sensor = dataclasses.replace(conv.sequence.sensor, noise=noise)
             conv.report.notes.append(f"noise sigmas from --sigma {args.sigma}")

@@ -110,7 +110,7 @@ def _run_and_evaluate(model: str, seq, truth: dict, out: Path):
     from rodo.validation.metrics import evaluate
 
     tic = _step(f"running {model}")
-    with Progress(len(scan_times(seq)), model) as bar:
+    with Progress(len(scan_times(seq)), model, unit="scan") as bar:
         res = run_sequence(seq, OdometryConfig.for_model(model), progress=bar, record_detail=model == "ca-polar")
     run_dir = out / model
     write_run(run_dir, res)

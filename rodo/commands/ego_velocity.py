@@ -54,7 +54,7 @@ def run(args) -> int:
     el_lo, el_hi = seq.sensor.elevation_fov
     sensor_planar = max(abs(el_lo), abs(el_hi)) < PLANAR_ELEVATION
     rows = [HEADER]
-    with Progress(len(seq.scans), "ego-velocity") as bar:
+    with Progress(len(seq.scans), "ego-velocity", unit="scan") as bar:
         for scan in seq.scans:
             rng = np.random.default_rng(np.random.SeedSequence(args.seed, spawn_key=(scan.scan,)))
             est = estimate_ego_velocity(scan.azimuth, scan.elevation, scan.radial_velocity, rng,

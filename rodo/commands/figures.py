@@ -26,10 +26,15 @@ def register(subparsers) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from rodo.commands.run import check_out_dir
+    from rodo.progress import Progress
 
     out = check_out_dir(args.out)
-    for path in write_figures(out, quick=args.quick):
-        print(path, flush=True)
+    from rodo.viz.figures import FIGURES  # after the output check: a bad --out fails first
+
+    with Progress(len(FIGURES), "figures", unit="figure") as bar:
+        for path in write_figures(out, quick=args.quick):
+            bar.update()
+            bar.print(str(path))
     return 0
 
 

@@ -1,10 +1,11 @@
-"""`rodo montecarlo SCENARIO --runs N --models ca-polar,cv-cartesian [--jobs J] [--dask ADDRESS|local]
-[--duration S] [--seed S] --out DIR [--resume]`: a Monte Carlo campaign (validation/campaign.py,
-docs/evaluation.md)."""
+"""`rodo montecarlo SCENARIO --runs N --models ca-polar,cv-cartesian [--jobs J]
+[--dask ADDRESS|local [--dashboard [ADDR]]] [--duration S] [--seed S] --out DIR [--resume]`:
+a Monte Carlo campaign (validation/campaign.py, docs/evaluation.md)."""
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from concurrent.futures import BrokenExecutor
@@ -39,11 +40,28 @@ def add_campaign_options(p) -> None:
     """The options every campaign command shares (montecarlo, table1): executor, trial length, seed, output."""
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
     p.add_argument("--dask", metavar="ADDRESS", help="'local' (a LocalCluster of --jobs workers) or a scheduler "
-                                                     "address tcp://host:port; default: a local process pool")
+                                                     "address tcp://host:port; default: a local process pool. "
+                                                     "Dask moves data by pickle: connect only to schedulers you "
+                                                     "trust")
+    p.add_argument("--dashboard", nargs="?", const=DASHBOARD_DEFAULT, default=None, type=parse_dashboard,
+                   metavar="ADDR", help="with --dask local: serve Dask's dashboard at ADDR (default "
+                                        f"{DASHBOARD_DEFAULT}; ':8787' listens on every interface) and print its "
+                                        "link; needs bokeh (pip install 'dask[diagnostics]')")
     p.add_argument("--duration", type=float, help="seconds of each trial (default: each scenario's own)")
     p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="campaign directory")
     p.add_argument("--resume", action="store_true", help="continue the campaign in DIR (skip finished rows)")
+
+
+DASHBOARD_DEFAULT = "localhost:8787"
+
+
+def parse_dashboard(text: str) -> str:
+    """--dashboard ADDR: '[HOST]:PORT' with PORT 0-65535 (0: any free port); argparse reports the error."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or int(port) > 65535 or any(c.isspace() or c == "/" for c in host):
+        raise argparse.ArgumentTypeError(f"expected [HOST]:PORT such as {DASHBOARD_DEFAULT} or :8787, got {text!r}")
+    return text
 
 
 def parse_models(text: str) -> tuple[str, ...]:
@@ -131,7 +149,8 @@ def plot_consistency(out_dir, model: str, entry: dict, plot_nees) -> list[str]:
 
 
 def _num(v, digits: int = 2) -> str:
-    return "-" if v is None else f"{v:.{digits}f}"
+    """`v` rounded to `digits` decimals, or "-" where it is undefined (None, nan, inf)."""
+    return "-" if v is None or not math.isfinite(v) else f"{v:.{digits}f}"
 
 
 def print_consistency(summary: dict) -> None:
@@ -151,6 +170,9 @@ def check_campaign_options(args) -> None:
         raise InputError(f"--runs: must be >= 1, got {args.runs}")
     if args.jobs < 1:
         raise InputError(f"--jobs: must be >= 1, got {args.jobs}")
+    if args.dashboard is not None and args.dask != "local":
+        raise InputError("--dashboard: only with --dask local (a remote scheduler serves its own dashboard: "
+                         "`dask scheduler --dashboard-address :8787`)")
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration: must be > 0 seconds, got {args.duration}")
     from rodo.scenarios.registry import MAX_DURATION
@@ -203,8 +225,9 @@ def run_montecarlo(args) -> int:
     trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs, faults=faults)
     with campaign_lock(args.out):  # held over the run and the summary: a second writer is refused
         total = remaining(trials, args.out) if args.resume else len(trials) * len(models)
-        with Progress(total, f"montecarlo {args.scenario}") as bar, \
-                make_executor(args.jobs, args.dask) as executor:
+        with Progress(total, f"montecarlo {args.scenario}", unit="run") as bar, \
+                make_executor(args.jobs, args.dask, dashboard=args.dashboard,
+                              on_dashboard=lambda link: bar.print(f"Dask dashboard: {link}")) as executor:
             report = run_campaign(trial_fn, trials, executor, args.out, resume=args.resume, progress=bar,
                                   meta=meta)
         summary = summarize_campaign(args.out)

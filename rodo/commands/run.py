@@ -122,7 +122,7 @@ def main(args) -> int:
         live = LiveRun(seq, connect=args.connect, serve=args.serve)
         print(f"streaming live to {live.url}" if args.connect is not None else
               f"serving the web viewer (gRPC {live.url})")
-    with Progress(len(scan_times(seq)), f"rodo run {config.model}") as bar:
+    with Progress(len(scan_times(seq)), f"rodo run {config.model}", unit="scan") as bar:
         result = run_sequence(seq, config, progress=bar, record_detail=bool(args.rerun) or live_stream,
                               on_scan=live.on_scan if live is not None else None)
     if live is not None:

@@ -105,7 +105,7 @@ def run_simulate(args: argparse.Namespace) -> int:
         check_output_file(args.rerun, "--rerun", parents=True)  # before the simulation
     duration = scenario.default_duration(args.seed, **params) if args.duration is None else args.duration
     n_scans = int(np.floor(duration * scenario.radar().rate_hz + 1e-9)) + 1
-    with Progress(n_scans, f"simulate {scenario.name}") as bar:
+    with Progress(n_scans, f"simulate {scenario.name}", unit="scan") as bar:
         seq, truth = scenarios.simulate_to(scenario.name, args.seed, args.out, duration, progress=bar,
                                            faults=faults, **params)
     counts = np.diff(truth["scan_offsets"])

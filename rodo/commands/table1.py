@@ -1,5 +1,6 @@
-"""`rodo table1 [--runs N] [--scenarios city,highway,hills,stop_and_go,blockage] [--jobs J] [--dask ADDRESS|local]
-[--duration S] [--seed S] --out DIR [--resume]`: the paper's Table I on the simulated suite (validation/table1.py).
+"""`rodo table1 [--runs N] [--scenarios city,highway,hills,stop_and_go,blockage] [--jobs J]
+[--dask ADDRESS|local [--dashboard [ADDR]]] [--duration S] [--seed S] --out DIR [--resume]`:
+the paper's Table I on the simulated suite (validation/table1.py).
 
 One resumable campaign per scenario in DIR/<scenario>/ (both models, N seeds from SeedSequence(seed)), then
 DIR/table1.md and DIR/table1.json, and the table on stdout.
@@ -82,7 +83,9 @@ def _run_campaigns(args, names: list[str], trials) -> tuple[int, int, int]:
     total = sum(remaining(trials, os.path.join(out, s)) for s in names) if args.resume \
         else len(names) * len(trials) * len(MODELS)
     ran = skipped = errors = 0
-    with Progress(total, "table1") as bar, make_executor(args.jobs, args.dask) as executor:
+    with Progress(total, "table1", unit="run") as bar, make_executor(
+            args.jobs, args.dask, dashboard=args.dashboard,
+            on_dashboard=lambda link: bar.print(f"Dask dashboard: {link}")) as executor:
         for s in names:
             meta = {"scenario": s, "runs": args.runs, "models": list(MODELS), "seed": args.seed,
                     "duration": args.duration, "table": "table1"}

@@ -89,8 +89,9 @@ def decode_cloud(msg, where: str) -> dict[str, np.ndarray]:
     return {name: points[name].astype(np.float64) for name in names}
 
 
-def read_clouds(bag, topic: str) -> tuple[list[Cloud], str]:
+def read_clouds(bag, topic: str, progress=None) -> tuple[list[Cloud], str]:
     """All PointCloud2 messages of `topic` in record order, and the bag's kind ('ROS 1', 'ROS 2').
+    `progress`: optional object with update(), called once per message read.
 
     Raises:
         InputError naming the bag and the topic: missing or unreadable bag, topic absent (the topics of the
@@ -115,6 +116,8 @@ def read_clouds(bag, topic: str) -> tuple[list[Cloud], str]:
                 msg = reader.deserialize(raw, conn.msgtype)
                 stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
                 clouds.append(Cloud(int(t_ns), stamp, decode_cloud(msg, f"{path}, topic {topic}, message {k}")))
+                if progress is not None:
+                    progress.update()
             kind = "ROS 2" if reader.is2 else "ROS 1"
     except InputError:
         raise
@@ -172,7 +175,7 @@ def _stack_fields(clouds: list[Cloud], needed: tuple[str, ...], where: str):
 
 
 def convert(bag, topic: str, xyz=("x", "y", "z"), polar=None, doppler: str | None = None,
-            flip_doppler: bool = False, time: str = "auto") -> Conversion:
+            flip_doppler: bool = False, time: str = "auto", progress=None) -> Conversion:
     """Convert one PointCloud2 topic of a ROS bag (see module docstring) into one Conversion named 'rosbag'.
 
     Args:
@@ -183,12 +186,13 @@ def convert(bag, topic: str, xyz=("x", "y", "z"), polar=None, doppler: str | Non
         doppler: name of the Doppler field, None for the first of DOPPLER_NAMES present.
         flip_doppler: negate the Doppler (for sensors reporting positive when approaching).
         time: 'auto' (header stamps unless zero / not increasing, then record time), 'header', 'record'.
+        progress: optional object with update(), called once per message read (rodo.progress.Progress).
 
     Checked by: tests/sim/test_convert_rosbag.py::test_ros2_bag_round_trip,
         ::test_ros1_bag_polar_fields_record_time_and_flip,
         ::test_ti_demo_bag_matches_the_csv_export
     """
-    clouds, kind = read_clouds(bag, topic)
+    clouds, kind = read_clouds(bag, topic, progress)
     where = f"{bag}, topic {topic}"
     report = ConversionReport("rosbag", str(bag))
     t_ns = scan_times_ns(clouds, time, report)

@@ -139,3 +139,39 @@ def test_transform_points_frame_indices_cancel():
     p_c = rng.normal(size=(10, 3))
     p_a = se3.transform_points(T_a_b, se3.transform_points(T_b_c, p_c))
     np.testing.assert_allclose(p_a, se3.transform_points(T_a_b @ T_b_c, p_c), atol=1e-13)
+
+
+@pytest.mark.parametrize("shape", [(), (5,), (2, 3)])
+def test_quaternion_agrees_with_scipy(shape):
+    """so3's quaternions are scipy's (Hamilton, [qx, qy, qz, qw], qw >= 0): scipy appears here only as the
+    reference; rodo itself has one implementation. Samples: random, near identity, near a half turn."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(11)
+    axis = rng.normal(size=shape + (3,))
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    for angle in (rng.uniform(0, np.pi, size=shape), np.full(shape, 1e-9), np.full(shape, np.pi - 1e-6)):
+        phi = axis * angle[..., None]
+        C = so3.exp(phi)
+        q = so3.to_quaternion(C)
+        assert q.shape == shape + (4,)
+        ref = Rotation.from_rotvec(phi.reshape(-1, 3)).as_quat().reshape(shape + (4,))
+        ref = np.where(ref[..., 3:4] < 0, -ref, ref)
+        np.testing.assert_allclose(q, ref, atol=1e-12)
+        np.testing.assert_allclose(so3.from_quaternion(ref), Rotation.from_quat(ref.reshape(-1, 4)).as_matrix()
+                                   .reshape(shape + (3, 3)), atol=1e-14)
+        np.testing.assert_allclose(so3.from_quaternion(-q), C, atol=1e-14)  # q and -q: one rotation
+
+
+def test_one_quaternion_implementation():
+    """Outside the tests, no module converts quaternions with scipy's Rotation: everything goes through
+    estimator.lie.so3 (to_quaternion / from_quaternion)."""
+    import re
+    from pathlib import Path
+
+    scipy_quat = re.compile(r"\b(as_quat|from_quat)\(|spatial\.transform|\bRotation\.")
+    root = Path(__file__).resolve().parents[2]
+    offenders = [str(p.relative_to(root)) for pkg in ("estimator", "sim", "scenarios", "validation", "viz", "rodo")
+                 for p in (root / pkg).rglob("*.py")
+                 if scipy_quat.search(p.read_text())]
+    assert offenders == []
