@@ -39,6 +39,17 @@ def read_bin(path) -> np.ndarray:
     return np.frombuffer(raw, dtype="<f4").reshape(-1, len(COLUMNS)).astype(np.float64)
 
 
+def _fov(angles: np.ndarray, default: float, limit: float) -> tuple[float, float]:
+    """The field of view the detections span, at least 1e-6 rad wide and inside [-limit, limit] (a single
+    detection straight behind, azimuth pi, must not push it past pi); (-default, default) without detections."""
+    if not len(angles):
+        return -default, default
+    lo, hi = float(angles.min()), float(angles.max())
+    if hi - lo < 1e-6:
+        lo, hi = (lo, lo + 1e-6) if lo + 1e-6 <= limit else (hi - 1e-6, hi)
+    return lo, hi
+
+
 def convert(source, rate_hz: float = 10.0, T_vehicle_sensor=None, noise: NoiseSigmas | None = None,
             max_range: float = 100.0) -> Conversion:
     """Convert a directory of VoD radar .bin files (see module docstring) into one Conversion named 'vod'.
@@ -76,13 +87,10 @@ def convert(source, rate_hz: float = 10.0, T_vehicle_sensor=None, noise: NoiseSi
         report.notes.append(f"{empty} scan(s) without detections (no rows; the estimator bridges them)")
     extra = {"rcs": data[keep, 3], "vr_compensated": data[keep, 5], "point_time": data[keep, 6]}
     scans = scans_from_rows(report, scan[keep], t_scan, rng[keep], az[keep], el[keep], data[keep, 4], extra)
-    azk, elk = az[keep], el[keep]
-    fov_az = (float(azk.min()), float(azk.max())) if len(azk) else (-np.pi / 2, np.pi / 2)
-    fov_el = (float(elk.min()), float(elk.max())) if len(elk) else (-np.pi / 8, np.pi / 8)
     sensor = SensorConfig(rate_hz=float(rate_hz), T_vehicle_sensor=np.eye(4) if T_vehicle_sensor is None
                           else T_vehicle_sensor, noise=noise or DEFAULT_SIGMAS,
-                          azimuth_fov=(fov_az[0], max(fov_az[1], fov_az[0] + 1e-6)),
-                          elevation_fov=(fov_el[0], max(fov_el[1], fov_el[0] + 1e-6)), max_range=max_range)
+                          azimuth_fov=_fov(az[keep], np.pi / 2, np.pi),
+                          elevation_fov=_fov(el[keep], np.pi / 8, np.pi / 2), max_range=max_range)
     report.info.update({"files": [f.name for f in files], "rate_hz": float(rate_hz)})
     report.notes.append("scan times from --rate (k / rate); sigmas nominal unless --sigma; no ground truth")
     return Conversion("vod", Sequence(sensor=sensor, scans=scans, groundtruth=None), report)
