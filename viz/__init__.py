@@ -8,6 +8,8 @@ in `rodo.validation` (viz sits above validation; validation never imports viz).
   estimator's `ScanDetail` carries the per-scan association detail), and `record_sequence` for a sequence on
   its own;
 - `viz.blueprint`: the default layout of a recording;
+- `viz.sequence_layers`: what a sequence recording adds (Doppler-coloured scans, the moving objects as boxes
+  with their velocities, its layout);
 - `viz.live`: `LiveRun`, the live stream of `rodo run --connect/--serve` (scan by scan, while it runs);
 - `viz.figures`: `plot_nees` (Monte Carlo summaries) and the paper's figures 1-4 plus our Fig. 5, drawn from
   the dicts of `validation.experiments`.

@@ -31,6 +31,7 @@ from rodo.validation.metrics import pose_errors
 from rodo.validation.run_consistency import run_states
 
 from .recording_metrics import ELLIPSOID_SIGMA, log_consistency, send_series
+from .sequence_layers import log_sequence_layers, sequence_blueprint
 
 # class ids of detections (AnnotationContext on `world`): label, RGB
 DETECTION_CLASSES = {
@@ -288,7 +289,9 @@ def record_sequence(path, seq, truth: dict | None = None, recording_id: str | No
     Entities: `world` (RIGHT_HAND_Z_UP, the sequence's world frame), `world/truth/trajectory`,
     `world/vehicle` (T_world_vehicle per frame from groundtruth.txt), `world/vehicle/sensor` (the extrinsic,
     static) and `world/vehicle/sensor/scan` (detections in the sensor frame; class ids 5 static, 6 moving,
-    3 clutter when the simulator's truth labels are given, else 4); timelines `frame` and `time`.
+    3 clutter when the simulator's truth labels are given, else 4); `.../scan_doppler` (coloured by radial
+    velocity) and, with the truth, `world/movers/<id>` boxes with their velocities (`viz.sequence_layers`);
+    timelines `frame` and `time`; a blueprint.
 
     Checked by: tests/viz/test_recording.py::test_sequence_recording
     """
@@ -314,9 +317,8 @@ def record_sequence(path, seq, truth: dict | None = None, recording_id: str | No
                                                         quaternion=so3.to_quaternion(gt.T_world_vehicle[:, :3, :3])))
         offsets = None if truth is None else np.asarray(truth["scan_offsets"])
         frame_of = match_index([s.t for s in seq.scans], gt.t) if seq.scans else []
-        for scan, k in zip(seq.scans, frame_of):
-            if k < 0:
-                continue
+        by_frame = [(k, scan) for scan, k in zip(seq.scans, frame_of) if k >= 0]
+        for k, scan in by_frame:
             rec.set_time("frame", sequence=k)
             rec.set_time("time", duration=float(scan.t))
             if offsets is not None and offsets[k + 1] - offsets[k] == len(scan):
@@ -325,6 +327,9 @@ def record_sequence(path, seq, truth: dict | None = None, recording_id: str | No
             else:
                 cls = np.full(len(scan), 4, dtype=np.uint16)
             rec.log("world/vehicle/sensor/scan", rr.Points3D(scan.points_sensor, class_ids=cls, radii=0.15))
+        T_gt_truth = None if truth is None else gt.T_world_vehicle[0] @ np.asarray(truth["T_vehicle_world"])[0]
+        log_sequence_layers(rec, rr, by_frame, truth, T_gt_truth, gt.t)
+        rec.send_blueprint(sequence_blueprint(pos))
         rec.flush()
     except BaseException:
         rec.disconnect()
