@@ -220,3 +220,12 @@ def test_ti_blank_line_inside_the_scans_is_named_not_an_index_error(tmp_path):
     """np.loadtxt skipped the blank line, so a bad value's row no longer matched its line."""
     with pytest.raises(InputError, match=r"radar_scans\.csv, line 2: blank line"):
         _ti(tmp_path, "\n0,nan\n", "")
+
+
+def test_radarscenes_scan_times_closer_than_groundtruth_precision_are_refused(tmp_path):
+    """0 and 1.16e-131 s are distinct, but one time in groundtruth.txt (1 ns): the sequence did not read back."""
+    odom = ",".join(radarscenes.ODOM_COLUMNS) + "\n0.0,0,0,0,0,0,0\n1.1618033020708705e-131,0,0,0,0,0,0\n"
+    (tmp_path / "radar2_timestamp_and_odom.csv").write_text(odom)
+    (tmp_path / "radar2_detections.csv").write_text(",".join(radarscenes.DET_COLUMNS) + "\n")
+    with pytest.raises(InputError, match=r"line 3, field 'timestamp_rad': times must increase by at least 1e-06 s"):
+        radarscenes.convert_radar(tmp_path, 2)
