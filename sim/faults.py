@@ -13,8 +13,10 @@ clean simulation is bit-identical with or without this module.
   so recorded times stay strictly increasing (consecutive gaps >= 0.1 period); the measurement geometry stays
   at the true t_k; sigma is at most 0.15 periods (3 sigma inside the clip).
 - outage: intervals START:DURATION (s) during which scans are empty (no radar.csv rows).
+- outages: RATE:DURATION, outages at RATE per minute (a Poisson process: the count over the sequence is
+  Poisson(RATE / 60 * span), the starts uniform over it), each DURATION s long; empty like `outage`.
 
-Randomness: ghosts, dropped scans and jitter draw from their own generators, spawned from a fault
+Randomness: ghosts, dropped scans, jitter and the outage starts draw from their own generators, spawned from a fault
 SeedSequence that is independent of the trajectory, world and radar streams; turning one of them on leaves
 the clean detections (and the other faults' draws) unchanged.
 
@@ -37,7 +39,8 @@ GHOST_OFFSET = (1.0, 10.0)  # m: extra range of a ghost over the detection it co
 JITTER_CLIP = 0.45  # scan periods: the recorded-time perturbation is clipped to +- this
 JITTER_MAX = 0.15  # scan periods: the largest sigma accepted
 MAX_RATE = 10_000.0  # per scan: clutter and ghost rates above this are refused (memory)
-NAMES = ("clutter", "ghosts", "dropped", "jitter", "outage")
+MAX_OUTAGE_RATE = 600.0  # outages per minute (10 per second): higher rates are refused
+NAMES = ("clutter", "ghosts", "dropped", "jitter", "outage", "outages")
 
 
 @dataclass(frozen=True)
@@ -50,6 +53,7 @@ class Faults:
         dropped: probability that a scan is missing.
         jitter: 1-sigma timestamp jitter, s.
         outage: ((start, duration), ...) in seconds: scans in [start, start + duration) are empty.
+        outages: (rate per minute, duration s) of random outages, or None (`outage_intervals`).
     """
 
     clutter: float | None = None
@@ -57,6 +61,7 @@ class Faults:
     dropped: float = 0.0
     jitter: float = 0.0
     outage: tuple = ()
+    outages: tuple | None = None
 
     def __post_init__(self):
         if self.clutter is not None:
@@ -73,6 +78,15 @@ class Faults:
         for start, duration in outage:
             _check("outage", start, 0.0, np.inf, "start in seconds", hi_open=True)
             _check("outage", duration, 0.0, np.inf, "duration in seconds", lo_open=True, hi_open=True)
+        if self.outages is not None:
+            try:
+                rate, duration = self.outages
+            except (TypeError, ValueError):
+                raise InputError(f"--fault outages: expected (rate per minute, duration in seconds), got "
+                                 f"{self.outages!r}") from None
+            _check("outages", rate, 0.0, MAX_OUTAGE_RATE, "rate per minute")
+            _check("outages", duration, 0.0, np.inf, "duration in seconds", lo_open=True, hi_open=True)
+            object.__setattr__(self, "outages", (float(rate), float(duration)))
 
     @property
     def active(self) -> bool:
@@ -112,15 +126,19 @@ def parse_fault(text: str, faults: Faults) -> Faults:
     name = name.strip()
     if not sep or name not in NAMES:
         raise InputError(f"--fault: expected NAME=VALUE with NAME one of {', '.join(NAMES)}, got {text!r}")
-    if name == "outage":
-        start, sep, duration = value.partition(":")
+    if name in ("outage", "outages"):
+        first, sep, duration = value.partition(":")
         try:
-            interval = (float(start), float(duration))
+            pair = (float(first), float(duration))
         except ValueError:
             sep = ""
         if not sep:
-            raise InputError(f"--fault outage: expected START:DURATION in seconds (e.g. 5.0:2.0), got {value!r}")
-        return replace(faults, outage=faults.outage + (interval,))
+            form = "START:DURATION in seconds (e.g. 5.0:2.0)" if name == "outage" else \
+                "RATE:DURATION, outages per minute and seconds each (e.g. 2:1.5)"
+            raise InputError(f"--fault {name}: expected {form}, got {value!r}")
+        if name == "outages":
+            return replace(faults, outages=pair)
+        return replace(faults, outage=faults.outage + (pair,))
     try:
         number = float(value)
     except ValueError:
@@ -154,18 +172,34 @@ def apply(faults: Faults, dets: list, t: np.ndarray, config: RadarConfig,
         dets: (K,) list of `Detections`, one per scan at the true times t.
         t: (K,) true scan times.
         config: the radar (field of view, range and rate).
-        seed_seq: the fault SeedSequence; spawns the ghost, dropped and jitter generators.
+        seed_seq: the fault SeedSequence; spawns the ghost, dropped, jitter and outage generators (spawn(4)
+            gives the same first three as spawn(3): adding the fourth changed no earlier draw).
     """
-    rng_ghost, rng_drop, rng_jitter = [np.random.default_rng(s) for s in seed_seq.spawn(3)]
+    rng_ghost, rng_drop, rng_jitter, rng_outage = [np.random.default_rng(s) for s in seed_seq.spawn(4)]
+    intervals = faults.outage
+    if faults.outages is not None and len(t):
+        intervals = intervals + outage_intervals(*faults.outages, t[0], t[-1] + 1.0 / config.rate_hz, rng_outage)
     out = []
     for k, det in enumerate(dets):
         if faults.ghosts > 0:
             det = add_ghosts(det, faults.ghosts, config, rng_ghost)
-        if any(start <= t[k] < start + duration for start, duration in faults.outage):
+        if any(start <= t[k] < start + duration for start, duration in intervals):
             det = _subset(det, np.zeros(0, dtype=int))
         out.append(det)
     dropped = rng_drop.random(len(t)) < faults.dropped if faults.dropped > 0 else np.zeros(len(t), bool)
     return Faulted(out, jittered_times(t, faults.jitter, config.rate_hz, rng_jitter), dropped)
+
+
+def outage_intervals(rate_per_min: float, duration: float, t0: float, t1: float,
+                     rng: np.random.Generator) -> tuple[tuple[float, float], ...]:
+    """Random outages over [t0, t1): a Poisson process of `rate_per_min` per minute, i.e. a count
+    ~ Poisson(rate_per_min / 60 * (t1 - t0)) and starts uniform in [t0, t1), sorted; each `duration` s long.
+
+    Checked by: tests/sim/test_faults.py::test_outages_at_a_rate_count_close_to_the_rate
+    """
+    n = rng.poisson(rate_per_min / 60.0 * max(t1 - t0, 0.0))
+    starts = np.sort(rng.uniform(t0, t1, n))
+    return tuple((float(s), float(duration)) for s in starts)
 
 
 def jittered_times(t: np.ndarray, sigma: float, rate_hz: float, rng: np.random.Generator) -> np.ndarray:
@@ -209,4 +243,5 @@ def _subset(det: Detections, idx: np.ndarray) -> Detections:
     return Detections(*(getattr(det, f)[idx] for f in _FIELDS))
 
 
-__all__ = ["GHOST", "Faulted", "Faults", "add_ghosts", "apply", "jittered_times", "parse_fault", "parse_faults"]
+__all__ = ["GHOST", "Faulted", "Faults", "add_ghosts", "apply", "jittered_times", "outage_intervals", "parse_fault",
+           "parse_faults"]

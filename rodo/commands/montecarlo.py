@@ -28,12 +28,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--models", default="ca-polar,cv-cartesian",
                    help="comma-separated models (%(default)s), or LABEL=CONFIG.toml to run a config under a label "
                         "(e.g. ca-learned=ca.toml from rodo calibrate)")
-    p.add_argument("--fault", metavar="NAME=VALUE", action="append", default=[],
-                   help="a sensor fault in every trial, as in `rodo simulate --fault` (clutter, ghosts, dropped, "
-                        "outage; repeatable; saved in campaign.json). jitter is refused: the evaluation matches "
-                        "estimates to the true scan times")
+    add_fault_option(p)
     add_campaign_options(p)
     p.set_defaults(func=main)
+
+
+def add_fault_option(p) -> None:
+    """--fault NAME=VALUE (repeatable), shared by the campaign commands (montecarlo, table1)."""
+    p.add_argument("--fault", metavar="NAME=VALUE", action="append", default=[],
+                   help="a sensor fault in every trial, as in `rodo simulate --fault` (clutter, ghosts, dropped, "
+                        "outage, outages; repeatable; saved in campaign.json). jitter is refused: the evaluation "
+                        "matches estimates to the true scan times")
 
 
 def add_campaign_options(p) -> None:
@@ -197,12 +202,12 @@ def main(args) -> int:
         return worker_died("montecarlo", args.out, exc)
 
 
-def check_faults(texts) -> tuple[str, ...]:
+def check_faults(texts, command: str = "montecarlo") -> tuple[str, ...]:
     """The --fault strings, checked before any work (InputError naming --fault NAME); jitter refused."""
     from rodo.sim.faults import parse_faults
 
     if parse_faults(texts).jitter > 0:
-        raise InputError("--fault jitter: not supported by montecarlo (the evaluation matches estimates to the "
+        raise InputError(f"--fault jitter: not supported by {command} (the evaluation matches estimates to the "
                          "true scan times); simulate with `rodo simulate --fault jitter=...` and `rodo run` instead")
     return tuple(texts)
 

@@ -36,7 +36,8 @@ def register(subparsers) -> None:
                         "ghosts per scan (a real detection copied 1-10 m farther); dropped=P each scan missing "
                         "from radar.csv with probability P in [0, 1); jitter=SIGMA s on the recorded scan times "
                         "(clipped to +-0.45 scan periods so times stay increasing; SIGMA <= 0.15 periods); "
-                        "outage=START:DURATION s of empty scans (repeat for several)")
+                        "outage=START:DURATION s of empty scans (repeat for several); outages=RATE:DURATION "
+                        "random outages, RATE per minute, each DURATION s")
     p.add_argument("--rerun", metavar="OUT.rrd", help="also write a Rerun recording of the simulated sequence")
     p.set_defaults(func=run_simulate)
 
@@ -84,6 +85,8 @@ def describe_faults(faults, truth: dict) -> str:
         parts.append(f"jitter {faults.jitter:g} s")
     for start, dur in faults.outage:
         parts.append(f"outage {start:g}-{start + dur:g} s")
+    if faults.outages is not None:
+        parts.append(f"outages {faults.outages[0]:g}/min, {faults.outages[1]:g} s each")
     return "; ".join(parts)
 
 

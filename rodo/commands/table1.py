@@ -1,4 +1,4 @@
-"""`rodo table1 [--runs N] [--scenarios city,highway,hills,stop_and_go,blockage] [--jobs J]
+"""`rodo table1 [--runs N] [--scenarios city,highway,hills,stop_and_go,blockage] [--fault NAME=VALUE] [--jobs J]
 [--dask ADDRESS|local [--dashboard [ADDR]]] [--duration S] [--seed S] --out DIR [--resume]`:
 the paper's Table I on the simulated suite (validation/table1.py).
 
@@ -15,7 +15,8 @@ from concurrent.futures import BrokenExecutor
 
 from rodo.estimator.errors import InputError
 from rodo.progress import Progress
-from rodo.commands.montecarlo import add_campaign_options, check_campaign_options, worker_died
+from rodo.commands.montecarlo import (add_campaign_options, add_fault_option, check_campaign_options, check_faults,
+                                      worker_died)
 from rodo.validation.campaign_dir import campaign_lock
 from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign
 from rodo.validation.table1 import MODELS, SCENARIOS, Table1Trial, build_table, load_runs, write_table
@@ -28,6 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "per scenario in DIR/<scenario>/), then write DIR/table1.md and table1.json.")
     p.add_argument("--runs", type=int, default=1, help="trials per scenario (default 1)")
     p.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated scenarios (%(default)s)")
+    add_fault_option(p)
     add_campaign_options(p)
     p.set_defaults(func=main)
 
@@ -57,6 +59,7 @@ def main(args) -> int:
 def run_table1(args) -> int:
     check_campaign_options(args)
     names = parse_scenarios(args.scenarios)
+    faults = check_faults(args.fault, "table1")
     trials = make_trials(args.seed, args.runs, MODELS)
     out = args.out
     if not args.resume:
@@ -67,9 +70,11 @@ def run_table1(args) -> int:
     with contextlib.ExitStack() as locks:  # DIR and every DIR/<scenario>, held over the whole run
         for d in [out] + [os.path.join(out, s) for s in names]:
             locks.enter_context(campaign_lock(d))
-        ran, skipped, errors = _run_campaigns(args, names, trials)
+        ran, skipped, errors = _run_campaigns(args, names, trials, faults)
         table = build_table(load_runs(out, names), names)
         meta = {"scenarios": ",".join(names), "runs": args.runs, "seed": args.seed, "duration": args.duration}
+        if faults:
+            meta["faults"] = list(faults)
         text = write_table(out, table, meta)
     print(text)
     print(f"ran {ran} (trial, model) runs, skipped {skipped} already done, {errors} errors")
@@ -77,8 +82,9 @@ def run_table1(args) -> int:
     return 0
 
 
-def _run_campaigns(args, names: list[str], trials) -> tuple[int, int, int]:
-    """One campaign per scenario in DIR/<scenario>/ on one executor; (rows ran, rows skipped, error rows)."""
+def _run_campaigns(args, names: list[str], trials, faults: tuple[str, ...]) -> tuple[int, int, int]:
+    """One campaign per scenario in DIR/<scenario>/ on one executor, each trial simulated with `faults`;
+    (rows ran, rows skipped, error rows)."""
     out = args.out
     total = sum(remaining(trials, os.path.join(out, s)) for s in names) if args.resume \
         else len(names) * len(trials) * len(MODELS)
@@ -89,7 +95,9 @@ def _run_campaigns(args, names: list[str], trials) -> tuple[int, int, int]:
         for s in names:
             meta = {"scenario": s, "runs": args.runs, "models": list(MODELS), "seed": args.seed,
                     "duration": args.duration, "table": "table1"}
-            rep = run_campaign(Table1Trial(s, args.duration), trials, executor, os.path.join(out, s),
+            if faults:
+                meta["faults"] = list(faults)  # only when given: older campaign.json files still resume
+            rep = run_campaign(Table1Trial(s, args.duration, faults=faults), trials, executor, os.path.join(out, s),
                                resume=args.resume, progress=bar, meta=meta)
             ran, skipped = ran + rep.ran, skipped + rep.skipped
             errors += sum(r["status"] == "error" for r in rep.rows)

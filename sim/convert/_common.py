@@ -121,8 +121,10 @@ def read_csv(path, required: tuple[str, ...], int_columns: tuple[str, ...] = ())
         lines.pop()
     if not lines:
         return {c: np.zeros(0, dtype=np.int64 if c in int_columns else float) for c in required}
+    if any(not line.strip() for line in lines):  # loadtxt skips them: row k would not be line k + 2 (fuzzer)
+        raise _locate(path, names, lines)
     try:
-        data = np.loadtxt(lines, delimiter=",", dtype=float, ndmin=2)
+        data = np.loadtxt(lines, delimiter=",", dtype=float, ndmin=2, comments=None)
     except ValueError:
         raise _locate(path, names, lines) from None
     if data.shape[1] != len(names):
@@ -137,7 +139,8 @@ def read_csv(path, required: tuple[str, ...], int_columns: tuple[str, ...] = ())
             raise InputError(f"{path}, line {k + 2}, field '{c}': must be an integer, got {value!r}")
         if np.any(np.abs(col) > 2**52):  # float64 lost digits (e.g. ns timestamps): parse again as int64
             try:
-                col = np.loadtxt(lines, delimiter=",", dtype=np.int64, usecols=[names.index(c)], ndmin=1)
+                col = np.loadtxt(lines, delimiter=",", dtype=np.int64, usecols=[names.index(c)], ndmin=1,
+                                 comments=None)
             except (ValueError, OverflowError):
                 raise InputError(f"{path}, field '{c}': integers expected (int64 range)") from None
         out[c] = col.astype(np.int64)
@@ -210,6 +213,18 @@ def polar_from_xyz(p: np.ndarray):
     with np.errstate(invalid="ignore", divide="ignore"):
         el = np.where(r > 0, np.arcsin(np.clip(p[:, 2] / np.where(r > 0, r, 1.0), -1.0, 1.0)), 0.0)
     return r, az, el
+
+
+def field_of_view(angles: np.ndarray, default: float, limit: float) -> tuple[float, float]:
+    """The field of view the detections span, at least 1e-6 rad wide and inside [-limit, limit] (a single
+    detection straight behind, azimuth pi, or straight up, elevation pi/2, must not push it past the limit);
+    (-default, default) without detections."""
+    if not len(angles):
+        return -default, default
+    lo, hi = float(angles.min()), float(angles.max())
+    if hi - lo < 1e-6:
+        lo, hi = (lo, lo + 1e-6) if lo + 1e-6 <= limit else (hi - 1e-6, hi)
+    return lo, hi
 
 
 def write_conversion(out_dir, conv: Conversion) -> Path:

@@ -25,7 +25,7 @@ from rodo.estimator.errors import InputError
 from rodo.estimator.lie import so3
 from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence, Trajectory
 
-from ._common import Conversion, ConversionReport, planar_poses, read_csv, scans_from_rows
+from ._common import Conversion, ConversionReport, field_of_view, planar_poses, read_csv, scans_from_rows
 
 # radar -> (x_m, y_m, yaw_rad) in the vehicle frame (origin rear-axle centre), from the export's const.py
 MOUNTING = {1: (3.663, -0.873, -1.48418552), 2: (3.86, -0.70, -0.436185662),
@@ -36,6 +36,8 @@ RANGE_SIGMA = 0.1                   # m; not observable from single scans (nomin
 NOMINAL_SIGMAS = (0.1, float(np.deg2rad(0.5)))  # (sigma_vr, sigma_az) when the data cannot tell
 STATIC_LABEL = 11
 DET_COLUMNS = ("scan_idx", "range_m", "azimuth_rad", "vr_mps", "rcs_dbsm", "vr_comp_mps", "label_id")
+MIN_SCAN_STEP = 1e-6  # s
+ODOM_LIMIT = 1e9  # s, m, rad, m/s, rad/s: larger odometry values are refused
 ODOM_COLUMNS = ("timestamp_rad", "timestamp_odom", "x_loc", "y_loc", "yaw_loc", "vx_ego", "yaw_rate_ego")
 
 
@@ -165,12 +167,17 @@ def _scan_times(odom: dict, odom_path, t_max: float | None, report: ConversionRe
     if bad_odom.any():
         k = int(np.flatnonzero(bad_odom)[0])
         raise InputError(f"{odom_path}, line {k + 2}: NaN or infinity in the odometry row")
+    for c in ODOM_COLUMNS:  # huge finite values overflowed the sensor velocity (found by the fuzzer)
+        if np.any(np.abs(odom[c]) > ODOM_LIMIT):
+            k = int(np.flatnonzero(np.abs(odom[c]) > ODOM_LIMIT)[0])
+            raise InputError(f"{odom_path}, line {k + 2}, field '{c}': |value| > {ODOM_LIMIT:g} is not plausible")
     t = odom["timestamp_rad"]
     if len(t) == 0:
         raise InputError(f"{odom_path}: no data rows")
-    if np.any(np.diff(t) <= 0):
-        k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-        raise InputError(f"{odom_path}, line {k + 2}, field 'timestamp_rad': times must strictly increase")
+    if np.any(np.diff(t) < MIN_SCAN_STEP):  # closer times were one time in groundtruth.txt (1 ns; fuzzer)
+        k = int(np.flatnonzero(np.diff(t) < MIN_SCAN_STEP)[0]) + 1
+        raise InputError(f"{odom_path}, line {k + 2}, field 'timestamp_rad': times must increase by at least "
+                         f"{MIN_SCAN_STEP:g} s")
     n_scans = len(t) if t_max is None else int(np.searchsorted(t, t_max, side="right"))
     if n_scans == 0:
         raise InputError(f"t_max: {t_max} is before the first scan at {t[0]} s")
@@ -206,14 +213,13 @@ def _sensor_config(radar: int, odom: dict, t, scan, rng, az, vr, label, report: 
     sigma_vr, sigma_az = sigmas
     noise = NoiseSigmas(range=RANGE_SIGMA, azimuth=sigma_az, elevation=float(ELEVATION_SIGMA),
                         radial_velocity=sigma_vr)
-    az_lo, az_hi = (float(np.min(az)), float(np.max(az))) if len(az) else (-np.pi / 2, np.pi / 2)
     rate = float(1.0 / np.median(np.diff(t))) if len(t) > 1 else 13.0
     report.info.update({
         "sigma_radial_velocity_mps": sigma_vr, "sigma_azimuth_rad": sigma_az, "sigma_range_m": RANGE_SIGMA,
         "sigma_elevation_rad": float(ELEVATION_SIGMA), "rate_hz": rate,
     })
     return SensorConfig(rate_hz=rate, T_vehicle_sensor=T_vehicle_sensor(radar), noise=noise,
-                        azimuth_fov=(az_lo, max(az_hi, az_lo + 1e-6)),
+                        azimuth_fov=field_of_view(az, np.pi / 2, np.pi),
                         elevation_fov=(-ELEVATION_FOV, ELEVATION_FOV),
                         max_range=float(np.ceil(np.max(rng))) if len(rng) else 100.0, min_range=0.0)
 

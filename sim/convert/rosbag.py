@@ -29,7 +29,7 @@ from rodo.estimator.errors import InputError
 from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence
 from rodo.sim.sequence_types import REQUIRED_COLUMNS
 
-from ._common import Conversion, ConversionReport, polar_from_xyz, scans_from_rows
+from ._common import Conversion, ConversionReport, field_of_view, polar_from_xyz, scans_from_rows
 
 POINTCLOUD2 = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/PointCloud2")
 DOPPLER_NAMES = ("velocity", "doppler", "radial_velocity", "v_r", "vr", "v_radial")
@@ -227,11 +227,9 @@ def _sensor(t_scan: np.ndarray, rng, az, el) -> SensorConfig:
     """Sensor description from the data: rate from the median scan interval, FOV from the detections."""
     good = np.diff(t_scan) > 0
     rate = float(1.0 / np.median(np.diff(t_scan)[good])) if good.any() else 10.0
-    fov_az = (float(az.min()), float(az.max())) if len(az) else (-np.pi / 2, np.pi / 2)
-    fov_el = (float(el.min()), float(el.max())) if len(el) else (-np.pi / 4, np.pi / 4)
     return SensorConfig(rate_hz=rate, T_vehicle_sensor=np.eye(4), noise=DEFAULT_SIGMAS,
-                        azimuth_fov=(fov_az[0], max(fov_az[1], fov_az[0] + 1e-6)),
-                        elevation_fov=(fov_el[0], max(fov_el[1], fov_el[0] + 1e-6)),
+                        azimuth_fov=field_of_view(az, np.pi / 2, np.pi),
+                        elevation_fov=field_of_view(el, np.pi / 4, np.pi / 2),
                         max_range=float(np.ceil(rng.max())) if len(rng) else 100.0)
 
 

@@ -26,13 +26,16 @@ from rodo.estimator.errors import InputError
 from rodo.estimator.lie import so3
 from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence
 
-from ._common import Conversion, ConversionReport, polar_from_xyz, read_csv, read_flat_yaml, scans_from_rows
+from ._common import (Conversion, ConversionReport, field_of_view, polar_from_xyz, read_csv, read_flat_yaml,
+                      scans_from_rows)
 
 SCANS_CSV = "radar_scans.csv"
 DETECTIONS_CSV = "radar_detections.csv"
 CALIB_YAML = "calib_ti_mmwave_rospkg_dataset.yaml"
 CALIB_KEYS = ("l_b_r_x", "l_b_r_y", "l_b_r_z", "q_b_r_x", "q_b_r_y", "q_b_r_z", "q_b_r_w", "radar_frame_ms")
 C_RIO_TI = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # p_rio = C_RIO_TI @ p_ti
+MAX_COORD_M = 1e6  # detections with a coordinate beyond this are dropped (a range that overflows is no range)
+MAX_SPAN_NS = 10**18  # trigger times spread over more than 30 years are refused
 DOPPLER_STEP = 0.125  # m/s, nominal quantisation (the measured step is used and reported)
 # nominal sigmas (IWR6843AOP, 3 Tx / 4 Rx: coarse angles); not observable without ground truth
 RANGE_SIGMA = 0.05
@@ -48,10 +51,11 @@ def read_calibration(path) -> tuple[np.ndarray, float]:
         raise InputError(f"{path}: missing key(s) {', '.join(missing)}")
     v = {k: values[k][0] for k in CALIB_KEYS}
     q = np.array([v["q_b_r_x"], v["q_b_r_y"], v["q_b_r_z"], v["q_b_r_w"]])
-    norm = np.linalg.norm(q)
-    if not np.all(np.isfinite(q)) or abs(norm - 1.0) > 1e-3:
+    # components checked before the norm: 1e154 would overflow it (found by the fuzzer)
+    norm = float(np.linalg.norm(q)) if np.all(np.abs(q) <= 2.0) else float("nan")
+    if not abs(norm - 1.0) <= 1e-3:
         raise InputError(f"{path}, line {values['q_b_r_x'][1]}, field 'q_b_r': not a unit quaternion "
-                         f"(|q| = {norm:.6g})")
+                         f"(x, y, z, w = {', '.join(f'{c:.6g}' for c in q)})")
     if not 0 <= v["radar_frame_ms"] < np.inf:
         raise InputError(f"{path}, line {values['radar_frame_ms'][1]}, field 'radar_frame_ms': must be a finite "
                          f"number >= 0, got {v['radar_frame_ms']}")
@@ -100,13 +104,10 @@ def convert(source) -> Conversion:
     sigma_vr = step / np.sqrt(12.0)
     noise = NoiseSigmas(range=RANGE_SIGMA, azimuth=float(AZIMUTH_SIGMA), elevation=float(ELEVATION_SIGMA),
                         radial_velocity=float(sigma_vr))
-    azk, elk = az[keep], el[keep]
-    fov_az = (float(azk.min()), float(azk.max())) if len(azk) else (-np.pi / 2, np.pi / 2)
-    fov_el = (float(elk.min()), float(elk.max())) if len(elk) else (-np.pi / 4, np.pi / 4)
     rate = float(1.0 / np.median(np.diff(t_scan))) if len(t_scan) > 1 else 10.0
     sensor = SensorConfig(rate_hz=rate, T_vehicle_sensor=T_vehicle_sensor, noise=noise,
-                          azimuth_fov=(fov_az[0], max(fov_az[1], fov_az[0] + 1e-6)),
-                          elevation_fov=(fov_el[0], max(fov_el[1], fov_el[0] + 1e-6)),
+                          azimuth_fov=field_of_view(az[keep], np.pi / 2, np.pi),
+                          elevation_fov=field_of_view(el[keep], np.pi / 4, np.pi / 2),
                           max_range=float(np.ceil(rng[keep].max())) if keep.any() else 20.0)
     report.info.update({"t0_ns": t0_ns, "time": "trigger + radar_frame_ms / 2, seconds from t0_ns",
                         "radar_frame_ms": frame_ms, "rate_hz": rate, "doppler_quantisation": quant,
@@ -123,15 +124,19 @@ def _scan_times(source: Path, sc: dict, frame_ms: float, report: ConversionRepor
         raise InputError(f"{source / SCANS_CSV}: no scans")
     if np.any(idx < 0) or len(np.unique(idx)) != len(idx):
         raise InputError(f"{source / SCANS_CSV}, field 'scan_idx': must be unique and >= 0")
+    if int(trig.max()) - int(trig.min()) > MAX_SPAN_NS:  # (also keeps trig - t0 inside int64)
+        raise InputError(f"{source / SCANS_CSV}, field 't_trigger_ns': trigger times span more than "
+                         f"{MAX_SPAN_NS:g} ns")
     order = np.argsort(idx)
     idx, trig = idx[order], trig[order]
-    good = np.r_[True, np.diff(trig) > 0]
-    if not good.all():
-        report.dropped["scans whose trigger time does not increase"] = int((~good).sum())
-        idx, trig = idx[good], trig[good]
     t0_ns = int(trig[0])
     t_scan = (trig - t0_ns).astype(np.float64) * 1e-9 + 0.5e-3 * frame_ms  # (S,) s
-    return idx, t_scan, t0_ns
+    # each kept time above all earlier ones, in float64 (1 ns steps late in a long recording round to equal
+    # times; comparing with the previous row only let 0, 10, 5, 7 through; both found by the fuzzer)
+    good = np.r_[True, t_scan[1:] > np.maximum.accumulate(t_scan)[:-1]]
+    if not good.all():
+        report.dropped["scans whose trigger time does not increase"] = int((~good).sum())
+    return idx[good], t_scan[good], t0_ns
 
 
 def _kept_detections(det: dict, idx: np.ndarray, report: ConversionReport):
@@ -143,6 +148,9 @@ def _kept_detections(det: dict, idx: np.ndarray, report: ConversionReport):
     keep = report.drop("detections whose scan has no (valid) trigger time", k < 0)
     vals = np.stack([det[c] for c in ("x_m", "y_m", "z_m", "intensity", "v_radial_mps")])
     keep &= report.drop("detections with NaN or infinity", keep & ~np.all(np.isfinite(vals), axis=0))
+    # 1e308 m overflowed the range (found by the fuzzer)
+    far = np.any(np.abs(vals[:3]) > MAX_COORD_M, axis=0)
+    keep &= report.drop(f"detections farther than {MAX_COORD_M:g} m", keep & far)
     p = np.where(keep[:, None], vals[:3].T, 1.0)
     rng, az, el = polar_from_xyz(p)
     keep &= report.drop("detections at zero range", keep & ~(rng > 1e-6))

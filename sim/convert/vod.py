@@ -18,7 +18,7 @@ import numpy as np
 from rodo.estimator.errors import InputError
 from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence
 
-from ._common import Conversion, ConversionReport, polar_from_xyz, scans_from_rows
+from ._common import Conversion, ConversionReport, field_of_view, polar_from_xyz, scans_from_rows
 
 COLUMNS = ("x", "y", "z", "rcs", "v_r", "v_r_compensated", "time")
 # nominal 1-sigma of a 3+1D automotive radar (VoD: ZF FRGen21); override with --sigma
@@ -37,17 +37,6 @@ def read_bin(path) -> np.ndarray:
         raise InputError(f"{path}: size {len(raw)} bytes is not a multiple of {4 * len(COLUMNS)} "
                          f"(float32 x {len(COLUMNS)} columns: {', '.join(COLUMNS)})")
     return np.frombuffer(raw, dtype="<f4").reshape(-1, len(COLUMNS)).astype(np.float64)
-
-
-def _fov(angles: np.ndarray, default: float, limit: float) -> tuple[float, float]:
-    """The field of view the detections span, at least 1e-6 rad wide and inside [-limit, limit] (a single
-    detection straight behind, azimuth pi, must not push it past pi); (-default, default) without detections."""
-    if not len(angles):
-        return -default, default
-    lo, hi = float(angles.min()), float(angles.max())
-    if hi - lo < 1e-6:
-        lo, hi = (lo, lo + 1e-6) if lo + 1e-6 <= limit else (hi - 1e-6, hi)
-    return lo, hi
 
 
 def convert(source, rate_hz: float = 10.0, T_vehicle_sensor=None, noise: NoiseSigmas | None = None,
@@ -89,8 +78,8 @@ def convert(source, rate_hz: float = 10.0, T_vehicle_sensor=None, noise: NoiseSi
     scans = scans_from_rows(report, scan[keep], t_scan, rng[keep], az[keep], el[keep], data[keep, 4], extra)
     sensor = SensorConfig(rate_hz=float(rate_hz), T_vehicle_sensor=np.eye(4) if T_vehicle_sensor is None
                           else T_vehicle_sensor, noise=noise or DEFAULT_SIGMAS,
-                          azimuth_fov=_fov(az[keep], np.pi / 2, np.pi),
-                          elevation_fov=_fov(el[keep], np.pi / 8, np.pi / 2), max_range=max_range)
+                          azimuth_fov=field_of_view(az[keep], np.pi / 2, np.pi),
+                          elevation_fov=field_of_view(el[keep], np.pi / 8, np.pi / 2), max_range=max_range)
     report.info.update({"files": [f.name for f in files], "rate_hz": float(rate_hz)})
     report.notes.append("scan times from --rate (k / rate); sigmas nominal unless --sigma; no ground truth")
     return Conversion("vod", Sequence(sensor=sensor, scans=scans, groundtruth=None), report)

@@ -191,6 +191,8 @@ def test_simulate_non_finite_duration(tmp_path, capsys, value):
     ("jitter=1", ("--fault jitter", "0.15 scan periods")), ("jitter=-0.001", ("--fault jitter",)),
     ("outage=2", ("--fault outage", "START:DURATION")), ("outage=2:0", ("--fault outage", "duration")),
     ("outage=nan:1", ("--fault outage", "start")), ("blur=1", ("--fault", "clutter, ghosts")),
+    ("outages=2", ("--fault outages", "RATE:DURATION")), ("outages=-1:1", ("--fault outages", "rate per minute")),
+    ("outages=1:0", ("--fault outages", "duration")),
 ])
 def test_simulate_bad_faults(tmp_path, capsys, fault, needles):
     _fails(capsys, ["simulate", "city", "--duration", "0.2", "--fault", fault, "--out", tmp_path / "s"], *needles)

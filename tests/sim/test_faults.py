@@ -30,7 +30,9 @@ def test_parse_faults_reads_every_name_and_accumulates_outages():
     ("clutter=nan", "clutter"), ("clutter=-1", "clutter"), ("clutter=1e9", "clutter"), ("ghosts=inf", "ghosts"),
     ("ghosts=x", "ghosts"), ("dropped=1", "dropped"), ("dropped=-0.1", "dropped"), ("jitter=-1e-3", "jitter"),
     ("jitter=nan", "jitter"), ("outage=5", "outage"), ("outage=5:0", "outage"), ("outage=-1:2", "outage"),
-    ("outage=a:b", "outage"), ("outage=1:inf", "outage"), ("nosuch=1", "--fault"), ("clutter", "--fault")])
+    ("outage=a:b", "outage"), ("outage=1:inf", "outage"), ("nosuch=1", "--fault"), ("clutter", "--fault"),
+    ("outages=2", "outages"), ("outages=-1:1", "outages"), ("outages=2:0", "outages"), ("outages=nan:1", "outages"),
+    ("outages=1e6:1", "outages"), ("outages=a:b", "outages"), ("outages=2:inf", "outages")])
 def test_bad_values_are_input_errors_naming_the_fault(text, named):
     with pytest.raises(InputError) as err:
         fl.parse_faults([text])
@@ -126,3 +128,46 @@ def test_each_fault_draws_from_its_own_stream():
     c = fl.apply(fl.Faults(jitter=0.005), dets, t, cfg, np.random.SeedSequence(1))
     assert np.array_equal(a.dropped, b.dropped) and np.array_equal(a.t_recorded, b.t_recorded)
     assert np.array_equal(a.t_recorded, c.t_recorded) and a.dropped.any()
+
+
+def test_outages_at_a_rate_parse_and_the_last_one_wins():
+    f = fl.parse_faults(["outages=2:1.5", "outage=3:1", "outages=4:0.5"])
+    assert f == fl.Faults(outage=((3.0, 1.0),), outages=(4.0, 0.5)) and f.changes_scans
+    with pytest.raises(InputError, match="--fault outages"):
+        fl.Faults(outages=(1.0, 2.0, 3.0))
+
+
+def test_outages_at_a_rate_count_close_to_the_rate():
+    """6 per minute over 10^4 s: Poisson(1000) outages (within 4 sigma), sorted starts inside the span."""
+    rng = np.random.default_rng(np.random.SeedSequence(3))
+    intervals = fl.outage_intervals(6.0, 0.5, 100.0, 10_100.0, rng)
+    starts = np.array([s for s, _ in intervals])
+    assert abs(len(starts) - 1000) < 4 * np.sqrt(1000)
+    assert np.all(np.diff(starts) >= 0) and starts.min() >= 100.0 and starts.max() < 10_100.0
+    assert all(d == 0.5 for _, d in intervals)
+    assert fl.outage_intervals(0.0, 0.5, 0.0, 1e4, rng) == ()
+
+
+def test_apply_outages_at_a_rate_empties_the_drawn_intervals_deterministically():
+    """The scans inside the intervals drawn from the fourth fault stream are empty, all others untouched; the
+    same seed gives the same outages, another seed others; the dropped scans' draws do not change."""
+    rng = np.random.default_rng(np.random.SeedSequence(6))
+    t = np.arange(6000) / 10.0  # 600 s
+    dets = [_dets(3, rng) for _ in t]
+    cfg = RadarConfig(rate_hz=10.0)
+    f = fl.Faults(dropped=0.1, outages=(4.0, 1.0))
+    out = fl.apply(f, dets, t, cfg, np.random.SeedSequence(9))
+    stream = np.random.default_rng(np.random.SeedSequence(9).spawn(4)[3])
+    intervals = fl.outage_intervals(4.0, 1.0, 0.0, 600.0, stream)
+    assert abs(len(intervals) - 40) < 4 * np.sqrt(40)
+    inside = np.zeros(len(t), bool)
+    for start, duration in intervals:
+        inside |= (t >= start) & (t < start + duration)
+    assert inside.any() and not inside.all()
+    assert [len(d) for d in out.dets] == [0 if o else 3 for o in inside]
+    again = fl.apply(f, dets, t, cfg, np.random.SeedSequence(9))
+    assert [len(d) for d in again.dets] == [len(d) for d in out.dets]
+    other = fl.apply(f, dets, t, cfg, np.random.SeedSequence(10))
+    assert [len(d) for d in other.dets] != [len(d) for d in out.dets]
+    no_outages = fl.apply(fl.Faults(dropped=0.1), dets, t, cfg, np.random.SeedSequence(9))
+    assert np.array_equal(no_outages.dropped, out.dropped)

@@ -197,3 +197,30 @@ def test_a_scenario_whose_runs_all_failed_is_a_row_of_na():
     line = next(ln for ln in render_markdown(table).splitlines() if ln.startswith("| failed"))
     assert line == "| failed ‡ | n/a | 0 | " + " | ".join(["n/a"] * 6) + " |"
     assert _row(table, "overall")["distance_km"] == pytest.approx(1.0)
+
+
+@pytest.mark.slow
+def test_table1_fault_is_simulated_recorded_and_required_on_resume(tmp_path, capsys):
+    """`rodo table1 --fault`: every trial simulated with the fault (its rows differ from a clean run's), the
+    fault saved in each scenario's campaign.json and in table1.json (a clean run saves none, so older campaigns
+    still resume); resuming without the fault is refused naming campaign.json; jitter is refused before any
+    work, as by montecarlo."""
+    base = ["table1", "--runs", "1", "--scenarios", "yaw_accel", "--duration", "1", "--jobs", "1"]
+    rows = {}
+    for name, extra in (("clean", []), ("faulty", ["--fault", "clutter=200"])):
+        assert cli.main(base + ["--out", str(tmp_path / name)] + extra, commands=[table1_cmd]) == 0
+        rows[name] = {r["model"]: r for r in read_results(tmp_path / name / "yaw_accel" / "results.csv")}
+        assert all(r["status"] == "ok" for r in rows[name].values())
+    meta = json.loads((tmp_path / "faulty" / "yaw_accel" / "campaign.json").read_text())
+    assert meta["faults"] == ["clutter=200"]
+    assert json.loads((tmp_path / "faulty" / "table1.json").read_text())["parameters"]["faults"] == ["clutter=200"]
+    assert "faults" not in json.loads((tmp_path / "clean" / "yaw_accel" / "campaign.json").read_text())
+    assert rows["clean"]["ca-polar"]["nis_mean"] != rows["faulty"]["ca-polar"]["nis_mean"]
+    capsys.readouterr()
+    assert cli.main(base + ["--out", str(tmp_path / "faulty"), "--resume"], commands=[table1_cmd]) == 2
+    assert "campaign.json" in (err := capsys.readouterr().err) and "faults" in err
+    assert cli.main(base + ["--out", str(tmp_path / "faulty"), "--resume", "--fault", "clutter=200"],
+                    commands=[table1_cmd]) == 0
+    assert "ran 0 (trial, model) runs, skipped 2" in capsys.readouterr().out
+    assert cli.main(base + ["--out", str(tmp_path / "j"), "--fault", "jitter=0.001"], commands=[table1_cmd]) == 2
+    assert "--fault jitter: not supported by table1" in capsys.readouterr().err and not (tmp_path / "j").exists()
