@@ -260,10 +260,7 @@ class OdometryConfig:
         tau = self.uncertainty.velocity_correlation_time
         if not (np.isfinite(tau) and tau >= 0):
             raise InputError(f"uncertainty.velocity_correlation_time: must be a finite number >= 0 s, got {tau}")
-        drift = np.asarray(self.uncertainty.drift_rate_sigma, dtype=float)
-        if drift.shape != (6,) or not (np.all(np.isfinite(drift)) and np.all(drift >= 0)):
-            raise InputError("uncertainty.drift_rate_sigma: must be 6 finite numbers >= 0 (m/m x3, rad/m x3), "
-                             f"got {self.uncertainty.drift_rate_sigma}")
+        # uncertainty.drift_rate_sigma: 6 numbers >= 0, config_rules.RULES
         if not self.outage.reinit_after >= 0:
             raise InputError(f"outage.reinit_after: must be >= 0 seconds, got {self.outage.reinit_after}")
         if self.map.max_age < 0 or self.map.voxel < 0:

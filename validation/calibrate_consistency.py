@@ -60,7 +60,8 @@ def median_ratio(values) -> float:
 
 @dataclass(frozen=True)
 class ConsistencyStep:
-    """One run of the fixed point: the kappa it ran with and each REPORTED measure's median ratio."""
+    """One run of the fixed point (or the final, replayed ratios): kappa, tau and each REPORTED measure's median
+    ratio."""
 
     kappa: float
     tau: float
@@ -95,11 +96,22 @@ def fit_drift_rate(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERAN
     return {"beta": beta.tolist(), "se": se.tolist(), "sigma": np.hypot(beta, se).tolist(), "distance": distance}
 
 
+def _ratios(states: dict, truth: dict, span: float, tau: float, drift_rate_sigma=None) -> dict:
+    """The median ratio of every REPORTED measure of one run's states at this tau (and drift rate)."""
+    m = odometry_nees(states, truth, span=span, tau=tau, drift_rate_sigma=drift_rate_sigma)
+    return {name: median_ratio(m[name]) for name in REPORTED}
+
+
 def _measure(seq: Sequence, truth: dict, config: OdometryConfig, span: float) -> tuple[dict, dict]:
     """Run once; (states, median ratio of every REPORTED measure at the config's tau)."""
     states = run_states(run_sequence(seq, config))
-    m = odometry_nees(states, truth, span=span, tau=config.uncertainty.velocity_correlation_time)
-    return states, {name: median_ratio(m[name]) for name in REPORTED}
+    return states, _ratios(states, truth, span, config.uncertainty.velocity_correlation_time)
+
+
+def _replayed(states: dict, tau: float, drift_rate_sigma) -> dict:
+    """The states with the absolute covariances the run would have reported at this tau and drift rate (the
+    estimate itself does not depend on them)."""
+    return dict(states, P_pose_absolute=absolute_covariances(states, tau, drift_rate_sigma))
 
 
 def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None) -> np.ndarray:
@@ -123,9 +135,8 @@ def fit_tau(states: dict, truth: dict, span: float = 1.0, taus=TAUS, drift_rate_
     r_pose)})."""
     ratios = {}
     for tau in taus:
-        trial = dict(states, P_pose_absolute=absolute_covariances(states, tau, drift_rate_sigma))
-        m = odometry_nees(trial, truth, span=span, tau=tau, drift_rate_sigma=drift_rate_sigma)
-        ratios[float(tau)] = (median_ratio(m["relative_span"]), median_ratio(m["pose"]))
+        r = _ratios(_replayed(states, tau, drift_rate_sigma), truth, span, tau, drift_rate_sigma)
+        ratios[float(tau)] = (r["relative_span"], r["pose"])
     finite = {tau: r for tau, r in ratios.items() if np.all(np.isfinite(r)) and min(r) > 0}
     if not finite:
         return float(states.get("velocity_correlation_time", TAUS[5])), ratios
@@ -139,8 +150,9 @@ def fit_consistency(seq: Sequence, truth: dict, config: OdometryConfig, iteratio
 
     Each iteration runs the estimator once. It stops when the geometric mean r of the FIXED_POINT_MEASURES'
     median ratios is within `tolerance` of 1 (|ln r| < ln(1 + tolerance)), when kappa is at a bound of
-    KAPPA_RANGE and r points beyond it, or after `iterations` runs. A last run at the fitted kappa and tau
-    gives the ratios the report ends with. `progress(ConsistencyStep)` is called after every run.
+    KAPPA_RANGE and r points beyond it, or after `iterations` runs. The report ends with that last run's ratios
+    at the fitted tau and drift rate (its covariances replayed: they do not change the estimate, so no run is
+    needed). `progress(ConsistencyStep)` is called after every run and for the final ratios.
     """
     kappa = float(np.clip(config.uncertainty.measurement_inflation, *KAPPA_RANGE))
     tau = config.uncertainty.velocity_correlation_time
@@ -160,7 +172,7 @@ def fit_consistency(seq: Sequence, truth: dict, config: OdometryConfig, iteratio
     drift = fit_drift_rate(states, truth)
     tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"])
     fitted = _with(config, kappa, tau, drift["sigma"])
-    _, final = _measure(seq, truth, fitted, span)
+    final = _ratios(_replayed(states, tau, drift["sigma"]), truth, span, tau, drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))
     if progress is not None:
         progress(steps[-1])

@@ -293,7 +293,7 @@ def record_sequence(path, seq, truth: dict | None = None, recording_id: str | No
     velocity) and, with the truth, `world/movers/<id>` boxes with their velocities (`viz.sequence_layers`);
     timelines `frame` and `time`; a blueprint.
 
-    Checked by: tests/viz/test_recording.py::test_sequence_recording
+    Checked by: tests/viz/test_sequence_recording.py::test_sequence_recording
     """
     import rerun as rr
 

@@ -3,7 +3,7 @@
 with their velocities, and a default layout.
 
 - `doppler_colours(vr, limit)`: a diverging map, blue approaching (v_r < 0), white at rest, red receding,
-  saturated at +-limit;
+  saturated at +-limit (`doppler_limit`: one limit for the whole sequence);
 - `mover_tracks(truth, T_gt_truth)`: per moving object its present frames, world poses, velocity (finite
   differences of the scan poses) and a box fitted to its detections (in the object frame: the detections'
   extent, or a car's size when it was never seen), from truth.npz (`mover_T_world_object`, `det_*`);
@@ -11,7 +11,7 @@ with their velocities, and a default layout.
 
 rerun is passed in, never imported here at module level (viz is the only package importing it).
 
-Checked by: tests/viz/test_recording.py::test_sequence_recording_layers
+Checked by: tests/viz/test_sequence_recording.py::test_sequence_recording_layers
 """
 
 from __future__ import annotations
@@ -26,12 +26,17 @@ CAR_HALF_SIZE = np.array([2.25, 0.9, 0.75])  # m, for a mover with no detection
 MOVING = 2  # sim label of a detection on a moving object
 
 
-def doppler_colours(vr: np.ndarray, limit: float | None = None) -> np.ndarray:
-    """(n, 3) uint8: blue (approaching) - white (0) - red (receding), saturated at +-limit (default: the 95th
-    percentile of |v_r|, at least 0.5 m/s)."""
+def doppler_limit(vr: np.ndarray) -> float:
+    """The default saturation of `doppler_colours`: the 95th percentile of |v_r|, at least 0.5 m/s."""
     vr = np.asarray(vr, dtype=float)
-    if limit is None:
-        limit = max(float(np.percentile(np.abs(vr), 95)) if vr.size else 0.0, 0.5)
+    return max(float(np.percentile(np.abs(vr), 95)) if vr.size else 0.0, 0.5)
+
+
+def doppler_colours(vr: np.ndarray, limit: float | None = None) -> np.ndarray:
+    """(n, 3) uint8: blue (approaching) - white (0) - red (receding), saturated at +-limit (default
+    `doppler_limit(vr)`)."""
+    vr = np.asarray(vr, dtype=float)
+    limit = doppler_limit(vr) if limit is None else limit
     x = np.clip(np.nan_to_num(vr) / limit, -1.0, 1.0)
     white = np.array([255.0, 255.0, 255.0])
     blue, red = np.array([30.0, 80.0, 230.0]), np.array([220.0, 40.0, 30.0])
@@ -46,7 +51,8 @@ class MoverTrack:
     object_id: int
     frames: np.ndarray  # (m,) scan indices
     T_world_object: np.ndarray  # (m, 4, 4) in the recording's world
-    velocity: np.ndarray  # (m, 3) world frame, m/s
+    centres: np.ndarray  # (m, 3) the box centre in the recording's world
+    velocity: np.ndarray  # (m, 3) of the box centre, world frame, m/s
     centre: np.ndarray  # (3,) box centre in the object frame
     half_size: np.ndarray  # (3,)
 
@@ -81,7 +87,7 @@ def mover_tracks(truth: dict, T_gt_truth: np.ndarray) -> list[MoverTrack]:
         T = T_gt_truth @ T_all[frames, j]
         p = T[:, :3, 3] + np.einsum("nij,j->ni", T[:, :3, :3], centre)
         v = np.gradient(p, t[frames], axis=0) if frames.size > 1 else np.zeros_like(p)
-        tracks.append(MoverTrack(int(object_id), frames, T, v, centre, half))
+        tracks.append(MoverTrack(int(object_id), frames, T, p, v, centre, half))
     return tracks
 
 
@@ -89,7 +95,7 @@ def log_sequence_layers(rec, rr, scans_by_frame, truth: dict | None, T_gt_truth:
     """`world/vehicle/sensor/scan_doppler` (each scan coloured by radial velocity) and, with the truth,
     `world/movers/<id>` (a box per frame where the object is present) and `world/movers/<id>/velocity` (an
     arrow of one second's travel). scans_by_frame: [(frame, scan)]; times: (K,) the frames' times."""
-    limit = max([float(np.percentile(np.abs(s.polar[:, 3]), 95)) for _, s in scans_by_frame if len(s)] + [0.5])
+    limit = doppler_limit(np.concatenate([s.polar[:, 3] for _, s in scans_by_frame] + [np.zeros(0)]))
     for k, scan in scans_by_frame:
         rec.set_time("frame", sequence=int(k))
         rec.set_time("time", duration=float(scan.t))
@@ -98,16 +104,15 @@ def log_sequence_layers(rec, rr, scans_by_frame, truth: dict | None, T_gt_truth:
     for track in mover_tracks(truth, T_gt_truth) if truth is not None else []:
         path = f"world/movers/{track.object_id}"
         quats = so3.to_quaternion(track.T_world_object[:, :3, :3])
-        centres = track.T_world_object[:, :3, 3] + np.einsum("nij,j->ni", track.T_world_object[:, :3, :3],
-                                                             track.centre)
         for i, k in enumerate(track.frames):
             if k >= len(times):
                 break
             rec.set_time("frame", sequence=int(k))
             rec.set_time("time", duration=float(times[k]))
-            rec.log(path, rr.Boxes3D(centers=[centres[i]], half_sizes=[track.half_size], quaternions=[quats[i]],
-                                     colors=[(255, 120, 0)], labels=[f"object {track.object_id}"]))
-            rec.log(f"{path}/velocity", rr.Arrows3D(origins=[centres[i]], vectors=[track.velocity[i]],
+            rec.log(path, rr.Boxes3D(centers=[track.centres[i]], half_sizes=[track.half_size],
+                                     quaternions=[quats[i]], colors=[(255, 120, 0)],
+                                     labels=[f"object {track.object_id}"]))
+            rec.log(f"{path}/velocity", rr.Arrows3D(origins=[track.centres[i]], vectors=[track.velocity[i]],
                                                     colors=[(255, 120, 0)]))
 
 

@@ -7,7 +7,6 @@ import math
 
 import pytest
 
-from rodo import scenarios
 from rodo.cli import main
 from rodo.estimator import config_rules
 from rodo.estimator.config import MODELS, OdometryConfig
@@ -93,13 +92,6 @@ def test_edges_of_the_ranges_are_accepted(tmp_path):
                                     "map": {"max_fused": 0, "capacity": 10}, "uncertainty": {"inflation": 1.0},
                                     "window": 1000})
     assert cfg.standstill.speed == 0.0 and cfg.map.max_fused == 0 and cfg.window == 1000
-
-
-@pytest.fixture(scope="module")
-def seq(tmp_path_factory):
-    d = tmp_path_factory.mktemp("seq")
-    scenarios.simulate_to("city", 0, d, duration=0.5)
-    return d
 
 
 @pytest.mark.parametrize("text, needle", [

@@ -6,7 +6,7 @@ import pytest
 
 from rodo.cli import main
 from rodo.validation.campaign import read_results
-from tests.cli.test_cli_errors import _fails
+from tests.cli.helpers import fails
 from tests.validation.test_campaign import DyingTrial
 
 
@@ -19,7 +19,7 @@ from tests.validation.test_campaign import DyingTrial
     ("vod", ["--rate", "nan"], "--rate"),
 ])
 def test_converter_options_out_of_range(tmp_path, capsys, fmt, extra, needle):
-    _fails(capsys, ["convert", fmt, tmp_path, "--out", tmp_path / "c", *extra], needle)
+    fails(capsys, ["convert", fmt, tmp_path, "--out", tmp_path / "c", *extra], needle)
     assert not (tmp_path / "c").exists()
 
 
@@ -91,7 +91,7 @@ def test_radar_cache_is_verified_against_the_whole_file_and_revalidated(tmp_path
 def test_view_refuses_a_file_that_is_not_a_recording(tmp_path, capsys):
     for name, data in (("text.rrd", b"hello\n"), ("empty.rrd", b""), ("states.npz", b"PK\x03\x04rest")):
         (tmp_path / name).write_bytes(data)
-        _fails(capsys, ["view", tmp_path / name], str(tmp_path / name), "not a Rerun recording")
+        fails(capsys, ["view", tmp_path / name], str(tmp_path / name), "not a Rerun recording")
 
 
 @pytest.mark.parametrize("key, value", [("radar_frame_ms", ".inf"), ("radar_frame_ms", ".NaN"),

@@ -11,23 +11,16 @@ from rodo.estimator.errors import InputError
 from rodo.scenarios.registry import MAX_DURATION
 from rodo.sim.convert import ti_mmwave
 from rodo.sim.sequence import read_sequence
-from tests.cli.test_cli_errors import _fails
+from tests.cli.helpers import fails
 from tests.sim.test_convert import _write_ti
-
-
-@pytest.fixture(scope="module")
-def seq(tmp_path_factory):
-    d = tmp_path_factory.mktemp("seq")
-    scenarios.simulate_to("city", 0, d, duration=0.5)
-    return d
 
 
 @pytest.mark.parametrize("duration", ["1e9", "3600.5"])
 def test_simulation_length_is_bounded_before_allocation(tmp_path, capsys, duration):
-    _fails(capsys, ["simulate", "city", "--duration", duration, "--out", tmp_path / "s"], "duration",
+    fails(capsys, ["simulate", "city", "--duration", duration, "--out", tmp_path / "s"], "duration",
            f"at most {MAX_DURATION:g} s")
     assert not (tmp_path / "s").exists()
-    _fails(capsys, ["montecarlo", "city", "--runs", "1", "--duration", duration, "--out", tmp_path / "m"],
+    fails(capsys, ["montecarlo", "city", "--runs", "1", "--duration", duration, "--out", tmp_path / "m"],
            "--duration", f"at most {MAX_DURATION:g} s")
     assert not (tmp_path / "m").exists()
     with pytest.raises(InputError, match="at most 3600 s"):
@@ -67,7 +60,7 @@ def test_radar_and_groundtruth_on_different_clocks_are_refused(seq, tmp_path, ca
     with pytest.raises(InputError, match=r"radar.csv \(scans at .*\) and .*groundtruth.txt \(poses at 100.* do not "
                                          "overlap in time"):
         read_sequence(bad)
-    _fails(capsys, ["run", bad, "--out", tmp_path / "o"], str(bad / "radar.csv"), str(gt), "do not overlap")
+    fails(capsys, ["run", bad, "--out", tmp_path / "o"], str(bad / "radar.csv"), str(gt), "do not overlap")
     assert not (tmp_path / "o").exists()
     # overlapping clocks are accepted, even when the truth covers only part of the scans
     gt.write_text("".join(" ".join(r) + "\n" for r in rows[len(rows) // 2:]))

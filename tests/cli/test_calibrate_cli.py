@@ -10,6 +10,7 @@ import pytest
 from rodo import scenarios
 from rodo.cli import main
 from rodo.estimator.config import OdometryConfig
+from tests.cli.helpers import fails
 
 
 @pytest.fixture(scope="module")
@@ -18,15 +19,6 @@ def seq(tmp_path_factory):
     d = tmp_path_factory.mktemp("cal") / "city"
     scenarios.simulate_to("city", 2, d, duration=2.0)
     return d
-
-
-def _fails(capsys, argv, *needles):
-    rc = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert rc == 2, err
-    assert err.startswith(f"rodo {argv[0]}: error: ") and "Traceback" not in err and err.count("\n") == 1, err
-    for needle in needles:
-        assert str(needle) in err, f"{needle!r} not in {err!r}"
 
 
 @pytest.mark.slow
@@ -71,24 +63,24 @@ def test_calibrate_without_truth_runs_em(seq, tmp_path, capsys):
 
 def test_calibrate_bad_input(seq, tmp_path, capsys):
     out = tmp_path / "c.toml"
-    _fails(capsys, ["calibrate", tmp_path / "nope", "--out", out], "nope", "not a sequence directory")
+    fails(capsys, ["calibrate", tmp_path / "nope", "--out", out], "nope", "not a sequence directory")
     no_truth = tmp_path / "no_truth"
     shutil.copytree(seq, no_truth)
     (no_truth / "truth.npz").unlink()
-    _fails(capsys, ["calibrate", no_truth, "--out", out], "truth.npz", "--no-truth")
-    _fails(capsys, ["calibrate", seq, "--out", out, "--iterations", "0"], "--iterations")
-    _fails(capsys, ["calibrate", seq, "--out", out, "--duration", "-1"], "--duration")
-    _fails(capsys, ["calibrate", seq, "--out", out, "--floor", "0"], "--floor")
-    _fails(capsys, ["calibrate", seq, "--out", out, "--no-truth", "--learn", "x,jaw"], "--learn", "jaw")
-    _fails(capsys, ["calibrate", seq, "--out", tmp_path], "--out", "is a directory")
-    _fails(capsys, ["calibrate", seq, "--out", tmp_path / "missing" / "c.toml"], "--out", "does not exist")
-    _fails(capsys, ["calibrate", seq, "--out", tmp_path / "c.json"], "--out", "overwritten")
+    fails(capsys, ["calibrate", no_truth, "--out", out], "truth.npz", "--no-truth")
+    fails(capsys, ["calibrate", seq, "--out", out, "--iterations", "0"], "--iterations")
+    fails(capsys, ["calibrate", seq, "--out", out, "--duration", "-1"], "--duration")
+    fails(capsys, ["calibrate", seq, "--out", out, "--floor", "0"], "--floor")
+    fails(capsys, ["calibrate", seq, "--out", out, "--no-truth", "--learn", "x,jaw"], "--learn", "jaw")
+    fails(capsys, ["calibrate", seq, "--out", tmp_path], "--out", "is a directory")
+    fails(capsys, ["calibrate", seq, "--out", tmp_path / "missing" / "c.toml"], "--out", "does not exist")
+    fails(capsys, ["calibrate", seq, "--out", tmp_path / "c.json"], "--out", "overwritten")
     bad = tmp_path / "bad.toml"
     bad.write_text("[noise]\nqc_ca = [1, 2]\n")
-    _fails(capsys, ["calibrate", seq, "--config", bad, "--out", out], "bad.toml", "noise.qc_ca")
+    fails(capsys, ["calibrate", seq, "--config", bad, "--out", out], "bad.toml", "noise.qc_ca")
     other = tmp_path / "other"
     shutil.copytree(seq, other)
     lines = (other / "radar.csv").read_text().splitlines()
     (other / "radar.csv").write_text("\n".join(lines[:-5]) + "\n")  # truth.npz no longer matches radar.csv
-    _fails(capsys, ["calibrate", other, "--out", out], "truth.npz", "radar.csv")
+    fails(capsys, ["calibrate", other, "--out", out], "truth.npz", "radar.csv")
     assert not out.exists()

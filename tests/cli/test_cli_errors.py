@@ -9,9 +9,9 @@ import shutil
 
 import pytest
 
-from rodo import scenarios
 from rodo import cli
 from rodo.cli import main
+from tests.cli.helpers import fails
 
 # commands whose bad-input paths are exercised below; `scenarios` takes no input
 COVERED = {"run", "simulate", "evaluate", "montecarlo", "ego-velocity", "prior-montecarlo", "figures", "view",
@@ -22,31 +22,11 @@ COVERED = {"run", "simulate", "evaluate", "montecarlo", "ego-velocity", "prior-m
 NO_INPUT = {"scenarios"}
 
 
-@pytest.fixture(scope="module")
-def seq(tmp_path_factory):
-    """A 0.5 s city sequence (7 scans)."""
-    d = tmp_path_factory.mktemp("seq")
-    scenarios.simulate_to("city", 0, d, duration=0.5)
-    return d
-
-
 @pytest.fixture
 def a_file(tmp_path):
     p = tmp_path / "a_file"
     p.write_text("not a directory\n")
     return p
-
-
-def _fails(capsys, argv, *needles):
-    """Run `rodo argv`; expect exit 2 and a one-line 'rodo CMD: error:' message containing every needle."""
-    rc = main([str(a) for a in argv])
-    cap = capsys.readouterr()
-    assert rc == 2, f"exit {rc}; stderr: {cap.err!r}"
-    assert cap.err.startswith(f"rodo {argv[0]}: error: "), cap.err
-    assert "Traceback" not in cap.err and cap.err.count("\n") == 1, cap.err
-    for needle in needles:
-        assert str(needle) in cap.err, f"{needle!r} not in {cap.err!r}"
-    return cap.err
 
 
 def _argparse_fails(capsys, argv, *needles):
@@ -74,11 +54,11 @@ def _config(tmp_path, text, name="bad.toml"):
 
 
 def test_run_missing_or_incomplete_sequence(seq, tmp_path, capsys):
-    _fails(capsys, ["run", tmp_path / "nope", "--out", tmp_path / "o"], "nope", "not a sequence directory")
+    fails(capsys, ["run", tmp_path / "nope", "--out", tmp_path / "o"], "nope", "not a sequence directory")
     partial = tmp_path / "partial"
     partial.mkdir()
     shutil.copy(seq / "radar.csv", partial / "radar.csv")
-    _fails(capsys, ["run", partial, "--out", tmp_path / "o"], "sensor.toml")
+    fails(capsys, ["run", partial, "--out", tmp_path / "o"], "sensor.toml")
     assert not (tmp_path / "o").exists()  # nothing written
 
 
@@ -90,7 +70,7 @@ def test_run_malformed_radar_csv_names_file_line_and_field(seq, tmp_path, capsys
     cols[4] = "abc"  # elevation of the 3rd data row (line 4 of the file)
     lines[3] = ",".join(cols)
     (bad / "radar.csv").write_text("\n".join(lines) + "\n")
-    _fails(capsys, ["run", bad, "--out", tmp_path / "o"], "radar.csv", "line 4", "elevation")
+    fails(capsys, ["run", bad, "--out", tmp_path / "o"], "radar.csv", "line 4", "elevation")
 
 
 def test_run_no_scans_and_no_groundtruth(seq, tmp_path, capsys):
@@ -98,7 +78,7 @@ def test_run_no_scans_and_no_groundtruth(seq, tmp_path, capsys):
     empty.mkdir()
     shutil.copy(seq / "sensor.toml", empty / "sensor.toml")
     (empty / "radar.csv").write_text("scan,t,range,azimuth,elevation,radial_velocity\n")
-    _fails(capsys, ["run", empty, "--out", tmp_path / "o"], "no scans")
+    fails(capsys, ["run", empty, "--out", tmp_path / "o"], "no scans")
 
 
 # every config error names the config file and the field
@@ -120,13 +100,13 @@ def test_run_no_scans_and_no_groundtruth(seq, tmp_path, capsys):
         "qc-type", "int", "gate", "vehicle-sigma", "refine"])
 def test_run_bad_config(seq, tmp_path, capsys, text, needles):
     cfg = _config(tmp_path, text)
-    err = _fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], *needles)
+    err = fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], *needles)
     assert "bad.toml" in err
     assert not (tmp_path / "o").exists()
 
 
 def test_run_missing_config_and_unknown_model(seq, tmp_path, capsys):
-    _fails(capsys, ["run", seq, "--config", tmp_path / "missing.toml", "--out", tmp_path / "o"], "missing.toml",
+    fails(capsys, ["run", seq, "--config", tmp_path / "missing.toml", "--out", tmp_path / "o"], "missing.toml",
            "not found")
     _argparse_fails(capsys, ["run", seq, "--model", "ca-foo", "--out", tmp_path / "o"], "--model",
                     "invalid choice", "ca-foo")
@@ -134,54 +114,54 @@ def test_run_missing_config_and_unknown_model(seq, tmp_path, capsys):
 
 def test_run_bad_value_found_by_the_estimator_still_exits_2(seq, tmp_path, capsys):
     cfg = _config(tmp_path, "[association]\nmax_radius = -1.0\n")
-    _fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], "max_radius")
+    fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], "max_radius")
 
 
 def test_run_config_is_a_directory(seq, tmp_path, capsys):
-    _fails(capsys, ["run", seq, "--config", tmp_path, "--out", tmp_path / "o"], str(tmp_path))
+    fails(capsys, ["run", seq, "--config", tmp_path, "--out", tmp_path / "o"], str(tmp_path))
 
 
 def test_run_config_not_utf8(seq, tmp_path, capsys):
     cfg = tmp_path / "latin1.toml"
     cfg.write_bytes(b"# r\xe9glages\nwindow = 4\n")
-    _fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], "latin1.toml")
+    fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], "latin1.toml")
 
 
 @pytest.mark.parametrize("value", ['"abc"', "-1", "1.5"])
 def test_run_config_bad_seed(seq, tmp_path, capsys, value):
     cfg = _config(tmp_path, f"seed = {value}\n")
-    _fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], "seed")
+    fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], "seed")
 
 
 def test_run_config_sigma_floor_length(seq, tmp_path, capsys):
     cfg = _config(tmp_path, "[noise]\nsigma_floor = [0.1, 0.2]\n")
-    _fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], "sigma_floor")
+    fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], "sigma_floor")
 
 
 def test_run_config_negative_iterations(seq, tmp_path, capsys):
     cfg = _config(tmp_path, "[solver]\niterations = -1\n")
-    _fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], "iterations")
+    fails(capsys, ["run", seq, "--config", cfg, "--out", tmp_path / "o"], "iterations")
 
 
 def test_run_out_is_a_file(seq, a_file, capsys):
-    _fails(capsys, ["run", seq, "--out", a_file], "a_file")
+    fails(capsys, ["run", seq, "--out", a_file], "a_file")
 
 
 # ---------------------------------------------------------------- rodo simulate
 
 
 def test_simulate_bad_inputs(tmp_path, a_file, capsys):
-    _fails(capsys, ["simulate", "nope", "--out", tmp_path / "s"], "unknown scenario 'nope'", "city")
-    _fails(capsys, ["simulate", "city", "--seed", "-1", "--out", tmp_path / "s", "--duration", "0.2"], "seed", "-1")
-    _fails(capsys, ["simulate", "city", "--duration", "-1", "--out", tmp_path / "s"], "duration")
-    _fails(capsys, ["simulate", "city", "--duration", "0.2", "--out", a_file], "a_file", "cannot create")
+    fails(capsys, ["simulate", "nope", "--out", tmp_path / "s"], "unknown scenario 'nope'", "city")
+    fails(capsys, ["simulate", "city", "--seed", "-1", "--out", tmp_path / "s", "--duration", "0.2"], "seed", "-1")
+    fails(capsys, ["simulate", "city", "--duration", "-1", "--out", tmp_path / "s"], "duration")
+    fails(capsys, ["simulate", "city", "--duration", "0.2", "--out", a_file], "a_file", "cannot create")
     _argparse_fails(capsys, ["simulate", "city", "--seed", "x", "--out", tmp_path / "s"], "--seed")
     assert not (tmp_path / "s").exists()
 
 
 @pytest.mark.parametrize("value", ["nan", "inf"])
 def test_simulate_non_finite_duration(tmp_path, capsys, value):
-    _fails(capsys, ["simulate", "city", "--duration", value, "--out", tmp_path / "s"], "duration")
+    fails(capsys, ["simulate", "city", "--duration", value, "--out", tmp_path / "s"], "duration")
 
 
 @pytest.mark.parametrize("fault, needles", [
@@ -195,7 +175,7 @@ def test_simulate_non_finite_duration(tmp_path, capsys, value):
     ("outages=1:0", ("--fault outages", "duration")),
 ])
 def test_simulate_bad_faults(tmp_path, capsys, fault, needles):
-    _fails(capsys, ["simulate", "city", "--duration", "0.2", "--fault", fault, "--out", tmp_path / "s"], *needles)
+    fails(capsys, ["simulate", "city", "--duration", "0.2", "--fault", fault, "--out", tmp_path / "s"], *needles)
     assert not (tmp_path / "s").exists()
 
 
@@ -203,7 +183,7 @@ def test_simulate_bad_faults(tmp_path, capsys, fault, needles):
 
 
 def test_evaluate_missing_files(tmp_path, capsys):
-    _fails(capsys, ["evaluate", "--gt", tmp_path / "gt.txt", "--est", tmp_path / "est.txt"], "gt.txt", "not found")
+    fails(capsys, ["evaluate", "--gt", tmp_path / "gt.txt", "--est", tmp_path / "est.txt"], "gt.txt", "not found")
 
 
 # ---------------------------------------------------------------- rodo montecarlo
@@ -219,27 +199,27 @@ def test_evaluate_missing_files(tmp_path, capsys):
     (["--runs", "1", "--fault", "jitter=0.001"], ("--fault jitter", "not supported")),
 ])
 def test_montecarlo_bad_inputs(tmp_path, capsys, extra, needles):
-    _fails(capsys, ["montecarlo", "city", *extra, "--out", tmp_path / "m"], *needles)
+    fails(capsys, ["montecarlo", "city", *extra, "--out", tmp_path / "m"], *needles)
     assert not (tmp_path / "m").exists()
 
 
 def test_montecarlo_unknown_scenario(tmp_path, capsys):
-    _fails(capsys, ["montecarlo", "nope", "--runs", "1", "--out", tmp_path / "m"], "unknown scenario 'nope'")
+    fails(capsys, ["montecarlo", "nope", "--runs", "1", "--out", tmp_path / "m"], "unknown scenario 'nope'")
 
 
 # ---------------------------------------------------------------- rodo ego-velocity
 
 
 def test_ego_velocity_bad_inputs(seq, tmp_path, capsys):
-    _fails(capsys, ["ego-velocity", seq, "--out", tmp_path / "e.csv", "--seed", "-1"], "--seed")
-    _fails(capsys, ["ego-velocity", seq, "--out", tmp_path / "nodir" / "e.csv"], "--out", "nodir")
-    _fails(capsys, ["ego-velocity", tmp_path / "noseq", "--out", tmp_path / "e.csv"], "noseq")
+    fails(capsys, ["ego-velocity", seq, "--out", tmp_path / "e.csv", "--seed", "-1"], "--seed")
+    fails(capsys, ["ego-velocity", seq, "--out", tmp_path / "nodir" / "e.csv"], "--out", "nodir")
+    fails(capsys, ["ego-velocity", tmp_path / "noseq", "--out", tmp_path / "e.csv"], "noseq")
     bad = tmp_path / "bad"
     shutil.copytree(seq, bad)
     text = (bad / "radar.csv").read_text().splitlines()
     text[1] = text[1].rsplit(",", 1)[0] + ",nan"  # radial_velocity of the first row
     (bad / "radar.csv").write_text("\n".join(text) + "\n")
-    _fails(capsys, ["ego-velocity", bad, "--out", tmp_path / "e.csv"], "radar.csv", "line 2", "radial_velocity")
+    fails(capsys, ["ego-velocity", bad, "--out", tmp_path / "e.csv"], "radar.csv", "line 2", "radial_velocity")
     assert not (tmp_path / "e.csv").exists()
 
 
@@ -255,47 +235,47 @@ def test_ego_velocity_bad_inputs(seq, tmp_path, capsys):
     (["--samples", "20", "--magnus-order", "9"], ("magnus_order", "9")),
 ])
 def test_prior_montecarlo_bad_inputs(tmp_path, capsys, extra, needles):
-    _fails(capsys, ["prior-montecarlo", *extra, "--out", tmp_path / "p"], *needles)
+    fails(capsys, ["prior-montecarlo", *extra, "--out", tmp_path / "p"], *needles)
 
 
 def test_prior_montecarlo_out_is_a_file(a_file, capsys):
-    _fails(capsys, ["prior-montecarlo", "--samples", "20", "--substeps", "10", "--out", a_file], "--out", "a_file")
+    fails(capsys, ["prior-montecarlo", "--samples", "20", "--substeps", "10", "--out", a_file], "--out", "a_file")
 
 
 # ---------------------------------------------------------------- rodo figures, view
 
 
 def test_figures_out_is_a_file(a_file, capsys):
-    _fails(capsys, ["figures", "--out", a_file, "--quick"], "a_file")
+    fails(capsys, ["figures", "--out", a_file, "--quick"], "a_file")
 
 
 def test_view_missing_recording(tmp_path, capsys):
-    _fails(capsys, ["view", tmp_path / "none.rrd"], "none.rrd", "not found")
+    fails(capsys, ["view", tmp_path / "none.rrd"], "none.rrd", "not found")
 
 
 # ---------------------------------------------------------------- rodo demo
 
 
 def test_demo_bad_inputs(tmp_path, capsys):
-    _fails(capsys, ["demo", "--out", tmp_path / "d", "--seed", "-1", "--no-figures"], "--seed")
+    fails(capsys, ["demo", "--out", tmp_path / "d", "--seed", "-1", "--no-figures"], "--seed")
     # note: the scenario and duration are only checked after the prior Monte Carlo step (about 1 s)
-    _fails(capsys, ["demo", "--out", tmp_path / "d", "--scenario", "nope", "--no-figures"], "unknown scenario")
-    _fails(capsys, ["demo", "--out", tmp_path / "d", "--duration", "-1", "--no-figures"], "duration")
+    fails(capsys, ["demo", "--out", tmp_path / "d", "--scenario", "nope", "--no-figures"], "unknown scenario")
+    fails(capsys, ["demo", "--out", tmp_path / "d", "--duration", "-1", "--no-figures"], "duration")
 
 
 def test_demo_out_is_a_file(a_file, capsys):
-    _fails(capsys, ["demo", "--out", a_file, "--no-figures", "--duration", "0.2"], "a_file")
+    fails(capsys, ["demo", "--out", a_file, "--no-figures", "--duration", "0.2"], "a_file")
 
 
 # ---------------------------------------------------------------- rodo convert, rodo table1
 
 
 def test_convert_bad_inputs(tmp_path, a_file, capsys):
-    _fails(capsys, ["convert", "radarscenes", tmp_path / "nowhere", "--out", tmp_path / "c"], "nowhere")
-    _fails(capsys, ["convert", "vod", tmp_path, "--out", tmp_path / "c", "--rate", "0"], "--rate")
+    fails(capsys, ["convert", "radarscenes", tmp_path / "nowhere", "--out", tmp_path / "c"], "nowhere")
+    fails(capsys, ["convert", "vod", tmp_path, "--out", tmp_path / "c", "--rate", "0"], "--rate")
     _argparse_fails(capsys, ["convert", "kitti", tmp_path, "--out", tmp_path / "c"], "invalid choice", "kitti")
 
 
 def test_table1_bad_inputs(tmp_path, capsys):
-    _fails(capsys, ["table1", "--scenarios", "city,atlantis", "--out", tmp_path / "t"], "atlantis")
-    _fails(capsys, ["table1", "--runs", "0", "--out", tmp_path / "t"], "--runs")
+    fails(capsys, ["table1", "--scenarios", "city,atlantis", "--out", tmp_path / "t"], "atlantis")
+    fails(capsys, ["table1", "--runs", "0", "--out", tmp_path / "t"], "--runs")

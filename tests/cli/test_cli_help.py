@@ -7,8 +7,6 @@ import re
 import sys
 from pathlib import Path
 
-import pytest
-
 from rodo import cli
 from rodo.commands.run import rodo_command
 from rodo.estimator.config import MODELS

@@ -129,7 +129,7 @@ def test_states_npz_loads_or_gives_an_input_error_naming_the_array(spec):
 @pytest.mark.parametrize("key, shape", [("T_vehicle_world", (3, 3, 3)), ("varpi", (3, 5)), ("P", (3, 3, 3)),
                                         ("t", (3, 1))])
 def test_evaluate_refuses_states_of_the_wrong_shape(tmp_path, capsys, key, shape):
-    from tests.cli.test_cli_errors import _fails
+    from tests.cli.helpers import fails
 
     arrays = {"t": np.arange(3.0), "T_vehicle_world": np.tile(np.eye(4), (3, 1, 1)), "varpi": np.zeros((3, 6)),
               "P": np.tile(np.eye(12), (3, 1, 1))}
@@ -137,5 +137,5 @@ def test_evaluate_refuses_states_of_the_wrong_shape(tmp_path, capsys, key, shape
     np.savez(tmp_path / "states.npz", **arrays)
     gt = tmp_path / "gt.txt"
     gt.write_text("".join(f"{t} 0 0 0 0 0 0 1\n" for t in range(3)))
-    _fails(capsys, ["evaluate", "--gt", gt, "--est", gt, "--states", tmp_path / "states.npz"], "--states",
+    fails(capsys, ["evaluate", "--gt", gt, "--est", gt, "--states", tmp_path / "states.npz"], "--states",
            f"array {key} has shape {shape}")

@@ -12,15 +12,8 @@ from rodo import scenarios
 from rodo.estimator.errors import InputError
 from rodo.sim.sequence import atomic_write_bytes
 from rodo.validation.campaign import make_trials, npz_path, run_campaign, summarize_campaign
-from tests.cli.test_cli_errors import _fails
+from tests.cli.helpers import fails
 from tests.validation.test_campaign import MODELS, FakeTrial
-
-
-@pytest.fixture(scope="module")
-def seq(tmp_path_factory):
-    d = tmp_path_factory.mktemp("seq")
-    scenarios.simulate_to("city", 0, d, duration=0.5)
-    return d
 
 
 @pytest.fixture
@@ -84,10 +77,10 @@ def test_evaluate_json_path_is_checked_before_any_work(seq, tmp_path, capsys):
     a_file = tmp_path / "a_file"
     a_file.write_text("x\n")
     argv = ["evaluate", "--gt", gt, "--est", gt, "--json"]
-    _fails(capsys, argv + [tmp_path], "--json", "is a directory")
-    _fails(capsys, argv + [tmp_path / "missing" / "r.json"], "--json", "missing", "does not exist")
-    _fails(capsys, argv + [a_file / "r.json"], "--json", "is not a directory")
-    _fails(capsys, argv + ["/proc/r.json"], "--json", "/proc", "not writable")
+    fails(capsys, argv + [tmp_path], "--json", "is a directory")
+    fails(capsys, argv + [tmp_path / "missing" / "r.json"], "--json", "missing", "does not exist")
+    fails(capsys, argv + [a_file / "r.json"], "--json", "is not a directory")
+    fails(capsys, argv + ["/proc/r.json"], "--json", "/proc", "not writable")
     assert not _leftovers(tmp_path)
 
 
@@ -95,9 +88,9 @@ def test_rerun_path_is_checked_before_the_run(seq, tmp_path, capsys):
     a_file = tmp_path / "a_file"
     a_file.write_text("x\n")
     bad = a_file / "sub" / "run.rrd"  # missing directories are created, but not under a file
-    _fails(capsys, ["run", seq, "--out", tmp_path / "o", "--rerun", bad], "--rerun", str(a_file), "not a directory")
+    fails(capsys, ["run", seq, "--out", tmp_path / "o", "--rerun", bad], "--rerun", str(a_file), "not a directory")
     assert not (tmp_path / "o").exists()  # refused before the estimate was written
-    _fails(capsys, ["simulate", "city", "--duration", "0.3", "--out", tmp_path / "s", "--rerun", "/proc/x.rrd"],
+    fails(capsys, ["simulate", "city", "--duration", "0.3", "--out", tmp_path / "s", "--rerun", "/proc/x.rrd"],
            "--rerun", "not writable")
     assert not (tmp_path / "s").exists()
 
@@ -106,9 +99,9 @@ def test_campaign_out_that_is_a_file_or_unwritable(tmp_path, capsys):
     a_file = tmp_path / "a_file"
     a_file.write_text("x\n")
     for cmd in (["montecarlo", "city", "--runs", "1"], ["table1", "--runs", "1", "--scenarios", "city"]):
-        _fails(capsys, cmd + ["--out", a_file], "--out", str(a_file), "not a directory")
-        _fails(capsys, cmd + ["--out", a_file / "sub"], "--out", "cannot create")
-        _fails(capsys, cmd + ["--out", "/proc/campaign"], "--out", "/proc/campaign")
+        fails(capsys, cmd + ["--out", a_file], "--out", str(a_file), "not a directory")
+        fails(capsys, cmd + ["--out", a_file / "sub"], "--out", "cannot create")
+        fails(capsys, cmd + ["--out", "/proc/campaign"], "--out", "/proc/campaign")
     assert a_file.read_text() == "x\n"
 
 

@@ -14,7 +14,6 @@ import pytest
 
 from rodo import scenarios
 from rodo.estimator.config import OdometryConfig
-from rodo.estimator.errors import InputError
 from rodo.cli import main
 from rodo.commands import run as run_cmd
 from rodo.sim.sequence import read_sequence, read_tum

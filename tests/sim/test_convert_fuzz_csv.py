@@ -119,32 +119,27 @@ def _assert_names_the_input(exc: InputError, src: Path) -> None:
     assert str(src) in msg or msg.startswith(("t_max:", "--t-max:")), msg
 
 
-def convert_ti(files: dict[str, str]) -> None:
+def _convert(folder: str, files: dict[str, str | bytes], convert) -> None:
+    """Write `files` into a fresh source folder and convert it: a round trip or an InputError naming the input."""
     with tempfile.TemporaryDirectory() as d:
-        src = Path(d) / "ti"
+        src = Path(d) / folder
         src.mkdir()
-        for name, text in files.items():
-            (src / name).write_text(text)
+        for name, content in files.items():
+            (src / name).write_bytes(content if isinstance(content, bytes) else content.encode("utf-8"))
         try:
-            conv = ti_mmwave.convert(src)
+            conv = convert(src)
         except InputError as exc:
             _assert_names_the_input(exc, src)
             return
         _check_round_trip(conv, Path(d))
+
+
+def convert_ti(files: dict[str, str]) -> None:
+    _convert("ti", files, ti_mmwave.convert)
 
 
 def convert_radarscenes(files: dict[str, bytes], t_max) -> None:
-    with tempfile.TemporaryDirectory() as d:
-        src = Path(d) / "rs"
-        src.mkdir()
-        for name, raw in files.items():
-            (src / name).write_bytes(raw)
-        try:
-            conv = radarscenes.convert_radar(src, 2, t_max)
-        except InputError as exc:
-            _assert_names_the_input(exc, src)
-            return
-        _check_round_trip(conv, Path(d))
+    _convert("rs", files, lambda src: radarscenes.convert_radar(src, 2, t_max))
 
 
 @given(ti_exports())

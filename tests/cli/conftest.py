@@ -1,0 +1,13 @@
+"""Fixtures of the CLI tests."""
+
+import pytest
+
+from rodo import scenarios
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory):
+    """A 0.5 s city sequence (7 scans), one per test module (read, never written, by the tests)."""
+    d = tmp_path_factory.mktemp("seq")
+    scenarios.simulate_to("city", 0, d, duration=0.5)
+    return d
