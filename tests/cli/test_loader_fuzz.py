@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from rodo.commands.evaluate import load_npz
@@ -94,6 +94,7 @@ tum_tokens = st.one_of(st.sampled_from(["0", "1.5", "-2", "nan", "inf", "1e400",
 
 
 @given(st.lists(st.lists(tum_tokens, min_size=0, max_size=9).map(" ".join), max_size=6))
+@example(["0 0 0 0 0 0 0 1.3407807929942597e+154"])  # its quaternion's norm overflowed (found by this fuzzer)
 def test_groundtruth_text_reads_or_gives_a_located_input_error(lines):
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "groundtruth.txt"
