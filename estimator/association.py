@@ -10,9 +10,9 @@ samples on extended surfaces (isotropic world-frame covariance map_sigma^2 I). R
 map point (m, 4, 4); a per-pair R (depending on detection i) is NOT used: with the polar model R is the same
 for every detection, and for the Cartesian baseline it is fixed by construction.
 
-Pairs are gated at d2 <= gate (chi-square quantile, 4 dof, default 95 %). Candidates come from a cKDTree over
-the detections' Cartesian sensor-frame positions, queried around each map point's predicted position with the
-radius sqrt(gate * lambda_max(Sigma_pos,j)), capped at max_radius, where Sigma_pos,j is the position block of
+Pairs are gated at d2 <= gate (chi-square quantile, 4 dof, default 95 %). Candidates come from a uniform x-y grid
+over the detections' Cartesian sensor-frame positions (`DetectionGrid`, GRID_CELL m cells), searched around each
+map point's predicted position within the radius sqrt(gate * lambda_max(Sigma_pos,j)), capped at max_radius, where Sigma_pos,j is the position block of
 S_j expressed in Cartesian coordinates (for the polar model A S_j[:3, :3] A^T, A = d(cartesian)/d(polar) at the
 prediction, times a curvature factor k >= 1, see `MeasurementModel.search_radius`). Since the 3-D marginal Mahalanobis distance
 never exceeds the 4-D one, this radius loses no gated pair unless the cap max_radius cuts it.
@@ -28,7 +28,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
 from .errors import InputError, check_finite
@@ -36,6 +35,8 @@ from .measurement_models import MeasurementModel, measurement_model
 from .measurements import Prediction
 
 from . import association_kernels as _kernel
+
+GRID_CELL = 1.0  # m, the detection grid's cell (search radii: median 0.6 m, 95 % below 2 m on city)
 
 
 @dataclass
@@ -46,7 +47,7 @@ class Association:
         map_idx: (k,) int map-point indices.
         det_idx: (k,) int detection indices.
         d2: (k,) squared Mahalanobis distances (all <= gate).
-        n_candidates: number of (map point, detection) pairs the KD-tree proposed before gating.
+        n_candidates: number of (map point, detection) pairs the grid search proposed before gating.
     """
 
     map_idx: np.ndarray
@@ -108,11 +109,11 @@ def associate(model: str | MeasurementModel, z_meas, det_points_sensor, pred: Pr
     Args:
         model: "polar" or "cartesian" (the space of z_meas and pred.z).
         z_meas: (n, 4) detections in model space (`measurements.to_model_space`).
-        det_points_sensor: (n, 3) the detections' Cartesian sensor-frame positions (KD-tree).
+        det_points_sensor: (n, 3) the detections' Cartesian sensor-frame positions (searched on a grid).
         pred: Prediction of the m map points.
         S: (m, 4, 4) innovation covariances (`innovation_covariance`).
         gate: d2 threshold (`gate_threshold`).
-        max_radius: cap (m) of the KD-tree search radius.
+        max_radius: cap (m) of the candidate search radius.
         max_candidates: at most this many nearest detections (inside the radius) are scored per map point.
 
     Returns:
@@ -144,93 +145,59 @@ def associate(model: str | MeasurementModel, z_meas, det_points_sensor, pred: Pr
     S_inv = np.linalg.inv(S)
 
     radius = np.minimum(model.search_radius(pred.z, S, gate), max_radius)
-    return match(model, z_meas, cKDTree(pts), pred.z, pred.p_sensor, S_inv, radius, gate, max_candidates)[0]
+    return match(model, z_meas, DetectionGrid.of(pts), pred.z, pred.p_sensor, S_inv, radius, gate, max_candidates)
 
 
 @dataclass
-class Search:
-    """The KD-tree's answer for m predicted positions, kept so a re-association at nearby positions can reuse it.
+class DetectionGrid:
+    """The detections' Cartesian sensor-frame positions on a uniform x-y grid (`association_kernels.build_grid`),
+    built once per scan and searched by every association of that scan.
 
     Attributes:
-        keys: (m,) sorted ids of the points (the caller's map indices).
-        p: (m, 3) the positions the distances are measured from.
-        bound: (m,) a row that is not full lists every detection within bound[j] of p[j].
-        idx: (m, k) detection indices, tree.n in unused places (queried rows: nearest first).
-        dist: (m, k) their distances from p (inf where idx is tree.n).
-        full: (m,) the query found k detections (more may lie within bound).
+        points: (n, 3) positions.
+        cell: the grid's cell size (m).
+        x0, y0, nx, ny, start, order: the grid (cell c = ix * ny + iy holds order[start[c]:start[c + 1]]).
     """
 
-    keys: np.ndarray
-    p: np.ndarray
-    bound: np.ndarray
-    idx: np.ndarray
-    dist: np.ndarray
-    full: np.ndarray
+    points: np.ndarray
+    cell: float
+    x0: float
+    y0: float
+    nx: int
+    ny: int
+    start: np.ndarray
+    order: np.ndarray
+
+    @classmethod
+    def of(cls, points: np.ndarray, cell: float = GRID_CELL) -> "DetectionGrid":
+        points = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
+        return cls(points, float(cell), *_kernel.build_grid(points, float(cell)))
+
+    @property
+    def n(self) -> int:
+        return len(self.points)
 
 
-def search(tree: cKDTree, p_sensor: np.ndarray, radius: np.ndarray, k: int, keys: np.ndarray,
-           previous: Search | None = None) -> Search:
-    """The k nearest detections of each position inside its radius (the candidates of `match`).
-
-    Without `previous`: KD-tree queries in four groups of similar radius (a tighter distance bound per group,
-    fewer nodes visited). With `previous` (the same tree, positions moved by a solve): a point whose previous row
-    was not full (so it lists every detection within the previous bound) and whose new radius plus the distance
-    its position moved stays inside that bound takes that row, re-measured from the new position; it holds
-    every detection within the new radius, fewer than k, which is what a new query would give. The other points
-    are queried.
-
-    Checked by: tests/estimator/test_association.py::test_reused_search_equals_a_new_query
-    """
-    m, n = len(p_sensor), tree.n
-    idx, dist = np.full((m, k), n, np.int64), np.full((m, k), np.inf)
-    bound, full = np.zeros(m), np.zeros(m, bool)
-    todo = np.ones(m, bool)
-    if previous is not None and m:
-        todo = _kernel.reuse_search(keys, p_sensor, radius, previous.keys, previous.p, previous.bound,
-                                    previous.idx, previous.full, tree.data, idx, dist, bound, full)
-    rows = np.flatnonzero(todo)
-    if len(rows):
-        by_radius = rows[np.argsort(radius[rows], kind="stable")]
-        for g in np.array_split(by_radius, min(4, len(rows))):
-            bound[g] = float(radius[g].max())
-            d_g, i_g = tree.query(p_sensor[g], k=k, distance_upper_bound=bound[g[0]])
-            dist[g], idx[g] = d_g.reshape(len(g), k), i_g.reshape(len(g), k)
-        full[rows] = idx[rows, -1] < n
-    return Search(keys, p_sensor, bound, idx, dist, full)
-
-
-def match(model: MeasurementModel, z_meas: np.ndarray, tree: cKDTree, z_pred: np.ndarray, p_sensor: np.ndarray,
-          S_inv: np.ndarray, radius: np.ndarray, gate: float, max_candidates: int = 16,
-          keys: np.ndarray | None = None, previous: Search | None = None) -> tuple[Association, Search]:
-    """The candidate search, gating and one-to-one choice of `associate`, from prepared inputs (no checks):
-    a KD-tree over the detections' sensor-frame positions (one per scan, reused when re-associating), the m
-    map points' predictions z_pred (m, 4) and p_sensor (m, 3), S_inv (m, 4, 4) and search radii (m,) (capped).
-    keys (m,) sorted ids of the map points (default 0..m-1) and `previous`, the Search of an earlier call with
-    the same tree, let the search reuse that call's candidates (`search`). Returns the association and the
-    Search to pass on.
+def match(model: MeasurementModel, z_meas: np.ndarray, grid: DetectionGrid, z_pred: np.ndarray, p_sensor: np.ndarray,
+          S_inv: np.ndarray, radius: np.ndarray, gate: float, max_candidates: int = 16) -> Association:
+    """The candidate search, gating and one-to-one choice of `associate`, from prepared inputs (no checks): the
+    detections on a grid (`DetectionGrid`, one per scan, reused when re-associating), the m map points'
+    predictions z_pred (m, 4) and p_sensor (m, 3), S_inv (m, 4, 4) and search radii (m,) (capped). The
+    candidates of a map point are its max_candidates nearest detections inside its radius (bounded work per
+    point); `n_candidates` counts them before gating.
 
     Checked by: tests/estimator/test_association.py (through `associate`),
         tests/estimator/test_odometry.py::test_prepared_association_equals_the_reference
     """
-    m, n = len(z_pred), tree.n
-    empty = Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)
-    keys = np.arange(m) if keys is None else keys
+    m, n = len(z_pred), grid.n
     if m == 0 or n == 0:
-        # no rows to reuse: every point "full", so a later call queries it
-        return empty, Search(keys, p_sensor, np.zeros(m), np.zeros((m, 0), np.int64), np.zeros((m, 0)),
-                             np.ones(m, bool))
-    # candidates: the k nearest detections inside each map point's own radius (bounded work per point)
-    found = search(tree, p_sensor, radius, min(max_candidates, n), keys, previous)
-    valid = (found.idx < n) & (found.dist <= radius[:, None])
-    n_candidates = int(valid.sum())
-    if n_candidates == 0:
-        return empty, found
-    j = np.nonzero(valid)[0].astype(np.int64)
-    i = found.idx[valid].astype(np.int64)
-    d2 = _kernel.pair_d2(model.is_polar, j, i, z_meas, z_pred, S_inv)  # e^T S^-1 e, azimuth wrapped
-    keep = d2 <= gate
-    j, i, d2 = j[keep], i[keep], d2[keep]
+        return Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)
+    k = min(max_candidates, n)
+    j, i, d2 = np.empty(m * k, np.int64), np.empty(m * k, np.int64), np.empty(m * k)
+    count, n_candidates = _kernel.grid_candidates(model.is_polar, grid.points, grid.x0, grid.y0, grid.cell, grid.nx,
+                                                  grid.ny, grid.start, grid.order, p_sensor, radius, k, z_meas,
+                                                  z_pred, S_inv, gate, j, i, d2)
+    j, i, d2 = j[:count], i[:count], d2[:count]
     chosen = _greedy_one_to_one(j, i, d2, m, n)
-    j, i, d2 = j[chosen], i[chosen], d2[chosen]
-    order = np.argsort(j, kind="stable")
-    return Association(j[order], i[order], d2[order], n_candidates), found
+    j, i, d2 = j[chosen], i[chosen], d2[chosen]  # j ascending: the candidates were written point by point
+    return Association(j, i, d2, int(n_candidates))

@@ -1,5 +1,6 @@
-"""Compiled inner loops of the association (the per-scan hot path): Mahalanobis distances of candidate pairs
-and the greedy one-to-one selection. `association.associate` is the public entry and documents the method.
+"""Compiled inner loops of the association (the per-scan hot path): the per-map-point preparation, the
+candidate search on a grid over the detections with the Mahalanobis distances of the candidates, and the greedy
+one-to-one selection. `association.associate` is the public entry and documents the method.
 
 Checked by: tests/estimator/test_association.py (greedy against an all-pairs loop; gate statistics)
 """
@@ -12,30 +13,6 @@ import numpy as np
 
 from .jit import njit
 from .measurement_kernels import point_model
-
-
-@njit(cache=True)
-def pair_d2(polar, j, i, z_meas, z_pred, S_inv):
-    """d2_k = e^T S_j^-1 e for candidate pairs (j[k], i[k]), e = z_meas[i] - z_pred[j] (azimuth wrapped).
-
-    Checked by: tests/estimator/test_association.py::test_matches_brute_force_and_is_one_to_one
-    """
-    out = np.empty(len(j))
-    e = np.empty(4)
-    for k in range(len(j)):
-        a, b = j[k], i[k]
-        for c in range(4):
-            e[c] = z_meas[b, c] - z_pred[a, c]
-        if polar:
-            e[1] = e[1] - 2.0 * math.pi * math.floor((e[1] + math.pi) / (2.0 * math.pi))
-        s = 0.0
-        for r in range(4):
-            t = 0.0
-            for c in range(4):
-                t += S_inv[a, r, c] * e[c]
-            s += e[r] * t
-        out[k] = s
-    return out
 
 
 @njit(cache=True)
@@ -73,9 +50,10 @@ def _lambda_max_sym3(M):
 
 
 @njit(cache=True)
-def _inv_spd4(S, out):
-    """out = S^-1 for a symmetric 4x4 matrix via Cholesky; False if S is not positive definite."""
-    L = np.zeros((4, 4))
+def _inv_spd4(S, out, L, Li):
+    """out = S^-1 for a symmetric 4x4 matrix via Cholesky; False if S is not positive definite. L and Li are
+    (4, 4) scratch, zeroed here."""
+    L[:] = 0.0
     for i in range(4):
         for j in range(i + 1):
             s = S[i, j]
@@ -87,7 +65,7 @@ def _inv_spd4(S, out):
                 L[i, i] = math.sqrt(s)
             else:
                 L[i, j] = s / L[j, j]
-    Li = np.zeros((4, 4))  # L^-1 (lower triangular)
+    Li[:] = 0.0  # L^-1 (lower triangular)
     for i in range(4):
         Li[i, i] = 1.0 / L[i, i]
         for j in range(i):
@@ -142,6 +120,7 @@ def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_
     zp = np.empty(4)
     Js = np.empty((3, 3))
     am = np.empty((2, 3))
+    L, Li = np.empty((4, 4)), np.empty((4, 4))
     for a in range(m):
         r = point_model(polar, C, t, Cvs, rvs, nu, om, p_world[a], A, G, zp, Js, am, p_s[a])
         if r == 0.0:
@@ -178,7 +157,7 @@ def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_
                 Sm[j, i] = sm
                 S[a, i, j] = sm + sg
                 S[a, j, i] = sm + sg
-        if not (_inv_spd4(S[a], S_inv[a]) and _inv_spd4(Sm, W_map[a])):
+        if not (_inv_spd4(S[a], S_inv[a], L, Li) and _inv_spd4(Sm, W_map[a], L, Li)):
             return m + a
         # search radius: the position block of S in Cartesian coordinates
         if polar:
@@ -231,34 +210,93 @@ def _order_ties(order, j, i, d2, n):
 
 
 @njit(cache=True)
-def reuse_search(keys, p, radius, prev_keys, prev_p, prev_bound, prev_idx, prev_full, data, idx, dist, bound, full):
-    """`association.search` with a previous answer: for each point whose key has a previous row that is not
-    full and whose radius plus the distance it moved stays inside that row's bound, copy the row's detections
-    with their distances from the new position (bound shrinks by the move). Returns the mask of the other
-    points, which still need a query.
+def build_grid(points, cell):
+    """A uniform grid over the x-y plane of points (n, 3), in compressed rows: the detections of cell
+    c = ix * ny + iy are order[start[c]:start[c + 1]]. Returns (x0, y0, nx, ny, start, order).
 
-    Checked by: tests/estimator/test_association.py::test_reused_search_equals_a_new_query
+    Checked by: tests/estimator/test_association.py::test_grid_candidates_are_the_k_nearest_in_the_radius
     """
-    m, k, n = len(keys), idx.shape[1], len(data)
-    todo = np.ones(m, np.bool_)
-    r = 0
-    for j in range(m):
-        while r < len(prev_keys) and prev_keys[r] < keys[j]:
-            r += 1
-        if r == len(prev_keys) or prev_keys[r] != keys[j] or prev_full[r]:
-            continue
-        shift = math.sqrt((p[j, 0] - prev_p[r, 0])**2 + (p[j, 1] - prev_p[r, 1])**2 + (p[j, 2] - prev_p[r, 2])**2)
-        if radius[j] + shift > prev_bound[r]:
-            continue
-        todo[j] = False
-        bound[j] = prev_bound[r] - shift
-        full[j] = False
-        for c in range(k):
-            i = prev_idx[r, c]
-            idx[j, c] = i
-            if i < n:
-                dx, dy, dz = data[i, 0] - p[j, 0], data[i, 1] - p[j, 1], data[i, 2] - p[j, 2]
-                dist[j, c] = math.sqrt(dx * dx + dy * dy + dz * dz)
-            else:
-                dist[j, c] = np.inf
-    return todo
+    n = len(points)
+    x0, y0 = np.inf, np.inf
+    x1, y1 = -np.inf, -np.inf
+    for i in range(n):
+        x0, x1 = min(x0, points[i, 0]), max(x1, points[i, 0])
+        y0, y1 = min(y0, points[i, 1]), max(y1, points[i, 1])
+    if n == 0:
+        x0, y0, x1, y1 = 0.0, 0.0, 0.0, 0.0
+    nx = int((x1 - x0) / cell) + 1
+    ny = int((y1 - y0) / cell) + 1
+    cells = np.empty(n, np.int64)
+    start = np.zeros(nx * ny + 1, np.int64)
+    for i in range(n):
+        c = int((points[i, 0] - x0) / cell) * ny + int((points[i, 1] - y0) / cell)
+        cells[i] = c
+        start[c + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):  # ascending detection index within a cell
+        order[fill[cells[i]]] = i
+        fill[cells[i]] += 1
+    return x0, y0, nx, ny, start, order
+
+
+@njit(cache=True)
+def grid_candidates(polar, points, x0, y0, cell, nx, ny, start, order, p, radius, k, z_meas, z_pred, S_inv,
+                    gate, j_out, i_out, d2_out):
+    """For each position p[a] (m, 3): the k nearest detections within radius[a] (Euclidean, sensor frame),
+    their d2 = e^T S_inv[a] e with e = z_meas[i] - z_pred[a] (azimuth wrapped), and the pairs with d2 <= gate written to j_out, i_out, d2_out
+    (capacity m * k). Returns (pairs written, candidates before gating).
+
+    Checked by: tests/estimator/test_association.py::test_grid_candidates_are_the_k_nearest_in_the_radius
+    """
+    m = len(p)
+    dist = np.empty(len(points))
+    idx = np.empty(len(points), np.int64)
+    e = np.empty(4)
+    written, proposed = 0, 0
+    for a in range(m):
+        r = radius[a]
+        ix0, ix1 = int(max(0.0, (p[a, 0] - r - x0) / cell)), int(min(nx - 1.0, (p[a, 0] + r - x0) / cell))
+        iy0, iy1 = int(max(0.0, (p[a, 1] - r - y0) / cell)), int(min(ny - 1.0, (p[a, 1] + r - y0) / cell))
+        found = 0
+        for ix in range(ix0, ix1 + 1):
+            for iy in range(iy0, iy1 + 1):
+                c = ix * ny + iy
+                for q in range(start[c], start[c + 1]):
+                    i = order[q]
+                    dx, dy, dz = points[i, 0] - p[a, 0], points[i, 1] - p[a, 1], points[i, 2] - p[a, 2]
+                    d = math.sqrt(dx * dx + dy * dy + dz * dz)
+                    if d <= r:
+                        dist[found] = d
+                        idx[found] = i
+                        found += 1
+        if found > k:  # the k nearest, by selection (equidistant detections: the first found in the grid)
+            for q in range(k):
+                best = q
+                for u in range(q + 1, found):
+                    if dist[u] < dist[best]:
+                        best = u
+                dist[q], dist[best] = dist[best], dist[q]
+                idx[q], idx[best] = idx[best], idx[q]
+            found = k
+        proposed += found
+        for q in range(found):
+            i = idx[q]
+            for c in range(4):
+                e[c] = z_meas[i, c] - z_pred[a, c]
+            if polar:
+                e[1] = e[1] - 2.0 * math.pi * math.floor((e[1] + math.pi) / (2.0 * math.pi))
+            s = 0.0
+            for rr in range(4):
+                t = 0.0
+                for c in range(4):
+                    t += S_inv[a, rr, c] * e[c]
+                s += e[rr] * t
+            if s <= gate:
+                j_out[written] = a
+                i_out[written] = i
+                d2_out[written] = s
+                written += 1
+    return written, proposed

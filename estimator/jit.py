@@ -11,6 +11,11 @@ picks the locator and reads the source stamp at decoration time).
 If numba's (private) caching API is not the one expected, nothing is installed and numba's plain behaviour
 remains.
 
+Compiling every kernel takes about a minute on a slow machine; it happens once, on the first run after an
+install or an edit (then the cache loads in a second). The first compilation of a registered root's kernel in a
+process prints COMPILE_NOTICE on stderr (a numba compile event: numba fires it only on a cache miss), so a
+first run does not look hung. `make install` compiles them all (`python -m rodo.warmup`).
+
 Checked by: tests/estimator/test_kernel_cache.py
 """
 
@@ -19,11 +24,17 @@ from __future__ import annotations
 import ast
 import hashlib
 import os
+import sys
 from pathlib import Path
 
 from numba import njit
+from numba.core import event
 
-__all__ = ["FASTMATH", "LOCATOR_INSTALLED", "njit", "register_kernel_root", "source_digest", "source_stamp"]
+__all__ = ["COMPILE_NOTICE", "FASTMATH", "LOCATOR_INSTALLED", "njit", "register_kernel_root", "source_digest",
+           "source_stamp"]
+
+COMPILE_NOTICE = ("rodo: compiling the estimator's kernels (first run after an install or an edit only: about a "
+                  "minute, then cached)")
 
 # IEEE-safe fast-math subset shared by the kernels (no nnan/ninf: finiteness checks must survive)
 FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
@@ -170,5 +181,24 @@ def _install() -> bool:
     return True
 
 
+class _CompileNotice(event.Listener):
+    """Prints COMPILE_NOTICE once per process, at the first compilation of a kernel under a registered root."""
+
+    said = False
+
+    def on_start(self, ev):
+        if _CompileNotice.said:
+            return
+        func = getattr(ev.data.get("dispatcher"), "py_func", None) if isinstance(ev.data, dict) else None
+        file = getattr(getattr(func, "__code__", None), "co_filename", None)
+        if file and any(root in Path(file).resolve().parents for root in _ROOTS):
+            _CompileNotice.said = True
+            print(COMPILE_NOTICE, file=sys.stderr, flush=True)
+
+    def on_end(self, ev):
+        pass
+
+
+event.register("numba:compile", _CompileNotice())
 LOCATOR_INSTALLED = _install()
 register_kernel_root(os.path.dirname(os.path.abspath(__file__)), __package__ or "rodo.estimator")

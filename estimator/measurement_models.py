@@ -71,7 +71,7 @@ class MeasurementModel(ABC):
 
     @abstractmethod
     def search_radius(self, z_pred: np.ndarray, S: np.ndarray, gate: float) -> np.ndarray:
-        """(m,) KD-tree radius around each predicted position that holds every detection with d2 <= gate."""
+        """(m,) search radius around each predicted position that holds every detection with d2 <= gate."""
 
     def residual(self, e: np.ndarray) -> np.ndarray:
         """The raw difference z_meas - z_pred made a residual (in place; polar: azimuth wrapped)."""

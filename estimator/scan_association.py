@@ -4,7 +4,7 @@
 point the prediction, S = G P G^T + R + map term, its inverse and the search radius in one compiled pass
 (`association_kernels.prepare`; the NumPy reference is `measurements.predict` with
 `association.innovation_covariance` and `MeasurementModel.search_radius`) and matches with
-`association.match`. A `ScanMeasurements` caches the scan's KD-tree and candidates for the re-association.
+`association.match`. A `ScanMeasurements` caches the scan's detection grid for the re-association.
 
 Checked by: tests/estimator/test_odometry.py::test_prepared_association_equals_the_reference,
     ::test_association_window_is_the_same_for_map_points_and_detections
@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from . import association_kernels
 from . import association
@@ -37,7 +36,7 @@ class ScanMeasurements:
         polar: (n, 4) static detections [r, az, el, v_r].
         z: (n, 4) the same in the measurement model's space.
         points: (n, 3) their Cartesian sensor-frame positions.
-        cache: the KD-tree of the detections inside the window and the last search (for the re-association).
+        cache: the detections inside the window and their grid (for the re-association).
     """
 
     polar: np.ndarray
@@ -60,7 +59,7 @@ class MapAssociation:
         R: (4, 4) its noise.
         T_vehicle_sensor: (4, 4) extrinsics.
         gate: chi-square gate of d2 (4 dof).
-        max_radius: cap (m) of the KD-tree search radius.
+        max_radius: cap (m) of the candidate search radius.
         map_sigma: isotropic sigma (m) added to every map point.
         fov: ((az_min, az_max), (el_min, el_max)) radians or None (no window).
         angle_sigmas: (2,) the azimuth and elevation 1-sigma (rad) that shrink the window.
@@ -126,11 +125,11 @@ class MapAssociation:
         W_map = np.full((len(local_map), 4, 4), np.nan)  # outside the window: never paired, never read
         W_map[mi] = W_in
         cache = scan.cache
-        if "tree" not in cache:
+        if "grid" not in cache:
             cache["di"] = np.flatnonzero(d_in)
-            cache["tree"] = cKDTree(scan.points[cache["di"]])
+            cache["z"] = scan.z[cache["di"]]
+            cache["grid"] = association.DetectionGrid.of(scan.points[cache["di"]])
         di = cache["di"]
-        a, cache["search"] = association.match(self.model, scan.z[di], cache["tree"], zp, p_s, S_inv,
-                                               np.minimum(radius, self.max_radius), self.gate, keys=mi,
-                                               previous=cache.get("search"))
+        a = association.match(self.model, cache["z"], cache["grid"], zp, p_s, S_inv,
+                              np.minimum(radius, self.max_radius), self.gate)
         return W_map, Association(mi[a.map_idx], di[a.det_idx], a.d2, a.n_candidates)

@@ -7,9 +7,9 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from rodo.estimator import measurements as ms
-from scipy.spatial import cKDTree
 
-from rodo.estimator.association import associate, gate_threshold, innovation_covariance, search
+from rodo.estimator import association_kernels as akernel
+from rodo.estimator.association import DetectionGrid, associate, gate_threshold, innovation_covariance
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3, so3
 from tests.estimator.strategies import cartesian_points, detections, polar_points
@@ -192,49 +192,31 @@ def test_pair_order_is_lexsort_with_ties(pairs):
     np.testing.assert_array_equal(kernel.order_by_d2(j, i, d2, 7), np.lexsort((i, j, d2)))
 
 
-def _pairs(found, radius, n):
-    valid = (found.idx < n) & (found.dist <= radius[:, None])
-    j, c = np.nonzero(valid)
-    return {(int(found.keys[a]), int(found.idx[a, b])): found.dist[a, b] for a, b in zip(j, c)}
-
-
-@st.composite
-def _search_step(draw, keys, m):
-    """The next call's map points: 80 % of keys stay (moved), 3 new ones, new radii."""
-    stay = draw(arrays(bool, (len(keys),), elements=st.sampled_from([True, True, True, True, False])))
-    new = draw(st.lists(st.integers(3 * m, 3 * m + 9), min_size=3, max_size=3, unique=True))
-    keys2 = np.union1d(keys[stay], new)
-    p2 = draw(cartesian_points(len(keys2), len(keys2), 3.0))
-    r2 = draw(arrays(np.float64, (len(keys2),), elements=st.floats(0.05, 2.0)))
-    shake = draw(cartesian_points(len(keys2), len(keys2), 1.0))
-    scale = draw(arrays(np.float64, (len(keys2),), elements=st.floats(0.5, 1.1)))
-    return keys2, p2, r2, shake, scale
-
-
-@given(data=st.data(), points=cartesian_points(1, 60, 3.0), k=st.integers(1, 6),
-       move=st.sampled_from([0.0, 0.01, 0.1, 1.0]))
-def test_reused_search_equals_a_new_query(data, points, k, move):
-    """A search that reuses the previous one (positions moved, radii changed, some points gone or new) finds
-    the same candidate pairs at the same distances as a new KD-tree query; twice in a row too."""
-    n = len(points)
-    tree = cKDTree(points)
-    m = data.draw(st.integers(1, 40))
-    keys = np.array(sorted(data.draw(st.lists(st.integers(0, 3 * m - 1), min_size=m, max_size=m, unique=True))))
-    p = data.draw(cartesian_points(m, m, 3.0))
-    radius = data.draw(arrays(np.float64, (m,), elements=st.floats(0.05, 2.0)))
-    found = search(tree, p, radius, k, keys)
-    for _ in range(2):
-        keys2, p2, r2, shake, scale = data.draw(_search_step(keys, m))
-        kept = np.isin(keys2, keys)
-        p2[kept] = found.p[np.isin(keys, keys2)] + move * shake[kept]
-        r2[kept] = found.bound[np.isin(keys, keys2)] * scale[kept]
-        reused, fresh = search(tree, p2, r2, k, keys2, found), search(tree, p2, r2, k, keys2)
-        a, b = _pairs(reused, r2, n), _pairs(fresh, r2, n)
-        for key, full in zip(keys2.tolist(), fresh.full.tolist()):
-            pa = {q: d for q, d in a.items() if q[0] == key}
-            pb = {q: d for q, d in b.items() if q[0] == key}
-            if not full:  # every detection within the radius: the same pairs
-                assert pa.keys() == pb.keys(), key
-            # a full row: equidistant detections may swap at the k-th place, the distances agree all the same
-            np.testing.assert_allclose(sorted(pa.values()), sorted(pb.values()), rtol=1e-12, atol=1e-12)
-        keys, found = keys2, reused
+@given(points=cartesian_points(1, 60, 3.0), p=cartesian_points(1, 30, 3.0), k=st.integers(1, 8),
+       cell=st.sampled_from([0.05, 0.3, 1.0, 10.0]), data=st.data())
+def test_grid_candidates_are_the_k_nearest_in_the_radius(points, p, k, cell, data):
+    """The grid search proposes, per position, its k nearest detections within its radius (all of them when
+    fewer), on any cell size: the candidate count and every gated pair's d2 equal a brute-force all-pairs
+    evaluation (an infinite gate keeps every candidate)."""
+    radius = data.draw(arrays(np.float64, (len(p),), elements=st.floats(0.0, 4.0)))
+    z_meas, z_pred = np.c_[points, np.zeros(len(points))], np.c_[p, np.zeros(len(p))]
+    S_inv = np.broadcast_to(np.eye(4), (len(p), 4, 4)).copy()
+    grid = DetectionGrid.of(points, cell)
+    cap = len(p) * k
+    j, i, d2 = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap)
+    count, proposed = akernel.grid_candidates(False, grid.points, grid.x0, grid.y0, grid.cell, grid.nx, grid.ny,
+                                              grid.start, grid.order, p, radius, k, z_meas, z_pred, S_inv,
+                                              np.inf, j, i, d2)
+    dist = np.linalg.norm(p[:, None, :] - points[None, :, :], axis=2)
+    inside = dist <= radius[:, None]
+    assert proposed == count == int(np.minimum(inside.sum(axis=1), k).sum())
+    for a in range(len(p)):
+        got = np.sort(i[:count][j[:count] == a])
+        want = np.flatnonzero(inside[a])
+        if len(want) <= k:
+            np.testing.assert_array_equal(got, want)
+        else:  # the k nearest; at the k-th place equidistant detections may swap
+            kth = np.sort(dist[a, want])[k - 1]
+            assert np.all(dist[a, got] <= kth) and len(got) == k
+        np.testing.assert_allclose(d2[:count][j[:count] == a], dist[a, i[:count][j[:count] == a]] ** 2,
+                                   rtol=1e-12, atol=1e-12)

@@ -118,3 +118,17 @@ def test_kernel_modules_take_njit_from_jit():
     for path in ESTIMATOR.rglob("*.py"):
         if path.name != "jit.py":
             assert "from numba import" not in path.read_text(), path
+
+
+def test_first_compilation_says_so_once_and_a_cached_run_is_silent(tmp_path):
+    """A registered root's kernels compiling (two here) print `jit.COMPILE_NOTICE` once on stderr; the second
+    run loads the cache and prints nothing; kernels outside every registered root (the control) never do."""
+    said = {}
+    for register in (True, False):
+        root = tmp_path / ("registered" if register else "control")
+        _package(root)
+        (root / "run.py").write_text(RUNNER)
+        runs = [subprocess.run([sys.executable, "-B", str(root / "run.py"), str(root), "1" if register else "0"],
+                               capture_output=True, text=True, timeout=300, check=True) for _ in range(2)]
+        said[register] = [r.stderr.count(jit.COMPILE_NOTICE) for r in runs]
+    assert said == {True: [1, 0], False: [0, 0]}
