@@ -84,10 +84,11 @@ def _inv_spd4(S, out, L, Li):
 
 
 @njit(cache=True)
-def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_s, S, S_inv, W_map, radius):
+def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate, z, p_s, S, S_inv, W_map, radius):
     """Everything the association needs per map point, in one pass (the same model as
     `measurements.predict`, `association.innovation_covariance` and `association._search_radius`):
 
+    for the m map points p_world[rows], cov_world[rows] (rows (m,) indices into the map's arrays):
     z (m, 4) predicted measurement, p_s (m, 3) sensor-frame position,
     S = G P G^T + R + J_z_p (cov_world_j + map_var I) J_z_p^T and S_inv (m, 4, 4),
     W_map = (R + J_z_p (cov_world_j + map_var I) J_z_p^T)^-1 (the pair's information in the solve),
@@ -97,7 +98,7 @@ def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_
 
     Checked by: tests/estimator/test_odometry.py::test_prepared_association_equals_the_reference
     """
-    m = p_world.shape[0]
+    m = rows.shape[0]
     C = T[:3, :3]
     t = T[:3, 3]
     Cvs = Tvs[:3, :3]
@@ -122,7 +123,8 @@ def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_
     am = np.empty((2, 3))
     L, Li = np.empty((4, 4)), np.empty((4, 4))
     for a in range(m):
-        r = point_model(polar, C, t, Cvs, rvs, nu, om, p_world[a], A, G, zp, Js, am, p_s[a])
+        row = rows[a]
+        r = point_model(polar, C, t, Cvs, rvs, nu, om, p_world[row], A, G, zp, Js, am, p_s[a])
         if r == 0.0:
             return a
         for i in range(4):
@@ -136,7 +138,7 @@ def prepare(polar, T, varpi, p_world, cov_world, map_var, P, R, Tvs, gate, z, p_
         # map term and S
         for i in range(3):
             for j in range(3):
-                Pc[i, j] = cov_world[a, i, j]
+                Pc[i, j] = cov_world[row, i, j]
             Pc[i, i] += map_var
         for i in range(4):
             for j in range(3):

@@ -271,7 +271,8 @@ class RadarOdometry:
     def _measurement_set(self, W_map, pairs, scan: ScanMeasurements) -> MeasurementSet | None:
         if W_map is None or len(pairs.map_idx) == 0:
             return None
-        W = W_map[pairs.map_idx] / self.config.uncertainty.measurement_inflation  # kappa 1: exact, unchanged
+        kappa = self.config.uncertainty.measurement_inflation
+        W = W_map[pairs.map_idx] if kappa == 1.0 else W_map[pairs.map_idx] / kappa
         return MeasurementSet(self.map.points[pairs.map_idx], scan.z[pairs.det_idx], W)
 
     def _reinitialise(self, t: float, polar: np.ndarray, reason: str | None = None) -> tuple[State, np.ndarray, list]:

@@ -115,8 +115,8 @@ class MapAssociation:
         zp, p_s = np.empty((m, 4)), np.empty((m, 3))
         S, S_inv, W_in = np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4))
         radius = np.empty(m)
-        bad = association_kernels.prepare(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points[mi],
-                                          local_map.covariances[mi], self.map_sigma**2,
+        bad = association_kernels.prepare(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points,
+                                          local_map.covariances, mi, self.map_sigma**2,
                                           np.ascontiguousarray(P[:12, :12]), self.R, self.T_vehicle_sensor,
                                           self.gate, zp, p_s, S, S_inv, W_in, radius)
         if bad >= 0:  # a map point at the sensor, or an innovation covariance that is not positive definite

@@ -59,12 +59,14 @@ class SlidingWindow:
         self.prior_grad: np.ndarray | None = None  # linear term g: cost 1/2 e^T Lam e + g^T e, e = x0 (-) mean
         self._packed = None  # the window's measurement sets concatenated for the kernel (cached)
         self._H: np.ndarray | None = None
+        self._motion_info: np.ndarray | None = None  # motion_info stacked for the kernel (cached)
 
     # --- building -------------------------------------------------------------------------------------
     def initialize(self, x0: State, P0: np.ndarray) -> None:
         self.states = [x0.copy()]
         self.meas = [None]
         self.motion_info = []
+        self._motion_info = None
         self.prior_mean = x0.copy()
         self.prior_info = _inv_spd(P0)
         self.prior_grad = np.zeros(len(P0))
@@ -77,6 +79,7 @@ class SlidingWindow:
         self.meas.append(None)
         self.rate_prior.append(None)
         self.motion_info.append(_inv_spd(Q))
+        self._motion_info = None
         self._H = None
 
     def set_rate_prior(self, k: int, info: np.ndarray | None) -> None:
@@ -149,7 +152,9 @@ class SlidingWindow:
         cost = 0.5 * e @ self.prior_info @ e + self.prior_grad @ e
         if n > 1:
             E, J1s, J2s = self.motion.residuals(self.states)
-            cost += motion_kernels.accumulate(H, b, E, J1s, J2s, np.stack(self.motion_info))
+            if self._motion_info is None or len(self._motion_info) != n - 1:
+                self._motion_info = np.stack(self.motion_info)
+            cost += motion_kernels.accumulate(H, b, E, J1s, J2s, self._motion_info)
         for k, info in enumerate(self.rate_prior):
             if info is not None:
                 t = self.states[k].vector_tail()
@@ -255,6 +260,7 @@ class SlidingWindow:
         self.meas.pop(0)
         self.rate_prior.pop(0)
         self.motion_info.pop(0)
+        self._motion_info = None
         self._H = None
 
 

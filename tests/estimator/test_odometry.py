@@ -191,7 +191,7 @@ def test_prepared_association_equals_the_reference(model):
     out = [np.empty((m, 4)), np.empty((m, 3)), np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4)),
            np.empty(m)]
     assert akernel.prepare(odo.measurement.is_polar, x.T_vehicle_world, x.varpi, odo.map.points,
-                           odo.map.covariances, odo.map_sigma**2, P[:12, :12].copy(), assoc.R, odo.T_vehicle_sensor,
+                           odo.map.covariances, np.arange(m), odo.map_sigma**2, P[:12, :12].copy(), assoc.R, odo.T_vehicle_sensor,
                            assoc.gate, *out) == -1
     np.testing.assert_allclose(out[0], pred.z, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(out[2], S, rtol=1e-10, atol=1e-14)
