@@ -92,7 +92,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
     z (m, 4) predicted measurement, p_s (m, 3) sensor-frame position,
     S = G P G^T + R + J_z_p (cov_world_j + map_var I) J_z_p^T and S_inv (m, 4, 4),
     W_map = (R + J_z_p (cov_world_j + map_var I) J_z_p^T)^-1 (the pair's information in the solve),
-    radius (m,) the KD-tree radius that holds every detection with d2 <= gate.
+    radius (m,) the search radius that holds every detection with d2 <= gate.
     Returns -1 when all is well, else the index of the first point at the sensor origin (range < 1e-9) or
     with an S that is not positive definite (then m + index).
 

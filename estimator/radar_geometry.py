@@ -79,7 +79,7 @@ def cartesian_position_covariance(polar, sigmas) -> np.ndarray:
         sigmas: (>=3,) 1-sigma of [range, azimuth, elevation, ...] (extra entries ignored).
 
     Returns:
-        (n, 3, 3) first-order covariance of [x, y, z] (used for KD-tree radii and figures).
+        (n, 3, 3) first-order covariance of [x, y, z] (used for search radii and figures).
 
     Checked by: tests/estimator/test_measurements.py::test_cartesian_position_covariance_monte_carlo
     """
