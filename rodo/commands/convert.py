@@ -12,7 +12,7 @@ import dataclasses
 
 from rodo.estimator.errors import InputError
 
-FORMATS = ("radarscenes", "ti-mmwave", "vod", "rosbag")
+FORMATS = ("radarscenes", "ti-mmwave", "vod", "rosbag", "raflow")
 
 HELP = """\
 Convert a real radar recording into a sequence directory (radar.csv, sensor.toml, groundtruth.txt when the
@@ -32,6 +32,10 @@ Formats:
                (--polar) fields and a Doppler field (--doppler; negative = approaching, else --flip-doppler).
                Time: header stamps, or the bag's record time when the stamps are zero (--time). Vehicle frame
                = sensor frame, nominal noise, no ground truth.
+  raflow       RaFlow demo_data folder (train/val/test radar_seqs-S_samples-K.json frame pairs, Hasco LRR30-F
+               4D radar): the pairs chained into runs of consecutive frames, repeated raw scans dropped, one
+               sequence per chain of >= --min-scans scans into SEQ_DIR/SPLIT_seqS_K; groundtruth.txt from the
+               GNSS/INS poses (jitter ~0.3 m). Extra columns rcs, power.
 """
 
 
@@ -44,6 +48,8 @@ def register(subparsers) -> None:
     p.add_argument("--radars", default=None, help="radarscenes: radar numbers 1-4, e.g. 2 or 2,3 (default 2)")
     p.add_argument("--t-max", type=float, default=None, help="radarscenes: keep scans with t <= T_MAX seconds")
     p.add_argument("--rate", type=float, default=None, help="vod: scan rate in Hz (default 10)")
+    p.add_argument("--min-scans", type=int, default=None, metavar="N",
+                   help="raflow: write chains of at least N consecutive scans (default 5)")
     p.add_argument("--sigma", default=None, metavar="R,AZ,EL,VR",
                    help="override the 1-sigma noise: range (m), azimuth (rad), elevation (rad), radial velocity (m/s)")
     _add_rosbag_options(p)
@@ -109,7 +115,7 @@ def _rosbag(args):
 
 def _conversions(args) -> list:
     """One function per output sequence that converts it (the slow part), run one by one under the bar."""
-    from rodo.sim.convert import radarscenes, ti_mmwave, vod
+    from rodo.sim.convert import radarscenes, raflow, ti_mmwave, vod
 
     if args.format == "radarscenes":
         radars = radarscenes.parse_radars(args.radars if args.radars is not None else "2")
@@ -118,6 +124,8 @@ def _conversions(args) -> list:
         return [lambda: ti_mmwave.convert(args.source)]
     if args.format == "rosbag":
         return [lambda: _rosbag(args)]
+    if args.format == "raflow":
+        return [lambda: raflow.convert(args.source, raflow.MIN_SCANS if args.min_scans is None else args.min_scans)]
     return [lambda: vod.convert(args.source, rate_hz=10.0 if args.rate is None else args.rate)]
 
 
@@ -130,7 +138,8 @@ def run(args) -> int:
     from rodo.sim.convert import write_conversion
 
     for option, value, owner in (("--radars", args.radars, "radarscenes"), ("--t-max", args.t_max, "radarscenes"),
-                                 ("--rate", args.rate, "vod"), *_rosbag_options(args)):
+                                 ("--rate", args.rate, "vod"), ("--min-scans", args.min_scans, "raflow"),
+                                 *_rosbag_options(args)):
         if value is not None and args.format != owner:
             raise InputError(f"{option}: only for the {owner} format, not {args.format}")
     if args.t_max is not None and not (np.isfinite(args.t_max) and args.t_max > 0):
@@ -143,7 +152,8 @@ def run(args) -> int:
     with Progress(len(jobs), f"convert {args.format}", unit="sequence") as bar:
         convs = []
         for convert in jobs:  # all converted before anything is written: a failure leaves no partial output
-            convs.append(convert())
+            made = convert()
+            convs += made if isinstance(made, list) else [made]
             bar.update()
     for conv in convs:
         target = out if len(convs) == 1 else out / conv.name
