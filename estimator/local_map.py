@@ -237,8 +237,9 @@ class LocalMap:
         P = P - K @ P
         self._cov[idx] = 0.5 * (P + np.swapaxes(P, 1, 2))
 
-    def prune(self, scan: int, T_vehicle_world, T_vehicle_sensor, max_range: float) -> None:
-        """Drop points unseen for more than max_age scans, behind the sensor (x_s <= 0), or beyond max_range.
+    def prune(self, scan: int, T_vehicle_world, T_vehicle_sensor, max_range: float, behind: bool = True) -> None:
+        """Drop points unseen for more than max_age scans, behind the sensor (x_s <= 0; unless behind=False: a
+        vehicle with several radars), or beyond max_range.
 
         Args:
             scan: the current scan index.
@@ -260,6 +261,7 @@ class LocalMap:
             return
         p_v = self._points @ T_vehicle_world[:3, :3].T + T_vehicle_world[:3, 3]
         p_s = (p_v - T_vehicle_sensor[:3, 3]) @ T_vehicle_sensor[:3, :3]
-        keep = ((scan - self._last_seen) <= self.max_age) & (p_s[:, 0] > 0) \
-            & (np.linalg.norm(p_s, axis=1) <= max_range)
+        keep = ((scan - self._last_seen) <= self.max_age) & (np.linalg.norm(p_s, axis=1) <= max_range)
+        if behind:
+            keep &= p_s[:, 0] > 0
         self._keep(keep)

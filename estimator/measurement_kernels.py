@@ -109,7 +109,8 @@ def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
 
 @njit(cache=True, fastmath=FASTMATH)
 def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_out, robust_c):
-    """H (K, 12, 12), b (K, 12), cost for K states; pairs offsets[k]:offsets[k+1] belong to state k.
+    """H (K, 12, 12), b (K, 12), cost for K states; pairs offsets[k]:offsets[k+1] belong to state k and were
+    measured by the radar with extrinsics Tvs[k] (K, 4, 4).
 
     Each pair's squared Mahalanobis distance is written to d2_out; its term is weighted by weights[a]
     (robust weights held fixed during a solve, see `SlidingWindow.optimize`): cost = 1/2 sum_a w_a d2_a.
@@ -130,9 +131,9 @@ def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_ou
     Js = np.empty((3, 3))
     am = np.empty((2, 3))
     ps = np.empty(3)
-    Cvs = Tvs[:3, :3]
-    rvs = Tvs[:3, 3]
     for k in range(K):
+        Cvs = Tvs[k, :3, :3]
+        rvs = Tvs[k, :3, 3]
         C = T[k, :3, :3]
         t = T[k, :3, 3]
         nu = varpi[k, :3]

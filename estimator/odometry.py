@@ -26,6 +26,7 @@ Per scan k (paper sec. III-VI; docs/estimator.md gives the reasons and the measu
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -46,7 +47,9 @@ from .window import MeasurementSet, SlidingWindow
 
 
 class RadarOdometry:
-    """Sliding-window radar odometry (CV/C, CA/P, or the mixed ablations) for one sensor.
+    """Sliding-window radar odometry (CV/C, CA/P, or the mixed ablations) for one radar, or several
+    (`add_sensor`: each scan with its own radar's extrinsics, noise, field of view and Doppler front end, at its
+    own time; one window, one map).
 
     Args:
         config: OdometryConfig (model, window, noise, association, map, solver).
@@ -61,26 +64,15 @@ class RadarOdometry:
     def __init__(self, config: OdometryConfig, T_vehicle_sensor, sensor_sigmas, max_range: float = 200.0,
                  record_detail: bool = False, fov=None):
         self.config = config
-        self.T_vehicle_sensor = check_finite("T_vehicle_sensor", T_vehicle_sensor, (4, 4))
-        sig = check_finite("sensor_sigmas", sensor_sigmas, (4,))
-        if np.any(sig <= 0):
-            raise InputError(f"sensor_sigmas: must be > 0, got {sig}")
-        self.sigmas = np.maximum(sig * config.noise.sensor_sigma_scale * np.asarray(config.noise.sensor_sigma_scales),
-                                 config.noise.sigma_floor)
-        self.max_range = float(max_range)
         self.record_detail = record_detail
         self.motion = motion_prior_for(config)
         self.measurement = measurement_model(config.measurement)
+        self.map_sigma = self.measurement.map_sigma(config.noise)
+        seeds = np.random.SeedSequence(config.seed).spawn(3)
+        self.sensors: list[Sensor] = []
+        self.sensor = self._sensor(T_vehicle_sensor, sensor_sigmas, max_range, fov, (seeds[0], seeds[2]))
         self.window = SlidingWindow(self.motion, config.window, self.measurement, self.T_vehicle_sensor,
                                     config.solver.robust_c)
-        self.map_sigma = self.measurement.map_sigma(config.noise)
-        self.associator = MapAssociation(
-            self.measurement, self.measurement.noise_covariance(self.sigmas, config.noise.cartesian_sigma),
-            self.T_vehicle_sensor, association.gate_threshold(config.association.gate_probability, 4),
-            config.association.max_radius, self.map_sigma, _check_fov(fov), self.sigmas[1:3])
-        seeds = np.random.SeedSequence(config.seed).spawn(3)
-        self.doppler = DopplerFrontEnd(config, self.T_vehicle_sensor, self.sigmas, np.random.default_rng(seeds[0]),
-                                       np.random.default_rng(seeds[2]))
         self.map = LocalMap(config.map.capacity, config.map.max_age, config.map.voxel,
                             rng=np.random.default_rng(seeds[1]))
         self.vehicle_information = _vehicle_information(config, self.motion.dim)
@@ -94,9 +86,57 @@ class RadarOdometry:
         self.restart_relative: np.ndarray | None = None  # relative pose covariance across a re-initialisation
         self.last_estimate: ScanEstimate | None = None
 
+    def add_sensor(self, T_vehicle_sensor, sensor_sigmas, max_range: float = 200.0, fov=None) -> int:
+        """Another radar on the same vehicle (multi-radar odometry): returns its index for `process`. Its scans
+        join the same window and map at their own times, with its own extrinsics, noise, field of view and
+        Doppler front end (random streams spawned from the config seed, apart from sensor 0's)."""
+        i = len(self.sensors)
+        seeds = np.random.SeedSequence(self.config.seed, spawn_key=(2 + i,)).spawn(2)
+        self._sensor(T_vehicle_sensor, sensor_sigmas, max_range, fov, seeds)
+        return i
+
+    def _sensor(self, T_vehicle_sensor, sensor_sigmas, max_range, fov, seeds) -> "Sensor":
+        config = self.config
+        T = check_finite("T_vehicle_sensor", T_vehicle_sensor, (4, 4))
+        sig = check_finite("sensor_sigmas", sensor_sigmas, (4,))
+        if np.any(sig <= 0):
+            raise InputError(f"sensor_sigmas: must be > 0, got {sig}")
+        sigmas = np.maximum(sig * config.noise.sensor_sigma_scale * np.asarray(config.noise.sensor_sigma_scales),
+                            config.noise.sigma_floor)
+        associator = MapAssociation(
+            self.measurement, self.measurement.noise_covariance(sigmas, config.noise.cartesian_sigma), T,
+            association.gate_threshold(config.association.gate_probability, 4), config.association.max_radius,
+            self.map_sigma, _check_fov(fov), sigmas[1:3])
+        doppler = DopplerFrontEnd(config, T, sigmas, np.random.default_rng(seeds[0]), np.random.default_rng(seeds[1]))
+        self.sensors.append(Sensor(T, sigmas, float(max_range), associator, doppler))
+        return self.sensors[-1]
+
+    @property
+    def _reach(self) -> float:
+        """The farthest from the vehicle origin any sensor sees (m)."""
+        return max(s.max_range + float(np.linalg.norm(s.T_vehicle_sensor[:3, 3])) for s in self.sensors)
+
+    # the sensor of the scan in process (sensor 0 between scans)
+    T_vehicle_sensor = property(lambda self: self.sensor.T_vehicle_sensor)
+    sigmas = property(lambda self: self.sensor.sigmas)
+    max_range = property(lambda self: self.sensor.max_range)
+    associator = property(lambda self: self.sensor.associator)
+    doppler = property(lambda self: self.sensor.doppler)
+
     # --- the per-scan step ------------------------------------------------------------------------------
-    def process(self, t: float, polar) -> ScanEstimate:
-        """Process one scan at time t (s) with detections polar (n, 4); n may be 0."""
+    def process(self, t: float, polar, sensor: int = 0) -> ScanEstimate:
+        """Process one scan at time t (s) with detections polar (n, 4) of radar `sensor` (`add_sensor`); n may
+        be 0. Scan times increase strictly over all sensors."""
+        if isinstance(sensor, (bool, np.bool_)) or not isinstance(sensor, (int, np.integer)) \
+                or not 0 <= sensor < len(self.sensors):
+            raise InputError(f"sensor: expected an index in [0, {len(self.sensors)}), got {sensor!r}")
+        self.sensor = self.sensors[sensor]
+        try:
+            return self._process(t, polar)
+        finally:
+            self.sensor = self.sensors[0]
+
+    def _process(self, t: float, polar) -> ScanEstimate:
         t, polar, in_range = self._accept(t, polar)
         timings, tic = {}, time.perf_counter()
         x, P, Q, events = self._predict(t, polar)
@@ -249,7 +289,10 @@ class RadarOdometry:
             new[pairs.det_idx] = False
             self.map.add(se3.transform_points(T_world_sensor, scan.points[new]), self.map_clock,
                          covariances=self._point_covariances(scan.polar[new], T_world_sensor[:3, :3]))
-        self.map.prune(self.map_clock, xk.T_vehicle_world, self.T_vehicle_sensor, self.max_range)
+        if len(self.sensors) == 1:
+            self.map.prune(self.map_clock, xk.T_vehicle_world, self.T_vehicle_sensor, self.max_range)
+        else:  # a point behind this radar may be ahead of another: prune by age and distance from the vehicle
+            self.map.prune(self.map_clock, xk.T_vehicle_world, np.eye(4), self._reach, behind=False)
 
     def _estimate(self, t, polar, static, pairs, timings, events, detail, standstill) -> ScanEstimate:
         xk = self.window.newest
@@ -273,7 +316,7 @@ class RadarOdometry:
             return None
         kappa = self.config.uncertainty.measurement_inflation
         W = W_map[pairs.map_idx] if kappa == 1.0 else W_map[pairs.map_idx] / kappa
-        return MeasurementSet(self.map.points[pairs.map_idx], scan.z[pairs.det_idx], W)
+        return MeasurementSet(self.map.points[pairs.map_idx], scan.z[pairs.det_idx], W, self.T_vehicle_sensor)
 
     def _reinitialise(self, t: float, polar: np.ndarray, reason: str | None = None) -> tuple[State, np.ndarray, list]:
         """After an outage: dead-reckoned pose, Doppler velocity, last rates, zero acceleration, empty map. The
@@ -302,6 +345,17 @@ class RadarOdometry:
         sig = [1e-4] * 6 + self.motion.tail_sigmas([vel_sigma] * 3, cfg.init_rate_sigma, cfg.init_accel_sigma,
                                                    cfg.init_angular_accel_sigma)
         return x0, np.diag(np.square(sig)), ["initialised"]
+
+
+@dataclass
+class Sensor:
+    """One radar of the odometry: extrinsics, the estimator's 1-sigma noise, range, association, Doppler."""
+
+    T_vehicle_sensor: np.ndarray
+    sigmas: np.ndarray
+    max_range: float
+    associator: MapAssociation
+    doppler: DopplerFrontEnd
 
 
 def _check_fov(fov):

@@ -36,6 +36,7 @@ class MeasurementSet:
     p_world: np.ndarray  # (m, 3)
     z: np.ndarray  # (m, 4) in the model's space
     W: np.ndarray  # (m, 4, 4) information (inverse covariance)
+    T_vehicle_sensor: np.ndarray | None = None  # (4, 4) the radar that measured z; None: the window's
     weights: np.ndarray | None = None  # (m,) robust weights, set by SlidingWindow.optimize
 
     def __len__(self) -> int:
@@ -117,16 +118,18 @@ class SlidingWindow:
         packed = self._packed
         if packed is None or len(packed[0]) != len(sets) or any(a is not b for a, b in zip(packed[0], sets)):
             offsets = np.concatenate(([0], np.cumsum([len(m) for m in sets]))).astype(np.int64)
+            Tvs = np.stack([self.T_vehicle_sensor if m.T_vehicle_sensor is None else m.T_vehicle_sensor
+                            for m in sets])
             self._packed = (sets, offsets, np.concatenate([m.p_world for m in sets]),
-                            np.concatenate([m.z for m in sets]), np.concatenate([m.W for m in sets]))
-        _, offsets, p, z, W = self._packed
+                            np.concatenate([m.z for m in sets]), np.concatenate([m.W for m in sets]), Tvs)
+        _, offsets, p, z, W, Tvs = self._packed
         fresh = [m.weights is None for m in sets]  # the kernel sets Cauchy weights where they are -1
         w = np.concatenate([np.full(len(m), -1.0) if f else m.weights for m, f in zip(sets, fresh)])
         T = np.stack([self.states[k].T_vehicle_world for k in ks])
         varpi = np.stack([self.states[k].varpi for k in ks])
         d2 = np.empty(len(z))
-        H, b, cost = _kernel.linearize_pairs(self.measurement_model.kernel_code, T, varpi, offsets, p, z, W, self.T_vehicle_sensor, w, d2,
-                                             float(self.robust_c))
+        H, b, cost = _kernel.linearize_pairs(self.measurement_model.kernel_code, T, varpi, offsets, p, z, W, Tvs, w,
+                                             d2, float(self.robust_c))
         if any(fresh):
             for m, wk in zip(sets, np.split(w, offsets[1:-1])):
                 m.weights = wk

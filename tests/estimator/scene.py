@@ -37,9 +37,10 @@ def _polar(p_s):
 
 
 def measure(T_vw, varpi, vd, p_world, rng=None, sigmas=SIGMAS, fov=(np.deg2rad(60), np.deg2rad(15)),
-            max_range=120.0):
-    """Detections (n, 4) [r, az, el, vr] of the landmarks in the field of view, noisy if rng is given."""
-    T_sw = se3.inverse(T_VEHICLE_SENSOR) @ T_vw
+            max_range=120.0, T_vehicle_sensor=T_VEHICLE_SENSOR):
+    """Detections (n, 4) [r, az, el, vr] of the landmarks in the field of view of the radar mounted at
+    T_vehicle_sensor, noisy if rng is given."""
+    T_sw = se3.inverse(T_vehicle_sensor) @ T_vw
     p_s = se3.transform_points(T_sw, p_world)
     r, az, el = _polar(p_s)
     keep = (r < max_range) & (np.abs(az) < fov[0]) & (np.abs(el) < fov[1]) & (p_s[:, 0] > 0.5)
@@ -48,7 +49,7 @@ def measure(T_vw, varpi, vd, p_world, rng=None, sigmas=SIGMAS, fov=(np.deg2rad(6
     ranges = []
     for s in (-h, h):
         T, _, _ = exact_predict(T_vw, varpi, vd, s) if s > 0 else _backward(T_vw, varpi, vd, -s)
-        ranges.append(np.linalg.norm(se3.transform_points(se3.inverse(T_VEHICLE_SENSOR) @ T, p_world), axis=1))
+        ranges.append(np.linalg.norm(se3.transform_points(se3.inverse(T_vehicle_sensor) @ T, p_world), axis=1))
     vr = (ranges[1] - ranges[0]) / (2 * h)
     z = np.c_[r, az, el, vr][keep]
     if rng is not None:

@@ -47,12 +47,16 @@ def test_kernel_matches_numpy_linearisation(model, rng):
     W = np.concatenate([s[2] for s in sets])
     w = rng.uniform(0.2, 1.0, K * m)
     d2 = np.empty(K * m)
+    # state 0 seen by the scene's radar, the others by radars mounted elsewhere (multi-radar odometry)
+    mounting = np.array([1.0, 0.5, 0.3, 0.05, 0.05, 1.0])
+    Tvs = np.stack([scene.T_VEHICLE_SENSOR] + [se3.exp(rng.normal(size=6) * mounting) @ scene.T_VEHICLE_SENSOR
+                                                 for _ in range(K - 1)])
     H, b, cost = kernel.linearize_pairs(kernel.POLAR if model == "polar" else kernel.CARTESIAN, T, varpi,
-                                        offsets, p, z, W, scene.T_VEHICLE_SENSOR, w, d2, 3.0)
+                                        offsets, p, z, W, Tvs, w, d2, 3.0)
     total = 0.0
     for k in range(K):
         sl = slice(k * m, (k + 1) * m)
-        pred = measurements.predict(model, T[k], varpi[k], p[sl], scene.T_VEHICLE_SENSOR)
+        pred = measurements.predict(model, T[k], varpi[k], p[sl], Tvs[k])
         e = measurements.residual(model, z[sl], pred.z)
         J = np.concatenate([pred.J_z_xi, pred.J_z_varpi], axis=2)
         WJ = W[sl] @ J * w[sl, None, None]
