@@ -27,7 +27,9 @@ import numpy as np
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3, so3
 
+from .culling import Cull, PatchGeometry, PointIndex, transform
 from .objects import CLUTTER, MOVING, STATIC_POINT, STATIC_SURFACE, Patches
+from .occlusion import cell_directions, cell_index, cross, depth_buffer, nearest_per_cell
 
 DEG = np.pi / 180.0
 
@@ -154,129 +156,6 @@ def polar(p_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return r, az, el
 
 
-class _Cull:
-    """Patches visible from the sensor: in range, facing it, near the field of view."""
-
-    def __init__(self, patches: Patches, T_sensor_world: np.ndarray, cfg: RadarConfig):
-        C, t = T_sensor_world[:3, :3], T_sensor_world[:3, 3]
-        c = patches.center @ C.T + t
-        d = np.linalg.norm(c, axis=-1)
-        hd = patches.half_diagonal
-        n = patches.normal @ C.T
-        facing = np.einsum("ij,ij->i", n, -c)  # > 0: the sensor is on the normal's side
-        ang = np.where(d > hd, np.arcsin(np.clip(hd / np.maximum(d, 1e-9), 0, 1)), np.pi)
-        az = np.arctan2(c[:, 1], c[:, 0])
-        el = np.arcsin(np.clip(c[:, 2] / np.maximum(d, 1e-9), -1, 1))
-        keep = ((d - hd < cfg.max_range) & (d + hd > cfg.min_range) & (patches.two_sided | (facing > 0))
-                & (az > cfg.azimuth_fov[0] - ang) & (az < cfg.azimuth_fov[1] + ang)
-                & (el > cfg.elevation_fov[0] - ang) & (el < cfg.elevation_fov[1] + ang))
-        self.idx = np.flatnonzero(keep)
-        self.patches = patches.subset(self.idx)
-        self.d = d[keep]
-        self.cos = np.abs(facing[keep]) / np.maximum(self.d, 1e-9)
-        self.sensor = Patches(patches.origin[keep] @ C.T + t, patches.u[keep] @ C.T, patches.v[keep] @ C.T,
-                              patches.object_id[keep], patches.reflectivity[keep], patches.opaque[keep],
-                              patches.two_sided[keep])
-
-    def counts(self, cfg: RadarConfig, rng: np.random.Generator) -> np.ndarray:
-        cell = cfg.cell_azimuth * cfg.cell_elevation
-        lam = (cfg.surface_fill * self.patches.reflectivity * self.patches.area * self.cos
-               / (np.maximum(self.d, cfg.min_density_range) ** 2 * cell))
-        return rng.poisson(lam)
-
-
-def _depth_buffer(p: Patches, cfg: RadarConfig, dirs: np.ndarray,
-                  need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest opaque surface along each cell-centre ray: depth (cells,) (inf if none) and its object id.
-
-    Each patch (sensor frame) is tested only against the cells of its angular bounding box, estimated from
-    9 points on the patch and padded by one cell; the test itself is an exact ray-rectangle intersection.
-    With `need` (cells,) bool only those cells are computed (the others stay inf and -1): their values are
-    the same as without it (the same pairs in the same order), at a fraction of the cost, as the scatterers
-    occupy a small part of the grid."""
-    n_az, n_el = cfg.grid_shape
-    depth = np.full(n_az * n_el, np.inf)
-    owner = np.full(n_az * n_el, -1)
-    if not len(p):
-        return depth, owner
-    ia0, ia1, ie0, ie1 = _cell_boxes(p, cfg)
-    if need is not None:  # only the patches whose box holds a needed cell (a summed-area table of the grid)
-        sat = np.zeros((n_az + 1, n_el + 1), dtype=np.int64)
-        np.cumsum(np.cumsum(need.reshape(n_az, n_el), axis=0), axis=1, out=sat[1:, 1:])
-        held = sat[ia1 + 1, ie1 + 1] - sat[ia0, ie1 + 1] - sat[ia1 + 1, ie0] + sat[ia0, ie0]
-        sel = np.flatnonzero(held)
-        p, ia0, ia1, ie0, ie1 = p.subset(sel), ia0[sel], ia1[sel], ie0[sel], ie1[sel]
-    pid, cell = _box_cells(ia0, ia1, ie0, ie1, n_el)
-    if need is not None:
-        m = need[cell]
-        pid, cell = pid[m], cell[m]
-    d = dirs[cell]
-    normal = np.cross(p.u, p.v)
-    denom = np.einsum("ij,ij->i", normal[pid], d)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.einsum("ij,ij->i", normal, p.origin)[pid] / denom
-        q = s[:, None] * d - p.origin[pid]
-        a = np.einsum("ij,ij->i", q, p.u[pid]) / np.einsum("ij,ij->i", p.u, p.u)[pid]
-        b = np.einsum("ij,ij->i", q, p.v[pid]) / np.einsum("ij,ij->i", p.v, p.v)[pid]
-        hit = (s > 0) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1) & np.isfinite(s)
-    cell, s, pid = cell[hit], s[hit], pid[hit]
-    order = np.lexsort((s, cell))
-    first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]] if order.size else order
-    depth[cell[first]] = s[first]
-    owner[cell[first]] = p.object_id[pid[first]]
-    return depth, owner
-
-
-def _cell_boxes(p: Patches, cfg: RadarConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Each patch's box of cells (first and last azimuth and elevation cell, inclusive), from 9 points on the
-    patch, padded by one cell and clipped to the grid."""
-    n_az, n_el = cfg.grid_shape
-    ab = np.array([[a, b] for a in (0, 0.5, 1) for b in (0, 0.5, 1)])
-    pts = p.origin[:, None, :] + ab[None, :, :1] * p.u[:, None, :] + ab[None, :, 1:] * p.v[:, None, :]
-    az = np.arctan2(pts[..., 1], pts[..., 0])
-    el = np.arctan2(pts[..., 2], np.linalg.norm(pts[..., :2], axis=-1))
-    az_lo, az_hi = az.min(axis=1), az.max(axis=1)
-    # behind or beside the sensor the corner azimuths may not bound the patch: take the whole field of view
-    wraps = (az_hi - az_lo > np.pi) | (np.any(pts[..., 0] <= 0, axis=1) & (az_hi - az_lo > np.pi / 2))
-    az_lo = np.where(wraps, cfg.azimuth_fov[0], az_lo)
-    az_hi = np.where(wraps, cfg.azimuth_fov[1], az_hi)
-    ia0 = np.clip(np.floor((az_lo - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) - 1, 0, n_az - 1)
-    ia1 = np.clip(np.floor((az_hi - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) + 1, 0, n_az - 1)
-    ie0 = np.clip(np.floor((el.min(axis=1) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) - 1, 0,
-                  n_el - 1)
-    ie1 = np.clip(np.floor((el.max(axis=1) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) + 1, 0,
-                  n_el - 1)
-    return ia0, ia1, ie0, ie1
-
-
-def _box_cells(ia0, ia1, ie0, ie1, n_el: int) -> tuple[np.ndarray, np.ndarray]:
-    """All (patch, cell) pairs of the boxes, patch by patch, each box azimuth-major: (pairs,) patch indices
-    and cell indices."""
-    na, ne = ia1 - ia0 + 1, ie1 - ie0 + 1
-    cnt = na * ne
-    pid = np.repeat(np.arange(len(cnt)), cnt)
-    k = np.arange(pid.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-    cell = (ia0[pid] + k // ne[pid]) * n_el + ie0[pid] + k % ne[pid]
-    return pid, cell
-
-
-def cell_directions(cfg: RadarConfig) -> np.ndarray:
-    """Unit directions (sensor frame) of the cell centres, (n_az * n_el, 3), azimuth-major."""
-    n_az, n_el = cfg.grid_shape
-    az = cfg.azimuth_fov[0] + (np.arange(n_az) + 0.5) * cfg.cell_azimuth
-    el = cfg.elevation_fov[0] + (np.arange(n_el) + 0.5) * cfg.cell_elevation
-    A, E = np.meshgrid(az, el, indexing="ij")
-    A, E = A.ravel(), E.ravel()
-    return np.stack([np.cos(E) * np.cos(A), np.cos(E) * np.sin(A), np.sin(E)], axis=-1)
-
-
-def cell_index(az: np.ndarray, el: np.ndarray, cfg: RadarConfig) -> np.ndarray:
-    n_az, n_el = cfg.grid_shape
-    ia = np.clip(np.floor((az - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int), 0, n_az - 1)
-    ie = np.clip(np.floor((el - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int), 0, n_el - 1)
-    return ia * n_el + ie
-
-
 class Radar:
     """A radar with a fixed configuration; `scan(...)` simulates one scan.
 
@@ -287,6 +166,15 @@ class Radar:
     def __init__(self, config: RadarConfig | None = None):
         self.config = RadarConfig() if config is None else config
         self._dirs = cell_directions(self.config)
+        self._scene = (None, None, None)  # (world patches, world points, their _StaticScene)
+
+    def _static(self, world) -> "_StaticScene":
+        """The culling geometry of the world's static patches and points, computed once per scene."""
+        patches, points, scene = self._scene
+        if patches is not world.patches or points is not world.points:
+            scene = _StaticScene(PatchGeometry(world.patches, indexed=True), PointIndex(world.points.p))
+            self._scene = (world.patches, world.points, scene)
+        return scene
 
     def scan(self, world, T_world_vehicle: np.ndarray, varpi: np.ndarray, rng: np.random.Generator,
              movers: list | None = None) -> Detections:
@@ -308,8 +196,8 @@ class Radar:
         cfg = self.config
         T_sensor_world = se3.inverse(T_world_vehicle @ cfg.T_vehicle_sensor)
         v_sensor, _ = sensor_velocity(np.asarray(varpi, dtype=float), cfg.T_vehicle_sensor)
-        cand, opaque = _candidates(world, T_sensor_world, cfg, rng, movers or ())
-        p_sensor = cand.p_world @ T_sensor_world[:3, :3].T + T_sensor_world[:3, 3]
+        cand, opaque, n_all = _candidates(world, self._static(world), T_sensor_world, cfg, rng, movers or ())
+        p_sensor = transform(cand.p_world, T_sensor_world[:3, :3], T_sensor_world[:3, 3], n_all)
         idx, r, az, el = self._visible(p_sensor, cand.object_id, opaque)
         pd = cfg.pd(r) * (1.0 if cfg.ideal_detection else cand.pd_own[idx])
         hit = rng.random(len(idx)) < pd
@@ -331,11 +219,10 @@ class Radar:
         cell = cell_index(az, el, cfg)
         need = np.zeros(len(self._dirs), dtype=bool)
         need[cell] = True
-        depth, owner = _depth_buffer(Patches.concat(opaque), cfg, self._dirs, need)
+        depth, owner = depth_buffer(Patches.concat(opaque), cfg, self._dirs, need)
         visible = ~((depth[cell] < r - cfg.occlusion_tolerance) & (owner[cell] != object_id[idx]))
         idx, r, az, el, cell = idx[visible], r[visible], az[visible], el[visible], cell[visible]
-        order = np.lexsort((r, cell))
-        first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]] if order.size else order
+        first = nearest_per_cell(cell, r, len(self._dirs))
         return idx[first], r[first], az[first], el[first]
 
 
@@ -350,38 +237,50 @@ class _Candidates:
     landmark_id: np.ndarray
     pd_own: np.ndarray
 
+    def __len__(self) -> int:
+        return len(self.p_world)
+
     @staticmethod
     def concat(parts: list["_Candidates"]) -> "_Candidates":
         return _Candidates(*(np.concatenate([getattr(c, f) for c in parts])
                              for f in ("p_world", "v_world", "label", "object_id", "landmark_id", "pd_own")))
 
 
-def _surface_samples(cull: _Cull, cfg: RadarConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Random points on the culled patches (Poisson counts, then positions): (m, 3) and their patch index."""
-    return cull.patches.sample(cull.counts(cfg, rng), rng)
+@dataclass(frozen=True)
+class _StaticScene:
+    """A world's static patches and points, indexed for culling (`sim.culling`)."""
+
+    patches: PatchGeometry
+    points: PointIndex
 
 
-def _candidates(world, T_sensor_world: np.ndarray, cfg: RadarConfig, rng: np.random.Generator,
-                movers) -> tuple[_Candidates, list[Patches]]:
-    """Static surface samples, the persistent point scatterers and the movers' surface samples (drawn in that
-    order), with the opaque patches (sensor frame) that may hide them."""
-    static = _Cull(world.patches, T_sensor_world, cfg)
-    pts, k = _surface_samples(static, cfg, rng)
+def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: RadarConfig,
+                rng: np.random.Generator, movers) -> tuple[_Candidates, list[Patches], int]:
+    """Static surface samples, the point scatterers near enough to be in range and the movers' surface samples
+    (drawn in that order), with the opaque patches (sensor frame) that may hide them and the number of
+    candidates had every point scatterer been included (see `sim.culling.transform`)."""
+    static = Cull(scene.patches, T_sensor_world, cfg)
+    pts, k = static.sample(cfg, rng)
     n = len(pts)
-    parts = [_Candidates(pts, np.zeros_like(pts), np.full(n, STATIC_SURFACE), static.patches.object_id[k],
+    parts = [_Candidates(pts, np.zeros_like(pts), np.full(n, STATIC_SURFACE), static.object_id[k],
                          np.full(n, -1), np.ones(n))]
     opaque = [static.sensor.subset(static.sensor.opaque)]
     P = world.points
-    parts.append(_Candidates(P.p, np.zeros_like(P.p), np.full(len(P), STATIC_POINT), np.full(len(P), -1),
-                             P.landmark_id, P.pd))
+    near = scene.points.near(-(T_sensor_world[:3, :3].T @ T_sensor_world[:3, 3]), cfg.max_range)
+    p, pd, landmark_id = (P.p, P.pd, P.landmark_id) if near is None else (P.p[near], P.pd[near],
+                                                                          P.landmark_id[near])
+    parts.append(_Candidates(p, np.zeros_like(p), np.full(len(p), STATIC_POINT), np.full(len(p), -1),
+                             landmark_id, pd))
     for mover, T_world_object, v_object, w_object in movers:
-        cull = _Cull(mover.body_patches.transformed(T_world_object), T_sensor_world, cfg)
-        pts, k = _surface_samples(cull, cfg, rng)
+        cull = Cull(PatchGeometry(mover.body_patches.transformed(T_world_object), indexed=False), T_sensor_world,
+                    cfg)
+        pts, k = cull.sample(cfg, rng)
         n = len(pts)
-        parts.append(_Candidates(pts, v_object + np.cross(w_object, pts - T_world_object[:3, 3]),
+        parts.append(_Candidates(pts, v_object + cross(w_object, pts - T_world_object[:3, 3]),
                                  np.full(n, MOVING), np.full(n, mover.object_id), np.full(n, -1), np.ones(n)))
         opaque.append(cull.sensor)
-    return _Candidates.concat(parts), opaque
+    cand = _Candidates.concat(parts)
+    return cand, opaque, len(cand) + len(P) - len(p)
 
 
 def _noisy_with_clutter(true: np.ndarray, cand: _Candidates, idx: np.ndarray, cfg: RadarConfig,
