@@ -80,18 +80,14 @@ def depth_buffer(p: Patches, cfg, dirs: np.ndarray, need: np.ndarray | None = No
         need = np.ones(n_az * n_el, dtype=bool)
     pid, cell = box_pairs(*cell_boxes(p, cfg), need, n_el)
     normal = cross(p.u, p.v)
-    # per patch: n . o, |u|^2, |v|^2 and the vectors, gathered once per pair
-    scalars = np.stack([np.einsum("ij,ij->i", normal, p.origin), np.einsum("ij,ij->i", p.u, p.u),
-                        np.einsum("ij,ij->i", p.v, p.v)], axis=-1)[pid]
-    vectors = np.concatenate([normal, p.origin, p.u, p.v], axis=-1)[pid]
-    n_p, o_p, u_p, v_p = vectors[:, 0:3], vectors[:, 3:6], vectors[:, 6:9], vectors[:, 9:12]
-    d = dirs[cell]
+    n_p, o_p, u_p, v_p = (a.take(pid, axis=0) for a in (normal, p.origin, p.u, p.v))
+    d = dirs.take(cell, axis=0)
     denom = np.einsum("ij,ij->i", n_p, d)
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = scalars[:, 0] / denom
-        q = s[:, None] * d - o_p
-        a = np.einsum("ij,ij->i", q, u_p) / scalars[:, 1]
-        b = np.einsum("ij,ij->i", q, v_p) / scalars[:, 2]
+        s = np.einsum("ij,ij->i", normal, p.origin).take(pid) / denom
+        q = np.repeat(s, 3).reshape(-1, 3) * d - o_p  # = s[:, None] * d - o_p, without a loop per row
+        a = np.einsum("ij,ij->i", q, u_p) / np.einsum("ij,ij->i", p.u, p.u).take(pid)
+        b = np.einsum("ij,ij->i", q, v_p) / np.einsum("ij,ij->i", p.v, p.v).take(pid)
         hit = (s > 0) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1) & np.isfinite(s)
     cell, s, pid = cell[hit], s[hit], pid[hit]
     first = nearest_per_cell(cell, s, n_az * n_el)
@@ -104,20 +100,21 @@ def cell_boxes(p: Patches, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     """Each patch's box of cells (first and last azimuth and elevation cell, inclusive), from 9 points on the
     patch, padded by one cell and clipped to the grid."""
     n_az, n_el = cfg.grid_shape
-    ab = np.array([[a, b] for a in (0, 0.5, 1) for b in (0, 0.5, 1)])
-    pts = p.origin[:, None, :] + ab[None, :, :1] * p.u[:, None, :] + ab[None, :, 1:] * p.v[:, None, :]
-    az = np.arctan2(pts[..., 1], pts[..., 0])
-    el = np.arctan2(pts[..., 2], np.linalg.norm(pts[..., :2], axis=-1))
-    az_lo, az_hi = az.min(axis=1), az.max(axis=1)
+    # the 9 points origin + a u + b v, a, b in {0, 0.5, 1}, coordinate-major: (3, 9, P)
+    a, b = np.array([[a, b] for a in (0, 0.5, 1) for b in (0, 0.5, 1)]).T[:, None, :, None]
+    x, y, z = (p.origin.T[:, None, :] + a * p.u.T[:, None, :]) + b * p.v.T[:, None, :]
+    az = np.arctan2(y, x)  # (9, P)
+    el = np.arctan2(z, np.sqrt(x * x + y * y))  # the same bits as np.linalg.norm of (x, y)
+    az_lo, az_hi = az.min(axis=0), az.max(axis=0)
     # behind or beside the sensor the corner azimuths may not bound the patch: take the whole field of view
-    wraps = (az_hi - az_lo > np.pi) | (np.any(pts[..., 0] <= 0, axis=1) & (az_hi - az_lo > np.pi / 2))
+    wraps = (az_hi - az_lo > np.pi) | (np.any(x <= 0, axis=0) & (az_hi - az_lo > np.pi / 2))
     az_lo = np.where(wraps, cfg.azimuth_fov[0], az_lo)
     az_hi = np.where(wraps, cfg.azimuth_fov[1], az_hi)
     ia0 = np.clip(np.floor((az_lo - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) - 1, 0, n_az - 1)
     ia1 = np.clip(np.floor((az_hi - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) + 1, 0, n_az - 1)
-    ie0 = np.clip(np.floor((el.min(axis=1) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) - 1, 0,
+    ie0 = np.clip(np.floor((el.min(axis=0) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) - 1, 0,
                   n_el - 1)
-    ie1 = np.clip(np.floor((el.max(axis=1) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) + 1, 0,
+    ie1 = np.clip(np.floor((el.max(axis=0) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) + 1, 0,
                   n_el - 1)
     return ia0, ia1, ie0, ie1
 

@@ -27,7 +27,7 @@ import numpy as np
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3, so3
 
-from .culling import Cull, PatchGeometry, PointIndex, transform
+from .culling import Cull, PatchGeometry, PointIndex, norm3, transform
 from .objects import CLUTTER, MOVING, STATIC_POINT, STATIC_SURFACE, Patches
 from .occlusion import cell_directions, cell_index, cross, depth_buffer, nearest_per_cell
 
@@ -150,7 +150,7 @@ def sensor_velocity(varpi: np.ndarray, T_vehicle_sensor: np.ndarray) -> tuple[np
 
 def polar(p_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Paper eq. 80: (n, 3) sensor-frame points -> range, azimuth, elevation."""
-    r = np.linalg.norm(p_sensor, axis=-1)
+    r = norm3(p_sensor)
     az = np.arctan2(p_sensor[:, 1], p_sensor[:, 0])
     el = np.arcsin(np.clip(p_sensor[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
     return r, az, el
@@ -199,13 +199,15 @@ class Radar:
         cand, opaque, n_all = _candidates(world, self._static(world), T_sensor_world, cfg, rng, movers or ())
         p_sensor = transform(cand.p_world, T_sensor_world[:3, :3], T_sensor_world[:3, 3], n_all)
         idx, r, az, el = self._visible(p_sensor, cand.object_id, opaque)
-        pd = cfg.pd(r) * (1.0 if cfg.ideal_detection else cand.pd_own[idx])
+        pd = cfg.pd(r) * (1.0 if cfg.ideal_detection else cand.pd_own.take(idx))
         hit = rng.random(len(idx)) < pd
         idx, r, az, el = idx[hit], r[hit], az[hit], el[hit]
-        u = p_sensor[idx] / r[:, None]
-        vr = np.einsum("ij,ij->i", u, cand.v_world[idx] @ T_sensor_world[:3, :3].T - v_sensor)
-        true = np.stack([r, az, el, vr], axis=-1)
-        return _noisy_with_clutter(true, cand, idx, cfg, rng)
+        u = p_sensor.take(idx, axis=0) / np.repeat(r, 3).reshape(-1, 3)  # = / r[:, None]
+        v = cand.v_world.take(idx, axis=0) @ T_sensor_world[:3, :3].T
+        for j in range(3):
+            v[:, j] -= v_sensor[j]
+        vr = np.einsum("ij,ij->i", u, v)
+        return _noisy_with_clutter(np.stack([r, az, el, vr]), cand, idx, cfg, rng)
 
     def _visible(self, p_sensor: np.ndarray, object_id: np.ndarray, opaque: list[Patches]):
         """Gates (range, field of view), occlusion by opaque surfaces of other objects in front, then the
@@ -262,13 +264,13 @@ def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: Rad
     static = Cull(scene.patches, T_sensor_world, cfg)
     pts, k = static.sample(cfg, rng)
     n = len(pts)
-    parts = [_Candidates(pts, np.zeros_like(pts), np.full(n, STATIC_SURFACE), static.object_id[k],
+    parts = [_Candidates(pts, np.zeros((n, 3)), np.full(n, STATIC_SURFACE), static.object_id.take(k),
                          np.full(n, -1), np.ones(n))]
-    opaque = [static.sensor.subset(static.sensor.opaque)]
+    opaque = [static.sensor.subset(np.flatnonzero(static.sensor.opaque))]
     P = world.points
-    near = scene.points.near(-(T_sensor_world[:3, :3].T @ T_sensor_world[:3, 3]), cfg.max_range)
-    p, pd, landmark_id = (P.p, P.pd, P.landmark_id) if near is None else (P.p[near], P.pd[near],
-                                                                          P.landmark_id[near])
+    near = scene.points.near(T_sensor_world, cfg)
+    p, pd, landmark_id = (P.p, P.pd, P.landmark_id) if near is None else (P.p.take(near, axis=0), P.pd.take(near),
+                                                                          P.landmark_id.take(near))
     parts.append(_Candidates(p, np.zeros_like(p), np.full(len(p), STATIC_POINT), np.full(len(p), -1),
                              landmark_id, pd))
     for mover, T_world_object, v_object, w_object in movers:
@@ -285,20 +287,24 @@ def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: Rad
 
 def _noisy_with_clutter(true: np.ndarray, cand: _Candidates, idx: np.ndarray, cfg: RadarConfig,
                         rng: np.random.Generator) -> Detections:
-    """Polar noise on the detected targets' true (n, 4) measurements, Poisson false alarms, a random order."""
-    meas = true + rng.standard_normal(true.shape) * np.asarray(cfg.sigmas)
+    """Polar noise on the detected targets' true measurements (4, n) (range, azimuth, elevation, radial
+    velocity), Poisson false alarms, a random order."""
+    n = true.shape[1]
+    # the draws are (n, 4) row-major as ever; the arithmetic is done coordinate-major (the same bits)
+    meas = true + rng.standard_normal((n, 4)).T * np.asarray(cfg.sigmas, dtype=float)[:, None]
     n_fa = rng.poisson(cfg.clutter_rate) if cfg.clutter_rate > 0 else 0
     fa = np.stack([rng.uniform(cfg.min_range, cfg.max_range, n_fa),
                    rng.uniform(*cfg.azimuth_fov, n_fa), rng.uniform(*cfg.elevation_fov, n_fa),
-                   rng.uniform(-cfg.clutter_speed, cfg.clutter_speed, n_fa)], axis=-1)
-    meas = np.concatenate([meas, fa])
-    perm = rng.permutation(len(meas))
+                   rng.uniform(-cfg.clutter_speed, cfg.clutter_speed, n_fa)])
+    meas = np.concatenate([meas, fa], axis=1)
+    perm = rng.permutation(n + n_fa)
     neg = np.full(n_fa, -1)
     return Detections(
-        range=meas[perm, 0], azimuth=meas[perm, 1], elevation=meas[perm, 2], radial_velocity=meas[perm, 3],
-        label=np.concatenate([cand.label[idx], np.full(n_fa, CLUTTER)])[perm],
-        object_id=np.concatenate([cand.object_id[idx], neg])[perm],
-        landmark_id=np.concatenate([cand.landmark_id[idx], neg])[perm],
-        p_world=np.concatenate([cand.p_world[idx], np.full((n_fa, 3), np.nan)])[perm],
-        true_polar=np.concatenate([true, fa])[perm],
+        range=meas[0].take(perm), azimuth=meas[1].take(perm), elevation=meas[2].take(perm),
+        radial_velocity=meas[3].take(perm),
+        label=np.concatenate([cand.label.take(idx), np.full(n_fa, CLUTTER)]).take(perm),
+        object_id=np.concatenate([cand.object_id.take(idx), neg]).take(perm),
+        landmark_id=np.concatenate([cand.landmark_id.take(idx), neg]).take(perm),
+        p_world=np.concatenate([cand.p_world.take(idx, axis=0), np.full((n_fa, 3), np.nan)]).take(perm, axis=0),
+        true_polar=np.ascontiguousarray(np.concatenate([true, fa], axis=1).T.take(perm, axis=0)),
     )
