@@ -60,35 +60,40 @@ def nearest_per_cell(cell: np.ndarray, key: np.ndarray, n_cells: int) -> np.ndar
     return at_min[order[np.r_[True, c[1:] != c[:-1]]]]
 
 
-def depth_buffer(p: Patches, cfg, dirs: np.ndarray, need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def depth_buffer(p: Patches, cfg, dirs: np.ndarray, limit: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Nearest opaque surface along each cell-centre ray: depth (cells,) (inf if none) and its object id (-1).
 
     Each patch (sensor frame) is tested only against the cells of its angular box (`cell_boxes`); the test is
     an exact ray-rectangle intersection: s = (n . o) / (n . d) along the ray d, hit if s > 0 and the point
-    s d - o = a u + b v has a, b in [0, 1]. With `need` (cells,) bool only those cells are computed (the others
-    stay inf and -1); their values are the same as without it (the same pairs, the same arithmetic, the same
-    order), at a fraction of the cost as the scatterers occupy a small part of the grid.
+    s d - o = a u + b v has a, b in [0, 1].
 
-    Checked by: tests/sim/test_occlusion.py::test_depth_buffer_needed_cells_match_the_full_buffer
+    `limit` (cells,) restricts the work to what a caller comparing `depth < limit` needs: hits at s >= limit are
+    dropped (cells with limit -inf are not computed at all). Where the full buffer's depth is below the limit,
+    depth and owner are the same as without it (the same pairs, the same arithmetic, the same order); elsewhere
+    they are inf and -1. The radar passes per cell the farthest candidate's range minus the occlusion tolerance:
+    a surface that hides nothing there need not be known, and most pairs (surfaces behind others, surfaces at
+    the candidates' own depth) are dropped before their intersection is tested.
+
+    Checked by: tests/sim/test_occlusion.py::test_limited_depth_buffer_agrees_below_the_limit
     """
     n_az, n_el = cfg.grid_shape
     depth = np.full(n_az * n_el, np.inf)
     owner = np.full(n_az * n_el, -1)
     if not len(p):
         return depth, owner
-    if need is None:
-        need = np.ones(n_az * n_el, dtype=bool)
-    pid, cell = box_pairs(*cell_boxes(p, cfg), need, n_el)
+    if limit is None:
+        limit = np.full(n_az * n_el, np.inf)
+    pid, cell = box_pairs(*cell_boxes(p, cfg), limit > -np.inf, n_el)
     normal = cross(p.u, p.v)
-    n_p, o_p, u_p, v_p = (a.take(pid, axis=0) for a in (normal, p.origin, p.u, p.v))
     d = dirs.take(cell, axis=0)
-    denom = np.einsum("ij,ij->i", n_p, d)
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.einsum("ij,ij->i", normal, p.origin).take(pid) / denom
-        q = np.repeat(s, 3).reshape(-1, 3) * d - o_p  # = s[:, None] * d - o_p, without a loop per row
-        a = np.einsum("ij,ij->i", q, u_p) / np.einsum("ij,ij->i", p.u, p.u).take(pid)
-        b = np.einsum("ij,ij->i", q, v_p) / np.einsum("ij,ij->i", p.v, p.v).take(pid)
-        hit = (s > 0) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1) & np.isfinite(s)
+        s = np.einsum("ij,ij->i", normal, p.origin).take(pid) / np.einsum("ij,ij->i", normal.take(pid, axis=0), d)
+        keep = np.flatnonzero((s > 0) & (s < limit.take(cell)) & np.isfinite(s))
+        pid, cell, s, d = pid.take(keep), cell.take(keep), s.take(keep), d.take(keep, axis=0)
+        q = np.repeat(s, 3).reshape(-1, 3) * d - p.origin.take(pid, axis=0)  # = s[:, None] * d - o, no row loop
+        a = np.einsum("ij,ij->i", q, p.u.take(pid, axis=0)) / np.einsum("ij,ij->i", p.u, p.u).take(pid)
+        b = np.einsum("ij,ij->i", q, p.v.take(pid, axis=0)) / np.einsum("ij,ij->i", p.v, p.v).take(pid)
+    hit = (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
     cell, s, pid = cell[hit], s[hit], pid[hit]
     first = nearest_per_cell(cell, s, n_az * n_el)
     depth[cell[first]] = s[first]

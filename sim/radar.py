@@ -219,10 +219,11 @@ class Radar:
         idx = np.flatnonzero(keep)
         r, az, el = r[idx], az[idx], el[idx]
         cell = cell_index(az, el, cfg)
-        need = np.zeros(len(self._dirs), dtype=bool)
-        need[cell] = True
-        depth, owner = depth_buffer(Patches.concat(opaque), cfg, self._dirs, need)
-        visible = ~((depth[cell] < r - cfg.occlusion_tolerance) & (owner[cell] != object_id[idx]))
+        r_hidden = r - cfg.occlusion_tolerance  # hidden behind a surface nearer than this (of another object)
+        limit = np.full(len(self._dirs), -np.inf)
+        np.maximum.at(limit, cell, r_hidden)
+        depth, owner = depth_buffer(Patches.concat(opaque), cfg, self._dirs, limit)
+        visible = ~((depth.take(cell) < r_hidden) & (owner.take(cell) != object_id.take(idx)))
         idx, r, az, el, cell = idx[visible], r[visible], az[visible], el[visible], cell[visible]
         first = nearest_per_cell(cell, r, len(self._dirs))
         return idx[first], r[first], az[first], el[first]
