@@ -20,12 +20,13 @@ from __future__ import annotations
 import numpy as np
 
 from .objects import Patches
+from .occlusion import cross
 
 MARGIN = 1.0  # m added to the pre-selection distances (the exact tests then decide)
 
 
-def transform(p: np.ndarray, C: np.ndarray, t: np.ndarray, n_all: int | None = None) -> np.ndarray:
-    """p @ C.T + t, (n, 3), for rows p selected from a set of n_all rows (default: p is the set), with each
+def transform(p: np.ndarray, C: np.ndarray, t: np.ndarray | None = None, n_all: int | None = None) -> np.ndarray:
+    """p @ C.T (+ t), (n, 3), for rows p selected from a set of n_all rows (default: p is the set), with each
     row's bits as in the product of the whole set: numpy computes a one-row product as a vector product (other
     rounding than the matrix product of several rows), so a single row selected from several is computed in a
     two-row product."""
@@ -34,8 +35,9 @@ def transform(p: np.ndarray, C: np.ndarray, t: np.ndarray, n_all: int | None = N
         out = out[:1]
     else:
         out = p @ C.T
-    for j in range(3):  # + t column by column (a broadcast add loops once per row)
-        out[:, j] += t[j]
+    if t is not None:
+        for j in range(3):  # + t column by column (a broadcast add loops once per row)
+            out[:, j] += t[j]
     return out
 
 
@@ -73,10 +75,13 @@ class PatchGeometry:
 
     def __init__(self, patches: Patches, indexed: bool):
         self.patches = patches
-        self.center = patches.center
-        self.half_diagonal = patches.half_diagonal
-        self.normal = patches.normal
-        self.area = patches.area
+        # the Patches properties (center, half_diagonal, normal, area), the same arithmetic
+        diagonal = patches.u + patches.v
+        self.center = patches.origin + 0.5 * diagonal
+        self.half_diagonal = 0.5 * norm3(diagonal)
+        n = cross(patches.u, patches.v)
+        self.area = norm3(n)
+        self.normal = n / self.area[:, None]
         self.indexed = indexed and len(patches) > 1
         if self.indexed:
             self.center_T = np.ascontiguousarray(self.center.T)
@@ -100,7 +105,7 @@ class Cull:
     Attributes:
         idx: (k,) indices of the kept patches.
         d: (k,) range of their centres; cos: (k,) |cos| of the incidence angle at the centre.
-        object_id: (k,); sensor: the kept `Patches` in the sensor frame.
+        object_id: (k,).
     """
 
     def __init__(self, geometry: PatchGeometry, T_sensor_world: np.ndarray, cfg):
@@ -115,9 +120,10 @@ class Cull:
         d = norm3(c)
         hd = sel(geometry.half_diagonal)
         facing = np.einsum("ij,ij->i", sel(geometry.normal) @ C.T, -c)  # > 0: the sensor is on the normal's side
-        ang = np.where(d > hd, np.arcsin(np.clip(hd / np.maximum(d, 1e-9), 0, 1)), np.pi)
+        # (clip as minimum(maximum()): these angles are only compared, the sign of a zero does not matter)
+        ang = np.where(d > hd, np.arcsin(np.minimum(np.maximum(hd / np.maximum(d, 1e-9), 0), 1)), np.pi)
         az = np.arctan2(c[:, 1], c[:, 0])
-        el = np.arcsin(np.clip(c[:, 2] / np.maximum(d, 1e-9), -1, 1))
+        el = np.arcsin(np.minimum(np.maximum(c[:, 2] / np.maximum(d, 1e-9), -1), 1))
         keep = np.flatnonzero((d - hd < cfg.max_range) & (d + hd > cfg.min_range)
                               & (sel(patches.two_sided) | (facing > 0))
                               & (az > cfg.azimuth_fov[0] - ang) & (az < cfg.azimuth_fov[1] + ang)
@@ -127,16 +133,24 @@ class Cull:
         self.cos = np.abs(facing.take(keep)) / np.maximum(self.d, 1e-9)
         self._geometry = geometry
         self.object_id = patches.object_id.take(self.idx)
-        self.sensor = Patches(transform(patches.origin.take(self.idx, axis=0), C, t),
-                              patches.u.take(self.idx, axis=0) @ C.T, patches.v.take(self.idx, axis=0) @ C.T,
-                              self.object_id, patches.reflectivity.take(self.idx), patches.opaque.take(self.idx),
-                              patches.two_sided.take(self.idx))
+        self._C, self._t = C, t
+
+    def sensor(self, opaque_only: bool = False) -> Patches:
+        """The kept patches (or only the opaque ones) in the sensor frame."""
+        patches = self._geometry.patches
+        idx = self.idx.take(np.flatnonzero(patches.opaque.take(self.idx))) if opaque_only else self.idx
+        C, t, n_all = self._C, self._t, len(self.idx)
+        return Patches(transform(patches.origin.take(idx, axis=0), C, t, n_all),
+                       transform(patches.u.take(idx, axis=0), C, None, n_all),
+                       transform(patches.v.take(idx, axis=0), C, None, n_all), patches.object_id.take(idx),
+                       patches.reflectivity.take(idx), patches.opaque.take(idx), patches.two_sided.take(idx))
 
     def counts(self, cfg, rng: np.random.Generator) -> np.ndarray:
         """Poisson numbers of surface samples per kept patch: mean surface_fill * reflectivity * area * cos /
         (max(d, min_density_range)^2 * cell solid angle)."""
         cell = cfg.cell_azimuth * cfg.cell_elevation
-        lam = (cfg.surface_fill * self.sensor.reflectivity * self._geometry.area.take(self.idx) * self.cos
+        lam = (cfg.surface_fill * self._geometry.patches.reflectivity.take(self.idx)
+               * self._geometry.area.take(self.idx) * self.cos
                / (np.maximum(self.d, cfg.min_density_range) ** 2 * cell))
         return rng.poisson(lam)
 

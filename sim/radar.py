@@ -145,7 +145,7 @@ def sensor_velocity(varpi: np.ndarray, T_vehicle_sensor: np.ndarray) -> tuple[np
     [v; w] = -varpi (docs/conventions.md)."""
     v, w = -varpi[:3], -varpi[3:]
     C, r = T_vehicle_sensor[:3, :3], T_vehicle_sensor[:3, 3]
-    return C.T @ (v + np.cross(w, r)), C.T @ w
+    return C.T @ (v + cross(w, r)), C.T @ w
 
 
 def polar(p_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -267,7 +267,7 @@ def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: Rad
     n = len(pts)
     parts = [_Candidates(pts, np.zeros((n, 3)), np.full(n, STATIC_SURFACE), static.object_id.take(k),
                          np.full(n, -1), np.ones(n))]
-    opaque = [static.sensor.subset(np.flatnonzero(static.sensor.opaque))]
+    opaque = [static.sensor(opaque_only=True)]
     P = world.points
     near = scene.points.near(T_sensor_world, cfg)
     p, pd, landmark_id = (P.p, P.pd, P.landmark_id) if near is None else (P.p.take(near, axis=0), P.pd.take(near),
@@ -281,7 +281,7 @@ def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: Rad
         n = len(pts)
         parts.append(_Candidates(pts, v_object + cross(w_object, pts - T_world_object[:3, 3]),
                                  np.full(n, MOVING), np.full(n, mover.object_id), np.full(n, -1), np.ones(n)))
-        opaque.append(cull.sensor)
+        opaque.append(cull.sensor())
     cand = _Candidates.concat(parts)
     return cand, opaque, len(cand) + len(P) - len(p)
 
