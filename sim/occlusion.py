@@ -16,6 +16,9 @@ import numpy as np
 
 from .objects import Patches
 
+# the 9 points of a patch whose angles bound its cell box: origin + a u + b v, a, b in {0, 0.5, 1}, as (1, 9, 1)
+_BOX_A, _BOX_B = np.array([[a, b] for a in (0, 0.5, 1) for b in (0, 0.5, 1)]).T[:, None, :, None]
+
 
 def cell_directions(cfg) -> np.ndarray:
     """Unit directions (sensor frame) of the cell centres, (n_az * n_el, 3), azimuth-major."""
@@ -30,9 +33,14 @@ def cell_directions(cfg) -> np.ndarray:
 def cell_index(az: np.ndarray, el: np.ndarray, cfg) -> np.ndarray:
     """The cell of each direction (azimuth, elevation in radians), clipped to the grid."""
     n_az, n_el = cfg.grid_shape
-    ia = np.clip(np.floor((az - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int), 0, n_az - 1)
-    ie = np.clip(np.floor((el - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int), 0, n_el - 1)
+    ia = _clip(np.floor((az - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int), 0, n_az - 1)
+    ie = _clip(np.floor((el - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int), 0, n_el - 1)
     return ia * n_el + ie
+
+
+def _clip(i: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """np.clip of integers without its per-call overhead."""
+    return np.minimum(np.maximum(i, lo), hi)
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -105,9 +113,8 @@ def cell_boxes(p: Patches, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     """Each patch's box of cells (first and last azimuth and elevation cell, inclusive), from 9 points on the
     patch, padded by one cell and clipped to the grid."""
     n_az, n_el = cfg.grid_shape
-    # the 9 points origin + a u + b v, a, b in {0, 0.5, 1}, coordinate-major: (3, 9, P)
-    a, b = np.array([[a, b] for a in (0, 0.5, 1) for b in (0, 0.5, 1)]).T[:, None, :, None]
-    x, y, z = (p.origin.T[:, None, :] + a * p.u.T[:, None, :]) + b * p.v.T[:, None, :]
+    # the 9 points, coordinate-major: (3, 9, P)
+    x, y, z = (p.origin.T[:, None, :] + _BOX_A * p.u.T[:, None, :]) + _BOX_B * p.v.T[:, None, :]
     az = np.arctan2(y, x)  # (9, P)
     el = np.arctan2(z, np.sqrt(x * x + y * y))  # the same bits as np.linalg.norm of (x, y)
     az_lo, az_hi = az.min(axis=0), az.max(axis=0)
@@ -115,12 +122,12 @@ def cell_boxes(p: Patches, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     wraps = (az_hi - az_lo > np.pi) | (np.any(x <= 0, axis=0) & (az_hi - az_lo > np.pi / 2))
     az_lo = np.where(wraps, cfg.azimuth_fov[0], az_lo)
     az_hi = np.where(wraps, cfg.azimuth_fov[1], az_hi)
-    ia0 = np.clip(np.floor((az_lo - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) - 1, 0, n_az - 1)
-    ia1 = np.clip(np.floor((az_hi - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) + 1, 0, n_az - 1)
-    ie0 = np.clip(np.floor((el.min(axis=0) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) - 1, 0,
-                  n_el - 1)
-    ie1 = np.clip(np.floor((el.max(axis=0) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) + 1, 0,
-                  n_el - 1)
+    ia0 = _clip(np.floor((az_lo - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) - 1, 0, n_az - 1)
+    ia1 = _clip(np.floor((az_hi - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) + 1, 0, n_az - 1)
+    ie0 = _clip(np.floor((el.min(axis=0) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) - 1, 0,
+                n_el - 1)
+    ie1 = _clip(np.floor((el.max(axis=0) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) + 1, 0,
+                n_el - 1)
     return ia0, ia1, ie0, ie1
 
 
