@@ -52,17 +52,47 @@ def sensor_position(T_sensor_world: np.ndarray) -> np.ndarray:
     return -(T_sensor_world[:3, :3].T @ T_sensor_world[:3, 3])
 
 
-def _ahead(xyz_T: np.ndarray, T_sensor_world: np.ndarray, cfg, max_range: float, behind: np.ndarray | float):
-    """(n,) mask of the world points (3, n) within max_range of the sensor and, when the azimuth field of view
-    lies within +-90 deg, with a sensor-frame x above -behind (what is wholly behind the sensor plane is outside
-    such a field of view)."""
-    p = sensor_position(T_sensor_world)
-    dx, dy, dz = xyz_T[0] - p[0], xyz_T[1] - p[1], xyz_T[2] - p[2]
-    m = dx * dx + dy * dy + dz * dz <= max_range * max_range
-    if -np.pi / 2 <= cfg.azimuth_fov[0] and cfg.azimuth_fov[1] <= np.pi / 2:
-        b = T_sensor_world[0, :3]  # the sensor's x axis in the world frame
-        m &= b[0] * dx + b[1] * dy + b[2] * dz > -behind
-    return m
+class NearIndex:
+    """World points (centres of patches, point scatterers) bucketed on a horizontal grid of `tile` metres, for
+    the per-scan pre-selection: only the tiles around the sensor are tested, so its cost does not grow with the
+    length of the drive.
+
+    Args:
+        xyz: (n, 3) world points.
+        tile: grid spacing, m.
+    """
+
+    def __init__(self, xyz: np.ndarray, tile: float = 50.0):
+        self.xyz = np.ascontiguousarray(xyz, dtype=float)
+        self.tile = tile
+        ij = np.floor(self.xyz[:, :2] / tile).astype(np.int64) if len(xyz) else np.zeros((0, 2), np.int64)
+        self._lo = ij.min(axis=0) if len(xyz) else np.zeros(2, np.int64)
+        self._shape = (ij.max(axis=0) - self._lo + 1) if len(xyz) else np.ones(2, np.int64)
+        key = (ij[:, 0] - self._lo[0]) * self._shape[1] + (ij[:, 1] - self._lo[1])
+        self._order = np.argsort(key, kind="stable")  # by tile, then by index
+        self._start = np.searchsorted(key[self._order], np.arange(self._shape[0] * self._shape[1] + 1))
+
+    def __len__(self) -> int:
+        return len(self.xyz)
+
+    def near(self, T_sensor_world: np.ndarray, cfg, max_range: float, behind: np.ndarray | float) -> np.ndarray:
+        """Sorted indices of the points within max_range of the sensor and, when the azimuth field of view lies
+        within +-90 deg, with a sensor-frame x above -behind (what is wholly behind the sensor plane is outside
+        such a field of view). `behind` is a scalar or (n,) per point."""
+        p = sensor_position(T_sensor_world)
+        i0, j0 = np.maximum(np.floor((p[:2] - max_range) / self.tile).astype(np.int64) - self._lo, 0)
+        i1, j1 = np.minimum(np.floor((p[:2] + max_range) / self.tile).astype(np.int64) - self._lo, self._shape - 1)
+        if i0 > i1 or j0 > j1:
+            return np.zeros(0, dtype=np.intp)
+        rows = (np.arange(i0, i1 + 1) * self._shape[1])
+        idx = np.sort(np.concatenate([self._order[self._start[r + j0]:self._start[r + j1 + 1]] for r in rows]))
+        xyz = self.xyz.take(idx, axis=0)
+        dx, dy, dz = xyz[:, 0] - p[0], xyz[:, 1] - p[1], xyz[:, 2] - p[2]
+        m = dx * dx + dy * dy + dz * dz <= max_range * max_range
+        if -np.pi / 2 <= cfg.azimuth_fov[0] and cfg.azimuth_fov[1] <= np.pi / 2:
+            b = T_sensor_world[0, :3]  # the sensor's x axis in the world frame
+            m &= b[0] * dx + b[1] * dy + b[2] * dz > -(behind if np.ndim(behind) == 0 else behind.take(idx))
+        return idx.take(np.flatnonzero(m))
 
 
 class PatchGeometry:
@@ -84,7 +114,7 @@ class PatchGeometry:
         self.normal = n / self.area[:, None]
         self.indexed = indexed and len(patches) > 1
         if self.indexed:
-            self.center_T = np.ascontiguousarray(self.center.T)
+            self._index = NearIndex(self.center)
             self._reach = float(self.half_diagonal.max()) + MARGIN
         self.origin_T, self.u_T, self.v_T = (np.ascontiguousarray(a.T) for a in (patches.origin, patches.u,
                                                                                   patches.v))
@@ -94,9 +124,8 @@ class PatchGeometry:
         near, or fewer than two near: then all are tested, as one product)."""
         if not self.indexed:
             return None
-        m = _ahead(self.center_T, T_sensor_world, cfg, cfg.max_range + self._reach, self.half_diagonal + MARGIN)
-        idx = np.flatnonzero(m)
-        return idx if 2 <= len(idx) < len(m) else None
+        idx = self._index.near(T_sensor_world, cfg, cfg.max_range + self._reach, self.half_diagonal + MARGIN)
+        return idx if 2 <= len(idx) < len(self.center) else None
 
 
 class Cull:
@@ -169,11 +198,10 @@ class PointIndex:
     """Point scatterers (world frame), pre-selected per scan like the patches: those that may pass the gates."""
 
     def __init__(self, p: np.ndarray):
-        self.p_T = np.ascontiguousarray(p.T)
+        self._index = NearIndex(p)
 
     def near(self, T_sensor_world: np.ndarray, cfg) -> np.ndarray | None:
         """Sorted indices of the points within max_range + MARGIN of the sensor and not behind it, or None
         for all of them."""
-        m = _ahead(self.p_T, T_sensor_world, cfg, cfg.max_range + MARGIN, MARGIN)
-        idx = np.flatnonzero(m)
-        return idx if len(idx) < len(m) else None
+        idx = self._index.near(T_sensor_world, cfg, cfg.max_range + MARGIN, MARGIN)
+        return idx if len(idx) < len(self._index) else None
