@@ -164,29 +164,41 @@ class Cull:
         self.object_id = patches.object_id.take(self.idx)
         self._C, self._t = C, t
 
-    def sensor(self, opaque_only: bool = False) -> Patches:
-        """The kept patches (or only the opaque ones) in the sensor frame."""
+    def sensor(self, opaque_only: bool = False, groups: np.ndarray | None = None) -> Patches:
+        """The kept patches (or only the opaque ones) in the sensor frame.
+
+        groups: offsets (g + 1,) into the kept patches of groups that were culled one by one before (the moving
+        vehicles, now culled together): a group of one patch is mapped as its own one-row product, as then."""
         patches = self._geometry.patches
         idx = self.idx.take(np.flatnonzero(patches.opaque.take(self.idx))) if opaque_only else self.idx
         C, t, n_all = self._C, self._t, len(self.idx)
-        return Patches(transform(patches.origin.take(idx, axis=0), C, t, n_all),
-                       transform(patches.u.take(idx, axis=0), C, None, n_all),
-                       transform(patches.v.take(idx, axis=0), C, None, n_all), patches.object_id.take(idx),
-                       patches.reflectivity.take(idx), patches.opaque.take(idx), patches.two_sided.take(idx))
+        out = [transform(patches.origin.take(idx, axis=0), C, t, n_all),
+               transform(patches.u.take(idx, axis=0), C, None, n_all),
+               transform(patches.v.take(idx, axis=0), C, None, n_all)]
+        if groups is not None and not opaque_only:
+            for i in np.flatnonzero(np.diff(groups) == 1):
+                j = groups[i]
+                out[0][j] = transform(patches.origin.take(idx[j:j + 1], axis=0), C, t)[0]
+                out[1][j] = transform(patches.u.take(idx[j:j + 1], axis=0), C)[0]
+                out[2][j] = transform(patches.v.take(idx[j:j + 1], axis=0), C)[0]
+        return Patches(*out, patches.object_id.take(idx), patches.reflectivity.take(idx), patches.opaque.take(idx),
+                       patches.two_sided.take(idx))
 
-    def counts(self, cfg, rng: np.random.Generator) -> np.ndarray:
-        """Poisson numbers of surface samples per kept patch: mean surface_fill * reflectivity * area * cos /
-        (max(d, min_density_range)^2 * cell solid angle)."""
+    def counts(self, cfg, rng: np.random.Generator, rows: slice = slice(None)) -> np.ndarray:
+        """Poisson numbers of surface samples per kept patch (of `rows` of them): mean surface_fill *
+        reflectivity * area * cos / (max(d, min_density_range)^2 * cell solid angle)."""
         cell = cfg.cell_azimuth * cfg.cell_elevation
-        lam = (cfg.surface_fill * self._geometry.patches.reflectivity.take(self.idx)
-               * self._geometry.area.take(self.idx) * self.cos
-               / (np.maximum(self.d, cfg.min_density_range) ** 2 * cell))
+        idx = self.idx[rows]
+        lam = (cfg.surface_fill * self._geometry.patches.reflectivity.take(idx)
+               * self._geometry.area.take(idx) * self.cos[rows]
+               / (np.maximum(self.d[rows], cfg.min_density_range) ** 2 * cell))
         return rng.poisson(lam)
 
-    def sample(self, cfg, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Random points on the kept patches (Poisson counts, then uniform positions origin + a u + b v, world
-        frame): (m, 3) and the index of their patch among the kept ones."""
-        k = np.repeat(np.arange(len(self.idx)), self.counts(cfg, rng))
+    def sample(self, cfg, rng: np.random.Generator, rows: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """Random points on the kept patches (or on `rows` of them: a slice): Poisson counts, then uniform
+        positions origin + a u + b v, world frame. Returns (m, 3) and the index of their patch among the kept."""
+        k = np.arange(len(self.idx))[rows]
+        k = np.repeat(k, self.counts(cfg, rng, rows))
         ab = rng.random((k.size, 2))
         g = self.idx.take(k)
         p_T = ((self._geometry.origin_T.take(g, axis=1) + ab[:, 0] * self._geometry.u_T.take(g, axis=1))

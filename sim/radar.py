@@ -274,14 +274,16 @@ def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: Rad
                                                                           P.landmark_id.take(near))
     parts.append(_Candidates(p, np.zeros_like(p), np.full(len(p), STATIC_POINT), np.full(len(p), -1),
                              landmark_id, pd))
-    for mover, T_world_object, v_object, w_object in movers:
-        cull = Cull(PatchGeometry(mover.body_patches.transformed(T_world_object), indexed=False), T_sensor_world,
-                    cfg)
-        pts, k = cull.sample(cfg, rng)
-        n = len(pts)
-        parts.append(_Candidates(pts, v_object + cross(w_object, pts - T_world_object[:3, 3]),
-                                 np.full(n, MOVING), np.full(n, mover.object_id), np.full(n, -1), np.ones(n)))
-        opaque.append(cull.sensor())
+    if movers:  # culled together (one set of calls), sampled one by one (the draws in the movers' order)
+        bodies = [mover.body_patches.transformed(T_world_object) for mover, T_world_object, _, _ in movers]
+        cull = Cull(PatchGeometry(Patches.concat(bodies), indexed=False), T_sensor_world, cfg)
+        groups = np.searchsorted(cull.idx, np.cumsum([0] + [len(b) for b in bodies]))
+        for g, (mover, T_world_object, v_object, w_object) in enumerate(movers):
+            pts, _ = cull.sample(cfg, rng, slice(groups[g], groups[g + 1]))
+            n = len(pts)
+            parts.append(_Candidates(pts, v_object + cross(w_object, pts - T_world_object[:3, 3]),
+                                     np.full(n, MOVING), np.full(n, mover.object_id), np.full(n, -1), np.ones(n)))
+        opaque.append(cull.sensor(groups=groups))
     cand = _Candidates.concat(parts)
     return cand, opaque, len(cand) + len(P) - len(p)
 

@@ -98,3 +98,27 @@ def test_a_radar_reused_across_worlds_scans_as_a_fresh_one(scene):
         assert len(got) > 50
         for name in ("range", "azimuth", "elevation", "radial_velocity", "label", "p_world"):
             np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+
+
+def test_movers_culled_together_as_one_by_one():
+    """Moving boxes culled as one set give each box's kept patches, samples and sensor-frame patches as culling
+    it alone (a box with a single kept patch included: its one-row product is kept as numpy computes it)."""
+    from rodo.sim.objects import Patches, box
+
+    T_sensor_world = se3.inverse(CFG.T_vehicle_sensor)
+    T_side = se3.from_rotation_translation(so3.exp(np.array([0, 0, 0.7])), np.array([15.0, -6.0, -0.35]))
+    for x in (12.0, 20.0, 35.0, 60.0, 90.0):  # a car straight ahead: only its rear is seen
+        T_ahead = se3.from_rotation_translation(so3.exp(np.array([0, 0, 0.003])), np.array([x, 0.1, -0.35]))
+        bodies = [box(T_ahead, (4.5, 1.8, 1.5), 7), box(T_side, (8.0, 2.5, 3.6), 8)]
+        together = Cull(PatchGeometry(Patches.concat(bodies), indexed=False), T_sensor_world, CFG)
+        groups = np.searchsorted(together.idx, np.cumsum([0] + [len(b) for b in bodies]))
+        alone = [Cull(PatchGeometry(b, indexed=False), T_sensor_world, CFG) for b in bodies]
+        assert list(np.diff(groups)) == [len(a.idx) for a in alone] and np.diff(groups)[0] == 1
+        rng_a, rng_b = np.random.default_rng(1), np.random.default_rng(1)
+        for g, a in enumerate(alone):
+            np.testing.assert_array_equal(together.sample(CFG, rng_a, slice(groups[g], groups[g + 1]))[0],
+                                          a.sample(CFG, rng_b)[0])
+        got = together.sensor(groups=groups)
+        want = Patches.concat([a.sensor() for a in alone])
+        for name in ("origin", "u", "v", "object_id"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
