@@ -23,6 +23,7 @@ from .objects import Patches
 from .occlusion import cross
 
 MARGIN = 1.0  # m added to the pre-selection distances (the exact tests then decide)
+SMALL = 4000  # up to this many points the pre-selection tests them all, beyond it only the tiles near the sensor
 
 
 def transform(p: np.ndarray, C: np.ndarray, t: np.ndarray | None = None, n_all: int | None = None) -> np.ndarray:
@@ -80,13 +81,17 @@ class NearIndex:
         within +-90 deg, with a sensor-frame x above -behind (what is wholly behind the sensor plane is outside
         such a field of view). `behind` is a scalar or (n,) per point."""
         p = sensor_position(T_sensor_world)
-        i0, j0 = np.maximum(np.floor((p[:2] - max_range) / self.tile).astype(np.int64) - self._lo, 0)
-        i1, j1 = np.minimum(np.floor((p[:2] + max_range) / self.tile).astype(np.int64) - self._lo, self._shape - 1)
-        if i0 > i1 or j0 > j1:
-            return np.zeros(0, dtype=np.intp)
-        rows = (np.arange(i0, i1 + 1) * self._shape[1])
-        idx = np.sort(np.concatenate([self._order[self._start[r + j0]:self._start[r + j1 + 1]] for r in rows]))
-        xyz = self.xyz.take(idx, axis=0)
+        if len(self.xyz) <= SMALL:  # testing all is cheaper than gathering the tiles
+            idx, xyz = np.arange(len(self.xyz)), self.xyz
+        else:
+            i0, j0 = np.maximum(np.floor((p[:2] - max_range) / self.tile).astype(np.int64) - self._lo, 0)
+            i1, j1 = np.minimum(np.floor((p[:2] + max_range) / self.tile).astype(np.int64) - self._lo,
+                                self._shape - 1)
+            if i0 > i1 or j0 > j1:
+                return np.zeros(0, dtype=np.intp)
+            rows = np.arange(i0, i1 + 1) * self._shape[1]
+            idx = np.sort(np.concatenate([self._order[self._start[r + j0]:self._start[r + j1 + 1]] for r in rows]))
+            xyz = self.xyz.take(idx, axis=0)
         dx, dy, dz = xyz[:, 0] - p[0], xyz[:, 1] - p[1], xyz[:, 2] - p[2]
         m = dx * dx + dy * dy + dz * dz <= max_range * max_range
         if -np.pi / 2 <= cfg.azimuth_fov[0] and cfg.azimuth_fov[1] <= np.pi / 2:

@@ -122,3 +122,21 @@ def test_movers_culled_together_as_one_by_one():
         want = Patches.concat([a.sensor() for a in alone])
         for name in ("origin", "u", "v", "object_id"):
             np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+
+
+def test_near_index_tiles_select_as_testing_every_point(monkeypatch):
+    """Large scenes go through the grid of tiles: the same indices as testing every point."""
+    from rodo.sim import culling
+
+    rng = np.random.default_rng(11)
+    xyz = rng.uniform([-1500, -400, -5], [1500, 400, 20], (20000, 3))
+    behind = rng.uniform(1.0, 10.0, len(xyz))
+    big, small = culling.NearIndex(xyz), culling.NearIndex(xyz)
+    for _ in range(20):
+        T_sensor_world = se3.inverse(se3.from_rotation_translation(so3.exp(np.array([0, 0, rng.uniform(-3, 3)])),
+                                                                   rng.uniform([-1600, -500, 0], [1600, 500, 2])))
+        monkeypatch.setattr(culling, "SMALL", 0)
+        got = big.near(T_sensor_world, CFG, 160.0, behind)
+        monkeypatch.setattr(culling, "SMALL", len(xyz))
+        want = small.near(T_sensor_world, CFG, 160.0, behind)
+        np.testing.assert_array_equal(got, want)
