@@ -24,6 +24,7 @@ from .occlusion import cross
 
 MARGIN = 1.0  # m added to the pre-selection distances (the exact tests then decide)
 SMALL = 4000  # up to this many points the pre-selection tests them all, beyond it only the tiles near the sensor
+FEW_POINTS = 1000  # up to this many point scatterers none are pre-selected (all are gated exactly)
 
 
 def transform(p: np.ndarray, C: np.ndarray, t: np.ndarray | None = None, n_all: int | None = None) -> np.ndarray:
@@ -220,5 +221,7 @@ class PointIndex:
     def near(self, T_sensor_world: np.ndarray, cfg) -> np.ndarray | None:
         """Sorted indices of the points within max_range + MARGIN of the sensor and not behind it, or None
         for all of them."""
+        if len(self._index) <= FEW_POINTS:  # gating them all costs less than selecting
+            return None
         idx = self._index.near(T_sensor_world, cfg, cfg.max_range + MARGIN, MARGIN)
         return idx if len(idx) < len(self._index) else None
