@@ -18,6 +18,7 @@ from .objects import Patches
 
 # the 9 points of a patch whose angles bound its cell box: origin + a u + b v, a, b in {0, 0.5, 1}, as (1, 9, 1)
 _BOX_A, _BOX_B = np.array([[a, b] for a in (0, 0.5, 1) for b in (0, 0.5, 1)]).T[:, None, :, None]
+_PAD = np.array([[-1], [1]])  # a box's first and last cell padded by one cell
 
 
 def cell_directions(cfg) -> np.ndarray:
@@ -119,15 +120,13 @@ def cell_boxes(p: Patches, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     el = np.arctan2(z, np.sqrt(x * x + y * y))  # the same bits as np.linalg.norm of (x, y)
     az_lo, az_hi = az.min(axis=0), az.max(axis=0)
     # behind or beside the sensor the corner azimuths may not bound the patch: take the whole field of view
-    wraps = (az_hi - az_lo > np.pi) | (np.any(x <= 0, axis=0) & (az_hi - az_lo > np.pi / 2))
-    az_lo = np.where(wraps, cfg.azimuth_fov[0], az_lo)
-    az_hi = np.where(wraps, cfg.azimuth_fov[1], az_hi)
-    ia0 = _clip(np.floor((az_lo - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) - 1, 0, n_az - 1)
-    ia1 = _clip(np.floor((az_hi - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) + 1, 0, n_az - 1)
-    ie0 = _clip(np.floor((el.min(axis=0) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) - 1, 0,
-                n_el - 1)
-    ie1 = _clip(np.floor((el.max(axis=0) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) + 1, 0,
-                n_el - 1)
+    wraps = (az_hi - az_lo > np.pi) | ((x <= 0).any(axis=0) & (az_hi - az_lo > np.pi / 2))
+    az_lo_hi = np.where(wraps, np.array(cfg.azimuth_fov, dtype=float)[:, None], np.stack([az_lo, az_hi]))
+    el_lo_hi = np.stack([el.min(axis=0), el.max(axis=0)])
+    # floor((angle - fov_min) / cell), one cell of padding, clipped (lo and hi rows together)
+    ia0, ia1 = _clip(np.floor((az_lo_hi - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) + _PAD, 0, n_az - 1)
+    ie0, ie1 = _clip(np.floor((el_lo_hi - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) + _PAD, 0,
+                     n_el - 1)
     return ia0, ia1, ie0, ie1
 
 
