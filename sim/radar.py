@@ -243,11 +243,6 @@ class _Candidates:
     def __len__(self) -> int:
         return len(self.p_world)
 
-    @staticmethod
-    def concat(parts: list["_Candidates"]) -> "_Candidates":
-        return _Candidates(*(np.concatenate([getattr(c, f) for c in parts])
-                             for f in ("p_world", "v_world", "label", "object_id", "landmark_id", "pd_own")))
-
 
 @dataclass(frozen=True)
 class _StaticScene:
@@ -264,28 +259,31 @@ def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: Rad
     candidates had every point scatterer been included (see `sim.culling.transform`)."""
     static = Cull(scene.patches, T_sensor_world, cfg)
     pts, k = static.sample(cfg, rng)
-    n = len(pts)
-    parts = [_Candidates(pts, np.zeros((n, 3)), np.full(n, STATIC_SURFACE), static.object_id.take(k),
-                         np.full(n, -1), np.ones(n))]
     opaque = [static.sensor(opaque_only=True)]
     P = world.points
     near = scene.points.near(T_sensor_world, cfg)
     p, pd, landmark_id = (P.p, P.pd, P.landmark_id) if near is None else (P.p.take(near, axis=0), P.pd.take(near),
                                                                           P.landmark_id.take(near))
-    parts.append(_Candidates(p, np.zeros_like(p), np.full(len(p), STATIC_POINT), np.full(len(p), -1),
-                             landmark_id, pd))
+    p_world, v_moving, n_moving = [pts, p], [], []
     if movers:  # culled together (one set of calls), sampled one by one (the draws in the movers' order)
         bodies = [mover.body_patches.transformed(T_world_object) for mover, T_world_object, _, _ in movers]
         cull = Cull(PatchGeometry(Patches.concat(bodies), indexed=False), T_sensor_world, cfg)
         groups = np.searchsorted(cull.idx, np.cumsum([0] + [len(b) for b in bodies]))
         for g, (mover, T_world_object, v_object, w_object) in enumerate(movers):
-            pts, _ = cull.sample(cfg, rng, slice(groups[g], groups[g + 1]))
-            n = len(pts)
-            parts.append(_Candidates(pts, v_object + cross(w_object, pts - T_world_object[:3, 3]),
-                                     np.full(n, MOVING), np.full(n, mover.object_id), np.full(n, -1), np.ones(n)))
+            pts_g, _ = cull.sample(cfg, rng, slice(groups[g], groups[g + 1]))
+            p_world.append(pts_g)
+            v_moving.append(v_object + cross(w_object, pts_g - T_world_object[:3, 3]))
+            n_moving.append(len(pts_g))
         opaque.append(cull.sensor(groups=groups))
-    cand = _Candidates.concat(parts)
-    return cand, opaque, len(cand) + len(P) - len(p)
+    n_s, n_p, n_m = len(pts), len(p), sum(n_moving)
+    mover_ids = np.array([mover.object_id for mover, *_ in movers], dtype=int)
+    cand = _Candidates(
+        p_world=np.concatenate(p_world), v_world=np.concatenate([np.zeros((n_s + n_p, 3))] + v_moving),
+        label=np.repeat([STATIC_SURFACE, STATIC_POINT, MOVING], [n_s, n_p, n_m]),
+        object_id=np.concatenate([static.object_id.take(k), np.full(n_p, -1), np.repeat(mover_ids, n_moving)]),
+        landmark_id=np.concatenate([np.full(n_s, -1), landmark_id, np.full(n_m, -1)]),
+        pd_own=np.concatenate([np.ones(n_s), pd, np.ones(n_m)]))
+    return cand, opaque, len(cand) + len(P) - n_p
 
 
 def _noisy_with_clutter(true: np.ndarray, cand: _Candidates, idx: np.ndarray, cfg: RadarConfig,
