@@ -169,7 +169,9 @@ class Radar:
         self._scene = (None, None, None)  # (world patches, world points, their _StaticScene)
 
     def _static(self, world) -> "_StaticScene":
-        """The culling geometry of the world's static patches and points, computed once per scene."""
+        """The culling geometry of the world's static patches and points, computed once per scene (kept for
+        the last world scanned, recognised by its patches and points objects: a scene is not modified in place
+        between scans)."""
         patches, points, scene = self._scene
         if patches is not world.patches or points is not world.points:
             scene = _StaticScene(PatchGeometry(world.patches, indexed=True), PointIndex(world.points.p))
