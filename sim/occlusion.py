@@ -97,7 +97,7 @@ def depth_buffer(p: Patches, cfg, dirs: np.ndarray, limit: np.ndarray | None = N
     d = dirs.take(cell, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.einsum("ij,ij->i", normal, p.origin).take(pid) / np.einsum("ij,ij->i", normal.take(pid, axis=0), d)
-        keep = np.flatnonzero((s > 0) & (s < limit.take(cell)) & np.isfinite(s))
+        keep = np.flatnonzero((s > 0) & (s < limit.take(cell)))  # (s < limit excludes NaN and inf)
         pid, cell, s, d = pid.take(keep), cell.take(keep), s.take(keep), d.take(keep, axis=0)
         q = np.repeat(s, 3).reshape(-1, 3) * d - p.origin.take(pid, axis=0)  # = s[:, None] * d - o, no row loop
         a = np.einsum("ij,ij->i", q, p.u.take(pid, axis=0)) / np.einsum("ij,ij->i", p.u, p.u).take(pid)
