@@ -1,4 +1,4 @@
-"""Simulator speed: scans per second of the radar model per scenario (goal: >= 100 scans/s for `city`;
+"""Simulator speed: scans per second of the radar model per scenario (goal: >= 500 scans/s for `city`;
 wall clock and per CPU second, as the machine may be shared), plus the time to build the scene and to
 write the sequence directory.
 
@@ -46,10 +46,10 @@ def table(names, seed: int, duration: float) -> str:
 
 
 def run(quick: bool) -> str:
-    """Markdown section for `python -m bench` (goal: >= 100 scans/s for city)."""
+    """Markdown section for `python -m bench` (goal: >= 500 scans/s for city)."""
     duration = 10.0 if quick else 20.0
     names = ["city", "highway", "hills", "stop_and_go", "blockage", "yaw_accel"]
-    return (f"## Simulator speed ({duration:.0f} s of each scenario, seed 0; goal >= 100 scans/s for city)\n\n"
+    return (f"## Simulator speed ({duration:.0f} s of each scenario, seed 0; goal >= 500 scans/s for city)\n\n"
             + table(names, 0, duration))
 
 

@@ -10,7 +10,9 @@ The package, file by file (the names below are re-exported here; submodules stay
     world.py           scenes around a route: `World`, `SceneParams` (`CITY`, `HIGHWAY`, `RURAL`), `build_world`,
                        traffic (`lead_vehicle`, `oncoming_vehicle`, `overtaking_vehicle`).
     radar.py           the sensor model: `Radar`, `RadarConfig`, `Detections`, `default_mount`, `sensor_velocity`,
-                       `polar`.
+                       `polar`; built on culling.py (what a scan can see at all: per-scene patch geometry and the
+                       pre-selection near the sensor) and occlusion.py (the angular cell grid, the depth buffer,
+                       the nearest entry per cell). Those two are internal (not re-exported).
     simulate.py        profile + world + radar -> sequence and truth: `simulate_sequence` (the module's
                        `simulate`; the module itself keeps the name `rodo.sim.simulate`), `write_simulation`,
                        `load_truth`, `TRUTH_NPZ`.

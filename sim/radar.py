@@ -27,7 +27,9 @@ import numpy as np
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3, so3
 
+from .culling import Cull, PatchGeometry, PointIndex, norm3, transform
 from .objects import CLUTTER, MOVING, STATIC_POINT, STATIC_SURFACE, Patches
+from .occlusion import cell_directions, cell_index, cross, depth_buffer, nearest_per_cell
 
 DEG = np.pi / 180.0
 
@@ -143,110 +145,15 @@ def sensor_velocity(varpi: np.ndarray, T_vehicle_sensor: np.ndarray) -> tuple[np
     [v; w] = -varpi (docs/conventions.md)."""
     v, w = -varpi[:3], -varpi[3:]
     C, r = T_vehicle_sensor[:3, :3], T_vehicle_sensor[:3, 3]
-    return C.T @ (v + np.cross(w, r)), C.T @ w
+    return C.T @ (v + cross(w, r)), C.T @ w
 
 
 def polar(p_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Paper eq. 80: (n, 3) sensor-frame points -> range, azimuth, elevation."""
-    r = np.linalg.norm(p_sensor, axis=-1)
+    r = norm3(p_sensor)
     az = np.arctan2(p_sensor[:, 1], p_sensor[:, 0])
     el = np.arcsin(np.clip(p_sensor[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
     return r, az, el
-
-
-class _Cull:
-    """Patches visible from the sensor: in range, facing it, near the field of view."""
-
-    def __init__(self, patches: Patches, T_sensor_world: np.ndarray, cfg: RadarConfig):
-        C, t = T_sensor_world[:3, :3], T_sensor_world[:3, 3]
-        c = patches.center @ C.T + t
-        d = np.linalg.norm(c, axis=-1)
-        hd = patches.half_diagonal
-        n = patches.normal @ C.T
-        facing = np.einsum("ij,ij->i", n, -c)  # > 0: the sensor is on the normal's side
-        ang = np.where(d > hd, np.arcsin(np.clip(hd / np.maximum(d, 1e-9), 0, 1)), np.pi)
-        az = np.arctan2(c[:, 1], c[:, 0])
-        el = np.arcsin(np.clip(c[:, 2] / np.maximum(d, 1e-9), -1, 1))
-        keep = ((d - hd < cfg.max_range) & (d + hd > cfg.min_range) & (patches.two_sided | (facing > 0))
-                & (az > cfg.azimuth_fov[0] - ang) & (az < cfg.azimuth_fov[1] + ang)
-                & (el > cfg.elevation_fov[0] - ang) & (el < cfg.elevation_fov[1] + ang))
-        self.idx = np.flatnonzero(keep)
-        self.patches = patches.subset(self.idx)
-        self.d = d[keep]
-        self.cos = np.abs(facing[keep]) / np.maximum(self.d, 1e-9)
-        self.sensor = Patches(patches.origin[keep] @ C.T + t, patches.u[keep] @ C.T, patches.v[keep] @ C.T,
-                              patches.object_id[keep], patches.reflectivity[keep], patches.opaque[keep],
-                              patches.two_sided[keep])
-
-    def counts(self, cfg: RadarConfig, rng: np.random.Generator) -> np.ndarray:
-        cell = cfg.cell_azimuth * cfg.cell_elevation
-        lam = (cfg.surface_fill * self.patches.reflectivity * self.patches.area * self.cos
-               / (np.maximum(self.d, cfg.min_density_range) ** 2 * cell))
-        return rng.poisson(lam)
-
-
-def _depth_buffer(p: Patches, cfg: RadarConfig, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest opaque surface along each cell-centre ray: depth (cells,) (inf if none) and its object id.
-
-    Each patch (sensor frame) is tested only against the cells of its angular bounding box, estimated from
-    9 points on the patch and padded by one cell; the test itself is an exact ray-rectangle intersection."""
-    n_az, n_el = cfg.grid_shape
-    depth = np.full(n_az * n_el, np.inf)
-    owner = np.full(n_az * n_el, -1)
-    if not len(p):
-        return depth, owner
-    ab = np.array([[a, b] for a in (0, 0.5, 1) for b in (0, 0.5, 1)])
-    pts = p.origin[:, None, :] + ab[None, :, :1] * p.u[:, None, :] + ab[None, :, 1:] * p.v[:, None, :]
-    az = np.arctan2(pts[..., 1], pts[..., 0])
-    el = np.arctan2(pts[..., 2], np.linalg.norm(pts[..., :2], axis=-1))
-    az_lo, az_hi = az.min(axis=1), az.max(axis=1)
-    # behind or beside the sensor the corner azimuths may not bound the patch: take the whole field of view
-    wraps = (az_hi - az_lo > np.pi) | (np.any(pts[..., 0] <= 0, axis=1) & (az_hi - az_lo > np.pi / 2))
-    az_lo = np.where(wraps, cfg.azimuth_fov[0], az_lo)
-    az_hi = np.where(wraps, cfg.azimuth_fov[1], az_hi)
-    ia0 = np.clip(np.floor((az_lo - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) - 1, 0, n_az - 1)
-    ia1 = np.clip(np.floor((az_hi - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) + 1, 0, n_az - 1)
-    ie0 = np.clip(np.floor((el.min(axis=1) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) - 1, 0,
-                  n_el - 1)
-    ie1 = np.clip(np.floor((el.max(axis=1) - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) + 1, 0,
-                  n_el - 1)
-    na, ne = ia1 - ia0 + 1, ie1 - ie0 + 1
-    cnt = na * ne
-    pid = np.repeat(np.arange(len(p)), cnt)
-    k = np.arange(pid.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-    cell = (ia0[pid] + k // ne[pid]) * n_el + ie0[pid] + k % ne[pid]
-    d = dirs[cell]
-    normal = np.cross(p.u, p.v)
-    denom = np.einsum("ij,ij->i", normal[pid], d)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.einsum("ij,ij->i", normal, p.origin)[pid] / denom
-        q = s[:, None] * d - p.origin[pid]
-        a = np.einsum("ij,ij->i", q, p.u[pid]) / np.einsum("ij,ij->i", p.u, p.u)[pid]
-        b = np.einsum("ij,ij->i", q, p.v[pid]) / np.einsum("ij,ij->i", p.v, p.v)[pid]
-        hit = (s > 0) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1) & np.isfinite(s)
-    cell, s, pid = cell[hit], s[hit], pid[hit]
-    order = np.lexsort((s, cell))
-    first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]] if order.size else order
-    depth[cell[first]] = s[first]
-    owner[cell[first]] = p.object_id[pid[first]]
-    return depth, owner
-
-
-def cell_directions(cfg: RadarConfig) -> np.ndarray:
-    """Unit directions (sensor frame) of the cell centres, (n_az * n_el, 3), azimuth-major."""
-    n_az, n_el = cfg.grid_shape
-    az = cfg.azimuth_fov[0] + (np.arange(n_az) + 0.5) * cfg.cell_azimuth
-    el = cfg.elevation_fov[0] + (np.arange(n_el) + 0.5) * cfg.cell_elevation
-    A, E = np.meshgrid(az, el, indexing="ij")
-    A, E = A.ravel(), E.ravel()
-    return np.stack([np.cos(E) * np.cos(A), np.cos(E) * np.sin(A), np.sin(E)], axis=-1)
-
-
-def cell_index(az: np.ndarray, el: np.ndarray, cfg: RadarConfig) -> np.ndarray:
-    n_az, n_el = cfg.grid_shape
-    ia = np.clip(np.floor((az - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int), 0, n_az - 1)
-    ie = np.clip(np.floor((el - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int), 0, n_el - 1)
-    return ia * n_el + ie
 
 
 class Radar:
@@ -259,6 +166,17 @@ class Radar:
     def __init__(self, config: RadarConfig | None = None):
         self.config = RadarConfig() if config is None else config
         self._dirs = cell_directions(self.config)
+        self._scene = (None, None, None)  # (world patches, world points, their _StaticScene)
+
+    def _static(self, world) -> "_StaticScene":
+        """The culling geometry of the world's static patches and points, computed once per scene (kept for
+        the last world scanned, recognised by its patches and points objects: a scene is not modified in place
+        between scans)."""
+        patches, points, scene = self._scene
+        if patches is not world.patches or points is not world.points:
+            scene = _StaticScene(PatchGeometry(world.patches, indexed=True), PointIndex(world.points.p))
+            self._scene = (world.patches, world.points, scene)
+        return scene
 
     def scan(self, world, T_world_vehicle: np.ndarray, varpi: np.ndarray, rng: np.random.Generator,
              movers: list | None = None) -> Detections:
@@ -280,16 +198,18 @@ class Radar:
         cfg = self.config
         T_sensor_world = se3.inverse(T_world_vehicle @ cfg.T_vehicle_sensor)
         v_sensor, _ = sensor_velocity(np.asarray(varpi, dtype=float), cfg.T_vehicle_sensor)
-        cand, opaque = _candidates(world, T_sensor_world, cfg, rng, movers or ())
-        p_sensor = cand.p_world @ T_sensor_world[:3, :3].T + T_sensor_world[:3, 3]
+        cand, opaque, n_all = _candidates(world, self._static(world), T_sensor_world, cfg, rng, movers or ())
+        p_sensor = transform(cand.p_world, T_sensor_world[:3, :3], T_sensor_world[:3, 3], n_all)
         idx, r, az, el = self._visible(p_sensor, cand.object_id, opaque)
-        pd = cfg.pd(r) * (1.0 if cfg.ideal_detection else cand.pd_own[idx])
+        pd = cfg.pd(r) * (1.0 if cfg.ideal_detection else cand.pd_own.take(idx))
         hit = rng.random(len(idx)) < pd
         idx, r, az, el = idx[hit], r[hit], az[hit], el[hit]
-        u = p_sensor[idx] / r[:, None]
-        vr = np.einsum("ij,ij->i", u, cand.v_world[idx] @ T_sensor_world[:3, :3].T - v_sensor)
-        true = np.stack([r, az, el, vr], axis=-1)
-        return _noisy_with_clutter(true, cand, idx, cfg, rng)
+        u = p_sensor.take(idx, axis=0) / np.repeat(r, 3).reshape(-1, 3)  # = / r[:, None]
+        v = cand.v_world.take(idx, axis=0) @ T_sensor_world[:3, :3].T
+        for j in range(3):
+            v[:, j] -= v_sensor[j]
+        vr = np.einsum("ij,ij->i", u, v)
+        return _noisy_with_clutter(np.stack([r, az, el, vr]), cand, idx, cfg, rng)
 
     def _visible(self, p_sensor: np.ndarray, object_id: np.ndarray, opaque: list[Patches]):
         """Gates (range, field of view), occlusion by opaque surfaces of other objects in front, then the
@@ -301,11 +221,13 @@ class Radar:
         idx = np.flatnonzero(keep)
         r, az, el = r[idx], az[idx], el[idx]
         cell = cell_index(az, el, cfg)
-        depth, owner = _depth_buffer(Patches.concat(opaque), cfg, self._dirs)
-        visible = ~((depth[cell] < r - cfg.occlusion_tolerance) & (owner[cell] != object_id[idx]))
+        r_hidden = r - cfg.occlusion_tolerance  # hidden behind a surface nearer than this (of another object)
+        limit = np.full(len(self._dirs), -np.inf)
+        np.maximum.at(limit, cell, r_hidden)
+        depth, owner = depth_buffer(Patches.concat(opaque), cfg, self._dirs, limit)
+        visible = ~((depth.take(cell) < r_hidden) & (owner.take(cell) != object_id.take(idx)))
         idx, r, az, el, cell = idx[visible], r[visible], az[visible], el[visible], cell[visible]
-        order = np.lexsort((r, cell))
-        first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]] if order.size else order
+        first = nearest_per_cell(cell, r, len(self._dirs))
         return idx[first], r[first], az[first], el[first]
 
 
@@ -320,56 +242,72 @@ class _Candidates:
     landmark_id: np.ndarray
     pd_own: np.ndarray
 
-    @staticmethod
-    def concat(parts: list["_Candidates"]) -> "_Candidates":
-        return _Candidates(*(np.concatenate([getattr(c, f) for c in parts])
-                             for f in ("p_world", "v_world", "label", "object_id", "landmark_id", "pd_own")))
+    def __len__(self) -> int:
+        return len(self.p_world)
 
 
-def _surface_samples(cull: _Cull, cfg: RadarConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Random points on the culled patches (Poisson counts, then positions): (m, 3) and their patch index."""
-    return cull.patches.sample(cull.counts(cfg, rng), rng)
+@dataclass(frozen=True)
+class _StaticScene:
+    """A world's static patches and points, indexed for culling (`sim.culling`)."""
+
+    patches: PatchGeometry
+    points: PointIndex
 
 
-def _candidates(world, T_sensor_world: np.ndarray, cfg: RadarConfig, rng: np.random.Generator,
-                movers) -> tuple[_Candidates, list[Patches]]:
-    """Static surface samples, the persistent point scatterers and the movers' surface samples (drawn in that
-    order), with the opaque patches (sensor frame) that may hide them."""
-    static = _Cull(world.patches, T_sensor_world, cfg)
-    pts, k = _surface_samples(static, cfg, rng)
-    n = len(pts)
-    parts = [_Candidates(pts, np.zeros_like(pts), np.full(n, STATIC_SURFACE), static.patches.object_id[k],
-                         np.full(n, -1), np.ones(n))]
-    opaque = [static.sensor.subset(static.sensor.opaque)]
+def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: RadarConfig,
+                rng: np.random.Generator, movers) -> tuple[_Candidates, list[Patches], int]:
+    """Static surface samples, the point scatterers near enough to be in range and the movers' surface samples
+    (drawn in that order), with the opaque patches (sensor frame) that may hide them and the number of
+    candidates had every point scatterer been included (see `sim.culling.transform`)."""
+    static = Cull(scene.patches, T_sensor_world, cfg)
+    pts, k = static.sample(cfg, rng)
+    opaque = [static.sensor(opaque_only=True)]
     P = world.points
-    parts.append(_Candidates(P.p, np.zeros_like(P.p), np.full(len(P), STATIC_POINT), np.full(len(P), -1),
-                             P.landmark_id, P.pd))
-    for mover, T_world_object, v_object, w_object in movers:
-        cull = _Cull(mover.body_patches.transformed(T_world_object), T_sensor_world, cfg)
-        pts, k = _surface_samples(cull, cfg, rng)
-        n = len(pts)
-        parts.append(_Candidates(pts, v_object + np.cross(w_object, pts - T_world_object[:3, 3]),
-                                 np.full(n, MOVING), np.full(n, mover.object_id), np.full(n, -1), np.ones(n)))
-        opaque.append(cull.sensor)
-    return _Candidates.concat(parts), opaque
+    near = scene.points.near(T_sensor_world, cfg)
+    p, pd, landmark_id = (P.p, P.pd, P.landmark_id) if near is None else (P.p.take(near, axis=0), P.pd.take(near),
+                                                                          P.landmark_id.take(near))
+    p_world, v_moving, n_moving = [pts, p], [], []
+    if movers:  # culled together (one set of calls), sampled one by one (the draws in the movers' order)
+        bodies = [mover.body_patches.transformed(T_world_object) for mover, T_world_object, _, _ in movers]
+        cull = Cull(PatchGeometry(Patches.concat(bodies), indexed=False), T_sensor_world, cfg)
+        groups = np.searchsorted(cull.idx, np.cumsum([0] + [len(b) for b in bodies]))
+        for g, (mover, T_world_object, v_object, w_object) in enumerate(movers):
+            pts_g, _ = cull.sample(cfg, rng, slice(groups[g], groups[g + 1]))
+            p_world.append(pts_g)
+            v_moving.append(v_object + cross(w_object, pts_g - T_world_object[:3, 3]))
+            n_moving.append(len(pts_g))
+        opaque.append(cull.sensor(groups=groups))
+    n_s, n_p, n_m = len(pts), len(p), sum(n_moving)
+    mover_ids = np.array([mover.object_id for mover, *_ in movers], dtype=int)
+    cand = _Candidates(
+        p_world=np.concatenate(p_world), v_world=np.concatenate([np.zeros((n_s + n_p, 3))] + v_moving),
+        label=np.repeat([STATIC_SURFACE, STATIC_POINT, MOVING], [n_s, n_p, n_m]),
+        object_id=np.concatenate([static.object_id.take(k), np.full(n_p, -1), np.repeat(mover_ids, n_moving)]),
+        landmark_id=np.concatenate([np.full(n_s, -1), landmark_id, np.full(n_m, -1)]),
+        pd_own=np.concatenate([np.ones(n_s), pd, np.ones(n_m)]))
+    return cand, opaque, len(cand) + len(P) - n_p
 
 
 def _noisy_with_clutter(true: np.ndarray, cand: _Candidates, idx: np.ndarray, cfg: RadarConfig,
                         rng: np.random.Generator) -> Detections:
-    """Polar noise on the detected targets' true (n, 4) measurements, Poisson false alarms, a random order."""
-    meas = true + rng.standard_normal(true.shape) * np.asarray(cfg.sigmas)
+    """Polar noise on the detected targets' true measurements (4, n) (range, azimuth, elevation, radial
+    velocity), Poisson false alarms, a random order."""
+    n = true.shape[1]
+    # the draws are (n, 4) row-major as ever; the arithmetic is done coordinate-major (the same bits)
+    meas = true + rng.standard_normal((n, 4)).T * np.asarray(cfg.sigmas, dtype=float)[:, None]
     n_fa = rng.poisson(cfg.clutter_rate) if cfg.clutter_rate > 0 else 0
     fa = np.stack([rng.uniform(cfg.min_range, cfg.max_range, n_fa),
                    rng.uniform(*cfg.azimuth_fov, n_fa), rng.uniform(*cfg.elevation_fov, n_fa),
-                   rng.uniform(-cfg.clutter_speed, cfg.clutter_speed, n_fa)], axis=-1)
-    meas = np.concatenate([meas, fa])
-    perm = rng.permutation(len(meas))
+                   rng.uniform(-cfg.clutter_speed, cfg.clutter_speed, n_fa)])
+    meas = np.concatenate([meas, fa], axis=1)
+    perm = rng.permutation(n + n_fa)
     neg = np.full(n_fa, -1)
     return Detections(
-        range=meas[perm, 0], azimuth=meas[perm, 1], elevation=meas[perm, 2], radial_velocity=meas[perm, 3],
-        label=np.concatenate([cand.label[idx], np.full(n_fa, CLUTTER)])[perm],
-        object_id=np.concatenate([cand.object_id[idx], neg])[perm],
-        landmark_id=np.concatenate([cand.landmark_id[idx], neg])[perm],
-        p_world=np.concatenate([cand.p_world[idx], np.full((n_fa, 3), np.nan)])[perm],
-        true_polar=np.concatenate([true, fa])[perm],
+        range=meas[0].take(perm), azimuth=meas[1].take(perm), elevation=meas[2].take(perm),
+        radial_velocity=meas[3].take(perm),
+        label=np.concatenate([cand.label.take(idx), np.full(n_fa, CLUTTER)]).take(perm),
+        object_id=np.concatenate([cand.object_id.take(idx), neg]).take(perm),
+        landmark_id=np.concatenate([cand.landmark_id.take(idx), neg]).take(perm),
+        p_world=np.concatenate([cand.p_world.take(idx, axis=0), np.full((n_fa, 3), np.nan)]).take(perm, axis=0),
+        true_polar=np.ascontiguousarray(np.concatenate([true, fa], axis=1).T.take(perm, axis=0)),
     )
