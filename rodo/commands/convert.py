@@ -21,7 +21,7 @@ source has ground truth) plus conversion.json (what was kept, dropped and why, a
 Formats:
   radarscenes  RadarScenes export folder (radar{N}_detections.csv.gz + radar{N}_timestamp_and_odom.csv).
                --radars 2 writes SEQ_DIR; --radars 2,3 writes one sequence per radar into SEQ_DIR/radarN
-               (the sequence format has one sensor). 2D radar: elevation 0 with sigma 10 deg. Extra columns
+               and SEQ_DIR/rig.toml, which makes SEQ_DIR a rig (docs/sequence_format.md, Rigs). 2D radar: elevation 0 with sigma 10 deg. Extra columns
                label, rcs; odom.csv with the odometry speed and yaw rate; groundtruth.txt from the odometry pose.
   ti-mmwave    TI mmWave CSV export (radar_scans.csv, radar_detections.csv, calib yaml). 4D; vehicle frame =
                IMU body frame; no ground truth.
@@ -163,4 +163,9 @@ def run(args) -> int:
         write_conversion(target, conv)
         print(f"{conv.name} -> {target}")
         print(conv.report.summary())
+    if args.format == "radarscenes" and len(convs) > 1:  # radars of one vehicle: a rig (`rodo run` fuses them)
+        from rodo.sim.rig import RIG_TOML, write_rig_toml
+
+        write_rig_toml(out, [c.name for c in convs])
+        print(f"{out / RIG_TOML}: the {len(convs)} radars as one rig")
     return 0
