@@ -6,7 +6,7 @@ best one is then run on the bench sequences, which use seed 0 (`bench.odometry.S
 
 - open3d ICP (`validation.icp_baseline.run_icp`): ICP_GRID, scan-to-scan (window 1) and scan-to-map (windows 5,
   10, 20 scans) x voxel none / 0.3 / 0.5 m x max correspondence 0.5 / 1 / 2 m x point-to-point / point-to-plane
-  (72 settings), then the winner with and without the Doppler filter.
+  (72 settings), then the winner with the Doppler filter; all with the Doppler initial velocity (`doppler_init`).
 - KISS-ICP (`validation.kiss_baseline.run_kiss`): KISS_VOXELS, everything else as `radar_config` sets it.
 
 The full bench (`python -m bench.odometry`) runs the tuning; the quick one uses ICP_TUNED and KISS_TUNED, the
@@ -31,14 +31,16 @@ ICP_METHODS = ("point_to_point", "point_to_plane")
 KISS_VOXELS = (0.5, 1.0, 1.5, 2.0)  # m
 
 # Winners of the last full run's tuning (docs/benchmarks.md), used by the quick bench.
-ICP_TUNED = {"method": "point_to_plane", "map_scans": 10, "voxel": 0.3, "max_correspondence": 1.0,
-             "doppler_filter": False}
+ICP_TUNED = {"method": "point_to_point", "map_scans": 20, "voxel": None, "max_correspondence": 0.5,
+             "doppler_filter": False, "doppler_init": True}
 KISS_TUNED = 1.5
 
 
 def icp_grid() -> list[dict]:
-    """The open3d settings of the grid, as run_icp keyword arguments (Doppler filter off)."""
-    return [{"method": m, "map_scans": w, "voxel": v, "max_correspondence": c, "doppler_filter": False}
+    """The open3d settings of the grid, as run_icp keyword arguments (Doppler filter off; every setting starts
+    from the first scan's Doppler ego velocity, as the estimator does)."""
+    return [{"method": m, "map_scans": w, "voxel": v, "max_correspondence": c, "doppler_filter": False,
+             "doppler_init": True}
             for m, w, v, c in itertools.product(ICP_METHODS, WINDOWS, VOXELS, CORRESPONDENCES)]
 
 
@@ -90,6 +92,20 @@ def tune_icp(seq, accuracy, skip: int = 5, progress=None) -> tuple[dict, list[di
     rows.append({"setting": doppler, **_scored(seq, traj, ms, accuracy, skip)})
     rows.sort(key=_score)
     return rows[0]["setting"], rows
+
+
+def icp_alternatives(rows: list[dict]) -> list[dict]:
+    """Settings worth checking on the bench sequences beside the winner (reported, not used to choose): the
+    winner with the Doppler filter, the best point-to-plane and the best scan-to-scan setting of the grid."""
+    best = rows[0]["setting"]
+    out = [best, {**best, "doppler_filter": True}]
+    for pick in (lambda s: s["method"] == "point_to_plane", lambda s: s["map_scans"] == 1):
+        out.append(next(r["setting"] for r in rows if pick(r["setting"]) and not r["setting"]["doppler_filter"]))
+    unique = []
+    for s in out:
+        if s not in unique:
+            unique.append(s)
+    return unique
 
 
 def tune_kiss(seq, accuracy, skip: int = 5) -> tuple[float, list[dict]]:

@@ -104,8 +104,9 @@ def _ratio(a: float, b: float) -> str:
     return f"{a / b:.2f}x" if np.isfinite(a) and np.isfinite(b) and b > 0 else "-"
 
 
-def _tune(quick: bool, notes: dict) -> tuple[dict | None, float | None, list[str]]:
-    """The baselines' settings (tuned on the tuning sequence in a full run) and the Markdown of the tuning."""
+def _tune(quick: bool, notes: dict) -> tuple[dict | None, float | None, list[str], list[dict]]:
+    """The baselines' settings (tuned on the tuning sequence in a full run), the Markdown of the tuning and the
+    open3d settings to check on the bench sequences (full run only)."""
     from rodo import scenarios
 
     icp_kw = baselines.ICP_TUNED if not notes["open3d"] else None
@@ -113,12 +114,15 @@ def _tune(quick: bool, notes: dict) -> tuple[dict | None, float | None, list[str
     where = f"`{baselines.TUNE_SCENARIO}` seed {baselines.TUNE_SEED}, {baselines.TUNE_DURATION:.0f} s"
     if quick:
         return icp_kw, kiss_vx, [f"Baseline settings: the winners of the last full run's tuning on {where} "
-                                 "(bench/baselines.py ICP_TUNED, KISS_TUNED; the grid is in docs/benchmarks.md)."]
+                                 "(bench/baselines.py ICP_TUNED, KISS_TUNED; the grid is in docs/benchmarks.md).",
+                                 ""], []
     seq, _ = scenarios.get(baselines.TUNE_SCENARIO).simulate(baselines.TUNE_SEED, duration=baselines.TUNE_DURATION)
     lines = [f"### Baseline tuning on {where} (not a bench sequence)", "",
              "Score: KITTI t_err (ties: r_err, then time). Every setting of the grid, best first:", ""]
+    alternatives = []
     if icp_kw is not None:
         icp_kw, rows = baselines.tune_icp(seq, _accuracy, SKIP)
+        alternatives = baselines.icp_alternatives(rows)
         lines += _table(["open3d ICP setting", "t_err %", "r_err deg/m", "median ms/scan"],
                         [[baselines.describe_icp(r["setting"]), f"{r['t_err']:.2f}", f"{r['r_err']:.4f}",
                           f"{r['median_ms']:.1f}"] for r in rows]) + [""]
@@ -127,7 +131,7 @@ def _tune(quick: bool, notes: dict) -> tuple[dict | None, float | None, list[str
         lines += _table(["KISS-ICP voxel m", "t_err %", "r_err deg/m", "median ms/scan"],
                         [[f"{r['voxel']:g}", f"{r['t_err']:.2f}", f"{r['r_err']:.4f}", f"{r['median_ms']:.1f}"]
                          for r in rows]) + [""]
-    return icp_kw, kiss_vx, lines
+    return icp_kw, kiss_vx, lines, alternatives
 
 
 def _methods(icp_kw, kiss_vx) -> list[tuple[str, str, object]]:
@@ -144,7 +148,8 @@ def _run_method(seq, kind: str, arg) -> tuple[dict, object]:
 
 
 def _kiss_sensitivity(seqs: dict) -> list[str]:
-    """KISS-ICP's t_err and median ms at each of KISS_VOXELS on every bench sequence (not used for tuning)."""
+    """KISS-ICP's t_err and median ms at each of KISS_VOXELS on every bench sequence (full run only; reported,
+    not used to choose the voxel)."""
     rows = []
     for vx in baselines.KISS_VOXELS:
         row = [f"{vx:g}"]
@@ -154,6 +159,20 @@ def _kiss_sensitivity(seqs: dict) -> list[str]:
         rows.append(row)
     return ["", "KISS-ICP voxel sensitivity on the bench sequences (t_err % / median ms per scan; reported, not "
             "used to choose):", ""] + _table(["voxel m", *seqs], rows)
+
+
+def _icp_sensitivity(seqs: dict, settings: list[dict]) -> list[str]:
+    """open3d ICP's t_err and median ms at a few settings on every bench sequence (full run only; reported, not
+    used to choose)."""
+    rows = []
+    for kw in settings:
+        row = [baselines.describe_icp(kw)]
+        for seq in seqs.values():
+            sp, traj = _run_icp(seq, kw)
+            row.append(f"{_accuracy(seq, traj)['t_err']:.2f} / {sp['median']:.1f}")
+        rows.append(row)
+    return ["", "open3d ICP, the winner and alternatives on the bench sequences (t_err % / median ms per scan; "
+            "reported, not used to choose):", ""] + _table(["setting", *seqs], rows)
 
 
 def _result_rows(results: dict, durations: dict) -> list[list]:
@@ -186,7 +205,7 @@ def run(quick: bool = False) -> str:
     notes = baselines.available()
     load_before = _load()
     tic = time.perf_counter()
-    icp_kw, kiss_vx, tuning = _tune(quick, notes)
+    icp_kw, kiss_vx, tuning, alternatives = _tune(quick, notes)
     durations = _durations(quick)
     results, seqs = {}, {}
     for name, duration in durations.items():
@@ -195,14 +214,15 @@ def run(quick: bool = False) -> str:
         for label, kind, arg in _methods(icp_kw, kiss_vx):
             sp, traj = _run_method(seqs[name], kind, arg)
             results[name][label] = (sp, _accuracy(seqs[name], traj))
-    sensitivity = _kiss_sensitivity(seqs) if kiss_vx is not None else []
+    sensitivity = _kiss_sensitivity(seqs) if kiss_vx is not None and not quick else []
+    sensitivity += _icp_sensitivity(seqs, alternatives) if alternatives else []
     elapsed = time.perf_counter() - tic
 
     missing = " ".join(f"No {k} row: {v}." for k, v in notes.items() if v)
     lines = [f"## Odometry (`python -m bench.odometry{' --quick' if quick else ''}`)", "",
              f"Seed {SEED}, scans after the first {SKIP}; all methods single-threaded (BLAS, open3d and KISS-ICP "
              f"limited to 1 thread). open3d ICP: {baselines.describe_icp(icp_kw) if icp_kw else '-'}; constant-"
-             f"velocity initial guess, 30 iterations. KISS-ICP {_kiss_version()}: voxel {kiss_vx} m, radar range "
+             f"velocity initial guess (the first from the Doppler ego velocity), 30 iterations. KISS-ICP {_kiss_version()}: voxel {kiss_vx} m, radar range "
              f"crop, deskew off, other settings the package's defaults (docs/benchmarks.md). {missing} Machine load "
              f"average (1/5/15 min) before {load_before}, after {_load()} on 2 cores (shared: absolute times are "
              f"inflated by the load, ratios less so).", "", *tuning,

@@ -16,7 +16,7 @@ def test_the_grid_covers_scan_to_scan_and_scan_to_map_windows_voxels_and_distanc
     assert {g["voxel"] for g in grid} == {None, 0.3, 0.5}
     assert {g["max_correspondence"] for g in grid} == {0.5, 1.0, 2.0}
     assert {g["method"] for g in grid} == {"point_to_point", "point_to_plane"}
-    assert not any(g["doppler_filter"] for g in grid)
+    assert not any(g["doppler_filter"] for g in grid) and all(g["doppler_init"] for g in grid)
     assert {**baselines.ICP_TUNED, "doppler_filter": False} in grid  # the stored winner is a grid setting
 
 
@@ -42,8 +42,17 @@ def test_a_missing_package_is_a_note_and_its_method_is_left_out(monkeypatch, mis
     monkeypatch.setitem(sys.modules, missing, None)  # import raises ImportError
     notes = baselines.available()
     assert "not installed" in notes[missing] and "rodo[icp]" in notes[missing]
-    icp_kw, kiss_vx, lines = odometry._tune(True, notes)
+    icp_kw, kiss_vx, lines, alternatives = odometry._tune(True, notes)
+    assert alternatives == []  # the quick bench checks no alternatives
     labels = [label for label, _, _ in odometry._methods(icp_kw, kiss_vx)]
     assert labels[:2] == ["CV/C", "CA/P"]
     assert ("open3d ICP" in labels) == (missing != "open3d")
     assert ("KISS-ICP" in labels) == (missing != "kiss_icp")
+
+
+def test_alternatives_are_the_winner_with_doppler_and_the_best_of_other_families():
+    grid = baselines.icp_grid()
+    rows = [{"setting": s} for s in grid]  # in grid order: point-to-point, scan-to-scan first
+    alt = baselines.icp_alternatives(rows)
+    assert alt[0] == grid[0] and alt[1] == {**grid[0], "doppler_filter": True}
+    assert alt[2]["method"] == "point_to_plane" and len(alt) == 3  # grid[0] is already the best scan-to-scan

@@ -38,7 +38,7 @@ from rodo.estimator.lie import se3
 from rodo.sim.sequence import Sequence, Trajectory
 
 MIN_POINTS = 10       # fewer detections: keep KISS-ICP's constant-velocity prediction
-RADAR_VOXEL = 1.0     # m: the voxel of the bench (sensitivity 0.5 / 1.0 / 1.5 m in docs/benchmarks.md)
+RADAR_VOXEL = 1.5     # m: the tuned voxel of the bench (sensitivity 0.5-2 m in docs/benchmarks.md)
 
 
 def _import_kiss():
