@@ -90,7 +90,7 @@ def test_doppler_initial_velocity_lets_icp_lock_on_at_highway_speed():
     moving, _ = run_icp(seq, doppler_init=True, **kwargs)
     end_still = np.linalg.norm(still.T_world_vehicle[-1, :3, 3] - G[-1, :3, 3])
     end_moving = np.linalg.norm(moving.T_world_vehicle[-1, :3, 3] - G[-1, :3, 3])
-    # measured: MEASURE_STILL m off without the Doppler start (it registers "no motion"), MEASURE_MOVING m with it
+    # measured over 131 m: 130.7 m off without the Doppler start (it registers "no motion"), 1.1 m with it
     assert path > 100.0 and end_still > 0.5 * path and end_moving < 0.02 * path, (path, end_still, end_moving)
 
 
