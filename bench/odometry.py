@@ -1,13 +1,15 @@
-"""Odometry speed and accuracy: CV/C and CA/P (the paper's Table I pair) against an open3d ICP baseline.
+"""Odometry speed and accuracy: CV/C and CA/P (the paper's Table I pair) beside two fair baselines, in one run.
 
-Speed on `city` (seed 0; quick 20 s, full 90 s): median and p95 ms per scan from `RunResult.wall_ms`, skipping
-the first SKIP scans (numba compilation / cache loading), the median per stage (predict, associate, solve, map),
-the median number of associations and of map points; the ICP baselines (`validation.icp_baseline.run_icp`) on
-the same sequence. Accuracy on `city`, `hills` and `stop_and_go` (quick 20 s each; full 90, 60, 60 s): KITTI
-translational / rotational error on the lengths of LENGTHS shorter than the driven path (devkit formula,
-first frame every STEP scans), and the final z / roll / pitch drift (both trajectories relative to their first
-pose). Ratios are against CV/C measured in the same run. BLAS (and open3d's pool) run on one thread for every
-method. The machine is shared, so the load average before and after is part of the section.
+Methods: the estimator (CV/C, CA/P; `validation.driver.run_sequence`), open3d ICP at the best setting of a grid
+(`validation.icp_baseline.run_icp`) and KISS-ICP with radar settings (`validation.kiss_baseline.run_kiss`). The
+baselines are tuned on `city` seed 1 and scored on seed 0 (`bench.baselines`; the full run re-tunes, the quick
+one uses the last full run's winners). On `city`, `highway`, `hills` and `stop_and_go` (seed 0; quick 20 s each;
+full 90, 60, 60, 60 s), per method: median and p95 ms per scan (skipping the first SKIP scans: numba compilation /
+cache loading), the estimator's median per stage (predict, associate, solve, map), KITTI translational /
+rotational error on the lengths of LENGTHS shorter than the path (devkit formula, first frame every STEP scans),
+the final z / roll / pitch drift (both trajectories relative to their first pose); ratios against CV/C measured in
+the same run. BLAS, open3d's pool and KISS-ICP run on one thread for every method. The machine is shared, so the
+load average before and after is part of the section. A missing open3d or kiss-icp leaves a note, not a traceback.
 
 Run: `python -m bench.odometry [--quick]`; `run(quick) -> str` returns the Markdown section.
 """
@@ -21,19 +23,19 @@ import time
 
 import numpy as np
 
+from bench import baselines
+
 SEED = 0
 SKIP = 5                       # first scans left out of the timing statistics (compilation)
 LENGTHS = (50.0, 100.0, 200.0)  # KITTI segment lengths, those shorter than the path are used
 STEP = 1                       # KITTI first-frame step (the devkit uses 10; our sequences are short)
 ESTIMATORS = (("CV/C", "cv-cartesian"), ("CA/P", "ca-polar"))
-ICP_VARIANTS = (("ICP point-to-plane", {}),
-                ("ICP point-to-plane, Doppler-filtered", {"doppler_filter": True}),
-                ("ICP point-to-point", {"method": "point_to_point"}))
+STAGES = ("predict", "associate", "solve", "map")
 
 
 def _durations(quick: bool) -> dict[str, float]:
-    return {"city": 20.0, "hills": 20.0, "stop_and_go": 20.0} if quick else \
-        {"city": 90.0, "hills": 60.0, "stop_and_go": 60.0}
+    return {"city": 20.0, "highway": 20.0, "hills": 20.0, "stop_and_go": 20.0} if quick else \
+        {"city": 90.0, "highway": 60.0, "hills": 60.0, "stop_and_go": 60.0}
 
 
 def _load() -> str:
@@ -66,19 +68,30 @@ def _run_estimator(seq, model: str) -> tuple[dict, object]:
     est = res.estimates[SKIP:]
     ms = res.wall_ms[SKIP:]
     stages = {key: 1e3 * float(np.median([e.timings.get(key, 0.0) for e in est]))
-              for key in ("predict", "associate", "solve", "map")}
+              for key in STAGES}
     speed = {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "stages": stages,
              "assoc": float(np.median([e.n_associated for e in est])),
              "map": float(np.median([len(e.detail.map_points) for e in est]))}
     return speed, res.trajectory()
 
 
+def _timing(ms: np.ndarray) -> dict:
+    ms = ms[SKIP:]
+    return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95))}
+
+
 def _run_icp(seq, kwargs: dict) -> tuple[dict, object]:
     from rodo.validation.icp_baseline import run_icp
 
     traj, ms = run_icp(seq, **kwargs)
-    ms = ms[SKIP:]
-    return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95))}, traj
+    return _timing(ms), traj
+
+
+def _run_kiss(seq, voxel: float) -> tuple[dict, object]:
+    from rodo.validation.kiss_baseline import run_kiss
+
+    traj, ms = run_kiss(seq, voxel)
+    return _timing(ms), traj
 
 
 def _table(header, rows) -> list[str]:
@@ -91,70 +104,147 @@ def _ratio(a: float, b: float) -> str:
     return f"{a / b:.2f}x" if np.isfinite(a) and np.isfinite(b) and b > 0 else "-"
 
 
-def _methods(icp_ok: bool):
+def _tune(quick: bool, notes: dict) -> tuple[dict | None, float | None, list[str], list[dict]]:
+    """The baselines' settings (tuned on the tuning sequence in a full run), the Markdown of the tuning and the
+    open3d settings to check on the bench sequences (full run only)."""
+    from rodo import scenarios
+
+    icp_kw = baselines.ICP_TUNED if not notes["open3d"] else None
+    kiss_vx = baselines.KISS_TUNED if not notes["kiss_icp"] else None
+    where = f"`{baselines.TUNE_SCENARIO}` seed {baselines.TUNE_SEED}, {baselines.TUNE_DURATION:.0f} s"
+    if quick:
+        return icp_kw, kiss_vx, [f"Baseline settings: the winners of the last full run's tuning on {where} "
+                                 "(bench/baselines.py ICP_TUNED, KISS_TUNED; the grid is in docs/benchmarks.md).",
+                                 ""], []
+    seq, _ = scenarios.get(baselines.TUNE_SCENARIO).simulate(baselines.TUNE_SEED, duration=baselines.TUNE_DURATION)
+    lines = [f"### Baseline tuning on {where} (not a bench sequence)", "",
+             "Score: KITTI t_err (ties: r_err, then time). Every setting of the grid, best first:", ""]
+    alternatives = []
+    if icp_kw is not None:
+        icp_kw, rows = baselines.tune_icp(seq, _accuracy, SKIP)
+        alternatives = baselines.icp_alternatives(rows)
+        lines += _table(["open3d ICP setting", "t_err %", "r_err deg/m", "median ms/scan"],
+                        [[baselines.describe_icp(r["setting"]), f"{r['t_err']:.2f}", f"{r['r_err']:.4f}",
+                          f"{r['median_ms']:.1f}"] for r in rows]) + [""]
+    if kiss_vx is not None:
+        kiss_vx, rows = baselines.tune_kiss(seq, _accuracy, SKIP)
+        lines += _table(["KISS-ICP voxel m", "t_err %", "r_err deg/m", "median ms/scan"],
+                        [[f"{r['voxel']:g}", f"{r['t_err']:.2f}", f"{r['r_err']:.4f}", f"{r['median_ms']:.1f}"]
+                         for r in rows]) + [""]
+    return icp_kw, kiss_vx, lines, alternatives
+
+
+def _methods(icp_kw, kiss_vx) -> list[tuple[str, str, object]]:
     out = [(label, "est", model) for label, model in ESTIMATORS]
-    if icp_ok:
-        out += [(label, "icp", kw) for label, kw in ICP_VARIANTS]
+    if icp_kw is not None:
+        out.append(("open3d ICP", "icp", icp_kw))
+    if kiss_vx is not None:
+        out.append(("KISS-ICP", "kiss", kiss_vx))
     return out
+
+
+def _run_method(seq, kind: str, arg) -> tuple[dict, object]:
+    return {"est": _run_estimator, "icp": _run_icp, "kiss": _run_kiss}[kind](seq, arg)
+
+
+def _kiss_sensitivity(seqs: dict) -> list[str]:
+    """KISS-ICP's t_err and median ms at each of KISS_VOXELS on every bench sequence (full run only; reported,
+    not used to choose the voxel)."""
+    rows = []
+    for vx in baselines.KISS_VOXELS:
+        row = [f"{vx:g}"]
+        for seq in seqs.values():
+            sp, traj = _run_kiss(seq, vx)
+            row.append(f"{_accuracy(seq, traj)['t_err']:.2f} / {sp['median']:.1f}")
+        rows.append(row)
+    return ["", "KISS-ICP voxel sensitivity on the bench sequences (t_err % / median ms per scan; reported, not "
+            "used to choose):", ""] + _table(["voxel m", *seqs], rows)
+
+
+def _icp_sensitivity(seqs: dict, settings: list[dict]) -> list[str]:
+    """open3d ICP's t_err and median ms at a few settings on every bench sequence (full run only; reported, not
+    used to choose)."""
+    rows = []
+    for kw in settings:
+        row = [baselines.describe_icp(kw)]
+        for seq in seqs.values():
+            sp, traj = _run_icp(seq, kw)
+            row.append(f"{_accuracy(seq, traj)['t_err']:.2f} / {sp['median']:.1f}")
+        rows.append(row)
+    return ["", "open3d ICP, the winner and alternatives on the bench sequences (t_err % / median ms per scan; "
+            "reported, not used to choose):", ""] + _table(["setting", *seqs], rows)
+
+
+def _result_rows(results: dict, durations: dict) -> list[list]:
+    rows = []
+    for name, by_method in results.items():
+        base_sp, base_a = by_method["CV/C"]
+        for label, (sp, a) in by_method.items():
+            rows.append([f"{name} {durations[name]:.0f} s, {a['path']:.0f} m", label, f"{sp['median']:.1f}",
+                         f"{sp['p95']:.1f}", _ratio(sp["median"], base_sp["median"]), f"{a['t_err']:.2f}",
+                         _ratio(a["t_err"], base_a["t_err"]), f"{a['r_err']:.4f}", _ratio(a["r_err"], base_a["r_err"]),
+                         f"{a['z']:+.2f}", f"{a['roll']:+.2f}", f"{a['pitch']:+.2f}",
+                         ", ".join(f"{L:.0f}" for L in a["lengths"]) or "none fits"])
+    return rows
+
+
+def _stage_rows(results: dict) -> list[list]:
+    rows = []
+    for name, by_method in results.items():
+        for label, (sp, _) in by_method.items():
+            if "stages" in sp:
+                rows.append([name, label, *(f"{sp['stages'][k]:.2f}" for k in STAGES), f"{sp['assoc']:.0f}",
+                             f"{sp['map']:.0f}"])
+    return rows
 
 
 def run(quick: bool = False) -> str:
     """The Markdown section (see the module docstring)."""
     from rodo import scenarios
 
-    try:
-        import open3d  # noqa: F401
-        icp_ok, icp_note = True, ""
-    except ImportError:  # pragma: no cover - open3d is a declared dependency
-        icp_ok, icp_note = False, " open3d is not installed: no ICP baseline."
+    notes = baselines.available()
     load_before = _load()
     tic = time.perf_counter()
+    icp_kw, kiss_vx, tuning, alternatives = _tune(quick, notes)
     durations = _durations(quick)
-    speed, acc = {}, {}
+    results, seqs = {}, {}
     for name, duration in durations.items():
-        seq, _ = scenarios.get(name).simulate(SEED, duration=duration)
-        acc[name] = {}
-        for label, kind, arg in _methods(icp_ok):
-            sp, traj = _run_estimator(seq, arg) if kind == "est" else _run_icp(seq, arg)
-            if name == "city":
-                speed[label] = sp
-            acc[name][label] = _accuracy(seq, traj)
+        seqs[name], _ = scenarios.get(name).simulate(SEED, duration=duration)
+        results[name] = {}
+        for label, kind, arg in _methods(icp_kw, kiss_vx):
+            sp, traj = _run_method(seqs[name], kind, arg)
+            results[name][label] = (sp, _accuracy(seqs[name], traj))
+    sensitivity = _kiss_sensitivity(seqs) if kiss_vx is not None and not quick else []
+    sensitivity += _icp_sensitivity(seqs, alternatives) if alternatives else []
     elapsed = time.perf_counter() - tic
 
-    base = speed["CV/C"]["median"]
+    missing = " ".join(f"No {k} row: {v}." for k, v in notes.items() if v)
     lines = [f"## Odometry (`python -m bench.odometry{' --quick' if quick else ''}`)", "",
-             f"`city`, seed {SEED}, {durations['city']:.0f} s ({acc['city']['CV/C']['path']:.0f} m), scans "
-             f"after the first {SKIP}; all methods single-threaded (BLAS and open3d limited to 1 thread). "
-             f"ICP: scan-to-map (last 10 scans, voxel 0.3 m), max correspondence 1 m, constant-velocity initial "
-             f"guess, all detections unless Doppler-filtered.{icp_note} Machine load average (1/5/15 min) "
-             f"before {load_before}, after {_load()} on 2 cores (shared: absolute times are inflated by the "
-             f"load, ratios less so).", ""]
-    rows = []
-    for label, sp in speed.items():
-        st = sp.get("stages")
-        stage_cells = [f"{st[k]:.2f}" for k in ("predict", "associate", "solve", "map")] if st else ["-"] * 4
-        rows.append([label, f"{sp['median']:.1f}", f"{sp['p95']:.1f}", _ratio(sp["median"], base), *stage_cells,
-                     f"{sp['assoc']:.0f}" if "assoc" in sp else "-", f"{sp['map']:.0f}" if "map" in sp else "-"])
-    lines += _table(["method", "median ms/scan", "p95 ms/scan", "time vs CV/C", "predict ms", "associate ms",
-                     "solve ms", "map ms", "median associations", "median map points"], rows)
-
-    lines += ["", f"Accuracy (seed {SEED}; KITTI devkit formula, first frame every {STEP} scan(s), on the "
-              f"lengths listed; drift at the last pose, relative to the first). Ratios: KITTI error / CV/C's.", ""]
-    rows = []
-    for name, by_method in acc.items():
-        b = by_method["CV/C"]
-        for label, a in by_method.items():
-            rows.append([f"{name} {durations[name]:.0f} s, {a['path']:.0f} m", label, f"{a['t_err']:.2f}",
-                         _ratio(a["t_err"], b["t_err"]), f"{a['r_err']:.4f}", _ratio(a["r_err"], b["r_err"]),
-                         f"{a['z']:+.2f}", f"{a['roll']:+.2f}", f"{a['pitch']:+.2f}",
-                         ", ".join(f"{L:.0f}" for L in a["lengths"]) or "none fits"])
-    lines += _table(["sequence", "method", "t_err %", "vs CV/C", "r_err deg/m", "vs CV/C", "final z m",
-                     "final roll deg", "final pitch deg", "KITTI lengths m"], rows)
-    lines += ["", "ICP point-to-plane leans on normals estimated from sparse radar points; where the radar sees "
-              "mostly vertical surfaces (hills) z is barely constrained and it can diverge, and then its numbers "
-              "change with round-off (different processes gave 96 % and 172 % on hills, 20 s): read such a row "
-              "as 'diverged'. Point-to-point stays bounded there.", "", f"Total {elapsed:.0f} s."]
+             f"Seed {SEED}, scans after the first {SKIP}; all methods single-threaded (BLAS, open3d and KISS-ICP "
+             f"limited to 1 thread). open3d ICP: {baselines.describe_icp(icp_kw) if icp_kw else '-'}; constant-"
+             f"velocity initial guess (the first from the Doppler ego velocity), 30 iterations. KISS-ICP {_kiss_version()}: voxel {kiss_vx} m, radar range "
+             f"crop, deskew off, other settings the package's defaults (docs/benchmarks.md). {missing} Machine load "
+             f"average (1/5/15 min) before {load_before}, after {_load()} on 2 cores (shared: absolute times are "
+             f"inflated by the load, ratios less so).", "", *tuning,
+             f"KITTI devkit formula, first frame every {STEP} scan(s), on the lengths listed; drift at the last "
+             "pose, relative to the first. Ratios: against CV/C on the same sequence in this run.", ""]
+    lines += _table(["sequence", "method", "median ms/scan", "p95 ms/scan", "time vs CV/C", "t_err %", "vs CV/C",
+                     "r_err deg/m", "vs CV/C", "final z m", "final roll deg", "final pitch deg", "KITTI lengths m"],
+                    _result_rows(results, durations))
+    lines += ["", "Estimator stages (median ms per scan) and sizes:", ""]
+    lines += _table(["sequence", "method", *(f"{k} ms" for k in STAGES), "median associations",
+                     "median map points"], _stage_rows(results))
+    lines += sensitivity + ["", f"Total {elapsed:.0f} s."]
     return "\n".join(lines) + "\n"
+
+
+def _kiss_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("kiss-icp")
+    except PackageNotFoundError:
+        return "(not installed)"
 
 
 def main(argv=None) -> int:

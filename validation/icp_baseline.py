@@ -6,9 +6,15 @@ Per scan k (times from `validation.driver.scan_times`, so the output lines up wi
    ICP has no Doppler; with `doppler_filter=True` only the inliers of
    `estimator.ego_velocity.estimate_ego_velocity`, i.e. the static world as seen through the radial velocities).
 2. Initial guess, constant velocity: T_k^0 = T_{k-1} exp(dt_k / dt_{k-1} log(T_{k-2}^-1 T_{k-1})), with
-   T = T_world_vehicle (the last relative motion applied again, scaled to the interval).
-3. Target: the local map, the registered scans k-map_scans..k-1 in the world frame, voxel-downsampled
-   (`voxel` metres) and, for point-to-plane, with normals from a hybrid KNN search (radius 3 voxel, 20 neighbours).
+   T = T_world_vehicle (the last relative motion applied again, scaled to the interval). At the second scan there
+   is no motion yet: T_1^0 = T_0, or with `doppler_init=True` T_0 translated by dt_1 v_vehicle, the first scan's
+   Doppler ego velocity (`estimate_ego_velocity`, v_vehicle = R_vehicle_sensor v_sensor): the estimator's own
+   initialisation uses the same. Without it a vehicle already at 30 m/s (2.3 m per scan) never locks on with
+   a correspondence distance below that: ICP registers "no motion" against the along-track structure.
+3. Target: the local map, the registered scans k-map_scans..k-1 in the world frame (`map_scans=1`: the previous
+   scan, i.e. scan-to-scan ICP), voxel-downsampled (`voxel` metres; None: every point kept) and, for
+   point-to-plane, with normals from a hybrid KNN search (radius 3 voxel, or NORMAL_RADIUS without a voxel
+   filter; 20 neighbours).
 4. `o3d.pipelines.registration.registration_icp(source, target, max_correspondence, T_k^0, ...)` gives
    T_k = T_world_vehicle (the transform mapping vehicle into world coordinates). Scans with fewer than
    MIN_POINTS points (or fewer correspondences) keep the prediction.
@@ -38,25 +44,28 @@ METHODS = ("point_to_point", "point_to_plane")
 MIN_POINTS = 10       # fewer source or map points: keep the constant-velocity prediction
 MAX_ITERATIONS = 30   # ICP iterations per scan
 NORMAL_NEIGHBOURS = 20
+NORMAL_RADIUS = 1.0   # m: normal search radius when the map is not voxel-filtered (3 x the usual 0.3 m voxel)
 
 
-def _check_args(method, max_correspondence, voxel, map_scans, doppler_filter) -> tuple[float, float, int]:
+def _check_args(method, max_correspondence, voxel, map_scans, doppler_filter,
+                doppler_init=False) -> tuple[float, float | None, int]:
     if method not in METHODS:
         raise InputError(f"method: expected one of {METHODS}, got {method!r}")
     try:
         mc = float(max_correspondence)
-        vx = float(voxel)
+        vx = None if voxel is None else float(voxel)
     except (TypeError, ValueError):
         raise InputError(f"max_correspondence, voxel: expected numbers, got {max_correspondence!r}, {voxel!r}") \
             from None
     if not (np.isfinite(mc) and mc > 0):
         raise InputError(f"max_correspondence: must be a finite distance > 0 m, got {max_correspondence!r}")
-    if not (np.isfinite(vx) and vx > 0):
-        raise InputError(f"voxel: must be a finite size > 0 m, got {voxel!r}")
+    if vx is not None and (isinstance(voxel, (bool, np.bool_)) or not (np.isfinite(vx) and vx > 0)):
+        raise InputError(f"voxel: must be a finite size > 0 m or None (no filter), got {voxel!r}")
     if isinstance(map_scans, (bool, np.bool_)) or not isinstance(map_scans, (int, np.integer)) or map_scans < 1:
         raise InputError(f"map_scans: expected an integer >= 1, got {map_scans!r}")
-    if not isinstance(doppler_filter, (bool, np.bool_)):
-        raise InputError(f"doppler_filter: expected True or False, got {doppler_filter!r}")
+    for name, flag in (("doppler_filter", doppler_filter), ("doppler_init", doppler_init)):
+        if not isinstance(flag, (bool, np.bool_)):
+            raise InputError(f"{name}: expected True or False, got {flag!r}")
     return mc, vx, int(map_scans)
 
 
@@ -69,8 +78,9 @@ def _predict(poses: list[np.ndarray], times: np.ndarray, k: int) -> np.ndarray:
     return poses[-1] @ se3.exp(ratio * se3.log(delta))
 
 
-def run_icp(seq: Sequence, method: str = "point_to_plane", max_correspondence: float = 1.0, voxel: float = 0.3,
-            map_scans: int = 10, doppler_filter: bool = False, *, seed: int = 0,
+def run_icp(seq: Sequence, method: str = "point_to_plane", max_correspondence: float = 1.0,
+            voxel: float | None = 0.3,
+            map_scans: int = 10, doppler_filter: bool = False, doppler_init: bool = False, *, seed: int = 0,
             progress=None) -> tuple[Trajectory, np.ndarray]:
     """ICP odometry over every scan of `seq` (see the module docstring for the algorithm).
 
@@ -78,9 +88,10 @@ def run_icp(seq: Sequence, method: str = "point_to_plane", max_correspondence: f
         seq: the radar sequence (scans in the sensor frame, `seq.sensor.T_vehicle_sensor`).
         method: "point_to_plane" (normals estimated on the map) or "point_to_point".
         max_correspondence: largest point-to-point distance of a correspondence, metres.
-        voxel: voxel size of the map downsampling, metres.
-        map_scans: number of most recent registered scans in the local map.
+        voxel: voxel size of the map downsampling, metres; None keeps every point.
+        map_scans: number of most recent registered scans in the local map (1: scan-to-scan).
         doppler_filter: register only the Doppler inliers (static world) instead of all detections.
+        doppler_init: the second scan's guess moves by the first scan's Doppler ego velocity (step 2).
         seed: seeds the RANSAC of the Doppler filter (`SeedSequence(seed)`); unused without it.
         progress: optional object with update(), called once per scan.
 
@@ -92,7 +103,7 @@ def run_icp(seq: Sequence, method: str = "point_to_plane", max_correspondence: f
 
     Checked by: tests/validation/test_icp_baseline.py
     """
-    mc, vx, n_map = _check_args(method, max_correspondence, voxel, map_scans, doppler_filter)
+    mc, vx, n_map = _check_args(method, max_correspondence, voxel, map_scans, doppler_filter, doppler_init)
     if not isinstance(seq, Sequence):
         raise InputError(f"seq: expected a sim.sequence.Sequence, got {type(seq).__name__}")
     from threadpoolctl import threadpool_limits
@@ -115,7 +126,8 @@ def run_icp(seq: Sequence, method: str = "point_to_plane", max_correspondence: f
         if before is not None:
             o3d.utility.set_max_threads(1)
         with threadpool_limits(limits=1, user_api="blas"):
-            return _run(o3d, seq, times, method, mc, vx, n_map, bool(doppler_filter), seed, progress)
+            return _run(o3d, seq, times, method, mc, vx, n_map, (bool(doppler_filter), bool(doppler_init)), seed,
+                        progress)
     finally:
         if before is not None:
             o3d.utility.set_max_threads(before)
@@ -128,12 +140,26 @@ def _static_mask(scan, sigma_vr: float, rng: np.random.Generator) -> np.ndarray:
     return ego.inliers if ego.ok else np.ones(len(scan), dtype=bool)
 
 
-def _run(o3d, seq, times, method, mc, vx, n_map, doppler_filter, seed, progress):
+def _first_guess(scan, T_vehicle_sensor, dt, sigma_vr, rng) -> np.ndarray:
+    """T_world_vehicle at the second scan from the first scan's Doppler ego velocity (identity if it fails)."""
+    from rodo.estimator.ego_velocity import estimate_ego_velocity
+
+    T = np.eye(4)
+    if scan is not None and len(scan):
+        ego = estimate_ego_velocity(scan.azimuth, scan.elevation, scan.radial_velocity, rng, sigma_vr=sigma_vr)
+        if ego.ok:
+            T[:3, 3] = dt * (T_vehicle_sensor[:3, :3] @ ego.v_sensor)
+    return T
+
+
+def _run(o3d, seq, times, method, mc, vx, n_map, doppler, seed, progress):
     reg = o3d.pipelines.registration
     estimation = (reg.TransformationEstimationPointToPlane() if method == "point_to_plane"
                   else reg.TransformationEstimationPointToPoint())
+    doppler_filter, doppler_init = doppler
     criteria = reg.ICPConvergenceCriteria(relative_fitness=1e-6, relative_rmse=1e-6, max_iteration=MAX_ITERATIONS)
-    normal_search = o3d.geometry.KDTreeSearchParamHybrid(radius=3.0 * vx, max_nn=NORMAL_NEIGHBOURS)
+    normal_search = o3d.geometry.KDTreeSearchParamHybrid(radius=3.0 * vx if vx else NORMAL_RADIUS,
+                                                         max_nn=NORMAL_NEIGHBOURS)
     Vec = o3d.utility.Vector3dVector
     T_vehicle_sensor = np.asarray(seq.sensor.T_vehicle_sensor)
     sigma_vr = float(seq.sensor.noise.radial_velocity)
@@ -155,8 +181,10 @@ def _run(o3d, seq, times, method, mc, vx, n_map, doppler_filter, seed, progress)
             p_vehicle = np.zeros((0, 3))
         if k == 0:
             T = np.eye(4)
+            first = _first_guess(scan, T_vehicle_sensor, times[1] - t, sigma_vr, rng) \
+                if doppler_init and len(times) > 1 else T
         else:
-            T = _predict(poses, times, k)
+            T = _predict(poses, times, k) if k > 1 else first
             if target is not None and len(p_vehicle) >= MIN_POINTS:
                 source = o3d.geometry.PointCloud(Vec(p_vehicle))
                 result = reg.registration_icp(source, target, mc, T, estimation, criteria)
@@ -165,7 +193,9 @@ def _run(o3d, seq, times, method, mc, vx, n_map, doppler_filter, seed, progress)
         poses.append(T)
         if len(p_vehicle):
             history.append(p_vehicle @ T[:3, :3].T + T[:3, 3])
-            cloud = o3d.geometry.PointCloud(Vec(np.concatenate(list(history)))).voxel_down_sample(vx)
+            cloud = o3d.geometry.PointCloud(Vec(np.concatenate(list(history))))
+            if vx is not None:
+                cloud = cloud.voxel_down_sample(vx)
             if len(cloud.points) >= MIN_POINTS:
                 if method == "point_to_plane":
                     cloud.estimate_normals(normal_search)
