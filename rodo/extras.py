@@ -5,7 +5,8 @@ The core (numpy, scipy, numba, threadpoolctl) imports rodo and runs `rodo simula
 
 - `viz`: rerun-sdk and matplotlib, for Rerun recordings (`--rerun`, `rodo demo`), live streams (`rodo run
   --connect / --serve`) and figures (`rodo figures`);
-- `icp`: open3d, for the ICP baseline (`rodo.validation.icp_baseline.run_icp`, `make bench`);
+- `icp`: open3d and kiss-icp, for the baselines of `make bench` (`rodo.validation.icp_baseline.run_icp`,
+  `rodo.validation.kiss_baseline.run_kiss`);
 - `dask`: dask.distributed, for campaigns on a Dask cluster (`--dask`);
 - `ros`: rosbags, for `rodo convert rosbag` (its converter names the package itself when it is missing).
 
@@ -24,7 +25,7 @@ from rodo.estimator.errors import InputError
 
 EXTRAS = {  # extra -> the top-level modules it provides
     "viz": ("rerun", "matplotlib"),
-    "icp": ("open3d",),
+    "icp": ("open3d", "kiss_icp"),
     "dask": ("dask", "distributed"),
     "ros": ("rosbags",),
 }

@@ -130,7 +130,8 @@ def test_pyproject_extras_match_the_module_map():
     `all` is their union, and no core dependency is one of them."""
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     optional = project["optional-dependencies"]
-    dist_of = {"rerun": "rerun-sdk", "matplotlib": "matplotlib", "open3d": "open3d", "dask": "dask",
+    dist_of = {"rerun": "rerun-sdk", "matplotlib": "matplotlib", "open3d": "open3d", "kiss_icp": "kiss-icp",
+               "dask": "dask",
                "distributed": "dask[distributed]", "rosbags": "rosbags"}
     for extra, modules in extras.EXTRAS.items():
         declared = " ".join(optional[extra])
@@ -143,6 +144,6 @@ def test_pyproject_extras_match_the_module_map():
 def test_extra_for_maps_submodules():
     assert extras.extra_for("rerun.blueprint") == "viz"
     assert extras.extra_for("matplotlib.backends.backend_agg") == "viz"
-    assert extras.extra_for("open3d") == "icp"
+    assert extras.extra_for("open3d") == "icp" and extras.extra_for("kiss_icp.pipeline") == "icp"
     assert extras.extra_for("distributed") == "dask"
     assert extras.extra_for("numpy") is None and extras.extra_for(None) is None
