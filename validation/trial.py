@@ -62,16 +62,20 @@ class ScenarioTrial:
         from rodo.sim.faults import parse_faults
 
         faults = parse_faults(self.faults)
+        t0 = time.perf_counter()
         seq, truth = scenarios.get(self.scenario).simulate(trial.seed, self.duration, faults=faults)
         gt = Trajectory(truth["t"], np.linalg.inv(truth["T_vehicle_world"]))
+        simulate_s = time.perf_counter() - t0
         outcomes = []
-        for model in trial.models:
+        for model in trial.models:  # every model on the one simulated sequence, in memory
             t0 = time.perf_counter()
             try:
                 result = run_sequence(seq, self.config(model), keep_estimates=False)
-                out = evaluate_result(model, result, gt, truth, self.lengths, self.step, time.perf_counter() - t0)
+                run_s = time.perf_counter() - t0
+                out = evaluate_result(model, result, gt, truth, self.lengths, self.step, run_s)
                 if out.error is None:
                     out.arrays.update(self.extra_arrays(gt, result))
+                out.timings = {"simulate": simulate_s, "run": run_s, "evaluate": time.perf_counter() - t0 - run_s}
                 outcomes.append(out)
             except Exception as exc:  # noqa: BLE001 - recorded per model
                 frames = traceback.extract_tb(exc.__traceback__)
