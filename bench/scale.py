@@ -29,6 +29,19 @@ def _vm(key: str) -> float:
     return float("nan")
 
 
+class _Progress:
+    """A line on stderr every 1000 scans: scans done, RSS now and at its peak (a long run says where it is)."""
+
+    def __init__(self, total: int):
+        self.total, self.done, self.tic = total, 0, time.perf_counter()
+
+    def update(self, n: int = 1) -> None:
+        self.done += n
+        if self.done % 1000 == 0 or self.done == self.total:
+            print(f"scale: {self.done}/{self.total} scans, {time.perf_counter() - self.tic:.0f} s, RSS "
+                  f"{_vm('VmRSS'):.0f} MB, peak {_vm('VmHWM'):.0f} MB", file=sys.stderr, flush=True)
+
+
 def child(minutes: float) -> dict:
     """One length, in this process: stream the drive, run the estimator, report times and memory."""
     import numpy as np
@@ -44,7 +57,7 @@ def child(minutes: float) -> dict:
     setup_s = time.perf_counter() - tic
     rss_setup = _vm("VmRSS")
     tic = time.perf_counter()
-    result = run_streamed(sim, OdometryConfig.for_model(MODEL))
+    result = run_streamed(sim, OdometryConfig.for_model(MODEL), progress=_Progress(len(sim)))
     run_s = time.perf_counter() - tic
     ms = result.wall_ms
     T = result.columns["T_vehicle_world"]
@@ -58,7 +71,7 @@ def child(minutes: float) -> dict:
 
 def _run_child(minutes: float) -> dict:
     out = subprocess.run([sys.executable, "-m", "bench.scale", "--child", str(minutes)], check=True,
-                         capture_output=True, text=True)
+                         stdout=subprocess.PIPE, text=True)  # the child's progress goes to stderr
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
