@@ -9,6 +9,10 @@ loop, timing, results on disk), and the CLI (`rodo run`). Outputs of `write_run(
   `ms_per_scan`;
 - `summary.json`: model, scans, median_associations, median_ms_per_scan, p95_ms_per_scan, time split per stage,
   events, and the resolved config.
+
+A run keeps its per-scan values as arrays (`ScanColumns`), and the `ScanEstimate` objects only when asked
+(`keep_estimates`: the Rerun recording needs their detail); `run_scans` takes any iterable of scans, e.g. a
+simulation streamed scan by scan (`validation.streamed`), so a long drive runs in bounded memory.
 """
 
 from __future__ import annotations
@@ -74,9 +78,6 @@ class ScanColumns:
     def arrays(self) -> dict[str, np.ndarray]:
         """Views of the filled rows, (n, ...) per value."""
         return {key: arr[:self.n] for key, arr in self._data.items()}
-
-    def nbytes(self) -> int:
-        return sum(arr.nbytes for arr in self._data.values())
 
 
 @dataclass
