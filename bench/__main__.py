@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-BENCHMARKS = ["priors", "sim", "odometry", "campaign"]
+BENCHMARKS = ["priors", "sim", "odometry", "campaign", "scale"]
 
 
 def main(argv=None) -> int:

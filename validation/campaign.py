@@ -58,12 +58,14 @@ class Trial:
 
 @dataclass
 class TrialOutcome:
-    """The result of one model in one trial: a metrics row, per-scan arrays, or an error message."""
+    """The result of one model in one trial: a metrics row, per-scan arrays, or an error message; `timings`
+    (seconds per phase of the trial, e.g. simulate, run, evaluate) are for benchmarks and not persisted."""
 
     model: str
     metrics: dict = field(default_factory=dict)
     arrays: dict = field(default_factory=dict)
     error: str | None = None
+    timings: dict = field(default_factory=dict)
 
     @property
     def status(self) -> str:

@@ -9,6 +9,10 @@ loop, timing, results on disk), and the CLI (`rodo run`). Outputs of `write_run(
   `ms_per_scan`;
 - `summary.json`: model, scans, median_associations, median_ms_per_scan, p95_ms_per_scan, time split per stage,
   events, and the resolved config.
+
+A run keeps its per-scan values as arrays (`ScanColumns`), and the `ScanEstimate` objects only when asked
+(`keep_estimates`: the Rerun recording needs their detail); `run_scans` takes any iterable of scans, e.g. a
+simulation streamed scan by scan (`validation.streamed`), so a long drive runs in bounded memory.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -30,55 +35,113 @@ from rodo.estimator.scan import ScanEstimate
 from rodo.sim.sequence import Sequence, Trajectory, atomic_write_bytes, write_tum
 
 
+STAGES = ("predict", "associate", "solve", "map")
+COUNTS = ("n_detections", "n_static", "n_associated")
+
+
+class ScanColumns:
+    """The per-scan values of a run in growing arrays (capacity doubles): what a run keeps of each
+    `ScanEstimate` (the states.npz arrays, T_world_vehicle, the stage timings), about 3.5 kB per CA scan
+    instead of the estimate object with its dicts and lists.
+
+    Every value is copied as `ScanEstimate` holds it, so the arrays equal those stacked from the estimates.
+
+    Checked by: tests/validation/test_stream.py::test_compact_run_keeps_the_same_arrays_as_a_full_run
+    """
+
+    def __init__(self, capacity: int = 256):
+        self._data: dict[str, np.ndarray] = {}
+        self._capacity = max(1, int(capacity))
+        self.n = 0
+
+    def append(self, est: ScanEstimate) -> None:
+        row = {"t": est.t, "T_vehicle_world": est.T_vehicle_world, "T_world_vehicle": est.T_world_vehicle,
+               "varpi": est.varpi, "varpi_dot": est.varpi_dot if est.varpi_dot is not None else np.zeros(6),
+               "P": est.P, "n_detections": est.n_detections, "n_static": est.n_static,
+               "n_associated": est.n_associated, "nis": float(est.nis), "P_relative": _or_nan(est.P_relative),
+               "P_pose_absolute": _or_nan(est.P_pose_absolute), "map_reuse": est.map_reuse,
+               **{f"s_{key}": est.timings.get(key, 0.0) for key in STAGES}}
+        if self.n == self._capacity:
+            self._capacity *= 2
+            for key, arr in self._data.items():
+                grown = np.empty((self._capacity,) + arr.shape[1:], arr.dtype)
+                grown[:self.n] = arr[:self.n]
+                self._data[key] = grown
+        for key, value in row.items():
+            value = np.asarray(value)
+            if key not in self._data:  # counts as int64, everything else float64 (as np.array of the values)
+                dtype = np.int64 if key in COUNTS else np.float64
+                self._data[key] = np.empty((self._capacity,) + value.shape, dtype)
+            self._data[key][self.n] = value
+        self.n += 1
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Views of the filled rows, (n, ...) per value."""
+        return {key: arr[:self.n] for key, arr in self._data.items()}
+
+
 @dataclass
 class RunResult:
+    """A run: the config, the per-scan values (`columns`), wall time per scan, events; and the `ScanEstimate`
+    objects themselves when the run kept them (`run_scans(keep_estimates=True)`: needed for their detail and
+    events per scan, e.g. by the Rerun recording; empty otherwise)."""
+
     config: OdometryConfig
     estimates: list[ScanEstimate]
     wall_ms: np.ndarray  # (N,) per scan
     events: list[tuple[int, float, str]] = field(default_factory=list)
+    columns: dict | None = None  # ScanColumns.arrays(); built from `estimates` when not given
+
+    def __post_init__(self):
+        if self.columns is None:
+            cols = ScanColumns(max(1, len(self.estimates)))
+            for e in self.estimates:
+                cols.append(e)
+            self.columns = cols.arrays()
+
+    @property
+    def n_scans(self) -> int:
+        return len(self.wall_ms)
 
     @property
     def t(self) -> np.ndarray:
-        return np.array([e.t for e in self.estimates])
+        return self.columns["t"] if self.n_scans else np.zeros(0)
 
     def state_arrays(self) -> dict:
         """The per-scan arrays of states.npz (docs: README "Reading the results", docs/consistency.md)."""
-        est = self.estimates
-        d = est[0].P.shape[0]
+        c = self.columns
+        d = c["P"].shape[-1]
         return dict(
-            t=self.t,
-            T_vehicle_world=np.stack([e.T_vehicle_world for e in est]),
-            varpi=np.stack([e.varpi for e in est]),
-            varpi_dot=np.stack([e.varpi_dot if e.varpi_dot is not None else np.zeros(6) for e in est]),
-            P=np.stack([e.P for e in est]).reshape(len(est), d, d),
-            n_detections=np.array([e.n_detections for e in est]),
-            n_static=np.array([e.n_static for e in est]),
-            n_associated=np.array([e.n_associated for e in est]),
-            nis=np.array([e.nis for e in est], dtype=float),
+            t=c["t"],
+            T_vehicle_world=c["T_vehicle_world"],
+            varpi=c["varpi"],
+            varpi_dot=c["varpi_dot"],
+            P=c["P"].reshape(self.n_scans, d, d),
+            n_detections=c["n_detections"],
+            n_static=c["n_static"],
+            n_associated=c["n_associated"],
+            nis=c["nis"].astype(float),
             ms_per_scan=np.asarray(self.wall_ms),
-            P_relative=np.stack([_or_nan(e.P_relative) for e in est]),
-            P_pose_absolute=np.stack([_or_nan(e.P_pose_absolute) for e in est]),
-            map_reuse=np.array([e.map_reuse for e in est]),
+            P_relative=c["P_relative"],
+            P_pose_absolute=c["P_pose_absolute"],
+            map_reuse=c["map_reuse"],
             velocity_correlation_time=np.float64(self.config.uncertainty.velocity_correlation_time),
             drift_rate_sigma=np.asarray(self.config.uncertainty.drift_rate_sigma, dtype=float),
         )
 
     def trajectory(self) -> Trajectory:
-        return Trajectory(self.t, np.stack([e.T_world_vehicle for e in self.estimates]))
+        return Trajectory(self.t, self.columns["T_world_vehicle"])
 
     def summary(self) -> dict:
-        assoc = np.array([e.n_associated for e in self.estimates])
-        stages = {}
-        for key in ("predict", "associate", "solve", "map"):
-            vals = [e.timings.get(key, 0.0) for e in self.estimates]
-            stages[key] = float(np.median(vals) * 1e3) if vals else 0.0
+        c, n = self.columns, self.n_scans
+        stages = {key: float(np.median(c[f"s_{key}"]) * 1e3) if n else 0.0 for key in STAGES}
         return {
             "model": self.config.model,
-            "scans": len(self.estimates),
-            "median_associations": float(np.median(assoc)) if len(assoc) else 0.0,
-            "median_detections": float(np.median([e.n_detections for e in self.estimates])) if self.estimates else 0,
-            "median_ms_per_scan": float(np.median(self.wall_ms)) if len(self.wall_ms) else 0.0,
-            "p95_ms_per_scan": float(np.percentile(self.wall_ms, 95)) if len(self.wall_ms) else 0.0,
+            "scans": n,
+            "median_associations": float(np.median(c["n_associated"])) if n else 0.0,
+            "median_detections": float(np.median(c["n_detections"])) if n else 0,
+            "median_ms_per_scan": float(np.median(self.wall_ms)) if n else 0.0,
+            "p95_ms_per_scan": float(np.percentile(self.wall_ms, 95)) if n else 0.0,
             "median_ms_per_stage": stages,
             "events": [{"scan": s, "t": t, "event": ev} for s, t, ev in self.events],
             "config": self.config.to_dict(),
@@ -100,40 +163,58 @@ def scan_times(seq: Sequence) -> np.ndarray:
 
 
 def run_sequence(seq: Sequence, config: OdometryConfig, progress=None, record_detail: bool = False,
-                 on_scan=None) -> RunResult:
+                 on_scan=None, keep_estimates: bool = True) -> RunResult:
     """Run the estimator over every scan of `seq`; `progress` is an optional object with update(), `on_scan` an
     optional callable (k, t, scan or None, estimate) called after each scan (the live Rerun stream uses it).
+    `keep_estimates=False` keeps only the per-scan arrays (`RunResult.columns`), not the estimate objects.
 
     BLAS is limited to one thread for the run: the estimator's matrices are tiny (at most a few hundred rows),
     where threading costs far more than it gains (measured: a 72x72 Cholesky solve took 7.8 ms with two busy
     threads, 77 us with one).
     """
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _run(seq, config, progress, record_detail, on_scan)
-
-
-def _run(seq: Sequence, config: OdometryConfig, progress, record_detail: bool, on_scan=None) -> RunResult:
-    sensor = seq.sensor
-    odo = RadarOdometry(config, sensor.T_vehicle_sensor, sensor.noise.as_array(), sensor.max_range,
-                        record_detail=record_detail, fov=(sensor.azimuth_fov, sensor.elevation_fov))
-    by_t = {s.t: s for s in seq.scans}
     times = scan_times(seq)
     if len(times) == 0:
         raise InputError("sequence: no scans (radar.csv has no rows and there is no groundtruth.txt)")
-    estimates, wall, events = [], [], []
+    by_t = {s.t: s for s in seq.scans}
+    return run_scans(seq.sensor, ((t, by_t.get(t)) for t in times), config, progress, record_detail, on_scan,
+                     keep_estimates)
+
+
+def run_scans(sensor, scans: Iterable, config: OdometryConfig, progress=None, record_detail: bool = False,
+              on_scan=None, keep_estimates: bool = False) -> RunResult:
+    """The per-scan loop of `run_sequence` over any iterable of (t, RadarScan or None) in time order, e.g. a
+    streamed simulation (`sim.stream`) that never holds the whole sequence: with `keep_estimates=False` the
+    run's memory is the estimator's window and map plus `ScanColumns` (about 3.5 kB per scan).
+
+    Same scans -> the same estimates, bit for bit, whatever the source and `keep_estimates`.
+
+    Checked by: tests/validation/test_stream.py::test_streamed_compact_run_gives_the_same_poses
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run(sensor, scans, config, progress, record_detail, on_scan, keep_estimates)
+
+
+def _run(sensor, scans: Iterable, config: OdometryConfig, progress, record_detail: bool, on_scan,
+         keep_estimates: bool) -> RunResult:
+    odo = RadarOdometry(config, sensor.T_vehicle_sensor, sensor.noise.as_array(), sensor.max_range,
+                        record_detail=record_detail, fov=(sensor.azimuth_fov, sensor.elevation_fov))
+    columns, estimates, wall, events = ScanColumns(), [], [], []
     empty = np.zeros((0, 4))
-    for k, t in enumerate(times):
-        scan = by_t.get(t)
+    for k, (t, scan) in enumerate(scans):
         tic = time.perf_counter()
         est = odo.process(t, scan.polar if scan is not None else empty)
         wall.append((time.perf_counter() - tic) * 1e3)
-        estimates.append(est)
+        columns.append(est)
+        if keep_estimates:
+            estimates.append(est)
         events.extend((k, float(t), ev) for ev in est.events)
         if on_scan is not None:
             on_scan(k, float(t), scan, est)
         if progress is not None:
             progress.update()
-    return RunResult(config, estimates, np.asarray(wall), events)
+    if not wall:
+        raise InputError("sequence: no scans to run")
+    return RunResult(config, estimates, np.asarray(wall), events, columns.arrays())
 
 
 def write_run(out_dir: str | Path, result: RunResult) -> None:

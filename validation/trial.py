@@ -16,8 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from .campaign import Trial, TrialOutcome, error_text
+from .association import associate
 from .consistency import nees_sequence, nis_summary
-from .metrics import evaluate
+from .kitti import LENGTHS, kitti_errors
+from .metrics import ate, drift, path_distances, rpe, velocity_errors
 from .odometry_consistency import DOF, MEASURES, summarise
 from .run_consistency import run_states, scan_measures
 
@@ -60,16 +62,20 @@ class ScenarioTrial:
         from rodo.sim.faults import parse_faults
 
         faults = parse_faults(self.faults)
+        t0 = time.perf_counter()
         seq, truth = scenarios.get(self.scenario).simulate(trial.seed, self.duration, faults=faults)
         gt = Trajectory(truth["t"], np.linalg.inv(truth["T_vehicle_world"]))
+        simulate_s = time.perf_counter() - t0
         outcomes = []
-        for model in trial.models:
+        for model in trial.models:  # every model on the one simulated sequence, in memory
             t0 = time.perf_counter()
             try:
-                result = run_sequence(seq, self.config(model))
-                out = evaluate_result(model, result, gt, truth, self.lengths, self.step, time.perf_counter() - t0)
+                result = run_sequence(seq, self.config(model), keep_estimates=False)
+                run_s = time.perf_counter() - t0
+                out = evaluate_result(model, result, gt, truth, self.lengths, self.step, run_s)
                 if out.error is None:
                     out.arrays.update(self.extra_arrays(gt, result))
+                out.timings = {"simulate": simulate_s, "run": run_s, "evaluate": time.perf_counter() - t0 - run_s}
                 outcomes.append(out)
             except Exception as exc:  # noqa: BLE001 - recorded per model
                 frames = traceback.extract_tb(exc.__traceback__)
@@ -84,30 +90,42 @@ class ScenarioTrial:
 
 
 def evaluate_result(model: str, result, gt, truth: dict, lengths, step: int, wall_s: float) -> TrialOutcome:
-    """Metrics row and per-scan arrays of one `validation.driver.RunResult` against the simulator's truth."""
-    est = result.estimates
-    T = np.stack([e.T_vehicle_world for e in est])
+    """Metrics row and per-scan arrays of one `validation.driver.RunResult` against the simulator's truth.
+
+    The row's values are those of `metrics.evaluate` (the same functions on the same inputs), computed without
+    the parts a campaign row does not keep: `evaluate` also summarises the odometry consistency measures, which
+    `consistency_of` computes here per scan anyway (their span covariances are the evaluation's costliest part),
+    and the NEES sequence is computed once for the row and the arrays.
+    """
+    states = run_states(result)
+    T = states["T_vehicle_world"]
     bad = ~np.all(np.isfinite(T), axis=(1, 2))
     if bad.any():
         k = int(np.flatnonzero(bad)[0])
-        return TrialOutcome(model, error=f"non-finite estimate from scan {k} (t = {est[k].t:.3f} s)")
-    states = run_states(result)
+        return TrialOutcome(model, error=f"non-finite estimate from scan {k} (t = {float(states['t'][k]):.3f} s)")
     d = states["P"].shape[-1]
-    rep = evaluate(gt, result.trajectory(), lengths, step, states, truth)
+    est = result.trajectory()
+    ig, ie = associate(gt.t, est.t)
+    G, E = gt.T_world_vehicle[ig], est.T_world_vehicle[ie]
+    k = kitti_errors(G, E, LENGTHS if lengths is None else lengths, step)
+    dr = drift(G, E)
+    fin, mx = dr["final"], dr["max_abs"]
     ns = nees_sequence(states, truth)
-    fin, mx = rep["drift"]["final"], rep["drift"]["max_abs"]
-    metrics = {"kitti_t_err_pct": rep["kitti_t_err_pct"], "kitti_r_err_deg_per_m": rep["kitti_r_err_deg_per_m"],
-               "ate_rmse_m": rep["ate_rmse_m"], "rpe_trans_pct": rep["rpe"]["rpe_trans_pct"],
+    v = ns["nees"][np.isfinite(ns["nees"])]
+    nis = nis_summary(states["nis"], states["n_associated"])
+    velocity = velocity_errors(states["t"], states["varpi"], truth["t"], truth["varpi"], states.get("varpi_dot"),
+                               truth.get("varpi_dot"))
+    metrics = {"kitti_t_err_pct": k.t_err_pct, "kitti_r_err_deg_per_m": k.r_err_deg_per_m,
+               "ate_rmse_m": ate(G, E)["ate_rmse_m"], "rpe_trans_pct": rpe(G, E)["rpe_trans_pct"],
                **{f"drift_{a}_{'m' if a in 'xyz' else 'deg'}": fin[a] for a in fin},
                "max_abs_z_m": mx["z"], "max_abs_roll_deg": mx["roll"], "max_abs_pitch_deg": mx["pitch"],
-               "nees_mean": rep["nees"]["mean"], "nees_dim": d, "nis_mean": rep["nis"]["mean"],
-               "nu_rmse_mps": rep["velocity"]["nu_rmse_mps"],
-               "ms_per_scan": float(np.median(result.wall_ms)), "scans": len(est),
-               "path_length_m": rep["path_length_m"], "wall_s": wall_s}
-    nis = nis_summary(states["nis"], states["n_associated"])
+               "nees_mean": float(v.mean()) if v.size else float("nan"), "nees_dim": d, "nis_mean": nis["mean"],
+               "nu_rmse_mps": velocity["nu_rmse_mps"],
+               "ms_per_scan": float(np.median(result.wall_ms)), "scans": result.n_scans,
+               "path_length_m": float(path_distances(G)[-1]), "wall_s": wall_s}
     arrays = {"t": ns["t"], "nees": ns["nees"], "nees_dim": d, "nis": states["nis"],
               "n_associated": states["n_associated"], "ms_per_scan": result.wall_ms,
-              "nis_pairs": nis["pairs"], "T_world_vehicle_est": result.trajectory().T_world_vehicle}
+              "nis_pairs": nis["pairs"], "T_world_vehicle_est": est.T_world_vehicle}
     metrics_c, arrays_c = consistency_of(states, truth, ns["t"])
     metrics.update(metrics_c)
     arrays.update(arrays_c)

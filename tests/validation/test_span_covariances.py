@@ -1,0 +1,37 @@
+"""validation/span_covariances.py: every span covariance of a run at once, equal bit for bit to the recursion of
+estimator.uncertainty.span_covariance span by span."""
+
+import numpy as np
+import pytest
+
+from rodo import scenarios
+from rodo.estimator.config import OdometryConfig
+from rodo.estimator.uncertainty import span_covariance
+from rodo.validation import span_covariances as sc
+from rodo.validation.driver import run_sequence
+
+
+@pytest.fixture(scope="module")
+def states():
+    seq, _ = scenarios.get("city").simulate(2, 2.0)  # 27 scans
+    return run_sequence(seq, OdometryConfig.for_model("ca-polar"), keep_estimates=False).state_arrays()
+
+
+@pytest.mark.parametrize("n, tau, drift", [(1, 0.25, None), (5, 0.25, [1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4]),
+                                           (13, 0.0, None), (26, 0.5, None)])
+def test_equals_span_covariance_bit_for_bit(states, n, tau, drift, monkeypatch):
+    T, t = states["T_vehicle_world"], states["t"]
+    Sigma_rel = states["P_relative"].copy()
+    Sigma_rel[3] = np.nan  # a scan without a relative covariance counts as 0
+    P_varpi = states["P"][:, 6:12, 6:12]
+    want = np.stack([span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, tau, drift) for k in range(n, len(t))])
+    got = sc.span_covariances(T, t, Sigma_rel, P_varpi, n, tau, drift)
+    assert got.shape == want.shape and got.tobytes() == want.tobytes()
+    monkeypatch.setattr(sc, "BLOCK", 4)  # spans advanced in several blocks give the same
+    assert sc.span_covariances(T, t, Sigma_rel, P_varpi, n, tau, drift).tobytes() == want.tobytes()
+
+
+def test_no_span_fits(states):
+    t = states["t"][:3]
+    assert sc.span_covariances(states["T_vehicle_world"][:3], t, states["P_relative"][:3],
+                               states["P"][:3, 6:12, 6:12], 3, 0.25).shape == (0, 6, 6)
