@@ -194,15 +194,40 @@ def run_scans(sensor, scans: Iterable, config: OdometryConfig, progress=None, re
         return _run(sensor, scans, config, progress, record_detail, on_scan, keep_estimates)
 
 
+def run_rig(rig, config: OdometryConfig, progress=None, record_detail: bool = False, on_scan=None,
+            keep_estimates: bool = True) -> RunResult:
+    """Run one estimator over every radar of a rig (`sim.rig`): each scan, in time order, with its own radar
+    (`RadarOdometry.add_sensor`), into one window and one map. Checked by: tests/validation/test_rig_run.py"""
+    scans = [(t, scan, i) for t, i, scan in rig.scans()]
+    if not scans:
+        raise InputError("rig: no scans (no radar.csv of the rig has rows)")
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run([s.sensor for s in rig.sequences], scans, config, progress, record_detail, on_scan,
+                    keep_estimates)
+
+
+def _odometry(sensors, config: OdometryConfig, record_detail: bool) -> RadarOdometry:
+    """The estimator for one SensorConfig, or a list of them (a rig: the first, then `add_sensor`)."""
+    sensors = sensors if isinstance(sensors, (list, tuple)) else [sensors]
+    odo = None
+    for s in sensors:
+        args = (s.T_vehicle_sensor, s.noise.as_array(), s.max_range)
+        fov = (s.azimuth_fov, s.elevation_fov)
+        if odo is None:
+            odo = RadarOdometry(config, *args, record_detail=record_detail, fov=fov)
+        else:
+            odo.add_sensor(*args, fov=fov)
+    return odo
+
+
 def _run(sensor, scans: Iterable, config: OdometryConfig, progress, record_detail: bool, on_scan,
          keep_estimates: bool) -> RunResult:
-    odo = RadarOdometry(config, sensor.T_vehicle_sensor, sensor.noise.as_array(), sensor.max_range,
-                        record_detail=record_detail, fov=(sensor.azimuth_fov, sensor.elevation_fov))
+    odo = _odometry(sensor, config, record_detail)
     columns, estimates, wall, events = ScanColumns(), [], [], []
     empty = np.zeros((0, 4))
-    for k, (t, scan) in enumerate(scans):
+    for k, (t, scan, *radar) in enumerate(scans):
         tic = time.perf_counter()
-        est = odo.process(t, scan.polar if scan is not None else empty)
+        est = odo.process(t, scan.polar if scan is not None else empty, radar[0] if radar else 0)
         wall.append((time.perf_counter() - tic) * 1e3)
         columns.append(est)
         if keep_estimates:

@@ -1,4 +1,5 @@
-"""`rodo run SEQ_DIR --model MODEL --out DIR [--config FILE] [--rerun OUT.rrd]`: odometry on a sequence.
+"""`rodo run SEQ_DIR --model MODEL --out DIR [--config FILE] [--rerun OUT.rrd]`: odometry on a sequence, or on a
+rig of several radars (SEQ_DIR with rig.toml, docs/sequence_format.md: every radar in one estimator).
 
 Writes DIR/estimate.txt (TUM), estimate.kitti.txt (the same poses, KITTI layout), states.npz and summary.json;
 on a sequence with groundtruth.txt it ends with the KITTI drift and ATE that `rodo evaluate` reports for them.
@@ -19,7 +20,8 @@ from rodo.estimator.errors import InputError
 from rodo.outputs import check_output_file
 from rodo.progress import Progress
 from rodo.sim.kitti_poses import write_kitti_poses
-from rodo.sim.sequence import GROUNDTRUTH_TXT, read_sequence, read_tum
+from rodo.sim.rig import is_rig
+from rodo.sim.sequence import GROUNDTRUTH_TXT, read_sequence, read_tum, write_tum
 from rodo.sim.simulate import TRUTH_NPZ, load_truth
 from rodo.validation.driver import run_sequence, scan_times, write_run
 
@@ -31,7 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "DIR/estimate.txt (TUM, T_world_vehicle), DIR/estimate.kitti.txt (the same poses "
                                    "as KITTI 3x4 rows), DIR/states.npz and DIR/summary.json; with groundtruth.txt "
                                    "in SEQ_DIR it prints the KITTI drift and ATE (as `rodo evaluate`).")
-    p.add_argument("sequence", metavar="SEQ_DIR", help="sequence directory (radar.csv, sensor.toml)")
+    p.add_argument("sequence", metavar="SEQ_DIR", help="sequence directory (radar.csv, sensor.toml), or a rig of "
+                                                       "several radars (rig.toml: all fused in one estimator)")
     p.add_argument("--model", choices=MODELS, default=None, metavar="MODEL",
                    help="motion prior / measurement model: ca-polar (the paper's method, default), cv-cartesian "
                         "(its baseline), ca-cartesian, cv-polar (the two other combinations)")
@@ -113,6 +116,8 @@ def main(args) -> int:
         grpc_url(args.connect)  # a bad address fails before the work
     if args.rerun:
         check_output_file(args.rerun, "--rerun", parents=True)  # before the run, not after the estimate is written
+    if is_rig(args.sequence):
+        return _run_rig(args, config)
     seq = read_sequence(args.sequence)
     check_out_dir(args.out)
     live = None
@@ -152,6 +157,35 @@ def main(args) -> int:
 
 
 KITTI_POSES = "estimate.kitti.txt"
+
+
+def _run_rig(args, config: OdometryConfig) -> int:
+    """`rodo run RIG_DIR`: every radar of the rig in one estimator (docs/sequence_format.md, Rigs)."""
+    from rodo.sim.rig import merged_groundtruth, read_rig
+    from rodo.validation.driver import run_rig
+
+    for flag, given in (("--rerun", args.rerun), ("--connect", args.connect is not None), ("--serve", args.serve)):
+        if given:
+            raise InputError(f"{flag}: not available for a rig yet (run one radar: {args.sequence}/RADAR)")
+    rig = read_rig(args.sequence)
+    check_out_dir(args.out)
+    with Progress(sum(len(s.scans) for s in rig.sequences), f"rodo run {config.model}, {len(rig.names)} radars",
+                  unit="scan") as bar:
+        result = run_rig(rig, config, progress=bar, keep_estimates=False)
+    write_run(args.out, result)
+    write_kitti_poses(Path(args.out) / KITTI_POSES, result.trajectory().T_world_vehicle)
+    s = result.summary()
+    print(json.dumps({k: s[k] for k in ("model", "scans", "median_associations", "median_ms_per_scan",
+                                        "p95_ms_per_scan")} | {"radars": rig.names}))
+    print(f"wrote {args.out}/estimate.txt, {KITTI_POSES}, states.npz, summary.json")
+    gt = merged_groundtruth(rig)
+    if gt is not None:
+        gt_path = Path(args.sequence) / GROUNDTRUTH_TXT
+        if rig.groundtruth is None:  # the radars' own ground truths merged: written beside the estimate
+            gt_path = Path(args.out) / GROUNDTRUTH_TXT
+            write_tum(gt_path, gt)
+        print(accuracy_line(gt_path, Path(args.out) / "estimate.txt"))
+    return 0
 
 
 def accuracy_line(gt_path: Path, est_path: Path) -> str:
