@@ -8,6 +8,7 @@ NEES e^T P^-1 e of a 6-dof error (left perturbations, T = T_vehicle_world):
     acceleration    varpi_dot_true - varpi_dot (CA only)             P[12:18, 12:18]
     relative_scan   ln(R_true R_est^-1), R = T_k T_{k-1}^-1            `uncertainty.span_covariance` over 1 scan
     relative_span   the same over `span` seconds, T_k T_{k-n}^-1      `uncertainty.span_covariance`
+    (all spans of a run at once, bit for bit: `validation.span_covariances`)
     pose            ln(T_true T_est^-1) in the estimator's world      P_pose_absolute[k]
     pose_window     the same against the window's marginal P[:6, :6] (relative to the map: not a drift bound)
 
@@ -22,11 +23,11 @@ from __future__ import annotations
 import numpy as np
 
 from rodo.estimator.lie import se3
-from rodo.estimator.uncertainty import span_covariance
 
 from .alignment import truth_in_estimator_frame
 from .association import DEFAULT_TOLERANCE, associate
 from .consistency import nees, require_arrays
+from .span_covariances import span_covariances
 
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
@@ -46,9 +47,7 @@ def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma) -
     e = _relative_errors(T_true, T_est, n)
     Sigma_rel = np.asarray(states["P_relative"], dtype=float)
     P_varpi = np.asarray(states["P"], dtype=float)[:, 6:12, 6:12]
-    P = np.stack([span_covariance(T_est, t, Sigma_rel, P_varpi, k - n, k, tau, drift_rate_sigma)
-                  for k in range(n, len(t))])
-    out[n:] = nees(e, P)
+    out[n:] = nees(e, span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma))
     return out
 
 
