@@ -20,7 +20,7 @@ def _series_sum(S, shift, terms=80):
     out = np.zeros_like(S)
     P = np.eye(S.shape[-1])
     for n in range(terms):
-        out = out + P / factorial(n + shift)
+        out = out + P / float(factorial(n + shift))  # a float: numpy 1.x makes 81! an object array
         P = P @ S
     return out
 
