@@ -94,6 +94,7 @@ def test_trial_seeds_reproducible():
 
 
 def test_process_pool_and_dask_give_the_same_persisted_results(tmp_path):
+    pytest.importorskip("distributed", reason="needs the dask extra: pip install 'rodo[dask]'")
     trials = make_trials(3, 6, MODELS)
     fn = FakeTrial(fail=frozenset({4}))
     with ProcessPoolExecutor(2) as ex:
@@ -142,6 +143,8 @@ def test_failing_trial_is_recorded_and_does_not_stop_the_campaign(tmp_path):
 
 @pytest.mark.parametrize("dask", [False, True])
 def test_resume_after_interruption_loses_nothing_and_duplicates_nothing(tmp_path, dask):
+    if dask:
+        pytest.importorskip("distributed", reason="needs the dask extra: pip install 'rodo[dask]'")
     trials = make_trials(11, 8, MODELS)
     fn = FakeTrial(fail=frozenset({5}))
     ctx = (lambda: make_executor(2, "local", processes=False)) if dask else (lambda: ProcessPoolExecutor(2))

@@ -85,7 +85,7 @@ class _FakeClient:
 
 @pytest.fixture
 def fake_dask(monkeypatch):
-    import distributed
+    distributed = pytest.importorskip("distributed", reason="needs the dask extra: pip install 'rodo[dask]'")
 
     _FakeCluster.made.clear()
     monkeypatch.setattr(distributed, "LocalCluster", _FakeCluster)

@@ -213,6 +213,7 @@ def _recorded_trajectory(rrd) -> np.ndarray:
 def test_rerun_recording_of_a_real_run(realdata_dir, tmp_path, source, options):
     """`rodo convert` then `rodo run --rerun` on each real recording: the .rrd opens, holds the scans, and its
     trajectory is the run's estimate.txt."""
+    pytest.importorskip("rerun", reason="needs the viz extra: pip install 'rodo[viz]'")
     from rerun.chunk import RrdReader
 
     from rodo.cli import main

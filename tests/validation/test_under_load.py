@@ -11,8 +11,10 @@ ignores exactly that warning. Here the check is made to fire every time, as unde
 import contextlib
 import warnings
 
-import distributed.core
 import pytest
+
+distributed = pytest.importorskip("distributed", reason="needs the dask extra: pip install 'rodo[dask]'")
+import distributed.core  # noqa: E402
 
 from rodo.validation.campaign import make_executor, make_trials, read_results, remaining, run_campaign
 from tests.validation.test_campaign import MODELS, FakeTrial, InterruptAfter
