@@ -129,7 +129,8 @@ def main(args) -> int:
               f"serving the web viewer (gRPC {live.url})")
     with Progress(len(scan_times(seq)), f"rodo run {config.model}", unit="scan") as bar:
         result = run_sequence(seq, config, progress=bar, record_detail=bool(args.rerun) or live_stream,
-                              on_scan=live.on_scan if live is not None else None)
+                              on_scan=live.on_scan if live is not None else None,
+                              keep_estimates=bool(args.rerun))  # else per-scan arrays only (a long drive)
     if live is not None:
         live.close()
     write_run(args.out, result)
