@@ -170,9 +170,9 @@ def _run_rig(args, config: OdometryConfig) -> int:
             raise InputError(f"{flag}: not available for a rig yet (run one radar: {args.sequence}/RADAR)")
     rig = read_rig(args.sequence)
     check_out_dir(args.out)
-    if config.prior == "ca":
-        print("rodo run: warning: several radars with the CA prior are experimental: on the RadarScenes rig "
-              "CA/P left the plane and diverged after 15 s while CV/C stayed planar (docs/estimator.md, Several "
+    if config.measurement == "polar":
+        print("rodo run: warning: several radars with the polar model are experimental: on the RadarScenes rig "
+              "(2D radars) CA/P left the plane and diverged while CV/C stayed planar (docs/estimator.md, Several "
               "radars)", file=sys.stderr)
     with Progress(sum(len(s.scans) for s in rig.sequences), f"rodo run {config.model}, {len(rig.names)} radars",
                   unit="scan") as bar:
