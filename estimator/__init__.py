@@ -25,6 +25,7 @@ A map of the package (each module's public names are re-exported here):
     config.py           OdometryConfig and its sections (TOML)
     config_rules.py     every config value's type, finiteness and range (one table, checked at load)
     errors.py           InputError, check_finite
+    tomlcompat.py       tomllib on every supported Python (tomli on 3.10)
 
 Configurations: `OdometryConfig.for_model("ca-polar")` (the paper's method), `"cv-cartesian"` (its baseline),
 `"ca-cartesian"` and `"cv-polar"` (ablations): the product of a `MotionPrior` and a `MeasurementModel`.
@@ -43,6 +44,7 @@ _EXPORTS = {
     "doppler": ("DopplerFrontEnd", "body_velocity", "sensor_velocity"),
     "ego_velocity": ("EgoVelocity", "estimate_ego_velocity", "least_squares_velocity"),
     "errors": ("InputError", "check_finite"),
+    "tomlcompat": ("tomllib",),
     "lie": ("se3", "so3"),
     "local_map": ("LocalMap",),
     "measurement_models": ("CartesianModel", "MeasurementModel", "PolarModel", "measurement_model"),

@@ -14,7 +14,6 @@ Unknown keys are errors (named), values are checked for type and range.
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import numpy as np
 
 from .config_rules import check_values
 from .errors import InputError
+from .tomlcompat import tomllib
 
 MODELS = ("ca-polar", "cv-cartesian", "ca-cartesian", "cv-polar")
 

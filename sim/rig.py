@@ -14,13 +14,13 @@ Checked by: tests/sim/test_rig.py
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.estimator.tomlcompat import tomllib
 
 from ._seqio import SequenceFormatError, atomic_write_bytes, read_text
 from .sequence import GROUNDTRUTH_TXT, read_sequence, read_tum, write_sequence

@@ -9,11 +9,11 @@ Checked by: tests/sim/test_sequence.py, tests/sim/test_sequence_fuzz.py
 from __future__ import annotations
 
 import re
-import tomllib
 
 import numpy as np
 
 from rodo.estimator.lie import so3
+from rodo.estimator.tomlcompat import tomllib
 
 from ._seqio import UNIT_QUATERNION_TOL, SequenceFormatError, atomic_write_bytes, float_text, read_text
 from .sequence_types import SIGMA_NAMES, NoiseSigmas, SensorConfig, check_sensor_values

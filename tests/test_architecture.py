@@ -16,10 +16,11 @@ functions of (path, source) so `test_checkers_catch_violations` can show that ea
 from __future__ import annotations
 
 import ast
-import tomllib
 from pathlib import Path
 
 import pytest
+
+from rodo.estimator.tomlcompat import tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())

@@ -44,7 +44,7 @@ class ScenarioTrial:
 
     def config(self, label: str):
         """The OdometryConfig of a model label: its TOML from `configs`, else the named model's defaults."""
-        import tomllib
+        from rodo.estimator.tomlcompat import tomllib
 
         from rodo.estimator.config import OdometryConfig
 

@@ -3,7 +3,6 @@ to the default config of every model), every key of the dataclasses in it with a
 docs/configuration.md generated from the same schema and up to date."""
 
 import dataclasses
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,6 +12,7 @@ from rodo import config_schema
 from rodo.cli import main
 from rodo.commands import config as config_cmd
 from rodo.estimator.config import MODELS, OdometryConfig
+from rodo.estimator.tomlcompat import tomllib
 
 ROOT = Path(__file__).resolve().parents[2]
 

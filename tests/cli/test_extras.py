@@ -9,13 +9,13 @@ Sizing: one 1.5 s city sequence simulated and run once (about 15 s with the subp
 
 import subprocess
 import sys
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from rodo import extras
+from rodo.estimator.tomlcompat import tomllib
 
 ROOT = Path(__file__).resolve().parents[2]
 ALL_EXTRA_MODULES = sorted({m for mods in extras.EXTRAS.values() for m in mods})

@@ -76,7 +76,7 @@ def same_bits(a, b) -> bool:
 # ---------------------------------------------------------------------------------------------------- tests
 import os  # noqa: E402
 import tempfile  # noqa: E402
-import tomllib  # noqa: E402
+from rodo.estimator.tomlcompat import tomllib  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
