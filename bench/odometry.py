@@ -147,32 +147,28 @@ def _run_method(seq, kind: str, arg) -> tuple[dict, object]:
     return {"est": _run_estimator, "icp": _run_icp, "kiss": _run_kiss}[kind](seq, arg)
 
 
-def _kiss_sensitivity(seqs: dict) -> list[str]:
-    """KISS-ICP's t_err and median ms at each of KISS_VOXELS on every bench sequence (full run only; reported,
-    not used to choose the voxel)."""
+def _sensitivity(seqs: dict, settings: list, label: str, describe, run, caption: str) -> list[str]:
+    """t_err and median ms of `run(seq, setting)` for each setting on every bench sequence (full run only;
+    reported, not used to choose)."""
     rows = []
-    for vx in baselines.KISS_VOXELS:
-        row = [f"{vx:g}"]
+    for setting in settings:
+        row = [describe(setting)]
         for seq in seqs.values():
-            sp, traj = _run_kiss(seq, vx)
+            sp, traj = run(seq, setting)
             row.append(f"{_accuracy(seq, traj)['t_err']:.2f} / {sp['median']:.1f}")
         rows.append(row)
-    return ["", "KISS-ICP voxel sensitivity on the bench sequences (t_err % / median ms per scan; reported, not "
-            "used to choose):", ""] + _table(["voxel m", *seqs], rows)
+    return ["", f"{caption} on the bench sequences (t_err % / median ms per scan; reported, not used to choose):",
+            ""] + _table([label, *seqs], rows)
+
+
+def _kiss_sensitivity(seqs: dict) -> list[str]:
+    return _sensitivity(seqs, list(baselines.KISS_VOXELS), "voxel m", lambda vx: f"{vx:g}", _run_kiss,
+                        "KISS-ICP voxel sensitivity")
 
 
 def _icp_sensitivity(seqs: dict, settings: list[dict]) -> list[str]:
-    """open3d ICP's t_err and median ms at a few settings on every bench sequence (full run only; reported, not
-    used to choose)."""
-    rows = []
-    for kw in settings:
-        row = [baselines.describe_icp(kw)]
-        for seq in seqs.values():
-            sp, traj = _run_icp(seq, kw)
-            row.append(f"{_accuracy(seq, traj)['t_err']:.2f} / {sp['median']:.1f}")
-        rows.append(row)
-    return ["", "open3d ICP, the winner and alternatives on the bench sequences (t_err % / median ms per scan; "
-            "reported, not used to choose):", ""] + _table(["setting", *seqs], rows)
+    return _sensitivity(seqs, settings, "setting", baselines.describe_icp, _run_icp,
+                        "open3d ICP, the winner and alternatives")
 
 
 def _result_rows(results: dict, durations: dict) -> list[list]:

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from .jit import njit
-from .measurement_kernels import point_model
+from .measurement_kernels import point_model, residual_d2
 
 
 @njit(cache=True)
@@ -286,16 +286,7 @@ def grid_candidates(polar, points, x0, y0, cell, nx, ny, start, order, p, radius
         proposed += found
         for q in range(found):
             i = idx[q]
-            for c in range(4):
-                e[c] = z_meas[i, c] - z_pred[a, c]
-            if polar:
-                e[1] = e[1] - 2.0 * math.pi * math.floor((e[1] + math.pi) / (2.0 * math.pi))
-            s = 0.0
-            for rr in range(4):
-                t = 0.0
-                for c in range(4):
-                    t += S_inv[a, rr, c] * e[c]
-                s += e[rr] * t
+            s = residual_d2(polar, z_meas[i], z_pred[a], S_inv[a], e)
             if s <= gate:
                 j_out[written] = a
                 i_out[written] = i

@@ -107,6 +107,28 @@ def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
     return r
 
 
+@njit(cache=True, inline="always")
+def residual_d2(polar, z, zp, M, e):
+    """e = z - zp (4,) with the azimuth wrapped to [-pi, pi) for the polar model, written to e; returns
+    e^T M e. Inlined, so it compiles with its caller's flags (the linearisation's fast-math, the association's
+    IEEE arithmetic).
+
+    Checked by: tests/estimator/test_window.py::test_kernel_matches_numpy_linearisation,
+        tests/estimator/test_association.py::test_grid_candidates_are_the_k_nearest_in_the_radius
+    """
+    for i in range(4):
+        e[i] = z[i] - zp[i]
+    if polar:
+        e[1] = e[1] - 2.0 * math.pi * math.floor((e[1] + math.pi) / (2.0 * math.pi))
+    d2 = 0.0
+    for i in range(4):
+        s = 0.0
+        for l in range(4):
+            s += M[i, l] * e[l]
+        d2 += e[i] * s
+    return d2
+
+
 @njit(cache=True, fastmath=FASTMATH)
 def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_out, robust_c):
     """H (K, 12, 12), b (K, 12), cost for K states; pairs offsets[k]:offsets[k+1] belong to state k and were
@@ -143,17 +165,8 @@ def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_ou
                 d2_out[a] = np.nan  # a map point at the sensor: the cost is undefined, the step is rejected
                 cost = np.nan
                 continue
-            for i in range(4):
-                e[i] = z[a, i] - zp[i]
-            if model == POLAR:
-                e[1] = e[1] - 2.0 * math.pi * math.floor((e[1] + math.pi) / (2.0 * math.pi))
             # residual derivative is -J; H, b are invariant to that sign pair (b flips with it)
-            d2 = 0.0
-            for i in range(4):
-                s = 0.0
-                for l in range(4):
-                    s += W[a, i, l] * e[l]
-                d2 += e[i] * s
+            d2 = residual_d2(model == POLAR, z[a], zp, W[a], e)
             d2_out[a] = d2
             if weights[a] < 0.0:
                 weights[a] = 1.0 / (1.0 + d2 / (robust_c * robust_c)) if robust_c > 0.0 else 1.0

@@ -133,8 +133,7 @@ def main(args) -> int:
                               keep_estimates=bool(args.rerun))  # else per-scan arrays only (a long drive)
     if live is not None:
         live.close()
-    write_run(args.out, result)
-    write_kitti_poses(Path(args.out) / KITTI_POSES, result.trajectory().T_world_vehicle)
+    _write(args.out, result)
     if args.rerun:
         from rodo.viz.recording import record_run  # viz is the only package importing rerun
 
@@ -146,9 +145,7 @@ def main(args) -> int:
     s = result.summary()
     for text in input_warnings(seq, s):
         print(f"rodo run: warning: {text}", file=sys.stderr)
-    print(json.dumps({k: s[k] for k in ("model", "scans", "median_associations", "median_ms_per_scan",
-                                        "p95_ms_per_scan")}))
-    print(f"wrote {args.out}/estimate.txt, {KITTI_POSES}, states.npz, summary.json")
+    _report(args.out, s)
     if seq.groundtruth is not None:
         print(accuracy_line(Path(args.sequence) / GROUNDTRUTH_TXT, Path(args.out) / "estimate.txt"))
     if args.serve:
@@ -158,6 +155,19 @@ def main(args) -> int:
 
 
 KITTI_POSES = "estimate.kitti.txt"
+
+
+def _write(out, result) -> None:
+    """estimate.txt, states.npz, summary.json and estimate.kitti.txt of a run."""
+    write_run(out, result)
+    write_kitti_poses(Path(out) / KITTI_POSES, result.trajectory().T_world_vehicle)
+
+
+def _report(out, summary: dict, extra: dict | None = None) -> None:
+    """The run's one-line summary (JSON) and what was written."""
+    keys = ("model", "scans", "median_associations", "median_ms_per_scan", "p95_ms_per_scan")
+    print(json.dumps({k: summary[k] for k in keys} | (extra or {})))
+    print(f"wrote {out}/estimate.txt, {KITTI_POSES}, states.npz, summary.json")
 
 
 def _run_rig(args, config: OdometryConfig) -> int:
@@ -177,12 +187,9 @@ def _run_rig(args, config: OdometryConfig) -> int:
     with Progress(sum(len(s.scans) for s in rig.sequences), f"rodo run {config.model}, {len(rig.names)} radars",
                   unit="scan") as bar:
         result = run_rig(rig, config, progress=bar, keep_estimates=False)
-    write_run(args.out, result)
-    write_kitti_poses(Path(args.out) / KITTI_POSES, result.trajectory().T_world_vehicle)
+    _write(args.out, result)
     s = result.summary()
-    print(json.dumps({k: s[k] for k in ("model", "scans", "median_associations", "median_ms_per_scan",
-                                        "p95_ms_per_scan")} | {"radars": rig.names}))
-    print(f"wrote {args.out}/estimate.txt, {KITTI_POSES}, states.npz, summary.json")
+    _report(args.out, s, {"radars": rig.names})
     gt = merged_groundtruth(rig)
     if gt is not None:
         gt_path = Path(args.sequence) / GROUNDTRUTH_TXT

@@ -203,12 +203,16 @@ def test_ti_trigger_times_spanning_centuries_are_refused(tmp_path):
         _ti(tmp_path, f"0,{-(2**63)}\n1,{2**63 - 1}\n", "")
 
 
-def test_radarscenes_huge_odometry_value_is_a_named_error_not_an_overflow(tmp_path):
-    odom = ",".join(radarscenes.ODOM_COLUMNS) + "\n-1.0,0,0,0,0,0,0\n0.0,0,0,0,0,0,4.657236100679575e+307\n"
-    (tmp_path / "radar2_timestamp_and_odom.csv").write_text(odom)
+def _radarscenes_odometry(tmp_path, rows: str):
+    """Convert radar 2 of a RadarScenes folder with these odometry rows and no detections."""
+    (tmp_path / "radar2_timestamp_and_odom.csv").write_text(",".join(radarscenes.ODOM_COLUMNS) + "\n" + rows)
     (tmp_path / "radar2_detections.csv").write_text(",".join(radarscenes.DET_COLUMNS) + "\n")
+    return radarscenes.convert_radar(tmp_path, 2)
+
+
+def test_radarscenes_huge_odometry_value_is_a_named_error_not_an_overflow(tmp_path):
     with pytest.raises(InputError, match=r"odom\.csv, line 3, field 'yaw_rate_ego': \|value\| > 1e\+09"):
-        radarscenes.convert_radar(tmp_path, 2)
+        _radarscenes_odometry(tmp_path, "-1.0,0,0,0,0,0,0\n0.0,0,0,0,0,0,4.657236100679575e+307\n")
 
 
 def test_ti_blank_line_inside_the_scans_is_named_not_an_index_error(tmp_path):
@@ -219,8 +223,5 @@ def test_ti_blank_line_inside_the_scans_is_named_not_an_index_error(tmp_path):
 
 def test_radarscenes_scan_times_closer_than_groundtruth_precision_are_refused(tmp_path):
     """0 and 1.16e-131 s are distinct, but one time in groundtruth.txt (1 ns): the sequence did not read back."""
-    odom = ",".join(radarscenes.ODOM_COLUMNS) + "\n0.0,0,0,0,0,0,0\n1.1618033020708705e-131,0,0,0,0,0,0\n"
-    (tmp_path / "radar2_timestamp_and_odom.csv").write_text(odom)
-    (tmp_path / "radar2_detections.csv").write_text(",".join(radarscenes.DET_COLUMNS) + "\n")
     with pytest.raises(InputError, match=r"line 3, field 'timestamp_rad': times must increase by at least 1e-06 s"):
-        radarscenes.convert_radar(tmp_path, 2)
+        _radarscenes_odometry(tmp_path, "0.0,0,0,0,0,0,0\n1.1618033020708705e-131,0,0,0,0,0,0\n")
