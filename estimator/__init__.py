@@ -18,6 +18,7 @@ A map of the package (each module's public names are re-exported here):
     consensus.py        which Doppler consensus is the world (the consensus switch)
     doppler.py          the Doppler front end: static detections, velocity correction, standstill
     local_map.py        LocalMap: the bounded map of points
+    surface.py          surface-shaped covariances of new map points (the optional surface model)
     window.py           SlidingWindow: Gauss-Newton over prior, motion and measurement terms, marginalisation
     uncertainty.py      the pose covariance that grows as drift does (relative, absolute, over a span)
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
@@ -57,6 +58,7 @@ _EXPORTS = {
     "scan_association": ("MapAssociation", "ScanMeasurements"),
     "scan": ("ScanDetail", "ScanEstimate"),
     "state": ("State",),
+    "surface": ("surface_covariances",),
     "uncertainty": ("DriftCovariance", "relative_pose_covariance", "span_covariance"),
     "window": ("MeasurementSet", "SlidingWindow"),
 }

@@ -88,6 +88,13 @@ class MapConfig:
     voxel: float = 0.0
     fuse: bool = False
     max_fused: int = 20
+    surface_normal_sigma: float = 0.0  # m, across a planar neighbourhood's surface; 0: off (the paper's isotropic
+    # map sigma for every point). On: a new point whose neighbourhood is a plane gets surface_tangent_sigma along
+    # it and this across it instead of the isotropic map sigma (estimator/surface.py, docs/consistency.md)
+    surface_tangent_sigma: float = 0.1  # m, along a planar neighbourhood's surface (surface model on)
+    surface_neighbours: int = 10  # most neighbours (the point included) of the plane fit
+    surface_radius: float = 2.0  # m, farthest neighbour of the plane fit
+    surface_planarity: float = 0.05  # a plane: smallest eigenvalue of the scatter below this times the middle one
 
 
 @dataclass(frozen=True)

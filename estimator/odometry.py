@@ -42,6 +42,7 @@ from .motion import motion_prior_for
 from .scan import ScanDetail, ScanEstimate
 from .scan_association import MapAssociation, ScanMeasurements
 from .state import State
+from .surface import surface_covariances
 from .uncertainty import DriftCovariance, relative_pose_covariance
 from .window import MeasurementSet, SlidingWindow
 
@@ -68,6 +69,8 @@ class RadarOdometry:
         self.motion = motion_prior_for(config)
         self.measurement = measurement_model(config.measurement)
         self.map_sigma = self.measurement.map_sigma(config.noise)
+        # the surface model puts each new point's resampling covariance (planar or isotropic) into the point itself
+        self.surface_model = config.map.surface_normal_sigma > 0
         seeds = np.random.SeedSequence(config.seed).spawn(3)
         self.sensors: list[Sensor] = []
         self.sensor = self._sensor(T_vehicle_sensor, sensor_sigmas, max_range, fov, (seeds[0], seeds[2]))
@@ -106,7 +109,7 @@ class RadarOdometry:
         associator = MapAssociation(
             self.measurement, self.measurement.noise_covariance(sigmas, config.noise.cartesian_sigma), T,
             association.gate_threshold(config.association.gate_probability, 4), config.association.max_radius,
-            self.map_sigma, _check_fov(fov), sigmas[1:3])
+            0.0 if self.surface_model else self.map_sigma, _check_fov(fov), sigmas[1:3])
         doppler = DopplerFrontEnd(config, T, sigmas, np.random.default_rng(seeds[0]), np.random.default_rng(seeds[1]))
         self.sensors.append(Sensor(T, sigmas, float(max_range), associator, doppler))
         return self.sensors[-1]
@@ -287,8 +290,14 @@ class RadarOdometry:
         if len(scan.points):
             new = np.ones(len(scan.points), bool)
             new[pairs.det_idx] = False
-            self.map.add(se3.transform_points(T_world_sensor, scan.points[new]), self.map_clock,
-                         covariances=self._point_covariances(scan.polar[new], T_world_sensor[:3, :3]))
+            p_new = se3.transform_points(T_world_sensor, scan.points[new])
+            covariances = self._point_covariances(scan.polar[new], T_world_sensor[:3, :3])
+            if self.surface_model:
+                m = cfg.map
+                covariances += surface_covariances(p_new, self.map.points, m.surface_normal_sigma,
+                                                   m.surface_tangent_sigma, self.map_sigma, m.surface_neighbours,
+                                                   m.surface_radius, m.surface_planarity)[0]
+            self.map.add(p_new, self.map_clock, covariances=covariances)
         if len(self.sensors) == 1:
             self.map.prune(self.map_clock, xk.T_vehicle_world, self.T_vehicle_sensor, self.max_range)
         else:  # a point behind this radar may be ahead of another: prune by age and distance from the vehicle
