@@ -111,7 +111,8 @@ class OutageConfig:
 class StandstillConfig:
     """Zero-velocity term: when the scan's Doppler says the sensor is at rest (the static detections' median
     |radial velocity| below max(speed / 2, sigma_vr), and their least-squares velocity consistent with zero at 99 %) the newest
-    state gets varpi = 0 (and varpi_dot = 0) with these 1-sigmas. Doppler alone cannot tell a standstill from a turn
+    state gets varpi = 0 (and varpi_dot = 0; the linear acceleration only from the second scan at rest: a
+    vehicle that has just stopped or is starting is at rest with an acceleration) with these 1-sigmas. Doppler alone cannot tell a standstill from a turn
     on the spot about an axis near the sensor; a wheeled vehicle at rest does not turn, which is what this
     assumes. speed = 0 disables it."""
 

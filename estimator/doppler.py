@@ -182,8 +182,17 @@ class DopplerFrontEnd:
         K = np.linalg.solve(S, H @ P).T
         return x.oplus(K @ innovation)
 
-    def standstill_information(self, fit: DopplerFit | None, motion: MotionPrior) -> np.ndarray | None:
-        """Information of the zero-velocity term when the Doppler says the sensor is at rest, else None."""
+    def standstill_information(self, fit: DopplerFit | None, motion: MotionPrior,
+                               settled: bool = True) -> np.ndarray | None:
+        """Information of the zero-velocity term when the Doppler says the sensor is at rest, else None.
+
+        `settled`: the scan before was at rest too. At the first scan of a standstill the linear acceleration is
+        left free: a vehicle that has just stopped, or is starting (as every simulated drive from rest does at
+        its first scan, at up to 3.6 m/s^2), is at rest with an acceleration, so that term waits for the second
+        scan at rest (a zero acceleration there made the first scan's acceleration NEES/dof 1e4 on city). The
+        angular acceleration stays held: a wheeled vehicle at rest does not start to turn, roll or pitch (freeing
+        it too doubled city's z drift through an early pitch error).
+        """
         cfg = self.config.standstill
         if fit is None or cfg.speed <= 0:
             return None
@@ -193,4 +202,7 @@ class DopplerFrontEnd:
             return None
         sig = motion.tail_sigmas([cfg.sigma_velocity] * 3, [cfg.sigma_rate] * 3, [cfg.sigma_accel] * 3,
                                  [cfg.sigma_angular_accel] * 3)
-        return np.diag(1.0 / np.square(sig))
+        information = np.diag(1.0 / np.square(sig))
+        if not settled:
+            information[6:9, 6:9] = 0.0  # the CA prior's linear acceleration: free (the CV prior has none)
+        return information

@@ -88,6 +88,7 @@ class RadarOdometry:
         self.drift: DriftCovariance | None = None  # the absolute pose covariance (`uncertainty`)
         self.restart_relative: np.ndarray | None = None  # relative pose covariance across a re-initialisation
         self.last_estimate: ScanEstimate | None = None
+        self.at_rest = False  # the last scan's Doppler said the sensor was at rest (the standstill term)
 
     def add_sensor(self, T_vehicle_sensor, sensor_sigmas, max_range: float = 200.0, fov=None) -> int:
         """Another radar on the same vehicle (multi-radar odometry): returns its index for `process`. Its scans
@@ -213,7 +214,8 @@ class RadarOdometry:
         if Q is not None:
             x = self.doppler.correct(x, P, fit)
             self.window.push(x, Q)
-        still = self.doppler.standstill_information(fit, self.motion)
+        still = self.doppler.standstill_information(fit, self.motion, settled=self.at_rest)
+        self.at_rest = still is not None
         self.window.set_rate_prior(len(self.window.states) - 1, self.vehicle_information if still is None else still)
         return x, P, static, still
 
