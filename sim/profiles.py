@@ -98,15 +98,16 @@ def _lrr30f() -> RadarConfig:
     78 m in the demo data. Assumed: range resolution 0.2 m, beam widths 2 x 4 deg, accuracy floors. Calibrated:
     snr_1m_db, pfa, the RCS classes, the cell grid and surface fill, clutter rate, ghost rate."""
     physics = RadarPhysics(
-        snr_1m_db=88.0, pfa=1e-4,
-        rcs_dbsm={"ground": (-16.0, 5.0), "facade": (-6.0, 6.0), "metal": (0.0, 6.0), "point": (2.0, 5.0),
+        snr_1m_db=95.0, pfa=1e-4,
+        rcs_dbsm={"ground": (-35.0, 5.0), "facade": (-6.0, 6.0), "metal": (0.0, 6.0), "point": (2.0, 5.0),
                   "vehicle": (5.0, 6.0)},
         range_resolution=0.2, velocity_resolution=0.13, beamwidth=(2.0 * DEG, 4.0 * DEG), rcs_step_db=0.5,
-        ghost_prob=0.05, ghost_loss_db=6.0, ghost_min_area=1.0)
-    return RadarConfig(rate_hz=12.0, T_vehicle_sensor=_mount(3.7, 0.0, 0.5), sigmas=(0.1, 0.3 * DEG, 0.6 * DEG, 0.04),
+        ghost_prob=0.3, ghost_loss_db=6.0, ghost_min_area=1.0, pattern=(60.0 * DEG, 5.0 * DEG))
+    return RadarConfig(rate_hz=12.0, T_vehicle_sensor=_mount(3.7, 0.0, 0.5, pitch=2.5 * DEG),
+                       sigmas=(0.1, 0.3 * DEG, 0.6 * DEG, 0.02),
                        azimuth_fov=(-60 * DEG, 60 * DEG), elevation_fov=(-10 * DEG, 10 * DEG), min_range=0.5,
-                       max_range=250.0, cell_azimuth=1.0 * DEG, cell_elevation=2.0 * DEG, surface_fill=0.3,
-                       clutter_rate=10.0, clutter_speed=20.0, physics=physics)
+                       max_range=250.0, cell_azimuth=0.5 * DEG, cell_elevation=1.0 * DEG, surface_fill=0.4,
+                       min_density_range=30.0, clutter_rate=30.0, clutter_speed=20.0, physics=physics)
 
 
 def _iwr6843aop() -> RadarConfig:
@@ -118,16 +119,17 @@ def _iwr6843aop() -> RadarConfig:
     (unambiguous +-4 m/s), accuracy floors. Calibrated: snr_1m_db, the RCS classes, the cell grid and surface
     fill, clutter rate, ghost rate."""
     physics = RadarPhysics(
-        snr_1m_db=38.0, pfa=float(np.exp(-4.0)),
-        rcs_dbsm={"ground": (-18.0, 6.0), "facade": (-8.0, 6.0), "metal": (-2.0, 6.0), "point": (0.0, 5.0),
+        snr_1m_db=58.0, pfa=float(np.exp(-4.0)),
+        rcs_dbsm={"ground": (-10.0, 6.0), "facade": (-8.0, 6.0), "metal": (-2.0, 6.0), "point": (-5.0, 5.0),
                   "vehicle": (2.0, 6.0)},
-        range_resolution=0.044, velocity_resolution=0.125, beamwidth=(29.0 * DEG, 29.0 * DEG),
-        doppler_max=4.0, doppler_step=0.125, snr_step_db=0.1, ghost_prob=0.02, ghost_loss_db=6.0,
-        ghost_min_area=1.0)
-    return RadarConfig(rate_hz=10.24, T_vehicle_sensor=_mount(0.3, 0.0, 0.6), sigmas=(0.03, 1.0 * DEG, 2.0 * DEG, 0.0),
+        range_resolution=0.044, velocity_resolution=0.125, beamwidth=(10.0 * DEG, 10.0 * DEG),
+        doppler_max=4.0, doppler_step=0.125, snr_step_db=0.1, ghost_prob=0.01, ghost_loss_db=6.0,
+        ghost_min_area=1.0, pattern=(80.0 * DEG, 35.0 * DEG))
+    return RadarConfig(rate_hz=10.24, T_vehicle_sensor=_mount(0.3, 0.0, 0.6, yaw=63.0 * DEG, pitch=-7.0 * DEG),
+                       sigmas=(0.03, 1.0 * DEG, 2.0 * DEG, 0.0),
                        azimuth_fov=(-70 * DEG, 70 * DEG), elevation_fov=(-45 * DEG, 45 * DEG), min_range=0.3,
-                       max_range=20.0, cell_azimuth=6.0 * DEG, cell_elevation=6.0 * DEG, surface_fill=0.3,
-                       clutter_rate=3.0, clutter_speed=4.0, physics=physics)
+                       max_range=20.0, cell_azimuth=2.0 * DEG, cell_elevation=3.0 * DEG, surface_fill=0.5,
+                       clutter_rate=1.0, clutter_speed=4.0, physics=physics)
 
 
 def _corner2d() -> RadarConfig:

@@ -246,7 +246,7 @@ class Radar:
         p_sensor = transform(cand.p_world, C, T_sensor_world[:3, 3], n_all)
         idx, r, az, el = self._visible(p_sensor, cand.object_id, opaque)
         cls = rp.scatterer_class(cand.label.take(idx), cand.reflectivity.take(idx))
-        rcs, x = rp.target_power(phy, cls, cand.pd_own.take(idx), r, rng)
+        rcs, x = rp.target_power(phy, cls, cand.pd_own.take(idx), r, az, el, rng)
         hit = np.flatnonzero(x > phy.threshold) if not cfg.ideal_detection else np.arange(len(idx))
         idx, r, az, el, rcs, x = (a.take(hit) for a in (idx, r, az, el, rcs, x))
         p = p_sensor.take(idx, axis=0)
@@ -278,7 +278,8 @@ class Radar:
             src, p_g, vr_g = np.zeros(0, int), np.zeros((0, 3)), np.zeros(0)
         r, az, el = polar(p_g)
         cfg = self.config
-        snr = 10.0 ** (rp.snr_db(phy.snr_1m_db, rcs.take(src) - phy.ghost_loss_db, r) / 10.0)
+        snr = 10.0 ** ((rp.snr_db(phy.snr_1m_db, rcs.take(src) - phy.ghost_loss_db, r) + rp.pattern_db(phy, az, el))
+                       / 10.0)
         x = (1.0 + snr) * g.standard_exponential(len(src))
         keep = np.flatnonzero((x > phy.threshold) & (r >= cfg.min_range) & (r <= cfg.max_range)
                               & (az >= cfg.azimuth_fov[0]) & (az <= cfg.azimuth_fov[1])

@@ -6,7 +6,8 @@ from them). Derivations and the profiles' numbers: docs/simulator.md ("Sensor pr
 
 Model (Richards, "Fundamentals of Radar Signal Processing", 2nd ed., eq. 2.17 (radar equation), 6.23 (Swerling 1
 detection probability), 7.74-7.76 (measurement precision)):
-    SNR(R, sigma) = snr_1m * sigma / R^4                     (linear; snr_1m = SNR of 1 m^2 at 1 m)
+    SNR(R, sigma) = snr_1m * sigma * G(az, el) / R^4         (linear; snr_1m = SNR of 1 m^2 at 1 m on boresight)
+    G(az, el) = -24 ((az / pa)^2 + (el / pe)^2) dB           (two-way Gaussian beam, 3 dB widths (pa, pe))
     x = (1 + SNR) E,  E ~ Exp(1)                             (noise-normalised power of the target's cell)
     detected iff x > T,  T = -ln(pfa),  so  Pd = exp(-T / (1 + SNR))   (monotone in SNR)
     sigma_range = sqrt(floor_r^2 + dR^2 / (2 x)),  sigma_vr likewise with the velocity resolution dV,
@@ -53,6 +54,8 @@ class RadarPhysics:
         ghost_loss_db: extra loss of the ghost's double bounce (its SNR is that of the target at the mirrored
             range, minus this).
         ghost_min_area: m^2; reflectors are static non-ground patches at least this large.
+        pattern: (azimuth, elevation) one-way 3 dB widths (rad) of the antenna's Gaussian beam pattern, or None
+            (a flat pattern over the field of view).
     """
 
     snr_1m_db: float
@@ -72,11 +75,12 @@ class RadarPhysics:
     ghost_prob: float = 0.0
     ghost_loss_db: float = 10.0
     ghost_min_area: float = 4.0
+    pattern: tuple | None = None
 
     def __post_init__(self):
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name in ("rcs_dbsm", "beamwidth", "report_elevation") or value is None:
+            if f.name in ("rcs_dbsm", "beamwidth", "report_elevation", "pattern") or value is None:
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
                 raise InputError(f"RadarPhysics.{f.name}: expected a finite number, got {value!r}")
@@ -91,6 +95,9 @@ class RadarPhysics:
             raise InputError(f"RadarPhysics.ghost_prob: must be in [0, 1], got {self.ghost_prob!r}")
         if len(self.beamwidth) != 2 or not all(np.isfinite(b) and 0 < b < np.pi for b in self.beamwidth):
             raise InputError(f"RadarPhysics.beamwidth: need (azimuth, elevation) in (0, pi) rad, got {self.beamwidth}")
+        if self.pattern is not None and (len(self.pattern) != 2
+                                         or not all(np.isfinite(b) and b > 0 for b in self.pattern)):
+            raise InputError(f"RadarPhysics.pattern: need (azimuth, elevation) widths > 0 rad, got {self.pattern}")
         if set(self.rcs_dbsm) != set(CLASSES):
             raise InputError(f"RadarPhysics.rcs_dbsm: need exactly the classes {', '.join(CLASSES)}, got "
                              f"{', '.join(self.rcs_dbsm)}")
@@ -135,6 +142,15 @@ def snr_db(snr_1m_db: float, rcs_db: np.ndarray, r: np.ndarray) -> np.ndarray:
     return snr_1m_db + rcs_db - 40.0 * np.log10(np.maximum(r, 1e-3))
 
 
+def pattern_db(physics: RadarPhysics, az: np.ndarray, el: np.ndarray) -> np.ndarray:
+    """Two-way gain of the Gaussian beam pattern in dB (<= 0; 0 without a pattern): -24 ((az/pa)^2 + (el/pe)^2),
+    i.e. each one-way pattern -12 (angle / 3 dB width)^2 dB, -3 dB at half the width off boresight."""
+    if physics.pattern is None:
+        return np.zeros_like(az)
+    pa, pe = physics.pattern
+    return -24.0 * ((az / pa) ** 2 + (el / pe) ** 2)
+
+
 def detection_probability(snr_lin: np.ndarray, pfa: float) -> np.ndarray:
     """Swerling 1 with a square-law detector: Pd = pfa^(1 / (1 + SNR)) = exp(-T / (1 + SNR)) (Richards eq. 6.23).
 
@@ -174,20 +190,23 @@ def quantise(value: np.ndarray, step: float) -> np.ndarray:
     return value if step <= 0 else np.round(value / step) * step
 
 
-def target_power(physics: RadarPhysics, cls: np.ndarray, pd_own: np.ndarray, r: np.ndarray,
-                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Draw each target's RCS (dBsm, lognormal per class) and its measured power ratio x = (1 + SNR) E.
+def target_power(physics: RadarPhysics, cls: np.ndarray, pd_own: np.ndarray, r: np.ndarray, az: np.ndarray,
+                 el: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Draw each target's RCS (dBsm, lognormal per class) and its measured power ratio x = (1 + SNR) E at
+    (r, az, el).
 
     Returns (rcs_db (n,), x (n,)); the detected ones are x > physics.threshold."""
     mean, std = physics.rcs_table()
     rcs = mean.take(cls) + std.take(cls) * rng.standard_normal(len(cls)) + 10.0 * np.log10(np.maximum(pd_own, 1e-3))
-    snr = 10.0 ** (snr_db(physics.snr_1m_db, rcs, r) / 10.0)
+    snr = 10.0 ** ((snr_db(physics.snr_1m_db, rcs, r) + pattern_db(physics, az, el)) / 10.0)
     return rcs, (1.0 + snr) * rng.standard_exponential(len(cls))
 
 
-def reported_rcs(physics: RadarPhysics, x: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """RCS as a radar reports it: the measured power through the radar equation, quantised (dBsm)."""
-    return quantise(10.0 * np.log10(np.maximum(x, 1e-12)) - physics.snr_1m_db + 40.0 * np.log10(np.maximum(r, 1e-3)),
+def reported_rcs(physics: RadarPhysics, x: np.ndarray, r: np.ndarray, az: np.ndarray, el: np.ndarray) -> np.ndarray:
+    """RCS as a radar reports it: the measured power through the radar equation and the beam pattern at the
+    measured (r, az, el), quantised (dBsm)."""
+    power_db = 10.0 * np.log10(np.maximum(x, 1e-12))
+    return quantise(power_db - physics.snr_1m_db + 40.0 * np.log10(np.maximum(r, 1e-3)) - pattern_db(physics, az, el),
                     physics.rcs_step_db)
 
 
@@ -248,12 +267,13 @@ class Targets:
         az = wrap(az, np.pi)
         return dict(range=r, azimuth=az, elevation=el, radial_velocity=vr, label=self.label,
                     object_id=self.object_id, landmark_id=self.landmark_id, p_world=self.p_world,
-                    true_polar=np.ascontiguousarray(self.true.T), rcs=reported_rcs(physics, self.x, r),
+                    true_polar=np.ascontiguousarray(self.true.T), rcs=reported_rcs(physics, self.x, r, az, el),
                     snr=reported_snr(physics, self.x))
 
 
 _TARGET_FIELDS = ("true", "x", "label", "object_id", "landmark_id", "p_world", "meas")
 
 
-__all__ = ["ANGLE_K", "CLASSES", "RadarPhysics", "Targets", "detection_probability", "fold_range", "quantise", "reported_rcs",
+__all__ = ["ANGLE_K", "CLASSES", "RadarPhysics", "Targets", "detection_probability", "fold_range", "pattern_db",
+           "quantise", "reported_rcs",
            "reported_snr", "scatterer_class", "sigmas", "snr_db", "target_power", "wrap"]
