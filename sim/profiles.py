@@ -77,7 +77,7 @@ def get(name: str) -> SensorProfile:
     try:
         return _REGISTRY[name]
     except (KeyError, TypeError):
-        raise InputError(f"--profile: unknown sensor profile {name!r}; known profiles: {', '.join(names())}") \
+        raise InputError(f"unknown sensor profile {name!r}; known profiles: {', '.join(names())}") \
             from None
 
 
@@ -119,17 +119,17 @@ def _iwr6843aop() -> RadarConfig:
     (unambiguous +-4 m/s), accuracy floors. Calibrated: snr_1m_db, the RCS classes, the cell grid and surface
     fill, clutter rate, ghost rate."""
     physics = RadarPhysics(
-        snr_1m_db=58.0, pfa=float(np.exp(-4.0)),
-        rcs_dbsm={"ground": (-10.0, 6.0), "facade": (-8.0, 6.0), "metal": (-2.0, 6.0), "point": (-5.0, 5.0),
+        snr_1m_db=50.0, pfa=float(np.exp(-4.0)),
+        rcs_dbsm={"ground": (-26.0, 6.0), "facade": (-8.0, 6.0), "metal": (-2.0, 6.0), "point": (-5.0, 5.0),
                   "vehicle": (2.0, 6.0)},
-        range_resolution=0.044, velocity_resolution=0.125, beamwidth=(10.0 * DEG, 10.0 * DEG),
+        range_resolution=0.044, velocity_resolution=0.06, beamwidth=(6.0 * DEG, 6.0 * DEG),
         doppler_max=4.0, doppler_step=0.125, snr_step_db=0.1, ghost_prob=0.01, ghost_loss_db=6.0,
         ghost_min_area=1.0, pattern=(80.0 * DEG, 35.0 * DEG))
-    return RadarConfig(rate_hz=10.24, T_vehicle_sensor=_mount(0.3, 0.0, 0.6, yaw=63.0 * DEG, pitch=-7.0 * DEG),
+    return RadarConfig(rate_hz=10.24, T_vehicle_sensor=_mount(0.3, 0.0, 0.6, yaw=63.0 * DEG, pitch=-18.0 * DEG),
                        sigmas=(0.03, 1.0 * DEG, 2.0 * DEG, 0.0),
                        azimuth_fov=(-70 * DEG, 70 * DEG), elevation_fov=(-45 * DEG, 45 * DEG), min_range=0.3,
-                       max_range=20.0, cell_azimuth=2.0 * DEG, cell_elevation=3.0 * DEG, surface_fill=0.5,
-                       clutter_rate=1.0, clutter_speed=4.0, physics=physics)
+                       max_range=20.0, cell_azimuth=2.0 * DEG, cell_elevation=2.0 * DEG, surface_fill=3.0,
+                       clutter_rate=1.5, clutter_speed=4.0, physics=physics)
 
 
 def _corner2d() -> RadarConfig:

@@ -56,6 +56,8 @@ class RadarPhysics:
         ghost_min_area: m^2; reflectors are static non-ground patches at least this large.
         pattern: (azimuth, elevation) one-way 3 dB widths (rad) of the antenna's Gaussian beam pattern, or None
             (a flat pattern over the field of view).
+        elevation_missing: probability that a detection is reported without an elevation estimate (elevation 0,
+            as 13 % of the LRR30-F's detections in the RaFlow data).
     """
 
     snr_1m_db: float
@@ -76,6 +78,7 @@ class RadarPhysics:
     ghost_loss_db: float = 10.0
     ghost_min_area: float = 4.0
     pattern: tuple | None = None
+    elevation_missing: float = 0.0
 
     def __post_init__(self):
         for f in fields(self):
@@ -91,8 +94,9 @@ class RadarPhysics:
                 _positive(self, name)
         if not 0 < self.pfa < 1:
             raise InputError(f"RadarPhysics.pfa: must be in (0, 1), got {self.pfa!r}")
-        if not 0 <= self.ghost_prob <= 1:
-            raise InputError(f"RadarPhysics.ghost_prob: must be in [0, 1], got {self.ghost_prob!r}")
+        for name in ("ghost_prob", "elevation_missing"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise InputError(f"RadarPhysics.{name}: must be in [0, 1], got {getattr(self, name)!r}")
         if len(self.beamwidth) != 2 or not all(np.isfinite(b) and 0 < b < np.pi for b in self.beamwidth):
             raise InputError(f"RadarPhysics.beamwidth: need (azimuth, elevation) in (0, pi) rad, got {self.beamwidth}")
         if self.pattern is not None and (len(self.pattern) != 2
@@ -243,12 +247,16 @@ class Targets:
                        None if self.meas is None else self.meas[:, idx])
 
     def noisy(self, physics: RadarPhysics, floors, rng: np.random.Generator) -> "Targets":
-        """Gaussian noise with the SNR-dependent sigmas (`sigmas`); none for a noise-free radar (floors all 0)."""
+        """Gaussian noise with the SNR-dependent sigmas (`sigmas`; none for a noise-free radar, floors all 0),
+        then elevation 0 for the detections without an elevation estimate (`elevation_missing`)."""
         if not any(floors):
-            return Targets(*(getattr(self, f) for f in _TARGET_FIELDS[:-1]), self.true.copy())
-        s = sigmas(physics, floors, self.x, self.true[1], self.true[2])
-        return Targets(*(getattr(self, f) for f in _TARGET_FIELDS[:-1]),
-                       self.true + rng.standard_normal(self.true.shape) * s)
+            meas = self.true.copy()
+        else:
+            meas = self.true + rng.standard_normal(self.true.shape) * sigmas(physics, floors, self.x, self.true[1],
+                                                                             self.true[2])
+        if physics.elevation_missing > 0:
+            meas[2, rng.random(len(self)) < physics.elevation_missing] = 0.0
+        return Targets(*(getattr(self, f) for f in _TARGET_FIELDS[:-1]), meas)
 
     def permuted(self, rng: np.random.Generator) -> "Targets":
         return self.subset(rng.permutation(len(self)))

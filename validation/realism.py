@@ -239,7 +239,7 @@ def walk_profile(rng: np.random.Generator, duration: float) -> traj.Profile:
     """The rio demo's motion: 13.7 s standing, walking ~1.3 m/s with gentle turns for 19.6 s, standing."""
     b = traj.ProfileBuilder(0.0).add(13.7).add(1.0, speed=1.3)
     while b.duration < 33.3:
-        b.add(rng.uniform(1.0, 3.0), speed=rng.uniform(1.0, 1.6), yaw_rate=rng.uniform(-0.05, 0.05))
+        b.add(rng.uniform(1.0, 3.0), speed=rng.uniform(1.0, 1.6), yaw_rate=rng.uniform(-0.01, 0.01))
     b.add(1.0, speed=0.0, yaw_rate=0.0)
     return b.add(max(duration - b.duration, 1.0)).build()
 
