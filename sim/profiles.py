@@ -102,7 +102,8 @@ def _lrr30f() -> RadarConfig:
         rcs_dbsm={"ground": (-35.0, 5.0), "facade": (-6.0, 6.0), "metal": (0.0, 6.0), "point": (2.0, 5.0),
                   "vehicle": (5.0, 6.0)},
         range_resolution=0.2, velocity_resolution=0.13, beamwidth=(2.0 * DEG, 4.0 * DEG), rcs_step_db=0.5,
-        ghost_prob=0.3, ghost_loss_db=6.0, ghost_min_area=1.0, pattern=(60.0 * DEG, 5.0 * DEG))
+        ghost_prob=0.3, ghost_loss_db=6.0, ghost_min_area=1.0, pattern=(60.0 * DEG, 5.0 * DEG),
+        elevation_missing=0.13)
     return RadarConfig(rate_hz=12.0, T_vehicle_sensor=_mount(3.7, 0.0, 0.5, pitch=2.5 * DEG),
                        sigmas=(0.1, 0.3 * DEG, 0.6 * DEG, 0.02),
                        azimuth_fov=(-60 * DEG, 60 * DEG), elevation_fov=(-10 * DEG, 10 * DEG), min_range=0.5,
@@ -120,16 +121,16 @@ def _iwr6843aop() -> RadarConfig:
     fill, clutter rate, ghost rate."""
     physics = RadarPhysics(
         snr_1m_db=50.0, pfa=float(np.exp(-4.0)),
-        rcs_dbsm={"ground": (-26.0, 6.0), "facade": (-8.0, 6.0), "metal": (-2.0, 6.0), "point": (-5.0, 5.0),
+        rcs_dbsm={"ground": (-23.0, 6.0), "facade": (-15.0, 6.0), "metal": (-2.0, 6.0), "point": (-4.0, 5.0),
                   "vehicle": (2.0, 6.0)},
         range_resolution=0.044, velocity_resolution=0.06, beamwidth=(6.0 * DEG, 6.0 * DEG),
         doppler_max=4.0, doppler_step=0.125, snr_step_db=0.1, ghost_prob=0.01, ghost_loss_db=6.0,
         ghost_min_area=1.0, pattern=(80.0 * DEG, 35.0 * DEG))
-    return RadarConfig(rate_hz=10.24, T_vehicle_sensor=_mount(0.3, 0.0, 0.6, yaw=63.0 * DEG, pitch=-18.0 * DEG),
+    return RadarConfig(rate_hz=10.24, T_vehicle_sensor=_mount(0.3, 0.0, 0.6, yaw=51.0 * DEG, pitch=-15.0 * DEG),
                        sigmas=(0.03, 1.0 * DEG, 2.0 * DEG, 0.0),
                        azimuth_fov=(-70 * DEG, 70 * DEG), elevation_fov=(-45 * DEG, 45 * DEG), min_range=0.3,
-                       max_range=20.0, cell_azimuth=2.0 * DEG, cell_elevation=2.0 * DEG, surface_fill=3.0,
-                       clutter_rate=1.5, clutter_speed=4.0, physics=physics)
+                       max_range=20.0, cell_azimuth=2.0 * DEG, cell_elevation=2.0 * DEG, surface_fill=2.0,
+                       clutter_rate=2.0, clutter_speed=4.0, physics=physics)
 
 
 def _corner2d() -> RadarConfig:

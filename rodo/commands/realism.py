@@ -35,7 +35,7 @@ def register(subparsers) -> None:
     p.add_argument("--realdata", metavar="DIR", default=str(REALDATA),
                    help=f"the real recordings (default {REALDATA})")
     p.add_argument("--out", metavar="DIR", default=None, help="write the table, numbers and figure here")
-    p.add_argument("--seeds", metavar="S,S,...", default="0,1", help="simulation seeds (default 0,1)")
+    p.add_argument("--seeds", metavar="S,S,...", default="0,1,2", help="simulation seeds (default 0,1,2)")
     p.add_argument("--duration", type=float, default=None, help="seconds simulated per seed (default: the set-up's)")
     p.set_defaults(func=run_realism)
 
