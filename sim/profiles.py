@@ -95,20 +95,23 @@ def _lrr30f() -> RadarConfig:
     """Hasco LRR30-F. Datasheet (as quoted by RaFlow, Ding et al., RA-L 2022, and the data's README): 76-77 GHz,
     azimuth +-60 deg, elevation +-10 deg, radial velocity resolution 0.13 m/s. Data: ~12 Hz raw rate (README),
     RCS reported in 0.5 dB steps, |v_r| up to 26 m/s without wrap-around (no ambiguity modelled), ranges up to
-    78 m in the demo data. Assumed: range resolution 0.2 m, beam widths 2 x 4 deg, accuracy floors. Calibrated:
-    snr_1m_db, pfa, the RCS classes, the cell grid and surface fill, clutter rate, ghost rate."""
+    78 m in the demo data, 13 % of the detections without elevation (reported 0), heights in the radar frame
+    falling with range (a frame pitched up ~3.5 deg). Assumed: range resolution 0.2 m, beam widths 2 x 4 deg
+    (noise), accuracy floors. Calibrated (`rodo realism lrr30f`, docs/realism.md): snr_1m_db, the RCS classes,
+    the beam pattern (60 x 6.25 deg, centred 3.3 deg below the reported boresight), the mount's pitch, the cell
+    grid, surface fill and its saturation range, clutter rate, ghost rate."""
     physics = RadarPhysics(
-        snr_1m_db=95.0, pfa=1e-4,
-        rcs_dbsm={"ground": (-35.0, 5.0), "facade": (-6.0, 6.0), "metal": (0.0, 6.0), "point": (2.0, 5.0),
-                  "vehicle": (5.0, 6.0)},
+        snr_1m_db=94.3, pfa=1e-4,
+        rcs_dbsm={"ground": (-35.0, 5.0), "facade": (-6.0, 6.0), "metal": (-5.0, 6.0), "point": (2.0, 5.0),
+                  "vehicle": (5.6, 6.0)},
         range_resolution=0.2, velocity_resolution=0.13, beamwidth=(2.0 * DEG, 4.0 * DEG), rcs_step_db=0.5,
-        ghost_prob=0.3, ghost_loss_db=6.0, ghost_min_area=1.0, pattern=(60.0 * DEG, 5.0 * DEG),
-        elevation_missing=0.13)
-    return RadarConfig(rate_hz=12.0, T_vehicle_sensor=_mount(3.7, 0.0, 0.5, pitch=2.5 * DEG),
+        ghost_prob=0.4, ghost_loss_db=6.0, ghost_min_area=1.0, pattern=(60.0 * DEG, 6.25 * DEG),
+        pattern_tilt=-3.3 * DEG, elevation_missing=0.13)
+    return RadarConfig(rate_hz=12.0, T_vehicle_sensor=_mount(3.7, 0.0, 0.5, pitch=3.75 * DEG),
                        sigmas=(0.1, 0.3 * DEG, 0.6 * DEG, 0.02),
                        azimuth_fov=(-60 * DEG, 60 * DEG), elevation_fov=(-10 * DEG, 10 * DEG), min_range=0.5,
-                       max_range=250.0, cell_azimuth=0.5 * DEG, cell_elevation=1.0 * DEG, surface_fill=0.4,
-                       min_density_range=30.0, clutter_rate=30.0, clutter_speed=20.0, physics=physics)
+                       max_range=250.0, cell_azimuth=0.5 * DEG, cell_elevation=1.0 * DEG, surface_fill=0.8,
+                       min_density_range=40.0, clutter_rate=40.0, clutter_speed=20.0, physics=physics)
 
 
 def _iwr6843aop() -> RadarConfig:

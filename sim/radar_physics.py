@@ -56,6 +56,8 @@ class RadarPhysics:
         ghost_min_area: m^2; reflectors are static non-ground patches at least this large.
         pattern: (azimuth, elevation) one-way 3 dB widths (rad) of the antenna's Gaussian beam pattern, or None
             (a flat pattern over the field of view).
+        pattern_tilt: elevation (rad) of the beam's centre in the sensor frame (a beam tilted against the frame the
+            sensor reports in; 0: on boresight).
         elevation_missing: probability that a detection is reported without an elevation estimate (elevation 0,
             as 13 % of the LRR30-F's detections in the RaFlow data).
     """
@@ -78,6 +80,7 @@ class RadarPhysics:
     ghost_loss_db: float = 10.0
     ghost_min_area: float = 4.0
     pattern: tuple | None = None
+    pattern_tilt: float = 0.0
     elevation_missing: float = 0.0
 
     def __post_init__(self):
@@ -147,12 +150,13 @@ def snr_db(snr_1m_db: float, rcs_db: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def pattern_db(physics: RadarPhysics, az: np.ndarray, el: np.ndarray) -> np.ndarray:
-    """Two-way gain of the Gaussian beam pattern in dB (<= 0; 0 without a pattern): -24 ((az/pa)^2 + (el/pe)^2),
-    i.e. each one-way pattern -12 (angle / 3 dB width)^2 dB, -3 dB at half the width off boresight."""
+    """Two-way gain of the Gaussian beam pattern in dB (<= 0; 0 without a pattern):
+    -24 ((az / pa)^2 + ((el - tilt) / pe)^2), i.e. each one-way pattern -12 (angle / 3 dB width)^2 dB, -3 dB at
+    half the width off the beam's centre."""
     if physics.pattern is None:
         return np.zeros_like(az)
     pa, pe = physics.pattern
-    return -24.0 * ((az / pa) ** 2 + (el / pe) ** 2)
+    return -24.0 * ((az / pa) ** 2 + ((el - physics.pattern_tilt) / pe) ** 2)
 
 
 def detection_probability(snr_lin: np.ndarray, pfa: float) -> np.ndarray:

@@ -96,6 +96,8 @@ def test_beam_pattern_is_minus_3db_at_half_width_off_boresight():
     physics = rp.RadarPhysics(snr_1m_db=80.0, pattern=(40 * DEG, 10 * DEG))
     g = rp.pattern_db(physics, np.array([0.0, 20 * DEG, 0.0]), np.array([0.0, 0.0, 5 * DEG]))
     assert np.allclose(g, [0.0, -6.0, -6.0])  # two-way: -3 dB each way
+    tilted = rp.RadarPhysics(snr_1m_db=80.0, pattern=(40 * DEG, 10 * DEG), pattern_tilt=-3 * DEG)
+    assert np.allclose(rp.pattern_db(tilted, np.zeros(2), np.array([-3 * DEG, 2 * DEG])), [0.0, -6.0])
 
 
 @pytest.mark.parametrize("kwargs, named", [
