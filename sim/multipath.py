@@ -53,6 +53,24 @@ def mirror(p: np.ndarray, v: np.ndarray, v_sensor: np.ndarray, refl: Patches, j:
     return p_ghost, vr, valid
 
 
+def valid_pairs(p: np.ndarray, refl: Patches) -> np.ndarray:
+    """(m, k) bool: target i (sensor frame) has a mirror ghost via reflector j (`mirror`'s validity for every
+    pair). With d = p . n + s and s = -o . n, and since n . u = n . v = 0, the bounce point's coordinates on the
+    rectangle are alpha = (t p . u - o . u) / |u|^2 and beta likewise, t = s / (s + d): matrix products only.
+
+    Checked by: tests/sim/test_multipath.py::test_valid_pairs_agree_with_mirror"""
+    n = refl.normal
+    s = -np.einsum("ij,ij->i", refl.origin, n)
+    d = p @ n.T + s
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = s / (s + d)
+        alpha = (t * (p @ refl.u.T) - np.einsum("ij,ij->i", refl.origin, refl.u)) / np.einsum("ij,ij->i", refl.u,
+                                                                                             refl.u)
+        beta = (t * (p @ refl.v.T) - np.einsum("ij,ij->i", refl.origin, refl.v)) / np.einsum("ij,ij->i", refl.v,
+                                                                                            refl.v)
+    return (d * s > 0) & (alpha >= 0) & (alpha <= 1) & (beta >= 0) & (beta <= 1)
+
+
 def ghost_candidates(p: np.ndarray, v: np.ndarray, v_sensor: np.ndarray, refl: Patches, prob: float,
                      rng: np.random.Generator):
     """Each target tries one ghost with probability `prob`: via a reflector drawn uniformly from those whose
@@ -65,12 +83,14 @@ def ghost_candidates(p: np.ndarray, v: np.ndarray, v_sensor: np.ndarray, refl: P
     src = np.flatnonzero(rng.random(m) < prob)
     if len(src) == 0:
         return np.zeros(0, int), np.zeros((0, 3)), np.zeros(0)
-    pair_src, pair_j = np.repeat(src, k), np.tile(np.arange(k), len(src))
-    p_ghost, vr, valid = mirror(p[pair_src], v[pair_src], v_sensor, refl, pair_j)
-    # one valid pair per source, uniformly: the valid pair with the smallest random key
-    key = np.where(valid, rng.random(len(valid)), np.inf).reshape(len(src), k)
-    best = (np.argmin(key, axis=1) + k * np.arange(len(src)))[np.isfinite(key.min(axis=1))]
-    return pair_src[best], p_ghost[best], vr[best]
+    valid = valid_pairs(p[src], refl)
+    # one valid reflector per source, uniformly: the valid one with the smallest random key
+    key = np.where(valid, rng.random(valid.shape), np.inf)
+    j = np.argmin(key, axis=1)
+    has = np.isfinite(key[np.arange(len(src)), j])
+    src, j = src[has], j[has]
+    p_ghost, vr, _ = mirror(p[src], v[src], v_sensor, refl, j)
+    return src, p_ghost, vr
 
 
-__all__ = ["ghost_candidates", "mirror", "reflectors"]
+__all__ = ["ghost_candidates", "mirror", "reflectors", "valid_pairs"]

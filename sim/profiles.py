@@ -120,20 +120,25 @@ def _iwr6843aop() -> RadarConfig:
     +-60 deg in azimuth and elevation, angular resolution about 29 deg (4 virtual elements per axis: 2 / N rad).
     Data (rio demo): ~10.2 Hz, Doppler quantised in 0.125 m/s steps, SNR ('intensity') in 0.1 dB steps from
     ~6 dB (the CFAR threshold), ranges 0.47-19 m (the demo's 20 m configuration). Assumed: 64 Doppler bins
-    (unambiguous +-4 m/s), accuracy floors. Calibrated: snr_1m_db, the RCS classes, the cell grid and surface
-    fill, clutter rate, ghost rate."""
+    (unambiguous +-4 m/s), accuracy floors, ghost rate. Data: the direction of motion in the sensor frame (from the
+    recording's own Doppler fits: azimuth -63 deg, -87 to -30; elevation +7 deg), which sets the mount's yaw and
+    pitch roughly. Calibrated (`rodo realism iwr6843aop`, docs/realism.md): snr_1m_db, the RCS classes, the beam
+    pattern (76 x 35 deg, centred 7 deg above the reported boresight), the Doppler and angle precision terms
+    (velocity_resolution 0.06 m/s: the peak's bin, not an interpolated estimate; beam width 6 deg for the noise,
+    finer than the 29 deg resolution), the mount (yawed 60 deg left, pitched 11.2 deg down), the cell grid,
+    surface fill and clutter rate."""
     physics = RadarPhysics(
-        snr_1m_db=50.0, pfa=float(np.exp(-4.0)),
-        rcs_dbsm={"ground": (-23.0, 6.0), "facade": (-15.0, 6.0), "metal": (-2.0, 6.0), "point": (-4.0, 5.0),
+        snr_1m_db=54.0, pfa=float(np.exp(-4.0)),
+        rcs_dbsm={"ground": (-18.2, 6.0), "facade": (-17.2, 6.0), "metal": (-2.0, 6.0), "point": (-4.5, 5.0),
                   "vehicle": (2.0, 6.0)},
         range_resolution=0.044, velocity_resolution=0.06, beamwidth=(6.0 * DEG, 6.0 * DEG),
         doppler_max=4.0, doppler_step=0.125, snr_step_db=0.1, ghost_prob=0.01, ghost_loss_db=6.0,
-        ghost_min_area=1.0, pattern=(80.0 * DEG, 35.0 * DEG))
-    return RadarConfig(rate_hz=10.24, T_vehicle_sensor=_mount(0.3, 0.0, 0.6, yaw=51.0 * DEG, pitch=-15.0 * DEG),
+        ghost_min_area=1.0, pattern=(75.7 * DEG, 35.0 * DEG), pattern_tilt=7.0 * DEG)
+    return RadarConfig(rate_hz=10.24, T_vehicle_sensor=_mount(0.3, 0.0, 0.6, yaw=60.0 * DEG, pitch=-11.2 * DEG),
                        sigmas=(0.03, 1.0 * DEG, 2.0 * DEG, 0.0),
                        azimuth_fov=(-70 * DEG, 70 * DEG), elevation_fov=(-45 * DEG, 45 * DEG), min_range=0.3,
-                       max_range=20.0, cell_azimuth=2.0 * DEG, cell_elevation=2.0 * DEG, surface_fill=2.0,
-                       clutter_rate=2.0, clutter_speed=4.0, physics=physics)
+                       max_range=20.0, cell_azimuth=2.5 * DEG, cell_elevation=2.0 * DEG, surface_fill=1.2,
+                       clutter_rate=1.75, clutter_speed=4.0, physics=physics)
 
 
 def _corner2d() -> RadarConfig:

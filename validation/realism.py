@@ -228,8 +228,8 @@ def _sim_boulevard(profile: str, seeds, duration: float) -> list:
 
 
 YARD = w.SceneParams(building_offset=(6.0, 12.0), building_length=(6.0, 15.0), building_gap=(1.0, 4.0),
-                     building_height=(3.0, 6.0), building_prob=0.5, pole_spacing=10.0, pole_offset=(2.0, 6.0),
-                     tree_spacing=15.0, tree_offset=(4.0, 10.0), parked_car_spacing=0.0, clutter_per_100m=470.0,
+                     building_height=(3.0, 6.0), building_prob=0.68, pole_spacing=10.0, pole_offset=(2.0, 6.0),
+                     tree_spacing=15.0, tree_offset=(4.0, 10.0), parked_car_spacing=0.0, clutter_per_100m=390.0,
                      ground_half_width=10.0, clearance=1.0)
 """The TI comparison's scene: a yard or narrow lane (walls 6-12 m away, posts 2-6 m, trees, dense clutter: shrubs, furniture), like the
 handheld rio demo's surroundings (ranges 0.5-19 m, median 4.5 m)."""

@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from rodo.sim import multipath as mp
-from rodo.sim.objects import GHOST, rectangle
+from rodo.sim.objects import GHOST, Patches, rectangle
 
 _finite = dict(allow_nan=False, allow_infinity=False)
 
@@ -44,6 +44,17 @@ def test_no_ghost_behind_the_plane_or_past_the_reflector():
                   [10.0, 2.0, 0.0]])    # a real ghost
     _, _, valid = mp.mirror(p, np.zeros((3, 3)), np.zeros(3), wall, np.zeros(3, int))
     assert valid.tolist() == [False, False, True]
+
+
+def test_valid_pairs_agree_with_mirror():
+    """The matrix form of the validity test gives `mirror`'s answer for every (target, reflector) pair."""
+    rng = np.random.default_rng(5)
+    refl = Patches.concat([_wall(6.0), _wall(-6.0), rectangle([15.0, -5, -1], [0, 10.0, 0], [0, 0, 4.0], 9)])
+    p = np.column_stack([rng.uniform(-10, 40, 300), rng.uniform(-10, 10, 300), rng.uniform(-2, 3, 300)])
+    valid = mp.valid_pairs(p, refl)
+    i, j = np.divmod(np.arange(valid.size), len(refl))
+    assert np.array_equal(valid.ravel(), mp.mirror(p[i], np.zeros((len(i), 3)), np.zeros(3), refl, j)[2])
+    assert 0 < valid.mean() < 1
 
 
 def test_ghost_candidates_pick_a_valid_reflector_and_respect_the_probability():
