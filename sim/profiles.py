@@ -148,12 +148,15 @@ def _corner2d() -> RadarConfig:
     of this class): azimuth +-75 deg, range 100 m, range resolution 0.15 m, beam width 4 deg, vertical beam
     +-8 deg (elevation not reported). Not calibrated yet (no `rodo realism` comparison)."""
     physics = RadarPhysics(
-        snr_1m_db=80.0, pfa=1e-4, range_resolution=0.15, velocity_resolution=0.1, beamwidth=(4.0 * DEG, 16.0 * DEG),
-        rcs_step_db=0.1, report_elevation=False, ghost_prob=0.02)
+        snr_1m_db=85.0, pfa=1e-4,
+        rcs_dbsm={"ground": (-30.0, 5.0), "facade": (-8.0, 6.0), "metal": (-5.0, 6.0), "point": (-3.0, 5.0),
+                  "vehicle": (3.0, 6.0)},
+        range_resolution=0.15, velocity_resolution=0.1, beamwidth=(4.0 * DEG, 16.0 * DEG),
+        rcs_step_db=0.0, report_elevation=False, ghost_prob=0.02, pattern=(60.0 * DEG, 5.0 * DEG))
     return RadarConfig(rate_hz=13.0, T_vehicle_sensor=_mount(3.86, 0.70, 0.5, yaw=0.436),
-                       sigmas=(0.1, 0.5 * DEG, 10.0 * DEG, 0.05), azimuth_fov=(-75 * DEG, 75 * DEG),
-                       elevation_fov=(-8 * DEG, 8 * DEG), min_range=0.5, max_range=100.0, cell_azimuth=1.0 * DEG,
-                       cell_elevation=16.0 * DEG, surface_fill=0.3, clutter_rate=5.0, physics=physics)
+                       sigmas=(0.1, 0.3 * DEG, 10.0 * DEG, 0.03), azimuth_fov=(-75 * DEG, 75 * DEG),
+                       elevation_fov=(-8 * DEG, 8 * DEG), min_range=0.5, max_range=100.0, cell_azimuth=0.5 * DEG,
+                       cell_elevation=16.0 * DEG, surface_fill=1.2, clutter_rate=5.0, physics=physics)
 
 
 GENERIC = register(SensorProfile(

@@ -31,7 +31,7 @@ from . import radar_physics as rp
 from .culling import Cull, PatchGeometry, PointIndex, norm3, transform
 from .multipath import ghost_candidates, reflectors
 from .objects import CLUTTER, GHOST, MOVING, STATIC_POINT, STATIC_SURFACE, Patches
-from .occlusion import cell_directions, cell_index, cross, depth_buffer, nearest_per_cell
+from .occlusion import cell_directions, cell_index, cross, depth_buffer, nearest_per_bin, nearest_per_cell
 
 DEG = np.pi / 180.0
 
@@ -244,7 +244,7 @@ class Radar:
         cand, opaque, n_all, static = _candidates(world, self._static(world), T_sensor_world, cfg, rng, movers)
         C = T_sensor_world[:3, :3]
         p_sensor = transform(cand.p_world, C, T_sensor_world[:3, 3], n_all)
-        idx, r, az, el = self._visible(p_sensor, cand.object_id, opaque)
+        idx, r, az, el = self._visible(p_sensor, cand.object_id, opaque, phy.range_cell)
         cls = rp.scatterer_class(cand.label.take(idx), cand.reflectivity.take(idx))
         rcs, x = rp.target_power(phy, cls, cand.pd_own.take(idx), r, az, el, rng)
         hit = np.flatnonzero(x > phy.threshold) if not cfg.ideal_detection else np.arange(len(idx))
@@ -253,21 +253,21 @@ class Radar:
         v = cand.v_world.take(idx, axis=0) @ C.T
         vr = np.einsum("ij,ij->i", p / r[:, None], v - v_sensor)
         real = rp.Targets(np.stack([r, az, el, vr]), x, cand.label.take(idx), cand.object_id.take(idx),
-                        cand.landmark_id.take(idx), cand.p_world.take(idx, axis=0))
-        ghosts = self._ghosts(static, p, v, v_sensor, rcs, movers)
+                          cand.landmark_id.take(idx), cand.p_world.take(idx, axis=0))
+        ghosts = self._ghosts(static, p, v, v_sensor, rcs)
         n_fa = rng.poisson(cfg.clutter_rate) if cfg.clutter_rate > 0 else 0
         fa = np.stack([rng.uniform(cfg.min_range, cfg.max_range, n_fa), rng.uniform(*cfg.azimuth_fov, n_fa),
                        rng.uniform(*cfg.elevation_fov, n_fa), rng.uniform(-cfg.clutter_speed, cfg.clutter_speed,
                                                                           n_fa)])
         clutter = rp.Targets(fa, phy.threshold + rng.standard_exponential(n_fa), np.full(n_fa, CLUTTER),
-                           np.full(n_fa, -1), np.full(n_fa, -1), np.full((n_fa, 3), np.nan))
+                             np.full(n_fa, -1), np.full(n_fa, -1), np.full((n_fa, 3), np.nan))
         out = rp.Targets.concat([real, clutter]).noisy(phy, cfg.sigmas, rng).permuted(rng)
         ghosts = ghosts.noisy(phy, cfg.sigmas, self._ghost_rng)
         out = rp.Targets.concat([out, ghosts]).inserted(len(out), self._ghost_rng)
         return Detections(**out.reported(phy))
 
-    def _ghosts(self, static: Cull, p: np.ndarray, v: np.ndarray, v_sensor: np.ndarray, rcs: np.ndarray,
-                movers) -> "rp.Targets":
+    def _ghosts(self, static: Cull, p: np.ndarray, v: np.ndarray, v_sensor: np.ndarray,
+                rcs: np.ndarray) -> "rp.Targets":
         """Multipath ghosts of the detected targets (sensor frame p, v) via the static reflectors in view, with
         the source's RCS less the bounce loss, detected by the same threshold (the ghost generator only)."""
         phy, g = self.config.physics, self._ghost_rng
@@ -286,11 +286,13 @@ class Radar:
                               & (el >= cfg.elevation_fov[0]) & (el <= cfg.elevation_fov[1]))
         m = len(keep)
         return rp.Targets(np.stack([r, az, el, vr_g])[:, keep], x.take(keep), np.full(m, GHOST), np.full(m, -1),
-                        np.full(m, -1), np.full((m, 3), np.nan))
+                          np.full(m, -1), np.full((m, 3), np.nan))
 
-    def _visible(self, p_sensor: np.ndarray, object_id: np.ndarray, opaque: list[Patches]):
+    def _visible(self, p_sensor: np.ndarray, object_id: np.ndarray, opaque: list[Patches],
+                 range_cell: float | None = None):
         """Gates (range, field of view), occlusion by opaque surfaces of other objects in front, then the
-        nearest candidate per cell: indices into the candidates and their range, azimuth, elevation."""
+        nearest candidate per cell (per cell and range bin of `range_cell` m if given: physical radars only):
+        indices into the candidates and their range, azimuth, elevation."""
         cfg = self.config
         r, az, el = polar(p_sensor)
         keep = ((r >= cfg.min_range) & (r <= cfg.max_range) & (az >= cfg.azimuth_fov[0])
@@ -304,7 +306,8 @@ class Radar:
         depth, owner = depth_buffer(Patches.concat(opaque), cfg, self._dirs, limit)
         visible = ~((depth.take(cell) < r_hidden) & (owner.take(cell) != object_id.take(idx)))
         idx, r, az, el, cell = idx[visible], r[visible], az[visible], el[visible], cell[visible]
-        first = nearest_per_cell(cell, r, len(self._dirs))
+        first = nearest_per_cell(cell, r, len(self._dirs)) if range_cell is None else \
+            nearest_per_bin(cell, r, range_cell, cfg.max_range)
         return idx[first], r[first], az[first], el[first]
 
 

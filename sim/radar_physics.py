@@ -58,6 +58,9 @@ class RadarPhysics:
             (a flat pattern over the field of view).
         pattern_tilt: elevation (rad) of the beam's centre in the sensor frame (a beam tilted against the frame the
             sensor reports in; 0: on boresight).
+        range_cell: metres, or None: one detection per angular cell *and range bin* of this size instead of per
+            angular cell (several detections of an extended object along the range, as a range-Doppler CFAR
+            before the angle estimate gives: a 2D radar's clustered returns).
         elevation_missing: probability that a detection is reported without an elevation estimate (elevation 0,
             as 13 % of the LRR30-F's detections in the RaFlow data).
     """
@@ -81,6 +84,7 @@ class RadarPhysics:
     ghost_min_area: float = 4.0
     pattern: tuple | None = None
     pattern_tilt: float = 0.0
+    range_cell: float | None = None
     elevation_missing: float = 0.0
 
     def __post_init__(self):
@@ -92,7 +96,7 @@ class RadarPhysics:
                 raise InputError(f"RadarPhysics.{f.name}: expected a finite number, got {value!r}")
         _positive(self, "range_resolution", "velocity_resolution", "ghost_min_area")
         _nonnegative(self, "doppler_step", "rcs_step_db", "snr_step_db", "ghost_loss_db")
-        for name in ("doppler_max", "range_max"):
+        for name in ("doppler_max", "range_max", "range_cell"):
             if getattr(self, name) is not None:
                 _positive(self, name)
         if not 0 < self.pfa < 1:

@@ -214,13 +214,14 @@ def _traffic(rng: np.random.Generator, profile: traj.Profile, duration: float) -
     return movers
 
 
-def _sim_boulevard(profile: str, seeds, duration: float) -> list:
-    """City driving (the `city` scenario's motion: 0-50 km/h, turns, stops) on BOULEVARD in dense traffic."""
+def _sim_boulevard(profile: str, seeds, duration: float, motion=traj.city) -> list:
+    """City driving (the `city` scenario's motion: 0-50 km/h, turns, stops; or another `motion`) on BOULEVARD in
+    dense traffic."""
     out = []
     for seed in seeds:
         s_traj, s_world, s_radar = np.random.SeedSequence(seed).spawn(3)
         rng_world = np.random.default_rng(s_world)
-        prof = traj.city(np.random.default_rng(s_traj), duration + 5.0)
+        prof = motion(np.random.default_rng(s_traj), duration + 5.0)
         world = w.build_world(rng_world, traj.route_of(prof), BOULEVARD)
         world = world.with_movers(_traffic(rng_world, prof, duration))
         out.append(simulate(world, prof, profiles.radar_config(profile), np.random.default_rng(s_radar), duration))
@@ -231,8 +232,8 @@ YARD = w.SceneParams(building_offset=(6.0, 12.0), building_length=(6.0, 15.0), b
                      building_height=(3.0, 6.0), building_prob=0.68, pole_spacing=10.0, pole_offset=(2.0, 6.0),
                      tree_spacing=15.0, tree_offset=(4.0, 10.0), parked_car_spacing=0.0, clutter_per_100m=390.0,
                      ground_half_width=10.0, clearance=1.0)
-"""The TI comparison's scene: a yard or narrow lane (walls 6-12 m away, posts 2-6 m, trees, dense clutter: shrubs, furniture), like the
-handheld rio demo's surroundings (ranges 0.5-19 m, median 4.5 m)."""
+"""The TI comparison's scene: a yard or narrow lane (walls 6-12 m away, posts 2-6 m, trees, dense clutter: shrubs,
+furniture), like the handheld rio demo's surroundings (ranges 0.5-19 m, median 4.5 m)."""
 
 
 def walk_profile(rng: np.random.Generator, duration: float) -> traj.Profile:
@@ -254,17 +255,28 @@ def _sim_walk(profile: str, seeds, duration: float) -> list:
     return out
 
 
+def _real_radarscenes(folder: Path) -> list:
+    from rodo.sim.convert import radarscenes
+
+    return [radarscenes.convert_radar(folder, 3).sequence]
+
+
 SETUPS = {
     "lrr30f": Setup("lrr30f", "raflow_lrr30_demo", _real_raflow, lambda seeds, d: _sim_boulevard("lrr30f", seeds, d),
                     "rcs", crop=78.0, notes="real: RaFlow demo data, all chains of >= 2 scans (104 scans); sim: "
-                    "city motion on a wide boulevard in dense traffic (realism.BOULEVARD); both cropped at 78 m (the demo data's largest range)"),
+                    "city motion on a wide boulevard in dense traffic (realism.BOULEVARD); both cropped at 78 m (the "
+                    "demo data's largest range)"),
     "iwr6843aop": Setup("iwr6843aop", "rio_ti_mmwave_demo", _real_ti,
                         lambda seeds, d: _sim_walk("iwr6843aop", seeds, d), "snr",
                         notes="real: rio demo (412 scans, handheld, standing 2/3 of the time); sim: the same "
                         "stand-walk-stand timeline in a yard scene (realism.YARD); the radar reports SNR, not RCS"),
+    "corner2d": Setup("corner2d", "radarscenes_seq105_2d", _real_radarscenes,
+                      lambda seeds, d: _sim_boulevard("corner2d", seeds, d, traj.hills), "rcs",
+                      notes="real: RadarScenes sequence 105, radar 3 (front left), 122 s at 13-25 m/s; sim: the "
+                      "hills motion (40-70 km/h) on the boulevard in dense traffic; 2D (no elevation row)"),
 }
 DEFAULT_SEEDS = (0, 1, 2)
-DEFAULT_DURATION = {"lrr30f": 20.0, "iwr6843aop": 40.0}
+DEFAULT_DURATION = {"lrr30f": 20.0, "iwr6843aop": 40.0, "corner2d": 20.0}
 
 
 def realism(profile: str, realdata: Path, seeds=DEFAULT_SEEDS, duration: float | None = None) -> Report:
@@ -298,7 +310,8 @@ def realism(profile: str, realdata: Path, seeds=DEFAULT_SEEDS, duration: float |
 
 def format_table(report: Report) -> str:
     """The report's table as Markdown."""
-    lines = [f"| statistic ({report.profile}) | sim | real | distance | within {GOAL:.0%} |", "| --- | --- | --- | --- | --- |"]
+    lines = [f"| statistic ({report.profile}) | sim | real | distance | within {GOAL:.0%} |",
+             "| --- | --- | --- | --- | --- |"]
     for row in report.rows:
         fmt = (lambda v: v if isinstance(v, str) else f"{v:.4g}")
         dist = "-" if row.distance is None else f"{row.distance:.3f} ({row.measure})"

@@ -1,7 +1,7 @@
 """`rodo scenarios` (list the registered scenarios) and `rodo simulate SCENARIO --seed N --out DIR
 [--duration S] [--qc a,b,c,d,e,f]
-[--fault NAME=VALUE ...] [--profile NAME]` (write a sequence directory and print a summary). Parse, call, print: the work is in
-`scenarios` and `sim`."""
+[--fault NAME=VALUE ...] [--profile NAME]` (write a sequence directory and print a summary). Parse, call, print:
+the work is in `scenarios` and `sim`."""
 
 from __future__ import annotations
 

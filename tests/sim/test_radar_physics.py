@@ -119,3 +119,36 @@ def test_radar_config_refuses_a_physics_of_the_wrong_type():
 
     with pytest.raises(InputError, match="physics"):
         RadarConfig(physics={"snr_1m_db": 80.0})
+
+
+def test_nearest_per_bin_keeps_the_nearest_of_each_cell_and_range_bin():
+    """Brute force: group by (cell, floor(r / range_cell)), take the smallest r (ties: the first index)."""
+    from rodo.sim.occlusion import nearest_per_bin
+
+    rng = np.random.default_rng(4)
+    cell = rng.integers(0, 30, 2000)
+    r = np.round(rng.uniform(0.5, 40.0, 2000), 1)
+    got = nearest_per_bin(cell, r, 2.0, 40.0)
+    want = {}
+    for i, (c, x) in enumerate(zip(cell, r)):
+        k = (c, int(x // 2.0))
+        if k not in want or x < r[want[k]]:
+            want[k] = i
+    assert sorted(got.tolist()) == sorted(want.values())
+
+
+def test_range_cells_give_several_detections_per_angular_cell():
+    """With range_cell the corner radar reports more detections than angular cells hold, at most one per
+    (cell, range bin); without, at most one per angular cell."""
+    from dataclasses import replace
+
+    from rodo import scenarios
+    from rodo.sim import profiles
+
+    cfg = profiles.radar_config("corner2d")
+    per_cell = replace(cfg, physics=replace(cfg.physics, range_cell=None), clutter_rate=0.0, surface_fill=5.0)
+    per_bin = replace(cfg, physics=replace(cfg.physics, range_cell=1.0), clutter_rate=0.0, surface_fill=5.0)
+    n = [np.mean([len(s) for s in scenarios.get("city").simulate(1, 1.0, radar=c)[0].scans]) for c in (per_cell,
+                                                                                                        per_bin)]
+    assert n[1] > 1.2 * n[0]
+    assert n[0] <= per_cell.grid_shape[0] * per_cell.grid_shape[1]
