@@ -31,6 +31,10 @@ def plot_realism(path, report) -> Path:
               ("static Doppler residual spread", sim.residual, real.residual, 1.0)]
     axes = fig.subplots(2, 3).ravel()
     for ax, (name, a, b, scale) in zip(axes, panels):
+        if name == "elevation" and name not in rows:  # a 2D radar: no elevation to compare
+            ax.set_title("elevation: not reported (2D radar)", fontsize=10)
+            ax.set_axis_off()
+            continue
         a, b = np.asarray(a, float) * scale, np.asarray(b, float) * scale
         both = np.concatenate([a, b]) if a.size + b.size else np.zeros(1)
         lo, hi = np.percentile(both, [0.5, 99.5]) if both.size > 1 else (0.0, 1.0)

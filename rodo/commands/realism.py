@@ -31,7 +31,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_profiles)
     p = subparsers.add_parser("realism", help="compare a sensor profile's simulation with real data",
                               description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("profile", metavar="PROFILE", help="sensor profile with real data (lrr30f, iwr6843aop)")
+    p.add_argument("profile", metavar="PROFILE", help="sensor profile with real data (lrr30f, iwr6843aop, corner2d)")
     p.add_argument("--realdata", metavar="DIR", default=str(REALDATA),
                    help=f"the real recordings (default {REALDATA})")
     p.add_argument("--out", metavar="DIR", default=None, help="write the table, numbers and figure here")

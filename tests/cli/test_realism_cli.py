@@ -48,9 +48,16 @@ def test_realism_runs_on_the_ti_data(realdata_dir, capsys):
     assert "| snr (dB) |" in text and "43.38" in text  # the rio demo's mean count per scan
 
 
+@pytest.mark.slow
+def test_realism_runs_on_the_radarscenes_data(realdata_dir, capsys):
+    assert main(["realism", "corner2d", "--realdata", str(realdata_dir), "--seeds", "0", "--duration", "3"]) == 0
+    text = capsys.readouterr().out
+    assert "| rcs (dBsm) |" in text and "elevation" not in text.split("note:")[0]  # a 2D radar
+
+
 @pytest.mark.parametrize("argv, needles", [
     (["realism", "nope"], ("unknown sensor profile 'nope'", "lrr30f")),
-    (["realism", "corner2d"], ("no real data", "lrr30f, iwr6843aop")),
+    (["realism", "generic"], ("no real data", "lrr30f, iwr6843aop, corner2d")),
     (["realism", "lrr30f", "--seeds", "a"], ("--seeds",)),
     (["realism", "lrr30f", "--seeds", "-1"], ("--seeds",)),
     (["realism", "lrr30f", "--duration", "0"], ("--duration",)),

@@ -58,10 +58,10 @@ def test_a_scenario_chooses_a_profile():
         city.simulate(0, 0.5, sensor_profile="nope")
 
 
-@pytest.mark.parametrize("name, duration", [("lrr30f", 3.0), ("iwr6843aop", 20.0)])
+@pytest.mark.parametrize("name, duration", [("lrr30f", 3.0), ("iwr6843aop", 20.0), ("corner2d", 3.0)])
 def test_points_per_scan_within_the_real_sensors_range(name, duration):
     """The calibrated set-up (validation.realism) gives a mean count per scan inside the real sensor's range
-    (LRR30-F 260-477 in the RaFlow data, TI 19-87 in the rio demo)."""
+    (LRR30-F 260-477 in the RaFlow data, TI 19-87 in the rio demo, RadarScenes radar 3 140-365 (5-95 %))."""
     lo, hi = profiles.get(name).points_per_scan
     (seq, truth), = realism.SETUPS[name].simulate((0,), duration)
     counts = np.diff(truth["scan_offsets"])
