@@ -10,10 +10,10 @@ from rodo.estimator.errors import InputError
 
 from . import extras
 from .commands import (calibrate, config, convert, demo, ego_velocity, evaluate, export, figures, montecarlo, prior,
-                       run, simulate, table1, view)
+                       realism, run, simulate, table1, view)
 
 COMMANDS = [demo, simulate, run, evaluate, montecarlo, table1, convert, ego_velocity, prior, figures, view,
-            calibrate, export, config]  # modules with register(subparsers); see rodo/commands/
+            calibrate, export, config, realism]  # modules with register(subparsers); see rodo/commands/
 
 
 def build_parser(commands=None) -> argparse.ArgumentParser:

@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.sim import profiles
 from rodo.sim.faults import Faults
 from rodo.sim.radar import RadarConfig
 from rodo.sim.simulate import simulate, write_simulation
@@ -54,6 +55,8 @@ class Scenario:
         duration: default duration in seconds when `length` is None.
         params: names of the keyword parameters the profile builder accepts (e.g. ("qc",)); None = default.
         extra_truth: optional (profile) -> dict of arrays added to the truth (truth.npz).
+        sensor_profile: the sensor profile (`sim.profiles`) the scenario uses by default; "generic" is its own
+            `radar()`.
     """
 
     name: str
@@ -67,6 +70,13 @@ class Scenario:
     duration: float | None = None
     params: tuple[str, ...] = ()
     extra_truth: Callable | None = None
+    sensor_profile: str = profiles.DEFAULT
+
+    def radar_config(self, sensor_profile: str | None = None) -> RadarConfig:
+        """The radar of sensor profile `sensor_profile` (None: the scenario's own; "generic": `radar()`);
+        InputError listing the known profiles for an unknown name."""
+        name = self.sensor_profile if sensor_profile is None else sensor_profile
+        return self.radar() if profiles.get(name).name == profiles.DEFAULT else profiles.radar_config(name)
 
     def _rngs(self, seed: int):
         return [np.random.default_rng(s) for s in _streams(seed)[:3]]
@@ -112,16 +122,20 @@ class Scenario:
         return Parts(profile, world, self.radar(), duration)
 
     def simulate(self, seed: int, duration: float | None = None, progress=None, radar: RadarConfig | None = None,
-                 faults: Faults | None = None, **params):
+                 faults: Faults | None = None, sensor_profile: str | None = None, **params):
         """Simulate the scenario: returns (Sequence, truth dict) (see sim.simulate.simulate).
 
-        `radar` overrides the scenario's radar, e.g. `RadarConfig().noise_free()` for model checks; `faults`
+        `radar` overrides the scenario's radar, e.g. `RadarConfig().noise_free()` for model checks;
+        `sensor_profile` names a sensor profile (`sim.profiles`, e.g. "lrr30f") instead; `faults`
         (`sim.faults.Faults`, default off) injects clutter, ghosts, dropped scans, jitter and outages, drawn
         from a fourth stream `SeedSequence(seed).spawn(4)[3]` (the first three are the clean streams, so the
         clean output is unchanged); `params` are the scenario's own parameters (e.g. `qc=` for prior_ca)."""
         faults = Faults() if faults is None else faults
         parts = self.build(seed, duration, **params)
-        config = faults.radar(parts.radar if radar is None else radar)
+        if radar is None:
+            radar = parts.radar if sensor_profile is None and self.sensor_profile == profiles.DEFAULT \
+                else self.radar_config(sensor_profile)
+        config = faults.radar(radar)
         faults.check_rate(config.rate_hz)  # before the simulation
         rng_radar = self._rngs(seed)[2]
         seq, truth = simulate(parts.world, parts.profile, config, rng_radar, parts.duration, progress,
@@ -166,10 +180,11 @@ def get(name: str) -> Scenario:
 
 
 def simulate_to(name: str, seed: int, out_dir, duration: float | None = None, progress=None,
-                faults: Faults | None = None, **params):
-    """Simulate scenario `name` with `seed` (its `params`, e.g. qc=, and optional `faults`) and write the
-    sequence directory (radar.csv, sensor.toml, groundtruth.txt, truth.npz) to out_dir. Returns (Sequence, truth)."""
+                faults: Faults | None = None, sensor_profile: str | None = None, **params):
+    """Simulate scenario `name` with `seed` (its `params`, e.g. qc=, optional `faults` and sensor profile) and
+    write the sequence directory (radar.csv, sensor.toml, groundtruth.txt, truth.npz) to out_dir. Returns
+    (Sequence, truth)."""
     scenario = get(name)
-    seq, truth = scenario.simulate(seed, duration, progress, faults=faults, **params)
+    seq, truth = scenario.simulate(seed, duration, progress, faults=faults, sensor_profile=sensor_profile, **params)
     write_simulation(Path(out_dir), seq, truth)
     return seq, truth

@@ -6,13 +6,20 @@ The package, file by file (the names below are re-exported here; submodules stay
                        `route_of`, and the profile generators `city`, `highway`, `hills`, `stop_and_go`, `crawl`,
                        `yaw_accel`.
     objects.py         scene primitives: `Patches`, `Points`, `MovingBox`, `RigidStates`, `box`, `rectangle`,
-                       `empty_patches`; detection labels `STATIC_SURFACE`, `STATIC_POINT`, `MOVING`, `CLUTTER`.
+                       `empty_patches`; detection labels `STATIC_SURFACE`, `STATIC_POINT`, `MOVING`, `CLUTTER`,
+                       `GHOST`.
     world.py           scenes around a route: `World`, `SceneParams` (`CITY`, `HIGHWAY`, `RURAL`), `build_world`,
                        traffic (`lead_vehicle`, `oncoming_vehicle`, `overtaking_vehicle`).
     radar.py           the sensor model: `Radar`, `RadarConfig`, `Detections`, `default_mount`, `sensor_velocity`,
                        `polar`; built on culling.py (what a scan can see at all: per-scene patch geometry and the
                        pre-selection near the sensor) and occlusion.py (the angular cell grid, the depth buffer,
                        the nearest entry per cell). Those two are internal (not re-exported).
+    radar_physics.py   the radar equation of a sensor profile (`RadarPhysics`, `RadarConfig.physics`): RCS per
+                       scatterer class, SNR, Swerling-1 detection, noise from SNR, ambiguities, quantisation.
+    multipath.py       multipath ghosts: mirror images of targets across large flat reflectors (`mirror`).
+    profiles.py        named, versioned sensor profiles (`SensorProfile`; `get_profile`, `profile_names`,
+                       `profile_radar_config` are its `get`, `names`, `radar_config`): generic (the default),
+                       lrr30f, iwr6843aop, corner2d.
     simulate.py        profile + world + radar -> sequence and truth: `simulate_sequence` (the module's
                        `simulate`; the module itself keeps the name `rodo.sim.simulate`), `write_simulation`,
                        `load_truth`, `TRUTH_NPZ`.
@@ -29,12 +36,18 @@ The package, file by file (the names below are re-exported here; submodules stay
 Only numpy and scipy are imported (no numba, no plotting).
 """
 
-from .objects import CLUTTER, MOVING, STATIC_POINT, STATIC_SURFACE, MovingBox, Patches, Points, RigidStates, box, \
+from .objects import CLUTTER, GHOST, MOVING, STATIC_POINT, STATIC_SURFACE, MovingBox, Patches, Points, RigidStates, box, \
     empty_patches, rectangle
 from .prior_sampling import nees_bounds, propagate_mean_cov, sample_prior, yaw_acceleration_case
 from .sde_trajectory import SdeTrajectory
 from .sde_trajectory import draw as draw_sde_trajectory
 from .radar import Detections, Radar, RadarConfig, default_mount, polar, sensor_velocity
+from .radar_physics import RadarPhysics
+from .multipath import mirror
+from .profiles import SensorProfile
+from .profiles import get as get_profile
+from .profiles import names as profile_names
+from .profiles import radar_config as profile_radar_config
 from .sequence import (GROUNDTRUTH_TXT, RADAR_CSV, SENSOR_TOML, NoiseSigmas, RadarScan, SensorConfig, Sequence,
                        SequenceFormatError, Trajectory, polar_to_cartesian, read_sequence, read_tum, write_sequence,
                        write_tum)
@@ -50,13 +63,15 @@ __all__ = [
     "Motion", "Profile", "ProfileBuilder", "Route", "Segment", "city", "crawl", "highway", "hills", "route_of",
     "stop_and_go", "yaw_accel",
     # objects.py
-    "CLUTTER", "MOVING", "STATIC_POINT", "STATIC_SURFACE", "MovingBox", "Patches", "Points", "RigidStates", "box",
+    "CLUTTER", "GHOST", "MOVING", "STATIC_POINT", "STATIC_SURFACE", "MovingBox", "Patches", "Points", "RigidStates", "box",
     "empty_patches", "rectangle",
     # world.py
     "CITY", "HIGHWAY", "RURAL", "SceneParams", "World", "build_world", "lead_vehicle", "oncoming_vehicle",
     "overtaking_vehicle",
     # radar.py
     "Detections", "Radar", "RadarConfig", "default_mount", "polar", "sensor_velocity",
+    # radar_physics.py, multipath.py, profiles.py
+    "RadarPhysics", "mirror", "SensorProfile", "get_profile", "profile_names", "profile_radar_config",
     # simulate.py
     "TRUTH_NPZ", "load_truth", "simulate_sequence", "write_simulation",
     # prior_sampling.py

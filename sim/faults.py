@@ -31,10 +31,9 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 
-from .objects import CLUTTER
+from .objects import CLUTTER, GHOST
 from .radar import Detections, RadarConfig
 
-GHOST = 4  # det_label of a ghost detection (0-3: sim.objects)
 GHOST_OFFSET = (1.0, 10.0)  # m: extra range of a ghost over the detection it copies
 JITTER_CLIP = 0.45  # scan periods: the recorded-time perturbation is clipped to +- this
 JITTER_MAX = 0.15  # scan periods: the largest sigma accepted
@@ -224,23 +223,28 @@ def add_ghosts(det: Detections, rate: float, config: RadarConfig, rng: np.random
     m = len(src)
     true = det.true_polar[src].copy()
     true[:, 0] += offset
+    optional = {f: None if getattr(det, f) is None else getattr(det, f)[src] for f in _OPTIONAL}
     ghost = Detections(det.range[src] + offset, det.azimuth[src], det.elevation[src], det.radial_velocity[src],
                        np.full(m, GHOST, dtype=det.label.dtype), np.full(m, -1), np.full(m, -1),
-                       np.full((m, 3), np.nan), true)
+                       np.full((m, 3), np.nan), true, **optional)
     perm = rng.permutation(len(det) + m)
     return _subset(_concat(det, ghost), perm)
 
 
 _FIELDS = ("range", "azimuth", "elevation", "radial_velocity", "label", "object_id", "landmark_id", "p_world",
            "true_polar")
+_OPTIONAL = ("rcs", "snr")  # physical radars (sensor profiles): a ghost fault reports its source's values
 
 
 def _concat(a: Detections, b: Detections) -> Detections:
-    return Detections(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in _FIELDS))
+    optional = {f: None if getattr(a, f) is None else np.concatenate([getattr(a, f), getattr(b, f)])
+                for f in _OPTIONAL}
+    return Detections(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in _FIELDS), **optional)
 
 
 def _subset(det: Detections, idx: np.ndarray) -> Detections:
-    return Detections(*(getattr(det, f)[idx] for f in _FIELDS))
+    optional = {f: None if getattr(det, f) is None else getattr(det, f)[idx] for f in _OPTIONAL}
+    return Detections(*(getattr(det, f)[idx] for f in _FIELDS), **optional)
 
 
 __all__ = ["GHOST", "Faulted", "Faults", "add_ghosts", "apply", "jittered_times", "outage_intervals", "parse_fault",

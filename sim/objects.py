@@ -7,7 +7,7 @@ so surfaces are `Patches` sampled uniformly per scan. Point-like scatterers (pol
 persist at fixed positions with a per-scatterer detection probability: `Points`.
 
 Detection source labels (truth.npz `label`): 0 static surface, 1 static point scatterer, 2 moving object,
-3 clutter (false alarm).
+3 clutter (false alarm), 4 ghost (multipath or the ghosts fault).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from rodo.estimator.lie import se3
 from .trajectory import Profile
 
 STATIC_SURFACE, STATIC_POINT, MOVING, CLUTTER = 0, 1, 2, 3
+GHOST = 4  # a multipath ghost (sim.multipath, sensor profiles) or a ghost fault (sim.faults)
 
 
 @dataclass(frozen=True)

@@ -69,6 +69,14 @@ def nearest_per_cell(cell: np.ndarray, key: np.ndarray, n_cells: int) -> np.ndar
     return at_min[order[np.r_[True, c[1:] != c[:-1]]]]
 
 
+def nearest_per_bin(cell: np.ndarray, r: np.ndarray, range_cell: float, max_range: float) -> np.ndarray:
+    """Indices of the nearest entry in each (angular cell, range bin of `range_cell` m) that holds one: the
+    pairs are numbered (np.unique), then `nearest_per_cell` over them."""
+    key = cell * (int(max_range / range_cell) + 2) + (r // range_cell).astype(np.int64)
+    bins, pair = np.unique(key, return_inverse=True)
+    return nearest_per_cell(pair.ravel(), r, len(bins))
+
+
 def depth_buffer(p: Patches, cfg, dirs: np.ndarray, limit: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Nearest opaque surface along each cell-centre ray: depth (cells,) (inf if none) and its object id (-1).
 

@@ -27,9 +27,11 @@ import numpy as np
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3, so3
 
+from . import radar_physics as rp
 from .culling import Cull, PatchGeometry, PointIndex, norm3, transform
-from .objects import CLUTTER, MOVING, STATIC_POINT, STATIC_SURFACE, Patches
-from .occlusion import cell_directions, cell_index, cross, depth_buffer, nearest_per_cell
+from .multipath import ghost_candidates, reflectors
+from .objects import CLUTTER, GHOST, MOVING, STATIC_POINT, STATIC_SURFACE, Patches
+from .occlusion import cell_directions, cell_index, cross, depth_buffer, nearest_per_bin, nearest_per_cell
 
 DEG = np.pi / 180.0
 
@@ -56,6 +58,10 @@ class RadarConfig:
             radial velocity uniform in +-clutter_speed.
         occlusion_tolerance: a target is hidden if an opaque surface of another object is this much closer.
         ideal_detection: every visible target is detected (pd 1, including point scatterers).
+        physics: None (the default model above: pd(r), fixed sigmas) or a `sim.radar_physics.RadarPhysics`:
+            RCS per scatterer class, SNR from the radar equation, detection and noise from SNR (the sigmas are
+            then the accuracy floors), ambiguities, multipath ghosts, `rcs` and `snr` outputs (sensor profiles,
+            `sim.profiles`).
     """
 
     rate_hz: float = 13.0
@@ -76,6 +82,7 @@ class RadarConfig:
     clutter_speed: float = 20.0
     occlusion_tolerance: float = 0.3
     ideal_detection: bool = False
+    physics: rp.RadarPhysics | None = None
 
     def __post_init__(self):
         if not (self.rate_hz > 0 and 0 <= self.min_range < self.max_range):
@@ -88,6 +95,8 @@ class RadarConfig:
                 raise InputError(f"RadarConfig.{name}: need min < max, got {(lo, hi)}")
         if self.cell_azimuth <= 0 or self.cell_elevation <= 0:
             raise InputError("RadarConfig.cell_azimuth/cell_elevation: must be > 0")
+        if self.physics is not None and not isinstance(self.physics, rp.RadarPhysics):
+            raise InputError(f"RadarConfig.physics: expected a RadarPhysics or None, got {type(self.physics).__name__}")
 
     def noise_free(self) -> "RadarConfig":
         return replace(self, sigmas=(0.0, 0.0, 0.0, 0.0), clutter_rate=0.0, ideal_detection=True)
@@ -115,8 +124,9 @@ class RadarConfig:
 @dataclass(frozen=True)
 class Detections:
     """One scan's output. Measured: range, azimuth, elevation, radial_velocity (n,). Truth: label (n,) (0 static
-    surface, 1 static point, 2 moving, 3 clutter), object_id (n,) (-1 if none), landmark_id (n,) (-1 if none),
-    p_world (n, 3) the true scatterer (NaN for clutter), true_polar (n, 4) noise-free measurement."""
+    surface, 1 static point, 2 moving, 3 clutter, 4 ghost), object_id (n,) (-1 if none), landmark_id (n,) (-1 if
+    none), p_world (n, 3) the true scatterer (NaN for clutter and ghosts), true_polar (n, 4) noise-free measurement.
+    With a physical radar (`RadarConfig.physics`) also the reported rcs (dBsm) and snr (dB), (n,); else None."""
 
     range: np.ndarray
     azimuth: np.ndarray
@@ -127,15 +137,23 @@ class Detections:
     landmark_id: np.ndarray
     p_world: np.ndarray
     true_polar: np.ndarray
+    rcs: np.ndarray | None = None
+    snr: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.range)
 
+    def extra(self) -> dict:
+        """The optional measured columns of radar.csv (`rcs`, `snr`) that this scan has."""
+        return {} if self.rcs is None else {"rcs": self.rcs, "snr": self.snr}
 
-def empty_detections() -> Detections:
+
+def empty_detections(config: RadarConfig | None = None) -> Detections:
+    """A scan without detections (with empty rcs and snr for a physical radar)."""
     z = np.zeros(0)
     zi = np.zeros(0, int)
-    return Detections(z, z, z, z, zi, zi, zi, np.zeros((0, 3)), np.zeros((0, 4)))
+    optional = {} if config is None or config.physics is None else {"rcs": z, "snr": z}
+    return Detections(z, z, z, z, zi, zi, zi, np.zeros((0, 3)), np.zeros((0, 4)), **optional)
 
 
 def sensor_velocity(varpi: np.ndarray, T_vehicle_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -167,6 +185,7 @@ class Radar:
         self.config = RadarConfig() if config is None else config
         self._dirs = cell_directions(self.config)
         self._scene = (None, None, None)  # (world patches, world points, their _StaticScene)
+        self._ghost_rng = None  # physical radars: spawned from the scan generator on the first scan
 
     def _static(self, world) -> "_StaticScene":
         """The culling geometry of the world's static patches and points, computed once per scene (kept for
@@ -198,7 +217,9 @@ class Radar:
         cfg = self.config
         T_sensor_world = se3.inverse(T_world_vehicle @ cfg.T_vehicle_sensor)
         v_sensor, _ = sensor_velocity(np.asarray(varpi, dtype=float), cfg.T_vehicle_sensor)
-        cand, opaque, n_all = _candidates(world, self._static(world), T_sensor_world, cfg, rng, movers or ())
+        if cfg.physics is not None:
+            return self._physical_scan(world, T_sensor_world, v_sensor, rng, movers or ())
+        cand, opaque, n_all, _ = _candidates(world, self._static(world), T_sensor_world, cfg, rng, movers or ())
         p_sensor = transform(cand.p_world, T_sensor_world[:3, :3], T_sensor_world[:3, 3], n_all)
         idx, r, az, el = self._visible(p_sensor, cand.object_id, opaque)
         pd = cfg.pd(r) * (1.0 if cfg.ideal_detection else cand.pd_own.take(idx))
@@ -211,9 +232,67 @@ class Radar:
         vr = np.einsum("ij,ij->i", u, v)
         return _noisy_with_clutter(np.stack([r, az, el, vr]), cand, idx, cfg, rng)
 
-    def _visible(self, p_sensor: np.ndarray, object_id: np.ndarray, opaque: list[Patches]):
+    def _physical_scan(self, world, T_sensor_world: np.ndarray, v_sensor: np.ndarray, rng: np.random.Generator,
+                       movers) -> Detections:
+        """A scan of a radar with `config.physics` (sim.radar_physics): the same candidates, gates and occlusion,
+        then RCS and power per target, detection by threshold, noise from SNR, multipath ghosts (their own
+        generator, spawned from `rng` once: switching ghosts on or off changes no other draw), false alarms,
+        order, then ambiguities and quantisation of what is reported."""
+        cfg, phy = self.config, self.config.physics
+        if self._ghost_rng is None:
+            self._ghost_rng = rng.spawn(1)[0]
+        cand, opaque, n_all, static = _candidates(world, self._static(world), T_sensor_world, cfg, rng, movers)
+        C = T_sensor_world[:3, :3]
+        p_sensor = transform(cand.p_world, C, T_sensor_world[:3, 3], n_all)
+        idx, r, az, el = self._visible(p_sensor, cand.object_id, opaque, phy.range_cell)
+        cls = rp.scatterer_class(cand.label.take(idx), cand.reflectivity.take(idx))
+        rcs, x = rp.target_power(phy, cls, cand.pd_own.take(idx), r, az, el, rng)
+        hit = np.flatnonzero(x > phy.threshold) if not cfg.ideal_detection else np.arange(len(idx))
+        idx, r, az, el, rcs, x = (a.take(hit) for a in (idx, r, az, el, rcs, x))
+        p = p_sensor.take(idx, axis=0)
+        v = cand.v_world.take(idx, axis=0) @ C.T
+        vr = np.einsum("ij,ij->i", p / r[:, None], v - v_sensor)
+        real = rp.Targets(np.stack([r, az, el, vr]), x, cand.label.take(idx), cand.object_id.take(idx),
+                          cand.landmark_id.take(idx), cand.p_world.take(idx, axis=0))
+        ghosts = self._ghosts(static, p, v, v_sensor, rcs)
+        n_fa = rng.poisson(cfg.clutter_rate) if cfg.clutter_rate > 0 else 0
+        fa = np.stack([rng.uniform(cfg.min_range, cfg.max_range, n_fa), rng.uniform(*cfg.azimuth_fov, n_fa),
+                       rng.uniform(*cfg.elevation_fov, n_fa), rng.uniform(-cfg.clutter_speed, cfg.clutter_speed,
+                                                                          n_fa)])
+        clutter = rp.Targets(fa, phy.threshold + rng.standard_exponential(n_fa), np.full(n_fa, CLUTTER),
+                             np.full(n_fa, -1), np.full(n_fa, -1), np.full((n_fa, 3), np.nan))
+        out = rp.Targets.concat([real, clutter]).noisy(phy, cfg.sigmas, rng).permuted(rng)
+        ghosts = ghosts.noisy(phy, cfg.sigmas, self._ghost_rng)
+        out = rp.Targets.concat([out, ghosts]).inserted(len(out), self._ghost_rng)
+        return Detections(**out.reported(phy))
+
+    def _ghosts(self, static: Cull, p: np.ndarray, v: np.ndarray, v_sensor: np.ndarray,
+                rcs: np.ndarray) -> "rp.Targets":
+        """Multipath ghosts of the detected targets (sensor frame p, v) via the static reflectors in view, with
+        the source's RCS less the bounce loss, detected by the same threshold (the ghost generator only)."""
+        phy, g = self.config.physics, self._ghost_rng
+        if phy.ghost_prob > 0:
+            src, p_g, vr_g = ghost_candidates(p, v, v_sensor, reflectors(static.sensor(), phy.ghost_min_area),
+                                              phy.ghost_prob, g)
+        else:
+            src, p_g, vr_g = np.zeros(0, int), np.zeros((0, 3)), np.zeros(0)
+        r, az, el = polar(p_g)
+        cfg = self.config
+        snr = 10.0 ** ((rp.snr_db(phy.snr_1m_db, rcs.take(src) - phy.ghost_loss_db, r) + rp.pattern_db(phy, az, el))
+                       / 10.0)
+        x = (1.0 + snr) * g.standard_exponential(len(src))
+        keep = np.flatnonzero((x > phy.threshold) & (r >= cfg.min_range) & (r <= cfg.max_range)
+                              & (az >= cfg.azimuth_fov[0]) & (az <= cfg.azimuth_fov[1])
+                              & (el >= cfg.elevation_fov[0]) & (el <= cfg.elevation_fov[1]))
+        m = len(keep)
+        return rp.Targets(np.stack([r, az, el, vr_g])[:, keep], x.take(keep), np.full(m, GHOST), np.full(m, -1),
+                          np.full(m, -1), np.full((m, 3), np.nan))
+
+    def _visible(self, p_sensor: np.ndarray, object_id: np.ndarray, opaque: list[Patches],
+                 range_cell: float | None = None):
         """Gates (range, field of view), occlusion by opaque surfaces of other objects in front, then the
-        nearest candidate per cell: indices into the candidates and their range, azimuth, elevation."""
+        nearest candidate per cell (per cell and range bin of `range_cell` m if given: physical radars only):
+        indices into the candidates and their range, azimuth, elevation."""
         cfg = self.config
         r, az, el = polar(p_sensor)
         keep = ((r >= cfg.min_range) & (r <= cfg.max_range) & (az >= cfg.azimuth_fov[0])
@@ -227,7 +306,8 @@ class Radar:
         depth, owner = depth_buffer(Patches.concat(opaque), cfg, self._dirs, limit)
         visible = ~((depth.take(cell) < r_hidden) & (owner.take(cell) != object_id.take(idx)))
         idx, r, az, el, cell = idx[visible], r[visible], az[visible], el[visible], cell[visible]
-        first = nearest_per_cell(cell, r, len(self._dirs))
+        first = nearest_per_cell(cell, r, len(self._dirs)) if range_cell is None else \
+            nearest_per_bin(cell, r, range_cell, cfg.max_range)
         return idx[first], r[first], az[first], el[first]
 
 
@@ -241,6 +321,7 @@ class _Candidates:
     object_id: np.ndarray
     landmark_id: np.ndarray
     pd_own: np.ndarray
+    reflectivity: np.ndarray | None = None  # physical radars only (the RCS class of surface samples)
 
     def __len__(self) -> int:
         return len(self.p_world)
@@ -255,10 +336,11 @@ class _StaticScene:
 
 
 def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: RadarConfig,
-                rng: np.random.Generator, movers) -> tuple[_Candidates, list[Patches], int]:
+                rng: np.random.Generator, movers) -> tuple[_Candidates, list[Patches], int, Cull]:
     """Static surface samples, the point scatterers near enough to be in range and the movers' surface samples
-    (drawn in that order), with the opaque patches (sensor frame) that may hide them and the number of
-    candidates had every point scatterer been included (see `sim.culling.transform`)."""
+    (drawn in that order), with the opaque patches (sensor frame) that may hide them, the number of
+    candidates had every point scatterer been included (see `sim.culling.transform`) and the static culling.
+    With `cfg.physics` the candidates also carry their surfaces' reflectivity (no further draws)."""
     static = Cull(scene.patches, T_sensor_world, cfg)
     pts, k = static.sample(cfg, rng)
     opaque = [static.sensor(opaque_only=True)]
@@ -267,6 +349,7 @@ def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: Rad
     p, pd, landmark_id = (P.p, P.pd, P.landmark_id) if near is None else (P.p.take(near, axis=0), P.pd.take(near),
                                                                           P.landmark_id.take(near))
     p_world, v_moving, n_moving = [pts, p], [], []
+    refl = None if cfg.physics is None else [world.patches.reflectivity.take(static.idx.take(k))]
     if movers:  # culled together (one set of calls), sampled one by one (the draws in the movers' order)
         bodies = [mover.body_patches.transformed(T_world_object) for mover, T_world_object, _, _ in movers]
         cull = Cull(PatchGeometry(Patches.concat(bodies), indexed=False), T_sensor_world, cfg)
@@ -276,6 +359,8 @@ def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: Rad
             p_world.append(pts_g)
             v_moving.append(v_object + cross(w_object, pts_g - T_world_object[:3, 3]))
             n_moving.append(len(pts_g))
+            if refl is not None:
+                refl.append(np.full(len(pts_g), 2.0))
         opaque.append(cull.sensor(groups=groups))
     n_s, n_p, n_m = len(pts), len(p), sum(n_moving)
     mover_ids = np.array([mover.object_id for mover, *_ in movers], dtype=int)
@@ -284,8 +369,9 @@ def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: Rad
         label=np.repeat([STATIC_SURFACE, STATIC_POINT, MOVING], [n_s, n_p, n_m]),
         object_id=np.concatenate([static.object_id.take(k), np.full(n_p, -1), np.repeat(mover_ids, n_moving)]),
         landmark_id=np.concatenate([np.full(n_s, -1), landmark_id, np.full(n_m, -1)]),
-        pd_own=np.concatenate([np.ones(n_s), pd, np.ones(n_m)]))
-    return cand, opaque, len(cand) + len(P) - n_p
+        pd_own=np.concatenate([np.ones(n_s), pd, np.ones(n_m)]),
+        reflectivity=None if refl is None else np.concatenate([refl[0], np.ones(n_p)] + refl[1:]))
+    return cand, opaque, len(cand) + len(P) - n_p, static
 
 
 def _noisy_with_clutter(true: np.ndarray, cand: _Candidates, idx: np.ndarray, cfg: RadarConfig,

@@ -63,7 +63,7 @@ def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random
     dets = []
     for k, tk in enumerate(t):
         if world.blacked_out(tk):
-            det = empty_detections()
+            det = empty_detections(config)
         else:
             movers = [(m, s.T_world_object[k], s.v_world[k], s.w_world[k]) for m, s in mover_states
                       if s.present[k]]
@@ -82,16 +82,16 @@ def _recorded(dets, t, T_world_vehicle, profile, config, faults, fault_seed):
     """What is recorded: the scans (faults applied), the ground-truth trajectory, and for the truth the
     per-scan detections plus, with faults, `fault_t_recorded` and `fault_dropped` (docs/simulator.md)."""
     if faults is None or not faults.changes_scans:
-        scans = [RadarScan(k, float(tk), d.range, d.azimuth, d.elevation, d.radial_velocity)
+        scans = [RadarScan(k, float(tk), d.range, d.azimuth, d.elevation, d.radial_velocity, extra=d.extra())
                  for k, (tk, d) in enumerate(zip(t, dets))]
         return scans, Trajectory(t, T_world_vehicle), {"dets": dets}
     faults.check_rate(config.rate_hz)
     if fault_seed is None:
         raise InputError("simulate: faults need a fault_seed (a SeedSequence)")
     faulted = apply_faults(faults, dets, t, config, fault_seed)
-    dets = [empty_detections() if gone else d for d, gone in zip(faulted.dets, faulted.dropped)]
+    dets = [empty_detections(config) if gone else d for d, gone in zip(faulted.dets, faulted.dropped)]
     t_rec = np.clip(faulted.t_recorded, 0.0, profile.duration)
-    scans = [RadarScan(k, float(t_rec[k]), d.range, d.azimuth, d.elevation, d.radial_velocity)
+    scans = [RadarScan(k, float(t_rec[k]), d.range, d.azimuth, d.elevation, d.radial_velocity, extra=d.extra())
              for k, d in enumerate(dets) if not faulted.dropped[k]]
     if faults.jitter > 0:  # groundtruth.txt: the true poses at the recorded times (the true times: truth.npz)
         trajectory = Trajectory(t_rec, profile.sample(t_rec).T_world_vehicle)

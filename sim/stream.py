@@ -67,12 +67,13 @@ class StreamedSimulation:
         t, varpi = self.truth["t"], self.truth["varpi"]
         for k, tk in enumerate(t):
             if self._world.blacked_out(tk):
-                det = empty_detections()
+                det = empty_detections(self._radar.config)
             else:
                 movers = [(m, T[k - k0], v[k - k0], w[k - k0]) for m, k0, T, v, w in self._tracks
                           if k0 <= k < k0 + len(T)]
                 det = self._radar.scan(self._world, self._T_world_vehicle[k], varpi[k], self._rng, movers)
-            yield RadarScan(k, float(tk), det.range, det.azimuth, det.elevation, det.radial_velocity)
+            yield RadarScan(k, float(tk), det.range, det.azimuth, det.elevation, det.radial_velocity,
+                            extra=det.extra())
 
 
 def stream(world: World, profile: Profile, config: RadarConfig, rng: np.random.Generator,

@@ -1,7 +1,7 @@
 """`rodo scenarios` (list the registered scenarios) and `rodo simulate SCENARIO --seed N --out DIR
 [--duration S] [--qc a,b,c,d,e,f]
-[--fault NAME=VALUE ...]` (write a sequence directory and print a summary). Parse, call, print: the work is in
-`scenarios` and `sim`."""
+[--fault NAME=VALUE ...] [--profile NAME]` (write a sequence directory and print a summary). Parse, call, print:
+the work is in `scenarios` and `sim`."""
 
 from __future__ import annotations
 
@@ -38,6 +38,8 @@ def register(subparsers) -> None:
                         "(clipped to +-0.45 scan periods so times stay increasing; SIGMA <= 0.15 periods); "
                         "outage=START:DURATION s of empty scans (repeat for several); outages=RATE:DURATION "
                         "random outages, RATE per minute, each DURATION s")
+    p.add_argument("--profile", metavar="NAME", default=None,
+                   help="sensor profile (see `rodo profiles`; default: the scenario's, normally 'generic')")
     p.add_argument("--rerun", metavar="OUT.rrd", help="also write a Rerun recording of the simulated sequence")
     p.set_defaults(func=run_simulate)
 
@@ -101,18 +103,20 @@ def run_simulate(args: argparse.Namespace) -> int:
         raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
     params = parse_qc(args.qc, scenario)
     faults = parse_faults(args.fault)  # InputError naming --fault NAME -> exit 2
-    faults.check_rate(faults.radar(scenario.radar()).rate_hz)
+    radar = scenario.radar_config(args.profile)  # InputError listing the known profiles -> exit 2
+    faults.check_rate(faults.radar(radar).rate_hz)
     if args.rerun:
         from rodo.outputs import check_output_file
 
         check_output_file(args.rerun, "--rerun", parents=True)  # before the simulation
     duration = scenario.default_duration(args.seed, **params) if args.duration is None else args.duration
-    n_scans = int(np.floor(duration * scenario.radar().rate_hz + 1e-9)) + 1
+    n_scans = int(np.floor(duration * radar.rate_hz + 1e-9)) + 1
     with Progress(n_scans, f"simulate {scenario.name}", unit="scan") as bar:
         seq, truth = scenarios.simulate_to(scenario.name, args.seed, args.out, duration, progress=bar,
-                                           faults=faults, **params)
+                                           faults=faults, sensor_profile=args.profile, **params)
     counts = np.diff(truth["scan_offsets"])
-    print(f"{scenario.name} v{scenario.version} seed {args.seed} -> {args.out}")
+    profile = f", profile {args.profile}" if args.profile is not None else ""
+    print(f"{scenario.name} v{scenario.version}{profile} seed {args.seed} -> {args.out}")
     print(f"scans {len(counts)} ({truth['t'][-1]:.1f} s), detections per scan median {np.median(counts):.0f} "
           f"(min {counts.min()}, max {counts.max()}), empty scans {int(np.sum(counts == 0))}, "
           f"path length {path_length(seq.groundtruth.T_world_vehicle):.1f} m")

@@ -13,13 +13,14 @@ from rodo import cli
 from rodo.cli import main
 from tests.cli.helpers import fails
 
-# commands whose bad-input paths are exercised below; `scenarios` takes no input
+# commands whose bad-input paths are exercised below; `scenarios` and `profiles` take no input
 COVERED = {"run", "simulate", "evaluate", "montecarlo", "ego-velocity", "prior-montecarlo", "figures", "view",
            "demo", "convert", "table1",
            "calibrate",  # calibrate: tests/cli/test_calibrate_cli.py::test_calibrate_bad_input
            "export",  # export: tests/sim/test_export.py::test_export_bad_inputs
-           "config"}  # config: tests/cli/test_config_cli.py::test_config_bad_input
-NO_INPUT = {"scenarios"}
+           "config",  # config: tests/cli/test_config_cli.py::test_config_bad_input
+           "realism"}  # realism: tests/cli/test_realism_cli.py::test_realism_bad_input_exits_2
+NO_INPUT = {"scenarios", "profiles"}
 
 
 @pytest.fixture
