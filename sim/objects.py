@@ -185,21 +185,25 @@ class MovingBox:
         return box(np.eye(4), self.size, self.object_id, self.reflectivity, opaque=True)
 
     def states(self, times: np.ndarray) -> "RigidStates":
-        """Poses and world-frame velocities at `times` (M,); entries outside [t_on, t_off] are flagged absent."""
+        """Poses and world-frame velocities at `times` (M,); entries outside [t_on, t_off] are flagged absent
+        (and NaN: only the present ones are computed, so a mover costs its presence, not the drive's length)."""
         times = np.asarray(times, dtype=float)
         present = (times >= self.t_on) & (times <= self.t_off)
-        tau = np.clip(self.tau(times), 0.0, self.carrier.duration)
+        T_world_object = np.full((times.size, 4, 4), np.nan)  # absent rows: NaN (never to be used)
+        v_origin, w_world = np.full((times.size, 3), np.nan), np.full((times.size, 3), np.nan)
+        rows = np.flatnonzero(present)  # a carrier pose depends on its time alone: sample only these
+        tau = np.clip(self.tau(times[rows]), 0.0, self.carrier.duration)
         order = np.argsort(tau, kind="stable")
         m = self.carrier.sample(tau[order])
         inv = np.empty_like(order)
         inv[order] = np.arange(order.size)
         T_world_carrier = se3.inverse(m.T_vehicle_world[inv])
         body = -m.varpi[inv]  # usual body twist [v; w] of T_world_carrier
-        T_world_object = T_world_carrier @ self.T_carrier_object
+        T_world_object[rows] = T_world_carrier @ self.T_carrier_object
         C = T_world_carrier[:, :3, :3]
         q = self.T_carrier_object[:3, 3]
-        v_origin = self.rate * np.einsum("mij,mj->mi", C, body[:, :3] + np.cross(body[:, 3:], q))
-        w_world = self.rate * np.einsum("mij,mj->mi", C, body[:, 3:])
+        v_origin[rows] = self.rate * np.einsum("mij,mj->mi", C, body[:, :3] + np.cross(body[:, 3:], q))
+        w_world[rows] = self.rate * np.einsum("mij,mj->mi", C, body[:, 3:])
         return RigidStates(T_world_object, v_origin, w_world, present)
 
 

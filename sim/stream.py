@@ -104,9 +104,9 @@ def _track(mover, t: np.ndarray):
     """(mover, k0, T_world_object, v_world, w_world) over the scans k0 .. k0 + n - 1 where the mover is present
     (an interval of scans: present means t_on <= t <= t_off), or None if it never is.
 
-    The states are computed over all scan times, as `simulate` does (a trajectory sample depends on the set of
-    times asked for), then only the present rows are kept: a mover of an hour-long drive is present for about a
-    minute, and keeping every row of the few hundred movers of such a drive would take gigabytes.
+    Only the present rows are kept (`MovingBox.states` computes only those): a mover of an hour-long drive is
+    present for about a minute, and keeping every row of the few hundred movers of such a drive would take
+    gigabytes.
     """
     s = mover.states(t)
     k = np.flatnonzero(s.present)

@@ -25,6 +25,7 @@ from rodo.estimator.errors import InputError, check_finite
 from rodo.estimator.lie import se3
 
 MAX_STEP = 0.005  # s; Magnus sub-step (global error ~1e-12 for vehicle motion, see the test)
+CHECKPOINT_EVERY = 32  # grid steps between the poses a Profile keeps (an hour at MAX_STEP: 22,500 poses, 2.9 MB)
 
 
 @dataclass(frozen=True)
@@ -96,6 +97,7 @@ class Profile:
         # round-off of the running sum (~1e-15) must not turn a standstill into a crawl or a reversal
         varpi_seg[np.abs(varpi_seg) < 1e-12] = 0.0
         self.varpi_seg = varpi_seg
+        self._grids: dict = {}  # max_step -> the integrated grid (`_grid`)
 
     @property
     def duration(self) -> float:
@@ -126,42 +128,66 @@ class Profile:
     def sample(self, times, max_step: float = MAX_STEP) -> Motion:
         """Integrate dT/dt = varpi^ T from 0 and return the motion at `times` (non-decreasing, in [0, duration]).
 
-        Sub-steps never straddle a segment boundary, so every step sees a linear varpi and the 4th-order
-        Magnus step above applies. Checked by tests/sim/test_trajectory.py::test_magnus_matches_dop853.
+        The profile is integrated once (per max_step, cached) on a fixed grid: each segment split into equal
+        sub-steps no longer than max_step, so no step straddles a segment boundary and every step sees a linear
+        varpi, where the 4th-order Magnus step above applies; the pose is kept every CHECKPOINT_EVERY steps. A
+        time's pose is its checkpoint's, carried by the grid steps after it and one last partial step. So the
+        pose at t depends on t alone, not on the other times asked for (a mover's states over the scans where it
+        is present equal those over the whole drive), and sampling costs O(len(times)) after one pass over the
+        profile: an hour-long drive's few hundred movers no longer integrate it each.
+        Checked by tests/sim/test_trajectory.py::test_magnus_matches_dop853, ::test_a_pose_depends_on_its_time_alone.
         """
         times = check_finite("times", np.atleast_1d(times), (-1,))
         if times.ndim != 1 or np.any(np.diff(times) < 0):
             raise InputError("times: must be a non-decreasing 1-D array")
         if times.size and (times[0] < 0 or times[-1] > self.duration + 1e-9):
             raise InputError(f"times: must lie in [0, {self.duration:.3f}] s, got [{times[0]}, {times[-1]}]")
-        t_end = times[-1] if times.size else 0.0
-        knots = np.unique(np.concatenate([self.t_start[self.t_start < t_end], times, [0.0]]))
-        # split every knot interval into equal sub-steps no longer than max_step
-        gaps = np.diff(knots)
-        n_sub = np.maximum(np.ceil(gaps / max_step).astype(int), 1)
-        starts = np.repeat(knots[:-1], n_sub)
-        k = np.arange(n_sub.sum()) - np.repeat(np.cumsum(n_sub) - n_sub, n_sub)
-        h = np.repeat(gaps / n_sub, n_sub)
-        ta = starts + k * h
-        seg = self._segment_of(ta + 0.5 * h)  # the step's segment (steps never straddle boundaries)
+        n_sub, h, first, checkpoints = self._grid(float(max_step))
+        i = self._segment_of(times)
+        j = np.clip(np.floor((times - self.t_start[i]) / h[i]).astype(np.int64), 0, n_sub[i] - 1)
+        c = j // CHECKPOINT_EVERY
+        T = checkpoints[first[i] + c]
+        for r in range(CHECKPOINT_EVERY - 1):  # the grid steps from the checkpoint to the step containing t
+            sel = np.flatnonzero(j - c * CHECKPOINT_EVERY > r)
+            if not sel.size:
+                break
+            k = c[sel] * CHECKPOINT_EVERY + r
+            T[sel] = self._steps(i[sel], self.t_start[i[sel]] + k * h[i[sel]], h[i[sel]]) @ T[sel]
+        t_grid = self.t_start[i] + j * h[i]
+        T = self._steps(i, t_grid, times - t_grid) @ T  # the last, partial step (zero length on the grid)
+        varpi, varpi_dot = self.twist(times)
+        # at a segment boundary report the acceleration of the segment that starts there
+        return Motion(times.copy(), T, varpi, varpi_dot)
+
+    def _steps(self, seg: np.ndarray, ta: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """exp(Omega^) of the Magnus steps of length h from ta inside segments seg: (n, 4, 4)."""
         w = self.varpi_dot_seg[seg]
         a_mid = self.varpi_seg[seg] + (ta + 0.5 * h - self.t_start[seg])[:, None] * w
         omega = h[:, None] * a_mid + (h**3 / 12.0)[:, None] * np.einsum("nij,nj->ni", se3.curlyhat(w), a_mid)
-        steps = se3.exp(omega)
-        # accumulate, recording the pose at the end of every knot interval
-        ends = np.cumsum(n_sub)  # step index after which knot j + 1 is reached
-        poses = np.empty((len(knots), 4, 4))
-        poses[0] = T = self.T0
-        j = 0
-        for idx in range(len(steps)):
-            T = steps[idx] @ T
-            if idx + 1 == ends[j]:
-                j += 1
-                poses[j] = T
-        T_out = poses[np.searchsorted(knots, times)]
-        varpi, varpi_dot = self.twist(times)
-        # at a segment boundary report the acceleration of the segment that starts there
-        return Motion(times.copy(), T_out, varpi, varpi_dot)
+        return se3.exp(omega)
+
+    def _grid(self, max_step: float):
+        """(sub-steps per segment, their length, each segment's first checkpoint, the checkpoint poses)."""
+        if max_step in self._grids:
+            return self._grids[max_step]
+        if not (np.isfinite(max_step) and max_step > 0):
+            raise InputError(f"max_step: must be a positive number of seconds, got {max_step}")
+        durations = np.diff(self.t_start)
+        n_sub = np.maximum(np.ceil(durations / max_step).astype(np.int64), 1)
+        h = durations / n_sub
+        per_segment = (n_sub - 1) // CHECKPOINT_EVERY + 1  # checkpoints at steps 0, C, 2C, ... of a segment
+        first = np.concatenate([[0], np.cumsum(per_segment)[:-1]])
+        checkpoints = np.empty((int(per_segment.sum()), 4, 4))
+        T = self.T0
+        for s in range(len(n_sub)):
+            k = np.arange(n_sub[s])
+            steps = self._steps(np.full(n_sub[s], s), self.t_start[s] + k * h[s], np.full(n_sub[s], h[s]))
+            for idx in range(n_sub[s]):
+                if idx % CHECKPOINT_EVERY == 0:
+                    checkpoints[first[s] + idx // CHECKPOINT_EVERY] = T
+                T = steps[idx] @ T
+        self._grids[max_step] = (n_sub, h, first, checkpoints)
+        return self._grids[max_step]
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,21 @@ def test_magnus_matches_dop853():
     assert np.abs(se3.log(ours @ se3.inverse(ref))).max() < 1e-10
 
 
+@given(st.lists(seg_strategy, min_size=1, max_size=4), st.floats(0.0, 30.0), st.data())
+def test_a_pose_depends_on_its_time_alone(segments, speed0, data):
+    """Sampled alone, in any subset or after other samples: the same pose, bit for bit (a mover is sampled only
+    where it is present), and as accurate as the integration of the whole profile (DOP853)."""
+    profile = tr.Profile(segments, speed0=speed0)
+    times = np.unique(data.draw(st.lists(st.floats(0.0, profile.duration), min_size=2, max_size=12)))
+    every = profile.sample(times).T_vehicle_world
+    k = data.draw(st.integers(0, len(times) - 1))
+    fresh = tr.Profile(segments, speed0=speed0)  # its grid integrated anew
+    np.testing.assert_array_equal(fresh.sample(times[k:k + 1]).T_vehicle_world[0], every[k])
+    np.testing.assert_array_equal(profile.sample(times[k:]).T_vehicle_world, every[k:])
+    ref = _dop853(profile, times[times < profile.duration])
+    assert np.abs(every[:len(ref)] - ref).max() / (1.0 + np.abs(ref[:, :3, 3]).max()) < 1e-12
+
+
 @given(st.lists(seg_strategy, min_size=1, max_size=4), st.floats(0.0, 30.0))
 def test_segments_varpi_dot_honoured(segments, speed0):
     """varpi is piecewise linear with the segments' slopes, and the integrated poses move with that varpi:
