@@ -72,6 +72,9 @@ class AssociationConfig:
     consensus_voxel: float = 2.0  # m
     doppler_update_probability: float = 0.999  # chi-square level above which the scan's Doppler velocity
     # corrects the predicted velocity before association
+    missing_elevation_zero: bool = False  # a detection whose elevation is exactly 0 has none (some 3D radars,
+    # e.g. the LRR30-F of the RaFlow data: 13 % of its detections): such detections are not used. Off for a 2D
+    # radar, whose every elevation is 0
 
 
 @dataclass(frozen=True)

@@ -175,6 +175,8 @@ class RadarOdometry:
         if self.last_t is not None and not t > self.last_t:
             raise InputError(f"t: scan times must increase strictly (got {t} after {self.last_t})")
         in_range = (polar[:, 0] > 0) & (polar[:, 0] <= self.max_range)
+        if self.config.association.missing_elevation_zero:
+            in_range &= polar[:, 2] != 0.0  # no elevation estimate: not a measurement of 0
         return t, polar[in_range], in_range
 
     def _predict(self, t: float, polar: np.ndarray):

@@ -206,6 +206,29 @@ def test_a_start_from_rest_leaves_the_acceleration_free():
 
 
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+def test_elevations_reported_as_zero_are_not_taken_as_measured(model):
+    """A quarter of the detections come without an elevation estimate, reported as exactly 0 (as the LRR30-F
+    does): taken as measured they tilt the estimate; `association.missing_elevation_zero` leaves them out."""
+    t, T, varpi, vd = scene.trajectory(40)
+    errors, counts = {}, {}
+    for missing in (False, True):
+        rng = np.random.default_rng(11)
+        L = scene.landmarks(rng)
+        config = OdometryConfig.from_dict({"model": model, "association": {"missing_elevation_zero": missing}})
+        odo = RadarOdometry(config, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+        n = 0
+        for k in range(len(t)):
+            z = scene.measure(T[k], varpi[k], vd[k], L, rng)
+            z[rng.random(len(z)) < 0.25, 2] = 0.0
+            est = odo.process(t[k], z)
+            n += est.n_detections
+        err = se3.log(est.T_vehicle_world @ se3.inverse(T[-1] @ se3.inverse(T[0])))
+        errors[missing], counts[missing] = np.linalg.norm(err[3:]) + np.linalg.norm(err[:3]) / 10.0, n
+    assert counts[True] < 0.8 * counts[False]
+    assert errors[True] < 0.5 * errors[False], errors
+
+
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
 def test_prepared_association_equals_the_reference(model):
     """The odometry's compiled association (`association_kernels.prepare` + `association.match`, one KD-tree per
     scan) gives the pairs, distances and solve information of the readable reference: `measurements.predict`,
