@@ -4,7 +4,8 @@
 The package, file by file:
     registry.py     `Scenario` (name, version, builder of `Parts`, estimator defaults, default extent),
                     `Parts` (profile, world, radar config), the explicit registry (`register`, `get`, `names`)
-                    and `simulate_to` (scenario -> simulated sequence on disk); `MARGIN`.
+                    and `simulate_to` (scenario -> simulated sequence on disk), `simulate_rig_to` (several
+                    radars on one drive -> a rig directory); `MARGIN`.
     definitions.py  the scenario definitions, each registered explicitly at import: `CITY`, `HIGHWAY`,
                     `HILLS`, `STOP_AND_GO`, `BLOCKAGE` (with its `BLOCKAGE_*` timings), `YAW_ACCEL`,
                     `PRIOR_CA`, `PRIOR_CV` (motion drawn from the prior's SDE, parameter `qc`);
@@ -15,11 +16,11 @@ Checked by: tests/scenarios/test_registry.py
 
 from .definitions import (BLOCKAGE, BLOCKAGE_BLACKOUT, BLOCKAGE_DELTA, BLOCKAGE_SLOW, CITY, HIGHWAY, HILLS, MOVER_ID,
                           PRIOR_CA, PRIOR_CV, STOP_AND_GO, YAW_ACCEL)
-from .registry import MARGIN, Parts, Scenario, get, names, register, simulate_to
+from .registry import MARGIN, Parts, Scenario, get, names, register, simulate_rig_to, simulate_to
 
 __all__ = [
     # registry.py
-    "MARGIN", "Parts", "Scenario", "get", "names", "register", "simulate_to",
+    "MARGIN", "Parts", "Scenario", "get", "names", "register", "simulate_rig_to", "simulate_to",
     # definitions.py
     "BLOCKAGE", "BLOCKAGE_BLACKOUT", "BLOCKAGE_DELTA", "BLOCKAGE_SLOW", "CITY", "HIGHWAY", "HILLS", "MOVER_ID",
     "PRIOR_CA", "PRIOR_CV", "STOP_AND_GO", "YAW_ACCEL",

@@ -115,22 +115,22 @@ def _prior_truth(profile) -> dict:
 
 
 CITY = register(Scenario(
-    "city", 1, "urban driving 0-50 km/h: buildings, parked cars, poles, turns, stops, oncoming traffic",
+    "city", 2, "urban driving 0-50 km/h: buildings, parked cars, poles, turns, stops, oncoming traffic",
     traj.city, _city_world, estimator_defaults=dict(CA_POLAR), length=950.0))
 HIGHWAY = register(Scenario(
-    "highway", 1, "80-130 km/h, gentle curves, lane changes, guard rails, a lead truck, overtaking cars",
+    "highway", 2, "80-130 km/h, gentle curves, lane changes, guard rails, a lead truck, overtaking cars",
     traj.highway, _highway_world, estimator_defaults=dict(CA_POLAR), length=1200.0))
 HILLS = register(Scenario(
-    "hills", 1, "rural road 40-70 km/h with 3-8 % grades (tens of metres of height change)",
+    "hills", 2, "rural road 40-70 km/h with 3-8 % grades (tens of metres of height change)",
     traj.hills, _hills_world, estimator_defaults=dict(CA_POLAR), length=950.0))
 STOP_AND_GO = register(Scenario(
-    "stop_and_go", 1, "stop-and-go city traffic down to standstill, 10-35 km/h",
+    "stop_and_go", 2, "stop-and-go city traffic down to standstill, 10-35 km/h",
     traj.stop_and_go, _stop_and_go_world, estimator_defaults=dict(CA_POLAR), length=950.0))
 BLOCKAGE = register(Scenario(
-    "blockage", 1, "crawling behind a truck; 8 s at 1.6 m/s with it 0.8 m ahead (+-54 deg), 2 s total blockage",
+    "blockage", 2, "crawling behind a truck; 8 s at 1.6 m/s with it 0.8 m ahead (+-54 deg), 2 s total blockage",
     _blockage_profile, _blockage_world, estimator_defaults=dict(CA_POLAR), duration=40.0))
 YAW_ACCEL = register(Scenario(
-    "yaw_accel", 1, "the paper's Fig. 1 manoeuvre: 10 m/s with constant yaw acceleration 0.05 rad/s^2",
+    "yaw_accel", 2, "the paper's Fig. 1 manoeuvre: 10 m/s with constant yaw acceleration 0.05 rad/s^2",
     traj.yaw_accel, _yaw_world, estimator_defaults=dict(CA_POLAR), duration=10.0))
 PRIOR_CA = register(Scenario(
     "prior_ca", 1, "motion drawn from the CA prior's SDE (white jerk, Qc = diag(qc)), city scene, no movers",

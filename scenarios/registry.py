@@ -13,6 +13,7 @@ Checked by: tests/scenarios/test_registry.py, tests/scenarios/test_faults_scenar
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -144,6 +145,33 @@ class Scenario:
             truth.update(self.extra_truth(parts.profile))
         return seq, truth
 
+    def simulate_rig(self, seed: int, layout: str, duration: float | None = None, progress=None,
+                     sensor_profile: str | None = None, **params) -> list[tuple[str, object, dict]]:
+        """Several radars on the vehicle (`sim.rig.LAYOUTS[layout]`) on one drive: [(name, Sequence, truth)].
+
+        The same world and trajectory for every radar; radar i has its layout mount and its own random stream
+        (the first radar the scenario's, so a layout's "front" radar is `simulate(seed)` bit for bit) and scans
+        i / (n rate) s after the first, so the n radars take turns.
+        """
+        from rodo.sim.rig import LAYOUTS
+        if layout not in LAYOUTS:
+            raise InputError(f"rig: unknown layout {layout!r}; known layouts: {', '.join(LAYOUTS)}")
+        parts = self.build(seed, duration, **params)
+        base = parts.radar if sensor_profile is None and self.sensor_profile == profiles.DEFAULT \
+            else self.radar_config(sensor_profile)
+        out = []
+        for i, (name, mount) in enumerate(LAYOUTS[layout]):
+            config = base if mount is None else dataclasses.replace(base, T_vehicle_sensor=mount)
+            rng = self._rngs(seed)[2] if i == 0 else \
+                np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(100 + i,)))
+            offset = i / (len(LAYOUTS[layout]) * config.rate_hz)
+            seq, truth = simulate(parts.world, parts.profile, config, rng, parts.duration, progress,
+                                  t_offset=offset)
+            if self.extra_truth is not None:
+                truth.update(self.extra_truth(parts.profile))
+            out.append((name, seq, truth))
+        return out
+
     def summary(self) -> str:
         extent = f"{self.length:.0f} m" if self.length is not None else f"{self.duration:.0f} s"
         return f"{self.name:<12} v{self.version:<3} {extent:>7}  {self.description}"
@@ -177,6 +205,18 @@ def get(name: str) -> Scenario:
         return _REGISTRY[name]
     except (KeyError, TypeError):
         raise InputError(f"unknown scenario {name!r}; known scenarios: {', '.join(names())}") from None
+
+
+def simulate_rig_to(name: str, seed: int, out_dir, layout: str, duration: float | None = None, progress=None,
+                    **params):
+    """Simulate scenario `name` with the radars of rig `layout` and write a rig directory (docs/sequence_format.md,
+    "Rigs"): each radar's sequence and truth in its sub-directory, rig.toml. Returns [(name, Sequence, truth)]."""
+    from rodo.sim.rig import write_rig_toml
+    radars = get(name).simulate_rig(seed, layout, duration, progress, **params)
+    for radar, seq, truth in radars:
+        write_simulation(Path(out_dir) / radar, seq, truth)
+    write_rig_toml(out_dir, [r[0] for r in radars])
+    return radars
 
 
 def simulate_to(name: str, seed: int, out_dir, duration: float | None = None, progress=None,

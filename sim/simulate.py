@@ -35,7 +35,7 @@ def scan_times(duration: float, rate_hz: float) -> np.ndarray:
 
 def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random.Generator,
              duration: float | None = None, progress=None, faults: Faults | None = None,
-             fault_seed: np.random.SeedSequence | None = None) -> tuple[Sequence, dict]:
+             fault_seed: np.random.SeedSequence | None = None, t_offset: float = 0.0) -> tuple[Sequence, dict]:
     """Simulate a radar sequence.
 
     Args:
@@ -47,6 +47,8 @@ def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random
         progress: optional object with update() called once per scan (e.g. rodo.progress.Progress).
         faults: optional `sim.faults.Faults` (ghosts, dropped scans, jitter, outages; clutter is the caller's
             radar config, `Faults.radar`), drawn from `fault_seed` (required with faults). Off: no change.
+        t_offset: the first scan's time (s, in [0, duration)): the scans are t_offset + k / rate_hz up to
+            the duration, so radars of a rig scan at their own instants (`scenarios.simulate_rig_to`).
 
     Returns:
         (sequence, truth): the `sim.sequence.Sequence` (all scans, empty ones included, ground truth
@@ -56,6 +58,10 @@ def simulate(world: World, profile: Profile, config: RadarConfig, rng: np.random
     if not (0 < duration <= profile.duration + 1e-9):
         raise InputError(f"duration: must be in (0, {profile.duration:.3f}] s, got {duration}")
     t = scan_times(min(duration, profile.duration), config.rate_hz)
+    if t_offset:
+        if not (np.isfinite(t_offset) and 0 < t_offset < duration):
+            raise InputError(f"t_offset: must be in [0, {duration:g}) s, got {t_offset}")
+        t = t_offset + scan_times(min(duration, profile.duration) - t_offset, config.rate_hz)
     motion = profile.sample(t)
     T_world_vehicle = motion.T_world_vehicle
     radar = Radar(config)

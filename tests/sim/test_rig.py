@@ -65,3 +65,36 @@ def test_bad_rig_toml_names_the_file(tmp_path, text, message):
 def test_not_a_rig(tmp_path):
     with pytest.raises(InputError, match="not a rig directory"):
         read_rig(tmp_path)
+
+
+def test_a_simulated_rig_is_one_drive_seen_by_radars_taking_turns(tmp_path):
+    """`scenarios.simulate_rig_to`: the front radar is the single-radar simulation bit for bit, the corner radars
+    have their layout's mounts and scan i / (n rate) s later, and the rig reads back and merges without two
+    scans at one instant; each radar's ground truth is the same drive."""
+    from rodo import scenarios
+    from rodo.sim.rig import LAYOUTS
+
+    radars = scenarios.simulate_rig_to("highway", 3, tmp_path / "rig", "front-corners", 2.0)
+    scenarios.simulate_to("highway", 3, tmp_path / "single", 2.0)
+    assert (tmp_path / "rig" / "front" / "radar.csv").read_bytes() == (tmp_path / "single" / "radar.csv").read_bytes()
+    rig = read_rig(tmp_path / "rig", use_cache=False)
+    assert rig.names == [name for name, _ in LAYOUTS["front-corners"]] == [r[0] for r in radars]
+    n, rate = len(rig.names), rig.sequences[0].sensor.rate_hz
+    for i, (seq, (_, mount)) in enumerate(zip(rig.sequences, LAYOUTS["front-corners"])):
+        t = np.array([s.t for s in seq.scans])
+        np.testing.assert_allclose(t[:3], i / (n * rate) + np.arange(3) / rate, atol=1e-12)
+        if mount is not None:
+            np.testing.assert_allclose(seq.sensor.T_vehicle_sensor, mount, atol=1e-12)
+        assert len(seq.scans[1].range) > 50  # each radar sees the scene
+    merged = rig.scans()
+    assert len({t for t, _, _ in merged}) == len(merged) == sum(len(s.scans) for s in rig.sequences)
+    gt = merged_groundtruth(rig)
+    single = read_sequence(tmp_path / "single", use_cache=False).groundtruth
+    np.testing.assert_array_equal(gt.T_world_vehicle[::n], single.T_world_vehicle[:len(gt.t[::n])])
+
+
+def test_unknown_layout_is_refused_listing_the_known_ones():
+    from rodo import scenarios
+
+    with pytest.raises(InputError, match="unknown layout 'rear'; known layouts: front-corners"):
+        scenarios.get("city").simulate_rig(0, "rear", 1.0)
