@@ -97,6 +97,10 @@ class RadarOdometry:
         i = len(self.sensors)
         seeds = np.random.SeedSequence(self.config.seed, spawn_key=(2 + i,)).spawn(2)
         self._sensor(T_vehicle_sensor, sensor_sigmas, max_range, fov, seeds)
+        # every radar's scan ages the map: N radars keep N times the points for N times the scans, so the map
+        # spans the time it does with one (city, a simulated front + corner rig: KITTI 0.38 -> 0.23 % for CA/P)
+        self.map.capacity = self.config.map.capacity * len(self.sensors)
+        self.map.max_age = self.config.map.max_age * len(self.sensors)
         return i
 
     def _sensor(self, T_vehicle_sensor, sensor_sigmas, max_range, fov, seeds) -> "Sensor":

@@ -42,6 +42,17 @@ def test_noise_free_scene_gives_near_exact_odometry(model, pitch_acc, vehicle):
 REAR = se3.from_rotation_translation(so3.exp(np.array([0.0, 0.01, np.pi - 0.05])), np.array([-1.0, -0.3, 0.5]))
 
 
+def test_each_radar_added_keeps_the_map_as_long_in_time():
+    """Every radar's scan ages the map by one: with N radars the map keeps N x capacity points for N x max_age
+    scans, the time span and density one radar has."""
+    config = OdometryConfig.from_dict({"model": "ca-polar", "map": {"capacity": 700, "max_age": 12}})
+    odo = RadarOdometry(config, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+    assert (odo.map.capacity, odo.map.max_age) == (700, 12)
+    for n in (2, 3):
+        odo.add_sensor(scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+        assert (odo.map.capacity, odo.map.max_age) == (700 * n, 12 * n)
+
+
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
 def test_two_radars_in_one_window(model):
     """A front and a rear-facing radar (`add_sensor`), noise-free, their scans alternating at 26 Hz once the
