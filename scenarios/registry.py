@@ -79,6 +79,13 @@ class Scenario:
         name = self.sensor_profile if sensor_profile is None else sensor_profile
         return self.radar() if profiles.get(name).name == profiles.DEFAULT else profiles.radar_config(name)
 
+    def _radar(self, parts: "Parts", sensor_profile: str | None) -> RadarConfig:
+        """The radar of a simulation: the built parts' own unless a sensor profile other than the default is
+        asked for (or is the scenario's)."""
+        if sensor_profile is None and self.sensor_profile == profiles.DEFAULT:
+            return parts.radar
+        return self.radar_config(sensor_profile)
+
     def _rngs(self, seed: int):
         return [np.random.default_rng(s) for s in _streams(seed)[:3]]
 
@@ -133,10 +140,7 @@ class Scenario:
         clean output is unchanged); `params` are the scenario's own parameters (e.g. `qc=` for prior_ca)."""
         faults = Faults() if faults is None else faults
         parts = self.build(seed, duration, **params)
-        if radar is None:
-            radar = parts.radar if sensor_profile is None and self.sensor_profile == profiles.DEFAULT \
-                else self.radar_config(sensor_profile)
-        config = faults.radar(radar)
+        config = faults.radar(self._radar(parts, sensor_profile) if radar is None else radar)
         faults.check_rate(config.rate_hz)  # before the simulation
         rng_radar = self._rngs(seed)[2]
         seq, truth = simulate(parts.world, parts.profile, config, rng_radar, parts.duration, progress,
@@ -157,8 +161,7 @@ class Scenario:
         if layout not in LAYOUTS:
             raise InputError(f"rig: unknown layout {layout!r}; known layouts: {', '.join(LAYOUTS)}")
         parts = self.build(seed, duration, **params)
-        base = parts.radar if sensor_profile is None and self.sensor_profile == profiles.DEFAULT \
-            else self.radar_config(sensor_profile)
+        base = self._radar(parts, sensor_profile)
         out = []
         for i, (name, mount) in enumerate(LAYOUTS[layout]):
             config = base if mount is None else dataclasses.replace(base, T_vehicle_sensor=mount)
