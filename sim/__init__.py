@@ -10,8 +10,9 @@ The package, file by file (the names below are re-exported here; submodules stay
                        `GHOST`.
     world.py           scenes around a route: `World`, `SceneParams` (`CITY`, `HIGHWAY`, `RURAL`), `build_world`,
                        traffic (`lead_vehicle`, `oncoming_vehicle`, `overtaking_vehicle`).
-    radar.py           the sensor model: `Radar`, `RadarConfig`, `Detections`, `default_mount`, `sensor_velocity`,
-                       `polar`; built on culling.py (what a scan can see at all: per-scene patch geometry and the
+    sensor_geometry.py where a radar sits and what it sees of a point: `mount`, `default_mount`,
+                       `sensor_velocity`, `polar`.
+    radar.py           the sensor model: `Radar`, `RadarConfig`, `Detections`; built on culling.py (what a scan can see at all: per-scene patch geometry and the
                        pre-selection near the sensor) and occlusion.py (the angular cell grid, the depth buffer,
                        the nearest entry per cell). Those two are internal (not re-exported).
     radar_physics.py   the radar equation of a sensor profile (`RadarPhysics`, `RadarConfig.physics`): RCS per
@@ -41,7 +42,8 @@ from .objects import CLUTTER, GHOST, MOVING, STATIC_POINT, STATIC_SURFACE, Movin
 from .prior_sampling import nees_bounds, propagate_mean_cov, sample_prior, yaw_acceleration_case
 from .sde_trajectory import SdeTrajectory
 from .sde_trajectory import draw as draw_sde_trajectory
-from .radar import Detections, Radar, RadarConfig, default_mount, polar, sensor_velocity
+from .radar import Detections, Radar, RadarConfig
+from .sensor_geometry import default_mount, mount, polar, sensor_velocity
 from .radar_physics import RadarPhysics
 from .multipath import mirror
 from .profiles import SensorProfile
@@ -69,7 +71,9 @@ __all__ = [
     "CITY", "HIGHWAY", "RURAL", "SceneParams", "World", "build_world", "lead_vehicle", "oncoming_vehicle",
     "overtaking_vehicle",
     # radar.py
-    "Detections", "Radar", "RadarConfig", "default_mount", "polar", "sensor_velocity",
+    "Detections", "Radar", "RadarConfig",
+    # sensor_geometry.py
+    "default_mount", "mount", "polar", "sensor_velocity",
     # radar_physics.py, multipath.py, profiles.py
     "RadarPhysics", "mirror", "SensorProfile", "get_profile", "profile_names", "profile_radar_config",
     # simulate.py

@@ -27,9 +27,9 @@ from typing import Callable
 import numpy as np
 
 from rodo.estimator.errors import InputError
-from rodo.estimator.lie import se3, so3
 
-from .radar import DEG, RadarConfig
+from .radar import RadarConfig
+from .sensor_geometry import DEG, mount
 from .radar_physics import RadarPhysics
 
 DEFAULT = "generic"
@@ -86,11 +86,6 @@ def radar_config(name: str | None) -> RadarConfig:
     return get(DEFAULT if name is None else name).config()
 
 
-def _mount(x: float, y: float, z: float, yaw: float = 0.0, pitch: float = 0.0) -> np.ndarray:
-    C = so3.exp(np.array([0.0, 0.0, yaw])) @ so3.exp(np.array([0.0, -pitch, 0.0]))
-    return se3.from_rotation_translation(C, np.array([x, y, z]))
-
-
 def _lrr30f() -> RadarConfig:
     """Hasco LRR30-F. Datasheet (as quoted by RaFlow, Ding et al., RA-L 2022, and the data's README): 76-77 GHz,
     azimuth +-60 deg, elevation +-10 deg, radial velocity resolution 0.13 m/s. Data: ~12 Hz raw rate (README),
@@ -107,7 +102,7 @@ def _lrr30f() -> RadarConfig:
         range_resolution=0.2, velocity_resolution=0.13, beamwidth=(2.0 * DEG, 4.0 * DEG), rcs_step_db=0.5,
         ghost_prob=0.4, ghost_loss_db=6.0, ghost_min_area=1.0, pattern=(60.0 * DEG, 6.25 * DEG),
         pattern_tilt=-3.3 * DEG, elevation_missing=0.13)
-    return RadarConfig(rate_hz=12.0, T_vehicle_sensor=_mount(3.7, 0.0, 0.5, pitch=3.75 * DEG),
+    return RadarConfig(rate_hz=12.0, T_vehicle_sensor=mount(3.7, 0.0, 0.5, pitch=3.75 * DEG),
                        sigmas=(0.1, 0.3 * DEG, 0.6 * DEG, 0.02),
                        azimuth_fov=(-60 * DEG, 60 * DEG), elevation_fov=(-10 * DEG, 10 * DEG), min_range=0.5,
                        max_range=250.0, cell_azimuth=0.5 * DEG, cell_elevation=1.0 * DEG, surface_fill=0.8,
@@ -134,7 +129,7 @@ def _iwr6843aop() -> RadarConfig:
         range_resolution=0.044, velocity_resolution=0.06, beamwidth=(6.0 * DEG, 6.0 * DEG),
         doppler_max=4.0, doppler_step=0.125, snr_step_db=0.1, ghost_prob=0.01, ghost_loss_db=6.0,
         ghost_min_area=1.0, pattern=(75.7 * DEG, 35.0 * DEG), pattern_tilt=7.0 * DEG)
-    return RadarConfig(rate_hz=10.24, T_vehicle_sensor=_mount(0.3, 0.0, 0.6, yaw=60.0 * DEG, pitch=-11.2 * DEG),
+    return RadarConfig(rate_hz=10.24, T_vehicle_sensor=mount(0.3, 0.0, 0.6, yaw=60.0 * DEG, pitch=-11.2 * DEG),
                        sigmas=(0.03, 1.0 * DEG, 2.0 * DEG, 0.0),
                        azimuth_fov=(-70 * DEG, 70 * DEG), elevation_fov=(-45 * DEG, 45 * DEG), min_range=0.3,
                        max_range=20.0, cell_azimuth=2.5 * DEG, cell_elevation=2.0 * DEG, surface_fill=1.2,
@@ -157,7 +152,7 @@ def _corner2d() -> RadarConfig:
         range_resolution=0.15, velocity_resolution=0.1, beamwidth=(4.0 * DEG, 16.0 * DEG),
         report_elevation=False, ghost_prob=0.008, pattern=(77.4 * DEG, 5.64 * DEG), pattern_tilt=1.8 * DEG,
         range_cell=0.5)
-    return RadarConfig(rate_hz=13.0, T_vehicle_sensor=_mount(3.86, 0.70, 0.5, yaw=0.436, pitch=2.1 * DEG),
+    return RadarConfig(rate_hz=13.0, T_vehicle_sensor=mount(3.86, 0.70, 0.5, yaw=0.436, pitch=2.1 * DEG),
                        sigmas=(0.1, 0.3 * DEG, 10.0 * DEG, 0.03), azimuth_fov=(-75 * DEG, 75 * DEG),
                        elevation_fov=(-8 * DEG, 8 * DEG), min_range=0.5, max_range=100.0, cell_azimuth=0.5 * DEG,
                        cell_elevation=16.0 * DEG, surface_fill=7.9, min_density_range=28.6, clutter_rate=5.3,

@@ -15,6 +15,8 @@ number per resolution cell) -> add point scatterers and moving boxes -> field of
 occlusion (a depth buffer of opaque patches on the angular cell grid, then one detection per cell: the
 nearest) -> detection probability -> noise -> Poisson false alarms. See docs/simulator.md.
 
+Where the radar sits and the polar coordinates: sim/sensor_geometry.py.
+
 Checked by: tests/sim/test_radar.py
 """
 
@@ -25,21 +27,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rodo.estimator.errors import InputError
-from rodo.estimator.lie import se3, so3
+from rodo.estimator.lie import se3
 
 from . import radar_physics as rp
-from .culling import Cull, PatchGeometry, PointIndex, norm3, transform
+from .culling import Cull, PatchGeometry, PointIndex, transform
 from .multipath import ghost_candidates, reflectors
 from .objects import CLUTTER, GHOST, MOVING, STATIC_POINT, STATIC_SURFACE, Patches
 from .occlusion import cell_directions, cell_index, cross, depth_buffer, nearest_per_bin, nearest_per_cell
-
-DEG = np.pi / 180.0
-
-
-def default_mount() -> np.ndarray:
-    """T_vehicle_sensor: 3.5 m forward, 0.5 m up of the rear-axle centre, yawed 1.0 deg, pitched up 0.5 deg."""
-    C = so3.exp(np.array([0.0, 0.0, 1.0 * DEG])) @ so3.exp(np.array([0.0, -0.5 * DEG, 0.0]))
-    return se3.from_rotation_translation(C, np.array([3.5, 0.0, 0.5]))
+from .sensor_geometry import DEG, default_mount, polar, sensor_velocity
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,6 +93,11 @@ class RadarConfig:
         if self.physics is not None and not isinstance(self.physics, rp.RadarPhysics):
             raise InputError(f"RadarConfig.physics: expected a RadarPhysics or None, got {type(self.physics).__name__}")
 
+    def in_view(self, r: np.ndarray, az: np.ndarray, el: np.ndarray) -> np.ndarray:
+        """Which targets at range r, azimuth az, elevation el lie within the range gates and the field of view."""
+        return ((r >= self.min_range) & (r <= self.max_range) & (az >= self.azimuth_fov[0])
+                & (az <= self.azimuth_fov[1]) & (el >= self.elevation_fov[0]) & (el <= self.elevation_fov[1]))
+
     def noise_free(self) -> "RadarConfig":
         return replace(self, sigmas=(0.0, 0.0, 0.0, 0.0), clutter_rate=0.0, ideal_detection=True)
 
@@ -154,24 +154,6 @@ def empty_detections(config: RadarConfig | None = None) -> Detections:
     zi = np.zeros(0, int)
     optional = {} if config is None or config.physics is None else {"rcs": z, "snr": z}
     return Detections(z, z, z, z, zi, zi, zi, np.zeros((0, 3)), np.zeros((0, 4)), **optional)
-
-
-def sensor_velocity(varpi: np.ndarray, T_vehicle_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Velocity of the sensor origin and angular velocity, both in the sensor frame, from the state's varpi.
-
-    v_sensor = C_vehicle_sensor^T (v + w x r_vehicle_sensor), w_sensor = C_vehicle_sensor^T w with
-    [v; w] = -varpi (docs/conventions.md)."""
-    v, w = -varpi[:3], -varpi[3:]
-    C, r = T_vehicle_sensor[:3, :3], T_vehicle_sensor[:3, 3]
-    return C.T @ (v + cross(w, r)), C.T @ w
-
-
-def polar(p_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Paper eq. 80: (n, 3) sensor-frame points -> range, azimuth, elevation."""
-    r = norm3(p_sensor)
-    az = np.arctan2(p_sensor[:, 1], p_sensor[:, 0])
-    el = np.arcsin(np.clip(p_sensor[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
-    return r, az, el
 
 
 class Radar:
@@ -255,10 +237,8 @@ class Radar:
         real = rp.Targets(np.stack([r, az, el, vr]), x, cand.label.take(idx), cand.object_id.take(idx),
                           cand.landmark_id.take(idx), cand.p_world.take(idx, axis=0))
         ghosts = self._ghosts(static, p, v, v_sensor, rcs)
-        n_fa = rng.poisson(cfg.clutter_rate) if cfg.clutter_rate > 0 else 0
-        fa = np.stack([rng.uniform(cfg.min_range, cfg.max_range, n_fa), rng.uniform(*cfg.azimuth_fov, n_fa),
-                       rng.uniform(*cfg.elevation_fov, n_fa), rng.uniform(-cfg.clutter_speed, cfg.clutter_speed,
-                                                                          n_fa)])
+        fa = _false_alarms(cfg, rng)
+        n_fa = fa.shape[1]
         clutter = rp.Targets(fa, phy.threshold + rng.standard_exponential(n_fa), np.full(n_fa, CLUTTER),
                              np.full(n_fa, -1), np.full(n_fa, -1), np.full((n_fa, 3), np.nan))
         out = rp.Targets.concat([real, clutter]).noisy(phy, cfg.sigmas, rng).permuted(rng)
@@ -281,9 +261,7 @@ class Radar:
         snr = 10.0 ** ((rp.snr_db(phy.snr_1m_db, rcs.take(src) - phy.ghost_loss_db, r) + rp.pattern_db(phy, az, el))
                        / 10.0)
         x = (1.0 + snr) * g.standard_exponential(len(src))
-        keep = np.flatnonzero((x > phy.threshold) & (r >= cfg.min_range) & (r <= cfg.max_range)
-                              & (az >= cfg.azimuth_fov[0]) & (az <= cfg.azimuth_fov[1])
-                              & (el >= cfg.elevation_fov[0]) & (el <= cfg.elevation_fov[1]))
+        keep = np.flatnonzero((x > phy.threshold) & cfg.in_view(r, az, el))
         m = len(keep)
         return rp.Targets(np.stack([r, az, el, vr_g])[:, keep], x.take(keep), np.full(m, GHOST), np.full(m, -1),
                           np.full(m, -1), np.full((m, 3), np.nan))
@@ -295,9 +273,7 @@ class Radar:
         indices into the candidates and their range, azimuth, elevation."""
         cfg = self.config
         r, az, el = polar(p_sensor)
-        keep = ((r >= cfg.min_range) & (r <= cfg.max_range) & (az >= cfg.azimuth_fov[0])
-                & (az <= cfg.azimuth_fov[1]) & (el >= cfg.elevation_fov[0]) & (el <= cfg.elevation_fov[1]))
-        idx = np.flatnonzero(keep)
+        idx = np.flatnonzero(cfg.in_view(r, az, el))
         r, az, el = r[idx], az[idx], el[idx]
         cell = cell_index(az, el, cfg)
         r_hidden = r - cfg.occlusion_tolerance  # hidden behind a surface nearer than this (of another object)
@@ -374,6 +350,13 @@ def _candidates(world, scene: _StaticScene, T_sensor_world: np.ndarray, cfg: Rad
     return cand, opaque, len(cand) + len(P) - n_p, static
 
 
+def _false_alarms(cfg: RadarConfig, rng: np.random.Generator) -> np.ndarray:
+    """Poisson(clutter_rate) false alarms, uniform in range, field of view and +-clutter_speed: (4, n_fa)."""
+    n_fa = rng.poisson(cfg.clutter_rate) if cfg.clutter_rate > 0 else 0
+    return np.stack([rng.uniform(cfg.min_range, cfg.max_range, n_fa), rng.uniform(*cfg.azimuth_fov, n_fa),
+                     rng.uniform(*cfg.elevation_fov, n_fa), rng.uniform(-cfg.clutter_speed, cfg.clutter_speed, n_fa)])
+
+
 def _noisy_with_clutter(true: np.ndarray, cand: _Candidates, idx: np.ndarray, cfg: RadarConfig,
                         rng: np.random.Generator) -> Detections:
     """Polar noise on the detected targets' true measurements (4, n) (range, azimuth, elevation, radial
@@ -381,10 +364,8 @@ def _noisy_with_clutter(true: np.ndarray, cand: _Candidates, idx: np.ndarray, cf
     n = true.shape[1]
     # the draws are (n, 4) row-major as ever; the arithmetic is done coordinate-major (the same bits)
     meas = true + rng.standard_normal((n, 4)).T * np.asarray(cfg.sigmas, dtype=float)[:, None]
-    n_fa = rng.poisson(cfg.clutter_rate) if cfg.clutter_rate > 0 else 0
-    fa = np.stack([rng.uniform(cfg.min_range, cfg.max_range, n_fa),
-                   rng.uniform(*cfg.azimuth_fov, n_fa), rng.uniform(*cfg.elevation_fov, n_fa),
-                   rng.uniform(-cfg.clutter_speed, cfg.clutter_speed, n_fa)])
+    fa = _false_alarms(cfg, rng)
+    n_fa = fa.shape[1]
     meas = np.concatenate([meas, fa], axis=1)
     perm = rng.permutation(n + n_fa)
     neg = np.full(n_fa, -1)

@@ -23,32 +23,18 @@ from rodo.estimator.errors import InputError
 from rodo.estimator.tomlcompat import tomllib
 
 from ._seqio import SequenceFormatError, atomic_write_bytes, read_text
+from .sensor_geometry import DEG, mount
 from .sequence import GROUNDTRUTH_TXT, read_sequence, read_tum, write_sequence
 from .sequence_types import RadarScan, Sequence, Trajectory
 from .tum import format_tum
 
 RIG_TOML = "rig.toml"
-DEG = np.pi / 180.0
-
-
-def _mount(x: float, y: float, z: float, yaw_deg: float, pitch_deg: float = -0.5) -> np.ndarray:
-    """T_vehicle_sensor at (x, y, z) m of the rear-axle centre, yawed and pitched up by the given degrees."""
-    cy, sy = np.cos(yaw_deg * DEG), np.sin(yaw_deg * DEG)
-    cp, sp = np.cos(pitch_deg * DEG), np.sin(pitch_deg * DEG)
-    T = np.eye(4)
-    T[:3, :3] = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]]) @ \
-        np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    T[:3, 3] = (x, y, z)
-    return T
-
 
 # simulated rigs: name -> [(radar sub-directory, T_vehicle_sensor)]; the first is the scenario's own front radar
-# (`sim.radar.default_mount`), the others corner radars at the front bumper's ends, looking 50 deg outwards
-LAYOUTS = {
-    "front-corners": [("front", None), ("front_left", _mount(3.4, 0.85, 0.5, 50.0)),
-                      ("front_right", _mount(3.4, -0.85, 0.5, -50.0))],
-    "corners": [("front_left", _mount(3.4, 0.85, 0.5, 50.0)), ("front_right", _mount(3.4, -0.85, 0.5, -50.0))],
-}
+# (`sim.sensor_geometry.default_mount`), the others corner radars at the front bumper's ends, looking 50 deg outwards
+_CORNERS = [("front_left", mount(3.4, 0.85, 0.5, yaw=50.0 * DEG, pitch=0.5 * DEG)),
+            ("front_right", mount(3.4, -0.85, 0.5, yaw=-50.0 * DEG, pitch=0.5 * DEG))]
+LAYOUTS = {"front-corners": [("front", None)] + _CORNERS, "corners": _CORNERS}
 
 
 @dataclass

@@ -53,8 +53,10 @@ def test_a_pose_depends_on_its_time_alone(segments, speed0, data):
     fresh = tr.Profile(segments, speed0=speed0)  # its grid integrated anew
     np.testing.assert_array_equal(fresh.sample(times[k:k + 1]).T_vehicle_world[0], every[k])
     np.testing.assert_array_equal(profile.sample(times[k:]).T_vehicle_world, every[k:])
-    ref = _dop853(profile, times[times < profile.duration])
-    assert np.abs(every[:len(ref)] - ref).max() / (1.0 + np.abs(ref[:, :3, 3]).max()) < 1e-12
+    inside = times < profile.duration  # the reference integrates each segment up to its end, exclusive
+    if inside.any():
+        ref = _dop853(profile, times[inside])
+        assert np.abs(every[inside] - ref).max() / (1.0 + np.abs(ref[:, :3, 3]).max()) < 1e-12
 
 
 @given(st.lists(seg_strategy, min_size=1, max_size=4), st.floats(0.0, 30.0))

@@ -11,7 +11,7 @@ from rodo.sim.rig import Rig, read_rig, write_rig
 from rodo.sim.sequence import NoiseSigmas, RadarScan, SensorConfig, Sequence
 from rodo.validation.driver import run_rig
 from tests.estimator import scene
-from tests.estimator.test_odometry import REAR
+from tests.estimator.test_multi_radar import REAR
 
 FOV = ((-np.deg2rad(60), np.deg2rad(60)), (-np.deg2rad(15), np.deg2rad(15)))
 
