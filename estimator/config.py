@@ -43,6 +43,19 @@ class NoiseConfig:
         `rodo calibrate` learns when the channels differ).
     sigma_floor: lower bounds of the 1-sigma [range m, azimuth rad, elevation rad, radial velocity m/s] the
         estimator uses (a noise-free sensor.toml must not make the information matrix singular).
+    doppler_common_sigma: 1-sigma (m/s) of an error common to all radial velocities of one scan, per axis of
+        the sensor velocity (a Doppler scale or bias, a time offset while accelerating, an extrinsic yaw error:
+        what averaging a scan's detections does not remove). n independent detections claim the scan's
+        sensor velocity to about sigma_vr / sqrt(n / dof); with this term each radial velocity's variance is
+        raised by sigma_c^2 lambda_max(sum u u^T) in the solve (`doppler.common_doppler_error`) and sigma_c^2
+        is added to the Doppler fit's covariance in the check of the prediction, so a scan claims the sensor
+        velocity along no axis better than sigma_c. 0: off (the simulator's detections err independently).
+        RadarScenes: 0.05, measured (docs/estimator.md, "Several radars").
+    min_prior_dt: the motion prior between two states closer in time than this (s) gets the process noise of
+        this interval (it then says less than it knows, never more). Several radars' scans can be almost
+        simultaneous (RadarScenes: 0.06 ms apart), and as dt -> 0 the CA prior's Q_k shrinks as dt^5: its
+        information (1e22 there) swamps the normal equations in double precision, and CA/C and CA/P diverged.
+        One radar scanning at up to 1 / min_prior_dt Hz is unaffected.
     """
 
     qc_ca: tuple[float, ...] = (2.0, 0.05, 0.05, 1e-4, 1e-3, 0.05)
@@ -53,6 +66,8 @@ class NoiseConfig:
     sensor_sigma_scale: float = 1.0
     sensor_sigma_scales: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
     sigma_floor: tuple[float, ...] = (0.005, 5e-4, 5e-4, 0.005)
+    doppler_common_sigma: float = 0.0  # m/s
+    min_prior_dt: float = 0.01  # s
 
 
 @dataclass(frozen=True)
@@ -134,10 +149,21 @@ class VehicleConfig:
     (it moves the sensor by the lever arm times the rate, ~1 mm/s), and elevations constrain it weakly, so it
     integrates into roll and pitch, and turns make that z drift. A zero-mean term on each moving state's roll
     and pitch rates with these 1-sigmas (rad/s) says what the vehicle does; 0 disables one (both 0 for a
-    hand-held sensor or a drone). docs/estimator.md, "Roll and pitch rates", has the measurements."""
+    hand-held sensor or a drone). docs/estimator.md, "Roll and pitch rates", has the measurements.
+
+    A wheel does not slip sideways: at the middle of the rear axle (the usual vehicle origin) a car's velocity
+    points along its x axis, up to a few cm/s of slip. A single radar's Doppler measures two or three of the
+    sensor's velocity components, not the vehicle's yaw rate and lateral velocity apart (its lever arm ties
+    them), so without this a yaw-rate error passes as lateral velocity and integrates into heading.
+    sigma_lateral_velocity and sigma_vertical_velocity put zero-mean terms (m/s) on the y and z velocity of
+    each moving state at the vehicle origin (the non-holonomic constraint); 0 disables one. Only for a
+    vehicle frame whose origin does not slip (the simulator's; RadarScenes' rear axle); docs/estimator.md,
+    "Lateral and vertical velocity", has the measurements."""
 
     sigma_roll_rate: float = 0.01  # rad/s
     sigma_pitch_rate: float = 0.015  # rad/s
+    sigma_lateral_velocity: float = 0.0  # m/s, at the vehicle origin; 0: off (docstring)
+    sigma_vertical_velocity: float = 0.0  # m/s, at the vehicle origin; 0: off
 
 
 @dataclass(frozen=True)
@@ -251,9 +277,10 @@ class OdometryConfig:
         if self.association.reassociate < 0 or self.association.doppler_sigma_floor < 0:
             raise InputError("association.reassociate, association.doppler_sigma_floor: must be >= 0")
         # [standstill]: speed >= 0 (0 disables it), the sigmas > 0: config_rules.RULES
-        for name in ("sigma_roll_rate", "sigma_pitch_rate"):
+        for name in ("sigma_roll_rate", "sigma_pitch_rate", "sigma_lateral_velocity", "sigma_vertical_velocity"):
             if not getattr(self.vehicle, name) >= 0:
-                raise InputError(f"vehicle.{name}: must be >= 0 rad/s (0 disables it), "
+                unit = "rad/s" if name.endswith("rate") else "m/s"
+                raise InputError(f"vehicle.{name}: must be >= 0 {unit} (0 disables it), "
                                  f"got {getattr(self.vehicle, name)}")
         for name, ok, rule in (("doppler_update_probability", lambda x: 0 < x < 1, "in (0, 1)"),
                                ("consensus_switch_ratio", lambda x: x > 1, "> 1"),

@@ -156,7 +156,9 @@ class DopplerFrontEnd:
                                      max_cond=1e8)
         if fit is None or len(static) < len(fit[0]) + 3:
             return None
-        return DopplerFit(fit[0], fit[1], static[:, 3])
+        sigma_c = self.config.noise.doppler_common_sigma  # a common error no number of detections averages away
+        cov = fit[1] + sigma_c**2 * np.eye(len(fit[0])) if sigma_c > 0 else fit[1]
+        return DopplerFit(fit[0], cov, static[:, 3])
 
     def correct(self, x: State, P: np.ndarray, fit: DopplerFit | None) -> State:
         """The predicted state, corrected by the scan's Doppler ego-velocity when the two disagree.
@@ -206,3 +208,20 @@ class DopplerFrontEnd:
         if not settled:
             information[6:9, 6:9] = 0.0  # the CA prior's linear acceleration: free (the CV prior has none)
         return information
+
+
+def common_doppler_error(W: np.ndarray, azimuth: np.ndarray, elevation: np.ndarray, sigma_c: float) -> np.ndarray:
+    """The information matrices (m, 4, 4) of one scan's m pairs with the scan's common Doppler error
+    (`noise.doppler_common_sigma`) spread over their radial velocities (index 3): each one's variance raised by
+    c = sigma_c^2 lambda_max(sum_i u_i u_i^T), u_i the detections' directions, so that together they claim the
+    sensor velocity along no axis better than sigma_c (along the best observed axis their information is
+    lambda_max / (sigma_vr^2 + c) < 1 / sigma_c^2; a 2D radar's directions span the plane, lambda_max ~ m / 2).
+    (W^-1 + c e3 e3^T)^-1 = W - c W e3 e3^T W / (1 + c W_33) (Sherman-Morrison), without inverting W.
+
+    Checked by: tests/estimator/test_multi_radar.py::test_common_doppler_error_inflates_the_radial_velocity,
+        ::test_common_doppler_error_bounds_what_a_scan_says_about_the_velocity
+    """
+    u = polar_to_cartesian(np.c_[np.ones_like(azimuth), azimuth, elevation])
+    c = sigma_c**2 * float(np.linalg.eigvalsh(u.T @ u)[-1])
+    w3 = W[:, :, 3]
+    return W - (c / (1.0 + c * W[:, 3, 3]))[:, None, None] * w3[:, :, None] * w3[:, None, :]

@@ -33,7 +33,7 @@ import numpy as np
 from . import association
 from .config import OdometryConfig
 from .consensus import MIN_STATIC  # fewest static detections to use
-from .doppler import DopplerFrontEnd, body_velocity
+from .doppler import DopplerFrontEnd, body_velocity, common_doppler_error
 from .errors import InputError, check_finite
 from .lie import se3
 from .local_map import LocalMap
@@ -195,6 +195,8 @@ class RadarOdometry:
         prev = self.window.newest
         x = self.motion.predict(prev, t)
         F, Q = self.motion.transition_and_noise(prev, t - prev.t)
+        if t - prev.t < self.config.noise.min_prior_dt:  # another radar's scan just after: Q as of min_prior_dt
+            Q = self.motion.transition_and_noise(prev, self.config.noise.min_prior_dt)[1]
         return x, F @ self.P @ F.T + Q, Q, []
 
     def _restart(self, x: State, P: np.ndarray, events: list, Q: None):
@@ -333,6 +335,9 @@ class RadarOdometry:
             return None
         kappa = self.config.uncertainty.measurement_inflation
         W = W_map[pairs.map_idx] if kappa == 1.0 else W_map[pairs.map_idx] / kappa
+        if self.config.noise.doppler_common_sigma > 0:
+            polar = scan.polar[pairs.det_idx]
+            W = common_doppler_error(W, polar[:, 1], polar[:, 2], self.config.noise.doppler_common_sigma)
         return MeasurementSet(self.map.points[pairs.map_idx], scan.z[pairs.det_idx], W, self.T_vehicle_sensor)
 
     def _reinitialise(self, t: float, polar: np.ndarray, reason: str | None = None) -> tuple[State, np.ndarray, list]:
@@ -385,9 +390,11 @@ def _check_fov(fov):
 
 
 def _vehicle_information(config: OdometryConfig, dim: int) -> np.ndarray | None:
-    """Information of the zero-mean roll and pitch rate terms of a moving road vehicle (`VehicleConfig`) on the
-    state's Euclidean part; None when both are off."""
+    """Information of the zero-mean roll and pitch rate and lateral and vertical velocity terms of a moving road
+    vehicle (`VehicleConfig`) on the state's Euclidean part; None when all are off."""
     rate_info = np.zeros(dim - 6)
-    for axis, sigma in ((3, config.vehicle.sigma_roll_rate), (4, config.vehicle.sigma_pitch_rate)):
+    v = config.vehicle
+    for axis, sigma in ((1, v.sigma_lateral_velocity), (2, v.sigma_vertical_velocity),
+                        (3, v.sigma_roll_rate), (4, v.sigma_pitch_rate)):
         rate_info[axis] = sigma**-2 if sigma > 0 else 0.0
     return np.diag(rate_info) if rate_info.any() else None

@@ -69,6 +69,10 @@ DESCRIPTIONS = {  # keys whose source has no comment or docstring entry, or only
     "standstill.sigma_angular_accel": "1-sigma of the zero-velocity term on the angular acceleration",
     "vehicle.sigma_roll_rate": "1-sigma of the zero-mean term on the roll rate; 0 disables it",
     "vehicle.sigma_pitch_rate": "1-sigma of the zero-mean term on the pitch rate; 0 disables it",
+    "vehicle.sigma_lateral_velocity": "1-sigma of the zero-mean term on the lateral velocity at the vehicle origin "
+                                      "(non-holonomic); 0 disables it",
+    "vehicle.sigma_vertical_velocity": "1-sigma of the zero-mean term on the vertical velocity at the vehicle "
+                                       "origin (non-holonomic); 0 disables it",
     "outage.reinit_after": "seconds without associations after which the estimator re-initialises; 0 disables it",
 }
 

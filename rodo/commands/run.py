@@ -180,10 +180,6 @@ def _run_rig(args, config: OdometryConfig) -> int:
             raise InputError(f"{flag}: not available for a rig yet (run one radar: {args.sequence}/RADAR)")
     rig = read_rig(args.sequence)
     check_out_dir(args.out)
-    if config.measurement == "polar":
-        print("rodo run: warning: several radars with the polar model are experimental: on the RadarScenes rig "
-              "(2D radars) CA/P left the plane and diverged while CV/C stayed planar (docs/estimator.md, Several "
-              "radars)", file=sys.stderr)
     with Progress(sum(len(s.scans) for s in rig.sequences), f"rodo run {config.model}, {len(rig.names)} radars",
                   unit="scan") as bar:
         result = run_rig(rig, config, progress=bar, keep_estimates=False)

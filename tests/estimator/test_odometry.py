@@ -360,3 +360,22 @@ def test_sensor_velocity_jacobian_matches_finite_differences(varpi, xi):
     np.testing.assert_allclose(J, J_fd, atol=1e-8)
     np.testing.assert_allclose(J @ varpi, v, atol=1e-12)
     np.testing.assert_allclose(body_velocity(v, varpi[3:], T_vehicle_sensor), varpi[:3], atol=1e-9)
+
+
+def test_non_holonomic_terms_hold_the_lateral_and_vertical_velocity():
+    """The scene's vehicle does not slip (nu = [-speed, 0, 0]): with `vehicle.sigma_lateral_velocity` and
+    `sigma_vertical_velocity` the estimated y and z velocities stay near 0; off (the default), one radar's
+    Doppler leaves the lateral velocity and the yaw rate free to trade against each other through the lever arm.
+    Measured, seed 1: RMS y, z velocity error 0.0044 m/s with the terms, 0.019 without."""
+    out = {}
+    for case, sigma in (("on", 0.02), ("off", 0.0)):
+        rng = np.random.default_rng(1)
+        t, T, varpi, vd = scene.trajectory(130, accel=0.3, yaw_rate=0.05, yaw_acc=0.0, pitch_acc=0.0)
+        L = scene.landmarks(rng, extent=250.0)
+        cfg = OdometryConfig.from_dict({"model": "ca-polar", "vehicle": {"sigma_lateral_velocity": sigma,
+                                                                         "sigma_vertical_velocity": sigma}})
+        odo = RadarOdometry(cfg, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+        lateral = [odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng)).varpi[1:3]
+                   for k in range(len(t))]
+        out[case] = float(np.sqrt(np.mean(np.square(lateral[20:]))))
+    assert out["on"] < 0.5 * out["off"]

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
+import pytest
 from threadpoolctl import threadpool_limits
 
 from rodo.estimator.config import OdometryConfig
@@ -65,3 +68,25 @@ def test_rodo_run_fuses_a_radarscenes_rig(realdata_dir, tmp_path, capsys):
     assert '"radars": ["radar2", "radar3"]' in out and f'"scans": {n}' in out and "ATE rmse" in out
     assert main(["run", str(tmp_path / "rig"), "--out", str(tmp_path / "o2"), "--rerun", str(tmp_path / "x.rrd")]) == 2
     assert "not available for a rig" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_radarscenes_front_radars_fused_with_the_common_doppler_error(realdata_dir, tmp_path, capsys):
+    """Radars 2 and 3 of RadarScenes over the whole drive (3,224 scans, some of the two radars' 0.06 ms apart)
+    in one CA/P estimator, with the common Doppler error measured on the drive (`noise.doppler_common_sigma`
+    0.05 m/s): it runs to the end (before `noise.min_prior_dt` it diverged 9 s in), stays planar, and beats
+    either radar alone (measured: fused 1.58 %, radar 2 alone 2.21 %, radar 3 alone 2.73 %;
+    docs/estimator.md, "Several radars")."""
+    from rodo.cli import main
+
+    src = realdata_dir / "radarscenes_seq105_2d"
+    assert main(["convert", "radarscenes", str(src), "--out", str(tmp_path / "rig"), "--radars", "2,3"]) == 0
+    (tmp_path / "c.toml").write_text("[noise]\ndoppler_common_sigma = 0.05\n")
+    capsys.readouterr()
+    assert main(["run", str(tmp_path / "rig"), "--model", "ca-polar", "--config", str(tmp_path / "c.toml"),
+                 "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    t_err = float(re.search(r"KITTI t_err ([0-9.]+) %", out).group(1))
+    assert t_err < 2.0
+    est = np.loadtxt(tmp_path / "out" / "estimate.txt")
+    assert np.all(np.isfinite(est)) and np.max(np.abs(est[:, 3])) == 0.0  # z: a 2D rig stays in its plane
