@@ -33,7 +33,7 @@ from . import radar_physics as rp
 from .culling import Cull, PatchGeometry, PointIndex, transform
 from .multipath import ghost_candidates, reflectors
 from .objects import CLUTTER, GHOST, MOVING, STATIC_POINT, STATIC_SURFACE, Patches
-from .occlusion import cell_directions, cell_index, cross, depth_buffer, nearest_per_bin, nearest_per_cell
+from .occlusion import cell_directions, cross, depth_buffer, gate_cells, nearest_per_bin, nearest_visible
 from .sensor_geometry import DEG, default_mount, polar, sensor_velocity
 
 
@@ -273,18 +273,15 @@ class Radar:
         indices into the candidates and their range, azimuth, elevation."""
         cfg = self.config
         r, az, el = polar(p_sensor)
-        idx = np.flatnonzero(cfg.in_view(r, az, el))
-        r, az, el = r[idx], az[idx], el[idx]
-        cell = cell_index(az, el, cfg)
-        r_hidden = r - cfg.occlusion_tolerance  # hidden behind a surface nearer than this (of another object)
-        limit = np.full(len(self._dirs), -np.inf)
-        np.maximum.at(limit, cell, r_hidden)
+        idx, cell, r_hidden, limit = gate_cells(r, az, el, cfg)  # limit: per cell the farthest r_hidden
         depth, owner = depth_buffer(Patches.concat(opaque), cfg, self._dirs, limit)
-        visible = ~((depth.take(cell) < r_hidden) & (owner.take(cell) != object_id.take(idx)))
-        idx, r, az, el, cell = idx[visible], r[visible], az[visible], el[visible], cell[visible]
-        first = nearest_per_cell(cell, r, len(self._dirs)) if range_cell is None else \
-            nearest_per_bin(cell, r, range_cell, cfg.max_range)
-        return idx[first], r[first], az[first], el[first]
+        if range_cell is None:
+            idx = nearest_visible(idx, cell, r_hidden, r, object_id, depth, owner)
+        else:
+            visible = ~((depth.take(cell) < r_hidden) & (owner.take(cell) != object_id.take(idx)))
+            idx, cell = idx[visible], cell[visible]
+            idx = idx[nearest_per_bin(cell, r.take(idx), range_cell, cfg.max_range)]
+        return idx, r.take(idx), az.take(idx), el.take(idx)
 
 
 @dataclass(frozen=True)
