@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import occlusion_kernels as k
+from . import radar_kernels as k
 from .objects import Patches
 
 
@@ -40,7 +40,7 @@ def nearest_per_cell(cell: np.ndarray, key: np.ndarray, n_cells: int) -> np.ndar
     """Indices of the smallest key in each cell (ties: the first index), in ascending cell order.
 
     The same as `order = np.lexsort((key, cell))` then the first of each cell, without sorting: one pass keeps
-    per cell the first index of the smallest key so far (`occlusion_kernels.nearest_first`). Keys must not be NaN."""
+    per cell the first index of the smallest key so far (`radar_kernels.nearest_first`). Keys must not be NaN."""
     if not cell.size:
         return np.zeros(0, dtype=np.intp)
     return k.nearest_first(np.ascontiguousarray(cell, dtype=np.int64), np.ascontiguousarray(key, dtype=np.float64),
@@ -62,7 +62,7 @@ def depth_buffer(p: Patches, cfg, dirs: np.ndarray, limit: np.ndarray | None = N
     an exact ray-rectangle intersection: s = (n . o) / (n . d) along the ray d, hit if s > 0 and the point
     s d - o = a u + b v has a, b in [0, 1]. The (patch, cell) pairs are visited patch by patch, each box
     azimuth-major, and a hit replaces a cell's depth only if strictly nearer (ties: the first pair), in one
-    compiled loop (`occlusion_kernels.depth_pairs`, numpy's arithmetic bit for bit).
+    compiled loop (`radar_kernels.depth_pairs`, numpy's arithmetic bit for bit).
 
     `limit` (cells,) restricts the work to what a caller comparing `depth < limit` needs: hits at s >= limit are
     dropped (cells with limit -inf are not computed at all). Where the full buffer's depth is below the limit,
@@ -93,8 +93,8 @@ def cell_boxes(p: Patches, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     patch, padded by one cell and clipped to the grid.
 
     The 9 points origin + a u + b v (a, b in {0, 0.5, 1}) and their horizontal distance are computed by
-    `occlusion_kernels.box_points`, their azimuth and elevation by numpy (np.arctan2, as ever), the boxes by
-    `occlusion_kernels.box_cells`.
+    `radar_kernels.box_points`, their azimuth and elevation by numpy (np.arctan2, as ever), the boxes by
+    `radar_kernels.box_cells`.
 
     Checked by: tests/sim/test_occlusion.py::test_cell_boxes_are_the_numpy_computation_bit_for_bit"""
     n_az, n_el = cfg.grid_shape
@@ -113,7 +113,7 @@ def gate_cells(r: np.ndarray, az: np.ndarray, el: np.ndarray, cfg) -> tuple[np.n
         idx (m,) indices of the targets in view, ascending; cell (m,) the cell of each (floor((angle - fov_min) /
         cell size), clipped to the grid, azimuth-major); r_hidden (m,) = r - occlusion_tolerance (a target is
         hidden behind an opaque surface nearer than this); limit (cells,) per cell the largest r_hidden, -inf
-        where no target is (the `depth_buffer` limit). One pass (`occlusion_kernels.gate_cells`).
+        where no target is (the `depth_buffer` limit). One pass (`radar_kernels.gate_cells`).
 
     Checked by: tests/sim/test_occlusion.py::test_gates_cells_and_limit_are_the_numpy_computation_bit_for_bit
     """
@@ -128,7 +128,7 @@ def nearest_visible(idx: np.ndarray, cell: np.ndarray, r_hidden: np.ndarray, r: 
                     depth: np.ndarray, owner: np.ndarray) -> np.ndarray:
     """Of the gated targets (`gate_cells`: idx, cell, r_hidden), those not hidden (depth[cell] < r_hidden with an
     owner other than the target's object), then the nearest per cell (by r[idx], ties: the first): their indices
-    idx[...], in ascending cell order (`occlusion_kernels.nearest_visible`; the same as filtering, then
+    idx[...], in ascending cell order (`radar_kernels.nearest_visible`; the same as filtering, then
     `nearest_per_cell`).
 
     Checked by: tests/sim/test_occlusion.py::test_nearest_visible_is_the_numpy_computation

@@ -1,4 +1,4 @@
-"""sim.occlusion and sim.occlusion_kernels: the shortcuts of the depth buffer give exactly (bit for bit) what the
+"""sim.occlusion and sim.radar_kernels: the shortcuts of the depth buffer give exactly (bit for bit) what the
 plain computations give: pairs only at needed cells, hits beyond a per-cell limit dropped, the nearest per cell
 without sorting; and each compiled loop gives what the numpy computation it replaced gives, bit for bit (those
 computations are kept here as the references)."""
@@ -13,7 +13,7 @@ from rodo.sim.culling import Cull, PatchGeometry
 from rodo.sim.objects import Patches
 from rodo.sim.occlusion import cell_boxes, cell_directions, cross, depth_buffer, gate_cells, nearest_per_cell, \
     nearest_visible
-from rodo.sim.occlusion_kernels import dot3
+from rodo.sim.radar_kernels import dot3
 from rodo.sim.radar import RadarConfig
 
 CFG = RadarConfig()

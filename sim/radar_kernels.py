@@ -1,6 +1,7 @@
-"""The compiled loops of the radar model's occlusion (`sim.occlusion`) and gates (`sim.radar`): what numpy did in
-a few dozen calls per scan, each loop in one pass, with numpy's arithmetic element for element, so that the
-simulator's output stays bit for bit what it was.
+"""The compiled loops of the radar model (`sim.radar`): the pre-selection and the samples of the culling
+(`sim.culling`), the occlusion and the gates (`sim.occlusion`), the noise and the order of the detections: what
+numpy did in a few dozen calls per scan, each loop in one pass, with numpy's arithmetic element for element, so
+that the simulator's output stays bit for bit what it was.
 
 How the bits are kept: no fast-math (numba's default: no contraction into fused multiply-adds, no
 reassociation); every product, sum and quotient in the order numpy evaluated it; 3-vector dot products in the
@@ -9,7 +10,8 @@ products are left to numpy (their implementations differ between libraries), so 
 inputs; integer and comparison logic (floors, clips, scatter-min and -max, first index of ties) is exact.
 Division by zero gives inf or NaN as in numpy (error_model="numpy").
 
-Checked by: tests/sim/test_occlusion.py (each kernel against the numpy computation it replaces, bit for bit)
+Checked by: tests/sim/test_occlusion.py, tests/sim/test_culling.py, tests/sim/test_radar.py (each kernel against the
+numpy computation it replaces, bit for bit)
 """
 
 from __future__ import annotations
@@ -151,3 +153,64 @@ def nearest_visible(idx, cell, r_hidden, r, object_id, depth, owner):
         if b < 0 or r[idx[j]] < r[idx[b]]:
             arg[c] = j
     return idx[arg[arg >= 0]]
+
+
+@njit(cache=True)
+def near_points(xyz, idx, p, r2, b, behind, per_point, gate_behind):
+    """`culling.NearIndex.near`'s exact tests of the points xyz[idx]: d = xyz - p, kept if (dx^2 + dy^2) + dz^2
+    <= r2 and (with gate_behind) (b0 dx + b1 dy) + b2 dz > -behind (behind[idx] if per_point, else behind[0]);
+    the kept idx, in order."""
+    out = np.empty(idx.size, dtype=np.int64)
+    m = 0
+    for j in range(idx.size):
+        i = idx[j]
+        dx, dy, dz = xyz[i, 0] - p[0], xyz[i, 1] - p[1], xyz[i, 2] - p[2]
+        if not dx * dx + dy * dy + dz * dz <= r2:
+            continue
+        if gate_behind and not b[0] * dx + b[1] * dy + b[2] * dz > -(behind[i] if per_point else behind[0]):
+            continue
+        out[m] = i
+        m += 1
+    return out[:m].copy()
+
+
+@njit(cache=True)
+def patch_samples(origin, u, v, g, ab):
+    """`culling.Cull.sample`'s points (origin + a u) + b v on patches g with (a, b) = ab, (m, 3)."""
+    out = np.empty((g.size, 3))
+    for i in range(g.size):
+        for j in range(3):
+            out[i, j] = (origin[g[i], j] + ab[i, 0] * u[g[i], j]) + ab[i, 1] * v[g[i], j]
+    return out
+
+
+@njit(cache=True)
+def noisy_in_order(true, z, sigmas, fa, perm, idx, label, object_id, landmark_id, p_world, clutter):
+    """`radar._noisy_with_clutter`'s detections: the n targets' measurements true (4, n) + z.T * sigmas (z (n, 4)
+    the standard normal draws), then the false alarms fa (4, n_fa), all put in the order perm; truth from the
+    candidates idx (label, object_id, landmark_id, p_world), for false alarms `clutter`, -1, -1, NaN.
+
+    Returns range, azimuth, elevation, radial_velocity (N,), label, object_id, landmark_id (N,), p_world (N, 3),
+    true_polar (N, 4)."""
+    n, N = true.shape[1], perm.size
+    meas = np.empty((4, N))
+    lab, oid, lid = np.empty(N, dtype=np.int64), np.empty(N, dtype=np.int64), np.empty(N, dtype=np.int64)
+    pw, tp = np.empty((N, 3)), np.empty((N, 4))
+    for i in range(N):
+        j = perm[i]
+        if j < n:
+            for q in range(4):
+                tp[i, q] = true[q, j]
+                meas[q, i] = true[q, j] + z[j, q] * sigmas[q]
+            c = idx[j]
+            lab[i], oid[i], lid[i] = label[c], object_id[c], landmark_id[c]
+            for q in range(3):
+                pw[i, q] = p_world[c, q]
+        else:
+            for q in range(4):
+                tp[i, q] = fa[q, j - n]
+                meas[q, i] = fa[q, j - n]
+            lab[i], oid[i], lid[i] = clutter, -1, -1
+            for q in range(3):
+                pw[i, q] = np.nan
+    return meas[0].copy(), meas[1].copy(), meas[2].copy(), meas[3].copy(), lab, oid, lid, pw, tp
