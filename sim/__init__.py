@@ -13,8 +13,9 @@ The package, file by file (the names below are re-exported here; submodules stay
     sensor_geometry.py where a radar sits and what it sees of a point: `mount`, `default_mount`,
                        `sensor_velocity`, `polar`.
     radar.py           the sensor model: `Radar`, `RadarConfig`, `Detections`; built on culling.py (what a scan can see at all: per-scene patch geometry and the
-                       pre-selection near the sensor) and occlusion.py (the angular cell grid, the depth buffer,
-                       the nearest entry per cell). Those two are internal (not re-exported).
+                       pre-selection near the sensor) and occlusion.py (the angular cell grid, the gates, the
+                       depth buffer, the nearest entry per cell; its loops compiled in radar_kernels.py).
+                       Those are internal (not re-exported).
     radar_physics.py   the radar equation of a sensor profile (`RadarPhysics`, `RadarConfig.physics`): RCS per
                        scatterer class, SNR, Swerling-1 detection, noise from SNR, ambiguities, quantisation.
     multipath.py       multipath ghosts: mirror images of targets across large flat reflectors (`mirror`).
@@ -34,7 +35,7 @@ The package, file by file (the names below are re-exported here; submodules stay
     convert/           real recordings -> the sequence format (`rodo.sim.convert.radarscenes`, `.ti_mmwave`, `.vod`;
                        not imported here).
 
-Only numpy and scipy are imported (no numba, no plotting).
+Only numpy, scipy and numba are imported (numba for radar_kernels.py, with numba's on-disk cache; no plotting).
 """
 
 from .objects import CLUTTER, GHOST, MOVING, STATIC_POINT, STATIC_SURFACE, MovingBox, Patches, Points, RigidStates, box, \

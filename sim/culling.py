@@ -2,15 +2,16 @@
 near the field of view), so that the per-scan work is about what is around the sensor, not the whole scene.
 
 `PatchGeometry` holds what does not change from scan to scan (computed once per static scene): the patches'
-centres, half diagonals, unit normals and areas, and coordinate-major copies of the patches. A scan first
+centres, half diagonals, unit normals and areas, and contiguous copies of the patches. A scan first
 pre-selects the patches whose centre is within max_range + the largest half diagonal (+ 1 m) of the sensor and
 not wholly behind it (a superset of those the exact tests keep), then applies the exact tests to those only;
 the kept patches, and every value computed for them, are the same as when all patches are tested (per-row
 arithmetic; matrix products of at least two rows, see `transform`). Likewise for the point scatterers.
 
 Speed notes (the output is bit-identical to computing on whole (n, 3) arrays): row gathers use `take`, and
-element-wise work on (n, 3) arrays is done column by column or on (3, n) copies, as numpy loops over a last axis
-of 3 elements once per row.
+element-wise work on (n, 3) arrays is done column by column, as numpy loops over a last axis of 3 elements once
+per row; the pre-selection's distance tests and the surface samples are compiled loops (`sim.radar_kernels`,
+numpy's arithmetic element for element).
 
 Checked by: tests/sim/test_culling.py, tests/sim/test_radar.py
 """
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import radar_kernels as kern
 from .objects import Patches
 from .occlusion import cross
 
@@ -83,7 +85,7 @@ class NearIndex:
         such a field of view). `behind` is a scalar or (n,) per point."""
         p = sensor_position(T_sensor_world)
         if len(self.xyz) <= SMALL:  # testing all is cheaper than gathering the tiles
-            idx, xyz = np.arange(len(self.xyz)), self.xyz
+            idx = np.arange(len(self.xyz))
         else:
             i0, j0 = np.maximum(np.floor((p[:2] - max_range) / self.tile).astype(np.int64) - self._lo, 0)
             i1, j1 = np.minimum(np.floor((p[:2] + max_range) / self.tile).astype(np.int64) - self._lo,
@@ -92,13 +94,10 @@ class NearIndex:
                 return np.zeros(0, dtype=np.intp)
             rows = np.arange(i0, i1 + 1) * self._shape[1]
             idx = np.sort(np.concatenate([self._order[self._start[r + j0]:self._start[r + j1 + 1]] for r in rows]))
-            xyz = self.xyz.take(idx, axis=0)
-        dx, dy, dz = xyz[:, 0] - p[0], xyz[:, 1] - p[1], xyz[:, 2] - p[2]
-        m = dx * dx + dy * dy + dz * dz <= max_range * max_range
-        if -np.pi / 2 <= cfg.azimuth_fov[0] and cfg.azimuth_fov[1] <= np.pi / 2:
-            b = T_sensor_world[0, :3]  # the sensor's x axis in the world frame
-            m &= b[0] * dx + b[1] * dy + b[2] * dz > -(behind if np.ndim(behind) == 0 else behind.take(idx))
-        return idx.take(np.flatnonzero(m))
+        per_point = np.ndim(behind) != 0
+        return kern.near_points(self.xyz, idx, p, max_range * max_range, np.ascontiguousarray(T_sensor_world[0, :3]),
+                                np.ascontiguousarray(behind if per_point else [behind], dtype=np.float64), per_point,
+                                -np.pi / 2 <= cfg.azimuth_fov[0] and cfg.azimuth_fov[1] <= np.pi / 2)
 
 
 class PatchGeometry:
@@ -122,15 +121,16 @@ class PatchGeometry:
         if self.indexed:
             self._index = NearIndex(self.center)
             self._reach = float(self.half_diagonal.max()) + MARGIN
-        self.origin_T, self.u_T, self.v_T = (np.ascontiguousarray(a.T) for a in (patches.origin, patches.u,
-                                                                                  patches.v))
+            self._behind = self.half_diagonal + MARGIN  # a patch is wholly behind the sensor beyond this
+        self.origin, self.u, self.v = (np.ascontiguousarray(a, dtype=np.float64) for a in (patches.origin, patches.u,
+                                                                                            patches.v))
 
     def near(self, T_sensor_world: np.ndarray, cfg) -> np.ndarray | None:
         """Sorted indices of the patches the exact tests may keep, or None for all of them (not indexed, all
         near, or fewer than two near: then all are tested, as one product)."""
         if not self.indexed:
             return None
-        idx = self._index.near(T_sensor_world, cfg, cfg.max_range + self._reach, self.half_diagonal + MARGIN)
+        idx = self._index.near(T_sensor_world, cfg, cfg.max_range + self._reach, self._behind)
         return idx if 2 <= len(idx) < len(self.center) else None
 
 
@@ -182,8 +182,7 @@ class Cull:
                transform(patches.u.take(idx, axis=0), C, None, n_all),
                transform(patches.v.take(idx, axis=0), C, None, n_all)]
         if groups is not None and not opaque_only:
-            for i in np.flatnonzero(np.diff(groups) == 1):
-                j = groups[i]
+            for j in [int(a) for a, b in zip(groups[:-1], groups[1:]) if b - a == 1]:  # (a few movers)
                 out[0][j] = transform(patches.origin.take(idx[j:j + 1], axis=0), C, t)[0]
                 out[1][j] = transform(patches.u.take(idx[j:j + 1], axis=0), C)[0]
                 out[2][j] = transform(patches.v.take(idx[j:j + 1], axis=0), C)[0]
@@ -207,9 +206,8 @@ class Cull:
         k = np.repeat(k, self.counts(cfg, rng, rows))
         ab = rng.random((k.size, 2))
         g = self.idx.take(k)
-        p_T = ((self._geometry.origin_T.take(g, axis=1) + ab[:, 0] * self._geometry.u_T.take(g, axis=1))
-               + ab[:, 1] * self._geometry.v_T.take(g, axis=1))
-        return p_T.T, k
+        geometry = self._geometry
+        return kern.patch_samples(geometry.origin, geometry.u, geometry.v, g, ab), k
 
 
 class PointIndex:

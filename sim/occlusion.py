@@ -14,11 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import radar_kernels as k
 from .objects import Patches
-
-# the 9 points of a patch whose angles bound its cell box: origin + a u + b v, a, b in {0, 0.5, 1}, as (1, 9, 1)
-_BOX_A, _BOX_B = np.array([[a, b] for a in (0, 0.5, 1) for b in (0, 0.5, 1)]).T[:, None, :, None]
-_PAD = np.array([[-1], [1]])  # a box's first and last cell padded by one cell
 
 
 def cell_directions(cfg) -> np.ndarray:
@@ -29,19 +26,6 @@ def cell_directions(cfg) -> np.ndarray:
     A, E = np.meshgrid(az, el, indexing="ij")
     A, E = A.ravel(), E.ravel()
     return np.stack([np.cos(E) * np.cos(A), np.cos(E) * np.sin(A), np.sin(E)], axis=-1)
-
-
-def cell_index(az: np.ndarray, el: np.ndarray, cfg) -> np.ndarray:
-    """The cell of each direction (azimuth, elevation in radians), clipped to the grid."""
-    n_az, n_el = cfg.grid_shape
-    ia = _clip(np.floor((az - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int), 0, n_az - 1)
-    ie = _clip(np.floor((el - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int), 0, n_el - 1)
-    return ia * n_el + ie
-
-
-def _clip(i: np.ndarray, lo: int, hi: int) -> np.ndarray:
-    """np.clip of integers without its per-call overhead."""
-    return np.minimum(np.maximum(i, lo), hi)
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -55,18 +39,12 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def nearest_per_cell(cell: np.ndarray, key: np.ndarray, n_cells: int) -> np.ndarray:
     """Indices of the smallest key in each cell (ties: the first index), in ascending cell order.
 
-    The same as `order = np.lexsort((key, cell))` then the first of each cell, without sorting every entry:
-    a scatter-min per cell, then only the entries at their cell's minimum are sorted by cell (stable). Keys
-    must not be NaN."""
+    The same as `order = np.lexsort((key, cell))` then the first of each cell, without sorting: one pass keeps
+    per cell the first index of the smallest key so far (`radar_kernels.nearest_first`). Keys must not be NaN."""
     if not cell.size:
         return np.zeros(0, dtype=np.intp)
-    best = np.full(n_cells, np.inf)
-    np.minimum.at(best, cell, key)
-    at_min = np.flatnonzero(key == best[cell])
-    c = cell[at_min]
-    order = np.argsort(c, kind="stable")
-    c = c[order]
-    return at_min[order[np.r_[True, c[1:] != c[:-1]]]]
+    return k.nearest_first(np.ascontiguousarray(cell, dtype=np.int64), np.ascontiguousarray(key, dtype=np.float64),
+                           n_cells)
 
 
 def nearest_per_bin(cell: np.ndarray, r: np.ndarray, range_cell: float, max_range: float) -> np.ndarray:
@@ -82,7 +60,9 @@ def depth_buffer(p: Patches, cfg, dirs: np.ndarray, limit: np.ndarray | None = N
 
     Each patch (sensor frame) is tested only against the cells of its angular box (`cell_boxes`); the test is
     an exact ray-rectangle intersection: s = (n . o) / (n . d) along the ray d, hit if s > 0 and the point
-    s d - o = a u + b v has a, b in [0, 1].
+    s d - o = a u + b v has a, b in [0, 1]. The (patch, cell) pairs are visited patch by patch, each box
+    azimuth-major, and a hit replaces a cell's depth only if strictly nearer (ties: the first pair), in one
+    compiled loop (`radar_kernels.depth_pairs`, numpy's arithmetic bit for bit).
 
     `limit` (cells,) restricts the work to what a caller comparing `depth < limit` needs: hits at s >= limit are
     dropped (cells with limit -inf are not computed at all). Where the full buffer's depth is below the limit,
@@ -91,65 +71,67 @@ def depth_buffer(p: Patches, cfg, dirs: np.ndarray, limit: np.ndarray | None = N
     a surface that hides nothing there need not be known, and most pairs (surfaces behind others, surfaces at
     the candidates' own depth) are dropped before their intersection is tested.
 
-    Checked by: tests/sim/test_occlusion.py::test_limited_depth_buffer_agrees_below_the_limit
+    Checked by: tests/sim/test_occlusion.py::test_limited_depth_buffer_agrees_below_the_limit,
+    tests/sim/test_occlusion.py::test_depth_buffer_is_the_numpy_computation_bit_for_bit
     """
     n_az, n_el = cfg.grid_shape
     depth = np.full(n_az * n_el, np.inf)
-    owner = np.full(n_az * n_el, -1)
+    owner = np.full(n_az * n_el, -1, dtype=np.int64)
     if not len(p):
         return depth, owner
     if limit is None:
         limit = np.full(n_az * n_el, np.inf)
-    pid, cell = box_pairs(*cell_boxes(p, cfg), limit > -np.inf, n_el)
-    normal = cross(p.u, p.v)
-    d = dirs.take(cell, axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.einsum("ij,ij->i", normal, p.origin).take(pid) / np.einsum("ij,ij->i", normal.take(pid, axis=0), d)
-        keep = np.flatnonzero((s > 0) & (s < limit.take(cell)))  # (s < limit excludes NaN and inf)
-        pid, cell, s, d = pid.take(keep), cell.take(keep), s.take(keep), d.take(keep, axis=0)
-        q = np.repeat(s, 3).reshape(-1, 3) * d - p.origin.take(pid, axis=0)  # = s[:, None] * d - o, no row loop
-        a = np.einsum("ij,ij->i", q, p.u.take(pid, axis=0)) / np.einsum("ij,ij->i", p.u, p.u).take(pid)
-        b = np.einsum("ij,ij->i", q, p.v.take(pid, axis=0)) / np.einsum("ij,ij->i", p.v, p.v).take(pid)
-    hit = (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
-    cell, s, pid = cell[hit], s[hit], pid[hit]
-    first = nearest_per_cell(cell, s, n_az * n_el)
-    depth[cell[first]] = s[first]
-    owner[cell[first]] = p.object_id[pid[first]]
+    f64 = [np.ascontiguousarray(a, dtype=np.float64) for a in (p.origin, p.u, p.v, limit, dirs)]
+    k.depth_pairs(*f64[:3], np.ascontiguousarray(p.object_id, dtype=np.int64),
+                  *(np.ascontiguousarray(b, dtype=np.int64) for b in cell_boxes(p, cfg)), *f64[3:], n_el, depth,
+                  owner)
     return depth, owner
 
 
 def cell_boxes(p: Patches, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Each patch's box of cells (first and last azimuth and elevation cell, inclusive), from 9 points on the
-    patch, padded by one cell and clipped to the grid."""
+    patch, padded by one cell and clipped to the grid.
+
+    The 9 points origin + a u + b v (a, b in {0, 0.5, 1}) and their horizontal distance are computed by
+    `radar_kernels.box_points`, their azimuth and elevation by numpy (np.arctan2, as ever), the boxes by
+    `radar_kernels.box_cells`.
+
+    Checked by: tests/sim/test_occlusion.py::test_cell_boxes_are_the_numpy_computation_bit_for_bit"""
     n_az, n_el = cfg.grid_shape
-    # the 9 points, coordinate-major: (3, 9, P)
-    x, y, z = (p.origin.T[:, None, :] + _BOX_A * p.u.T[:, None, :]) + _BOX_B * p.v.T[:, None, :]
+    x, y, z, h = k.box_points(*(np.ascontiguousarray(a, dtype=np.float64) for a in (p.origin, p.u, p.v)))
     az = np.arctan2(y, x)  # (9, P)
-    el = np.arctan2(z, np.sqrt(x * x + y * y))  # the same bits as np.linalg.norm of (x, y)
-    az_lo, az_hi = az.min(axis=0), az.max(axis=0)
-    # behind or beside the sensor the corner azimuths may not bound the patch: take the whole field of view
-    wraps = (az_hi - az_lo > np.pi) | ((x <= 0).any(axis=0) & (az_hi - az_lo > np.pi / 2))
-    az_lo_hi = np.where(wraps, np.array(cfg.azimuth_fov, dtype=float)[:, None], np.stack([az_lo, az_hi]))
-    el_lo_hi = np.stack([el.min(axis=0), el.max(axis=0)])
-    # floor((angle - fov_min) / cell), one cell of padding, clipped (lo and hi rows together)
-    ia0, ia1 = _clip(np.floor((az_lo_hi - cfg.azimuth_fov[0]) / cfg.cell_azimuth).astype(int) + _PAD, 0, n_az - 1)
-    ie0, ie1 = _clip(np.floor((el_lo_hi - cfg.elevation_fov[0]) / cfg.cell_elevation).astype(int) + _PAD, 0,
-                     n_el - 1)
-    return ia0, ia1, ie0, ie1
+    el = np.arctan2(z, h)
+    return k.box_cells(az, el, x, float(cfg.azimuth_fov[0]), float(cfg.azimuth_fov[1]), float(cfg.cell_azimuth),
+                       float(cfg.elevation_fov[0]), float(cfg.cell_elevation), n_az, n_el)
 
 
-def box_pairs(ia0, ia1, ie0, ie1, need: np.ndarray, n_el: int) -> tuple[np.ndarray, np.ndarray]:
-    """The (patch, cell) pairs of the boxes at the needed cells: (pairs,) patch indices and cell indices, patch
-    by patch, each box azimuth-major (its cells in increasing index order).
+def gate_cells(r: np.ndarray, az: np.ndarray, el: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                          np.ndarray]:
+    """The targets within the range gates and the field of view (`RadarConfig.in_view`) and their cells.
 
-    A box's azimuth column is the contiguous cell range [i_az n_el + ie0, i_az n_el + ie1]; its needed cells are
-    a contiguous run of the sorted needed cells, found from the count of needed cells before each cell."""
-    na = ia1 - ia0 + 1
-    row = np.repeat(np.arange(len(na)), na)  # one row per (patch, azimuth column)
-    col = np.arange(row.size) + np.repeat(ia0 - (np.cumsum(na) - na), na)
-    before = np.concatenate([[0], np.cumsum(need)])  # needed cells with a smaller index
-    lo = before[col * n_el + ie0[row]]
-    cnt = before[col * n_el + ie1[row] + 1] - lo
-    pid = np.repeat(row, cnt)
-    j = np.arange(pid.size) + np.repeat(lo - (np.cumsum(cnt) - cnt), cnt)
-    return pid, np.flatnonzero(need)[j]
+    Returns:
+        idx (m,) indices of the targets in view, ascending; cell (m,) the cell of each (floor((angle - fov_min) /
+        cell size), clipped to the grid, azimuth-major); r_hidden (m,) = r - occlusion_tolerance (a target is
+        hidden behind an opaque surface nearer than this); limit (cells,) per cell the largest r_hidden, -inf
+        where no target is (the `depth_buffer` limit). One pass (`radar_kernels.gate_cells`).
+
+    Checked by: tests/sim/test_occlusion.py::test_gates_cells_and_limit_are_the_numpy_computation_bit_for_bit
+    """
+    n_az, n_el = cfg.grid_shape
+    f = [np.ascontiguousarray(a, dtype=np.float64) for a in (r, az, el)]
+    return k.gate_cells(*f, float(cfg.min_range), float(cfg.max_range), float(cfg.azimuth_fov[0]),
+                        float(cfg.azimuth_fov[1]), float(cfg.elevation_fov[0]), float(cfg.elevation_fov[1]),
+                        float(cfg.cell_azimuth), float(cfg.cell_elevation), n_az, n_el, float(cfg.occlusion_tolerance))
+
+
+def nearest_visible(idx: np.ndarray, cell: np.ndarray, r_hidden: np.ndarray, r: np.ndarray, object_id: np.ndarray,
+                    depth: np.ndarray, owner: np.ndarray) -> np.ndarray:
+    """Of the gated targets (`gate_cells`: idx, cell, r_hidden), those not hidden (depth[cell] < r_hidden with an
+    owner other than the target's object), then the nearest per cell (by r[idx], ties: the first): their indices
+    idx[...], in ascending cell order (`radar_kernels.nearest_visible`; the same as filtering, then
+    `nearest_per_cell`).
+
+    Checked by: tests/sim/test_occlusion.py::test_nearest_visible_is_the_numpy_computation
+    """
+    return k.nearest_visible(idx, cell, r_hidden, np.ascontiguousarray(r, dtype=np.float64),
+                             np.ascontiguousarray(object_id, dtype=np.int64), depth, owner)

@@ -29,11 +29,12 @@ import numpy as np
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 
+from . import radar_kernels as k
 from . import radar_physics as rp
 from .culling import Cull, PatchGeometry, PointIndex, transform
 from .multipath import ghost_candidates, reflectors
 from .objects import CLUTTER, GHOST, MOVING, STATIC_POINT, STATIC_SURFACE, Patches
-from .occlusion import cell_directions, cell_index, cross, depth_buffer, nearest_per_bin, nearest_per_cell
+from .occlusion import cell_directions, cross, depth_buffer, gate_cells, nearest_per_bin, nearest_visible
 from .sensor_geometry import DEG, default_mount, polar, sensor_velocity
 
 
@@ -273,18 +274,15 @@ class Radar:
         indices into the candidates and their range, azimuth, elevation."""
         cfg = self.config
         r, az, el = polar(p_sensor)
-        idx = np.flatnonzero(cfg.in_view(r, az, el))
-        r, az, el = r[idx], az[idx], el[idx]
-        cell = cell_index(az, el, cfg)
-        r_hidden = r - cfg.occlusion_tolerance  # hidden behind a surface nearer than this (of another object)
-        limit = np.full(len(self._dirs), -np.inf)
-        np.maximum.at(limit, cell, r_hidden)
+        idx, cell, r_hidden, limit = gate_cells(r, az, el, cfg)  # limit: per cell the farthest r_hidden
         depth, owner = depth_buffer(Patches.concat(opaque), cfg, self._dirs, limit)
-        visible = ~((depth.take(cell) < r_hidden) & (owner.take(cell) != object_id.take(idx)))
-        idx, r, az, el, cell = idx[visible], r[visible], az[visible], el[visible], cell[visible]
-        first = nearest_per_cell(cell, r, len(self._dirs)) if range_cell is None else \
-            nearest_per_bin(cell, r, range_cell, cfg.max_range)
-        return idx[first], r[first], az[first], el[first]
+        if range_cell is None:
+            idx = nearest_visible(idx, cell, r_hidden, r, object_id, depth, owner)
+        else:
+            visible = ~((depth.take(cell) < r_hidden) & (owner.take(cell) != object_id.take(idx)))
+            idx, cell = idx[visible], cell[visible]
+            idx = idx[nearest_per_bin(cell, r.take(idx), range_cell, cfg.max_range)]
+        return idx, r.take(idx), az.take(idx), el.take(idx)
 
 
 @dataclass(frozen=True)
@@ -362,19 +360,9 @@ def _noisy_with_clutter(true: np.ndarray, cand: _Candidates, idx: np.ndarray, cf
     """Polar noise on the detected targets' true measurements (4, n) (range, azimuth, elevation, radial
     velocity), Poisson false alarms, a random order."""
     n = true.shape[1]
-    # the draws are (n, 4) row-major as ever; the arithmetic is done coordinate-major (the same bits)
-    meas = true + rng.standard_normal((n, 4)).T * np.asarray(cfg.sigmas, dtype=float)[:, None]
+    z = rng.standard_normal((n, 4))  # the draws: (n, 4) row-major, then the false alarms, then the order
     fa = _false_alarms(cfg, rng)
-    n_fa = fa.shape[1]
-    meas = np.concatenate([meas, fa], axis=1)
-    perm = rng.permutation(n + n_fa)
-    neg = np.full(n_fa, -1)
-    return Detections(
-        range=meas[0].take(perm), azimuth=meas[1].take(perm), elevation=meas[2].take(perm),
-        radial_velocity=meas[3].take(perm),
-        label=np.concatenate([cand.label.take(idx), np.full(n_fa, CLUTTER)]).take(perm),
-        object_id=np.concatenate([cand.object_id.take(idx), neg]).take(perm),
-        landmark_id=np.concatenate([cand.landmark_id.take(idx), neg]).take(perm),
-        p_world=np.concatenate([cand.p_world.take(idx, axis=0), np.full((n_fa, 3), np.nan)]).take(perm, axis=0),
-        true_polar=np.ascontiguousarray(np.concatenate([true, fa], axis=1).T.take(perm, axis=0)),
-    )
+    perm = rng.permutation(n + fa.shape[1])
+    cols = k.noisy_in_order(np.ascontiguousarray(true), z, np.asarray(cfg.sigmas, dtype=float), fa, perm, idx,
+                            cand.label, cand.object_id, cand.landmark_id, np.ascontiguousarray(cand.p_world), CLUTTER)
+    return Detections(*cols)

@@ -143,3 +143,42 @@ def test_near_index_tiles_select_as_testing_every_point(monkeypatch):
         monkeypatch.setattr(culling, "SMALL", len(xyz))
         want = small.near(T_sensor_world, CFG, 160.0, behind)
         np.testing.assert_array_equal(got, want)
+
+
+def test_near_points_kernel_is_the_numpy_test(scene):
+    """The pre-selection's compiled distance and behind-the-sensor tests keep what numpy's did (scalar and
+    per-point margins, and without the behind test for a field of view wider than +-90 deg)."""
+    from dataclasses import replace
+
+    from rodo.sim import culling
+
+    world, poses = scene
+    xyz = world.patches.origin + 0.5 * (world.patches.u + world.patches.v)
+    index = culling.NearIndex(xyz)
+    behind = np.random.default_rng(12).uniform(0.0, 5.0, len(xyz))
+    for cfg in (CFG, replace(CFG, azimuth_fov=(-2.0, 2.0))):
+        for T_sensor_world in poses:
+            for margin in (1.0, behind):
+                p = culling.sensor_position(T_sensor_world)
+                dx, dy, dz = xyz[:, 0] - p[0], xyz[:, 1] - p[1], xyz[:, 2] - p[2]
+                m = dx * dx + dy * dy + dz * dz <= 80.0 * 80.0
+                if cfg is CFG:
+                    b = T_sensor_world[0, :3]
+                    m &= b[0] * dx + b[1] * dy + b[2] * dz > -margin
+                got = index.near(T_sensor_world, cfg, 80.0, margin)
+                np.testing.assert_array_equal(got, np.flatnonzero(m))
+                assert 0 < len(got) < len(xyz)
+
+
+def test_samples_kernel_is_the_numpy_arithmetic(scene):
+    """Cull.sample's compiled points are (origin + a u) + b v as numpy computed them, bit for bit."""
+    world, poses = scene
+    cull = Cull(PatchGeometry(world.patches, indexed=True), poses[2], CFG)
+    pts, k = _sampled(cull, 5)
+    rng = np.random.default_rng(5)
+    cull.counts(CFG, rng)
+    ab = rng.random((k.size, 2))
+    g = cull.idx[k]
+    p = world.patches
+    want = (p.origin[g] + ab[:, :1] * p.u[g]) + ab[:, 1:] * p.v[g]
+    assert pts.shape == want.shape and pts.tobytes() == want.tobytes() and len(pts) > 500
