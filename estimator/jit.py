@@ -33,8 +33,8 @@ from numba.core import event
 __all__ = ["COMPILE_NOTICE", "FASTMATH", "LOCATOR_INSTALLED", "njit", "register_kernel_root", "source_digest",
            "source_stamp"]
 
-COMPILE_NOTICE = ("rodo: compiling the estimator's kernels (first run after an install or an edit only: about a "
-                  "minute, then cached)")
+COMPILE_NOTICE = ("rodo: compiling kernels (first run after an install or an edit only: about a minute, then "
+                  "cached)")
 
 # IEEE-safe fast-math subset shared by the kernels (no nnan/ninf: finiteness checks must survive)
 FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}

@@ -16,9 +16,14 @@ numpy computation it replaces, bit for bit)
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
-from rodo.estimator.jit import njit
+from rodo.estimator.jit import njit, register_kernel_root
+
+# the simulator's kernels: cache keyed on their sources' digest, and the first-run compile notice on stderr
+register_kernel_root(os.path.dirname(os.path.abspath(__file__)), "rodo.sim")
 
 @njit(cache=True, error_model="numpy")
 def dot3(a0, a1, a2, b0, b1, b2):
