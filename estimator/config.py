@@ -162,8 +162,8 @@ class VehicleConfig:
 
     sigma_roll_rate: float = 0.01  # rad/s
     sigma_pitch_rate: float = 0.015  # rad/s
-    sigma_lateral_velocity: float = 0.0  # m/s, at the vehicle origin; 0: off (docstring)
-    sigma_vertical_velocity: float = 0.0  # m/s, at the vehicle origin; 0: off
+    sigma_lateral_velocity: float = 0.0  # m/s at the vehicle origin; 0: off
+    sigma_vertical_velocity: float = 0.0  # m/s at the vehicle origin; 0: off
 
 
 @dataclass(frozen=True)
