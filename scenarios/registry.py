@@ -150,26 +150,31 @@ class Scenario:
         return seq, truth
 
     def simulate_rig(self, seed: int, layout: str, duration: float | None = None, progress=None,
-                     sensor_profile: str | None = None, **params) -> list[tuple[str, object, dict]]:
+                     sensor_profile: str | None = None, faults: Faults | None = None,
+                     **params) -> list[tuple[str, object, dict]]:
         """Several radars on the vehicle (`sim.rig.LAYOUTS[layout]`) on one drive: [(name, Sequence, truth)].
 
-        The same world and trajectory for every radar; radar i has its layout mount and its own random stream
-        (the first radar the scenario's, so a layout's "front" radar is `simulate(seed)` bit for bit) and scans
-        i / (n rate) s after the first, so the n radars take turns.
+        The same world and trajectory for every radar; radar i has its layout mount and its own random streams
+        (the first radar the scenario's, so a layout's "front" radar is `simulate(seed)` bit for bit, faults
+        included) and scans i / (n rate) s after the first, so the n radars take turns. `faults` apply to every
+        radar, each drawing its own.
         """
         from rodo.sim.rig import LAYOUTS
         if layout not in LAYOUTS:
             raise InputError(f"rig: unknown layout {layout!r}; known layouts: {', '.join(LAYOUTS)}")
+        faults = Faults() if faults is None else faults
         parts = self.build(seed, duration, **params)
-        base = self._radar(parts, sensor_profile)
+        base = faults.radar(self._radar(parts, sensor_profile))
+        faults.check_rate(base.rate_hz)
         out = []
         for i, (name, mount) in enumerate(LAYOUTS[layout]):
             config = base if mount is None else dataclasses.replace(base, T_vehicle_sensor=mount)
             rng = self._rngs(seed)[2] if i == 0 else \
                 np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(100 + i,)))
+            fault_seed = _streams(seed)[3] if i == 0 else np.random.SeedSequence(int(seed), spawn_key=(200 + i,))
             offset = i / (len(LAYOUTS[layout]) * config.rate_hz)
             seq, truth = simulate(parts.world, parts.profile, config, rng, parts.duration, progress,
-                                  t_offset=offset)
+                                  faults, fault_seed, t_offset=offset)
             if self.extra_truth is not None:
                 truth.update(self.extra_truth(parts.profile))
             out.append((name, seq, truth))
@@ -211,11 +216,11 @@ def get(name: str) -> Scenario:
 
 
 def simulate_rig_to(name: str, seed: int, out_dir, layout: str, duration: float | None = None, progress=None,
-                    **params):
+                    faults: Faults | None = None, **params):
     """Simulate scenario `name` with the radars of rig `layout` and write a rig directory (docs/sequence_format.md,
     "Rigs"): each radar's sequence and truth in its sub-directory, rig.toml. Returns [(name, Sequence, truth)]."""
     from rodo.sim.rig import write_rig_toml
-    radars = get(name).simulate_rig(seed, layout, duration, progress, **params)
+    radars = get(name).simulate_rig(seed, layout, duration, progress, faults=faults, **params)
     for radar, seq, truth in radars:
         write_simulation(Path(out_dir) / radar, seq, truth)
     write_rig_toml(out_dir, [r[0] for r in radars])

@@ -15,6 +15,10 @@ clean simulation is bit-identical with or without this module.
 - outage: intervals START:DURATION (s) during which scans are empty (no radar.csv rows).
 - outages: RATE:DURATION, outages at RATE per minute (a Poisson process: the count over the sequence is
   Poisson(RATE / 60 * span), the starts uniform over it), each DURATION s long; empty like `outage`.
+- doppler_common: SIGMA[:RHO], an error common to every radial velocity of a scan, as a wrong sensor velocity
+  b_k would give (v_r += -u . b_k, u the detection's true direction): b_k a 3-vector in the sensor frame,
+  AR(1) from scan to scan, b_k = RHO b_k-1 + sqrt(1 - RHO^2) SIGMA e_k (stationary: SIGMA per axis; RHO 0.9
+  unless given). Real radars show it (RadarScenes: 0.03-0.08 m/s, lag-1 0.56-0.97, docs/realdata.md).
 
 Randomness: ghosts, dropped scans, jitter and the outage starts draw from their own generators, spawned from a fault
 SeedSequence that is independent of the trajectory, world and radar streams; turning one of them on leaves
@@ -39,7 +43,8 @@ JITTER_CLIP = 0.45  # scan periods: the recorded-time perturbation is clipped to
 JITTER_MAX = 0.15  # scan periods: the largest sigma accepted
 MAX_RATE = 10_000.0  # per scan: clutter and ghost rates above this are refused (memory)
 MAX_OUTAGE_RATE = 600.0  # outages per minute (10 per second): higher rates are refused
-NAMES = ("clutter", "ghosts", "dropped", "jitter", "outage", "outages")
+DOPPLER_RHO = 0.9  # default scan-to-scan correlation of the common Doppler error
+NAMES = ("clutter", "ghosts", "dropped", "jitter", "outage", "outages", "doppler_common")
 
 
 @dataclass(frozen=True)
@@ -53,6 +58,7 @@ class Faults:
         jitter: 1-sigma timestamp jitter, s.
         outage: ((start, duration), ...) in seconds: scans in [start, start + duration) are empty.
         outages: (rate per minute, duration s) of random outages, or None (`outage_intervals`).
+        doppler_common: (sigma m/s, rho) of the scans' common Doppler error, or None (`common_doppler_errors`).
     """
 
     clutter: float | None = None
@@ -61,6 +67,7 @@ class Faults:
     jitter: float = 0.0
     outage: tuple = ()
     outages: tuple | None = None
+    doppler_common: tuple | None = None
 
     def __post_init__(self):
         if self.clutter is not None:
@@ -86,6 +93,15 @@ class Faults:
             _check("outages", rate, 0.0, MAX_OUTAGE_RATE, "rate per minute")
             _check("outages", duration, 0.0, np.inf, "duration in seconds", lo_open=True, hi_open=True)
             object.__setattr__(self, "outages", (float(rate), float(duration)))
+        if self.doppler_common is not None:
+            try:
+                sigma, rho = self.doppler_common
+            except (TypeError, ValueError):
+                raise InputError(f"--fault doppler_common: expected (sigma in m/s, rho), got "
+                                 f"{self.doppler_common!r}") from None
+            _check("doppler_common", sigma, 0.0, 10.0, "sigma in m/s")
+            _check("doppler_common", rho, 0.0, 1.0, "scan-to-scan correlation rho", hi_open=True)
+            object.__setattr__(self, "doppler_common", (float(sigma), float(rho)))
 
     @property
     def active(self) -> bool:
@@ -125,6 +141,14 @@ def parse_fault(text: str, faults: Faults) -> Faults:
     name = name.strip()
     if not sep or name not in NAMES:
         raise InputError(f"--fault: expected NAME=VALUE with NAME one of {', '.join(NAMES)}, got {text!r}")
+    if name == "doppler_common":
+        first, sep, rho = value.partition(":")
+        try:
+            pair = (float(first), float(rho) if sep else DOPPLER_RHO)
+        except ValueError:
+            raise InputError(f"--fault doppler_common: expected SIGMA or SIGMA:RHO (m/s, correlation in [0, 1)), "
+                             f"got {value!r}") from None
+        return replace(faults, doppler_common=pair)
     if name in ("outage", "outages"):
         first, sep, duration = value.partition(":")
         try:
@@ -171,15 +195,19 @@ def apply(faults: Faults, dets: list, t: np.ndarray, config: RadarConfig,
         dets: (K,) list of `Detections`, one per scan at the true times t.
         t: (K,) true scan times.
         config: the radar (field of view, range and rate).
-        seed_seq: the fault SeedSequence; spawns the ghost, dropped, jitter and outage generators (spawn(4)
-            gives the same first three as spawn(3): adding the fourth changed no earlier draw).
+        seed_seq: the fault SeedSequence; spawns the ghost, dropped, jitter, outage and Doppler generators
+            (spawn(5) gives the same first four as spawn(4): adding a generator changed no earlier draw).
     """
-    rng_ghost, rng_drop, rng_jitter, rng_outage = [np.random.default_rng(s) for s in seed_seq.spawn(4)]
+    rng_ghost, rng_drop, rng_jitter, rng_outage, rng_doppler = [np.random.default_rng(s) for s in seed_seq.spawn(5)]
     intervals = faults.outage
     if faults.outages is not None and len(t):
         intervals = intervals + outage_intervals(*faults.outages, t[0], t[-1] + 1.0 / config.rate_hz, rng_outage)
+    bias = None if faults.doppler_common is None else common_doppler_errors(len(dets), *faults.doppler_common,
+                                                                              rng_doppler)
     out = []
     for k, det in enumerate(dets):
+        if bias is not None:
+            det = add_common_doppler_error(det, bias[k])
         if faults.ghosts > 0:
             det = add_ghosts(det, faults.ghosts, config, rng_ghost)
         if any(start <= t[k] < start + duration for start, duration in intervals):
@@ -207,6 +235,27 @@ def jittered_times(t: np.ndarray, sigma: float, rate_hz: float, rng: np.random.G
         return np.array(t, dtype=float)
     clip = JITTER_CLIP / rate_hz
     return t + np.clip(sigma * rng.standard_normal(len(t)), -clip, clip)
+
+
+def common_doppler_errors(n: int, sigma: float, rho: float, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) sensor-velocity errors of n scans, AR(1): b_0 ~ N(0, sigma^2 I), b_k = rho b_k-1 + sqrt(1 - rho^2)
+    sigma e_k (stationary: sigma per axis, lag-1 correlation rho).
+
+    Checked by: tests/sim/test_faults.py::test_common_doppler_error_is_one_sensor_velocity_error_per_scan
+    """
+    e = rng.standard_normal((n, 3)) * sigma
+    b = np.empty((n, 3))
+    for k in range(n):
+        b[k] = e[k] if k == 0 else rho * b[k - 1] + np.sqrt(1.0 - rho * rho) * e[k]
+    return b
+
+
+def add_common_doppler_error(det: Detections, b: np.ndarray) -> Detections:
+    """The scan's detections with v_r - u . b, u the unit direction of each detection's true azimuth and
+    elevation (a sensor that believes its velocity is off by b measures every static target so)."""
+    az, el = det.true_polar[:, 1], det.true_polar[:, 2]
+    u_b = np.cos(el) * (np.cos(az) * b[0] + np.sin(az) * b[1]) + np.sin(el) * b[2]
+    return replace(det, radial_velocity=det.radial_velocity - u_b)
 
 
 def add_ghosts(det: Detections, rate: float, config: RadarConfig, rng: np.random.Generator) -> Detections:
@@ -247,5 +296,5 @@ def _subset(det: Detections, idx: np.ndarray) -> Detections:
     return Detections(*(getattr(det, f)[idx] for f in _FIELDS), **optional)
 
 
-__all__ = ["GHOST", "Faulted", "Faults", "add_ghosts", "apply", "jittered_times", "outage_intervals", "parse_fault",
-           "parse_faults"]
+__all__ = ["GHOST", "Faulted", "Faults", "add_common_doppler_error", "add_ghosts", "apply", "common_doppler_errors",
+           "jittered_times", "outage_intervals", "parse_fault", "parse_faults"]

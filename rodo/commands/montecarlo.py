@@ -37,7 +37,7 @@ def add_fault_option(p) -> None:
     """--fault NAME=VALUE (repeatable), shared by the campaign commands (montecarlo, table1)."""
     p.add_argument("--fault", metavar="NAME=VALUE", action="append", default=[],
                    help="a sensor fault in every trial, as in `rodo simulate --fault` (clutter, ghosts, dropped, "
-                        "outage, outages; repeatable; saved in campaign.json). jitter is refused: the evaluation "
+                        "outage, outages, doppler_common; repeatable; saved in campaign.json). jitter is refused: the evaluation "
                         "matches estimates to the true scan times")
 
 

@@ -37,7 +37,9 @@ def register(subparsers) -> None:
                         "from radar.csv with probability P in [0, 1); jitter=SIGMA s on the recorded scan times "
                         "(clipped to +-0.45 scan periods so times stay increasing; SIGMA <= 0.15 periods); "
                         "outage=START:DURATION s of empty scans (repeat for several); outages=RATE:DURATION "
-                        "random outages, RATE per minute, each DURATION s")
+                        "random outages, RATE per minute, each DURATION s; doppler_common=SIGMA[:RHO] an error "
+                        "of SIGMA m/s per axis common to a scan's radial velocities (a wrong sensor velocity), "
+                        "correlated RHO (default 0.9) from scan to scan")
     p.add_argument("--profile", metavar="NAME", default=None,
                    help="sensor profile (see `rodo profiles`; default: the scenario's, normally 'generic')")
     p.add_argument("--rig", metavar="LAYOUT", default=None,
@@ -93,6 +95,8 @@ def describe_faults(faults, truth: dict) -> str:
         parts.append(f"outage {start:g}-{start + dur:g} s")
     if faults.outages is not None:
         parts.append(f"outages {faults.outages[0]:g}/min, {faults.outages[1]:g} s each")
+    if faults.doppler_common is not None:
+        parts.append(f"common Doppler error {faults.doppler_common[0]:g} m/s, rho {faults.doppler_common[1]:g}")
     return "; ".join(parts)
 
 
@@ -150,11 +154,11 @@ def _simulate_rig(args: argparse.Namespace, scenario, params: dict, faults) -> i
 
     if args.rig not in LAYOUTS:
         raise InputError(f"--rig: unknown layout {args.rig!r}; known layouts: {', '.join(LAYOUTS)}")
-    if faults.active or args.rerun:
-        raise InputError("--rig: faults and --rerun are for a single radar; simulate the rig without them")
+    if args.rerun:
+        raise InputError("--rig: --rerun is for a single radar; simulate the rig without it")
     duration = scenario.default_duration(args.seed, **params) if args.duration is None else args.duration
     radars = scenarios.simulate_rig_to(scenario.name, args.seed, args.out, args.rig, duration,
-                                       sensor_profile=args.profile, **params)
+                                       sensor_profile=args.profile, faults=faults, **params)
     print(f"{scenario.name} v{scenario.version} seed {args.seed}, rig {args.rig} -> {args.out}")
     for name, _, truth in radars:
         counts = np.diff(truth["scan_offsets"])

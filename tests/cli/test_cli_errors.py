@@ -157,8 +157,8 @@ def test_simulate_bad_inputs(tmp_path, a_file, capsys):
     fails(capsys, ["simulate", "city", "--duration", "-1", "--out", tmp_path / "s"], "duration")
     fails(capsys, ["simulate", "city", "--duration", "0.2", "--out", a_file], "a_file", "cannot create")
     fails(capsys, ["simulate", "city", "--rig", "rear", "--out", tmp_path / "s"], "--rig", "rear", "front-corners")
-    fails(capsys, ["simulate", "city", "--rig", "corners", "--fault", "clutter=5", "--out", tmp_path / "s"], "--rig",
-          "faults")
+    fails(capsys, ["simulate", "city", "--rig", "corners", "--rerun", tmp_path / "x.rrd", "--out", tmp_path / "s"],
+          "--rig", "--rerun")
     _argparse_fails(capsys, ["simulate", "city", "--seed", "x", "--out", tmp_path / "s"], "--seed")
     assert not (tmp_path / "s").exists()
 

@@ -171,3 +171,39 @@ def test_apply_outages_at_a_rate_empties_the_drawn_intervals_deterministically()
     assert [len(d) for d in other.dets] != [len(d) for d in out.dets]
     no_outages = fl.apply(fl.Faults(dropped=0.1), dets, t, cfg, np.random.SeedSequence(9))
     assert np.array_equal(no_outages.dropped, out.dropped)
+
+
+def test_common_doppler_error_is_one_sensor_velocity_error_per_scan():
+    """doppler_common=SIGMA:RHO changes only the radial velocities, by -u . b_k with one b_k per scan (u the true
+    directions; recovered to round-off by least squares, ghosts included: they copy a shifted detection); the b_k
+    are AR(1) with sigma SIGMA per axis and lag-1 correlation RHO (2000 scans: within sampling error); ghosts and
+    drops draw as without it."""
+    rng = np.random.default_rng(6)
+    t = np.arange(2000) / 13.0
+    dets = [_dets(12, rng) for _ in t]
+    cfg = RadarConfig()
+    f = fl.parse_faults(["doppler_common=0.05:0.8", "dropped=0.2", "ghosts=1"])
+    assert f.doppler_common == (0.05, 0.8) and fl.parse_faults(["doppler_common=0.05"]).doppler_common == (0.05, 0.9)
+    out = fl.apply(f, dets, t, cfg, np.random.SeedSequence(3))
+    clean = fl.apply(fl.Faults(dropped=0.2, ghosts=1.0), dets, t, cfg, np.random.SeedSequence(3))
+    assert np.array_equal(out.dropped, clean.dropped)
+    b = []
+    for got, base in zip(out.dets, clean.dets):
+        for field in ("range", "azimuth", "elevation", "label", "true_polar"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(base, field))
+        az, el = base.true_polar[:, 1], base.true_polar[:, 2]
+        u = np.c_[np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]
+        delta = base.radial_velocity - got.radial_velocity
+        b_k = np.linalg.lstsq(u, delta, rcond=None)[0]
+        np.testing.assert_allclose(u @ b_k, delta, atol=1e-12)
+        b.append(b_k)
+    b = np.array(b)
+    np.testing.assert_allclose(b.std(axis=0), 0.05, rtol=0.15)
+    np.testing.assert_allclose([np.corrcoef(b[1:, i], b[:-1, i])[0, 1] for i in range(3)], 0.8, atol=0.05)
+
+
+@pytest.mark.parametrize("text", ["doppler_common=-0.1", "doppler_common=nan", "doppler_common=0.05:1",
+                                  "doppler_common=0.05:-0.1", "doppler_common=a", "doppler_common=0.1:x"])
+def test_bad_common_doppler_errors_name_the_fault(text):
+    with pytest.raises(InputError, match="--fault doppler_common"):
+        fl.parse_faults([text])

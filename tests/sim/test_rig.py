@@ -98,3 +98,19 @@ def test_unknown_layout_is_refused_listing_the_known_ones():
 
     with pytest.raises(InputError, match="unknown layout 'rear'; known layouts: front-corners"):
         scenarios.get("city").simulate_rig(0, "rear", 1.0)
+
+
+def test_faults_on_a_rig_draw_per_radar(tmp_path):
+    """Faults apply to every radar of a simulated rig: the front radar's is the single-radar simulation with the
+    same faults, bit for bit; the corner radars draw their own (their common Doppler errors differ)."""
+    from rodo import scenarios
+    from rodo.sim.faults import parse_faults
+
+    faults = parse_faults(["doppler_common=0.05:0.9", "dropped=0.1"])
+    radars = scenarios.simulate_rig_to("highway", 3, tmp_path / "rig", "front-corners", 2.0, faults=faults)
+    scenarios.simulate_to("highway", 3, tmp_path / "single", 2.0, faults=faults)
+    clean = scenarios.simulate_to("highway", 3, tmp_path / "clean", 2.0)[1]
+    assert (tmp_path / "rig" / "front" / "radar.csv").read_bytes() == (tmp_path / "single" / "radar.csv").read_bytes()
+    assert (tmp_path / "single" / "radar.csv").read_bytes() != (tmp_path / "clean" / "radar.csv").read_bytes()
+    drops = [truth["fault_dropped"] for _, _, truth in radars]
+    assert not np.array_equal(drops[1], drops[2]) and clean["t"].shape == radars[0][2]["t"].shape
