@@ -55,7 +55,7 @@ class NoiseConfig:
         this interval (it then says less than it knows, never more). Several radars' scans can be almost
         simultaneous (RadarScenes: 0.06 ms apart), and as dt -> 0 the CA prior's Q_k shrinks as dt^5: its
         information (1e22 there) swamps the normal equations in double precision, and CA/C and CA/P diverged.
-        One radar scanning at up to 1 / min_prior_dt Hz is unaffected.
+        States at least min_prior_dt apart (one radar at up to 1 / min_prior_dt Hz) are unaffected.
     """
 
     qc_ca: tuple[float, ...] = (2.0, 0.05, 0.05, 1e-4, 1e-3, 0.05)
