@@ -2,7 +2,8 @@
 
 - `calibrate_with_truth(seq, truth, config)`: ML Qc of both priors from the true states of truth.npz
   (`calibrate.fit_qc_to_truth`) and the measurement noise from the static detections
-  (`calibrate_sensor`); the config gets both Qc, `noise.sensor_sigma_scales` (per channel) and `noise.cartesian_sigma`;
+  (`calibrate_sensor`); the config gets both Qc, `noise.sensor_sigma_scales` (per channel), `noise.cartesian_sigma`
+  and `noise.doppler_common_sigma`;
   then, unless told not to, the uncertainty parameters at that noise (`calibrate_consistency`: the pairs'
   effective count kappa, the drift rate, the velocity correlation time).
 - `calibrate_without_truth(seq, config)`: EM (`calibrate.em_qc`) over the estimator's posteriors, for the
@@ -61,7 +62,8 @@ def _qc_report(fit: cal.QcFit) -> dict:
 def calibrate_with_truth(seq: Sequence, truth: dict, config: OdometryConfig, duration: float | None = None,
                          floor: float = cal.DEFAULT_FLOOR, consistency: bool = True,
                          progress=None) -> tuple[OdometryConfig, dict]:
-    """Learn qc_ca, qc_cv, the per-channel sensor sigma factors and the Cartesian sigma from ground truth, then
+    """Learn qc_ca, qc_cv, the per-channel sensor sigma factors, the Cartesian sigma and the scans' common Doppler
+    error (`calibrate_sensor.common_doppler_error`; 0 unless significant) from ground truth, then
     (`consistency`) the uncertainty section at that noise; returns (config, report). `progress` gets each
     `calibrate_consistency.ConsistencyStep`."""
     seq = truncate(seq, duration)
@@ -74,15 +76,19 @@ def calibrate_with_truth(seq: Sequence, truth: dict, config: OdometryConfig, dur
     channels = cs.channel_noise(res, r)
     scales = tuple(float(channels[c]["sigma"] / s) for c, s in zip(cs.CHANNELS, sensor))
     cart = cs.cartesian_sigma(res, r)
+    common = cs.common_doppler_error(seq, truth, scans=len(track.t))
+    if common["significant"]:  # the radial velocity's own sigma without the scans' common error
+        scales = scales[:3] + (common["sigma_vr_independent"] / sensor[3],)
     noise = dataclasses.replace(config.noise, qc_ca=tuple(fits["ca"].qc), qc_cv=tuple(fits["cv"].qc),
-                                sensor_sigma_scale=1.0, sensor_sigma_scales=scales, cartesian_sigma=cart)
+                                sensor_sigma_scale=1.0, sensor_sigma_scales=scales, cartesian_sigma=cart,
+                                doppler_common_sigma=common["sigma_c"])
     report = {
         "mode": "ground truth", "scans": len(track.t), "floor": floor,
         "qc_ca": _qc_report(fits["ca"]), "qc_cv": _qc_report(fits["cv"]),
         "measurement": {"channels": channels,
                         "sensor_toml_sigmas": dict(zip(cs.CHANNELS, sensor.tolist())),
                         "sensor_sigma_scale": scale, "sensor_sigma_scales": list(scales),
-                        "cartesian_sigma": cart},
+                        "cartesian_sigma": cart, "doppler_common": common},
     }
     config = config.replace(noise=noise)
     if consistency:

@@ -110,3 +110,54 @@ def sigma_scale(res: np.ndarray, sensor_sigmas) -> float:
     if sig.shape != (4,) or not np.all(sig > 0):
         raise InputError(f"sensor sigmas: expected 4 positive numbers, got {sensor_sigmas!r}")
     return float(np.sqrt(np.mean((np.asarray(res, dtype=float) / sig) ** 2)))
+
+
+def common_doppler_error(seq, truth: dict, scans: int | None = None, labels=STATIC_LABELS,
+                         significance: float = 4.0) -> dict:
+    """The scans' common Doppler error (`noise.doppler_common_sigma`) from the static detections' radial-velocity
+    residuals (measured - true): per scan k, b_k = least-squares fit of the residuals e on the true directions u
+    (e = -u . b_k + independent noise); the independent sigma_vr from what the fits leave; sigma_c^2 = mean over
+    scans and axes of b_k^2 minus the fit's own noise sigma_vr^2 (U^T U)^-1, set to 0 unless it exceeds
+    `significance` standard errors of that mean (a clean simulation then gets exactly 0). Returns sigma_c,
+    sigma_vr (independent), the lag-1 correlation of the b_k, the scans used and whether it was significant.
+
+    Checked by: tests/validation/test_calibrate.py::test_common_doppler_error_recovered_from_truth
+    """
+    from rodo.estimator.ego_velocity import PLANAR_ELEVATION
+
+    offsets = np.asarray(truth["scan_offsets"])
+    true = np.asarray(truth["det_true_polar"], dtype=float)
+    label = np.asarray(truth["det_label"])
+    n_scans = len(offsets) - 1 if scans is None else min(scans, len(offsets) - 1)
+    measured = [s.polar for s in seq.scans[:n_scans]]
+    b, excess_noise, rss, dof_sum = [], [], 0.0, 0
+    for k in range(n_scans):
+        rows = slice(offsets[k], offsets[k + 1])
+        keep = np.isin(label[rows], labels)
+        if len(measured[k]) != offsets[k + 1] - offsets[k]:
+            raise InputError(f"truth.npz: scan {k} has {offsets[k + 1] - offsets[k]} detections, radar.csv "
+                             f"{len(measured[k])}: not the same sequence")
+        t, m = true[rows][keep], measured[k][keep]
+        dof = 2 if np.all(np.abs(t[:, 2]) < PLANAR_ELEVATION) else 3
+        if len(t) < dof + 5:
+            continue
+        U = np.c_[np.cos(t[:, 2]) * np.cos(t[:, 1]), np.cos(t[:, 2]) * np.sin(t[:, 1]), np.sin(t[:, 2])][:, :dof]
+        e = m[:, 3] - t[:, 3]
+        info = U.T @ U
+        b_k = -np.linalg.solve(info, U.T @ e)
+        r = e + U @ b_k
+        rss, dof_sum = rss + float(r @ r), dof_sum + len(e) - dof
+        b.append(b_k)
+        excess_noise.append(np.diag(np.linalg.inv(info)))
+    if len(b) < 10:
+        raise InputError(f"common Doppler error: need >= 10 scans with static detections, got {len(b)}")
+    b, inv_diag = np.array(b), np.array(excess_noise)
+    sigma_vr2 = rss / dof_sum
+    samples = b**2 - sigma_vr2 * inv_diag  # unbiased for sigma_c^2 per scan and axis
+    est, se = float(samples.mean()), float(samples.std(ddof=1) / np.sqrt(samples.size))
+    significant = bool(est > significance * se)
+    lag1 = [float(np.corrcoef(b[1:, i], b[:-1, i])[0, 1]) for i in range(b.shape[1])]
+    return {"sigma_c": float(np.sqrt(est)) if significant else 0.0,
+            "sigma_c_estimate": float(np.sqrt(max(est, 0.0))), "standard_error_of_sigma_c2": se,
+            "significant": significant, "sigma_vr_independent": float(np.sqrt(sigma_vr2)), "lag1": lag1,
+            "scans": len(b)}

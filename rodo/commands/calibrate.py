@@ -79,7 +79,9 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                   f"({report['qc_ca']['intervals']} intervals); elements at the floor {report['floor']:g} were "
                   "not excited by the trajectory.",
                   "noise.sensor_sigma_scale: ML common factor on sensor.toml's sigmas from the static detections; "
-                  "per-channel sigmas are in the .json/.md report."]
+                  "per-channel sigmas are in the .json/.md report.",
+                  f"noise.doppler_common_sigma {report['measurement']['doppler_common']['sigma_c']:.3g} m/s: the "
+                  "scans' common Doppler error (0 unless significant; docs/calibration.md)."]
         if "consistency" in report:
             c = report["consistency"]
             lines.append(f"uncertainty: measurement_inflation {c['measurement_inflation']:.3g}, drift_rate_sigma and "
@@ -109,7 +111,12 @@ def _markdown(report: dict) -> str:
             ln = c["line"]
             lines.append(f"| {name} | {c['sigma']:.4g} | {m['sensor_toml_sigmas'][name]:.4g} | {c['mean']:.2g} | "
                          f"{ln['a']:.4g}, {ln['b_per_m']:.2g} ({ln['b_stderr']:.2g}) | {c['range_dependent']} |")
-        lines += ["", f"sensor_sigma_scale = {m['sensor_sigma_scale']:.4g}"]
+        d = m["doppler_common"]
+        lines += ["", f"sensor_sigma_scale = {m['sensor_sigma_scale']:.4g}",
+                  "", f"common Doppler error per scan: sigma_c {d['sigma_c_estimate']:.3g} m/s "
+                  f"({'significant' if d['significant'] else 'not significant: 0 written'}), independent radial "
+                  f"velocity sigma {d['sigma_vr_independent']:.3g} m/s, lag-1 correlation "
+                  f"{', '.join(f'{x:.2f}' for x in d['lag1'])} over {d['scans']} scans"]
         if "consistency" in report:
             lines += [""] + _consistency_markdown(report["consistency"])
     else:
