@@ -169,9 +169,11 @@ class Scenario:
         out = []
         for i, (name, mount) in enumerate(LAYOUTS[layout]):
             config = base if mount is None else dataclasses.replace(base, T_vehicle_sensor=mount)
-            rng = self._rngs(seed)[2] if i == 0 else \
-                np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(100 + i,)))
-            fault_seed = _streams(seed)[3] if i == 0 else np.random.SeedSequence(int(seed), spawn_key=(200 + i,))
+            if i == 0:  # the scenario's own radar and fault streams
+                radar_seed, fault_seed = _streams(seed)[2:4]
+            else:
+                radar_seed, fault_seed = (np.random.SeedSequence(int(seed), spawn_key=(key + i,)) for key in (100, 200))
+            rng = np.random.default_rng(radar_seed)
             offset = i / (len(LAYOUTS[layout]) * config.rate_hz)
             seq, truth = simulate(parts.world, parts.profile, config, rng, parts.duration, progress,
                                   faults, fault_seed, t_offset=offset)

@@ -85,20 +85,12 @@ class Faults:
             _check("outage", start, 0.0, np.inf, "start in seconds", hi_open=True)
             _check("outage", duration, 0.0, np.inf, "duration in seconds", lo_open=True, hi_open=True)
         if self.outages is not None:
-            try:
-                rate, duration = self.outages
-            except (TypeError, ValueError):
-                raise InputError(f"--fault outages: expected (rate per minute, duration in seconds), got "
-                                 f"{self.outages!r}") from None
+            rate, duration = _pair("outages", self.outages, "(rate per minute, duration in seconds)")
             _check("outages", rate, 0.0, MAX_OUTAGE_RATE, "rate per minute")
             _check("outages", duration, 0.0, np.inf, "duration in seconds", lo_open=True, hi_open=True)
             object.__setattr__(self, "outages", (float(rate), float(duration)))
         if self.doppler_common is not None:
-            try:
-                sigma, rho = self.doppler_common
-            except (TypeError, ValueError):
-                raise InputError(f"--fault doppler_common: expected (sigma in m/s, rho), got "
-                                 f"{self.doppler_common!r}") from None
+            sigma, rho = _pair("doppler_common", self.doppler_common, "(sigma in m/s, rho)")
             _check("doppler_common", sigma, 0.0, 10.0, "sigma in m/s")
             _check("doppler_common", rho, 0.0, 1.0, "scan-to-scan correlation rho", hi_open=True)
             object.__setattr__(self, "doppler_common", (float(sigma), float(rho)))
@@ -122,6 +114,15 @@ class Faults:
         if self.jitter > JITTER_MAX / rate_hz:
             raise InputError(f"--fault jitter: sigma must be at most {JITTER_MAX} scan periods "
                              f"({JITTER_MAX / rate_hz:.4g} s at {rate_hz:g} Hz), got {self.jitter!r}")
+
+
+def _pair(name: str, value, form: str) -> tuple:
+    """The two elements of `--fault name`'s value, or an InputError saying the expected form."""
+    try:
+        first, second = value
+    except (TypeError, ValueError):
+        raise InputError(f"--fault {name}: expected {form}, got {value!r}") from None
+    return first, second
 
 
 def _check(name, value, lo, hi, what, lo_open=False, hi_open=False) -> None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import radar_kernels as k
+from . import radar_kernels as kern
 from .objects import Patches
 
 
@@ -43,7 +43,7 @@ def nearest_per_cell(cell: np.ndarray, key: np.ndarray, n_cells: int) -> np.ndar
     per cell the first index of the smallest key so far (`radar_kernels.nearest_first`). Keys must not be NaN."""
     if not cell.size:
         return np.zeros(0, dtype=np.intp)
-    return k.nearest_first(np.ascontiguousarray(cell, dtype=np.int64), np.ascontiguousarray(key, dtype=np.float64),
+    return kern.nearest_first(np.ascontiguousarray(cell, dtype=np.int64), np.ascontiguousarray(key, dtype=np.float64),
                            n_cells)
 
 
@@ -82,7 +82,7 @@ def depth_buffer(p: Patches, cfg, dirs: np.ndarray, limit: np.ndarray | None = N
     if limit is None:
         limit = np.full(n_az * n_el, np.inf)
     f64 = [np.ascontiguousarray(a, dtype=np.float64) for a in (p.origin, p.u, p.v, limit, dirs)]
-    k.depth_pairs(*f64[:3], np.ascontiguousarray(p.object_id, dtype=np.int64),
+    kern.depth_pairs(*f64[:3], np.ascontiguousarray(p.object_id, dtype=np.int64),
                   *(np.ascontiguousarray(b, dtype=np.int64) for b in cell_boxes(p, cfg)), *f64[3:], n_el, depth,
                   owner)
     return depth, owner
@@ -98,10 +98,10 @@ def cell_boxes(p: Patches, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
 
     Checked by: tests/sim/test_occlusion.py::test_cell_boxes_are_the_numpy_computation_bit_for_bit"""
     n_az, n_el = cfg.grid_shape
-    x, y, z, h = k.box_points(*(np.ascontiguousarray(a, dtype=np.float64) for a in (p.origin, p.u, p.v)))
+    x, y, z, h = kern.box_points(*(np.ascontiguousarray(a, dtype=np.float64) for a in (p.origin, p.u, p.v)))
     az = np.arctan2(y, x)  # (9, P)
     el = np.arctan2(z, h)
-    return k.box_cells(az, el, x, float(cfg.azimuth_fov[0]), float(cfg.azimuth_fov[1]), float(cfg.cell_azimuth),
+    return kern.box_cells(az, el, x, float(cfg.azimuth_fov[0]), float(cfg.azimuth_fov[1]), float(cfg.cell_azimuth),
                        float(cfg.elevation_fov[0]), float(cfg.cell_elevation), n_az, n_el)
 
 
@@ -119,7 +119,7 @@ def gate_cells(r: np.ndarray, az: np.ndarray, el: np.ndarray, cfg) -> tuple[np.n
     """
     n_az, n_el = cfg.grid_shape
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (r, az, el)]
-    return k.gate_cells(*f, float(cfg.min_range), float(cfg.max_range), float(cfg.azimuth_fov[0]),
+    return kern.gate_cells(*f, float(cfg.min_range), float(cfg.max_range), float(cfg.azimuth_fov[0]),
                         float(cfg.azimuth_fov[1]), float(cfg.elevation_fov[0]), float(cfg.elevation_fov[1]),
                         float(cfg.cell_azimuth), float(cfg.cell_elevation), n_az, n_el, float(cfg.occlusion_tolerance))
 
@@ -133,5 +133,5 @@ def nearest_visible(idx: np.ndarray, cell: np.ndarray, r_hidden: np.ndarray, r: 
 
     Checked by: tests/sim/test_occlusion.py::test_nearest_visible_is_the_numpy_computation
     """
-    return k.nearest_visible(idx, cell, r_hidden, np.ascontiguousarray(r, dtype=np.float64),
+    return kern.nearest_visible(idx, cell, r_hidden, np.ascontiguousarray(r, dtype=np.float64),
                              np.ascontiguousarray(object_id, dtype=np.int64), depth, owner)

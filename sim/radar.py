@@ -29,7 +29,7 @@ import numpy as np
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 
-from . import radar_kernels as k
+from . import radar_kernels as kern
 from . import radar_physics as rp
 from .culling import Cull, PatchGeometry, PointIndex, transform
 from .multipath import ghost_candidates, reflectors
@@ -363,6 +363,6 @@ def _noisy_with_clutter(true: np.ndarray, cand: _Candidates, idx: np.ndarray, cf
     z = rng.standard_normal((n, 4))  # the draws: (n, 4) row-major, then the false alarms, then the order
     fa = _false_alarms(cfg, rng)
     perm = rng.permutation(n + fa.shape[1])
-    cols = k.noisy_in_order(np.ascontiguousarray(true), z, np.asarray(cfg.sigmas, dtype=float), fa, perm, idx,
+    cols = kern.noisy_in_order(np.ascontiguousarray(true), z, np.asarray(cfg.sigmas, dtype=float), fa, perm, idx,
                             cand.label, cand.object_id, cand.landmark_id, np.ascontiguousarray(cand.p_world), CLUTTER)
     return Detections(*cols)

@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from rodo.estimator.ego_velocity import PLANAR_ELEVATION
 from rodo.estimator.errors import InputError
-from rodo.estimator.radar_geometry import wrap_angle
+from rodo.estimator.radar_geometry import polar_to_cartesian, wrap_angle
 
 CHANNELS = ("range", "azimuth", "elevation", "radial_velocity")
 STATIC_LABELS = (0, 1)  # truth.npz det_label: 0 static surface, 1 static point scatterer, 2 mover, 3 clutter
@@ -123,8 +124,6 @@ def common_doppler_error(seq, truth: dict, scans: int | None = None, labels=STAT
 
     Checked by: tests/validation/test_calibrate.py::test_common_doppler_error_recovered_from_truth
     """
-    from rodo.estimator.ego_velocity import PLANAR_ELEVATION
-
     offsets = np.asarray(truth["scan_offsets"])
     true = np.asarray(truth["det_true_polar"], dtype=float)
     label = np.asarray(truth["det_label"])
@@ -141,7 +140,7 @@ def common_doppler_error(seq, truth: dict, scans: int | None = None, labels=STAT
         dof = 2 if np.all(np.abs(t[:, 2]) < PLANAR_ELEVATION) else 3
         if len(t) < dof + 5:
             continue
-        U = np.c_[np.cos(t[:, 2]) * np.cos(t[:, 1]), np.cos(t[:, 2]) * np.sin(t[:, 1]), np.sin(t[:, 2])][:, :dof]
+        U = polar_to_cartesian(np.c_[np.ones(len(t)), t[:, 1], t[:, 2]])[:, :dof]
         e = m[:, 3] - t[:, 3]
         info = U.T @ U
         b_k = -np.linalg.solve(info, U.T @ e)
