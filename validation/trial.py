@@ -41,6 +41,7 @@ class ScenarioTrial:
     step: int = 10
     configs: tuple[tuple[str, str], ...] = ()  # (label, TOML text): that label runs this config
     faults: tuple[str, ...] = ()  # `--fault NAME=VALUE` strings (sim.faults.parse_faults), default none
+    profile: str | None = None  # sensor profile (sim.profiles), default the scenario's
 
     def config(self, label: str):
         """The OdometryConfig of a model label: its TOML from `configs`, else the named model's defaults."""
@@ -63,7 +64,8 @@ class ScenarioTrial:
 
         faults = parse_faults(self.faults)
         t0 = time.perf_counter()
-        seq, truth = scenarios.get(self.scenario).simulate(trial.seed, self.duration, faults=faults)
+        seq, truth = scenarios.get(self.scenario).simulate(trial.seed, self.duration, faults=faults,
+                                                            sensor_profile=self.profile)
         gt = Trajectory(truth["t"], np.linalg.inv(truth["T_vehicle_world"]))
         simulate_s = time.perf_counter() - t0
         outcomes = []

@@ -1,4 +1,4 @@
-"""`rodo montecarlo SCENARIO --runs N --models ca-polar,cv-cartesian [--jobs J]
+"""`rodo montecarlo SCENARIO --runs N --models ca-polar,cv-cartesian [--fault NAME=VALUE] [--profile NAME] [--jobs J]
 [--dask ADDRESS|local [--dashboard [ADDR]]] [--duration S] [--seed S] --out DIR [--resume]`:
 a Monte Carlo campaign (validation/campaign.py, docs/evaluation.md)."""
 
@@ -29,8 +29,28 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated models (%(default)s), or LABEL=CONFIG.toml to run a config under a label "
                         "(e.g. ca-learned=ca.toml from rodo calibrate)")
     add_fault_option(p)
+    add_profile_option(p)
     add_campaign_options(p)
     p.set_defaults(func=main)
+
+
+def add_profile_option(p) -> None:
+    """--profile NAME, shared by the campaign commands (montecarlo, table1)."""
+    p.add_argument("--profile", metavar="NAME", default=None,
+                   help="sensor profile of every trial (see `rodo profiles`; default: the scenario's, normally "
+                        "'generic'; saved in campaign.json)")
+
+
+def check_profile(name: str | None) -> str | None:
+    """--profile checked before any work: InputError listing the known profiles for an unknown name."""
+    if name is not None:
+        from rodo.sim import profiles
+
+        try:
+            profiles.get(name)
+        except InputError as exc:
+            raise InputError(f"--profile: {exc}") from None
+    return name
 
 
 def add_fault_option(p) -> None:
@@ -220,6 +240,7 @@ def run_montecarlo(args) -> int:
     models = parse_models(args.models)
     configs = parse_configs(args.models)
     faults = check_faults(args.fault)
+    profile = check_profile(args.profile)
     trials = make_trials(args.seed, args.runs, models)
     meta = {"scenario": args.scenario, "runs": args.runs, "models": list(models), "seed": args.seed,
             "duration": args.duration}
@@ -227,7 +248,9 @@ def run_montecarlo(args) -> int:
         meta["configs"] = dict(configs)
     if faults:
         meta["faults"] = list(faults)  # only when given: older campaign.json files still resume
-    trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs, faults=faults)
+    if profile is not None:
+        meta["profile"] = profile  # likewise
+    trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs, faults=faults, profile=profile)
     with campaign_lock(args.out):  # held over the run and the summary: a second writer is refused
         total = remaining(trials, args.out) if args.resume else len(trials) * len(models)
         with Progress(total, f"montecarlo {args.scenario}", unit="run") as bar, \

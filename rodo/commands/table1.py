@@ -1,5 +1,5 @@
-"""`rodo table1 [--runs N] [--scenarios city,highway,hills,stop_and_go,blockage] [--fault NAME=VALUE] [--jobs J]
-[--dask ADDRESS|local [--dashboard [ADDR]]] [--duration S] [--seed S] --out DIR [--resume]`:
+"""`rodo table1 [--runs N] [--scenarios city,highway,hills,stop_and_go,blockage] [--fault NAME=VALUE] [--profile NAME]
+[--jobs J] [--dask ADDRESS|local [--dashboard [ADDR]]] [--duration S] [--seed S] --out DIR [--resume]`:
 the paper's Table I on the simulated suite (validation/table1.py).
 
 One resumable campaign per scenario in DIR/<scenario>/ (both models, N seeds from SeedSequence(seed)), then
@@ -15,8 +15,8 @@ from concurrent.futures import BrokenExecutor
 
 from rodo.estimator.errors import InputError
 from rodo.progress import Progress
-from rodo.commands.montecarlo import (add_campaign_options, add_fault_option, check_campaign_options, check_faults,
-                                      worker_died)
+from rodo.commands.montecarlo import (add_campaign_options, add_fault_option, add_profile_option,
+                                      check_campaign_options, check_faults, check_profile, worker_died)
 from rodo.validation.campaign_dir import campaign_lock
 from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign
 from rodo.validation.table1 import MODELS, SCENARIOS, Table1Trial, build_table, load_runs, write_table
@@ -30,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--runs", type=int, default=1, help="trials per scenario (default 1)")
     p.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated scenarios (%(default)s)")
     add_fault_option(p)
+    add_profile_option(p)
     add_campaign_options(p)
     p.set_defaults(func=main)
 
@@ -60,6 +61,7 @@ def run_table1(args) -> int:
     check_campaign_options(args)
     names = parse_scenarios(args.scenarios)
     faults = check_faults(args.fault, "table1")
+    check_profile(args.profile)
     trials = make_trials(args.seed, args.runs, MODELS)
     out = args.out
     if not args.resume:
@@ -75,6 +77,8 @@ def run_table1(args) -> int:
         meta = {"scenarios": ",".join(names), "runs": args.runs, "seed": args.seed, "duration": args.duration}
         if faults:
             meta["faults"] = list(faults)
+        if args.profile is not None:
+            meta["profile"] = args.profile
         text = write_table(out, table, meta)
     print(text)
     print(f"ran {ran} (trial, model) runs, skipped {skipped} already done, {errors} errors")
@@ -97,7 +101,10 @@ def _run_campaigns(args, names: list[str], trials, faults: tuple[str, ...]) -> t
                     "duration": args.duration, "table": "table1"}
             if faults:
                 meta["faults"] = list(faults)  # only when given: older campaign.json files still resume
-            rep = run_campaign(Table1Trial(s, args.duration, faults=faults), trials, executor, os.path.join(out, s),
+            if args.profile is not None:
+                meta["profile"] = args.profile  # likewise
+            trial_fn = Table1Trial(s, args.duration, faults=faults, profile=args.profile)
+            rep = run_campaign(trial_fn, trials, executor, os.path.join(out, s),
                                resume=args.resume, progress=bar, meta=meta)
             ran, skipped = ran + rep.ran, skipped + rep.skipped
             errors += sum(r["status"] == "error" for r in rep.rows)

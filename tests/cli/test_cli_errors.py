@@ -201,6 +201,7 @@ def test_evaluate_missing_files(tmp_path, capsys):
     (["--runs", "1", "--duration", "-2"], ("--duration",)),
     (["--runs", "1", "--fault", "dropped=-1"], ("--fault dropped",)),
     (["--runs", "1", "--fault", "jitter=0.001"], ("--fault jitter", "not supported")),
+    (["--runs", "1", "--profile", "lrr31"], ("--profile", "'lrr31'", "lrr30f")),
 ])
 def test_montecarlo_bad_inputs(tmp_path, capsys, extra, needles):
     fails(capsys, ["montecarlo", "city", *extra, "--out", tmp_path / "m"], *needles)

@@ -224,3 +224,28 @@ def test_table1_fault_is_simulated_recorded_and_required_on_resume(tmp_path, cap
     assert "ran 0 (trial, model) runs, skipped 2" in capsys.readouterr().out
     assert cli.main(base + ["--out", str(tmp_path / "j"), "--fault", "jitter=0.001"], commands=[table1_cmd]) == 2
     assert "--fault jitter: not supported by table1" in capsys.readouterr().err and not (tmp_path / "j").exists()
+
+
+@pytest.mark.slow
+def test_table1_profile_is_simulated_recorded_and_required_on_resume(tmp_path, capsys):
+    """`rodo table1 --profile`: every trial simulated with that sensor profile (its trials see the profile's
+    sparser scans: fewer detections than the default radar's), the profile saved in campaign.json and in
+    table1.json; resuming without it is refused naming campaign.json; an unknown profile is refused before any
+    work."""
+    base = ["table1", "--runs", "1", "--scenarios", "yaw_accel", "--duration", "1", "--jobs", "1"]
+    rows = {}
+    for name, extra in (("generic", []), ("lrr30f", ["--profile", "lrr30f"])):
+        assert cli.main(base + ["--out", str(tmp_path / name)] + extra, commands=[table1_cmd]) == 0
+        rows[name] = {r["model"]: r for r in read_results(tmp_path / name / "yaw_accel" / "results.csv")}
+        assert all(r["status"] == "ok" for r in rows[name].values())
+    meta = json.loads((tmp_path / "lrr30f" / "yaw_accel" / "campaign.json").read_text())
+    assert meta["profile"] == "lrr30f"
+    assert json.loads((tmp_path / "lrr30f" / "table1.json").read_text())["parameters"]["profile"] == "lrr30f"
+    assert "profile" not in json.loads((tmp_path / "generic" / "yaw_accel" / "campaign.json").read_text())
+    assert rows["generic"]["ca-polar"]["nis_mean"] != rows["lrr30f"]["ca-polar"]["nis_mean"]
+    capsys.readouterr()
+    assert cli.main(base + ["--out", str(tmp_path / "lrr30f"), "--resume"], commands=[table1_cmd]) == 2
+    assert "campaign.json" in (err := capsys.readouterr().err) and "profile" in err
+    assert cli.main(base + ["--out", str(tmp_path / "x"), "--profile", "nope"], commands=[table1_cmd]) == 2
+    assert "--profile: unknown sensor profile 'nope'" in capsys.readouterr().err and not (tmp_path / "x").exists()
+
