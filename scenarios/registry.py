@@ -21,6 +21,7 @@ from typing import Callable
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.estimator.registry import Registry
 from rodo.sim import profiles
 from rodo.sim.faults import Faults
 from rodo.sim.radar import RadarConfig
@@ -194,27 +195,10 @@ def _streams(seed: int) -> list[np.random.SeedSequence]:
     return np.random.SeedSequence(int(seed)).spawn(4)
 
 
-_REGISTRY: dict[str, Scenario] = {}
-
-
-def register(scenario: Scenario) -> Scenario:
-    if scenario.name in _REGISTRY:
-        raise ValueError(f"scenario {scenario.name!r} registered twice")
-    _REGISTRY[scenario.name] = scenario
-    return scenario
-
-
-def names() -> list[str]:
-    """Registered scenario names, in registration order."""
-    return list(_REGISTRY)
-
-
-def get(name: str) -> Scenario:
-    """The scenario called `name`; InputError listing the known names otherwise."""
-    try:
-        return _REGISTRY[name]
-    except (KeyError, TypeError):
-        raise InputError(f"unknown scenario {name!r}; known scenarios: {', '.join(names())}") from None
+_REGISTRY: Registry[Scenario] = Registry("scenario")
+register = _REGISTRY.register
+names = _REGISTRY.names  # in registration order
+get = _REGISTRY.get  # InputError listing the known names for an unknown one
 
 
 def simulate_rig_to(name: str, seed: int, out_dir, layout: str, duration: float | None = None, progress=None,

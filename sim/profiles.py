@@ -26,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from rodo.estimator.errors import InputError
+from rodo.estimator.registry import Registry
 
 from .radar import RadarConfig
 from .sensor_geometry import DEG, mount
@@ -57,28 +57,10 @@ class SensorProfile:
         return f"{self.name:<12} v{self.version:<3} {self.description}"
 
 
-_REGISTRY: dict[str, SensorProfile] = {}
-
-
-def register(profile: SensorProfile) -> SensorProfile:
-    if profile.name in _REGISTRY:
-        raise ValueError(f"sensor profile {profile.name!r} registered twice")
-    _REGISTRY[profile.name] = profile
-    return profile
-
-
-def names() -> list[str]:
-    """Registered profile names, in registration order (the default first)."""
-    return list(_REGISTRY)
-
-
-def get(name: str) -> SensorProfile:
-    """The profile called `name`; InputError listing the known ones otherwise."""
-    try:
-        return _REGISTRY[name]
-    except (KeyError, TypeError):
-        raise InputError(f"unknown sensor profile {name!r}; known profiles: {', '.join(names())}") \
-            from None
+_REGISTRY: Registry[SensorProfile] = Registry("sensor profile", "profiles")
+register = _REGISTRY.register
+names = _REGISTRY.names  # in registration order (the default first)
+get = _REGISTRY.get  # rodo.estimator.errors.InputError listing the known profiles for an unknown name
 
 
 def radar_config(name: str | None) -> RadarConfig:

@@ -1,10 +1,8 @@
-"""sim.profiles: the registry, the default profile bit-identical to the simulator before profiles, each profile's
+"""sim.profiles: the registry, the default profile's output frozen (to round-off), each profile's
 points per scan within its real sensor's range, Doppler wrap-around and 2D output in simulations, the rcs/snr
 columns through the sequence format and the estimator."""
 
 from __future__ import annotations
-
-import hashlib
 
 import numpy as np
 import pytest
@@ -17,25 +15,43 @@ from rodo.sim.radar import RadarConfig
 from rodo.sim.sequence import read_sequence
 from rodo.validation import realism
 
-FILES = ("radar.csv", "sensor.toml", "groundtruth.txt", "truth.npz")
-# sha256 of `simulate_to(name, seed, d, 10.0)`. Until the trajectory's checkpoint grid (sim/trajectory.py, which
-# moved every pose by round-off, < 1e-11 m) these were the hashes of the code before sensor profiles existed
-# (commit 486dd51), and the default profile matched them; since, of the first commit with the grid.
+from tests.fingerprint import fingerprint
+
+# tests.fingerprint of `simulate_to(name, seed, d, 10.0)` (floats to 1e-6; the same under OpenBLAS's SkylakeX, Zen,
+# Haswell and Sandybridge kernels, OPENBLAS_CORETYPE), of radar.csv and truth.npz. Since the trajectory's
+# checkpoint grid; any change of what the simulator draws or detects changes it.
 FROZEN = {
-    ("city", 0): {"radar.csv": "742bc3926197ca71e51a69a4a71f9c8e6b5cc377d02b6d0aa8bd3391f1089a88",
-                  "truth.npz": "d356d4e35a113be62906944cd9a28dfa7557b38f51bc41319024540c938bab7a"},
-    ("highway", 1): {"radar.csv": "b657b7dc8ef96cffe9115893c6bfed3c3264ee9206dc00e51110cb614c28e76b",
-                     "truth.npz": "21fbc3258903545f207ae2f3ffc5cb80dc643405ecfa73802b55f3038097f5c4"},
+    ("city", 0): {"radar.csv": "b41f5ac059d8c1407cc34059fc6a88775a6da716a1c6a7fd038a51b2ffe8fde1",
+                  "truth.npz": "a051caa829564935fa971016e9a02bebb6d98b275ddfbc771ad3f65b78d171a6"},
+    ("highway", 1): {"radar.csv": "ac313079e0360ffbe6d5f395eb86c722cb536a9ab1a2e1df2f56dcbbe567b827",
+                     "truth.npz": "a07a85852874a95f1aa63da60896dae02861c749d1f3f513420e67098dca1ceb"},
 }
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name, seed", sorted(FROZEN))
 @pytest.mark.parametrize("how", [{}, {"sensor_profile": "generic"}])
-def test_default_profile_is_bit_identical_to_the_code_before_profiles(tmp_path, name, seed, how):
+def test_default_profile_output_is_frozen(tmp_path, name, seed, how):
     scenarios.simulate_to(name, seed, tmp_path, 10.0, **how)
-    got = {f: hashlib.sha256((tmp_path / f).read_bytes()).hexdigest() for f in FROZEN[(name, seed)]}
-    assert got == FROZEN[(name, seed)]
+    got = fingerprint(tmp_path)
+    assert {f: got[f] for f in FROZEN[(name, seed)]} == FROZEN[(name, seed)]
+
+
+def test_fingerprint_sees_a_change_below_the_noise_and_ignores_round_off(tmp_path):
+    """One detection's range moved by 1e-5 m changes the fingerprint; every float moved by a relative 1e-15 (round-off) does not."""
+    scenarios.simulate_to("yaw_accel", 0, tmp_path, 1.0)
+    base = fingerprint(tmp_path)
+    lines = (tmp_path / "radar.csv").read_text().splitlines()
+    header, first = lines[0].split(","), lines[1].split(",")
+    i = header.index("range")
+    moved = dict(enumerate(first))
+    moved[i] = repr(float(first[i]) + 1e-5)
+    (tmp_path / "radar.csv").write_text("\n".join([lines[0], ",".join(moved[j] for j in range(len(first)))]
+                                                   + lines[2:]) + "\n")
+    assert fingerprint(tmp_path)["radar.csv"] != base["radar.csv"]
+    truth = dict(np.load(tmp_path / "truth.npz"))
+    np.savez(tmp_path / "truth.npz", **{k: v * (1 + 1e-15) if v.dtype.kind == "f" else v for k, v in truth.items()})
+    assert fingerprint(tmp_path)["truth.npz"] == base["truth.npz"]
 
 
 def test_registry_names_versions_and_unknown_names():
