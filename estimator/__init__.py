@@ -15,7 +15,7 @@ A map of the package (each module's public names are re-exported here):
     association.py      gating and one-to-one maximum-likelihood matching (eq. 86-88)
     scan_association.py the odometry's windowed, compiled association of the map with a scan
     ego_velocity.py     Doppler ego-velocity (RANSAC, least squares)
-    consensus.py        which Doppler consensus is the world (the consensus switch)
+    consensus.py        which Doppler consensus is the world (the consensus switch, moving groups)
     doppler.py          the Doppler front end: static detections, velocity correction, standstill
     local_map.py        LocalMap: the bounded map of points
     surface.py          surface-shaped covariances of new map points (the optional surface model)
@@ -27,6 +27,7 @@ A map of the package (each module's public names are re-exported here):
     config_rules.py     every config value's type, finiteness and range (one table, checked at load)
     errors.py           InputError, check_finite
     tomlcompat.py       tomllib on every supported Python (tomli on 3.10)
+    registry.py         Registry: named definitions (the scenarios', the sensor profiles')
 
 Configurations: `OdometryConfig.for_model("ca-polar")` (the paper's method), `"cv-cartesian"` (its baseline),
 `"ca-cartesian"` and `"cv-polar"` (ablations): the product of a `MotionPrior` and a `MeasurementModel`.
@@ -41,11 +42,12 @@ _EXPORTS = {
     "association": ("Association", "associate", "gate_threshold", "innovation_covariance", "match"),
     "config": ("MODELS", "OdometryConfig", "UncertaintyConfig"),
     "config_rules": ("RULES", "Rule", "check_values"),
-    "consensus": ("ConsensusSwitch",),
+    "consensus": ("ConsensusSwitch", "moving_voxels"),
     "doppler": ("DopplerFrontEnd", "body_velocity", "sensor_velocity"),
     "ego_velocity": ("EgoVelocity", "estimate_ego_velocity", "least_squares_velocity"),
     "errors": ("InputError", "check_finite"),
     "tomlcompat": ("tomllib",),
+    "registry": ("Registry",),
     "lie": ("se3", "so3"),
     "local_map": ("LocalMap",),
     "measurement_models": ("CartesianModel", "MeasurementModel", "PolarModel", "measurement_model"),

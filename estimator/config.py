@@ -85,6 +85,10 @@ class AssociationConfig:
     # on it); 0 disables it. Counting detections instead took a lead truck on `highway` (7.2 % instead of 0.25 %)
     consensus_switch_ratio: float = 3.0
     consensus_voxel: float = 2.0  # m
+    moving_group_z: float = 4.0  # a voxel (consensus_voxel) of detections whose mean radial velocity is off the
+    # world's by more than this many standard errors plus moving_group_margin moves, though each detection is inside
+    # its gate (a queue of cars moving off, denser than the world); left out of the static set. 0 disables it
+    moving_group_margin: float = 0.02  # m/s
     doppler_update_probability: float = 0.999  # chi-square level above which the scan's Doppler velocity
     # corrects the predicted velocity before association
     missing_elevation_zero: bool = False  # a detection whose elevation is exactly 0 has none (some 3D radars,

@@ -80,6 +80,8 @@ RULES: dict[str, Rule] = {
     "association.consensus_switch_after": NONNEGATIVE,
     "association.consensus_switch_ratio": Rule(1.0, lo_closed=False),
     "association.consensus_voxel": POSITIVE,
+    "association.moving_group_z": NONNEGATIVE,
+    "association.moving_group_margin": NONNEGATIVE,
     "association.doppler_update_probability": PROBABILITY,
     "map.capacity": Rule(10, 10_000_000),
     "map.max_age": Rule(0, 1_000_000),

@@ -7,25 +7,27 @@ Radial velocities see the sensor's velocity directly, v_r = -u . v_s for a stati
 
 (T_vehicle_sensor = [C_vs, r_vs], varpi = [nu; omega]). Per scan (docs/estimator.md, steps 2-4):
 - `DopplerFrontEnd.static_mask`: the largest Doppler consensus near the predicted sensor velocity (a
-  prediction-gated RANSAC), or a free fit when the prediction is uncertain; the consensus switch
-  (`rodo.estimator.consensus`) takes the world back from a co-moving object;
+  prediction-gated RANSAC), or a free fit when the prediction is uncertain; objects that move slowly as a
+  group are left out of it, and the consensus switch takes the world back from a co-moving object
+  (`rodo.estimator.consensus`);
 - `fit`: least-squares sensor velocity of the static detections;
 - `correct`: a Kalman update of the predicted mean when the fit contradicts it (an unmodelled jerk);
 - `standstill_information`: a zero-velocity term when the Doppler says the sensor is at rest.
 
 Checked by: tests/estimator/test_odometry.py::test_hard_braking_is_followed,
-    tests/estimator/test_ego_velocity.py
+    tests/estimator/test_ego_velocity.py, tests/estimator/test_moving_groups.py
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import association
 from .config import OdometryConfig
-from .consensus import MIN_STATIC, ConsensusSwitch
+from .consensus import MIN_STATIC, ConsensusSwitch, moving_voxels
 from .ego_velocity import EgoVelocity, estimate_ego_velocity, least_squares_velocity
 from .lie import so3
 from .motion import MotionPrior
@@ -115,7 +117,9 @@ class DopplerFrontEnd:
         prediction's 3-sigma plus `association.doppler_jerk_margin` compete, so an unmodelled jerk (hard
         braking, a hand-held sensor) does not split the static world into "moving" detections, and a larger
         moving consensus (a truck filling the view) is not taken for the world while the world offers
-        MIN_STATIC detections near the prediction. Otherwise, and when an uncertain prediction (after
+        MIN_STATIC detections near the prediction. Voxels whose detections move slowly as a group (a queue of
+        cars moving off, each detection still inside its gate) are left out first (`consensus.moving_voxels`,
+        `association.moving_group_z`). Otherwise, and when an uncertain prediction (after
         initialisation or an outage) explains too little of the scan, an unconstrained RANSAC fit decides.
         """
         acfg = self.config.association
@@ -128,8 +132,9 @@ class DopplerFrontEnd:
         fit_threshold = 3.0 * np.sqrt(var_fit) + acfg.doppler_sigma_floor
         if confident:
             radius = 3.0 * np.sqrt(np.linalg.eigvalsh(Sv)[-1]) + acfg.doppler_jerk_margin
-            ego = estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3], threshold=fit_threshold,
-                                        near=(v, radius))
+            moving = self._moving_groups(polar, u, var_fit, mask, radius)
+            mask &= ~moving
+            ego = self._gated_ransac(polar, fit_threshold, v, radius, ~moving)
             ours = ego.inliers if ego.ok and ego.inliers.sum() >= max(MIN_STATIC, mask.sum()) else mask
             switch = self.consensus.outvoted(az, el, vr, fit_threshold, ours, u * polar[:, :1], scan_dt)
             if switch is not None:
@@ -142,6 +147,30 @@ class DopplerFrontEnd:
         if ego.ok and ego.inliers.sum() > mask.sum():
             return ego.inliers, "doppler-ransac-fallback"
         return mask, None
+
+    def _moving_groups(self, polar: np.ndarray, u: np.ndarray, var_fit: np.ndarray, gated: np.ndarray,
+                       radius: float) -> np.ndarray:
+        """Detections in voxels that move slowly as a group (`consensus.moving_voxels`, within `radius` of the
+        world's Doppler fit); none when `association.moving_group_z` is 0."""
+        acfg = self.config.association
+        if acfg.moving_group_z <= 0:
+            return np.zeros(len(polar), bool)
+        return moving_voxels(u * polar[:, :1], u, polar[:, 3], var_fit, gated, acfg.consensus_voxel,
+                             acfg.moving_group_z, acfg.moving_group_margin, radius)
+
+    def _gated_ransac(self, polar: np.ndarray, threshold: np.ndarray, v: np.ndarray, radius: float,
+                      keep: np.ndarray) -> EgoVelocity:
+        """The prediction-gated RANSAC (hypotheses within `radius` of v) over the detections in `keep`; its
+        inliers a mask over all of them. With every detection kept, the draws of a run without the test."""
+        az, el, vr = polar[:, 1], polar[:, 2], polar[:, 3]
+        if keep.all():
+            return estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3], threshold=threshold,
+                                         near=(v, radius))
+        ego = estimate_ego_velocity(az[keep], el[keep], vr[keep], self.rng, sigma_vr=self.sigmas[3],
+                                    threshold=threshold[keep], near=(v, radius))
+        inliers = np.zeros(len(polar), bool)
+        inliers[np.flatnonzero(keep)[ego.inliers]] = True
+        return dataclasses.replace(ego, inliers=inliers)
 
     def widest_consensus(self, polar: np.ndarray, threshold=None) -> EgoVelocity:
         """The Doppler fit to start from (`ConsensusSwitch.widest`, drawing first from the main stream)."""

@@ -31,6 +31,7 @@ UNITS = {
     "noise.sensor_sigma_scales": "factors", "noise.sigma_floor": "m, rad, rad, m/s",
     "association.gate_probability": "probability", "association.max_radius": "m",
     "association.reassociate": "times", "association.consensus_switch_ratio": "ratio",
+    "association.moving_group_z": "standard errors",
     "association.doppler_update_probability": "probability",
     "map.capacity": "points", "map.max_age": "scans", "map.voxel": "m", "map.fuse": "true/false",
     "map.max_fused": "observations",
@@ -50,7 +51,8 @@ DESCRIPTIONS = {  # keys whose source has no comment or docstring entry, or only
     "association.max_radius": "largest distance between a detection and a map point it may be associated with",
     "association.consensus_switch_ratio": "see consensus_switch_after",
     "association.consensus_voxel": "voxel size in which the space a Doppler consensus covers is counted (see "
-                                   "consensus_switch_after)",
+                                   "consensus_switch_after), and the moving-group test groups detections",
+    "association.moving_group_margin": "added to the moving-group test's threshold (see moving_group_z)",
     "map.capacity": "largest number of points in the local map (the paper: 1500)",
     "map.max_age": "scans after which a map point that was not associated again is dropped",
     "map.voxel": "voxel size of the map's downsampling; 0 keeps every point",
