@@ -20,8 +20,7 @@ Checked by: tests/estimator/test_odometry.py::test_hard_braking_is_followed,
 
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -170,7 +169,7 @@ class DopplerFrontEnd:
                                     threshold=threshold[keep], near=(v, radius))
         inliers = np.zeros(len(polar), bool)
         inliers[np.flatnonzero(keep)[ego.inliers]] = True
-        return dataclasses.replace(ego, inliers=inliers)
+        return replace(ego, inliers=inliers)
 
     def widest_consensus(self, polar: np.ndarray, threshold=None) -> EgoVelocity:
         """The Doppler fit to start from (`ConsensusSwitch.widest`, drawing first from the main stream)."""

@@ -38,16 +38,14 @@ def test_default_profile_output_is_frozen(tmp_path, name, seed, how):
 
 
 def test_fingerprint_sees_a_change_below_the_noise_and_ignores_round_off(tmp_path):
-    """One detection's range moved by 1e-5 m changes the fingerprint; every float moved by a relative 1e-15 (round-off) does not."""
+    """One detection's range moved by 1e-5 m changes the fingerprint; every float of truth.npz moved by a
+    relative 1e-15 (round-off) does not."""
     scenarios.simulate_to("yaw_accel", 0, tmp_path, 1.0)
     base = fingerprint(tmp_path)
     lines = (tmp_path / "radar.csv").read_text().splitlines()
-    header, first = lines[0].split(","), lines[1].split(",")
-    i = header.index("range")
-    moved = dict(enumerate(first))
-    moved[i] = repr(float(first[i]) + 1e-5)
-    (tmp_path / "radar.csv").write_text("\n".join([lines[0], ",".join(moved[j] for j in range(len(first)))]
-                                                   + lines[2:]) + "\n")
+    row, i = lines[1].split(","), lines[0].split(",").index("range")
+    row[i] = repr(float(row[i]) + 1e-5)
+    (tmp_path / "radar.csv").write_text("\n".join([lines[0], ",".join(row), *lines[2:]]) + "\n")
     assert fingerprint(tmp_path)["radar.csv"] != base["radar.csv"]
     truth = dict(np.load(tmp_path / "truth.npz"))
     np.savez(tmp_path / "truth.npz", **{k: v * (1 + 1e-15) if v.dtype.kind == "f" else v for k, v in truth.items()})
