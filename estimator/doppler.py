@@ -131,11 +131,12 @@ class DopplerFrontEnd:
         fit_threshold = 3.0 * np.sqrt(var_fit) + acfg.doppler_sigma_floor
         if confident:
             radius = 3.0 * np.sqrt(np.linalg.eigvalsh(Sv)[-1]) + acfg.doppler_jerk_margin
-            moving = self._moving_groups(polar, u, var_fit, mask, radius)
+            pts = u * polar[:, :1]
+            moving = self._moving_groups(pts, u, vr, var_fit, mask, radius)
             mask &= ~moving
             ego = self._gated_ransac(polar, fit_threshold, v, radius, ~moving)
             ours = ego.inliers if ego.ok and ego.inliers.sum() >= max(MIN_STATIC, mask.sum()) else mask
-            switch = self.consensus.outvoted(az, el, vr, fit_threshold, ours, u * polar[:, :1], scan_dt)
+            switch = self.consensus.outvoted(az, el, vr, fit_threshold, ours, pts, scan_dt)
             if switch is not None:
                 return switch, "doppler-consensus-switch"
             if ours.sum() >= MIN_STATIC:
@@ -147,28 +148,25 @@ class DopplerFrontEnd:
             return ego.inliers, "doppler-ransac-fallback"
         return mask, None
 
-    def _moving_groups(self, polar: np.ndarray, u: np.ndarray, var_fit: np.ndarray, gated: np.ndarray,
-                       radius: float) -> np.ndarray:
+    def _moving_groups(self, pts: np.ndarray, u: np.ndarray, vr: np.ndarray, var_fit: np.ndarray,
+                       gated: np.ndarray, radius: float) -> np.ndarray:
         """Detections in voxels that move slowly as a group (`consensus.moving_voxels`, within `radius` of the
         world's Doppler fit); none when `association.moving_group_z` is 0."""
         acfg = self.config.association
         if acfg.moving_group_z <= 0:
-            return np.zeros(len(polar), bool)
-        return moving_voxels(u * polar[:, :1], u, polar[:, 3], var_fit, gated, acfg.consensus_voxel,
-                             acfg.moving_group_z, acfg.moving_group_margin, radius)
+            return np.zeros(len(vr), bool)
+        return moving_voxels(pts, u, vr, var_fit, gated, acfg.consensus_voxel, acfg.moving_group_z,
+                             acfg.moving_group_margin, radius)
 
     def _gated_ransac(self, polar: np.ndarray, threshold: np.ndarray, v: np.ndarray, radius: float,
                       keep: np.ndarray) -> EgoVelocity:
         """The prediction-gated RANSAC (hypotheses within `radius` of v) over the detections in `keep`; its
         inliers a mask over all of them. With every detection kept, the draws of a run without the test."""
-        az, el, vr = polar[:, 1], polar[:, 2], polar[:, 3]
-        if keep.all():
-            return estimate_ego_velocity(az, el, vr, self.rng, sigma_vr=self.sigmas[3], threshold=threshold,
-                                         near=(v, radius))
-        ego = estimate_ego_velocity(az[keep], el[keep], vr[keep], self.rng, sigma_vr=self.sigmas[3],
-                                    threshold=threshold[keep], near=(v, radius))
+        idx = np.flatnonzero(keep)
+        ego = estimate_ego_velocity(polar[idx, 1], polar[idx, 2], polar[idx, 3], self.rng, sigma_vr=self.sigmas[3],
+                                    threshold=threshold[idx], near=(v, radius))
         inliers = np.zeros(len(polar), bool)
-        inliers[np.flatnonzero(keep)[ego.inliers]] = True
+        inliers[idx[ego.inliers]] = True
         return replace(ego, inliers=inliers)
 
     def widest_consensus(self, polar: np.ndarray, threshold=None) -> EgoVelocity:

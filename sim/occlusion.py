@@ -44,7 +44,7 @@ def nearest_per_cell(cell: np.ndarray, key: np.ndarray, n_cells: int) -> np.ndar
     if not cell.size:
         return np.zeros(0, dtype=np.intp)
     return kern.nearest_first(np.ascontiguousarray(cell, dtype=np.int64), np.ascontiguousarray(key, dtype=np.float64),
-                           n_cells)
+                              n_cells)
 
 
 def nearest_per_bin(cell: np.ndarray, r: np.ndarray, range_cell: float, max_range: float) -> np.ndarray:
@@ -83,8 +83,8 @@ def depth_buffer(p: Patches, cfg, dirs: np.ndarray, limit: np.ndarray | None = N
         limit = np.full(n_az * n_el, np.inf)
     f64 = [np.ascontiguousarray(a, dtype=np.float64) for a in (p.origin, p.u, p.v, limit, dirs)]
     kern.depth_pairs(*f64[:3], np.ascontiguousarray(p.object_id, dtype=np.int64),
-                  *(np.ascontiguousarray(b, dtype=np.int64) for b in cell_boxes(p, cfg)), *f64[3:], n_el, depth,
-                  owner)
+                     *(np.ascontiguousarray(b, dtype=np.int64) for b in cell_boxes(p, cfg)), *f64[3:], n_el, depth,
+                     owner)
     return depth, owner
 
 
@@ -102,7 +102,7 @@ def cell_boxes(p: Patches, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     az = np.arctan2(y, x)  # (9, P)
     el = np.arctan2(z, h)
     return kern.box_cells(az, el, x, float(cfg.azimuth_fov[0]), float(cfg.azimuth_fov[1]), float(cfg.cell_azimuth),
-                       float(cfg.elevation_fov[0]), float(cfg.cell_elevation), n_az, n_el)
+                          float(cfg.elevation_fov[0]), float(cfg.cell_elevation), n_az, n_el)
 
 
 def gate_cells(r: np.ndarray, az: np.ndarray, el: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray,
@@ -120,8 +120,9 @@ def gate_cells(r: np.ndarray, az: np.ndarray, el: np.ndarray, cfg) -> tuple[np.n
     n_az, n_el = cfg.grid_shape
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (r, az, el)]
     return kern.gate_cells(*f, float(cfg.min_range), float(cfg.max_range), float(cfg.azimuth_fov[0]),
-                        float(cfg.azimuth_fov[1]), float(cfg.elevation_fov[0]), float(cfg.elevation_fov[1]),
-                        float(cfg.cell_azimuth), float(cfg.cell_elevation), n_az, n_el, float(cfg.occlusion_tolerance))
+                           float(cfg.azimuth_fov[1]), float(cfg.elevation_fov[0]), float(cfg.elevation_fov[1]),
+                           float(cfg.cell_azimuth), float(cfg.cell_elevation), n_az, n_el,
+                           float(cfg.occlusion_tolerance))
 
 
 def nearest_visible(idx: np.ndarray, cell: np.ndarray, r_hidden: np.ndarray, r: np.ndarray, object_id: np.ndarray,
@@ -134,4 +135,4 @@ def nearest_visible(idx: np.ndarray, cell: np.ndarray, r_hidden: np.ndarray, r: 
     Checked by: tests/sim/test_occlusion.py::test_nearest_visible_is_the_numpy_computation
     """
     return kern.nearest_visible(idx, cell, r_hidden, np.ascontiguousarray(r, dtype=np.float64),
-                             np.ascontiguousarray(object_id, dtype=np.int64), depth, owner)
+                                np.ascontiguousarray(object_id, dtype=np.int64), depth, owner)

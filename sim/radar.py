@@ -364,5 +364,6 @@ def _noisy_with_clutter(true: np.ndarray, cand: _Candidates, idx: np.ndarray, cf
     fa = _false_alarms(cfg, rng)
     perm = rng.permutation(n + fa.shape[1])
     cols = kern.noisy_in_order(np.ascontiguousarray(true), z, np.asarray(cfg.sigmas, dtype=float), fa, perm, idx,
-                            cand.label, cand.object_id, cand.landmark_id, np.ascontiguousarray(cand.p_world), CLUTTER)
+                               cand.label, cand.object_id, cand.landmark_id, np.ascontiguousarray(cand.p_world),
+                               CLUTTER)
     return Detections(*cols)

@@ -200,52 +200,37 @@ def test_a_scenario_whose_runs_all_failed_is_a_row_of_na():
 
 
 @pytest.mark.slow
-def test_table1_fault_is_simulated_recorded_and_required_on_resume(tmp_path, capsys):
-    """`rodo table1 --fault`: every trial simulated with the fault (its rows differ from a clean run's), the
-    fault saved in each scenario's campaign.json and in table1.json (a clean run saves none, so older campaigns
-    still resume); resuming without the fault is refused naming campaign.json; jitter is refused before any
-    work, as by montecarlo."""
+@pytest.mark.parametrize("option, value, key, saved", [
+    ("--fault", "clutter=200", "faults", ["clutter=200"]),
+    ("--profile", "lrr30f", "profile", "lrr30f"),
+])
+def test_table1_option_is_simulated_recorded_and_required_on_resume(tmp_path, capsys, option, value, key, saved):
+    """`rodo table1 --fault` and `--profile`: every trial simulated with it (its rows differ from a plain run's:
+    clutter, or the profile's sparser scans), saved in each scenario's campaign.json and in table1.json (a plain
+    run saves nothing, so older campaigns still resume); resuming without it is refused naming campaign.json,
+    resuming with it skips the finished rows."""
     base = ["table1", "--runs", "1", "--scenarios", "yaw_accel", "--duration", "1", "--jobs", "1"]
     rows = {}
-    for name, extra in (("clean", []), ("faulty", ["--fault", "clutter=200"])):
+    for name, extra in (("plain", []), ("with", [option, value])):
         assert cli.main(base + ["--out", str(tmp_path / name)] + extra, commands=[table1_cmd]) == 0
         rows[name] = {r["model"]: r for r in read_results(tmp_path / name / "yaw_accel" / "results.csv")}
         assert all(r["status"] == "ok" for r in rows[name].values())
-    meta = json.loads((tmp_path / "faulty" / "yaw_accel" / "campaign.json").read_text())
-    assert meta["faults"] == ["clutter=200"]
-    assert json.loads((tmp_path / "faulty" / "table1.json").read_text())["parameters"]["faults"] == ["clutter=200"]
-    assert "faults" not in json.loads((tmp_path / "clean" / "yaw_accel" / "campaign.json").read_text())
-    assert rows["clean"]["ca-polar"]["nis_mean"] != rows["faulty"]["ca-polar"]["nis_mean"]
+    assert json.loads((tmp_path / "with" / "yaw_accel" / "campaign.json").read_text())[key] == saved
+    assert json.loads((tmp_path / "with" / "table1.json").read_text())["parameters"][key] == saved
+    assert key not in json.loads((tmp_path / "plain" / "yaw_accel" / "campaign.json").read_text())
+    assert rows["plain"]["ca-polar"]["nis_mean"] != rows["with"]["ca-polar"]["nis_mean"]
     capsys.readouterr()
-    assert cli.main(base + ["--out", str(tmp_path / "faulty"), "--resume"], commands=[table1_cmd]) == 2
-    assert "campaign.json" in (err := capsys.readouterr().err) and "faults" in err
-    assert cli.main(base + ["--out", str(tmp_path / "faulty"), "--resume", "--fault", "clutter=200"],
-                    commands=[table1_cmd]) == 0
+    assert cli.main(base + ["--out", str(tmp_path / "with"), "--resume"], commands=[table1_cmd]) == 2
+    assert "campaign.json" in (err := capsys.readouterr().err) and key in err
+    assert cli.main(base + ["--out", str(tmp_path / "with"), "--resume", option, value], commands=[table1_cmd]) == 0
     assert "ran 0 (trial, model) runs, skipped 2" in capsys.readouterr().out
-    assert cli.main(base + ["--out", str(tmp_path / "j"), "--fault", "jitter=0.001"], commands=[table1_cmd]) == 2
-    assert "--fault jitter: not supported by table1" in capsys.readouterr().err and not (tmp_path / "j").exists()
 
 
-@pytest.mark.slow
-def test_table1_profile_is_simulated_recorded_and_required_on_resume(tmp_path, capsys):
-    """`rodo table1 --profile`: every trial simulated with that sensor profile (its trials see the profile's
-    sparser scans: fewer detections than the default radar's), the profile saved in campaign.json and in
-    table1.json; resuming without it is refused naming campaign.json; an unknown profile is refused before any
-    work."""
+@pytest.mark.parametrize("option, value, message", [
+    ("--fault", "jitter=0.001", "--fault jitter: not supported by table1"),  # as by montecarlo
+    ("--profile", "nope", "--profile: unknown sensor profile 'nope'"),
+])
+def test_table1_refuses_a_bad_option_before_any_work(tmp_path, capsys, option, value, message):
     base = ["table1", "--runs", "1", "--scenarios", "yaw_accel", "--duration", "1", "--jobs", "1"]
-    rows = {}
-    for name, extra in (("generic", []), ("lrr30f", ["--profile", "lrr30f"])):
-        assert cli.main(base + ["--out", str(tmp_path / name)] + extra, commands=[table1_cmd]) == 0
-        rows[name] = {r["model"]: r for r in read_results(tmp_path / name / "yaw_accel" / "results.csv")}
-        assert all(r["status"] == "ok" for r in rows[name].values())
-    meta = json.loads((tmp_path / "lrr30f" / "yaw_accel" / "campaign.json").read_text())
-    assert meta["profile"] == "lrr30f"
-    assert json.loads((tmp_path / "lrr30f" / "table1.json").read_text())["parameters"]["profile"] == "lrr30f"
-    assert "profile" not in json.loads((tmp_path / "generic" / "yaw_accel" / "campaign.json").read_text())
-    assert rows["generic"]["ca-polar"]["nis_mean"] != rows["lrr30f"]["ca-polar"]["nis_mean"]
-    capsys.readouterr()
-    assert cli.main(base + ["--out", str(tmp_path / "lrr30f"), "--resume"], commands=[table1_cmd]) == 2
-    assert "campaign.json" in (err := capsys.readouterr().err) and "profile" in err
-    assert cli.main(base + ["--out", str(tmp_path / "x"), "--profile", "nope"], commands=[table1_cmd]) == 2
-    assert "--profile: unknown sensor profile 'nope'" in capsys.readouterr().err and not (tmp_path / "x").exists()
-
+    assert cli.main(base + ["--out", str(tmp_path / "x"), option, value], commands=[table1_cmd]) == 2
+    assert message in capsys.readouterr().err and not (tmp_path / "x").exists()
