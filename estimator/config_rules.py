@@ -106,6 +106,7 @@ RULES: dict[str, Rule] = {
     "uncertainty.inflation": Rule(1.0),
     "uncertainty.measurement_inflation": Rule(1.0),
     "uncertainty.drift_rate_sigma": Rule(0.0, size=6),
+    "uncertainty.prior_memory": NONNEGATIVE,
     "solver.iterations": Rule(1, 1000),
     "solver.step_tolerance": POSITIVE,
     "solver.refine_iterations": Rule(1, 1000),

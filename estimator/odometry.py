@@ -250,7 +250,7 @@ class RadarOdometry:
         self.P, P_pair = self.window.newest_covariances()  # at the solution; marginalising does not change them
         P_relative = self._relative_covariance(P_pair)
         while len(self.window.states) > cfg.window:
-            self.window.marginalize_oldest()
+            self.window.marginalize_oldest(cfg.uncertainty.prior_memory)
         return W_map, pairs, P_relative
 
     def _relative_covariance(self, P_pair: np.ndarray | None) -> np.ndarray | None:

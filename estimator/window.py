@@ -234,10 +234,13 @@ class SlidingWindow:
         P_pair = 0.5 * (X + X.T) if k == 2 * d else None
         return 0.5 * (P + P.T), P_pair
 
-    def marginalize_oldest(self) -> None:
-        """Schur complement of the oldest state into a Gaussian prior on the next one."""
+    def marginalize_oldest(self, memory: float = 0.0) -> None:
+        """Schur complement of the oldest state into a Gaussian prior on the next one; with memory > 0 (s) its
+        information and linear term are multiplied by keep = exp(-dt / memory), dt the marginalised interval
+        (a prior that forgets, `uncertainty.prior_memory`; 0: the exact Schur complement)."""
         d = self.motion.dim
         x0, x1 = self.states[0], self.states[1]
+        keep = float(np.exp((x0.t - x1.t) / memory)) if memory > 0 else 1.0
         H = np.zeros((2 * d, 2 * d))
         b = np.zeros(2 * d)
         e, J = self._prior_term(x0)
@@ -257,8 +260,8 @@ class SlidingWindow:
         g = b[d:] - H01.T @ X[:, d]
         # the new prior on x1: 1/2 e^T Lam e + g^T e with e = x1 (-) x1_now, exactly the Schur complement here
         self.prior_mean = x1.copy()
-        self.prior_info = 0.5 * (Lam + Lam.T)
-        self.prior_grad = g
+        self.prior_info = 0.5 * keep * (Lam + Lam.T)  # keep = 1: bit for bit the Schur complement
+        self.prior_grad = keep * g
         self.states.pop(0)
         self.meas.pop(0)
         self.rate_prior.pop(0)

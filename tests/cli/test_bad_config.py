@@ -99,7 +99,9 @@ def test_edges_of_the_ranges_are_accepted(tmp_path):
     ("[solver]\ninit_rate_sigma = [0.02, nan, 0.2]\n", "[solver] init_rate_sigma = [0.02, nan, 0.2]"),
     ("[solver]\nrobust_c = nan\n", "[solver] robust_c = nan"),
     ("[standstill]\nspeed = inf\n", "[standstill] speed = inf"),
-    ("[uncertainty]\nvelocity_correlation_time = -inf\n", "uncertainty.velocity_correlation_time"),
+    ("[uncertainty]\nvelocity_correlation_time = -inf\n",
+     "[uncertainty] velocity_correlation_time = -inf: must be a finite number >= 0"),
+    ("[uncertainty]\nprior_memory = -1.0\n", "[uncertainty] prior_memory = -1.0: must be >= 0"),
     ("window = 1000000\n", "window = 1000000: must be >= 2 and <= 1000"),
 ])
 def test_cli_refuses_a_bad_value_before_any_work(seq, tmp_path, capsys, text, needle):

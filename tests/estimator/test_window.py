@@ -2,6 +2,8 @@
 marginalisation, the motion kernels, the zero-mean rate terms and the packed-set cache. The odometry end to end
 is in test_odometry.py."""
 
+import copy
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -148,6 +150,30 @@ def test_marginalisation_keeps_the_solution_and_the_newest_covariance():
     for a, b in zip(before, win.states):
         assert np.abs(a.ominus(b)).max() < 1e-7
 
+
+
+@pytest.mark.parametrize("memory", [0.05, 0.5, 5.0])
+def test_a_forgetting_prior_is_the_schur_complement_scaled(memory):
+    """marginalize_oldest(memory): the prior's information and linear term are the exact Schur complement's times
+    exp(-dt / memory), dt the marginalised interval, at the same mean; memory 0 is the exact one, bit for bit
+    (`uncertainty.prior_memory`)."""
+    exact, _ = _window_with_scene(noisy=True)
+    exact.optimize(10)
+    forgetting = copy.deepcopy(exact)
+    default = copy.deepcopy(exact)
+    dt = exact.states[1].t - exact.states[0].t
+    exact.marginalize_oldest(0.0)
+    default.marginalize_oldest()
+    forgetting.marginalize_oldest(memory)
+    assert np.array_equal(default.prior_info, exact.prior_info) and np.array_equal(default.prior_grad,
+                                                                                    exact.prior_grad)
+    keep = np.exp(-dt / memory)
+    assert 0 < keep < 1
+    np.testing.assert_allclose(forgetting.prior_info, keep * exact.prior_info, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(forgetting.prior_grad, keep * exact.prior_grad, rtol=1e-12, atol=1e-300)
+    assert np.array_equal(forgetting.prior_mean.T_vehicle_world, exact.prior_mean.T_vehicle_world)
+    # the newest state's covariance grows: less information, never more
+    assert np.all(np.linalg.eigvalsh(forgetting.newest_covariance() - exact.newest_covariance()) > -1e-15)
 
 @pytest.mark.parametrize("kind", ["ca", "cv"])
 def test_batched_motion_residuals_equal_the_priors_residual(kind):
