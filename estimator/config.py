@@ -188,7 +188,7 @@ class UncertaintyConfig:
     prior_memory: time constant (s) of the marginalised prior's memory: at each marginalisation its information
         is multiplied by exp(-dt / prior_memory) (dt: the marginalised interval). It holds the past scans'
         information, which the map, made from the same scans, brings back again; with a stiff Qc it never
-        forgets that (docs/consistency.md, "Prior-consistent trajectories"). 0: off (the paper's marginalisation).
+        forgets that (docs/consistency.md, "A prior that forgets"). 0: off (the paper's marginalisation).
     """
 
     velocity_correlation_time: float = 0.25  # s
