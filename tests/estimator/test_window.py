@@ -151,7 +151,6 @@ def test_marginalisation_keeps_the_solution_and_the_newest_covariance():
         assert np.abs(a.ominus(b)).max() < 1e-7
 
 
-
 @pytest.mark.parametrize("memory", [0.05, 0.5, 5.0])
 def test_a_forgetting_prior_is_the_schur_complement_scaled(memory):
     """marginalize_oldest(memory): the prior's information and linear term are the exact Schur complement's times
