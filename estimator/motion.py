@@ -77,16 +77,17 @@ class MotionPrior(ABC):
         `motion_kernels`, one pass for the whole window (the states are the estimator's own: finite, times
         increasing, so nothing is re-checked).
         """
-        T1 = np.stack([x.T_vehicle_world for x in states[:-1]])
-        T2 = np.stack([x.T_vehicle_world for x in states[1:]])
-        tail1 = np.stack([x.vector_tail() for x in states[:-1]])
-        tail2 = np.stack([x.vector_tail() for x in states[1:]])
-        dt = np.array([b.t - a.t for a, b in zip(states[:-1], states[1:])])
+        return self.stacked_residuals(np.stack([x.T_vehicle_world for x in states]),
+                                      np.stack([x.vector_tail() for x in states]), np.array([x.t for x in states]))
+
+    def stacked_residuals(self, T: np.ndarray, tail: np.ndarray, t: np.ndarray):
+        """`residuals` of states given as arrays: T (n, 4, 4), tail (n, d - 6) (`State.vector_tail`), t (n,)."""
+        dt = t[1:] - t[:-1]
         n, d = len(dt), self.dim
         F = np.empty((n, d, d))
-        Tp, tail_pred = self._batch_means(T1, tail1, dt, F)
+        Tp, tail_pred = self._batch_means(T[:-1], tail[:-1], dt, F)
         e, J1, J2 = np.empty((n, d)), np.empty((n, d, d)), np.empty((n, d, d))
-        motion_kernels.residuals(Tp, tail_pred, T2, np.ascontiguousarray(tail2), F, e, J1, J2)
+        motion_kernels.residuals(Tp, tail_pred, T[1:], np.ascontiguousarray(tail[1:]), F, e, J1, J2)
         return e, J1, J2
 
 

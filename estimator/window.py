@@ -107,10 +107,11 @@ class SlidingWindow:
                                         J[:6, :6], Jm)
         return np.concatenate((xi, x.vector_tail() - self.prior_mean.vector_tail())), J
 
-    def _measurement_terms(self, ks: list[int]):
+    def _measurement_terms(self, ks: list[int], T_all: np.ndarray | None = None, tail: np.ndarray | None = None):
         """Measurement blocks of the states ks, linearised in one compiled pass (`measurement_kernels`).
 
         Returns per state (H (12,12), b (12,)) and the total cost; e = z - g(x), J = -[J_z_xi, J_z_varpi].
+        T_all (n, 4, 4), tail (n, d - 6): the window's states stacked, if the caller has them.
         """
         sets = [self.meas[k] for k in ks]
         # the sets change only when scans come and go; compared by identity with the packed sets held alive
@@ -125,8 +126,11 @@ class SlidingWindow:
         _, offsets, p, z, W, Tvs = self._packed
         fresh = [m.weights is None for m in sets]  # the kernel sets Cauchy weights where they are -1
         w = np.concatenate([np.full(len(m), -1.0) if f else m.weights for m, f in zip(sets, fresh)])
-        T = np.stack([self.states[k].T_vehicle_world for k in ks])
-        varpi = np.stack([self.states[k].varpi for k in ks])
+        if T_all is None:
+            T = np.stack([self.states[k].T_vehicle_world for k in ks])
+            varpi = np.stack([self.states[k].varpi for k in ks])
+        else:
+            T, varpi = T_all[ks], np.ascontiguousarray(tail[ks, :6])
         d2 = np.empty(len(z))
         H, b, cost = _kernel.linearize_pairs(self.measurement_model.kernel_code, T, varpi, offsets, p, z, W, Tvs, w,
                                              d2, float(self.robust_c))
@@ -149,25 +153,27 @@ class SlidingWindow:
         n, d = len(self.states), self.motion.dim
         H = np.zeros((n * d, n * d))
         b = np.zeros(n * d)
+        T_all = np.stack([x.T_vehicle_world for x in self.states])
+        tail = np.stack([x.vector_tail() for x in self.states])
         e, J = self._prior_term(self.states[0])
         H[:d, :d] += J.T @ self.prior_info @ J
         b[:d] += J.T @ (self.prior_info @ e + self.prior_grad)
         cost = 0.5 * e @ self.prior_info @ e + self.prior_grad @ e
         if n > 1:
-            E, J1s, J2s = self.motion.residuals(self.states)
+            E, J1s, J2s = self.motion.stacked_residuals(T_all, tail, np.array([x.t for x in self.states]))
             if self._motion_info is None or len(self._motion_info) != n - 1:
                 self._motion_info = np.stack(self.motion_info)
             cost += motion_kernels.accumulate(H, b, E, J1s, J2s, self._motion_info)
         for k, info in enumerate(self.rate_prior):
             if info is not None:
-                t = self.states[k].vector_tail()
+                t = tail[k]
                 sl = slice(k * d + 6, (k + 1) * d)
                 H[sl, sl] += info
                 b[sl] += info @ t
                 cost += 0.5 * t @ info @ t
         ks = [k for k, m in enumerate(self.meas) if m is not None]
         if ks:
-            blocks, c = self._measurement_terms(ks)
+            blocks, c = self._measurement_terms(ks, T_all, tail)
             cost += c
             for k, (Hm, bm) in zip(ks, blocks):
                 sl = slice(k * d, k * d + 12)
@@ -285,12 +291,11 @@ def _solve_spd(H: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """Solve H x = rhs for symmetric positive (semi-)definite H (LAPACK dposv; the fastest here for the
     window's sizes), with a tiny relative jitter if the Cholesky factorisation fails."""
     jitter = 0.0
-    scale = max(np.max(np.abs(np.diag(H))), 1e-300)
     for _ in range(6):
         _, x, info = sla.lapack.dposv(H + jitter * np.eye(len(H)) if jitter else H, rhs, lower=1)
         if info == 0:
             return x
-        jitter = scale * 1e-12 if jitter == 0 else jitter * 100
+        jitter = max(np.max(np.abs(np.diag(H))), 1e-300) * 1e-12 if jitter == 0 else jitter * 100
     return np.linalg.lstsq(H, rhs, rcond=None)[0]
 
 
