@@ -59,7 +59,7 @@ _EXPORTS = {
                        "wrap_angle"),
     "scan_association": ("MapAssociation", "ScanMeasurements"),
     "scan": ("ScanDetail", "ScanEstimate"),
-    "state": ("State",),
+    "state": ("State", "stacked"),
     "surface": ("surface_covariances",),
     "uncertainty": ("DriftCovariance", "relative_pose_covariance", "span_covariance"),
     "window": ("MeasurementSet", "SlidingWindow"),

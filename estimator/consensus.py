@@ -30,7 +30,7 @@ import dataclasses
 import numpy as np
 
 from .config import AssociationConfig
-from .ego_velocity import EgoVelocity, estimate_ego_velocity
+from .ego_velocity import PLANAR_ELEVATION, EgoVelocity, estimate_ego_velocity
 from .measurements import polar_to_cartesian
 
 MIN_STATIC = 8  # fewest detections a consensus needs; fewer static detections: the odometry's Doppler
@@ -68,7 +68,7 @@ def moving_voxels(pts, u, vr, var, gated, voxel: float, z: float, margin: float,
     n_gated = np.bincount(inv[g], minlength=len(keys))
     if len(g) < 2 * min_points or np.count_nonzero(n_gated) < 4:
         return out
-    dof = 2 if np.allclose(u[:, 2], 0.0) else 3
+    dof = 2 if np.all(np.abs(u[:, 2]) < np.sin(PLANAR_ELEVATION)) else 3  # the RANSAC's rule (u_z = sin el)
     w = np.sqrt(1.0 / n_gated[inv[g]])
     v = np.linalg.lstsq(u[g, :dof] * w[:, None], -vr[g] * w, rcond=None)[0]
     residual = u[:, :dof] @ v + vr

@@ -24,7 +24,7 @@ from . import motion_kernels
 from .errors import InputError
 from .priors import ConstantAccelerationPrior, ConstantVelocityPrior
 from .priors import kernels as prior_kernels
-from .state import State
+from .state import State, stacked
 
 
 class MotionPrior(ABC):
@@ -77,11 +77,10 @@ class MotionPrior(ABC):
         `motion_kernels`, one pass for the whole window (the states are the estimator's own: finite, times
         increasing, so nothing is re-checked).
         """
-        return self.stacked_residuals(np.stack([x.T_vehicle_world for x in states]),
-                                      np.stack([x.vector_tail() for x in states]), np.array([x.t for x in states]))
+        return self.stacked_residuals(*stacked(states))
 
     def stacked_residuals(self, T: np.ndarray, tail: np.ndarray, t: np.ndarray):
-        """`residuals` of states given as arrays: T (n, 4, 4), tail (n, d - 6) (`State.vector_tail`), t (n,)."""
+        """`residuals` of states given as arrays (`state.stacked`): T (n, 4, 4), tail (n, d - 6), t (n,)."""
         dt = t[1:] - t[:-1]
         n, d = len(dt), self.dim
         F = np.empty((n, d, d))

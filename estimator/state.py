@@ -49,3 +49,9 @@ class State:
         """x (-) other (paper eq. 12)."""
         xi = se3.log(self.T_vehicle_world @ se3.inverse(other.T_vehicle_world))
         return np.concatenate((xi, self.vector_tail() - other.vector_tail()))
+
+
+def stacked(states: list[State]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """States as arrays for the batched kernels: T_vehicle_world (n, 4, 4), `State.vector_tail` (n, d - 6), t (n,)."""
+    return (np.stack([x.T_vehicle_world for x in states]), np.stack([x.vector_tail() for x in states]),
+            np.array([x.t for x in states]))

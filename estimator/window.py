@@ -26,7 +26,7 @@ from .lie import kernels as lie_kernels
 from .lie import se3
 from .measurement_models import MeasurementModel
 from .motion import MotionPrior
-from .state import State
+from .state import State, stacked
 
 
 @dataclass
@@ -107,11 +107,11 @@ class SlidingWindow:
                                         J[:6, :6], Jm)
         return np.concatenate((xi, x.vector_tail() - self.prior_mean.vector_tail())), J
 
-    def _measurement_terms(self, ks: list[int], T_all: np.ndarray | None = None, tail: np.ndarray | None = None):
-        """Measurement blocks of the states ks, linearised in one compiled pass (`measurement_kernels`).
+    def _measurement_terms(self, ks: list[int], T_all: np.ndarray, tail: np.ndarray):
+        """Measurement blocks of the states ks, linearised in one compiled pass (`measurement_kernels`); T_all
+        (n, 4, 4) and tail (n, d - 6) are the window's states from its first, stacked (`state.stacked`).
 
         Returns per state (H (12,12), b (12,)) and the total cost; e = z - g(x), J = -[J_z_xi, J_z_varpi].
-        T_all (n, 4, 4), tail (n, d - 6): the window's states stacked, if the caller has them.
         """
         sets = [self.meas[k] for k in ks]
         # the sets change only when scans come and go; compared by identity with the packed sets held alive
@@ -126,11 +126,7 @@ class SlidingWindow:
         _, offsets, p, z, W, Tvs = self._packed
         fresh = [m.weights is None for m in sets]  # the kernel sets Cauchy weights where they are -1
         w = np.concatenate([np.full(len(m), -1.0) if f else m.weights for m, f in zip(sets, fresh)])
-        if T_all is None:
-            T = np.stack([self.states[k].T_vehicle_world for k in ks])
-            varpi = np.stack([self.states[k].varpi for k in ks])
-        else:
-            T, varpi = T_all[ks], np.ascontiguousarray(tail[ks, :6])
+        T, varpi = T_all[ks], np.ascontiguousarray(tail[ks, :6])
         d2 = np.empty(len(z))
         H, b, cost = _kernel.linearize_pairs(self.measurement_model.kernel_code, T, varpi, offsets, p, z, W, Tvs, w,
                                              d2, float(self.robust_c))
@@ -153,14 +149,13 @@ class SlidingWindow:
         n, d = len(self.states), self.motion.dim
         H = np.zeros((n * d, n * d))
         b = np.zeros(n * d)
-        T_all = np.stack([x.T_vehicle_world for x in self.states])
-        tail = np.stack([x.vector_tail() for x in self.states])
+        T_all, tail, t = stacked(self.states)
         e, J = self._prior_term(self.states[0])
         H[:d, :d] += J.T @ self.prior_info @ J
         b[:d] += J.T @ (self.prior_info @ e + self.prior_grad)
         cost = 0.5 * e @ self.prior_info @ e + self.prior_grad @ e
         if n > 1:
-            E, J1s, J2s = self.motion.stacked_residuals(T_all, tail, np.array([x.t for x in self.states]))
+            E, J1s, J2s = self.motion.stacked_residuals(T_all, tail, t)
             if self._motion_info is None or len(self._motion_info) != n - 1:
                 self._motion_info = np.stack(self.motion_info)
             cost += motion_kernels.accumulate(H, b, E, J1s, J2s, self._motion_info)
@@ -252,9 +247,10 @@ class SlidingWindow:
         e, J = self._prior_term(x0)
         H[:d, :d] += J.T @ self.prior_info @ J
         b[:d] += J.T @ (self.prior_info @ e + self.prior_grad)
-        motion_kernels.accumulate(H, b, *self.motion.residuals([x0, x1]), self.motion_info[0][None])
+        T_all, tail, t = stacked([x0, x1])
+        motion_kernels.accumulate(H, b, *self.motion.stacked_residuals(T_all, tail, t), self.motion_info[0][None])
         if self.meas[0] is not None:
-            (Hm, bm), = self._measurement_terms([0])[0]
+            (Hm, bm), = self._measurement_terms([0], T_all, tail)[0]
             H[:12, :12] += Hm
             b[:12] += bm
         if self.rate_prior[0] is not None:

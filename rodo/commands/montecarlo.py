@@ -53,6 +53,17 @@ def check_profile(name: str | None) -> str | None:
     return name
 
 
+def option_meta(faults: tuple[str, ...], profile: str | None) -> dict:
+    """The campaign.json entries of --fault and --profile, only those given: older campaign.json files (without
+    them) still resume."""
+    meta = {}
+    if faults:
+        meta["faults"] = list(faults)
+    if profile is not None:
+        meta["profile"] = profile
+    return meta
+
+
 def add_fault_option(p) -> None:
     """--fault NAME=VALUE (repeatable), shared by the campaign commands (montecarlo, table1)."""
     p.add_argument("--fault", metavar="NAME=VALUE", action="append", default=[],
@@ -246,10 +257,7 @@ def run_montecarlo(args) -> int:
             "duration": args.duration}
     if configs:
         meta["configs"] = dict(configs)
-    if faults:
-        meta["faults"] = list(faults)  # only when given: older campaign.json files still resume
-    if profile is not None:
-        meta["profile"] = profile  # likewise
+    meta.update(option_meta(faults, profile))
     trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs, faults=faults, profile=profile)
     with campaign_lock(args.out):  # held over the run and the summary: a second writer is refused
         total = remaining(trials, args.out) if args.resume else len(trials) * len(models)

@@ -16,7 +16,8 @@ from concurrent.futures import BrokenExecutor
 from rodo.estimator.errors import InputError
 from rodo.progress import Progress
 from rodo.commands.montecarlo import (add_campaign_options, add_fault_option, add_profile_option,
-                                      check_campaign_options, check_faults, check_profile, worker_died)
+                                      check_campaign_options, check_faults, check_profile, option_meta,
+                                      worker_died)
 from rodo.validation.campaign_dir import campaign_lock
 from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign
 from rodo.validation.table1 import MODELS, SCENARIOS, Table1Trial, build_table, load_runs, write_table
@@ -75,10 +76,7 @@ def run_table1(args) -> int:
         ran, skipped, errors = _run_campaigns(args, names, trials, faults)
         table = build_table(load_runs(out, names), names)
         meta = {"scenarios": ",".join(names), "runs": args.runs, "seed": args.seed, "duration": args.duration}
-        if faults:
-            meta["faults"] = list(faults)
-        if args.profile is not None:
-            meta["profile"] = args.profile
+        meta.update(option_meta(faults, args.profile))
         text = write_table(out, table, meta)
     print(text)
     print(f"ran {ran} (trial, model) runs, skipped {skipped} already done, {errors} errors")
@@ -99,10 +97,7 @@ def _run_campaigns(args, names: list[str], trials, faults: tuple[str, ...]) -> t
         for s in names:
             meta = {"scenario": s, "runs": args.runs, "models": list(MODELS), "seed": args.seed,
                     "duration": args.duration, "table": "table1"}
-            if faults:
-                meta["faults"] = list(faults)  # only when given: older campaign.json files still resume
-            if args.profile is not None:
-                meta["profile"] = args.profile  # likewise
+            meta.update(option_meta(faults, args.profile))
             trial_fn = Table1Trial(s, args.duration, faults=faults, profile=args.profile)
             rep = run_campaign(trial_fn, trials, executor, os.path.join(out, s),
                                resume=args.resume, progress=bar, meta=meta)
