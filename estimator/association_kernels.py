@@ -84,17 +84,21 @@ def _inv_spd4(S, out, L, Li):
 
 
 @njit(cache=True)
-def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate, z, p_s, S, S_inv, W_map, radius):
+def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate, z, p_s, S, S_inv, S_pair, radius):
     """Everything the association needs per map point, in one pass (the same model as
     `measurements.predict`, `association.innovation_covariance` and `association._search_radius`):
 
     for the m map points p_world[rows], cov_world[rows] (rows (m,) indices into the map's arrays):
     z (m, 4) predicted measurement, p_s (m, 3) sensor-frame position,
     S = G P G^T + R + J_z_p (cov_world_j + map_var I) J_z_p^T and S_inv (m, 4, 4),
-    W_map = (R + J_z_p (cov_world_j + map_var I) J_z_p^T)^-1 (the pair's information in the solve),
+    S_pair = R + J_z_p (cov_world_j + map_var I) J_z_p^T (m, 4, 4), whose inverse is the pair's information in
+    the solve (`invert_pairs`, for the associated points only),
     radius (m,) the search radius that holds every detection with d2 <= gate.
     Returns -1 when all is well, else the index of the first point at the sensor origin (range < 1e-9) or
     with an S that is not positive definite (then m + index).
+
+    G = dz/d[xi, varpi] has zeros in the velocity columns of its position rows, so G P G^T is formed from the
+    pose block of P for all rows and the velocity blocks for row 3 only.
 
     Checked by: tests/estimator/test_odometry.py::test_prepared_association_equals_the_reference
     """
@@ -112,9 +116,10 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
     for i in range(3):
         for j in range(3):
             B[i, j] = Cvs[0, i] * C[0, j] + Cvs[1, i] * C[1, j] + Cvs[2, i] * C[2, j]
-    GP = np.empty((4, 12))
+    GP = np.empty((4, 6))
+    SG = np.empty((4, 4))
+    g = np.empty(6)
     JC = np.empty((4, 3))
-    Sm = np.empty((4, 4))
     Pc = np.empty((3, 3))
     Ac = np.empty((3, 3))
     M = np.empty((3, 3))
@@ -135,7 +140,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
                 Jp[i, j] = Js[i, 0] * B[0, j] + Js[i, 1] * B[1, j] + Js[i, 2] * B[2, j]
             Jp[3, j] = am[0, 0] * B[0, j] + am[0, 1] * B[1, j] + am[0, 2] * B[2, j] \
                 + am[1, 0] * C[0, j] + am[1, 1] * C[1, j] + am[1, 2] * C[2, j]
-        # map term and S
+        # map term
         for i in range(3):
             for j in range(3):
                 Pc[i, j] = cov_world[row, i, j]
@@ -143,28 +148,56 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
         for i in range(4):
             for j in range(3):
                 JC[i, j] = Jp[i, 0] * Pc[0, j] + Jp[i, 1] * Pc[1, j] + Jp[i, 2] * Pc[2, j]
-            kend = 12 if i == 3 else 6  # G[:3, 6:] = 0: the position rows do not depend on the velocity
-            for j in range(12):
+        # G P G^T = Gp P_pp Gp^T, and for row 3 also Gp P_pv g_v + g_v P_vp Gp^T + g_v P_vv g_v (G = [Gp | e3 g_v])
+        for i in range(4):
+            for j in range(6):
                 s = 0.0
-                for k in range(kend):
+                for k in range(6):
                     s += G[i, k] * P[k, j]
                 GP[i, j] = s
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += P[j, 6 + k] * G[3, 6 + k]
+            g[j] = s
+        for i in range(4):
+            for j in range(i, 4):
+                s = 0.0
+                for k in range(6):
+                    s += GP[i, k] * G[j, k]
+                SG[i, j] = s
+        for i in range(4):
+            s = 0.0
+            for k in range(6):
+                s += G[i, k] * g[k]
+            SG[i, 3] += s
+        s = 0.0
+        for k in range(6):
+            s += g[k] * G[3, k]
+        vv = 0.0
+        for k in range(6):
+            gk = 0.0
+            for j in range(6):
+                gk += P[6 + k, 6 + j] * G[3, 6 + j]
+            vv += G[3, 6 + k] * gk
+        SG[3, 3] += s + vv
         for i in range(4):
             for j in range(i, 4):
                 sm = R[i, j] + JC[i, 0] * Jp[j, 0] + JC[i, 1] * Jp[j, 1] + JC[i, 2] * Jp[j, 2]
-                sg = 0.0
-                for k in range(12 if j == 3 else 6):
-                    sg += GP[i, k] * G[j, k]
-                Sm[i, j] = sm
-                Sm[j, i] = sm
-                S[a, i, j] = sm + sg
-                S[a, j, i] = sm + sg
-        if not (_inv_spd4(S[a], S_inv[a], L, Li) and _inv_spd4(Sm, W_map[a], L, Li)):
+                S_pair[a, i, j] = sm
+                S_pair[a, j, i] = sm
+                S[a, i, j] = sm + SG[i, j]
+                S[a, j, i] = sm + SG[i, j]
+        if not _inv_spd4(S[a], S_inv[a], L, Li):
             return m + a
         # search radius: the position block of S in Cartesian coordinates
         if polar:
-            ce, se = math.cos(z[a, 2]), math.sin(z[a, 2])
-            ca, sa = math.cos(z[a, 1]), math.sin(z[a, 1])
+            ps0, ps1, ps2 = p_s[a, 0], p_s[a, 1], p_s[a, 2]
+            rho = math.sqrt(ps0 * ps0 + ps1 * ps1)
+            # cos and sin of the elevation and the azimuth from the position (as point_model's z); straight
+            # above the sensor the azimuth is arbitrary and the elevation's cosine as small as point_model's
+            ce, se = max(rho, 1e-12 * r) / r, ps2 / r
+            ca, sa = (ps0 / rho, ps1 / rho) if rho > 0.0 else (1.0, 0.0)
             Ac[0, 0], Ac[1, 0], Ac[2, 0] = ce * ca, ce * sa, se
             Ac[0, 1], Ac[1, 1], Ac[2, 1] = -r * ce * sa, r * ce * ca, 0.0
             Ac[0, 2], Ac[1, 2], Ac[2, 2] = -r * se * ca, -r * se * sa, r * ce
@@ -182,6 +215,17 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
             k2 = 1.0
         lam = _lambda_max_sym3(M)
         radius[a] = math.sqrt(gate * max(lam, 0.0) * k2) * (1.0 + 1e-9)
+    return -1
+
+
+@njit(cache=True)
+def invert_pairs(S_pair, rows, W):
+    """W[q] = S_pair[rows[q]]^-1 (the information of each associated pair); returns -1, or the first q whose
+    S_pair is not positive definite."""
+    L, Li = np.empty((4, 4)), np.empty((4, 4))
+    for q in range(len(rows)):
+        if not _inv_spd4(S_pair[rows[q]], W[q], L, Li):
+            return q
     return -1
 
 

@@ -42,8 +42,12 @@ def sensor_velocity(varpi: np.ndarray, T_vehicle_sensor: np.ndarray) -> tuple[np
     Checked by: tests/estimator/test_odometry.py::test_sensor_velocity_jacobian_matches_finite_differences
     """
     C, r = T_vehicle_sensor[:3, :3], T_vehicle_sensor[:3, 3]
-    v = -C.T @ (varpi[:3] + np.cross(varpi[3:], r))
-    J = -C.T @ np.c_[np.eye(3), -so3.hat(r)]
+    w0, w1, w2 = float(varpi[3]), float(varpi[4]), float(varpi[5])
+    r0, r1, r2 = float(r[0]), float(r[1]), float(r[2])
+    v = -C.T @ (varpi[:3] + np.array([w1 * r2 - w2 * r1, w2 * r0 - w0 * r2, w0 * r1 - w1 * r0]))  # omega x r
+    J = np.empty((3, 6))
+    J[:, :3] = -C.T
+    J[:, 3:] = C.T @ so3.hat(r)
     return v, J
 
 
@@ -106,7 +110,7 @@ class DopplerFrontEnd:
         d_az = np.stack([-ce * sa, ce * ca, np.zeros_like(az)], axis=1) @ v
         d_el = np.stack([-se * ca, -se * sa, ce], axis=1) @ v
         var_fit = self.sigmas[3] ** 2 + (self.sigmas[1] * d_az) ** 2 + (self.sigmas[2] * d_el) ** 2
-        sigma = np.sqrt(var_fit + np.einsum("ni,ij,nj->n", u, Sv, u))
+        sigma = np.sqrt(var_fit + np.sum((u @ Sv) * u, axis=1))
         return u, sigma, var_fit
 
     def static_mask(self, polar: np.ndarray, x: State, P: np.ndarray, scan_dt: float):

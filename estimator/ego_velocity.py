@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rodo.estimator.doppler_kernels import count_inliers
 from rodo.estimator.errors import InputError, check_finite
 
 PLANAR_ELEVATION = 1e-3  # rad; all |elevation| below this -> planar mode
@@ -229,6 +230,7 @@ def _best_hypothesis(U: np.ndarray, b: np.ndarray, rng: np.random.Generator, ite
     ref = np.zeros(dof) if near is None else near[0][:dof]
     if near is not None:
         hyps = hyps[np.linalg.norm(hyps - ref, axis=1) <= near[1]]
-    counts = (np.abs(U @ hyps.T - b[:, None]) <= np.reshape(threshold, (-1, 1))).sum(axis=0)
+    counts = count_inliers(np.ascontiguousarray(U), b, np.ascontiguousarray(hyps),
+                           np.broadcast_to(np.asarray(threshold, float), (n,)).copy())
     order = np.lexsort((np.linalg.norm(hyps - ref, axis=1), -counts))  # most inliers, then closest to ref
     return hyps[order[0]]

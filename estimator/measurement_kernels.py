@@ -134,6 +134,7 @@ def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_ou
     """H (K, 12, 12), b (K, 12), cost for K states; pairs offsets[k]:offsets[k+1] belong to state k and were
     measured by the radar with extrinsics Tvs[k] (K, 4, 4).
 
+    W[a] are information matrices, symmetric (the pose-velocity block uses W[a, 3, :] for W[a, :, 3]).
     Each pair's squared Mahalanobis distance is written to d2_out; its term is weighted by weights[a]
     (robust weights held fixed during a solve, see `SlidingWindow.optimize`): cost = 1/2 sum_a w_a d2_a.
     A negative weights[a] is replaced first by the Cauchy weight 1 / (1 + d2_a / robust_c^2) of the current
@@ -146,7 +147,8 @@ def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_ou
     b = np.zeros((K, 12))
     cost = 0.0
     J = np.zeros((4, 12))
-    WJ = np.zeros((4, 12))
+    WJ = np.empty((4, 6))
+    We = np.empty(4)
     A = np.empty((3, 6))
     e = np.zeros(4)
     zp = np.empty(4)
@@ -160,41 +162,42 @@ def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_ou
         t = T[k, :3, 3]
         nu = varpi[k, :3]
         om = varpi[k, 3:]
+        Hk, bk = H[k], b[k]
         for a in range(offsets[k], offsets[k + 1]):
             if point_model(model == POLAR, C, t, Cvs, rvs, nu, om, p_world[a], A, J, zp, Js, am, ps) == 0.0:
                 d2_out[a] = np.nan  # a map point at the sensor: the cost is undefined, the step is rejected
                 cost = np.nan
                 continue
             # residual derivative is -J; H, b are invariant to that sign pair (b flips with it)
-            d2 = residual_d2(model == POLAR, z[a], zp, W[a], e)
+            Wa = W[a]
+            d2 = residual_d2(model == POLAR, z[a], zp, Wa, e)
             d2_out[a] = d2
             if weights[a] < 0.0:
                 weights[a] = 1.0 / (1.0 + d2 / (robust_c * robust_c)) if robust_c > 0.0 else 1.0
             wgt = weights[a]
             cost += 0.5 * wgt * d2
-            # J has zeros in rows 0-2 of the velocity columns: WJ[:, :6] = W J[:, :6], WJ[:, 6:] = W[:, 3] J[3, 6:]
+            # J's velocity columns are zero but in row 3, so only w W e and w W J[:, :6] are needed:
+            # H_pv = (w W J)[3, :6]^T J[3, 6:], H_vv = w W_33 J[3, 6:]^T J[3, 6:], b_v = J[3, 6:] (w W e)_3
             for i in range(4):
+                We[i] = wgt * (Wa[i, 0] * e[0] + Wa[i, 1] * e[1] + Wa[i, 2] * e[2] + Wa[i, 3] * e[3])
                 for j in range(6):
-                    s = 0.0
-                    for l in range(4):
-                        s += W[a, i, l] * J[l, j]
-                    WJ[i, j] = wgt * s
-                for j in range(6, 12):
-                    WJ[i, j] = wgt * W[a, i, 3] * J[3, j]
-            for i in range(12):
-                bi = 0.0
-                for l in range(4):
-                    bi += WJ[l, i] * e[l]
-                b[k, i] -= bi  # J_residual = -J
+                    WJ[i, j] = wgt * (Wa[i, 0] * J[0, j] + Wa[i, 1] * J[1, j] + Wa[i, 2] * J[2, j]
+                                      + Wa[i, 3] * J[3, j])
             for i in range(6):
-                for j in range(i, 12):
-                    s = 0.0
-                    for l in range(4):
-                        s += J[l, i] * WJ[l, j]
-                    H[k, i, j] += s
+                bk[i] -= J[0, i] * We[0] + J[1, i] * We[1] + J[2, i] * We[2] + J[3, i] * We[3]  # J_residual = -J
             for i in range(6, 12):
+                bk[i] -= J[3, i] * We[3]
+            for i in range(6):
+                for j in range(i, 6):
+                    Hk[i, j] += J[0, i] * WJ[0, j] + J[1, i] * WJ[1, j] + J[2, i] * WJ[2, j] + J[3, i] * WJ[3, j]
+                c = WJ[3, i]  # W is symmetric: (w W J)[3, i] = (w J^T W)[i, 3]
+                for j in range(6, 12):
+                    Hk[i, j] += c * J[3, j]
+            w33 = wgt * Wa[3, 3]
+            for i in range(6, 12):
+                c = w33 * J[3, i]
                 for j in range(i, 12):
-                    H[k, i, j] += J[3, i] * WJ[3, j]
+                    Hk[i, j] += c * J[3, j]
     for k in range(K):
         for i in range(12):
             for j in range(i + 1, 12):

@@ -153,12 +153,12 @@ class RadarOdometry:
         tic = time.perf_counter()
         x, P, static, still = self._doppler_front_end(t, polar, x, P, Q, events)
         scan = ScanMeasurements.of(polar[static], self.measurement)
-        W_map, pairs = self._associate(x, P, scan)
+        W_pairs, pairs = self._associate(x, P, scan)
         timings["associate"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
         reuse = float(np.mean(self.map.hits[pairs.map_idx])) if len(pairs.map_idx) else float("nan")
-        W_map, pairs, P_relative = self._solve(P, scan, W_map, pairs, timings)
+        W_pairs, pairs, P_relative = self._solve(P, scan, W_pairs, pairs, timings)
         timings["solve"] = time.perf_counter() - tic - timings.pop("reassociate", 0.0)
 
         detail = None
@@ -228,20 +228,20 @@ class RadarOdometry:
         return x, P, static, still
 
     def _associate(self, x: State, P: np.ndarray, scan: ScanMeasurements):
-        W_map, pairs = self.associator.associate(x, P, self.map, scan)
-        self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_map, pairs, scan))
-        return W_map, pairs
+        W_pairs, pairs = self.associator.associate(x, P, self.map, scan)
+        self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_pairs, pairs, scan))
+        return W_pairs, pairs
 
-    def _solve(self, P, scan: ScanMeasurements, W_map, pairs, timings: dict):
+    def _solve(self, P, scan: ScanMeasurements, W_pairs, pairs, timings: dict):
         """Gauss-Newton, re-association at the solution and one refining step, the newest covariance, then
         marginalisation of the states beyond the window. The re-association's time counts as association."""
         cfg = self.config
         self.window.optimize(cfg.solver.iterations, cfg.solver.step_tolerance)
         for _ in range(cfg.association.reassociate):
-            if W_map is None:
+            if W_pairs is None:
                 break
             tic = time.perf_counter()
-            W_map, pairs = self._associate(self.window.newest, P, scan)
+            W_pairs, pairs = self._associate(self.window.newest, P, scan)
             elapsed = time.perf_counter() - tic
             timings["associate"] += elapsed
             timings["reassociate"] = timings.get("reassociate", 0.0) + elapsed
@@ -251,7 +251,7 @@ class RadarOdometry:
         P_relative = self._relative_covariance(P_pair)
         while len(self.window.states) > cfg.window:
             self.window.marginalize_oldest(cfg.uncertainty.prior_memory)
-        return W_map, pairs, P_relative
+        return W_pairs, pairs, P_relative
 
     def _relative_covariance(self, P_pair: np.ndarray | None) -> np.ndarray | None:
         """Covariance of the relative pose since the last scan: from the window's joint covariance of its two
@@ -330,11 +330,11 @@ class RadarOdometry:
         cov_sensor = self.measurement.position_covariance_sensor(polar, self.sigmas, self.config.noise.cartesian_sigma)
         return C_world_sensor @ cov_sensor @ C_world_sensor.T
 
-    def _measurement_set(self, W_map, pairs, scan: ScanMeasurements) -> MeasurementSet | None:
-        if W_map is None or len(pairs.map_idx) == 0:
+    def _measurement_set(self, W_pairs, pairs, scan: ScanMeasurements) -> MeasurementSet | None:
+        if W_pairs is None or len(pairs.map_idx) == 0:
             return None
         kappa = self.config.uncertainty.measurement_inflation
-        W = W_map[pairs.map_idx] if kappa == 1.0 else W_map[pairs.map_idx] / kappa
+        W = W_pairs if kappa == 1.0 else W_pairs / kappa
         if self.config.noise.doppler_common_sigma > 0:
             polar = scan.polar[pairs.det_idx]
             W = common_doppler_error(W, polar[:, 1], polar[:, 2], self.config.noise.doppler_common_sigma)

@@ -88,7 +88,7 @@ def cartesian_position_covariance(polar, sigmas) -> np.ndarray:
     if sigmas.ndim != 1 or len(sigmas) < 3 or np.any(sigmas[:3] < 0):
         raise InputError(f"sigmas: expected >= 3 non-negative values [range, azimuth, elevation], got {sigmas}")
     J = polar_to_cartesian_jacobian(polar)
-    return np.einsum("nij,j,nkj->nik", J, sigmas[:3] ** 2, J)
+    return (J * sigmas[:3] ** 2) @ np.swapaxes(J, 1, 2)
 
 
 def wrap_angle(a: np.ndarray) -> np.ndarray:

@@ -99,10 +99,10 @@ class MapAssociation:
         return m_in, d_in
 
     def associate(self, x: State, P: np.ndarray, local_map: LocalMap, scan: ScanMeasurements):
-        """Map points and detections paired inside the window: (W_map, Association).
+        """Map points and detections paired inside the window: (W, Association).
 
-        W_map (len(map), 4, 4) is the information of each map point's pair in the solve, (R + map term)^-1
-        (NaN outside the window); None when nothing could be associated.
+        W (k, 4, 4) is the information of each of the k pairs in the solve, (R + map term)^-1, in the order of
+        the Association's pairs; None when nothing could be associated (an empty map or scan).
         """
         if len(local_map) == 0 or len(scan.z) == 0:
             return None, NO_PAIRS
@@ -113,17 +113,15 @@ class MapAssociation:
         mi = np.flatnonzero(m_in)
         m = len(mi)
         zp, p_s = np.empty((m, 4)), np.empty((m, 3))
-        S, S_inv, W_in = np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4))
+        S, S_inv, S_pair = np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4))
         radius = np.empty(m)
         bad = association_kernels.prepare(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points,
                                           local_map.covariances, mi, self.map_sigma**2,
                                           np.ascontiguousarray(P[:12, :12]), self.R, self.T_vehicle_sensor,
-                                          self.gate, zp, p_s, S, S_inv, W_in, radius)
+                                          self.gate, zp, p_s, S, S_inv, S_pair, radius)
         if bad >= 0:  # a map point at the sensor, or an innovation covariance that is not positive definite
             raise FloatingPointError(f"association: map point {mi[bad % m]} has "
                                      + ("range 0" if bad < m else "a non positive definite S"))
-        W_map = np.full((len(local_map), 4, 4), np.nan)  # outside the window: never paired, never read
-        W_map[mi] = W_in
         cache = scan.cache
         if "grid" not in cache:
             cache["di"] = np.flatnonzero(d_in)
@@ -132,4 +130,9 @@ class MapAssociation:
         di = cache["di"]
         a = association.match(self.model, cache["z"], cache["grid"], zp, p_s, S_inv,
                               np.minimum(radius, self.max_radius), self.gate)
-        return W_map, Association(mi[a.map_idx], di[a.det_idx], a.d2, a.n_candidates)
+        W = np.empty((len(a.map_idx), 4, 4))
+        bad = association_kernels.invert_pairs(S_pair, a.map_idx, W)
+        if bad >= 0:
+            raise FloatingPointError(f"association: map point {mi[a.map_idx[bad]]} has a non positive definite "
+                                     "R + map term")
+        return W, Association(mi[a.map_idx], di[a.det_idx], a.d2, a.n_candidates)

@@ -146,6 +146,23 @@ def test_per_detection_threshold():
         estimate_ego_velocity(az, el, vr, _rng(2), near=(v, 0.0))
 
 
+@pytest.mark.parametrize("dof", [2, 3])
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 60), m=st.integers(1, 12))
+def test_inlier_counts_equal_the_numpy_expression(dof, seed, n, m):
+    """The RANSAC's compiled scoring counts, per hypothesis, the detections the NumPy expression
+    |U v - b| <= threshold counts (planar and 3-D, random hypotheses and the zero one, per-detection
+    thresholds, empty scans)."""
+    from rodo.estimator.doppler_kernels import count_inliers
+
+    rng = _rng(seed)
+    az, el, vr = _scene(rng, rng.normal(size=3) * 10, n=n, planar=dof == 2, sigma=0.05)
+    U = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=1)[:, :dof]
+    hyps = np.vstack([np.zeros(dof), rng.normal(size=(m - 1, dof)) * 10])
+    threshold = rng.uniform(0.01, 0.2, n)
+    want = (np.abs(U @ hyps.T + vr[:, None]) <= threshold[:, None]).sum(axis=0)
+    np.testing.assert_array_equal(count_inliers(np.ascontiguousarray(U), -vr, hyps, threshold), want)
+
+
 def test_least_squares_velocity():
     """Exact on noise-free data (3D and planar), the covariance floor, and None where it cannot fit."""
     rng = _rng(13)

@@ -208,7 +208,7 @@ def test_prepared_association_equals_the_reference(model):
     z = measurements.to_model_space(odo.config.measurement, polar)
     pts = measurements.polar_to_cartesian(polar)
     assoc = odo.associator
-    W_map, got = assoc.associate(x, P, odo.map, ScanMeasurements.of(polar, odo.measurement))
+    W_pairs, got = assoc.associate(x, P, odo.map, ScanMeasurements.of(polar, odo.measurement))
 
     pred = measurements.predict(odo.config.measurement, x.T_vehicle_world, x.varpi, odo.map.points,
                                 odo.T_vehicle_sensor)
@@ -226,9 +226,8 @@ def test_prepared_association_equals_the_reference(model):
     np.testing.assert_array_equal(got.det_idx, di[ref.det_idx])
     np.testing.assert_allclose(got.d2, ref.d2, rtol=1e-9)
     assert got.n_candidates == ref.n_candidates
-    W_ref = np.linalg.inv(Smap)[mi]
-    np.testing.assert_allclose(W_map[mi], W_ref, rtol=1e-8, atol=1e-8 * np.abs(W_ref).max())
-    assert np.isnan(W_map[~m_in]).all()
+    W_ref = np.linalg.inv(Smap)[got.map_idx]  # each pair's information, in the order of the pairs
+    np.testing.assert_allclose(W_pairs, W_ref, rtol=1e-8, atol=1e-8 * np.abs(W_ref).max())
     # the kernel's own outputs, point by point
     m = len(odo.map)
     out = [np.empty((m, 4)), np.empty((m, 3)), np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4)),
@@ -238,6 +237,7 @@ def test_prepared_association_equals_the_reference(model):
                            assoc.gate, *out) == -1
     np.testing.assert_allclose(out[0], pred.z, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(out[2], S, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(out[4], Smap, rtol=1e-12, atol=1e-14 * np.abs(Smap).max())
     radius = odo.measurement.search_radius(pred.z, S, assoc.gate)
     assert np.all(out[5] >= radius) and np.allclose(out[5], radius, rtol=1e-7)
 
