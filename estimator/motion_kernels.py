@@ -86,7 +86,8 @@ def exp_times(xi, T, out):
 def accumulate(H, b, e, J1, J2, W):
     """Adds the motion terms of consecutive states k, k+1 to the window's normal equations: with
     J = [J1_k, J2_k] (d x 2d), H[kd:(k+2)d, kd:(k+2)d] += J^T W_k J, b[...] += J^T W_k e_k; returns
-    sum_k 1/2 e_k^T W_k e_k.
+    sum_k 1/2 e_k^T W_k e_k. J2 has the structure `residuals` gives it, diag(J2[:6, :6], I): only its pose block
+    is read.
 
     Checked by: tests/estimator/test_window.py::test_motion_terms_in_the_normal_equations
     """
@@ -101,29 +102,75 @@ def accumulate(H, b, e, J1, J2, W):
                 s += W[k, i, l] * e[k, l]
             We[i] = s
             cost += 0.5 * e[k, i] * s
-        for r in range(2 * d):  # JW = J^T W
-            for c in range(d):
+        for c in range(d):  # JW = J^T W: J1 dense, J2 = diag(J2[:6, :6], I)
+            for r in range(d):
                 s = 0.0
-                if r < d:
-                    for l in range(d):
-                        s += J1[k, l, r] * W[k, l, c]
-                else:
-                    for l in range(d):
-                        s += J2[k, l, r - d] * W[k, l, c]
+                for l in range(d):
+                    s += J1[k, l, r] * W[k, l, c]
                 JW[r, c] = s
+            for r in range(6):
+                s = 0.0
+                for l in range(6):
+                    s += J2[k, l, r] * W[k, l, c]
+                JW[d + r, c] = s
+            for r in range(6, d):
+                JW[d + r, c] = W[k, r, c]
         o = k * d
         for r in range(2 * d):
-            s = 0.0
-            for l in range(d):
-                s += (J1[k, l, r] if r < d else J2[k, l, r - d]) * We[l]
-            b[o + r] += s
-            for c in range(2 * d):
+            if r < d:
                 s = 0.0
-                if c < d:
-                    for l in range(d):
-                        s += JW[r, l] * J1[k, l, c]
-                else:
-                    for l in range(d):
-                        s += JW[r, l] * J2[k, l, c - d]
+                for l in range(d):
+                    s += J1[k, l, r] * We[l]
+            elif r < d + 6:
+                s = 0.0
+                for l in range(6):
+                    s += J2[k, l, r - d] * We[l]
+            else:
+                s = We[r - d]
+            b[o + r] += s
+            for c in range(d):
+                s = 0.0
+                for l in range(d):
+                    s += JW[r, l] * J1[k, l, c]
                 H[o + r, o + c] += s
+            for c in range(6):
+                s = 0.0
+                for l in range(6):
+                    s += JW[r, l] * J2[k, l, c]
+                H[o + r, o + d + c] += s
+            for c in range(6, d):
+                H[o + r, o + d + c] += JW[r, c]
+    return cost
+
+
+@njit(cache=True, error_model="numpy")
+def add_blocks(H, b, d, rate_info, rate_on, tail, ks, Hm, bm):
+    """The window's per-state terms added to its normal equations (d: the state's dimension):
+
+    the zero-mean rate terms of the states k with rate_on[k] (cost 1/2 t^T rate_info[k] t, t = tail[k], on the
+    state's Euclidean part, indices 6 to d), and the measurement blocks Hm[q] (12, 12), bm[q] (12,) of state
+    ks[q] on its pose and velocity. Returns the rate terms' cost.
+
+    Checked by: tests/estimator/test_window.py::test_rate_prior_is_a_zero_mean_gaussian_term,
+        ::test_kernel_matches_numpy_linearisation (through `SlidingWindow.linearize`)
+    """
+    cost = 0.0
+    m = d - 6
+    for k in range(len(rate_on)):
+        if not rate_on[k]:
+            continue
+        o = k * d + 6
+        for i in range(m):
+            s = 0.0
+            for j in range(m):
+                H[o + i, o + j] += rate_info[k, i, j]
+                s += rate_info[k, i, j] * tail[k, j]
+            b[o + i] += s
+            cost += 0.5 * tail[k, i] * s
+    for q in range(len(ks)):
+        o = ks[q] * d
+        for i in range(12):
+            for j in range(12):
+                H[o + i, o + j] += Hm[q, i, j]
+            b[o + i] += bm[q, i]
     return cost

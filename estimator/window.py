@@ -61,6 +61,8 @@ class SlidingWindow:
         self._packed = None  # the window's measurement sets concatenated for the kernel (cached)
         self._H: np.ndarray | None = None
         self._motion_info: np.ndarray | None = None  # motion_info stacked for the kernel (cached)
+        self._stack = None  # (states, T, tail, t): the states as arrays (`state.stacked`), for those states
+        self._prior_inverse: np.ndarray | None = None  # prior_mean's T^-1 (cached)
 
     # --- building -------------------------------------------------------------------------------------
     def initialize(self, x0: State, P0: np.ndarray) -> None:
@@ -69,6 +71,7 @@ class SlidingWindow:
         self.motion_info = []
         self._motion_info = None
         self.prior_mean = x0.copy()
+        self._prior_inverse = None
         self.prior_info = _inv_spd(P0)
         self.prior_grad = np.zeros(len(P0))
         self.rate_prior = [None]
@@ -98,20 +101,33 @@ class SlidingWindow:
     def newest(self) -> State:
         return self.states[-1]
 
+    def _stacked(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The window's states as arrays (`state.stacked`), kept while the states are the same objects (an
+        update sets them with its own arrays, `_set_states`)."""
+        c = self._stack
+        if c is None or len(c[0]) != len(self.states) or any(a is not b for a, b in zip(c[0], self.states)):
+            self._stack = c = (list(self.states), *stacked(self.states))
+        return c[1], c[2], c[3]
+
+    def _set_states(self, states: list[State], T: np.ndarray, tail: np.ndarray) -> None:
+        self.states = states
+        self._stack = (list(states), T, tail, np.array([x.t for x in states]))
+
     # --- linearisation ----------------------------------------------------------------------------------
     def _prior_term(self, x: State):
         """e = x (-) prior_mean and de/dx = diag(J(e_xi)^-1, I)."""
         J = np.eye(self.motion.dim)
         xi, Jm = np.empty(6), np.empty((6, 6))
-        lie_kernels.se3_log_and_jac_inv(x.T_vehicle_world @ se3.inverse(self.prior_mean.T_vehicle_world), xi,
-                                        J[:6, :6], Jm)
+        if self._prior_inverse is None:
+            self._prior_inverse = se3.inverse(self.prior_mean.T_vehicle_world)
+        lie_kernels.se3_log_and_jac_inv(x.T_vehicle_world @ self._prior_inverse, xi, J[:6, :6], Jm)
         return np.concatenate((xi, x.vector_tail() - self.prior_mean.vector_tail())), J
 
     def _measurement_terms(self, ks: list[int], T_all: np.ndarray, tail: np.ndarray):
         """Measurement blocks of the states ks, linearised in one compiled pass (`measurement_kernels`); T_all
         (n, 4, 4) and tail (n, d - 6) are the window's states from its first, stacked (`state.stacked`).
 
-        Returns per state (H (12,12), b (12,)) and the total cost; e = z - g(x), J = -[J_z_xi, J_z_varpi].
+        Returns per state H (K, 12, 12), b (K, 12) and the total cost; e = z - g(x), J = -[J_z_xi, J_z_varpi].
         """
         sets = [self.meas[k] for k in ks]
         # the sets change only when scans come and go; compared by identity with the packed sets held alive
@@ -133,7 +149,7 @@ class SlidingWindow:
         if any(fresh):
             for m, wk in zip(sets, np.split(w, offsets[1:-1])):
                 m.weights = wk
-        return list(zip(H, b)), float(cost)
+        return H, b, float(cost)
 
     def reset_robust_weights(self) -> None:
         """Forget the Cauchy weights: the next linearisation sets them from the current residuals, and they
@@ -149,7 +165,7 @@ class SlidingWindow:
         n, d = len(self.states), self.motion.dim
         H = np.zeros((n * d, n * d))
         b = np.zeros(n * d)
-        T_all, tail, t = stacked(self.states)
+        T_all, tail, t = self._stacked()
         e, J = self._prior_term(self.states[0])
         H[:d, :d] += J.T @ self.prior_info @ J
         b[:d] += J.T @ (self.prior_info @ e + self.prior_grad)
@@ -159,21 +175,16 @@ class SlidingWindow:
             if self._motion_info is None or len(self._motion_info) != n - 1:
                 self._motion_info = np.stack(self.motion_info)
             cost += motion_kernels.accumulate(H, b, E, J1s, J2s, self._motion_info)
-        for k, info in enumerate(self.rate_prior):
-            if info is not None:
-                t = tail[k]
-                sl = slice(k * d + 6, (k + 1) * d)
-                H[sl, sl] += info
-                b[sl] += info @ t
-                cost += 0.5 * t @ info @ t
-        ks = [k for k, m in enumerate(self.meas) if m is not None]
-        if ks:
-            blocks, c = self._measurement_terms(ks, T_all, tail)
+        rate_on = np.array([info is not None for info in self.rate_prior])
+        rate_info = np.zeros((n, d - 6, d - 6))
+        for k in np.flatnonzero(rate_on):
+            rate_info[k] = self.rate_prior[k]
+        ks = np.array([k for k, m in enumerate(self.meas) if m is not None], dtype=np.int64)
+        Hm, bm = np.zeros((0, 12, 12)), np.zeros((0, 12))
+        if len(ks):
+            Hm, bm, c = self._measurement_terms(list(ks), T_all, tail)
             cost += c
-            for k, (Hm, bm) in zip(ks, blocks):
-                sl = slice(k * d, k * d + 12)
-                H[sl, sl] += Hm
-                b[sl] += bm
+        cost += motion_kernels.add_blocks(H, b, d, rate_info, rate_on, tail, ks, Hm, bm)
         return H, b, cost
 
     # --- solving ----------------------------------------------------------------------------------------
@@ -195,11 +206,12 @@ class SlidingWindow:
             delta = _solve_spd(H, -b)
             if not np.all(np.isfinite(delta)):
                 break
-            old = self.states
+            tail = self._stacked()[1]
+            old, old_stack = self.states, self._stack
             if step == 1.0 and np.max(np.abs(delta)) < tol:
-                self.states = _oplus_all(old, delta.reshape(len(old), d))
+                self._set_states(*_oplus_all(old, tail, delta.reshape(len(old), d)))
                 break
-            self.states = _oplus_all(old, step * delta.reshape(len(old), d))
+            self._set_states(*_oplus_all(old, tail, step * delta.reshape(len(old), d)))
             if it == iterations and not check_last:
                 break
             H2, b2, cost2 = self.linearize()
@@ -209,7 +221,7 @@ class SlidingWindow:
                     break
                 step = 1.0
             else:
-                self.states = old
+                self.states, self._stack = old, old_stack
                 step *= 0.5
                 if step < 1e-3:
                     break
@@ -250,9 +262,9 @@ class SlidingWindow:
         T_all, tail, t = stacked([x0, x1])
         motion_kernels.accumulate(H, b, *self.motion.stacked_residuals(T_all, tail, t), self.motion_info[0][None])
         if self.meas[0] is not None:
-            (Hm, bm), = self._measurement_terms([0], T_all, tail)[0]
-            H[:12, :12] += Hm
-            b[:12] += bm
+            Hm, bm, _ = self._measurement_terms([0], T_all, tail)
+            H[:12, :12] += Hm[0]
+            b[:12] += bm[0]
         if self.rate_prior[0] is not None:
             H[6:d, 6:d] += self.rate_prior[0]
             b[6:d] += self.rate_prior[0] @ x0.vector_tail()
@@ -262,6 +274,7 @@ class SlidingWindow:
         g = b[d:] - H01.T @ X[:, d]
         # the new prior on x1: 1/2 e^T Lam e + g^T e with e = x1 (-) x1_now, exactly the Schur complement here
         self.prior_mean = x1.copy()
+        self._prior_inverse = None
         self.prior_info = 0.5 * keep * (Lam + Lam.T)  # keep = 1: bit for bit the Schur complement
         self.prior_grad = keep * g
         self.states.pop(0)
@@ -272,15 +285,16 @@ class SlidingWindow:
         self._H = None
 
 
-def _oplus_all(states: list[State], d: np.ndarray) -> list[State]:
-    """[x_k (+) d_k] for the whole window with one compiled batched exponential (`State.oplus` for all k)."""
+def _oplus_all(states: list[State], tail: np.ndarray, d: np.ndarray):
+    """[x_k (+) d_k] for the whole window with one compiled batched exponential (`State.oplus` for all k), tail
+    the states' `vector_tail`s stacked. Returns (states, T (n, 4, 4), tail (n, d - 6)); the states' arrays are
+    views of T and tail."""
     T = np.empty((len(states), 4, 4))
     motion_kernels.exp_times(np.ascontiguousarray(d[:, :6]), np.stack([x.T_vehicle_world for x in states]), T)
-    out = []
-    for k, x in enumerate(states):
-        varpi_dot = None if x.varpi_dot is None else x.varpi_dot + d[k, 12:18]
-        out.append(State(x.t, T[k], x.varpi + d[k, 6:12], varpi_dot))
-    return out
+    tail = tail + d[:, 6:]
+    out = [State(x.t, T[k], tail[k, :6], None if x.varpi_dot is None else tail[k, 6:12])
+           for k, x in enumerate(states)]
+    return out, T, tail
 
 
 def _solve_spd(H: np.ndarray, rhs: np.ndarray) -> np.ndarray:

@@ -212,7 +212,9 @@ def test_motion_kernel_log_and_jacobians_match_lie(scale):
 
 @pytest.mark.parametrize("kind", ["ca", "cv"])
 def test_window_update_equals_state_oplus(kind):
-    """The solver's compiled batched update = State.oplus state by state (small and large steps)."""
+    """The solver's compiled batched update = State.oplus state by state (small and large steps), and the
+    arrays it returns (the window's stacked states) are those states'."""
+    from rodo.estimator.state import stacked
     from rodo.estimator.window import _oplus_all
 
     rng = np.random.default_rng(5)
@@ -220,7 +222,10 @@ def test_window_update_equals_state_oplus(kind):
     states = [State(0.1 * k, se3.exp(rng.normal(size=6)), rng.normal(size=6),
                     rng.normal(size=6) if kind == "ca" else None) for k in range(4)]
     d = rng.normal(size=(4, motion.dim)) * np.array([1e-9, 1e-3, 0.5, 2.0])[:, None]
-    for got, x, dk in zip(_oplus_all(states, d), states, d):
+    new, T, tail = _oplus_all(states, stacked(states)[1], d)
+    np.testing.assert_array_equal(T, stacked(new)[0])
+    np.testing.assert_array_equal(tail, stacked(new)[1])
+    for got, x, dk in zip(new, states, d):
         want = x.oplus(dk)
         np.testing.assert_allclose(got.T_vehicle_world, want.T_vehicle_world, rtol=1e-13, atol=1e-13)
         np.testing.assert_array_equal(got.varpi, want.varpi)
