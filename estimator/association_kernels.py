@@ -337,3 +337,31 @@ def grid_candidates(polar, points, x0, y0, cell, nx, ny, start, order, p, radius
                 d2_out[written] = s
                 written += 1
     return written, proposed
+
+
+@njit(cache=True)
+def window_points(points, T_sensor_world, limits, inside):
+    """inside[a] = whether map point points[a] (world frame), seen from the sensor at T_sensor_world, has its
+    azimuth in [limits[0], limits[1]] and its elevation in [limits[2], limits[3]] (infinite limits: that angle
+    is not windowed): the map side of `MapAssociation.window_masks` in one pass, without the sensor-frame
+    positions it does not need.
+
+    Checked by: tests/estimator/test_odometry.py::test_compiled_map_window_equals_the_reference
+    """
+    C, t = T_sensor_world[:3, :3], T_sensor_world[:3, 3]
+    use_az = limits[0] > -np.inf or limits[1] < np.inf
+    use_el = limits[2] > -np.inf or limits[3] < np.inf
+    for a in range(points.shape[0]):
+        p0, p1, p2 = points[a, 0], points[a, 1], points[a, 2]
+        x = C[0, 0] * p0 + C[0, 1] * p1 + C[0, 2] * p2 + t[0]
+        y = C[1, 0] * p0 + C[1, 1] * p1 + C[1, 2] * p2 + t[1]
+        z = C[2, 0] * p0 + C[2, 1] * p1 + C[2, 2] * p2 + t[2]
+        ok = True
+        if use_az:
+            az = math.atan2(y, x)
+            ok = limits[0] <= az <= limits[1]
+        if ok and use_el:
+            r = max(math.sqrt(x * x + y * y + z * z), 1e-12)
+            el = math.asin(min(1.0, max(-1.0, z / r)))
+            ok = limits[2] <= el <= limits[3]
+        inside[a] = ok

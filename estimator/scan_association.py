@@ -75,6 +75,18 @@ class MapAssociation:
         self.map_sigma = map_sigma
         self.fov = fov
         self.angle_sigmas = angle_sigmas
+        self.T_sensor_vehicle = se3.inverse(T_vehicle_sensor)
+        self.limits = self._limits()
+
+    def _limits(self) -> np.ndarray:
+        """[az_lo, az_hi, el_lo, el_hi] of the window (`window_masks`); infinite where an angle is not windowed."""
+        limits = np.array([-np.inf, np.inf, -np.inf, np.inf])
+        if self.fov is None:
+            return limits
+        for i, ((lo, hi), sigma) in enumerate(zip(self.fov, self.angle_sigmas)):
+            if (hi - lo) - 6 * sigma >= 0.1 * (hi - lo):  # else the margin would eat the field of view
+                limits[2 * i:2 * i + 2] = lo + 3 * sigma, hi - 3 * sigma
+        return limits
 
     def window_masks(self, p_sensor: np.ndarray, polar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Map points (predicted) and detections (measured) inside the field of view shrunk by 3 sigma of the
@@ -83,20 +95,16 @@ class MapAssociation:
         the edge, all on one side of it, a bias the solve turns into pitch. The same window on both sides
         keeps the pairs symmetric. An angle whose field of view is narrower than the margin (a 2D radar's
         elevation) is not windowed."""
-        m_in = np.ones(len(p_sensor), bool)
-        d_in = np.ones(len(polar), bool)
-        if self.fov is None:
-            return m_in, d_in
         r = np.maximum(np.linalg.norm(p_sensor, axis=1), 1e-12)
-        angles = ((np.arctan2(p_sensor[:, 1], p_sensor[:, 0]), polar[:, 1], self.fov[0], self.angle_sigmas[0]),
-                  (np.arcsin(np.clip(p_sensor[:, 2] / r, -1, 1)), polar[:, 2], self.fov[1], self.angle_sigmas[1]))
-        for pred_angle, meas_angle, (lo, hi), sigma in angles:
-            if (hi - lo) - 6 * sigma < 0.1 * (hi - lo):  # the margin would eat the field of view
-                continue
-            lo, hi = lo + 3 * sigma, hi - 3 * sigma
-            m_in &= (pred_angle >= lo) & (pred_angle <= hi)
-            d_in &= (meas_angle >= lo) & (meas_angle <= hi)
-        return m_in, d_in
+        az_lo, az_hi, el_lo, el_hi = self.limits
+        pred_az, pred_el = np.arctan2(p_sensor[:, 1], p_sensor[:, 0]), np.arcsin(np.clip(p_sensor[:, 2] / r, -1, 1))
+        m_in = (pred_az >= az_lo) & (pred_az <= az_hi) & (pred_el >= el_lo) & (pred_el <= el_hi)
+        return m_in, self.detection_window(polar)
+
+    def detection_window(self, polar: np.ndarray) -> np.ndarray:
+        """The detection side of `window_masks`: (n,) the detections whose measured angles are inside."""
+        az_lo, az_hi, el_lo, el_hi = self.limits
+        return (polar[:, 1] >= az_lo) & (polar[:, 1] <= az_hi) & (polar[:, 2] >= el_lo) & (polar[:, 2] <= el_hi)
 
     def associate(self, x: State, P: np.ndarray, local_map: LocalMap, scan: ScanMeasurements):
         """Map points and detections paired inside the window: (W, Association).
@@ -107,9 +115,9 @@ class MapAssociation:
         if len(local_map) == 0 or len(scan.z) == 0:
             return None, NO_PAIRS
         # the window first (positions only), then the compiled pass over the map points inside it
-        T_sensor_world = se3.inverse(self.T_vehicle_sensor) @ x.T_vehicle_world
-        p_sensor = local_map.points @ T_sensor_world[:3, :3].T + T_sensor_world[:3, 3]
-        m_in, d_in = self.window_masks(p_sensor, scan.polar)
+        m_in = np.empty(len(local_map), bool)
+        association_kernels.window_points(local_map.points, self.T_sensor_vehicle @ x.T_vehicle_world, self.limits,
+                                          m_in)
         mi = np.flatnonzero(m_in)
         m = len(mi)
         zp, p_s = np.empty((m, 4)), np.empty((m, 3))
@@ -124,7 +132,7 @@ class MapAssociation:
                                      + ("range 0" if bad < m else "a non positive definite S"))
         cache = scan.cache
         if "grid" not in cache:
-            cache["di"] = np.flatnonzero(d_in)
+            cache["di"] = np.flatnonzero(self.detection_window(scan.polar))
             cache["z"] = scan.z[cache["di"]]
             cache["grid"] = association.DetectionGrid.of(scan.points[cache["di"]])
         di = cache["di"]

@@ -265,6 +265,28 @@ def test_association_window_is_the_same_for_map_points_and_detections():
         RadarOdometry(OdometryConfig(), np.eye(4), sig, 100.0, fov=((1.0, -1.0), (-0.1, 0.1)))
 
 
+@pytest.mark.parametrize("fov", [((-1.05, 1.05), (-0.26, 0.26)), ((-1.05, 1.05), (-1e-4, 1e-4)), None])
+@given(seed=st.integers(0, 2**32 - 1))
+@settings(max_examples=20)
+def test_compiled_map_window_equals_the_reference(fov, seed):
+    """The association's compiled map-point window (`association_kernels.window_points`, from world points and
+    the pose) keeps the map points `window_masks` keeps from their sensor-frame positions: a 3-D and a 2D
+    radar's field of view, and none."""
+    from rodo.estimator import association_kernels as akernel
+
+    rng = np.random.default_rng(seed)
+    T_vs = se3.exp(rng.normal(size=6) * [1, 0.5, 0.3, 0.05, 0.05, 0.5])
+    odo = RadarOdometry(OdometryConfig(), T_vs, [0.1, 0.01, 0.02, 0.1], 100.0, fov=fov)
+    T_vw = se3.exp(rng.normal(size=6) * [20, 20, 1, 0.1, 0.1, 3])
+    points = rng.normal(size=(300, 3)) * [40, 40, 5]
+    T_sw = se3.inverse(T_vs) @ T_vw
+    m_ref, _ = odo.associator.window_masks(se3.transform_points(T_sw, points), np.zeros((0, 4)))
+    inside = np.empty(len(points), bool)
+    akernel.window_points(points, T_sw, odo.associator.limits, inside)
+    np.testing.assert_array_equal(inside, m_ref)
+    assert fov is not None or inside.all()
+
+
 def test_locked_onto_a_co_moving_object_the_world_is_taken_back():
     """The first 2 s see only a truck moving with the vehicle (Doppler 0: the estimate says standstill); then
     the world comes into view, spread over far more space than the truck: after consensus_switch_after (1 s)
