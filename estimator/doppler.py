@@ -27,7 +27,7 @@ import numpy as np
 from . import association
 from .config import OdometryConfig
 from .consensus import MIN_STATIC, ConsensusSwitch, moving_voxels
-from .ego_velocity import EgoVelocity, estimate_ego_velocity, least_squares_velocity
+from .ego_velocity import PLANAR_ELEVATION, RANSAC_ITERATIONS, EgoVelocity, least_squares_velocity, ransac_velocity
 from .lie import so3
 from .motion import MotionPrior
 from .radar_geometry import polar_to_cartesian
@@ -138,7 +138,7 @@ class DopplerFrontEnd:
             pts = u * polar[:, :1]
             moving = self._moving_groups(pts, u, vr, var_fit, mask, radius)
             mask &= ~moving
-            ego = self._gated_ransac(polar, fit_threshold, v, radius, ~moving)
+            ego = self._gated_ransac(polar, u, fit_threshold, v, radius, ~moving)
             ours = ego.inliers if ego.ok and ego.inliers.sum() >= max(MIN_STATIC, mask.sum()) else mask
             switch = self.consensus.outvoted(az, el, vr, fit_threshold, ours, pts, scan_dt)
             if switch is not None:
@@ -162,13 +162,15 @@ class DopplerFrontEnd:
         return moving_voxels(pts, u, vr, var_fit, gated, acfg.consensus_voxel, acfg.moving_group_z,
                              acfg.moving_group_margin, radius)
 
-    def _gated_ransac(self, polar: np.ndarray, threshold: np.ndarray, v: np.ndarray, radius: float,
-                      keep: np.ndarray) -> EgoVelocity:
-        """The prediction-gated RANSAC (hypotheses within `radius` of v) over the detections in `keep`; its
-        inliers a mask over all of them. With every detection kept, the draws of a run without the test."""
+    def _gated_ransac(self, polar: np.ndarray, u: np.ndarray, threshold: np.ndarray, v: np.ndarray,
+                      radius: float, keep: np.ndarray) -> EgoVelocity:
+        """The prediction-gated RANSAC (hypotheses within `radius` of v) over the detections in `keep` (u: all
+        detections' directions); its inliers a mask over all of them. With every detection kept, the draws of a
+        run without the test."""
         idx = np.flatnonzero(keep)
-        ego = estimate_ego_velocity(polar[idx, 1], polar[idx, 2], polar[idx, 3], self.rng, sigma_vr=self.sigmas[3],
-                                    threshold=threshold[idx], near=(v, radius))
+        planar = bool(len(idx) == 0 or np.all(np.abs(polar[idx, 2]) < PLANAR_ELEVATION))
+        ego = ransac_velocity(u[idx], polar[idx, 3], self.rng, float(self.sigmas[3]), threshold[idx],
+                              RANSAC_ITERATIONS, planar, (v, float(radius)))
         inliers = np.zeros(len(polar), bool)
         inliers[idx[ego.inliers]] = True
         return replace(ego, inliers=inliers)

@@ -37,6 +37,7 @@ from rodo.estimator.errors import InputError, check_finite
 PLANAR_ELEVATION = 1e-3  # rad; all |elevation| below this -> planar mode
 MIN_THRESHOLD = 0.05     # m/s; the default inlier threshold is max(3 sigma_vr, MIN_THRESHOLD)
 MIN_DET = 1e-6           # |det| of a minimal set of unit directions below which the set is skipped
+RANSAC_ITERATIONS = 100  # minimal sets drawn per estimate (the default of `estimate_ego_velocity`)
 
 
 @dataclass
@@ -135,7 +136,7 @@ def least_squares_velocity(azimuth, elevation, radial_velocity, *, variance_floo
 
 
 def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Generator, *, sigma_vr: float = 0.01,
-                          threshold: float | None = None, iterations: int = 100,
+                          threshold: float | None = None, iterations: int = RANSAC_ITERATIONS,
                           planar: bool | None = None, near: tuple | None = None) -> EgoVelocity:
     """Sensor velocity from one scan's Doppler measurements, robust to moving objects (see module docstring).
 
@@ -164,12 +165,24 @@ def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Ge
     n = len(azimuth)
     if planar is None:
         planar = bool(n == 0 or np.all(np.abs(elevation) < PLANAR_ELEVATION))
+    if n < (2 if planar else 3):
+        return _failure(n, planar)
+    return ransac_velocity(_directions(azimuth, elevation), radial_velocity, rng, float(sigma_vr),
+                           np.broadcast_to(threshold, (n,)), int(iterations), planar, near)
+
+
+def ransac_velocity(u: np.ndarray, radial_velocity: np.ndarray, rng: np.random.Generator, sigma_vr: float,
+                    threshold: np.ndarray, iterations: int, planar: bool, near) -> EgoVelocity:
+    """`estimate_ego_velocity` from checked inputs: the detections' unit directions u (n, 3) (`_directions`),
+    their radial velocities (n,), one threshold per detection (n,) and the planar decision (for a caller
+    that has the directions already, as the odometry's Doppler front end does)."""
+    n = len(u)
     dof = 2 if planar else 3
     if n < dof:
         return _failure(n, planar)
-    U = _directions(azimuth, elevation)[:, :dof]
+    U = u[:, :dof]
     b = -radial_velocity
-    v = _best_hypothesis(U, b, rng, int(iterations), threshold, near)
+    v = _best_hypothesis(U, b, rng, iterations, threshold, near)
     inl = np.abs(U @ v - b) <= threshold
     if inl.sum() < dof:
         return _failure(n, planar)
@@ -179,7 +192,7 @@ def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Ge
         if inl_new.sum() < dof:  # the refit lost the consensus: keep the previous one
             break
         v, inl = v_new, inl_new
-    fit = _fit(U[inl], b[inl], 1e-12, float(sigma_vr)**2, 1e12)
+    fit = _fit(U[inl], b[inl], 1e-12, sigma_vr**2, 1e12)
     if fit is None:
         return _failure(n, planar)
     cov = np.zeros((3, 3))
@@ -230,7 +243,6 @@ def _best_hypothesis(U: np.ndarray, b: np.ndarray, rng: np.random.Generator, ite
     ref = np.zeros(dof) if near is None else near[0][:dof]
     if near is not None:
         hyps = hyps[np.linalg.norm(hyps - ref, axis=1) <= near[1]]
-    counts = count_inliers(np.ascontiguousarray(U), b, np.ascontiguousarray(hyps),
-                           np.broadcast_to(np.asarray(threshold, float), (n,)).copy())
+    counts = count_inliers(np.ascontiguousarray(U), b, np.ascontiguousarray(hyps), np.ascontiguousarray(threshold))
     order = np.lexsort((np.linalg.norm(hyps - ref, axis=1), -counts))  # most inliers, then closest to ref
     return hyps[order[0]]
