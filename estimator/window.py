@@ -137,18 +137,20 @@ class SlidingWindow:
             offsets = np.concatenate(([0], np.cumsum([len(m) for m in sets]))).astype(np.int64)
             Tvs = np.stack([self.T_vehicle_sensor if m.T_vehicle_sensor is None else m.T_vehicle_sensor
                             for m in sets])
+            w = np.concatenate([np.full(len(m), -1.0) if m.weights is None else m.weights for m in sets])
             self._packed = (sets, offsets, np.concatenate([m.p_world for m in sets]),
-                            np.concatenate([m.z for m in sets]), np.concatenate([m.W for m in sets]), Tvs)
-        _, offsets, p, z, W, Tvs = self._packed
-        fresh = [m.weights is None for m in sets]  # the kernel sets Cauchy weights where they are -1
-        w = np.concatenate([np.full(len(m), -1.0) if f else m.weights for m, f in zip(sets, fresh)])
+                            np.concatenate([m.z for m in sets]), np.concatenate([m.W for m in sets]), Tvs, w)
+        _, offsets, p, z, W, Tvs, w = self._packed
+        # the kernel sets Cauchy weights where they are -1; a set's weights are then a view of the pack's
+        fresh = [q for q, m in enumerate(sets) if m.weights is None]
+        for q in fresh:
+            w[offsets[q]:offsets[q + 1]] = -1.0
         T, varpi = T_all[ks], np.ascontiguousarray(tail[ks, :6])
         d2 = np.empty(len(z))
         H, b, cost = _kernel.linearize_pairs(self.measurement_model.kernel_code, T, varpi, offsets, p, z, W, Tvs, w,
                                              d2, float(self.robust_c))
-        if any(fresh):
-            for m, wk in zip(sets, np.split(w, offsets[1:-1])):
-                m.weights = wk
+        for q in fresh:
+            sets[q].weights = w[offsets[q]:offsets[q + 1]]
         return H, b, float(cost)
 
     def reset_robust_weights(self) -> None:
