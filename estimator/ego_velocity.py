@@ -165,8 +165,6 @@ def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Ge
     n = len(azimuth)
     if planar is None:
         planar = bool(n == 0 or np.all(np.abs(elevation) < PLANAR_ELEVATION))
-    if n < (2 if planar else 3):
-        return _failure(n, planar)
     return ransac_velocity(_directions(azimuth, elevation), radial_velocity, rng, float(sigma_vr),
                            np.broadcast_to(threshold, (n,)), int(iterations), planar, near)
 

@@ -62,7 +62,7 @@ class SlidingWindow:
         self._H: np.ndarray | None = None
         self._motion_info: np.ndarray | None = None  # motion_info stacked for the kernel (cached)
         self._stack = None  # (states, T, tail, t): the states as arrays (`state.stacked`), for those states
-        self._prior_inverse: np.ndarray | None = None  # prior_mean's T^-1 (cached)
+        self._prior_inverse: tuple | None = None  # (prior_mean, its T^-1), kept while prior_mean is that object
 
     # --- building -------------------------------------------------------------------------------------
     def initialize(self, x0: State, P0: np.ndarray) -> None:
@@ -71,7 +71,6 @@ class SlidingWindow:
         self.motion_info = []
         self._motion_info = None
         self.prior_mean = x0.copy()
-        self._prior_inverse = None
         self.prior_info = _inv_spd(P0)
         self.prior_grad = np.zeros(len(P0))
         self.rate_prior = [None]
@@ -118,9 +117,9 @@ class SlidingWindow:
         """e = x (-) prior_mean and de/dx = diag(J(e_xi)^-1, I)."""
         J = np.eye(self.motion.dim)
         xi, Jm = np.empty(6), np.empty((6, 6))
-        if self._prior_inverse is None:
-            self._prior_inverse = se3.inverse(self.prior_mean.T_vehicle_world)
-        lie_kernels.se3_log_and_jac_inv(x.T_vehicle_world @ self._prior_inverse, xi, J[:6, :6], Jm)
+        if self._prior_inverse is None or self._prior_inverse[0] is not self.prior_mean:
+            self._prior_inverse = (self.prior_mean, se3.inverse(self.prior_mean.T_vehicle_world))
+        lie_kernels.se3_log_and_jac_inv(x.T_vehicle_world @ self._prior_inverse[1], xi, J[:6, :6], Jm)
         return np.concatenate((xi, x.vector_tail() - self.prior_mean.vector_tail())), J
 
     def _measurement_terms(self, ks: list[int], T_all: np.ndarray, tail: np.ndarray):
@@ -276,7 +275,6 @@ class SlidingWindow:
         g = b[d:] - H01.T @ X[:, d]
         # the new prior on x1: 1/2 e^T Lam e + g^T e with e = x1 (-) x1_now, exactly the Schur complement here
         self.prior_mean = x1.copy()
-        self._prior_inverse = None
         self.prior_info = 0.5 * keep * (Lam + Lam.T)  # keep = 1: bit for bit the Schur complement
         self.prior_grad = keep * g
         self.states.pop(0)
