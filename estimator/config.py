@@ -207,6 +207,7 @@ class SolverConfig:
     iterations: int = 5
     step_tolerance: float = 1e-4  # Gauss-Newton stops after a step whose largest element is below this (m, rad,
     # m/s, ...): convergence is quadratic, the next step would be ~1e-8 (measured on city: steps 1e-2, 1e-5, 1e-8)
+    step_sigma_tolerance: float = 0.05  # or a full step shorter than this in posterior sigmas
     refine_iterations: int = 1  # Gauss-Newton steps after the re-association, the last applied without a cost
     # check or another linearisation (it starts at the solution of a problem a few pairs away; on city the step
     # after it is 3e-6 median, 1e-5 at the 90th percentile; with 3 checked steps the accuracy was the same)

@@ -109,6 +109,7 @@ RULES: dict[str, Rule] = {
     "uncertainty.prior_memory": NONNEGATIVE,
     "solver.iterations": Rule(1, 1000),
     "solver.step_tolerance": POSITIVE,
+    "solver.step_sigma_tolerance": NONNEGATIVE,
     "solver.refine_iterations": Rule(1, 1000),
     "solver.robust_c": NONNEGATIVE,
     "solver.init_velocity_sigma": POSITIVE,

@@ -189,15 +189,19 @@ class SlidingWindow:
         return H, b, cost
 
     # --- solving ----------------------------------------------------------------------------------------
-    def optimize(self, iterations: int = 5, tol: float = 1e-6, check_last: bool = True) -> dict:
+    def optimize(self, iterations: int = 5, tol: float = 1e-6, check_last: bool = True,
+                 sigma_tol: float = 0.0) -> dict:
         """Gauss-Newton; a step that increases the cost is halved (one linearisation per iteration).
 
-        A full step whose largest element is below tol is the last: it is applied without linearising again
-        (near the solution convergence is quadratic, so the step after it would be ~tol^2 and the cost check
-        cannot fail meaningfully). check_last=False applies the step of the last iteration without the cost
-        check (for a refinement from a solution of a nearly identical problem). Returns {'iterations',
-        'cost', 'step'} (the cost at the last linearisation); the normal equations of the last linearisation
-        (at the returned estimate, or one step before it) are kept for `newest_covariance`.
+        A full step whose largest element is below tol, or whose length in the information metric,
+        sqrt(d^T H d), is below sigma_tol, is the last: it is applied without linearising again (near the
+        solution convergence is quadratic, so the step after it would be ~tol^2 and the cost check cannot fail
+        meaningfully; and sqrt(d^T H d) >= |d_i| / sigma_i for every element, sigma_i its posterior standard
+        deviation, so no element of such a step moves by more than sigma_tol of its uncertainty).
+        check_last=False applies the step of the last iteration without the cost check (for a refinement from a
+        solution of a nearly identical problem). Returns {'iterations', 'cost', 'step'} (the cost at the last
+        linearisation); the normal equations of the last linearisation (at the returned estimate, or one step
+        before it) are kept for `newest_covariance`.
         """
         d = self.motion.dim
         self.reset_robust_weights()
@@ -209,7 +213,7 @@ class SlidingWindow:
                 break
             tail = self._stacked()[1]
             old, old_stack = self.states, self._stack
-            if step == 1.0 and np.max(np.abs(delta)) < tol:
+            if step == 1.0 and (np.max(np.abs(delta)) < tol or -(delta @ b) < sigma_tol**2):
                 self._set_states(*_oplus_all(old, tail, delta.reshape(len(old), d)))
                 break
             self._set_states(*_oplus_all(old, tail, step * delta.reshape(len(old), d)))

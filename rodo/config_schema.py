@@ -35,7 +35,7 @@ UNITS = {
     "association.doppler_update_probability": "probability",
     "map.capacity": "points", "map.max_age": "scans", "map.voxel": "m", "map.fuse": "true/false",
     "map.max_fused": "observations",
-    "solver.iterations": "steps", "solver.step_tolerance": "m, rad, m/s, ...", "solver.refine_iterations": "steps",
+    "solver.iterations": "steps", "solver.step_tolerance": "m, rad, m/s, ...", "solver.step_sigma_tolerance": "posterior sigmas", "solver.refine_iterations": "steps",
     "solver.robust_c": "whitened units", "solver.init_velocity_sigma": "m/s",
     "solver.init_rate_sigma": "rad/s", "solver.init_accel_sigma": "m/s^2", "solver.init_angular_accel_sigma": "rad/s^2",
     "outage.reinit_after": "s", "uncertainty.inflation": "factor", "uncertainty.measurement_inflation": "factor",
@@ -50,6 +50,9 @@ DESCRIPTIONS = {  # keys whose source has no comment or docstring entry, or only
     "association.gate_probability": "chi-square probability of the association gate (the paper: 0.95)",
     "association.max_radius": "largest distance between a detection and a map point it may be associated with",
     "association.consensus_switch_ratio": "see consensus_switch_after",
+    "solver.step_sigma_tolerance": "Gauss-Newton also stops after a full step whose length in the information "
+                                   "metric, sqrt(d^T H d), is below this: no state element then moves by more "
+                                   "than this many of its posterior standard deviations (0: off)",
     "association.consensus_voxel": "voxel size in which the space a Doppler consensus covers is counted (see "
                                    "consensus_switch_after), and the moving-group test groups detections",
     "association.moving_group_margin": "added to the moving-group test's threshold (see moving_group_z)",
