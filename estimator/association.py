@@ -187,7 +187,7 @@ def match(model: MeasurementModel, z_meas: np.ndarray, grid: DetectionGrid, z_pr
     point); `n_candidates` counts them before gating.
 
     Checked by: tests/estimator/test_association.py (through `associate`),
-        tests/estimator/test_odometry.py::test_prepared_association_equals_the_reference
+        tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference
     """
     m, n = len(z_pred), grid.n
     if m == 0 or n == 0:

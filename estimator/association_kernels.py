@@ -100,7 +100,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
     G = dz/d[xi, varpi] has zeros in the velocity columns of its position rows, so G P G^T is formed from the
     pose block of P for all rows and the velocity blocks for row 3 only.
 
-    Checked by: tests/estimator/test_odometry.py::test_prepared_association_equals_the_reference
+    Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference
     """
     m = rows.shape[0]
     C = T[:3, :3]
@@ -118,7 +118,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
             B[i, j] = Cvs[0, i] * C[0, j] + Cvs[1, i] * C[1, j] + Cvs[2, i] * C[2, j]
     GP = np.empty((4, 6))
     SG = np.empty((4, 4))
-    g = np.empty(6)
+    h = np.empty(12)
     JC = np.empty((4, 3))
     Pc = np.empty((3, 3))
     Ac = np.empty((3, 3))
@@ -155,31 +155,26 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
                 for k in range(6):
                     s += G[i, k] * P[k, j]
                 GP[i, j] = s
-        for j in range(6):
+        for j in range(12):  # h = P[:, 6:] g_v, g_v = G[3, 6:] (the Doppler row's velocity part)
             s = 0.0
             for k in range(6):
                 s += P[j, 6 + k] * G[3, 6 + k]
-            g[j] = s
+            h[j] = s
         for i in range(4):
             for j in range(i, 4):
                 s = 0.0
                 for k in range(6):
                     s += GP[i, k] * G[j, k]
                 SG[i, j] = s
-        for i in range(4):
+        for i in range(4):  # + Gp_i P_pv g_v, in column 3
             s = 0.0
             for k in range(6):
-                s += G[i, k] * g[k]
+                s += G[i, k] * h[k]
             SG[i, 3] += s
-        s = 0.0
+        s, vv = 0.0, 0.0  # + g_v P_vp Gp_3^T + g_v P_vv g_v, at (3, 3)
         for k in range(6):
-            s += g[k] * G[3, k]
-        vv = 0.0
-        for k in range(6):
-            gk = 0.0
-            for j in range(6):
-                gk += P[6 + k, 6 + j] * G[3, 6 + j]
-            vv += G[3, 6 + k] * gk
+            s += h[k] * G[3, k]
+            vv += G[3, 6 + k] * h[6 + k]
         SG[3, 3] += s + vv
         for i in range(4):
             for j in range(i, 4):
@@ -346,7 +341,7 @@ def window_points(points, T_sensor_world, limits, inside):
     is not windowed): the map side of `MapAssociation.window_masks` in one pass, without the sensor-frame
     positions it does not need.
 
-    Checked by: tests/estimator/test_odometry.py::test_compiled_map_window_equals_the_reference
+    Checked by: tests/estimator/test_scan_association.py::test_compiled_map_window_equals_the_reference
     """
     C, t = T_sensor_world[:3, :3], T_sensor_world[:3, 3]
     use_az = limits[0] > -np.inf or limits[1] < np.inf

@@ -236,7 +236,7 @@ class RadarOdometry:
         """Gauss-Newton, re-association at the solution and one refining step, the newest covariance, then
         marginalisation of the states beyond the window. The re-association's time counts as association."""
         cfg = self.config
-        self.window.optimize(cfg.solver.iterations, cfg.solver.step_tolerance, True, cfg.solver.step_sigma_tolerance)
+        self.window.optimize(cfg.solver.iterations, cfg.solver.step_tolerance, cfg.solver.step_sigma_tolerance)
         for _ in range(cfg.association.reassociate):
             if W_pairs is None:
                 break

@@ -6,8 +6,9 @@ point the prediction, S = G P G^T + R + map term, its inverse and the search rad
 `association.innovation_covariance` and `MeasurementModel.search_radius`) and matches with
 `association.match`. A `ScanMeasurements` caches the scan's detection grid for the re-association.
 
-Checked by: tests/estimator/test_odometry.py::test_prepared_association_equals_the_reference,
-    ::test_association_window_is_the_same_for_map_points_and_detections
+Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference,
+    ::test_association_window_is_the_same_for_map_points_and_detections,
+    ::test_compiled_map_window_equals_the_reference
 """
 
 from __future__ import annotations
@@ -94,7 +95,8 @@ class MapAssociation:
         point that has left it (ground passing below the lower edge) would be paired with the detections at
         the edge, all on one side of it, a bias the solve turns into pitch. The same window on both sides
         keeps the pairs symmetric. An angle whose field of view is narrower than the margin (a 2D radar's
-        elevation) is not windowed."""
+        elevation) is not windowed. (The readable reference: `associate` windows the map points with the
+        compiled `association_kernels.window_points` and the detections with `detection_window`.)"""
         r = np.maximum(np.linalg.norm(p_sensor, axis=1), 1e-12)
         az_lo, az_hi, el_lo, el_hi = self.limits
         pred_az, pred_el = np.arctan2(p_sensor[:, 1], p_sensor[:, 0]), np.arcsin(np.clip(p_sensor[:, 2] / r, -1, 1))

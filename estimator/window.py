@@ -122,7 +122,7 @@ class SlidingWindow:
         lie_kernels.se3_log_and_jac_inv(x.T_vehicle_world @ self._prior_inverse[1], xi, J[:6, :6], Jm)
         return np.concatenate((xi, x.vector_tail() - self.prior_mean.vector_tail())), J
 
-    def _measurement_terms(self, ks: list[int], T_all: np.ndarray, tail: np.ndarray):
+    def _measurement_terms(self, ks, T_all: np.ndarray, tail: np.ndarray):
         """Measurement blocks of the states ks, linearised in one compiled pass (`measurement_kernels`); T_all
         (n, 4, 4) and tail (n, d - 6) are the window's states from its first, stacked (`state.stacked`).
 
@@ -183,14 +183,14 @@ class SlidingWindow:
         ks = np.array([k for k, m in enumerate(self.meas) if m is not None], dtype=np.int64)
         Hm, bm = np.zeros((0, 12, 12)), np.zeros((0, 12))
         if len(ks):
-            Hm, bm, c = self._measurement_terms(list(ks), T_all, tail)
+            Hm, bm, c = self._measurement_terms(ks, T_all, tail)
             cost += c
         cost += motion_kernels.add_blocks(H, b, d, rate_info, rate_on, tail, ks, Hm, bm)
         return H, b, cost
 
     # --- solving ----------------------------------------------------------------------------------------
-    def optimize(self, iterations: int = 5, tol: float = 1e-6, check_last: bool = True,
-                 sigma_tol: float = 0.0) -> dict:
+    def optimize(self, iterations: int = 5, tol: float = 1e-6, sigma_tol: float = 0.0,
+                 check_last: bool = True) -> dict:
         """Gauss-Newton; a step that increases the cost is halved (one linearisation per iteration).
 
         A full step whose largest element is below tol, or whose length in the information metric,

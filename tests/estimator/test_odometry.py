@@ -1,14 +1,13 @@
 """The odometry end to end on hand-built scenes: noise-free accuracy, robustness (empty scans, time gaps,
-clutter, hard braking, standstill, a co-moving object), the compiled association against its reference, and the
-road-vehicle roll and pitch rate terms. The window's own math is in test_window.py; several radars in
-test_multi_radar.py."""
+clutter, hard braking, standstill, a co-moving object) and the road-vehicle roll and pitch rate terms. The
+window's own math is in test_window.py, the compiled association against its reference in
+test_scan_association.py, several radars in test_multi_radar.py."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rodo.estimator import measurements
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
@@ -183,108 +182,6 @@ def test_elevations_reported_as_zero_are_not_taken_as_measured(model):
         errors[missing], counts[missing] = np.linalg.norm(err[3:]) + np.linalg.norm(err[:3]) / 10.0, n
     assert counts[True] < 0.8 * counts[False]
     assert errors[True] < 0.5 * errors[False], errors
-
-
-@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
-def test_prepared_association_equals_the_reference(model):
-    """The odometry's compiled association (`association_kernels.prepare` + `association.match`, one KD-tree per
-    scan) gives the pairs, distances and solve information of the readable reference: `measurements.predict`,
-    `association.innovation_covariance` plus the map-point term, `association.associate`."""
-    from rodo.estimator import association_kernels as akernel
-    from rodo.estimator import association
-    from rodo.estimator.scan_association import ScanMeasurements
-
-    rng = np.random.default_rng(3)
-    t, T, varpi, vd = scene.trajectory(8)
-    L = scene.landmarks(rng)
-    D = np.pi / 180
-    odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0,
-                        fov=((-60 * D, 60 * D), (-15 * D, 15 * D)))
-    for k in range(7):
-        odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
-    x = odo.motion.predict(odo.window.newest, t[7])
-    P = odo.P + np.diag(np.r_[np.full(6, 1e-4), np.full(6, 1e-2), np.zeros(odo.motion.dim - 12)])
-    polar = scene.measure(T[7], varpi[7], vd[7], L, rng)
-    z = measurements.to_model_space(odo.config.measurement, polar)
-    pts = measurements.polar_to_cartesian(polar)
-    assoc = odo.associator
-    W_pairs, got = assoc.associate(x, P, odo.map, ScanMeasurements.of(polar, odo.measurement))
-
-    pred = measurements.predict(odo.config.measurement, x.T_vehicle_world, x.varpi, odo.map.points,
-                                odo.T_vehicle_sensor)
-    cov = odo.map.covariances + odo.map_sigma**2 * np.eye(3)
-    Smap = assoc.R + pred.J_z_p @ cov @ np.swapaxes(pred.J_z_p, 1, 2)
-    S = association.innovation_covariance(pred, P[:12, :12], Smap, 0.0)
-    m_in, d_in = assoc.window_masks(pred.p_sensor, polar)
-    mi, di = np.flatnonzero(m_in), np.flatnonzero(d_in)
-    sub = measurements.Prediction(z=pred.z[mi], J_z_xi=pred.J_z_xi[mi], J_z_varpi=pred.J_z_varpi[mi],
-                                  J_z_p=pred.J_z_p[mi], p_sensor=pred.p_sensor[mi])
-    ref = association.associate(odo.config.measurement, z[di], pts[di], sub, S[mi], assoc.gate,
-                                odo.config.association.max_radius)
-    assert len(ref.map_idx) > 100
-    np.testing.assert_array_equal(got.map_idx, mi[ref.map_idx])
-    np.testing.assert_array_equal(got.det_idx, di[ref.det_idx])
-    np.testing.assert_allclose(got.d2, ref.d2, rtol=1e-9)
-    assert got.n_candidates == ref.n_candidates
-    W_ref = np.linalg.inv(Smap)[got.map_idx]  # each pair's information, in the order of the pairs
-    np.testing.assert_allclose(W_pairs, W_ref, rtol=1e-8, atol=1e-8 * np.abs(W_ref).max())
-    # the kernel's own outputs, point by point
-    m = len(odo.map)
-    out = [np.empty((m, 4)), np.empty((m, 3)), np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4)),
-           np.empty(m)]
-    assert akernel.prepare(odo.measurement.is_polar, x.T_vehicle_world, x.varpi, odo.map.points,
-                           odo.map.covariances, np.arange(m), odo.map_sigma**2, P[:12, :12].copy(), assoc.R, odo.T_vehicle_sensor,
-                           assoc.gate, *out) == -1
-    np.testing.assert_allclose(out[0], pred.z, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(out[2], S, rtol=1e-10, atol=1e-14)
-    np.testing.assert_allclose(out[4], Smap, rtol=1e-12, atol=1e-14 * np.abs(Smap).max())
-    radius = odo.measurement.search_radius(pred.z, S, assoc.gate)
-    assert np.all(out[5] >= radius) and np.allclose(out[5], radius, rtol=1e-7)
-
-
-def test_association_window_is_the_same_for_map_points_and_detections():
-    """Both sides cut at the field of view shrunk by 3 sigma; a 2D radar's elevation is not windowed."""
-    from rodo.estimator.errors import InputError
-
-    D = np.pi / 180
-    sig = np.array([0.02, 0.15 * D, 0.3 * D, 0.01])
-    odo = RadarOdometry(OdometryConfig(), np.eye(4), sig, 100.0, fov=((-60 * D, 60 * D), (-15 * D, 15 * D)))
-    el = np.array([-14.5, -14.0, 0.0, 14.0, 14.5]) * D
-    az = np.array([0.0, 59.0, 59.7, -59.0, 0.0]) * D
-    polar = np.c_[np.full(5, 20.0), az, el, np.zeros(5)]
-    p_sensor = measurements.polar_to_cartesian(polar)
-    m_in, d_in = odo.associator.window_masks(p_sensor, polar)
-    np.testing.assert_array_equal(m_in, [False, True, False, True, False])
-    np.testing.assert_array_equal(d_in, m_in)
-    planar = RadarOdometry(OdometryConfig(), np.eye(4), [0.1, 0.01, 0.17, 0.1], 100.0,
-                           fov=((-60 * D, 60 * D), (-1e-4, 1e-4)))
-    flat = np.c_[np.full(3, 20.0), np.array([-50.0, 0.0, 50.0]) * D, np.zeros(3), np.zeros(3)]
-    m_in, d_in = planar.associator.window_masks(measurements.polar_to_cartesian(flat) + [0, 0, 0.5], flat)
-    assert m_in.all() and d_in.all()
-    with pytest.raises(InputError, match="fov"):
-        RadarOdometry(OdometryConfig(), np.eye(4), sig, 100.0, fov=((1.0, -1.0), (-0.1, 0.1)))
-
-
-@pytest.mark.parametrize("fov", [((-1.05, 1.05), (-0.26, 0.26)), ((-1.05, 1.05), (-1e-4, 1e-4)), None])
-@given(seed=st.integers(0, 2**32 - 1))
-@settings(max_examples=20)
-def test_compiled_map_window_equals_the_reference(fov, seed):
-    """The association's compiled map-point window (`association_kernels.window_points`, from world points and
-    the pose) keeps the map points `window_masks` keeps from their sensor-frame positions: a 3-D and a 2D
-    radar's field of view, and none."""
-    from rodo.estimator import association_kernels as akernel
-
-    rng = np.random.default_rng(seed)
-    T_vs = se3.exp(rng.normal(size=6) * [1, 0.5, 0.3, 0.05, 0.05, 0.5])
-    odo = RadarOdometry(OdometryConfig(), T_vs, [0.1, 0.01, 0.02, 0.1], 100.0, fov=fov)
-    T_vw = se3.exp(rng.normal(size=6) * [20, 20, 1, 0.1, 0.1, 3])
-    points = rng.normal(size=(300, 3)) * [40, 40, 5]
-    T_sw = se3.inverse(T_vs) @ T_vw
-    m_ref, _ = odo.associator.window_masks(se3.transform_points(T_sw, points), np.zeros((0, 4)))
-    inside = np.empty(len(points), bool)
-    akernel.window_points(points, T_sw, odo.associator.limits, inside)
-    np.testing.assert_array_equal(inside, m_ref)
-    assert fov is not None or inside.all()
 
 
 def test_locked_onto_a_co_moving_object_the_world_is_taken_back():
