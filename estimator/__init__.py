@@ -19,6 +19,7 @@ A map of the package (each module's public names are re-exported here):
     doppler.py          the Doppler front end: static detections, velocity correction, standstill
     local_map.py        LocalMap: the bounded map of points
     surface.py          surface-shaped covariances of new map points (the optional surface model)
+    ground.py           the road returns kept out of the pairs and the map (the optional ground band)
     window.py           SlidingWindow: Gauss-Newton over prior, motion and measurement terms, marginalisation
     uncertainty.py      the pose covariance that grows as drift does (relative, absolute, over a span)
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
@@ -61,6 +62,7 @@ _EXPORTS = {
     "scan": ("ScanDetail", "ScanEstimate"),
     "state": ("State", "stacked"),
     "surface": ("surface_covariances",),
+    "ground": ("off_road", "road_mask"),
     "uncertainty": ("DriftCovariance", "relative_pose_covariance", "span_covariance"),
     "window": ("MeasurementSet", "SlidingWindow"),
 }

@@ -94,6 +94,7 @@ class AssociationConfig:
     missing_elevation_zero: bool = False  # a detection whose elevation is exactly 0 has none (some 3D radars,
     # e.g. the LRR30-F of the RaFlow data: 13 % of its detections): such detections are not used. Off for a 2D
     # radar, whose every elevation is 0
+    ground_band: float = 0.0  # m (estimator/ground.py)
 
 
 @dataclass(frozen=True)

@@ -83,6 +83,7 @@ RULES: dict[str, Rule] = {
     "association.moving_group_z": NONNEGATIVE,
     "association.moving_group_margin": NONNEGATIVE,
     "association.doppler_update_probability": PROBABILITY,
+    "association.ground_band": NONNEGATIVE,
     "map.capacity": Rule(10, 10_000_000),
     "map.max_age": Rule(0, 1_000_000),
     "map.voxel": NONNEGATIVE,

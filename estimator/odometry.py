@@ -15,8 +15,8 @@ Per scan k (paper sec. III-VI; docs/estimator.md gives the reasons and the measu
 3. when the scan's Doppler velocity contradicts the prediction (an unmodelled jerk), move the predicted mean
    to it: it is the linearisation point and the centre of the association gates;
 4. a zero-velocity term when the Doppler says the sensor is at rest;
-5. associate map points with detections by maximum likelihood with S = G P G^T + R (+ map-point term), gated
-   at the chi-square quantile (eq. 86-88), both windowed to the field of view;
+5. associate map points with the static detections off the road (`association.ground_band`) by maximum
+   likelihood, S = G P G^T + R (+ map-point term), gated at the chi-square quantile (eq. 86-88), in the FOV;
 6. add x_k to the sliding window, Gauss-Newton over prior, motion and measurement terms, re-associate with the
    refined estimate, solve again, marginalise the oldest state when the window is full;
 7. update the local map: refresh associated points, add the unassociated static detections. The map ages
@@ -35,6 +35,7 @@ from .config import OdometryConfig
 from .consensus import MIN_STATIC  # fewest static detections to use
 from .doppler import DopplerFrontEnd, body_velocity, common_doppler_error
 from .errors import InputError, check_finite
+from .ground import off_road
 from .lie import se3
 from .local_map import LocalMap
 from .measurement_models import measurement_model
@@ -152,7 +153,8 @@ class RadarOdometry:
 
         tic = time.perf_counter()
         x, P, static, still = self._doppler_front_end(t, polar, x, P, Q, events)
-        scan = ScanMeasurements.of(polar[static], self.measurement)
+        used = off_road(polar, static, self.T_vehicle_sensor, self.config.association.ground_band)
+        scan = ScanMeasurements.of(polar[used], self.measurement)
         W_pairs, pairs = self._associate(x, P, scan)
         timings["associate"] = time.perf_counter() - tic
 
@@ -163,7 +165,7 @@ class RadarOdometry:
 
         detail = None
         if self.record_detail:
-            detail = ScanDetail(polar, static, np.flatnonzero(static)[pairs.det_idx], pairs.map_idx.copy(),
+            detail = ScanDetail(polar, static, np.flatnonzero(used)[pairs.det_idx], pairs.map_idx.copy(),
                                 self.map.points.copy(), np.flatnonzero(in_range))
         tic = time.perf_counter()
         self._update_map(scan, pairs)
@@ -354,9 +356,7 @@ class RadarOdometry:
 
     def _initial_state(self, t: float, polar: np.ndarray, T=None, rates=None) -> tuple[State, np.ndarray, list]:
         cfg = self.config.solver
-        varpi = np.zeros(6)
-        if rates is not None:
-            varpi[3:] = rates
+        varpi = np.concatenate((np.zeros(3), np.zeros(3) if rates is None else rates))
         vel_sigma = 5.0
         if len(polar) >= 3:
             ego = self.doppler.widest_consensus(polar)

@@ -32,7 +32,7 @@ UNITS = {
     "association.gate_probability": "probability", "association.max_radius": "m",
     "association.reassociate": "times", "association.consensus_switch_ratio": "ratio",
     "association.moving_group_z": "standard errors",
-    "association.doppler_update_probability": "probability",
+    "association.doppler_update_probability": "probability", "association.ground_band": "m",
     "map.capacity": "points", "map.max_age": "scans", "map.voxel": "m", "map.fuse": "true/false",
     "map.max_fused": "observations",
     "solver.iterations": "steps", "solver.step_tolerance": "m, rad, m/s, ...", "solver.step_sigma_tolerance": "posterior sigmas", "solver.refine_iterations": "steps",
@@ -56,6 +56,10 @@ DESCRIPTIONS = {  # keys whose source has no comment or docstring entry, or only
     "association.consensus_voxel": "voxel size in which the space a Doppler consensus covers is counted (see "
                                    "consensus_switch_after), and the moving-group test groups detections",
     "association.moving_group_margin": "added to the moving-group test's threshold (see moving_group_z)",
+    "association.ground_band": "half-height of the band about each scan's fitted road plane whose static "
+                               "detections stay out of the map and the pairs (they still serve the Doppler "
+                               "front end): the road, resampled every scan, biases point-to-point pairs "
+                               "upwards (estimator/ground.py, docs/consistency.md); 0: off, the paper's",
     "map.capacity": "largest number of points in the local map (the paper: 1500)",
     "map.max_age": "scans after which a map point that was not associated again is dropped",
     "map.voxel": "voxel size of the map's downsampling; 0 keeps every point",
