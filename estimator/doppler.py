@@ -122,8 +122,10 @@ class DopplerFrontEnd:
         moving consensus (a truck filling the view) is not taken for the world while the world offers
         MIN_STATIC detections near the prediction. Voxels whose detections move slowly as a group (a queue of
         cars moving off, each detection still inside its gate) are left out first (`consensus.moving_voxels`,
-        `association.moving_group_z`). Otherwise, and when an uncertain prediction (after
-        initialisation or an outage) explains too little of the scan, an unconstrained RANSAC fit decides.
+        `association.moving_group_z`). When fewer than MIN_STATIC are near a confident prediction, those few are
+        the static set (event "doppler-few-static"): a free fit would take whatever fills the view. Only an
+        uncertain prediction (after initialisation or an outage) that explains too little of the scan leaves
+        the decision to an unconstrained RANSAC fit.
         """
         acfg = self.config.association
         az, el, vr = polar[:, 1], polar[:, 2], polar[:, 3]
@@ -143,8 +145,9 @@ class DopplerFrontEnd:
             switch = self.consensus.outvoted(az, el, vr, fit_threshold, ours, pts, scan_dt)
             if switch is not None:
                 return switch, "doppler-consensus-switch"
-            if ours.sum() >= MIN_STATIC:
-                return ours, None
+            # fewer than MIN_STATIC near a confident prediction: what fills the view is not the world (an
+            # oncoming car passing close); a free fit would take it, the prior carries the scan instead
+            return ours, None if ours.sum() >= MIN_STATIC else "doppler-few-static"
         elif mask.sum() >= MIN_STATIC and mask.sum() >= 0.2 * len(polar):
             return mask, None
         ego = self.widest_consensus(polar, fit_threshold)
