@@ -13,9 +13,10 @@ the road starts as the lowest level layer (`LAYER` high) that holds at least hal
 highway the guard rails can hold more than the road); a plane z = a x + b y + c, from the layer's median height, is
 then fitted `FITS` times by least squares to the detections within `SLAB` of the plane before, trimmed at 2.5
 robust sigmas (a tilted road is followed out of the level layer it started from), with at least `MIN_ROAD`
-detections; the detections within +-band of it are road. The band is symmetric, so the returns left in keep a zero-mean spread about the plane (a one-sided height
-cut clips the noise of low objects and biases them instead). No road: a sensor whose detections lie in one plane
-with it (a 2D radar), a layer too sparse, or a plane steeper than `MAX_SLOPE`.
+detections; the detections within +-band of it are road. The band is symmetric, so the returns left in keep a
+zero-mean spread about the plane (a one-sided height cut clips the noise of low objects and biases them instead).
+No road: a sensor whose detections lie in one plane with it (a 2D radar), a layer too sparse, or a plane steeper
+than `MAX_SLOPE`.
 
 Checked by: tests/estimator/test_ground.py
 """

@@ -32,8 +32,9 @@ def _scene(rng, a, b, c, sigma, n_road):
 @given(a=st.floats(-0.02, 0.02), b=st.floats(-0.02, 0.02), c=st.floats(-1.2, -0.3), sigma=st.floats(0.0, 0.03),
        n_road=st.integers(100, 400), seed=st.integers(0, 2**32 - 1))
 def test_the_band_about_the_fitted_road_plane_holds_the_road_and_nothing_far_from_it(a, b, c, sigma, n_road, seed):
-    """A road tilted by up to 2 % either way against the vehicle (a crest, a camber) under a facade and a car, sensor 0.5 m above the vehicle origin: every road return
-    within the band less the fit's error is flagged, nothing farther than the band plus it from the true plane is."""
+    """A road tilted by up to 2 % either way against the vehicle (a crest, a camber) under a facade and a car,
+    the sensor 0.5 m above the vehicle origin: every road return within the band less the fit's error is flagged,
+    nothing farther than the band plus it from the true plane is."""
     road, other = _scene(np.random.default_rng(seed), a, b, c, sigma, n_road)
     p = np.concatenate((road, other))
     mask = road_mask(p, 0.5, BAND)
