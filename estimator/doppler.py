@@ -27,7 +27,7 @@ import numpy as np
 from . import association
 from .config import OdometryConfig
 from .consensus import MIN_STATIC, ConsensusSwitch, moving_voxels
-from .ego_velocity import PLANAR_ELEVATION, RANSAC_ITERATIONS, EgoVelocity, least_squares_velocity, ransac_velocity
+from .ego_velocity import RANSAC_ITERATIONS, EgoVelocity, is_planar, least_squares_velocity, ransac_velocity
 from .lie import so3
 from .motion import MotionPrior
 from .radar_geometry import polar_to_cartesian
@@ -105,8 +105,8 @@ class DopplerFrontEnd:
         through the velocity v . du/daz, v . du/del, and the predicted velocity's own uncertainty) and the
         fit's variance without the prediction's part."""
         az, el = polar[:, 1], polar[:, 2]
-        u = polar_to_cartesian(np.stack([np.ones(len(polar)), az, el], axis=1))
         ca, sa, ce, se = np.cos(az), np.sin(az), np.cos(el), np.sin(el)
+        u = np.stack([ce * ca, ce * sa, se], axis=1)  # `polar_to_cartesian` at range 1, bit for bit
         d_az = np.stack([-ce * sa, ce * ca, np.zeros_like(az)], axis=1) @ v
         d_el = np.stack([-se * ca, -se * sa, ce], axis=1) @ v
         var_fit = self.sigmas[3] ** 2 + (self.sigmas[1] * d_az) ** 2 + (self.sigmas[2] * d_el) ** 2
@@ -171,9 +171,8 @@ class DopplerFrontEnd:
         detections' directions); its inliers a mask over all of them. With every detection kept, the draws of a
         run without the test."""
         idx = np.flatnonzero(keep)
-        planar = bool(len(idx) == 0 or np.all(np.abs(polar[idx, 2]) < PLANAR_ELEVATION))
         ego = ransac_velocity(u[idx], polar[idx, 3], self.rng, float(self.sigmas[3]), threshold[idx],
-                              RANSAC_ITERATIONS, planar, (v, float(radius)))
+                              RANSAC_ITERATIONS, is_planar(polar[idx, 2]), (v, float(radius)))
         inliers = np.zeros(len(polar), bool)
         inliers[idx[ego.inliers]] = True
         return replace(ego, inliers=inliers)

@@ -59,6 +59,11 @@ class EgoVelocity:
     ok: bool
 
 
+def is_planar(elevation: np.ndarray) -> bool:
+    """The planar rule (vz = 0): no detections, or every |elevation| below PLANAR_ELEVATION."""
+    return bool(len(elevation) == 0 or np.all(np.abs(elevation) < PLANAR_ELEVATION))
+
+
 def _directions(azimuth: np.ndarray, elevation: np.ndarray) -> np.ndarray:
     ce = np.cos(elevation)
     return np.stack([ce * np.cos(azimuth), ce * np.sin(azimuth), np.sin(elevation)], axis=-1)
@@ -127,7 +132,7 @@ def least_squares_velocity(azimuth, elevation, radial_velocity, *, variance_floo
     """
     azimuth, elevation, radial_velocity = _check_inputs(azimuth, elevation, radial_velocity)
     if planar is None:
-        planar = bool(len(azimuth) == 0 or np.all(np.abs(elevation) < PLANAR_ELEVATION))
+        planar = is_planar(elevation)
     dof = 2 if planar else 3
     if len(azimuth) <= dof:
         return None
@@ -164,7 +169,7 @@ def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Ge
     near = None if near is None else _check_near(near)
     n = len(azimuth)
     if planar is None:
-        planar = bool(n == 0 or np.all(np.abs(elevation) < PLANAR_ELEVATION))
+        planar = is_planar(elevation)
     return ransac_velocity(_directions(azimuth, elevation), radial_velocity, rng, float(sigma_vr),
                            np.broadcast_to(threshold, (n,)), int(iterations), planar, near)
 

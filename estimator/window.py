@@ -211,12 +211,12 @@ class SlidingWindow:
             delta = _solve_spd(H, -b)
             if not np.all(np.isfinite(delta)):
                 break
-            tail = self._stacked()[1]
+            T_all, tail, _ = self._stacked()
             old, old_stack = self.states, self._stack
             if step == 1.0 and (np.max(np.abs(delta)) < tol or -(delta @ b) < sigma_tol**2):
-                self._set_states(*_oplus_all(old, tail, delta.reshape(len(old), d)))
+                self._set_states(*_oplus_all(old, T_all, tail, delta.reshape(len(old), d)))
                 break
-            self._set_states(*_oplus_all(old, tail, step * delta.reshape(len(old), d)))
+            self._set_states(*_oplus_all(old, T_all, tail, step * delta.reshape(len(old), d)))
             if it == iterations and not check_last:
                 break
             H2, b2, cost2 = self.linearize()
@@ -289,12 +289,12 @@ class SlidingWindow:
         self._H = None
 
 
-def _oplus_all(states: list[State], tail: np.ndarray, d: np.ndarray):
-    """[x_k (+) d_k] for the whole window with one compiled batched exponential (`State.oplus` for all k), tail
-    the states' `vector_tail`s stacked. Returns (states, T (n, 4, 4), tail (n, d - 6)); the states' arrays are
-    views of T and tail."""
+def _oplus_all(states: list[State], T_all: np.ndarray, tail: np.ndarray, d: np.ndarray):
+    """[x_k (+) d_k] for the whole window with one compiled batched exponential (`State.oplus` for all k), T_all
+    and tail the states stacked (`state.stacked`). Returns (states, T (n, 4, 4), tail (n, d - 6)); the states'
+    arrays are views of T and tail."""
     T = np.empty((len(states), 4, 4))
-    motion_kernels.exp_times(np.ascontiguousarray(d[:, :6]), np.stack([x.T_vehicle_world for x in states]), T)
+    motion_kernels.exp_times(np.ascontiguousarray(d[:, :6]), T_all, T)
     tail = tail + d[:, 6:]
     out = [State(x.t, T[k], tail[k, :6], None if x.varpi_dot is None else tail[k, 6:12])
            for k, x in enumerate(states)]

@@ -222,7 +222,7 @@ def test_window_update_equals_state_oplus(kind):
     states = [State(0.1 * k, se3.exp(rng.normal(size=6)), rng.normal(size=6),
                     rng.normal(size=6) if kind == "ca" else None) for k in range(4)]
     d = rng.normal(size=(4, motion.dim)) * np.array([1e-9, 1e-3, 0.5, 2.0])[:, None]
-    new, T, tail = _oplus_all(states, stacked(states)[1], d)
+    new, T, tail = _oplus_all(states, *stacked(states)[:2], d)
     np.testing.assert_array_equal(T, stacked(new)[0])
     np.testing.assert_array_equal(tail, stacked(new)[1])
     for got, x, dk in zip(new, states, d):
