@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config_rules import check_values
+from .config_rules import check_values, section_from_dict
 from .errors import InputError
 from .tomlcompat import tomllib
 
@@ -103,8 +103,7 @@ class MapConfig:
     by the solved estimate, information-weighted with the detection's noise plus map_sigma^2 (the surface is
     resampled every scan); off: map points never move. Off by default: on city/hills/stop_and_go seeds 1-3 it
     helped hills but not the other two on average (docs/estimator.md, "Map-point fusion"; measured before the
-    [vehicle] roll and pitch rate terms). max_fused: fading
-    memory of about this many observations per point (0: none), so a fused point never becomes certain."""
+    [vehicle] terms). max_fused: fading memory of about this many observations per point (0: none)."""
 
     capacity: int = 1500
     max_age: int = 30
@@ -133,11 +132,11 @@ class OutageConfig:
 @dataclass(frozen=True)
 class StandstillConfig:
     """Zero-velocity term: when the scan's Doppler says the sensor is at rest (the static detections' median
-    |radial velocity| below max(speed / 2, sigma_vr), and their least-squares velocity consistent with zero at 99 %) the newest
-    state gets varpi = 0 (and varpi_dot = 0; the linear acceleration only from the second scan at rest: a
-    vehicle that has just stopped or is starting is at rest with an acceleration) with these 1-sigmas. Doppler alone cannot tell a standstill from a turn
-    on the spot about an axis near the sensor; a wheeled vehicle at rest does not turn, which is what this
-    assumes. speed = 0 disables it."""
+    |radial velocity| below max(speed / 2, sigma_vr), their least-squares velocity consistent with zero at 99
+    %) the newest state gets varpi = 0 and varpi_dot = 0 (the linear acceleration only from the second scan at
+    rest: a vehicle that has just stopped or is starting is at rest with an acceleration) with these 1-sigmas.
+    Doppler alone cannot tell a standstill from a turn on the spot about an axis near the sensor; a wheeled
+    vehicle at rest does not turn, which is what this assumes. speed = 0 disables it."""
 
     speed: float = 0.05  # m/s
     sigma_velocity: float = 0.005  # m/s
@@ -186,6 +185,9 @@ class UncertaintyConfig:
     drift_rate_sigma: sigma of the registration's systematic error per metre driven, unknown but constant
         over a run ([x, y, z] m/m, [roll, pitch, yaw] rad/m, vehicle frame): the absolute pose's error grows
         with the distance, not its square root. Not in the solve.
+    velocity_inflation, velocity_inflation_per_speed: the reported velocity variance is the window's times
+        velocity_inflation + velocity_inflation_per_speed x speed (m/s): its error grows with the speed, the
+        window's covariance hardly does (`uncertainty.velocity_inflated`). Not in the solve or the gates.
     prior_memory: time constant (s) of the marginalised prior's memory: at each marginalisation its information
         is multiplied by exp(-dt / prior_memory) (dt: the marginalised interval). It holds the past scans'
         information, which the map, made from the same scans, brings back again; with a stiff Qc it never
@@ -197,6 +199,8 @@ class UncertaintyConfig:
     measurement_inflation: float = 1.0
     drift_rate_sigma: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     prior_memory: float = 0.0  # s
+    velocity_inflation: float = 1.0
+    velocity_inflation_per_speed: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -347,7 +351,7 @@ class OdometryConfig:
             if key in sections:
                 if not isinstance(value, dict):
                     raise InputError(f"{source}: [{key}] must be a table")
-                kwargs[key] = _section(sections[key], value, f"{source}: [{key}]")
+                kwargs[key] = section_from_dict(sections[key], value, f"{source}: [{key}]")
             else:
                 kwargs[key] = value
         try:
@@ -374,26 +378,3 @@ class OdometryConfig:
             data.setdefault("model", model)
         return cls.from_dict(data, source=str(path))
 
-
-def _section(kind, values: dict, where: str):
-    fields = {f.name: f for f in dataclasses.fields(kind)}
-    defaults = kind()
-    out = {}
-    for key, value in values.items():
-        if key not in fields:
-            raise InputError(f"{where}: unknown key {key!r}; known: {', '.join(sorted(fields))}")
-        default = getattr(defaults, key)
-        if isinstance(default, tuple):
-            if not isinstance(value, (list, tuple)) or not all(
-                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-                raise InputError(f"{where} {key}: expected a list of numbers, got {value!r}")
-            value = tuple(float(v) for v in value)
-        elif isinstance(default, bool):
-            if not isinstance(value, bool):
-                raise InputError(f"{where} {key}: expected true or false, got {value!r}")
-        elif not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise InputError(f"{where} {key}: expected a number, got {value!r}")
-        elif isinstance(default, int) and not isinstance(value, int):
-            raise InputError(f"{where} {key}: expected an integer, got {value!r}")
-        out[key] = type(default)(value) if not isinstance(default, tuple) else value
-    return kind(**out)

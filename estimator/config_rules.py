@@ -5,7 +5,8 @@ must be numbers (not booleans, integers where the default is one), finite (TOML 
 the estimator cannot), and inside the range that `RULES` gives for "section.key". A key without a rule (one
 added since) still gets the type and finiteness checks. The error names the section and key as in the TOML
 file, `[noise] map_sigma_polar = nan: must be a finite number >= 0`; `OdometryConfig.from_dict` prefixes the
-file. The checks read the values and never change them (results stay bit-identical).
+file. The checks read the values and never change them (results stay bit-identical). `section_from_dict` reads
+one section from its TOML table first (unknown keys and types, named).
 
 Checked by: tests/cli/test_bad_config.py
 """
@@ -108,6 +109,8 @@ RULES: dict[str, Rule] = {
     "uncertainty.measurement_inflation": Rule(1.0),
     "uncertainty.drift_rate_sigma": Rule(0.0, size=6),
     "uncertainty.prior_memory": NONNEGATIVE,
+    "uncertainty.velocity_inflation": Rule(0.0, lo_closed=False),
+    "uncertainty.velocity_inflation_per_speed": NONNEGATIVE,
     "solver.iterations": Rule(1, 1000),
     "solver.step_tolerance": POSITIVE,
     "solver.step_sigma_tolerance": NONNEGATIVE,
@@ -183,3 +186,30 @@ def _toml(value) -> str:
     if isinstance(value, (float, np.floating)):
         return repr(float(value))
     return repr(value)
+
+
+def section_from_dict(kind, values: dict, where: str):
+    """One section (a dataclass `kind`) from its TOML table: unknown keys, lists that are not numbers, numbers
+    that are not numbers (or booleans, or integers where the default is one) are errors that name `where` and
+    the key; the values are converted to the default's type."""
+    fields = {f.name: f for f in dataclasses.fields(kind)}
+    defaults = kind()
+    out = {}
+    for key, value in values.items():
+        if key not in fields:
+            raise InputError(f"{where}: unknown key {key!r}; known: {', '.join(sorted(fields))}")
+        default = getattr(defaults, key)
+        if isinstance(default, tuple):
+            if not isinstance(value, (list, tuple)) or not all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+                raise InputError(f"{where} {key}: expected a list of numbers, got {value!r}")
+            value = tuple(float(v) for v in value)
+        elif isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise InputError(f"{where} {key}: expected true or false, got {value!r}")
+        elif not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise InputError(f"{where} {key}: expected a number, got {value!r}")
+        elif isinstance(default, int) and not isinstance(value, int):
+            raise InputError(f"{where} {key}: expected an integer, got {value!r}")
+        out[key] = type(default)(value) if not isinstance(default, tuple) else value
+    return kind(**out)

@@ -9,9 +9,8 @@ a `MotionPrior` (CA or CV) and a `MeasurementModel` (polar or Cartesian); nothin
 
 Per scan k (paper sec. III-VI; docs/estimator.md gives the reasons and the measurements behind each step):
 1. predict x_k = f(x_{k-1}) and P_k = F P F^T + Q with the configured prior (CV or CA);
-2. static detections: the largest Doppler consensus near the predicted sensor velocity (a prediction-gated
-   RANSAC), or a free RANSAC fit when the prediction is uncertain (moving objects and clutter are rejected
-   either way, as in reve);
+2. static detections: the largest Doppler consensus near the predicted sensor velocity (prediction-gated
+   RANSAC), or a free RANSAC fit when the prediction is uncertain (either rejects moving objects, as reve);
 3. when the scan's Doppler velocity contradicts the prediction (an unmodelled jerk), move the predicted mean
    to it: it is the linearisation point and the centre of the association gates;
 4. a zero-velocity term when the Doppler says the sensor is at rest;
@@ -19,8 +18,8 @@ Per scan k (paper sec. III-VI; docs/estimator.md gives the reasons and the measu
    likelihood, S = G P G^T + R (+ map-point term), gated at the chi-square quantile (eq. 86-88), in the FOV;
 6. add x_k to the sliding window, Gauss-Newton over prior, motion and measurement terms, re-associate with the
    refined estimate, solve again, marginalise the oldest state when the window is full;
-7. update the local map: refresh associated points, add the unassociated static detections. The map ages
-   with scans that have static detections, so a blockage does not expire the map needed after it.
+7. update the local map: refresh associated points, add the unassociated static detections (the map ages
+   with scans that have static detections, so a blockage does not expire the map needed after it).
 """
 
 from __future__ import annotations
@@ -44,7 +43,7 @@ from .scan import ScanDetail, ScanEstimate
 from .scan_association import MapAssociation, ScanMeasurements
 from .state import State
 from .surface import surface_covariances
-from .uncertainty import DriftCovariance, relative_pose_covariance
+from .uncertainty import DriftCovariance, relative_pose_covariance, velocity_inflated
 from .window import MeasurementSet, SlidingWindow
 
 
@@ -264,8 +263,9 @@ class RadarOdometry:
         return relative_pose_covariance(P_pair, x_prev.T_vehicle_world, x_new.T_vehicle_world, self.motion.dim)
 
     def _with_uncertainty(self, est: ScanEstimate, P_relative, reuse: float) -> ScanEstimate:
-        """The estimate with its relative and absolute pose covariances (`rodo.estimator.uncertainty`)."""
+        """The estimate with relative and absolute pose covariances, its velocity variance scaled (`uncertainty`)."""
         cfg = self.config.uncertainty
+        est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed)
         if P_relative is None or self.drift is None:
             self.drift = DriftCovariance(est.P[:6, :6], est.P[6:12, 6:12], cfg.velocity_correlation_time,
                                          cfg.drift_rate_sigma)

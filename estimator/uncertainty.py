@@ -21,9 +21,12 @@ of its relative motion, accumulated. Two parts make it up (docs/consistency.md h
 `DriftCovariance` runs this recursion over [xi; b; beta] (18 x 18) from scan to scan (the absolute pose
 covariance) and `span_covariance` over any span (the covariance of a relative pose over, e.g., 1 s). tau = 0
 drops the second part (the per-scan relative errors composed as independent), drift_rate_sigma = 0 the third.
+The velocity covariance the recursion uses is the reported one: the window's, its variance scaled with the speed
+where calibrated (`velocity_inflated`).
 
 Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_known_joint_gaussian,
-    ::test_drift_covariance_matches_monte_carlo_of_the_model, ::test_span_covariance_equals_the_recursion
+    ::test_drift_covariance_matches_monte_carlo_of_the_model, ::test_span_covariance_equals_the_recursion,
+    ::test_velocity_inflation_scales_the_velocity_variance_only
 """
 
 from __future__ import annotations
@@ -40,6 +43,26 @@ def relative_pose_covariance(P_pair: np.ndarray, T_prev: np.ndarray, T_new: np.n
     idx = np.r_[0:6, dim:dim + 6]
     S = A @ P_pair[np.ix_(idx, idx)] @ A.T
     return 0.5 * (S + S.T)
+
+
+def velocity_inflated(P: np.ndarray, varpi: np.ndarray, inflation: float, per_speed: float) -> np.ndarray:
+    """P with the velocity's variance scaled by c = inflation + per_speed |nu| (nu = varpi[:3], the speed in
+    m/s): the velocity block (6:12) times c, its cross blocks times sqrt(c), the rest unchanged (D P D with D
+    diagonal, so it stays a covariance). One (d, d) with varpi (6,), or a stack (N, d, d) with (N, 6). At c = 1
+    (inflation 1, per_speed 0) P itself, bit for bit.
+
+    Why (docs/consistency.md, "The velocity's error grows with the speed"): the window's velocity covariance
+    hardly depends on the speed (the same pairs and Doppler rows at any speed), its error does (surfaces
+    resampled from farther apart between scans); `rodo calibrate` learns both factors from the velocity errors
+    of a drive with ground truth (`validation.calibrate_consistency.fit_velocity_inflation`).
+    """
+    if inflation == 1.0 and per_speed == 0.0:
+        return P
+    P = np.asarray(P, dtype=float)
+    c = inflation + per_speed * np.linalg.norm(np.asarray(varpi, dtype=float)[..., :3], axis=-1)
+    d = np.ones(P.shape[:-1])
+    d[..., 6:12] = np.sqrt(c)[..., None]
+    return P * d[..., :, None] * d[..., None, :]
 
 
 def _initial(P_pose: np.ndarray, P_varpi: np.ndarray, tau: float, drift_rate_sigma) -> np.ndarray:

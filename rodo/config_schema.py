@@ -40,6 +40,7 @@ UNITS = {
     "solver.init_rate_sigma": "rad/s", "solver.init_accel_sigma": "m/s^2", "solver.init_angular_accel_sigma": "rad/s^2",
     "outage.reinit_after": "s", "uncertainty.inflation": "factor", "uncertainty.measurement_inflation": "factor",
     "uncertainty.drift_rate_sigma": "m/m, rad/m", "uncertainty.prior_memory": "s",
+    "uncertainty.velocity_inflation": "factor", "uncertainty.velocity_inflation_per_speed": "s/m",
 }
 
 DESCRIPTIONS = {  # keys whose source has no comment or docstring entry, or only a unit

@@ -1,7 +1,7 @@
-"""`rodo calibrate`'s last step with ground truth: the two uncertainty parameters that Qc and R do not cover.
+"""`rodo calibrate`'s last step with ground truth: the uncertainty parameters that Qc and R do not cover.
 
-Qc and R say how noisy the motion and each detection are; two more things decide whether the reported
-covariance tells the truth (docs/consistency.md):
+Qc and R say how noisy the motion and each detection are; more things decide whether the reported covariance
+tells the truth (docs/consistency.md):
 
 - `uncertainty.measurement_inflation` kappa: a scan's ~500 pairs are not independent (points made in one scan
   share its pose error, a map point is reused for several scans, surfaces are resampled), so they carry less
@@ -14,6 +14,10 @@ covariance tells the truth (docs/consistency.md):
   error grows with the distance, not its square root). Its one realisation on the sequence is the least-squares
   fit beta = sum_k e_k / sum_k s_k of the one-scan relative errors e_k over the distances s_k; the sigma
   per axis is sqrt(beta^2 + se^2), se its standard error (a prior for the unknown drift of another run).
+- `uncertainty.velocity_inflation` a and `velocity_inflation_per_speed` b: the velocity's error grows with the
+  speed, the window's velocity covariance hardly does, so the reported one is (a + b |nu|) times it
+  (`estimator.uncertainty.velocity_inflated`). Maximum likelihood of the velocity errors of the last run (the
+  report only: no run is needed); a mean fit, as the N-run bounds of a campaign test means.
 - `uncertainty.velocity_correlation_time` tau: how long the velocity error stays correlated, which decides how
   the per-scan covariances compose into the drift (the relative pose over a span and the absolute pose). It
   does not change the estimate: chosen on a grid, without running again, so that the relative pose over `span`
@@ -31,11 +35,12 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import minimize
 from scipy.stats import chi2
 
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
-from rodo.estimator.uncertainty import DriftCovariance
+from rodo.estimator.uncertainty import DriftCovariance, velocity_inflated
 from rodo.sim.sequence import Sequence
 
 from .alignment import truth_in_estimator_frame
@@ -49,6 +54,7 @@ KAPPA_RANGE = (1.0, 100.0)
 FIXED_POINT_MEASURES = ("velocity", "relative_scan")
 REPORTED = ("velocity", "relative_scan", "relative_span", "pose")
 MEDIAN_CHI2 = float(chi2.median(DOF))
+VELOCITY_SKIP = 2.0  # s: the start, where the initial covariance decays, is left out of the velocity fit
 
 
 def median_ratio(values) -> float:
@@ -71,11 +77,54 @@ class ConsistencyStep:
         return {"kappa": self.kappa, "tau": self.tau, "median_ratio": self.ratios}
 
 
-def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=None) -> OdometryConfig:
+def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=None,
+          velocity=(1.0, 0.0)) -> OdometryConfig:
+    """The config with these uncertainty values; the velocity factors (a, b) default to none: the fit's runs
+    report the window's own velocity covariance."""
     drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
     unc = dataclasses.replace(config.uncertainty, measurement_inflation=float(kappa),
-                              velocity_correlation_time=float(tau), drift_rate_sigma=tuple(float(x) for x in drift))
+                              velocity_correlation_time=float(tau), drift_rate_sigma=tuple(float(x) for x in drift),
+                              velocity_inflation=float(velocity[0]), velocity_inflation_per_speed=float(velocity[1]))
     return config.replace(uncertainty=unc)
+
+
+def fit_velocity_inflation(states: dict, truth: dict, skip: float = VELOCITY_SKIP,
+                           tolerance: float = DEFAULT_TOLERANCE) -> dict:
+    """The velocity's variance factor c_k = a + b |nu_k| of one run by maximum likelihood: the velocity errors
+    e_k ~ N(0, c_k P_k), P_k the run's velocity covariance, nu_k its estimated linear velocity; the scans from
+    `skip` seconds after the first; a > 0, b >= 0. Returns {"inflation": a, "per_speed": b, "scans",
+    "nees_per_dof": the mean velocity NEES/dof over those scans before and after}.
+
+    Checked by: tests/validation/test_calibrate_consistency.py::test_velocity_inflation_recovers_a_known_factor
+    """
+    ia, ib = associate(states["t"], truth["t"], tolerance)
+    t = np.asarray(states["t"], dtype=float)[ia]
+    e = np.asarray(truth["varpi"], dtype=float)[ib] - np.asarray(states["varpi"], dtype=float)[ia]
+    P = np.asarray(states["P"], dtype=float)[ia][:, 6:12, 6:12]
+    q = np.einsum("ki,ki->k", e, np.linalg.solve(P, e[..., None])[..., 0])
+    speed = np.linalg.norm(np.asarray(states["varpi"], dtype=float)[ia, :3], axis=1)
+    keep = (t >= t[0] + skip) & np.isfinite(q) if len(t) else np.zeros(0, bool)
+    q, speed = q[keep], speed[keep]
+    if len(q) < 2:
+        return {"inflation": 1.0, "per_speed": 0.0, "scans": int(len(q)), "nees_per_dof": [np.nan, np.nan]}
+
+    def nll(p):  # -2 log-likelihood up to a constant, its gradient
+        c = p[0] + p[1] * speed
+        g = DOF / c - q / c**2
+        return float(np.sum(DOF * np.log(c) + q / c)), np.array([g.sum(), g @ speed])
+
+    a0 = float(np.mean(q)) / DOF
+    res = minimize(nll, [a0, 0.0], jac=True, method="L-BFGS-B", bounds=[(1e-6 * a0, None), (0.0, None)])
+    a, b = (float(x) for x in res.x)
+    return {"inflation": a, "per_speed": b, "scans": int(len(q)),
+            "nees_per_dof": [a0, float(np.mean(q / (a + b * speed))) / DOF]}
+
+
+def velocity_inflated_states(states: dict, inflation: float, per_speed: float) -> dict:
+    """The states with the velocity covariance a run at these factors would have reported (the estimate does not
+    depend on them)."""
+    P = velocity_inflated(np.asarray(states["P"], dtype=float), states["varpi"], inflation, per_speed)
+    return dict(states, P=P)
 
 
 def fit_drift_rate(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
@@ -145,8 +194,8 @@ def fit_tau(states: dict, truth: dict, span: float = 1.0, taus=TAUS, drift_rate_
 
 def fit_consistency(seq: Sequence, truth: dict, config: OdometryConfig, iterations: int = 4,
                     tolerance: float = 0.1, span: float = 1.0, progress=None) -> tuple[OdometryConfig, dict]:
-    """Fit kappa (fixed point), then the drift rate and tau (grid) on a simulated sequence; returns
-    (config, report).
+    """Fit kappa (fixed point), then the velocity's variance factors, the drift rate and tau (on the last run's
+    states, without running again) on a simulated sequence; returns (config, report).
 
     Each iteration runs the estimator once. It stops when the geometric mean r of the FIXED_POINT_MEASURES'
     median ratios is within `tolerance` of 1 (|ln r| < ln(1 + tolerance)), when kappa is at a bound of
@@ -169,14 +218,18 @@ def fit_consistency(seq: Sequence, truth: dict, config: OdometryConfig, iteratio
         kappa = new
     else:
         states, ratios = _measure(seq, truth, _with(config, kappa, tau), span)
+    velocity = fit_velocity_inflation(states, truth)
+    factors = (velocity["inflation"], velocity["per_speed"])
+    states = velocity_inflated_states(states, *factors)
     drift = fit_drift_rate(states, truth)
     tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"])
-    fitted = _with(config, kappa, tau, drift["sigma"])
+    fitted = _with(config, kappa, tau, drift["sigma"], factors)
     final = _ratios(_replayed(states, tau, drift["sigma"]), truth, span, tau, drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))
     if progress is not None:
         progress(steps[-1])
-    report = {"measurement_inflation": kappa, "velocity_correlation_time": tau, "drift_rate": drift, "span": span,
+    report = {"measurement_inflation": kappa, "velocity_inflation": velocity, "velocity_correlation_time": tau,
+              "drift_rate": drift, "span": span,
               "tolerance": tolerance, "at_lower_bound": kappa == KAPPA_RANGE[0],
               "steps": [s.as_dict() for s in steps],
               "tau_grid": {f"{t:g}": {"relative_span": r[0], "pose": r[1]} for t, r in tau_ratios.items()}}

@@ -84,7 +84,9 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                   "scans' common Doppler error (0 unless significant; docs/calibration.md)."]
         if "consistency" in report:
             c = report["consistency"]
-            lines.append(f"uncertainty: measurement_inflation {c['measurement_inflation']:.3g}, drift_rate_sigma and "
+            v = c["velocity_inflation"]
+            lines.append(f"uncertainty: measurement_inflation {c['measurement_inflation']:.3g}, velocity_inflation "
+                         f"{v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed, drift_rate_sigma and "
                          f"velocity_correlation_time {c['velocity_correlation_time']:g} s fitted so that the "
                          "estimator's NEES against the truth is consistent (docs/calibration.md).")
     else:
@@ -136,9 +138,12 @@ def _consistency_markdown(c: dict) -> list[str]:
     for i, s in enumerate(c["steps"], 1):
         ratios = " | ".join(f"{s['median_ratio'][n]:.3g}" for n in names)
         lines.append(f"| {i} | {s['kappa']:.3g} | {s['tau']:g} | {ratios} |")
-    d = c["drift_rate"]
+    d, v = c["drift_rate"], c["velocity_inflation"]
     vec = ", ".join(f"{x:.3g}" for x in d["sigma"])
-    return lines + ["", f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m",
+    return lines + ["", f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed (maximum "
+                    f"likelihood over {v['scans']} scans: mean velocity NEES/dof {v['nees_per_dof'][0]:.3g} -> "
+                    f"{v['nees_per_dof'][1]:.3g})",
+                    f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m",
                     "tau grid (median ratio of the relative pose over the span / of the absolute pose): "
                     + ", ".join(f"{t} s: {r['relative_span']:.3g} / {r['pose']:.3g}" for t, r in c["tau_grid"].items())]
 

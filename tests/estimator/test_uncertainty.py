@@ -4,12 +4,14 @@ recursion and the span covariance against Monte Carlo on SE(3), and the odometry
 import numpy as np
 import pytest
 from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.stats import chi2
 
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
-from rodo.estimator.uncertainty import DriftCovariance, relative_pose_covariance, span_covariance
+from rodo.estimator.uncertainty import (DriftCovariance, relative_pose_covariance, span_covariance,
+                                        velocity_inflated)
 from tests.estimator import scene
 from tests.strategies import twists
 
@@ -151,3 +153,53 @@ def test_measurement_inflation_scales_the_information_of_the_pairs():
     assert np.abs(se3.log(out[4.0].T_vehicle_world @ se3.inverse(out[1.0].T_vehicle_world))).max() < 0.05
     with pytest.raises(InputError, match="measurement_inflation"):
         OdometryConfig.for_model("ca-polar").replace(uncertainty=UncertaintyConfig(measurement_inflation=0.5))
+
+
+@given(inflation=st.floats(0.05, 20.0), per_speed=st.floats(0.0, 1.0), speed=st.floats(0.0, 40.0),
+       seed=st.integers(0, 2**16))
+@settings(max_examples=40)
+def test_velocity_inflation_scales_the_velocity_variance_only(inflation, per_speed, speed, seed):
+    """`velocity_inflated`: the velocity block times c = inflation + per_speed |nu|, its cross blocks times
+    sqrt(c) (the covariance of the state with its velocity error scaled by sqrt(c)), everything else as it was;
+    a stack of states as one at a time; no factor returns P itself."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(18, 18))
+    P = A @ A.T + 0.1 * np.eye(18)
+    u = rng.normal(size=3)
+    varpi = np.r_[speed * u / np.linalg.norm(u), rng.normal(size=3)]
+    c = inflation + per_speed * speed
+    out = velocity_inflated(P, varpi, inflation, per_speed)
+    D = np.diag(np.r_[np.ones(6), np.full(6, np.sqrt(c)), np.ones(6)])
+    np.testing.assert_allclose(out, D @ P @ D, rtol=1e-12)
+    np.testing.assert_allclose(out[6:12, 6:12], c * P[6:12, 6:12], rtol=1e-12)
+    rest = np.r_[0:6, 12:18]
+    np.testing.assert_array_equal(out[np.ix_(rest, rest)], P[np.ix_(rest, rest)])
+    stack = velocity_inflated(np.stack([P, P[::-1, ::-1]]), np.stack([varpi, 2 * varpi]), inflation, per_speed)
+    np.testing.assert_allclose(stack[1], velocity_inflated(P[::-1, ::-1], 2 * varpi, inflation, per_speed),
+                               rtol=1e-12)
+    assert velocity_inflated(P, varpi, 1.0, 0.0) is P
+
+
+def test_velocity_inflation_changes_the_report_not_the_estimate():
+    """The odometry with velocity factors: the same estimates bit for bit (the solve and the gates use the
+    window's own covariance), the reported velocity variance scaled by a + b |nu| of each scan, and an absolute
+    pose covariance that grows more (the velocity error integrates into pose)."""
+    from rodo.estimator.config import UncertaintyConfig
+
+    rng_scene = np.random.default_rng(5)
+    t, T, varpi, vd = scene.trajectory(15)
+    L = scene.landmarks(rng_scene)
+    scans = [scene.measure(T[k], varpi[k], vd[k], L, np.random.default_rng(k)) for k in range(len(t))]
+    out = {}
+    for factors in ((1.0, 0.0), (0.5, 0.3)):
+        unc = UncertaintyConfig(velocity_inflation=factors[0], velocity_inflation_per_speed=factors[1])
+        odo = RadarOdometry(OdometryConfig.for_model("ca-polar").replace(uncertainty=unc), scene.T_VEHICLE_SENSOR,
+                            scene.SIGMAS, 120.0)
+        out[factors] = [odo.process(t[k], scans[k]) for k in range(len(t))]
+    for a, b in zip(out[(1.0, 0.0)], out[(0.5, 0.3)]):
+        np.testing.assert_array_equal(a.T_vehicle_world, b.T_vehicle_world)
+        np.testing.assert_array_equal(a.varpi, b.varpi)
+        c = 0.5 + 0.3 * np.linalg.norm(a.varpi[:3])
+        np.testing.assert_allclose(b.P[6:12, 6:12], c * a.P[6:12, 6:12], rtol=1e-12)
+        np.testing.assert_array_equal(b.P[:6, :6], a.P[:6, :6])
+    assert np.trace(out[(0.5, 0.3)][-1].P_pose_absolute) > np.trace(out[(1.0, 0.0)][-1].P_pose_absolute)
