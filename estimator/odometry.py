@@ -265,7 +265,6 @@ class RadarOdometry:
     def _with_uncertainty(self, est: ScanEstimate, P_relative, reuse: float) -> ScanEstimate:
         """The estimate with relative and absolute pose covariances, its velocity variance scaled (`uncertainty`)."""
         cfg = self.config.uncertainty
-        est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed)
         if P_relative is None or self.drift is None:
             self.drift = DriftCovariance(est.P[:6, :6], est.P[6:12, 6:12], cfg.velocity_correlation_time,
                                          cfg.drift_rate_sigma)
@@ -278,6 +277,7 @@ class RadarOdometry:
         self.last_estimate = est
         self.restart_relative = None
         est.P_relative, est.P_pose_absolute, est.map_reuse = P_relative, P_absolute, reuse
+        est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed)
         return est
 
     def _update_map(self, scan: ScanMeasurements, pairs) -> None:

@@ -21,8 +21,8 @@ of its relative motion, accumulated. Two parts make it up (docs/consistency.md h
 `DriftCovariance` runs this recursion over [xi; b; beta] (18 x 18) from scan to scan (the absolute pose
 covariance) and `span_covariance` over any span (the covariance of a relative pose over, e.g., 1 s). tau = 0
 drops the second part (the per-scan relative errors composed as independent), drift_rate_sigma = 0 the third.
-The velocity covariance the recursion uses is the reported one: the window's, its variance scaled with the speed
-where calibrated (`velocity_inflated`).
+The velocity covariance the recursion uses is the window's; the reported one has its variance scaled with the
+speed where calibrated (`velocity_inflated`).
 
 Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_known_joint_gaussian,
     ::test_drift_covariance_matches_monte_carlo_of_the_model, ::test_span_covariance_equals_the_recursion,
@@ -54,15 +54,21 @@ def velocity_inflated(P: np.ndarray, varpi: np.ndarray, inflation: float, per_sp
     Why (docs/consistency.md, "The velocity's error grows with the speed"): the window's velocity covariance
     hardly depends on the speed (the same pairs and Doppler rows at any speed), its error does (surfaces
     resampled from farther apart between scans); `rodo calibrate` learns both factors from the velocity errors
-    of a drive with ground truth (`validation.calibrate_consistency.fit_velocity_inflation`).
+    of a drive with ground truth (`validation.calibrate_consistency.fit_velocity_inflation`). The drift
+    recursion keeps the window's velocity covariance: its tau and drift rate are calibrated with that one.
     """
     if inflation == 1.0 and per_speed == 0.0:
         return P
     P = np.asarray(P, dtype=float)
-    c = inflation + per_speed * np.linalg.norm(np.asarray(varpi, dtype=float)[..., :3], axis=-1)
+    c = velocity_factor(varpi, inflation, per_speed)
     d = np.ones(P.shape[:-1])
     d[..., 6:12] = np.sqrt(c)[..., None]
     return P * d[..., :, None] * d[..., None, :]
+
+
+def velocity_factor(varpi, inflation: float, per_speed: float):
+    """c = inflation + per_speed |nu| of one varpi (6,) (a float) or of a stack (N, 6) ((N,))."""
+    return inflation + per_speed * np.linalg.norm(np.asarray(varpi, dtype=float)[..., :3], axis=-1)
 
 
 def _initial(P_pose: np.ndarray, P_varpi: np.ndarray, tau: float, drift_rate_sigma) -> np.ndarray:

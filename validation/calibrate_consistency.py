@@ -17,7 +17,8 @@ tells the truth (docs/consistency.md):
 - `uncertainty.velocity_inflation` a and `velocity_inflation_per_speed` b: the velocity's error grows with the
   speed, the window's velocity covariance hardly does, so the reported one is (a + b |nu|) times it
   (`estimator.uncertainty.velocity_inflated`). Maximum likelihood of the velocity errors of the last run (the
-  report only: no run is needed); a mean fit, as the N-run bounds of a campaign test means.
+  report only: no run is needed); a mean fit, as the N-run bounds of a campaign test means. The drift terms
+  below keep the window's velocity covariance.
 - `uncertainty.velocity_correlation_time` tau: how long the velocity error stays correlated, which decides how
   the per-scan covariances compose into the drift (the relative pose over a span and the absolute pose). It
   does not change the estimate: chosen on a grid, without running again, so that the relative pose over `span`
@@ -46,7 +47,7 @@ from rodo.sim.sequence import Sequence
 from .alignment import truth_in_estimator_frame
 from .association import DEFAULT_TOLERANCE, associate
 from .driver import run_sequence
-from .odometry_consistency import DOF, odometry_nees
+from .odometry_consistency import DOF, drift_velocity_covariances, odometry_nees
 from .run_consistency import run_states
 
 TAUS = (0.0, 0.02, 0.05, 0.1, 0.15, 0.25, 0.5, 1.0, 2.0)  # s, the grid of velocity correlation times
@@ -118,10 +119,10 @@ def fit_velocity_inflation(states: dict, truth: dict, tolerance: float = DEFAULT
 
 
 def velocity_inflated_states(states: dict, inflation: float, per_speed: float) -> dict:
-    """The states with the velocity covariance a run at these factors would have reported (the estimate does not
-    depend on them)."""
+    """The states a run at these velocity factors would have written (from a run without them: the estimate does
+    not depend on them): the reported velocity covariance scaled, the factors recorded."""
     P = velocity_inflated(np.asarray(states["P"], dtype=float), states["varpi"], inflation, per_speed)
-    return dict(states, P=P)
+    return dict(states, P=P, velocity_inflation=np.array([inflation, per_speed]))
 
 
 def fit_drift_rate(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
@@ -166,12 +167,13 @@ def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None) -> np.
     T = np.asarray(states["T_vehicle_world"], dtype=float)
     t = np.asarray(states["t"], dtype=float)
     P = np.asarray(states["P"], dtype=float)
+    P_varpi = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"))
     S = np.asarray(states["P_relative"], dtype=float)
-    drift = DriftCovariance(P[0, :6, :6], P[0, 6:12, 6:12], tau, drift_rate_sigma)
+    drift = DriftCovariance(P[0, :6, :6], P_varpi[0], tau, drift_rate_sigma)
     out = [P[0, :6, :6]]
     for k in range(1, len(t)):
         rel = S[k] if np.all(np.isfinite(S[k])) else np.zeros((6, 6))
-        out.append(drift.update(T[k - 1], T[k], t[k] - t[k - 1], rel, P[k, 6:12, 6:12]))
+        out.append(drift.update(T[k - 1], T[k], t[k] - t[k - 1], rel, P_varpi[k]))
     return np.stack(out)
 
 
@@ -217,11 +219,11 @@ def fit_consistency(seq: Sequence, truth: dict, config: OdometryConfig, iteratio
         states, ratios = _measure(seq, truth, _with(config, kappa, tau), span)
     velocity = fit_velocity_inflation(states, truth)
     factors = (velocity["inflation"], velocity["per_speed"])
-    states = velocity_inflated_states(states, *factors)
     drift = fit_drift_rate(states, truth)
     tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"])
     fitted = _with(config, kappa, tau, drift["sigma"], factors)
-    final = _ratios(_replayed(states, tau, drift["sigma"]), truth, span, tau, drift["sigma"])
+    final = _ratios(_replayed(velocity_inflated_states(states, *factors), tau, drift["sigma"]), truth, span, tau,
+                    drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))
     if progress is not None:
         progress(steps[-1])

@@ -127,6 +127,8 @@ class RunResult:
             map_reuse=c["map_reuse"],
             velocity_correlation_time=np.float64(self.config.uncertainty.velocity_correlation_time),
             drift_rate_sigma=np.asarray(self.config.uncertainty.drift_rate_sigma, dtype=float),
+            velocity_inflation=np.array([self.config.uncertainty.velocity_inflation,
+                                         self.config.uncertainty.velocity_inflation_per_speed]),
         )
 
     def trajectory(self) -> Trajectory:

@@ -23,12 +23,14 @@ from __future__ import annotations
 import numpy as np
 
 from rodo.estimator.lie import se3
+from rodo.estimator.uncertainty import velocity_factor
 
 from .alignment import truth_in_estimator_frame
 from .association import DEFAULT_TOLERANCE, associate
 from .consistency import nees, require_arrays
 from .span_covariances import span_covariances
 
+RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation")  # states.npz arrays that are not per scan
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
 
@@ -40,13 +42,24 @@ def _relative_errors(T_true: np.ndarray, T_est: np.ndarray, n: int) -> np.ndarra
     return se3.log(R_true @ se3.inverse(R_est))
 
 
-def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma) -> np.ndarray:
+def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflation=None) -> np.ndarray:
+    """(N, 6, 6) the velocity covariances a run's drift recursion used: the window's, i.e. the reported ones
+    (states.npz P) divided by the run's velocity factor (`estimator.uncertainty.velocity_factor`; states.npz
+    velocity_inflation = [a, b], none in runs before it)."""
+    P_varpi = np.asarray(P, dtype=float)[:, 6:12, 6:12]
+    if velocity_inflation is None:
+        return P_varpi
+    a, b = (float(x) for x in np.asarray(velocity_inflation, dtype=float))
+    return P_varpi / velocity_factor(varpi, a, b)[:, None, None] if (a, b) != (1.0, 0.0) else P_varpi
+
+
+def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, velocity_inflation) -> np.ndarray:
     out = np.full(len(t), np.nan)
     if "P_relative" not in states or n >= len(t):
         return out
     e = _relative_errors(T_true, T_est, n)
     Sigma_rel = np.asarray(states["P_relative"], dtype=float)
-    P_varpi = np.asarray(states["P"], dtype=float)[:, 6:12, 6:12]
+    P_varpi = drift_velocity_covariances(states["P"], states["varpi"], velocity_inflation)
     out[n:] = nees(e, span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma))
     return out
 
@@ -73,7 +86,8 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
     if drift_rate_sigma is None and "drift_rate_sigma" in states:
         drift_rate_sigma = np.asarray(states["drift_rate_sigma"], dtype=float)
     per_scan = {k for k, v in states.items()
-                if k != "drift_rate_sigma" and np.ndim(v) >= 1 and len(v) == len(states["t"])}
+                if k not in RUN_CONSTANTS and np.ndim(v) >= 1 and len(v) == len(states["t"])}
+    velocity_inflation = states.get("velocity_inflation")
     ia, ib = associate(states["t"], truth["t"], tolerance)
     t = np.asarray(states["t"], dtype=float)[ia]
     T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
@@ -86,9 +100,9 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
     out["acceleration"] = np.full(len(t), np.nan)
     if P.shape[-1] == 18 and "varpi_dot" in truth and "varpi_dot" in sub:
         out["acceleration"] = nees(np.asarray(truth["varpi_dot"])[ib] - sub["varpi_dot"], P[:, 12:18, 12:18])
-    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau, drift_rate_sigma)
+    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau, drift_rate_sigma, velocity_inflation)
     n = max(1, int(round(span / np.median(np.diff(t))))) if len(t) > 1 else 1
-    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau, drift_rate_sigma)
+    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau, drift_rate_sigma, velocity_inflation)
     out["pose"] = nees(xi, sub["P_pose_absolute"]) if "P_pose_absolute" in sub else np.full(len(t), np.nan)
     out["pose_window"] = nees(xi, P[:, :6, :6])
     return out

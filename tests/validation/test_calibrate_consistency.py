@@ -154,3 +154,22 @@ def test_velocity_inflation_recovers_a_known_factor(a, b, seed):
     np.testing.assert_allclose(scaled["P"][:, 6:12, 6:12],
                                (fit["inflation"] + fit["per_speed"] * speed)[:, None, None] * P[:, 6:12, 6:12])
 
+
+
+def test_velocity_factors_change_the_velocity_measure_only(city_run):
+    """States as a run with velocity factors writes them (`velocity_inflated_states`): the velocity NEES divided
+    by a + b |nu| of each scan; the relative and absolute pose measures, whose drift recursion keeps the window's
+    velocity covariance, as they were; and the absolute covariances replay as before."""
+    from rodo.estimator.uncertainty import velocity_factor
+    from rodo.validation.odometry_consistency import odometry_nees
+
+    states, truth = city_run
+    scaled = cc.velocity_inflated_states(states, 0.5, 0.08)
+    before, after = odometry_nees(states, truth, tau=0.4), odometry_nees(scaled, truth, tau=0.4)
+    c = velocity_factor(states["varpi"], 0.5, 0.08)
+    np.testing.assert_allclose(after["velocity"], before["velocity"] / c, rtol=1e-9)
+    for name in ("relative_scan", "relative_span", "pose", "pose_window"):
+        np.testing.assert_allclose(after[name], before[name], rtol=1e-9)
+    drift = states["drift_rate_sigma"]
+    np.testing.assert_allclose(cc.absolute_covariances(scaled, 0.4, drift), cc.absolute_covariances(states, 0.4, drift),
+                               rtol=1e-9, atol=1e-15)
