@@ -90,7 +90,8 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
 
 def fit_velocity_inflation(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
     """The velocity's variance factor c_k = a + b |nu_k| of one run by maximum likelihood: the velocity errors
-    e_k ~ N(0, c_k P_k), P_k the run's velocity covariance, nu_k its estimated linear velocity, over every scan
+    e_k ~ N(0, c_k P_k), P_k the window's velocity covariance (`drift_velocity_covariances`: whatever factors the
+    run had are divided out), nu_k its estimated linear velocity, over every scan
     (the start too: it holds the low speeds; left out, the factor came out over-confident at the start of
     every campaign drive); a > 0, b >= 0. Returns {"inflation": a, "per_speed": b, "scans", "nees_per_dof": the
     mean velocity NEES/dof before and after}.
@@ -99,11 +100,11 @@ def fit_velocity_inflation(states: dict, truth: dict, tolerance: float = DEFAULT
     """
     ia, ib = associate(states["t"], truth["t"], tolerance)
     e = np.asarray(truth["varpi"], dtype=float)[ib] - np.asarray(states["varpi"], dtype=float)[ia]
-    P = np.asarray(states["P"], dtype=float)[ia][:, 6:12, 6:12]
+    P = drift_velocity_covariances(states["P"], states["varpi"], states.get("velocity_inflation"))[ia]
     q = np.einsum("ki,ki->k", e, np.linalg.solve(P, e[..., None])[..., 0])
     speed = np.linalg.norm(np.asarray(states["varpi"], dtype=float)[ia, :3], axis=1)
     q, speed = q[np.isfinite(q)], speed[np.isfinite(q)]
-    if len(q) < 2:
+    if len(q) < 2 or not np.mean(q) > 0:  # too few scans, or no error at all (a noise-free drive)
         return {"inflation": 1.0, "per_speed": 0.0, "scans": int(len(q)), "nees_per_dof": [np.nan, np.nan]}
 
     def nll(p):  # -2 log-likelihood up to a constant, its gradient

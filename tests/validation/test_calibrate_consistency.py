@@ -150,9 +150,13 @@ def test_velocity_inflation_recovers_a_known_factor(a, b, seed):
     for s in (3.0, 15.0):
         assert fit["inflation"] + fit["per_speed"] * s == pytest.approx(a + b * s, rel=0.1), fit
     assert fit["nees_per_dof"][1] == pytest.approx(1.0, abs=0.03)
-    scaled = cc.velocity_inflated_states({"P": P, "varpi": varpi}, fit["inflation"], fit["per_speed"])
+    scaled = cc.velocity_inflated_states({"t": t, "P": P, "varpi": varpi}, fit["inflation"], fit["per_speed"])
     np.testing.assert_allclose(scaled["P"][:, 6:12, 6:12],
                                (fit["inflation"] + fit["per_speed"] * speed)[:, None, None] * P[:, 6:12, 6:12])
+    # from states that already carry factors, the same fit: it is relative to the window's covariance
+    again = cc.fit_velocity_inflation(scaled, {"t": t, "varpi": varpi + e})
+    assert again["inflation"] == pytest.approx(fit["inflation"], rel=1e-6)
+    assert again["per_speed"] == pytest.approx(fit["per_speed"], rel=1e-6, abs=1e-9)
 
 
 
