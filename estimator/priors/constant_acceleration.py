@@ -164,6 +164,14 @@ def batch_outputs(out, n: int, d: int, want_q: bool):
     return F, Q
 
 
+def batch_input(a, shape: tuple, tail: tuple) -> np.ndarray:
+    """`a` broadcast to shape + tail as an (n,) + tail array, C-contiguous and writable: the one array type the
+    batch kernels are compiled for (a read-only view, e.g. of an input already of that shape, would be another
+    numba specialisation, compiled again on its first use: `make demo` did so after the warm-up)."""
+    n = int(np.prod(shape))
+    return np.require(np.broadcast_to(a, shape + tail).reshape((n,) + tail), dtype=float, requirements=("C", "W"))
+
+
 def block_diag3(J: np.ndarray, n_blocks: int) -> np.ndarray:
     out = np.eye(6 * n_blocks)
     out[:6, :6] = J
@@ -232,10 +240,8 @@ class ConstantAccelerationPrior:
             raise InputError(f"T, varpi, varpi_dot, dt: batch shapes {T.shape[:-2]}, {varpi.shape[:-1]}, "
                              f"{varpi_dot.shape[:-1]}, {dt_arr.shape} do not broadcast") from None
         n = int(np.prod(shape))
-        Tb = np.ascontiguousarray(np.broadcast_to(T, shape + (4, 4)).reshape(n, 4, 4))
-        wb = np.ascontiguousarray(np.broadcast_to(varpi, shape + (6,)).reshape(n, 6))
-        vb = np.ascontiguousarray(np.broadcast_to(varpi_dot, shape + (6,)).reshape(n, 6))
-        db = np.ascontiguousarray(np.broadcast_to(dt_arr, shape).reshape(n))
+        Tb, wb, vb = batch_input(T, shape, (4, 4)), batch_input(varpi, shape, (6,)), batch_input(varpi_dot, shape, (6,))
+        db = batch_input(dt_arr, shape, ())
         T_out = np.empty((n, 4, 4))
         w_out = np.empty((n, 6))
         v_out = np.empty((n, 6))

@@ -22,8 +22,8 @@ from rodo.estimator.errors import InputError, check_finite
 from rodo.estimator.lie import se3
 
 from . import kernels as K
-from .constant_acceleration import (batch_outputs, block_diag3, check_batch, check_dt, check_pose, check_qc,
-                                    first_nonfinite, single_pose, vec6)
+from .constant_acceleration import (batch_input, batch_outputs, block_diag3, check_batch, check_dt, check_pose,
+                                    check_qc, first_nonfinite, single_pose, vec6)
 
 _ZERO6 = np.zeros(6)
 
@@ -65,9 +65,7 @@ class ConstantVelocityPrior:
             raise InputError(f"T, varpi, dt: batch shapes {T.shape[:-2]}, {varpi.shape[:-1]}, {dt_arr.shape} "
                              "do not broadcast") from None
         n = int(np.prod(shape))
-        Tb = np.ascontiguousarray(np.broadcast_to(T, shape + (4, 4)).reshape(n, 4, 4))
-        wb = np.ascontiguousarray(np.broadcast_to(varpi, shape + (6,)).reshape(n, 6))
-        db = np.ascontiguousarray(np.broadcast_to(dt_arr, shape).reshape(n))
+        Tb, wb, db = batch_input(T, shape, (4, 4)), batch_input(varpi, shape, (6,)), batch_input(dt_arr, shape, ())
         T_out = np.empty((n, 4, 4))
         w_out = np.empty((n, 6))
         K.predict_batch(Tb, wb, np.zeros((n, 6)), db, 1, T_out, w_out, np.empty((n, 6)))

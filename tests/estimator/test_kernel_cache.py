@@ -132,3 +132,30 @@ def test_first_compilation_says_so_once_and_a_cached_run_is_silent(tmp_path):
                                capture_output=True, text=True, timeout=300, check=True) for _ in range(2)]
         said[register] = [r.stderr.count(jit.COMPILE_NOTICE) for r in runs]
     assert said == {True: [1, 0], False: [0, 0]}
+
+
+def test_batch_prediction_is_compiled_for_writable_arrays_only():
+    """Read-only inputs (a broadcast view, a frozen array of the batch's own shape) reach the batch kernel as
+    writable C arrays: one numba specialisation, the one the warm-up compiles (a read-only dt was a second one,
+    compiled by `make demo` after `make install`), with the same results as writable inputs."""
+    import numpy as np
+    from numba import types
+
+    from rodo.estimator.priors import ConstantAccelerationPrior, ConstantVelocityPrior
+    from rodo.estimator.priors import kernels as K
+
+    n = 5
+    dt = np.linspace(0.05, 0.2, n)
+    frozen = dt.copy()
+    frozen.setflags(write=False)
+    T = np.broadcast_to(np.eye(4), (n, 4, 4))
+    varpi = np.tile(np.array([3.0, 0.1, 0.0, 0.01, 0.0, 0.2]), (n, 1))
+    ca = ConstantAccelerationPrior(np.diag([1.0, 0.1, 0.1, 0.01, 0.01, 0.05]))
+    cv = ConstantVelocityPrior(np.diag([1.0, 0.1, 0.1, 0.01, 0.01, 0.05]))
+    for a, b in ((ca.predict(T, varpi, 0.5 * varpi, frozen), ca.predict(T.copy(), varpi, 0.5 * varpi, dt)),
+                 (cv.predict(T, varpi, frozen), cv.predict(T.copy(), varpi, dt))):
+        for x, y in zip(a, b):
+            np.testing.assert_array_equal(x, y)
+    assert K.predict_batch.signatures
+    for sig in K.predict_batch.signatures:
+        assert all(t.mutable for t in sig if isinstance(t, types.Array)), sig
