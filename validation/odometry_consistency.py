@@ -70,7 +70,8 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
 
     Args:
         states: states.npz arrays (t, T_vehicle_world, varpi, varpi_dot, P; P_relative and P_pose_absolute
-            when the run wrote them, else those measures are NaN).
+            when the run wrote them, else those measures are NaN; velocity_inflation when the run scaled its
+            reported velocity covariance: the span measures divide it out, as the run's drift recursion did).
         truth: truth.npz arrays (t, T_vehicle_world, varpi, varpi_dot).
         span: seconds of the relative_span measure (rounded to whole scans).
         tau: the velocity error's correlation time the run used (config `uncertainty`).
