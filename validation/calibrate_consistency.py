@@ -103,7 +103,8 @@ def fit_velocity_inflation(states: dict, truth: dict, tolerance: float = DEFAULT
     P = drift_velocity_covariances(states["P"], states["varpi"], states.get("velocity_inflation"))[ia]
     q = np.einsum("ki,ki->k", e, np.linalg.solve(P, e[..., None])[..., 0])
     speed = np.linalg.norm(np.asarray(states["varpi"], dtype=float)[ia, :3], axis=1)
-    q, speed = q[np.isfinite(q)], speed[np.isfinite(q)]
+    finite = np.isfinite(q)
+    q, speed = q[finite], speed[finite]
     if len(q) < 2 or not np.mean(q) > 0:  # too few scans, or no error at all (a noise-free drive)
         return {"inflation": 1.0, "per_speed": 0.0, "scans": int(len(q)), "nees_per_dof": [np.nan, np.nan]}
 

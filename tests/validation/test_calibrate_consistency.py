@@ -159,7 +159,6 @@ def test_velocity_inflation_recovers_a_known_factor(a, b, seed):
     assert again["per_speed"] == pytest.approx(fit["per_speed"], rel=1e-6, abs=1e-9)
 
 
-
 def test_velocity_factors_change_the_velocity_measure_only(city_run):
     """States as a run with velocity factors writes them (`velocity_inflated_states`): the velocity NEES divided
     by a + b |nu| of each scan; the relative and absolute pose measures, whose drift recursion keeps the window's
