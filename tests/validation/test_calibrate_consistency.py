@@ -116,10 +116,11 @@ def test_absolute_covariances_replay_the_run(city_run):
 
 
 def test_fit_tau_takes_the_grid_point_nearest_consistency(city_run):
-    """The chosen tau minimises |ln r_span| + |ln r_pose| over the grid it reports."""
+    """The chosen tau minimises w |ln r_span| + w |ln r_pose| over the grid it reports, w = 2 for an
+    over-confident ratio (> 1), else 1."""
     states, truth = city_run
     tau, grid = cc.fit_tau(states, truth, drift_rate_sigma=states["drift_rate_sigma"])
-    cost = {t: abs(np.log(r[0])) + abs(np.log(r[1])) for t, r in grid.items()}
+    cost = {t: sum((2.0 if x > 1 else 1.0) * abs(np.log(x)) for x in r) for t, r in grid.items()}
     assert set(grid) == {float(t) for t in cc.TAUS}
     assert cost[tau] == min(cost.values())
     # a longer correlation time integrates more velocity error: more covariance, smaller ratios
@@ -176,3 +177,10 @@ def test_velocity_factors_change_the_velocity_measure_only(city_run):
     drift = states["drift_rate_sigma"]
     np.testing.assert_allclose(cc.absolute_covariances(scaled, 0.4, drift), cc.absolute_covariances(states, 0.4, drift),
                                rtol=1e-9, atol=1e-15)
+
+
+@given(r=st.floats(1.001, 100.0), other=st.floats(0.01, 100.0))
+@settings(max_examples=50, deadline=None)
+def test_tau_cost_counts_over_confidence_twice(r, other):
+    """An over-confident ratio r > 1 costs twice what the cautious 1 / r does, whatever the other ratio."""
+    assert cc.tau_cost((r, other)) - cc.tau_cost((1.0 / r, other)) == pytest.approx(np.log(r), rel=1e-9)
