@@ -98,6 +98,7 @@ class DopplerFrontEnd:
         self.consensus = ConsensusSwitch(config.association, sigmas[3], consensus_rng)
         self.update_gate = {d: association.gate_threshold(config.association.doppler_update_probability, d)
                             for d in (2, 3)}
+        self.pair_gate = {d: association.gate_threshold(config.association.gate_probability, d) for d in (2, 3)}
         self.still_gate = {d: association.gate_threshold(0.99, d) for d in (2, 3)}
 
     def _thresholds(self, polar: np.ndarray, v: np.ndarray, Sv: np.ndarray):
@@ -194,7 +195,7 @@ class DopplerFrontEnd:
         cov = fit[1] + sigma_c**2 * np.eye(len(fit[0])) if sigma_c > 0 else fit[1]
         return DopplerFit(fit[0], cov, static[:, 3])
 
-    def correct(self, x: State, P: np.ndarray, fit: DopplerFit | None) -> State:
+    def correct(self, x: State, P: np.ndarray, fit: DopplerFit | None, pairs_level: bool = False) -> State:
         """The predicted state, corrected by the scan's Doppler ego-velocity when the two disagree.
 
         Association gates the radial velocity at the sensor's few cm/s, so a velocity prediction off by a
@@ -204,6 +205,8 @@ class DopplerFrontEnd:
         and the centre of the association gates: P stays the predicted covariance and the solve uses the
         detections through its own factors, so nothing is counted twice. (Updating P too, or updating at every
         scan, made the gates follow the least-squares fit's own errors: more pitch drift on the simulated city.)
+        `pairs_level`: test at the pairs' gate level (`association.gate_probability`) instead (the odometry's
+        re-centring when the pairs' gates rejected the scan, `RadarOdometry._recentre`).
         """
         if fit is None:
             return x
@@ -213,7 +216,8 @@ class DopplerFrontEnd:
         H[:, 6:12] = J
         S = H @ P @ H.T + fit.cov
         innovation = fit.v - J @ x.varpi
-        if innovation @ np.linalg.solve(S, innovation) <= self.update_gate[fit.dof]:
+        gate = (self.pair_gate if pairs_level else self.update_gate)[fit.dof]
+        if innovation @ np.linalg.solve(S, innovation) <= gate:
             return x  # the prediction agrees with the scan's Doppler: nothing to correct
         K = np.linalg.solve(S, H @ P).T
         return x.oplus(K @ innovation)
@@ -259,3 +263,14 @@ def common_doppler_error(W: np.ndarray, azimuth: np.ndarray, elevation: np.ndarr
     c = sigma_c**2 * float(np.linalg.eigvalsh(u.T @ u)[-1])
     w3 = W[:, :, 3]
     return W - (c / (1.0 + c * W[:, 3, 3]))[:, None, None] * w3[:, :, None] * w3[:, None, :]
+
+
+def vehicle_information(config: OdometryConfig, dim: int) -> np.ndarray | None:
+    """Information of the zero-mean roll and pitch rate and lateral and vertical velocity terms of a moving road
+    vehicle (`VehicleConfig`) on the state's Euclidean part; None when all are off."""
+    rate_info = np.zeros(dim - 6)
+    v = config.vehicle
+    for axis, sigma in ((1, v.sigma_lateral_velocity), (2, v.sigma_vertical_velocity),
+                        (3, v.sigma_roll_rate), (4, v.sigma_pitch_rate)):
+        rate_info[axis] = sigma**-2 if sigma > 0 else 0.0
+    return np.diag(rate_info) if rate_info.any() else None

@@ -32,12 +32,14 @@ import numpy as np
 from . import association
 from .config import OdometryConfig
 from .consensus import MIN_STATIC  # fewest static detections to use
-from .doppler import DopplerFrontEnd, body_velocity, common_doppler_error
+LOST_PAIRS = 0.1  # fewer pairs than this share of the static detections: the gates lost the scan (_recentre)
+from .doppler import DopplerFrontEnd, body_velocity, common_doppler_error, vehicle_information
 from .errors import InputError, check_finite
 from .ground import off_road
 from .lie import se3
 from .local_map import LocalMap
 from .measurement_models import measurement_model
+from .radar_geometry import check_fov
 from .motion import motion_prior_for
 from .scan import ScanDetail, ScanEstimate
 from .scan_association import MapAssociation, ScanMeasurements
@@ -78,7 +80,7 @@ class RadarOdometry:
                                     config.solver.robust_c)
         self.map = LocalMap(config.map.capacity, config.map.max_age, config.map.voxel,
                             rng=np.random.default_rng(seeds[1]))
-        self.vehicle_information = _vehicle_information(config, self.motion.dim)
+        self.vehicle_information = vehicle_information(config, self.motion.dim)
         self.P: np.ndarray | None = None
         self.scan_index = 0
         self.last_with_data: State | None = None  # newest state at the last scan with associations
@@ -114,7 +116,7 @@ class RadarOdometry:
         associator = MapAssociation(
             self.measurement, self.measurement.noise_covariance(sigmas, config.noise.cartesian_sigma), T,
             association.gate_threshold(config.association.gate_probability, 4), config.association.max_radius,
-            0.0 if self.surface_model else self.map_sigma, _check_fov(fov), sigmas[1:3])
+            0.0 if self.surface_model else self.map_sigma, check_fov(fov), sigmas[1:3])
         doppler = DopplerFrontEnd(config, T, sigmas, np.random.default_rng(seeds[0]), np.random.default_rng(seeds[1]))
         self.sensors.append(Sensor(T, sigmas, float(max_range), associator, doppler))
         return self.sensors[-1]
@@ -151,10 +153,12 @@ class RadarOdometry:
         timings["predict"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
-        x, P, static, still = self._doppler_front_end(t, polar, x, P, Q, events)
+        x, P, static, still, fit = self._doppler_front_end(t, polar, x, P, Q, events)
         used = off_road(polar, static, self.T_vehicle_sensor, self.config.association.ground_band)
         scan = ScanMeasurements.of(polar[used], self.measurement)
         W_pairs, pairs = self._associate(x, P, scan)
+        if len(pairs.map_idx) < LOST_PAIRS * len(scan.points) and len(self.map):
+            W_pairs, pairs = self._recentre(x, P, fit, scan, W_pairs, pairs, events)
         timings["associate"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
@@ -208,7 +212,8 @@ class RadarOdometry:
 
     def _doppler_front_end(self, t, polar, x, P, Q, events):
         """Static detections, the consensus switch, the Doppler correction of the predicted mean (which then
-        joins the window) and the zero-velocity or vehicle rate term. Returns x, P, static mask, standstill."""
+        joins the window) and the zero-velocity or vehicle rate term. Returns x, P, static mask, standstill and
+        the static detections' Doppler fit (None at a (re-)initialisation)."""
         if self.last_t is not None:
             self.scan_dt = t - self.last_t
         static, note = self.doppler.static_mask(polar, x, P, self.scan_dt) if len(polar) \
@@ -226,7 +231,20 @@ class RadarOdometry:
         still = self.doppler.standstill_information(fit, self.motion, settled=self.at_rest)
         self.at_rest = still is not None
         self.window.set_rate_prior(len(self.window.states) - 1, self.vehicle_information if still is None else still)
-        return x, P, static, still
+        return x, P, static, still, fit if Q is not None else None
+
+    def _recentre(self, x: State, P: np.ndarray, fit, scan: ScanMeasurements, W_pairs, pairs, events: list):
+        """The pairs' gates rejected nearly every static detection (fewer than LOST_PAIRS of them paired) while
+        the Doppler check let the prediction through: when the scan's Doppler contradicts it at the pairs' own
+        gate level, the predicted mean moves to it and the scan is associated again (event "doppler-recentred").
+        Moving off from rest at 4 sigma of the initial acceleration, the velocity's error and sigma grow together
+        and the check stays just below its 99.9 %: CA/P lost every pair and coasted at zero velocity."""
+        y = self.doppler.correct(x, P, fit, pairs_level=True)
+        if y is x:
+            return W_pairs, pairs
+        self.window.replace_newest(y)
+        events.append("doppler-recentred")
+        return self._associate(y, P, scan)
 
     def _associate(self, x: State, P: np.ndarray, scan: ScanMeasurements):
         W_pairs, pairs = self.associator.associate(x, P, self.map, scan)
@@ -378,23 +396,3 @@ class Sensor:
     max_range: float
     associator: MapAssociation
     doppler: DopplerFrontEnd
-
-
-def _check_fov(fov):
-    if fov is None:
-        return None
-    fov = check_finite("fov", fov, (2, 2))
-    if fov.shape != (2, 2) or np.any(fov[:, 0] >= fov[:, 1]):
-        raise InputError(f"fov: expected ((az_min, az_max), (el_min, el_max)) with min < max, got {fov}")
-    return fov
-
-
-def _vehicle_information(config: OdometryConfig, dim: int) -> np.ndarray | None:
-    """Information of the zero-mean roll and pitch rate and lateral and vertical velocity terms of a moving road
-    vehicle (`VehicleConfig`) on the state's Euclidean part; None when all are off."""
-    rate_info = np.zeros(dim - 6)
-    v = config.vehicle
-    for axis, sigma in ((1, v.sigma_lateral_velocity), (2, v.sigma_vertical_velocity),
-                        (3, v.sigma_roll_rate), (4, v.sigma_pitch_rate)):
-        rate_info[axis] = sigma**-2 if sigma > 0 else 0.0
-    return np.diag(rate_info) if rate_info.any() else None

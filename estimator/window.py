@@ -85,6 +85,11 @@ class SlidingWindow:
         self._motion_info = None
         self._H = None
 
+    def replace_newest(self, x: State) -> None:
+        """Move the newest (predicted) state to x before the solve (a re-centred prediction)."""
+        self.states[-1] = x.copy()
+        self._H = None
+
     def set_rate_prior(self, k: int, info: np.ndarray | None) -> None:
         """A zero-mean term on state k's rates: cost 1/2 t^T info t with t = [varpi; varpi_dot] (a standstill seen by
         the Doppler: a wheeled vehicle at rest neither moves nor turns; or a moving road vehicle's roll and pitch
