@@ -32,7 +32,8 @@ import numpy as np
 from . import association
 from .config import OdometryConfig
 from .consensus import MIN_STATIC  # fewest static detections to use
-LOST_PAIRS = 0.1  # fewer pairs than this share of the static detections: the gates lost the scan (_recentre)
+LOST_PAIRS = 0.1  # share of the static detections paired below which the gates lost the scan (_recentre)
+RECOVERED_PAIRS = 0.25  # share of all the scan's detections a re-centred prediction must pair (_recentre)
 from .doppler import DopplerFrontEnd, body_velocity, common_doppler_error, vehicle_information
 from .errors import InputError, check_finite
 from .ground import off_road
@@ -158,7 +159,7 @@ class RadarOdometry:
         scan = ScanMeasurements.of(polar[used], self.measurement)
         W_pairs, pairs = self._associate(x, P, scan)
         if len(pairs.map_idx) < LOST_PAIRS * len(scan.points) and len(self.map):
-            W_pairs, pairs = self._recentre(x, P, fit, scan, W_pairs, pairs, events)
+            W_pairs, pairs = self._recentre(x, P, fit, scan, len(polar), W_pairs, pairs, events)
         timings["associate"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
@@ -233,18 +234,19 @@ class RadarOdometry:
         self.window.set_rate_prior(len(self.window.states) - 1, self.vehicle_information if still is None else still)
         return x, P, static, still, fit if Q is not None else None
 
-    def _recentre(self, x: State, P: np.ndarray, fit, scan: ScanMeasurements, W_pairs, pairs, events: list):
-        """The pairs' gates rejected nearly every static detection (fewer than LOST_PAIRS of them paired) while
-        the Doppler check let the prediction through: when the scan's Doppler contradicts it at the pairs' own
-        gate level, the predicted mean moves to it and the scan is associated again (event "doppler-recentred").
-        Moving off from rest at 4 sigma of the initial acceleration, the velocity's error and sigma grow together
-        and the check stays just below its 99.9 %: CA/P lost every pair and coasted at zero velocity."""
+    def _recentre(self, x: State, P: np.ndarray, fit, scan: ScanMeasurements, n: int, W_pairs, pairs, events):
+        """The pairs' gates lost the scan (under LOST_PAIRS of the static detections paired) though the Doppler
+        check let the prediction through: if the Doppler contradicts it at the pairs' own gate level and the mean
+        moved to it pairs RECOVERED_PAIRS of the scan's n detections, it moves there (event "doppler-recentred"):
+        CA/P moving off from rest at 4 sigma of the initial acceleration lost every pair (docs/estimator.md, 3)."""
         y = self.doppler.correct(x, P, fit, pairs_level=True)
-        if y is x:
+        W_new, new = (W_pairs, pairs) if y is x else self.associator.associate(y, P, self.map, scan)
+        if y is x or len(new.map_idx) < RECOVERED_PAIRS * n:
             return W_pairs, pairs
         self.window.replace_newest(y)
+        self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_new, new, scan))
         events.append("doppler-recentred")
-        return self._associate(y, P, scan)
+        return W_new, new
 
     def _associate(self, x: State, P: np.ndarray, scan: ScanMeasurements):
         W_pairs, pairs = self.associator.associate(x, P, self.map, scan)

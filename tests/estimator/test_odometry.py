@@ -347,3 +347,27 @@ def test_non_holonomic_terms_hold_the_lateral_and_vertical_velocity():
                    for k in range(len(t))]
         out[case] = float(np.sqrt(np.mean(np.square(lateral[20:]))))
     assert out["on"] < 0.5 * out["off"]
+
+
+def test_a_blocked_view_is_not_recentred(monkeypatch):
+    """A truck filling the view (blockage, seed 3411976877185804603 of the campaign seeds `--seed 7`): the pairs
+    are lost and the few static detections' Doppler fit contradicts the prediction, but re-centred on that fit
+    the prediction pairs far less than a quarter of the scan, so it stays: the run is the one without
+    re-centring, bit for bit. Accepting a weaker recovery re-centres there (and made this drive worse)."""
+    from rodo import scenarios
+    from rodo.estimator import odometry
+    from rodo.validation.driver import run_sequence
+
+    seq, _ = scenarios.get("blockage").simulate(3411976877185804603, 30.0)
+
+    def run():
+        out = run_sequence(seq, OdometryConfig.for_model("ca-polar")).estimates
+        return np.stack([e.T_vehicle_world for e in out]), [e for est in out for e in est.events]
+
+    T, events = run()
+    assert "doppler-recentred" not in events
+    monkeypatch.setattr(odometry, "LOST_PAIRS", 0.0)
+    np.testing.assert_array_equal(run()[0], T)
+    monkeypatch.setattr(odometry, "LOST_PAIRS", 0.1)
+    monkeypatch.setattr(odometry, "RECOVERED_PAIRS", 0.05)
+    assert "doppler-recentred" in run()[1]
