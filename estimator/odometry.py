@@ -1,25 +1,23 @@
 """Radar odometry, one scan at a time: predict, classify static/moving by Doppler, associate, solve, map.
 
-This is the algorithm layer (no file I/O, no printing): `RadarOdometry.process(t, polar)` takes one scan's
-detections [range, azimuth, elevation, radial_velocity] (sensor frame) and returns the newest estimate
-(`ScanEstimate`). `process` is a short sequence of named stages, as kiss-icp's `register_frame`: predict,
-Doppler front end (`rodo.estimator.doppler`), associate (`rodo.estimator.scan_association`), solve
-(`rodo.estimator.window`), map update (`rodo.estimator.local_map`). The model choice lives in two objects,
-a `MotionPrior` (CA or CV) and a `MeasurementModel` (polar or Cartesian); nothing here branches on it.
+The algorithm layer (no file I/O, no printing): `RadarOdometry.process(t, polar)` takes one scan's detections
+[range, azimuth, elevation, radial_velocity] (sensor frame) and returns the newest estimate (`ScanEstimate`),
+in named stages as kiss-icp's `register_frame`: predict, Doppler front end (`doppler`), associate
+(`scan_association`), solve (`window`), map update (`local_map`). The model choice lives in a `MotionPrior`
+(CA or CV) and a `MeasurementModel` (polar or Cartesian); nothing here branches on it.
 
 Per scan k (paper sec. III-VI; docs/estimator.md gives the reasons and the measurements behind each step):
 1. predict x_k = f(x_{k-1}) and P_k = F P F^T + Q with the configured prior (CV or CA);
 2. static detections: the largest Doppler consensus near the predicted sensor velocity (prediction-gated
    RANSAC), or a free RANSAC fit when the prediction is uncertain (either rejects moving objects, as reve);
-3. when the scan's Doppler velocity contradicts the prediction (an unmodelled jerk), move the predicted mean
-   to it: it is the linearisation point and the centre of the association gates;
+3. when the scan's Doppler velocity contradicts the prediction (an unmodelled jerk; at the pairs' gate level
+   when the gates lost the scan, `_recentre`), move the predicted mean to it: linearisation point, gate centre;
 4. a zero-velocity term when the Doppler says the sensor is at rest;
 5. associate map points with the static detections off the road (`association.ground_band`) by maximum
    likelihood, S = G P G^T + R (+ map-point term), gated at the chi-square quantile (eq. 86-88), in the FOV;
-6. add x_k to the sliding window, Gauss-Newton over prior, motion and measurement terms, re-associate with the
-   refined estimate, solve again, marginalise the oldest state when the window is full;
-7. update the local map: refresh associated points, add the unassociated static detections (the map ages
-   with scans that have static detections, so a blockage does not expire the map needed after it).
+6. Gauss-Newton over the window's prior, motion and measurement terms, re-associate, solve again, marginalise;
+7. update the local map: refresh associated points, add the unassociated static detections (aged by scans
+   with static detections: a blockage does not expire the map needed after it).
 """
 
 from __future__ import annotations
@@ -32,22 +30,23 @@ import numpy as np
 from . import association
 from .config import OdometryConfig
 from .consensus import MIN_STATIC  # fewest static detections to use
-LOST_PAIRS = 0.1  # share of the static detections paired below which the gates lost the scan (_recentre)
-RECOVERED_PAIRS = 0.25  # share of all the scan's detections a re-centred prediction must pair (_recentre)
 from .doppler import DopplerFrontEnd, body_velocity, common_doppler_error, vehicle_information
 from .errors import InputError, check_finite
 from .ground import off_road
 from .lie import se3
 from .local_map import LocalMap
 from .measurement_models import measurement_model
-from .radar_geometry import check_fov
 from .motion import motion_prior_for
+from .radar_geometry import check_fov
 from .scan import ScanDetail, ScanEstimate
 from .scan_association import MapAssociation, ScanMeasurements
 from .state import State
 from .surface import surface_covariances
 from .uncertainty import DriftCovariance, relative_pose_covariance, velocity_inflated
 from .window import MeasurementSet, SlidingWindow
+
+LOST_PAIRS = 0.1  # share of the static detections paired below which the gates lost the scan (_recentre)
+RECOVERED_PAIRS = 0.25  # share of all the scan's detections a re-centred prediction must pair (_recentre)
 
 
 class RadarOdometry:
@@ -235,13 +234,14 @@ class RadarOdometry:
         return x, P, static, still, fit if Q is not None else None
 
     def _recentre(self, x: State, P: np.ndarray, fit, scan: ScanMeasurements, n: int, W_pairs, pairs, events):
-        """The pairs' gates lost the scan (under LOST_PAIRS of the static detections paired) though the Doppler
-        check let the prediction through: if the Doppler contradicts it at the pairs' own gate level and the mean
-        moved to it pairs RECOVERED_PAIRS of the scan's n detections, it moves there (event "doppler-recentred"):
-        CA/P moving off from rest at 4 sigma of the initial acceleration lost every pair (docs/estimator.md, 3)."""
+        """The gates lost the scan (under LOST_PAIRS of the static detections paired): if the Doppler contradicts
+        the prediction at the pairs' gate level and the mean moved to it pairs RECOVERED_PAIRS of the scan's n
+        detections, it moves there (event "doppler-recentred"; docs/estimator.md, step 3)."""
         y = self.doppler.correct(x, P, fit, pairs_level=True)
-        W_new, new = (W_pairs, pairs) if y is x else self.associator.associate(y, P, self.map, scan)
-        if y is x or len(new.map_idx) < RECOVERED_PAIRS * n:
+        if y is x:
+            return W_pairs, pairs
+        W_new, new = self.associator.associate(y, P, self.map, scan)
+        if len(new.map_idx) < RECOVERED_PAIRS * n:
             return W_pairs, pairs
         self.window.replace_newest(y)
         self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_new, new, scan))
