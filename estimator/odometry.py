@@ -157,7 +157,7 @@ class RadarOdometry:
         used = off_road(polar, static, self.T_vehicle_sensor, self.config.association.ground_band)
         scan = ScanMeasurements.of(polar[used], self.measurement)
         W_pairs, pairs = self._associate(x, P, scan)
-        if len(pairs.map_idx) < LOST_PAIRS * len(scan.points) and len(self.map):
+        if len(pairs.map_idx) < LOST_PAIRS * len(scan.points) and len(self.map):  # empty after a (re-)start
             W_pairs, pairs = self._recentre(x, P, fit, scan, len(polar), W_pairs, pairs, events)
         timings["associate"] = time.perf_counter() - tic
 
@@ -213,7 +213,7 @@ class RadarOdometry:
     def _doppler_front_end(self, t, polar, x, P, Q, events):
         """Static detections, the consensus switch, the Doppler correction of the predicted mean (which then
         joins the window) and the zero-velocity or vehicle rate term. Returns x, P, static mask, standstill and
-        the static detections' Doppler fit (None at a (re-)initialisation)."""
+        the static detections' Doppler fit."""
         if self.last_t is not None:
             self.scan_dt = t - self.last_t
         static, note = self.doppler.static_mask(polar, x, P, self.scan_dt) if len(polar) \
@@ -231,7 +231,7 @@ class RadarOdometry:
         still = self.doppler.standstill_information(fit, self.motion, settled=self.at_rest)
         self.at_rest = still is not None
         self.window.set_rate_prior(len(self.window.states) - 1, self.vehicle_information if still is None else still)
-        return x, P, static, still, fit if Q is not None else None
+        return x, P, static, still, fit
 
     def _recentre(self, x: State, P: np.ndarray, fit, scan: ScanMeasurements, n: int, W_pairs, pairs, events):
         """The gates lost the scan (under LOST_PAIRS of the static detections paired): if the Doppler contradicts
