@@ -178,7 +178,10 @@ class UncertaintyConfig:
     velocity_correlation_time: tau (s) of the velocity error, which the motion prior keeps correlated from
         scan to scan so that it integrates into pose; 0 composes the per-scan relative covariances as
         independent. 0.25 s: CA/P on city, hills, stop_and_go (docs/consistency.md).
-    inflation: factor (>= 1) on each scan's relative pose covariance before it is composed.
+    inflation: factor (> 0) on each scan's relative pose covariance, before it is composed into the relative
+        pose over a span and the absolute pose. Reported covariances only: not in the solve or the gates.
+        `rodo calibrate` fits it where kappa cannot make the one-scan relative pose consistent (kappa at 1
+        with a cautious relative pose, or kappa's compromise with the velocity).
     measurement_inflation: factor (>= 1) on every associated pair's covariance in the solve (not in the gates):
         a scan's pairs share map errors (points made in one scan share its pose error, surfaces are resampled),
         so they carry less information than counted as independent. 1 leaves the solve as the paper's.

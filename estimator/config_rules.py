@@ -105,7 +105,7 @@ RULES: dict[str, Rule] = {
     "vehicle.sigma_lateral_velocity": NONNEGATIVE,
     "vehicle.sigma_vertical_velocity": NONNEGATIVE,
     "uncertainty.velocity_correlation_time": NONNEGATIVE,
-    "uncertainty.inflation": Rule(1.0),
+    "uncertainty.inflation": POSITIVE,
     "uncertainty.measurement_inflation": Rule(1.0),
     "uncertainty.drift_rate_sigma": Rule(0.0, size=6),
     "uncertainty.prior_memory": NONNEGATIVE,

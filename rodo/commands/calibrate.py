@@ -138,9 +138,13 @@ def _consistency_markdown(c: dict) -> list[str]:
     for i, s in enumerate(c["steps"], 1):
         ratios = " | ".join(f"{s['median_ratio'][n]:.3g}" for n in names)
         lines.append(f"| {i} | {s['kappa']:.3g} | {s['tau']:g} | {ratios} |")
-    d, v = c["drift_rate"], c["velocity_inflation"]
+    d, v, rel = c["drift_rate"], c["velocity_inflation"], c["relative_inflation"]
     vec = ", ".join(f"{x:.3g}" for x in d["sigma"])
-    return lines + ["", f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed (maximum "
+    before, after = rel["median_ratio"]
+    return lines + ["", f"relative pose covariance factor (uncertainty.inflation) {rel['inflation']:.3g} (median "
+                    f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}"
+                    + ("; within the tolerance: unchanged)" if before == after else ")"),
+                    f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed (maximum "
                     f"likelihood over {v['scans']} scans: mean velocity NEES/dof {v['nees_per_dof'][0]:.3g} -> "
                     f"{v['nees_per_dof'][1]:.3g})",
                     f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m",

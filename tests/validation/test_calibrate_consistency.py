@@ -86,6 +86,7 @@ def test_kappa_compensates_information_counted_too_often(city):
     assert fitted.uncertainty.measurement_inflation == report["measurement_inflation"]
     assert fitted.uncertainty.velocity_correlation_time == report["velocity_correlation_time"]
     assert fitted.uncertainty.drift_rate_sigma == tuple(report["drift_rate"]["sigma"])
+    assert fitted.uncertainty.inflation == report["relative_inflation"]["inflation"]
     v = report["velocity_inflation"]
     assert (fitted.uncertainty.velocity_inflation, fitted.uncertainty.velocity_inflation_per_speed) == \
         (v["inflation"], v["per_speed"])
@@ -184,3 +185,28 @@ def test_velocity_factors_change_the_velocity_measure_only(city_run):
 def test_tau_cost_counts_over_confidence_twice(r, other):
     """An over-confident ratio r > 1 costs twice what the cautious 1 / r does, whatever the other ratio."""
     assert cc.tau_cost((r, other)) - cc.tau_cost((1.0 / r, other)) == pytest.approx(np.log(r), rel=1e-9)
+
+
+@given(s=st.floats(0.05, 20.0))
+@settings(max_examples=8, deadline=None)
+def test_relative_factor_makes_the_one_scan_pose_consistent(city_run, s):
+    """A run whose relative pose covariances were s times the window's (`uncertainty.inflation` s): the fitted
+    factor makes the one-scan relative pose's median ratio 1 (its drift-rate share unscaled), the same factor
+    whatever s was; a ratio within the tolerance leaves s as it is. The velocity measure does not move."""
+    from rodo.validation.odometry_consistency import odometry_nees
+
+    states, truth = city_run
+    drift = states["drift_rate_sigma"]
+    ran = cc.relative_inflated_states(states, s)
+    fit = cc.fit_relative_inflation(ran, truth, s, 0.1, drift)
+    reference = cc.fit_relative_inflation(states, truth, 1.0, 0.0, drift)
+    r_before, r_after = fit["median_ratio"]
+    if abs(np.log(r_before)) < np.log(1.1):
+        assert fit["inflation"] == s and r_after == r_before
+        return
+    assert r_after == pytest.approx(1.0, abs=2e-3), fit
+    assert fit["inflation"] == pytest.approx(reference["inflation"], rel=2e-3), (fit, reference)
+    fitted = cc.relative_inflated_states(ran, fit["inflation"] / s)
+    after = odometry_nees(fitted, truth, drift_rate_sigma=drift)
+    assert cc.median_ratio(after["relative_scan"]) == pytest.approx(1.0, abs=2e-3)
+    np.testing.assert_array_equal(after["velocity"], odometry_nees(states, truth)["velocity"])
