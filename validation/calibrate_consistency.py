@@ -14,10 +14,11 @@ tells the truth (docs/consistency.md):
   kappa is one number for two measures and cannot always make both consistent: at its lower bound 1 CV/C's
   one-scan relative pose stays cautious (its Cartesian sigma, learned over all ranges, is too large for the near
   detections that carry the relative pose), and where the velocity and the relative pose disagree kappa's
-  fixed point settles between them. The velocity has its own factors (below); f = the last run's median ratio
-  of the one-scan relative pose (the median, as the fixed point: a mean follows the tails, and once came out
-  1.52 on city and put fewer scans inside the bounds), applied only when that ratio is off by more than the
-  fixed point's tolerance. The relative pose over a span and the absolute pose compose the scaled covariances.
+  fixed point settles between them. The velocity has its own factors (below); f makes the last run's median
+  ratio of the one-scan relative pose 1, the drift rate's share of the scan's covariance as it is (the median,
+  as the fixed point: a mean follows the tails, and once came out 1.52 on city and put fewer scans inside the
+  bounds); fitted only when that ratio is off by more than the fixed point's tolerance. The relative pose over
+  a span and the absolute pose compose the scaled covariances.
 - `uncertainty.drift_rate_sigma`: the registration's systematic error per metre driven (the absolute pose's
   error grows with the distance, not its square root). Its one realisation on the sequence is the least-squares
   fit beta = sum_k e_k / sum_k s_k of the one-scan relative errors e_k over the distances s_k; the sigma
@@ -108,25 +109,39 @@ def fit_relative_inflation(states: dict, truth: dict, inflation: float, ratio_to
     """The factor on the one-scan relative pose covariance for a run that had `inflation`: the factor at which
     the median ratio of the one-scan relative pose is 1 (with this drift rate, whose share of a scan's
     covariance the factor does not scale), or `inflation` itself when that ratio is within ratio_tolerance of 1
-    already (|ln r| < ln(1 + ratio_tolerance), as the kappa fixed point stops). Returns {"inflation": the factor,
-    "median_ratio": [r at `inflation`, r at the factor]}.
+    already (|ln r| < ln(1 + ratio_tolerance), as the kappa fixed point stops) or when no factor within 2^30 of
+    it reaches 1 (the drift rate's share alone too large, or no finite ratio). Returns {"inflation": the
+    factor, "median_ratio": [r at `inflation`, r at the factor], "outcome": "fitted", "within tolerance" or
+    "out of reach"}.
 
-    Checked by: tests/validation/test_calibrate_consistency.py::test_relative_factor_makes_the_one_scan_pose_consistent
+    Checked by: tests/validation/test_calibrate_consistency.py::test_relative_factor_makes_the_one_scan_pose_consistent,
+        ::test_relative_factor_out_of_reach_is_left_as_it_was
     """
     def ratio(f):
         scaled = relative_inflated_states(states, f / inflation)
         return median_ratio(odometry_nees(scaled, truth, drift_rate_sigma=drift_rate_sigma)["relative_scan"])
 
+    def unchanged(outcome):
+        return {"inflation": float(inflation), "median_ratio": [r, r], "outcome": outcome}
+
     r = ratio(inflation)
-    if not np.isfinite(r) or abs(np.log(r)) < np.log1p(ratio_tolerance):
-        return {"inflation": float(inflation), "median_ratio": [r, r]}
-    lo, hi = sorted((inflation, inflation * r))  # the ratio falls as the factor grows; widen until it brackets 1
-    while ratio(lo) < 1.0:
-        lo /= 2.0
-    while ratio(hi) > 1.0:
-        hi *= 2.0
-    f = float(np.exp(brentq(lambda u: np.log(ratio(np.exp(u))), np.log(lo), np.log(hi), xtol=1e-4)))
-    return {"inflation": f, "median_ratio": [r, ratio(f)]}
+    if not np.isfinite(r):
+        return unchanged("out of reach")
+    if abs(np.log(r)) < np.log1p(ratio_tolerance):
+        return unchanged("within tolerance")
+    # the ratio falls as the factor grows: from the factor it ran with, step by 2 towards 1 until it is crossed
+    step = 2.0 if r > 1.0 else 0.5
+    near, far = inflation, inflation * step
+    for _ in range(30):
+        r_far = ratio(far)
+        if not np.isfinite(r_far):
+            break
+        if (r_far > 1.0) != (r > 1.0):
+            lo, hi = sorted((near, far))
+            f = float(np.exp(brentq(lambda u: np.log(ratio(np.exp(u))), np.log(lo), np.log(hi), xtol=1e-4)))
+            return {"inflation": f, "median_ratio": [r, ratio(f)], "outcome": "fitted"}
+        near, far = far, far * step
+    return unchanged("out of reach")
 
 
 def relative_inflated_states(states: dict, factor: float) -> dict:

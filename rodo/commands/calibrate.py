@@ -142,8 +142,7 @@ def _consistency_markdown(c: dict) -> list[str]:
     vec = ", ".join(f"{x:.3g}" for x in d["sigma"])
     before, after = rel["median_ratio"]
     return lines + ["", f"relative pose covariance factor (uncertainty.inflation) {rel['inflation']:.3g} (median "
-                    f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}"
-                    + ("; within the tolerance: unchanged)" if before == after else ")"),
+                    f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; {rel['outcome']})",
                     f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed (maximum "
                     f"likelihood over {v['scans']} scans: mean velocity NEES/dof {v['nees_per_dof'][0]:.3g} -> "
                     f"{v['nees_per_dof'][1]:.3g})",

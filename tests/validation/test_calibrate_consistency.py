@@ -202,11 +202,21 @@ def test_relative_factor_makes_the_one_scan_pose_consistent(city_run, s):
     reference = cc.fit_relative_inflation(states, truth, 1.0, 0.0, drift)
     r_before, r_after = fit["median_ratio"]
     if abs(np.log(r_before)) < np.log(1.1):
-        assert fit["inflation"] == s and r_after == r_before
+        assert fit["inflation"] == s and r_after == r_before and fit["outcome"] == "within tolerance"
         return
+    assert fit["outcome"] == "fitted"
     assert r_after == pytest.approx(1.0, abs=2e-3), fit
     assert fit["inflation"] == pytest.approx(reference["inflation"], rel=2e-3), (fit, reference)
     fitted = cc.relative_inflated_states(ran, fit["inflation"] / s)
     after = odometry_nees(fitted, truth, drift_rate_sigma=drift)
     assert cc.median_ratio(after["relative_scan"]) == pytest.approx(1.0, abs=2e-3)
     np.testing.assert_array_equal(after["velocity"], odometry_nees(states, truth)["velocity"])
+
+
+def test_relative_factor_out_of_reach_is_left_as_it_was(city_run):
+    """A drift rate whose share alone makes the one-scan relative pose cautious: no factor on the window's part
+    reaches a median ratio of 1, and the fit says so and keeps the factor the run had."""
+    states, truth = city_run
+    fit = cc.fit_relative_inflation(states, truth, 0.7, 0.1, np.full(6, 1.0))
+    assert fit["median_ratio"][0] < 0.5
+    assert fit == {"inflation": 0.7, "median_ratio": [fit["median_ratio"][0]] * 2, "outcome": "out of reach"}
