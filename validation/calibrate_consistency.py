@@ -112,7 +112,9 @@ def fit_relative_inflation(states: dict, truth: dict, inflation: float, ratio_to
     already (|ln r| < ln(1 + ratio_tolerance), as the kappa fixed point stops) or when no factor within 2^30 of
     it reaches 1 (the drift rate's share alone too large, or no finite ratio). Returns {"inflation": the
     factor, "median_ratio": [r at `inflation`, r at the factor], "outcome": "fitted", "within tolerance" or
-    "out of reach"}.
+    "out of reach"}. The one-scan measure is the same at every tau > 0 (at tau 0 it loses the velocity term, so
+    a tau of 0 chosen after f leaves it over-confident: hills CA/P with prior_memory 0.5 s, 1.28 where f made
+    it 1).
 
     Checked by: tests/validation/test_calibrate_consistency.py::test_relative_factor_makes_the_one_scan_pose_consistent,
         ::test_relative_factor_out_of_reach_is_left_as_it_was
