@@ -15,10 +15,10 @@ tells the truth (docs/consistency.md):
   one-scan relative pose stays cautious (its Cartesian sigma, learned over all ranges, is too large for the near
   detections that carry the relative pose), and where the velocity and the relative pose disagree kappa's
   fixed point settles between them. The velocity has its own factors (below); f makes the last run's median
-  ratio of the one-scan relative pose 1, the drift rate's share of the scan's covariance as it is (the median,
-  as the fixed point: a mean follows the tails, and once came out 1.52 on city and put fewer scans inside the
-  bounds); fitted only when that ratio is off by more than the fixed point's tolerance. The relative pose over
-  a span and the absolute pose compose the scaled covariances.
+  ratio of the one-scan relative pose 1, the velocity error's and the drift rate's shares of the scan's composed
+  covariance as they are (the median, as the fixed point: a mean follows the tails, and once came out 1.52 on
+  city and put fewer scans inside the bounds); fitted only when that ratio is off by more than the fixed point's
+  tolerance. The relative pose over a span and the absolute pose compose the scaled covariances.
 - `uncertainty.drift_rate_sigma`: the registration's systematic error per metre driven (the absolute pose's
   error grows with the distance, not its square root). Its one realisation on the sequence is the least-squares
   fit beta = sum_k e_k / sum_k s_k of the one-scan relative errors e_k over the distances s_k; the sigma
@@ -107,14 +107,14 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
 def fit_relative_inflation(states: dict, truth: dict, inflation: float, ratio_tolerance: float,
                            drift_rate_sigma=None) -> dict:
     """The factor on the one-scan relative pose covariance for a run that had `inflation`: the factor at which
-    the median ratio of the one-scan relative pose is 1 (with this drift rate, whose share of a scan's
-    covariance the factor does not scale), or `inflation` itself when that ratio is within ratio_tolerance of 1
-    already (|ln r| < ln(1 + ratio_tolerance), as the kappa fixed point stops) or when no factor within 2^30 of
-    it reaches 1 (the drift rate's share alone too large, or no finite ratio). Returns {"inflation": the
-    factor, "median_ratio": [r at `inflation`, r at the factor], "outcome": "fitted", "within tolerance" or
-    "out of reach"}. The one-scan measure is the same at every tau > 0 (at tau 0 it loses the velocity term, so
-    a tau of 0 chosen after f leaves it over-confident: hills CA/P with prior_memory 0.5 s, 1.28 where f made
-    it 1).
+    the median ratio of the one-scan relative pose is 1 (the scan's composed covariance, `span_covariances`:
+    the factor scales the window's relative covariance, not the velocity error's and this drift rate's
+    shares), or `inflation` itself when that ratio is within ratio_tolerance of 1 already (|ln r| < ln(1 +
+    ratio_tolerance), as the kappa fixed point stops) or when no factor within 2^30 of it reaches 1 (those
+    shares alone too cautious, or no finite ratio). Returns {"inflation": the factor, "median_ratio": [r at
+    `inflation`, r at the factor], "outcome": "fitted", "within tolerance" or "out of reach"}. The one-scan
+    measure is the same at every tau > 0 (at tau 0 it loses the velocity term, so a tau of 0 chosen after f
+    leaves it over-confident: hills CA/P with prior_memory 0.5 s, 1.28 where f made it 1).
 
     Checked by: tests/validation/test_calibrate_consistency.py::test_relative_factor_makes_the_one_scan_pose_consistent,
         ::test_relative_factor_out_of_reach_is_left_as_it_was

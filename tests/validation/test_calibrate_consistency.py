@@ -191,8 +191,8 @@ def test_tau_cost_counts_over_confidence_twice(r, other):
 @settings(max_examples=8, deadline=None)
 def test_relative_factor_makes_the_one_scan_pose_consistent(city_run, s):
     """A run whose relative pose covariances were s times the window's (`uncertainty.inflation` s): the fitted
-    factor makes the one-scan relative pose's median ratio 1 (its drift-rate share unscaled), the same factor
-    whatever s was; a ratio within the tolerance leaves s as it is. The velocity measure does not move."""
+    factor makes the one-scan relative pose's median ratio 1 (its velocity and drift-rate shares unscaled), the
+    same factor whatever s was; a ratio within the tolerance leaves s as it is. The velocity measure does not move."""
     from rodo.validation.odometry_consistency import odometry_nees
 
     states, truth = city_run
