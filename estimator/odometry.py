@@ -77,7 +77,7 @@ class RadarOdometry:
         self.sensors: list[Sensor] = []
         self.sensor = self._sensor(T_vehicle_sensor, sensor_sigmas, max_range, fov, (seeds[0], seeds[2]))
         self.window = SlidingWindow(self.motion, config.window, self.measurement, self.T_vehicle_sensor,
-                                    config.solver.robust_c)
+                                    config.solver.robust_c, config.solver.relinearize_older)
         self.map = LocalMap(config.map.capacity, config.map.max_age, config.map.voxel,
                             rng=np.random.default_rng(seeds[1]))
         self.vehicle_information = vehicle_information(config, self.motion.dim)
@@ -256,8 +256,8 @@ class RadarOdometry:
     def _solve(self, P, scan: ScanMeasurements, W_pairs, pairs, timings: dict):
         """Gauss-Newton, re-association at the solution and one refining step, the newest covariance, then
         marginalisation of the states beyond the window. The re-association's time counts as association."""
-        cfg = self.config
-        self.window.optimize(cfg.solver.iterations, cfg.solver.step_tolerance, cfg.solver.step_sigma_tolerance)
+        cfg, solver = self.config, self.config.solver
+        self.window.optimize(solver.iterations, solver.step_tolerance, solver.step_sigma_tolerance)
         for _ in range(cfg.association.reassociate):
             if W_pairs is None:
                 break
@@ -267,7 +267,7 @@ class RadarOdometry:
             timings["associate"] += elapsed
             timings["reassociate"] = timings.get("reassociate", 0.0) + elapsed
             # from the last solution: the problem changed by a few pairs, and the step after the first is ~1e-5
-            self.window.optimize(cfg.solver.refine_iterations, cfg.solver.step_tolerance, check_last=False)
+            self.window.optimize(solver.refine_iterations, solver.step_tolerance, check_last=False, reweight=False)
         self.P, P_pair = self.window.newest_covariances()  # at the solution; marginalising does not change them
         P_relative = self._relative_covariance(P_pair)
         while len(self.window.states) > cfg.window:

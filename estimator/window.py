@@ -45,7 +45,7 @@ class MeasurementSet:
 
 class SlidingWindow:
     def __init__(self, motion: MotionPrior, size: int, measurement_model: MeasurementModel,
-                 T_vehicle_sensor: np.ndarray, robust_c: float = 3.0):
+                 T_vehicle_sensor: np.ndarray, robust_c: float = 3.0, relinearize_older: bool = True):
         self.motion = motion
         self.size = size
         self.measurement_model = measurement_model
@@ -58,7 +58,11 @@ class SlidingWindow:
         self.prior_mean: State | None = None  # linearisation point of the prior on the oldest state
         self.prior_info: np.ndarray | None = None
         self.prior_grad: np.ndarray | None = None  # linear term g: cost 1/2 e^T Lam e + g^T e, e = x0 (-) mean
-        self._packed = None  # the window's measurement sets concatenated for the kernel (cached)
+        self._packs: dict = {}  # measurement sets concatenated for the kernel, per tuple of sets (cached)
+        # False: an older state's measurement terms are linearised once per solve (the first linearisation after
+        # a re-weighting), then taken from their quadratic model (`_lagged_terms`); the newest state's always
+        self.relinearize_older = relinearize_older
+        self._terms: dict = {}  # id(set) -> (set, its weights, T^-1, varpi, H, b, cost) at its last linearisation
         self._H: np.ndarray | None = None
         self._motion_info: np.ndarray | None = None  # motion_info stacked for the kernel (cached)
         self._stack = None  # (states, T, tail, t): the states as arrays (`state.stacked`), for those states
@@ -127,34 +131,82 @@ class SlidingWindow:
         lie_kernels.se3_log_and_jac_inv(x.T_vehicle_world @ self._prior_inverse[1], xi, J[:6, :6], Jm)
         return np.concatenate((xi, x.vector_tail() - self.prior_mean.vector_tail())), J
 
-    def _measurement_terms(self, ks, T_all: np.ndarray, tail: np.ndarray):
+    def _measurement_terms(self, ks, T_all: np.ndarray, tail: np.ndarray, lagged: bool = False):
         """Measurement blocks of the states ks, linearised in one compiled pass (`measurement_kernels`); T_all
         (n, 4, 4) and tail (n, d - 6) are the window's states from its first, stacked (`state.stacked`).
+        lagged: the states other than the newest whose terms were linearised with their present set and
+        weights (`relinearize_older` False) come from that linearisation's quadratic model instead.
 
         Returns per state H (K, 12, 12), b (K, 12) and the total cost; e = z - g(x), J = -[J_z_xi, J_z_varpi].
         """
+        newest = len(self.states) - 1
+        lag = [q for q, k in enumerate(ks) if lagged and k != newest and self._lag_ready(self.meas[k])]
+        fresh = [k for q, k in enumerate(ks) if q not in lag]
+        H, b, cost = np.empty((len(ks), 12, 12)), np.empty((len(ks), 12)), 0.0
+        if fresh:
+            Hf, bf, cost = self._linearize_sets(fresh, T_all, tail)
+            q_fresh = [q for q in range(len(ks)) if q not in lag]
+            H[q_fresh], b[q_fresh] = Hf, bf
+        for q in lag:
+            H[q], b[q], c = self._lagged_terms(self.meas[ks[q]], T_all[ks[q]], tail[ks[q], :6])
+            cost += c
+        return H, b, float(cost)
+
+    def _lag_ready(self, m: MeasurementSet) -> bool:
+        kept = self._terms.get(id(m))
+        return not self.relinearize_older and kept is not None and kept[0] is m and kept[1] is m.weights
+
+    def _lagged_terms(self, m: MeasurementSet, T: np.ndarray, varpi: np.ndarray):
+        """H, b and cost of a set's terms from the quadratic model of its last linearisation at (T0, varpi0):
+        with d = [log(T T0^-1); varpi - varpi0], cost0 + b0^T d + 1/2 d^T H0 d and gradient b0 + H0 d. Between
+        two linearisations of one solve an older state moves by about a millimetre, so the model is exact to
+        second order in that move (and in the Jacobians' change)."""
+        _, _, T0_inverse, varpi0, H0, b0, c0 = self._terms[id(m)]
+        d = np.empty(12)
+        lie_kernels.se3_log_and_jac_inv(T @ T0_inverse, d[:6], np.empty((6, 6)), np.empty((6, 6)))
+        d[6:] = varpi - varpi0
+        Hd = H0 @ d
+        return H0, b0 + Hd, c0 + b0 @ d + 0.5 * d @ Hd
+
+    def _linearize_sets(self, ks, T_all: np.ndarray, tail: np.ndarray):
+        """The compiled linearisation of the states ks' sets (robust weights set where a set has none); with
+        `relinearize_older` False each set's blocks are kept for `_lagged_terms`."""
         sets = [self.meas[k] for k in ks]
         # the sets change only when scans come and go; compared by identity with the packed sets held alive
         # (an id() of a freed set can be reused by the next one: a stale pack once read past the new set's end)
-        packed = self._packed
-        if packed is None or len(packed[0]) != len(sets) or any(a is not b for a, b in zip(packed[0], sets)):
+        key = tuple(id(m) for m in sets)
+        packed = self._packs.get(key)
+        if packed is None or any(a is not b for a, b in zip(packed[0], sets)):
+            if len(self._packs) > 4:
+                self._packs.clear()
             offsets = np.concatenate(([0], np.cumsum([len(m) for m in sets]))).astype(np.int64)
             Tvs = np.stack([self.T_vehicle_sensor if m.T_vehicle_sensor is None else m.T_vehicle_sensor
                             for m in sets])
             w = np.concatenate([np.full(len(m), -1.0) if m.weights is None else m.weights for m in sets])
-            self._packed = (sets, offsets, np.concatenate([m.p_world for m in sets]),
-                            np.concatenate([m.z for m in sets]), np.concatenate([m.W for m in sets]), Tvs, w)
-        _, offsets, p, z, W, Tvs, w = self._packed
+            self._packs[key] = packed = (sets, offsets, np.concatenate([m.p_world for m in sets]),
+                                         np.concatenate([m.z for m in sets]), np.concatenate([m.W for m in sets]),
+                                         Tvs, w)
+        _, offsets, p, z, W, Tvs, w = packed
         # the kernel sets Cauchy weights where they are -1; a set's weights are then a view of the pack's
         fresh = [q for q, m in enumerate(sets) if m.weights is None]
         for q in fresh:
             w[offsets[q]:offsets[q + 1]] = -1.0
+        for q, m in enumerate(sets):  # weights set in another pack (a set packed alone, then with others)
+            if m.weights is not None and m.weights.base is not w:
+                w[offsets[q]:offsets[q + 1]] = m.weights
         T, varpi = T_all[ks], np.ascontiguousarray(tail[ks, :6])
         d2 = np.empty(len(z))
         H, b, cost = _kernel.linearize_pairs(self.measurement_model.kernel_code, T, varpi, offsets, p, z, W, Tvs, w,
                                              d2, float(self.robust_c))
         for q in fresh:
             sets[q].weights = w[offsets[q]:offsets[q + 1]]
+        if not self.relinearize_older:
+            for q, m in enumerate(sets):
+                c = 0.5 * float(m.weights @ d2[offsets[q]:offsets[q + 1]])
+                self._terms[id(m)] = (m, m.weights, se3.inverse(T[q]), varpi[q].copy(), H[q], b[q], c)
+            if len(self._terms) > len(self.meas):  # forget the sets that left the window
+                live = {id(m) for m in self.meas if m is not None}
+                self._terms = {i: v for i, v in self._terms.items() if i in live}
         return H, b, float(cost)
 
     def reset_robust_weights(self) -> None:
@@ -166,8 +218,9 @@ class SlidingWindow:
                 m.weights = None
         self._H = None
 
-    def linearize(self):
-        """Normal equations (H, b) with H d = -b, and the cost, at the current estimate."""
+    def linearize(self, lagged: bool = False):
+        """Normal equations (H, b) with H d = -b, and the cost, at the current estimate (lagged: the older
+        states' measurement terms from their last linearisation's quadratic model, see `relinearize_older`)."""
         n, d = len(self.states), self.motion.dim
         H = np.zeros((n * d, n * d))
         b = np.zeros(n * d)
@@ -188,14 +241,14 @@ class SlidingWindow:
         ks = np.array([k for k, m in enumerate(self.meas) if m is not None], dtype=np.int64)
         Hm, bm = np.zeros((0, 12, 12)), np.zeros((0, 12))
         if len(ks):
-            Hm, bm, c = self._measurement_terms(ks, T_all, tail)
+            Hm, bm, c = self._measurement_terms(ks, T_all, tail, lagged)
             cost += c
         cost += motion_kernels.add_blocks(H, b, d, rate_info, rate_on, tail, ks, Hm, bm)
         return H, b, cost
 
     # --- solving ----------------------------------------------------------------------------------------
     def optimize(self, iterations: int = 5, tol: float = 1e-6, sigma_tol: float = 0.0,
-                 check_last: bool = True) -> dict:
+                 check_last: bool = True, reweight: bool = True) -> dict:
         """Gauss-Newton; a step that increases the cost is halved (one linearisation per iteration).
 
         A full step whose largest element is below tol, or whose length in the information metric,
@@ -204,13 +257,16 @@ class SlidingWindow:
         meaningfully; and sqrt(d^T H d) >= |d_i| / sigma_i for every element, sigma_i its posterior standard
         deviation, so no element of such a step moves by more than sigma_tol of its uncertainty).
         check_last=False applies the step of the last iteration without the cost check (for a refinement from a
-        solution of a nearly identical problem). Returns {'iterations', 'cost', 'step'} (the cost at the last
+        solution of a nearly identical problem). reweight=False (a refinement) keeps the robust weights the sets have
+        (a new set gets its own) and the older states' terms lagged throughout, when `relinearize_older` is
+        False; with it True every solve re-weights and re-linearises all. Returns {'iterations', 'cost', 'step'} (the cost at the last
         linearisation); the normal equations of the last linearisation (at the returned estimate, or one step
         before it) are kept for `newest_covariance`.
         """
         d = self.motion.dim
-        self.reset_robust_weights()
-        H, b, cost = self.linearize()
+        if reweight or self.relinearize_older:
+            self.reset_robust_weights()
+        H, b, cost = self.linearize(lagged=not reweight)
         step, it = 1.0, 0
         for it in range(1, iterations + 1):
             delta = _solve_spd(H, -b)
@@ -224,7 +280,7 @@ class SlidingWindow:
             self._set_states(*_oplus_all(old, T_all, tail, step * delta.reshape(len(old), d)))
             if it == iterations and not check_last:
                 break
-            H2, b2, cost2 = self.linearize()
+            H2, b2, cost2 = self.linearize(lagged=True)
             if np.isfinite(cost2) and cost2 <= cost * (1 + 1e-12) + 1e-12:
                 H, b, cost = H2, b2, cost2
                 if np.max(np.abs(step * delta)) < tol:
@@ -272,7 +328,7 @@ class SlidingWindow:
         T_all, tail, t = stacked([x0, x1])
         motion_kernels.accumulate(H, b, *self.motion.stacked_residuals(T_all, tail, t), self.motion_info[0][None])
         if self.meas[0] is not None:
-            Hm, bm, _ = self._measurement_terms([0], T_all, tail)
+            Hm, bm, _ = self._measurement_terms([0], T_all, tail, lagged=True)
             H[:12, :12] += Hm[0]
             b[:12] += bm[0]
         if self.rate_prior[0] is not None:
