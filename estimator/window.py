@@ -62,6 +62,7 @@ class SlidingWindow:
         # False: an older state's measurement terms are linearised once per solve (the first linearisation after
         # a re-weighting), then taken from their quadratic model (`_lagged_terms`); the newest state's always
         self.relinearize_older = relinearize_older
+        self._jacobian_scratch = (np.empty((6, 6)), np.empty((6, 6)))  # for `_lagged_terms`' log (not read)
         self._terms: dict = {}  # id(set) -> (set, its weights, T^-1, varpi, H, b, cost) at its last linearisation
         self._H: np.ndarray | None = None
         self._motion_info: np.ndarray | None = None  # motion_info stacked for the kernel (cached)
@@ -141,6 +142,8 @@ class SlidingWindow:
         """
         newest = len(self.states) - 1
         lag = [q for q, k in enumerate(ks) if lagged and k != newest and self._lag_ready(self.meas[k])]
+        if not lag:
+            return self._linearize_sets(ks, T_all, tail)
         fresh = [k for q, k in enumerate(ks) if q not in lag]
         H, b, cost = np.empty((len(ks), 12, 12)), np.empty((len(ks), 12)), 0.0
         if fresh:
@@ -163,7 +166,7 @@ class SlidingWindow:
         second order in that move (and in the Jacobians' change)."""
         _, _, T0_inverse, varpi0, H0, b0, c0 = self._terms[id(m)]
         d = np.empty(12)
-        lie_kernels.se3_log_and_jac_inv(T @ T0_inverse, d[:6], np.empty((6, 6)), np.empty((6, 6)))
+        lie_kernels.se3_log_and_jac_inv(T @ T0_inverse, d[:6], *self._jacobian_scratch)
         d[6:] = varpi - varpi0
         Hd = H0 @ d
         return H0, b0 + Hd, c0 + b0 @ d + 0.5 * d @ Hd
@@ -183,9 +186,13 @@ class SlidingWindow:
             Tvs = np.stack([self.T_vehicle_sensor if m.T_vehicle_sensor is None else m.T_vehicle_sensor
                             for m in sets])
             w = np.concatenate([np.full(len(m), -1.0) if m.weights is None else m.weights for m in sets])
-            self._packs[key] = packed = (sets, offsets, np.concatenate([m.p_world for m in sets]),
-                                         np.concatenate([m.z for m in sets]), np.concatenate([m.W for m in sets]),
-                                         Tvs, w)
+            if len(sets) == 1:  # one set (the newest, linearised alone): its own arrays, as the kernel wants them
+                m = sets[0]
+                arrays = [np.ascontiguousarray(a, dtype=float) for a in (m.p_world, m.z, m.W)]
+            else:
+                arrays = [np.concatenate([m.p_world for m in sets]), np.concatenate([m.z for m in sets]),
+                          np.concatenate([m.W for m in sets])]
+            self._packs[key] = packed = (sets, offsets, *arrays, Tvs, w)
         _, offsets, p, z, W, Tvs, w = packed
         # the kernel sets Cauchy weights where they are -1; a set's weights are then a view of the pack's
         fresh = [q for q, m in enumerate(sets) if m.weights is None]
