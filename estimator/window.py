@@ -162,8 +162,12 @@ class SlidingWindow:
     def _lagged_terms(self, m: MeasurementSet, T: np.ndarray, varpi: np.ndarray):
         """H, b and cost of a set's terms from the quadratic model of its last linearisation at (T0, varpi0):
         with d = [log(T T0^-1); varpi - varpi0], cost0 + b0^T d + 1/2 d^T H0 d and gradient b0 + H0 d. Between
-        two linearisations of one solve an older state moves by about a millimetre, so the model is exact to
-        second order in that move (and in the Jacobians' change)."""
+        two linearisations of one solve an older state moves by 1e-4 median (m, rad, m/s), where the cost is
+        right to second order in the move and the gradient and H to first (the residuals' curvature and the
+        Jacobians' change are left out).
+
+        Checked by: tests/estimator/test_window.py::test_lagged_terms_are_the_quadratic_model_of_the_last_linearisation
+        """
         _, _, T0_inverse, varpi0, H0, b0, c0 = self._terms[id(m)]
         d = np.empty(12)
         lie_kernels.se3_log_and_jac_inv(T @ T0_inverse, d[:6], *self._jacobian_scratch)
@@ -264,11 +268,11 @@ class SlidingWindow:
         meaningfully; and sqrt(d^T H d) >= |d_i| / sigma_i for every element, sigma_i its posterior standard
         deviation, so no element of such a step moves by more than sigma_tol of its uncertainty).
         check_last=False applies the step of the last iteration without the cost check (for a refinement from a
-        solution of a nearly identical problem). reweight=False (a refinement) keeps the robust weights the sets have
-        (a new set gets its own) and the older states' terms lagged throughout, when `relinearize_older` is
-        False; with it True every solve re-weights and re-linearises all. Returns {'iterations', 'cost', 'step'} (the cost at the last
-        linearisation); the normal equations of the last linearisation (at the returned estimate, or one step
-        before it) are kept for `newest_covariance`.
+        solution of a nearly identical problem). reweight=False (a refinement) keeps the robust weights the sets
+        have (a new set gets its own) and the older states' terms lagged throughout, when `relinearize_older` is
+        False; with it True every solve re-weights and re-linearises all. Returns {'iterations', 'cost', 'step'}
+        (the cost at the last linearisation); the normal equations of the last linearisation (at the returned
+        estimate, or one step before it) are kept for `newest_covariance`.
         """
         d = self.motion.dim
         if reweight or self.relinearize_older:
