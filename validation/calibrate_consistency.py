@@ -63,7 +63,10 @@ from .driver import run_sequence
 from .odometry_consistency import DOF, drift_velocity_covariances, odometry_nees
 from .run_consistency import run_states
 
-TAUS = (0.0, 0.02, 0.05, 0.1, 0.15, 0.25, 0.5, 1.0, 2.0)  # s, the grid of velocity correlation times
+# s, the grid of velocity correlation times: steps of about sqrt(2) from 0.01 s (a coarser grid, 0, 0.02, 0.05, 0.1,
+# 0.15, 0.25, 0.5, 1, 2, flipped between near-equal neighbours when the estimate moved a little: 0.25 -> 0.5 s)
+TAUS = (0.0, 0.01, 0.02, 0.03, 0.05, 0.07, 0.1, 0.15, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0)
+DEFAULT_TAU = 0.25  # s, kept when no tau of the grid gives finite ratios
 OVERCONFIDENCE_WEIGHT = 2.0  # how much more an over-confident ln ratio (> 0) counts than a cautious one in fit_tau
 KAPPA_RANGE = (1.0, 100.0)
 FIXED_POINT_MEASURES = ("velocity", "relative_scan")
@@ -252,7 +255,7 @@ def fit_tau(states: dict, truth: dict, span: float = 1.0, taus=TAUS, drift_rate_
         ratios[float(tau)] = (r["relative_span"], r["pose"])
     finite = {tau: r for tau, r in ratios.items() if np.all(np.isfinite(r)) and min(r) > 0}
     if not finite:
-        return float(states.get("velocity_correlation_time", TAUS[5])), ratios
+        return float(states.get("velocity_correlation_time", DEFAULT_TAU)), ratios
     return min(finite, key=lambda tau: tau_cost(finite[tau])), ratios
 
 
