@@ -144,12 +144,10 @@ class SlidingWindow:
         lag = [q for q, k in enumerate(ks) if lagged and k != newest and self._lag_ready(self.meas[k])]
         if not lag:
             return self._linearize_sets(ks, T_all, tail)
-        fresh = [k for q, k in enumerate(ks) if q not in lag]
+        fresh = [q for q in range(len(ks)) if q not in lag]
         H, b, cost = np.empty((len(ks), 12, 12)), np.empty((len(ks), 12)), 0.0
         if fresh:
-            Hf, bf, cost = self._linearize_sets(fresh, T_all, tail)
-            q_fresh = [q for q in range(len(ks)) if q not in lag]
-            H[q_fresh], b[q_fresh] = Hf, bf
+            H[fresh], b[fresh], cost = self._linearize_sets([ks[q] for q in fresh], T_all, tail)
         for q in lag:
             H[q], b[q], c = self._lagged_terms(self.meas[ks[q]], T_all[ks[q]], tail[ks[q], :6])
             cost += c
@@ -177,7 +175,8 @@ class SlidingWindow:
 
     def _linearize_sets(self, ks, T_all: np.ndarray, tail: np.ndarray):
         """The compiled linearisation of the states ks' sets (robust weights set where a set has none); with
-        `relinearize_older` False each set's blocks are kept for `_lagged_terms`."""
+        `relinearize_older` False the older states' blocks are kept for `_lagged_terms` (the newest's never lag:
+        its weights are set afresh by the next solve's re-weighting)."""
         sets = [self.meas[k] for k in ks]
         # the sets change only when scans come and go; compared by identity with the packed sets held alive
         # (an id() of a freed set can be reused by the next one: a stale pack once read past the new set's end)
@@ -190,13 +189,8 @@ class SlidingWindow:
             Tvs = np.stack([self.T_vehicle_sensor if m.T_vehicle_sensor is None else m.T_vehicle_sensor
                             for m in sets])
             w = np.concatenate([np.full(len(m), -1.0) if m.weights is None else m.weights for m in sets])
-            if len(sets) == 1:  # one set (the newest, linearised alone): its own arrays, as the kernel wants them
-                m = sets[0]
-                arrays = [np.ascontiguousarray(a, dtype=float) for a in (m.p_world, m.z, m.W)]
-            else:
-                arrays = [np.concatenate([m.p_world for m in sets]), np.concatenate([m.z for m in sets]),
-                          np.concatenate([m.W for m in sets])]
-            self._packs[key] = packed = (sets, offsets, *arrays, Tvs, w)
+            self._packs[key] = packed = (sets, offsets, _joined([m.p_world for m in sets]),
+                                         _joined([m.z for m in sets]), _joined([m.W for m in sets]), Tvs, w)
         _, offsets, p, z, W, Tvs, w = packed
         # the kernel sets Cauchy weights where they are -1; a set's weights are then a view of the pack's
         fresh = [q for q, m in enumerate(sets) if m.weights is None]
@@ -213,6 +207,8 @@ class SlidingWindow:
             sets[q].weights = w[offsets[q]:offsets[q + 1]]
         if not self.relinearize_older:
             for q, m in enumerate(sets):
+                if ks[q] == len(self.states) - 1:
+                    continue
                 c = 0.5 * float(m.weights @ d2[offsets[q]:offsets[q + 1]])
                 self._terms[id(m)] = (m, m.weights, se3.inverse(T[q]), varpi[q].copy(), H[q], b[q], c)
             if len(self._terms) > len(self.meas):  # forget the sets that left the window
@@ -371,6 +367,11 @@ def _oplus_all(states: list[State], T_all: np.ndarray, tail: np.ndarray, d: np.n
     out = [State(x.t, T[k], tail[k, :6], None if x.varpi_dot is None else tail[k, 6:12])
            for k, x in enumerate(states)]
     return out, T, tail
+
+
+def _joined(arrays: list[np.ndarray]) -> np.ndarray:
+    """The arrays concatenated along their first axis for the kernel; one array as it is (C-contiguous floats)."""
+    return np.ascontiguousarray(arrays[0], dtype=float) if len(arrays) == 1 else np.concatenate(arrays)
 
 
 def _solve_spd(H: np.ndarray, rhs: np.ndarray) -> np.ndarray:
