@@ -101,8 +101,10 @@ def rectangle(origin, u, v, object_id: int, reflectivity: float = 1.0, opaque: b
               two_sided: bool = False, max_size: float = 4.0) -> Patches:
     """One rectangle split into tiles no larger than max_size x max_size (keeps per-patch range ~constant)."""
     origin, u, v = (np.asarray(x, dtype=float) for x in (origin, u, v))
-    nu = max(int(np.ceil(np.linalg.norm(u) / max_size)), 1)
-    nv = max(int(np.ceil(np.linalg.norm(v) / max_size)), 1)
+    # a side that is a whole number of tiles long (common: buildings span route points 1 m apart) gets that
+    # many whatever its round-off, so the world does not depend on the last bit of the trajectory
+    nu = max(int(np.ceil(np.linalg.norm(u) / max_size - 1e-9)), 1)
+    nv = max(int(np.ceil(np.linalg.norm(v) / max_size - 1e-9)), 1)
     i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
     i, j = i.ravel(), j.ravel()
     n = i.size

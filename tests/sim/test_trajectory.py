@@ -46,8 +46,9 @@ def test_magnus_matches_dop853():
 def test_a_pose_depends_on_its_time_alone(segments, speed0, data):
     """Sampled alone, in any subset or after other samples: the same pose, bit for bit (a mover is sampled only
     where it is present), and within 2.5e-12 (relative to the positions' scale) of DOP853's integration of the
-    whole profile. (The largest difference hypothesis found, 1.66e-12 in the rotation after 3 s of yaw
-    acceleration from rest, is the sampler's: DOP853 at rtol 1e-13, 3e-14 and 2.2e-14 gives the same.)"""
+    whole profile. The sampler's truncation error sits below DOP853's own (up to 9e-13 in 900 random profiles
+    of this strategy; halving the step again leaves it unchanged). At the former 0.005 s step it was not:
+    hypothesis found 2.9e-12 after a 2 rad/s turn from rest, 4.8e-12 at 0.005 s, 2.9e-13 at 0.0025 s."""
     profile = tr.Profile(segments, speed0=speed0)
     times = np.unique(data.draw(st.lists(st.floats(0.0, profile.duration), min_size=2, max_size=12)))
     every = profile.sample(times).T_vehicle_world

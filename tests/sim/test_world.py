@@ -100,3 +100,13 @@ def test_box_faces_point_outwards():
     outward = b.center - np.array([1.0, 2.0, 0.75])
     assert np.all(np.einsum("ij,ij->i", b.normal, outward) > 0)
     assert b.area.sum() == pytest.approx(2 * (2.0 * 1.5) + 2 * (4.0 * 1.5) + 4.0 * 2.0)
+
+
+def test_a_side_a_whole_number_of_tiles_long_does_not_hang_on_round_off():
+    """Buildings span route points 1 m apart, so a facade is often a whole number of 4 m tiles long; its last
+    bit (which a trajectory's round-off decides) must not add a tile and, through the draws after it, change
+    the world."""
+    counts = {len(ob.rectangle([0, 0, 0], [36.0 * (1 + e), 0, 0], [0, 0, 8.0 * (1 - e)], 0))
+              for e in (-4e-16, 0.0, 4e-16, 1e-14)}
+    assert counts == {9 * 2}
+    assert len(ob.rectangle([0, 0, 0], [36.001, 0, 0], [0, 0, 8.0], 0)) == 10 * 2  # a real excess does
