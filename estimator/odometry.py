@@ -268,19 +268,20 @@ class RadarOdometry:
             timings["reassociate"] = timings.get("reassociate", 0.0) + elapsed
             # from the last solution: the problem changed by a few pairs, and the step after the first is ~1e-5
             self.window.optimize(solver.refine_iterations, solver.step_tolerance, check_last=False, reweight=False)
-        self.P, P_pair = self.window.newest_covariances()  # at the solution; marginalising does not change them
-        P_relative = self._relative_covariance(P_pair)
+        P_emitted, (self.P, P_pair) = self.P, self.window.newest_covariances()  # marginalising does not change them
+        P_relative = self._relative_covariance(P_pair, P_emitted)
         while len(self.window.states) > cfg.window:
             self.window.marginalize_oldest(cfg.uncertainty.prior_memory)
         return W_pairs, pairs, P_relative
 
-    def _relative_covariance(self, P_pair: np.ndarray | None) -> np.ndarray | None:
-        """Covariance of the relative pose since the last scan: from the window's joint covariance of its two
-        newest states, or across a (re-)initialisation the dead-reckoned one (None at the first scan)."""
+    def _relative_covariance(self, P_pair: np.ndarray | None, P_emitted: np.ndarray | None) -> np.ndarray | None:
+        """Covariance of the relative pose since the last emitted one (`relative_pose_covariance`), or across a
+        (re-)initialisation the dead-reckoned one (None at the first scan)."""
         if P_pair is None:
             return self.restart_relative
-        x_prev, x_new = self.window.states[-2], self.window.states[-1]
-        return relative_pose_covariance(P_pair, x_prev.T_vehicle_world, x_new.T_vehicle_world, self.motion.dim)
+        prev, new = self.window.states[-2], self.window.states[-1]
+        emitted = P_emitted if getattr(self.last_estimate, "t", None) == prev.t else None  # emitted as solved
+        return relative_pose_covariance(P_pair, prev.T_vehicle_world, new.T_vehicle_world, self.motion.dim, emitted)
 
     def _with_uncertainty(self, est: ScanEstimate, P_relative, reuse: float) -> ScanEstimate:
         """The estimate with relative and absolute pose covariances, its velocity variance scaled (`uncertainty`)."""
@@ -294,8 +295,7 @@ class RadarOdometry:
             prev = self.last_estimate
             P_absolute = self.drift.update(prev.T_vehicle_world, est.T_vehicle_world, est.t - prev.t, P_relative,
                                            est.P[6:12, 6:12])
-        self.last_estimate = est
-        self.restart_relative = None
+        self.last_estimate, self.restart_relative = est, None
         est.P_relative, est.P_pose_absolute, est.map_reuse = P_relative, P_absolute, reuse
         est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed)
         return est
