@@ -76,8 +76,9 @@ class ScanEstimate:
         events: what happened besides the ordinary step (initialisation, Doppler fallbacks, ...).
         detail: the association detail, with `record_detail`.
         standstill: the zero-velocity term was applied (the Doppler says the sensor is at rest).
-        P_relative: (6, 6) covariance of the relative pose since the previous scan, delta = xi_k - Ad(R_k)
-            xi_{k-1} (`rodo.estimator.uncertainty`), inflated for correlated map errors.
+        P_relative: (6, 6) covariance of the relative pose since the previous scan's emitted pose, delta = xi_k -
+            Ad(R_k) xi_{k-1} (`rodo.estimator.uncertainty.relative_pose_covariance`: the window's pair and this
+            scan's revision of the previous pose), times `uncertainty.inflation`.
         P_pose_absolute: (6, 6) pose covariance in the estimator's world (its first frame), composed from the
             relative ones: it grows as the drift does (P's pose block is relative to the local map).
         map_reuse: mean number of scans the associated map points have been associated in (NaN: none).
