@@ -47,8 +47,10 @@ def relative_pose_covariance(P_pair: np.ndarray, T_prev: np.ndarray, T_new: np.n
     (r = its estimate now minus the one emitted), so the emitted relative pose errs by delta + Ad r as well;
     r is a function of the new data, uncorrelated with the smoothed error, with covariance
     P_prev_emitted - P_prev (the information the new scan added about the previous pose; clipped to positive
-    semi-definite). Exact for a linear Gaussian problem; it matters where that scan adds much, at the start of
-    a drive (the second scan's relative pose had NEES/dof up to 170 without it on `hills`), and is small after.
+    semi-definite). Exact for a linear Gaussian problem. It matters most where that scan adds much, at the start
+    of a drive (the second scan's relative pose had NEES/dof up to 170 without it on `hills`), but not only
+    there: on hills the revisions are about as large as the smoothed pair's sigmas (docs/consistency.md, "The
+    emitted relative pose").
     """
     Ad = se3.adjoint(T_new @ se3.inverse(T_prev))
     A = np.hstack([-Ad, np.eye(6)])
