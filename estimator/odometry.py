@@ -42,7 +42,7 @@ from .scan import ScanDetail, ScanEstimate
 from .scan_association import MapAssociation, ScanMeasurements
 from .state import State
 from .surface import surface_covariances
-from .uncertainty import DriftCovariance, relative_pose_covariance, velocity_inflated
+from .uncertainty import DriftCovariance, relative_pose_covariance, revision_covariance, velocity_inflated
 from .window import MeasurementSet, SlidingWindow
 
 LOST_PAIRS = 0.1  # share of the static detections paired below which the gates lost the scan (_recentre)
@@ -81,7 +81,7 @@ class RadarOdometry:
         self.map = LocalMap(config.map.capacity, config.map.max_age, config.map.voxel,
                             rng=np.random.default_rng(seeds[1]))
         self.vehicle_information = vehicle_information(config, self.motion.dim)
-        self.P: np.ndarray | None = None
+        self.P: np.ndarray | None = None  # the newest state's covariance as last emitted
         self.scan_index = 0
         self.last_with_data: State | None = None  # newest state at the last scan with associations
         self.map_clock = 0  # counts scans with static detections: the map ages with observations, not time
@@ -216,8 +216,7 @@ class RadarOdometry:
         the static detections' Doppler fit."""
         if self.last_t is not None:
             self.scan_dt = t - self.last_t
-        static, note = self.doppler.static_mask(polar, x, P, self.scan_dt) if len(polar) \
-            else (np.zeros(0, bool), None)
+        static, note = self.doppler.static_mask(polar, x, P, self.scan_dt) if len(polar) else (np.zeros(0, bool), None)
         if note:
             events.append(note)
         if note == "doppler-consensus-switch" and Q is not None:
@@ -274,14 +273,15 @@ class RadarOdometry:
             self.window.marginalize_oldest(cfg.uncertainty.prior_memory)
         return W_pairs, pairs, P_relative
 
-    def _relative_covariance(self, P_pair: np.ndarray | None, P_emitted: np.ndarray | None) -> np.ndarray | None:
-        """Covariance of the relative pose since the last emitted one (`relative_pose_covariance`), or across a
-        (re-)initialisation the dead-reckoned one (None at the first scan)."""
+    def _relative_covariance(self, P_pair: np.ndarray | None, P_emitted: np.ndarray | None):
+        """(the window's two newest states' relative pose covariance, this scan's revision of the previous pose if
+        that was emitted as solved); across a (re-)initialisation the dead-reckoned one; None at the first scan."""
         if P_pair is None:
-            return self.restart_relative
-        prev, new = self.window.states[-2], self.window.states[-1]
-        emitted = P_emitted if getattr(self.last_estimate, "t", None) == prev.t else None  # emitted as solved
-        return relative_pose_covariance(P_pair, prev.T_vehicle_world, new.T_vehicle_world, self.motion.dim, emitted)
+            return None if self.restart_relative is None else (self.restart_relative, np.zeros((6, 6)))
+        prev, new = self.window.states[-2].T_vehicle_world, self.window.states[-1].T_vehicle_world
+        solved = getattr(self.last_estimate, "t", None) == self.window.states[-2].t  # emitted as solved
+        return (relative_pose_covariance(P_pair, prev, new, self.motion.dim),
+                revision_covariance(P_emitted, P_pair, prev, new) if solved else np.zeros((6, 6)))
 
     def _with_uncertainty(self, est: ScanEstimate, P_relative, reuse: float) -> ScanEstimate:
         """The estimate with relative and absolute pose covariances, its velocity variance scaled (`uncertainty`)."""
@@ -289,14 +289,14 @@ class RadarOdometry:
         if P_relative is None or self.drift is None:
             self.drift = DriftCovariance(est.P[:6, :6], est.P[6:12, 6:12], cfg.velocity_correlation_time,
                                          cfg.drift_rate_sigma)
-            P_relative, P_absolute = np.full((6, 6), np.nan), est.P[:6, :6].copy()
+            P_relative, P_revision, P_absolute = np.full((6, 6), np.nan), np.zeros((6, 6)), est.P[:6, :6].copy()
         else:
-            P_relative = cfg.inflation * P_relative
-            prev = self.last_estimate
-            P_absolute = self.drift.update(prev.T_vehicle_world, est.T_vehicle_world, est.t - prev.t, P_relative,
+            P_relative, P_revision = (cfg.inflation * P for P in P_relative)
+            last = self.last_estimate  # the drift composes the smoothed pairs: the newest pose has no revision
+            P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, est.t - last.t, P_relative,
                                            est.P[6:12, 6:12])
         self.last_estimate, self.restart_relative = est, None
-        est.P_relative, est.P_pose_absolute, est.map_reuse = P_relative, P_absolute, reuse
+        est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
         est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed)
         return est
 

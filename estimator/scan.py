@@ -76,9 +76,11 @@ class ScanEstimate:
         events: what happened besides the ordinary step (initialisation, Doppler fallbacks, ...).
         detail: the association detail, with `record_detail`.
         standstill: the zero-velocity term was applied (the Doppler says the sensor is at rest).
-        P_relative: (6, 6) covariance of the relative pose since the previous scan's emitted pose, delta = xi_k -
-            Ad(R_k) xi_{k-1} (`rodo.estimator.uncertainty.relative_pose_covariance`: the window's pair and this
-            scan's revision of the previous pose), times `uncertainty.inflation`.
+        P_relative: (6, 6) covariance of the relative pose since the previous scan, delta = xi_k - Ad(R_k)
+            xi_{k-1} (`rodo.estimator.uncertainty.relative_pose_covariance`, the window's two newest states),
+            times `uncertainty.inflation`.
+        P_revision: (6, 6) what this scan's revision of the previous pose adds to P_relative for the relative
+            pose between the two EMITTED poses (`uncertainty.revision_covariance`), times the same factor.
         P_pose_absolute: (6, 6) pose covariance in the estimator's world (its first frame), composed from the
             relative ones: it grows as the drift does (P's pose block is relative to the local map).
         map_reuse: mean number of scans the associated map points have been associated in (NaN: none).
@@ -98,6 +100,7 @@ class ScanEstimate:
     detail: ScanDetail | None = None
     standstill: bool = False
     P_relative: np.ndarray | None = None
+    P_revision: np.ndarray | None = None
     P_pose_absolute: np.ndarray | None = None
     map_reuse: float = float("nan")
 

@@ -7,8 +7,9 @@ of its relative motion, accumulated. Two parts make it up (docs/consistency.md h
 
 1. the registration of each scan: delta_k = xi_k - Ad(R_k) xi_{k-1}, R_k = T_k T_{k-1}^-1 (left perturbations,
    T = T_vehicle_world), Sigma_rel,k = A P_pair A^T with A = [-Ad(R_k), I] on the pose blocks of the window's
-   joint covariance of its two newest states, plus the new scan's revision of the pose emitted one scan
-   earlier (`relative_pose_covariance`);
+   joint covariance of its two newest states (`relative_pose_covariance`); the one-scan relative pose between
+   the EMITTED poses adds the new scan's revision of the previous one (`revision_covariance`), which the
+   composition below does not carry;
 2. the velocity error, which the motion prior keeps correlated from scan to scan, so that it integrates into
    pose: a first-order Gauss-Markov process b with the window's velocity covariance P_varpi,k as its variance
    and correlation time tau, b_k = phi b_{k-1} + w_k, phi = exp(-dt / tau), Var(w_k) = (1 - phi^2) P_varpi,k;
@@ -37,30 +38,38 @@ import numpy as np
 from .lie import se3
 
 
-def relative_pose_covariance(P_pair: np.ndarray, T_prev: np.ndarray, T_new: np.ndarray, dim: int,
-                             P_prev_emitted: np.ndarray | None = None) -> np.ndarray:
+def relative_pose_covariance(P_pair: np.ndarray, T_prev: np.ndarray, T_new: np.ndarray, dim: int) -> np.ndarray:
     """Sigma_rel (6, 6) of delta = xi_new - Ad(T_new T_prev^-1) xi_prev from the joint covariance P_pair
-    (2 dim, 2 dim) of two consecutive states [x_prev; x_new] (pose first in each block of `dim`).
-
-    With P_prev_emitted, the covariance (>= 6 x 6, pose first) the previous state had when it was emitted, one
-    scan earlier: the relative pose between the two EMITTED poses. The new scan revises the previous pose
-    (r = its estimate now minus the one emitted), so the emitted relative pose errs by delta + Ad r as well;
-    r is a function of the new data, uncorrelated with the smoothed error, with covariance
-    P_prev_emitted - P_prev (the information the new scan added about the previous pose; clipped to positive
-    semi-definite). Exact for a linear Gaussian problem. It matters most where that scan adds much, at the start
-    of a drive (the second scan's relative pose had NEES/dof up to 170 without it on `hills`), but not only
-    there: on hills the revisions are about as large as the smoothed pair's sigmas (docs/consistency.md, "The
-    emitted relative pose").
-    """
-    Ad = se3.adjoint(T_new @ se3.inverse(T_prev))
-    A = np.hstack([-Ad, np.eye(6)])
+    (2 dim, 2 dim) of two consecutive states [x_prev; x_new] (pose first in each block of `dim`)."""
+    A = np.hstack([-se3.adjoint(T_new @ se3.inverse(T_prev)), np.eye(6)])
     idx = np.r_[0:6, dim:dim + 6]
     S = A @ P_pair[np.ix_(idx, idx)] @ A.T
-    if P_prev_emitted is not None:
-        D = np.asarray(P_prev_emitted, dtype=float)[:6, :6] - P_pair[:6, :6]
-        w, V = np.linalg.eigh(0.5 * (D + D.T))
-        S = S + Ad @ ((V * np.maximum(w, 0.0)) @ V.T) @ Ad.T
     return 0.5 * (S + S.T)
+
+
+def revision_covariance(P_prev_emitted: np.ndarray, P_prev_now: np.ndarray, T_prev: np.ndarray,
+                        T_new: np.ndarray) -> np.ndarray:
+    """(6, 6) what the new scan's revision of the previous pose adds to the covariance of the relative pose
+    between the EMITTED poses (the previous one as emitted one scan earlier, the new one as solved), in the frame
+    of `relative_pose_covariance`'s delta: Ad (P_prev_emitted - P_prev_now) Ad^T, Ad = Ad(T_new T_prev^-1), on
+    the pose blocks (>= 6 x 6, pose first) of the previous state's covariance when emitted and now.
+
+    The revision r (the previous pose's estimate now minus the one emitted) is a function of the new data,
+    uncorrelated with the smoothed pair's error, with covariance P_prev_emitted - P_prev_now (the information
+    the new scan added about the previous pose; clipped to positive semi-definite where a forgetting prior lost
+    some). Exact for a linear Gaussian window. It matters most at the start of a drive (the second scan's
+    relative pose had NEES/dof up to 170 without it on `hills`), but not only there: on hills the revisions are
+    about as large as the smoothed pair's sigmas (docs/consistency.md, "The emitted relative pose").
+
+    A relative pose over a span from an emitted pose j carries the revision of pose j alone (the later poses'
+    revisions telescope), and an absolute pose none: the drift recursion composes the smoothed pairs'
+    covariances, and the span measures add the revision at their first scan.
+    """
+    Ad = se3.adjoint(T_new @ se3.inverse(T_prev))
+    D = np.asarray(P_prev_emitted, dtype=float)[:6, :6] - np.asarray(P_prev_now, dtype=float)[:6, :6]
+    w, V = np.linalg.eigh(0.5 * (D + D.T))
+    R = Ad @ ((V * np.maximum(w, 0.0)) @ V.T) @ Ad.T
+    return 0.5 * (R + R.T)
 
 
 def velocity_inflated(P: np.ndarray, varpi: np.ndarray, inflation: float, per_speed: float) -> np.ndarray:

@@ -111,8 +111,8 @@ def fit_relative_inflation(states: dict, truth: dict, inflation: float, ratio_to
                            drift_rate_sigma=None) -> dict:
     """The factor on the one-scan relative pose covariance for a run that had `inflation`: the factor at which
     the median ratio of the one-scan relative pose is 1 (the scan's composed covariance, `span_covariances`:
-    the factor scales the window's relative covariance, not the velocity error's and this drift rate's
-    shares), or `inflation` itself when that ratio is within ratio_tolerance of 1 already (|ln r| < ln(1 +
+    the factor scales the window's relative covariance and its revision term, not the velocity error's and this
+    drift rate's shares), or `inflation` itself when that ratio is within ratio_tolerance of 1 already (|ln r| < ln(1 +
     ratio_tolerance), as the kappa fixed point stops) or when no factor within 2^30 of it reaches 1 (those
     shares alone too cautious, or no finite ratio). Returns {"inflation": the factor, "median_ratio": [r at
     `inflation`, r at the factor], "outcome": "fitted", "within tolerance" or "out of reach"}. The one-scan
@@ -150,9 +150,13 @@ def fit_relative_inflation(states: dict, truth: dict, inflation: float, ratio_to
 
 
 def relative_inflated_states(states: dict, factor: float) -> dict:
-    """The states a run would have written with its relative pose covariances times `factor` (the estimate does
-    not depend on them); the absolute covariances are replayed from these (`_replayed`)."""
-    return dict(states, P_relative=factor * np.asarray(states["P_relative"], dtype=float))
+    """The states a run would have written with its relative pose covariances (and their revision terms) times
+    `factor` (the estimate does not depend on them); the absolute covariances are replayed from these
+    (`_replayed`)."""
+    out = dict(states, P_relative=factor * np.asarray(states["P_relative"], dtype=float))
+    if "P_revision" in states:
+        out["P_revision"] = factor * np.asarray(states["P_revision"], dtype=float)
+    return out
 
 
 def fit_velocity_inflation(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:

@@ -59,7 +59,8 @@ class ScanColumns:
                "varpi": est.varpi, "varpi_dot": est.varpi_dot if est.varpi_dot is not None else np.zeros(6),
                "P": est.P, "n_detections": est.n_detections, "n_static": est.n_static,
                "n_associated": est.n_associated, "nis": float(est.nis), "P_relative": _or_nan(est.P_relative),
-               "P_pose_absolute": _or_nan(est.P_pose_absolute), "map_reuse": est.map_reuse,
+               "P_revision": _or_zeros(est.P_revision), "P_pose_absolute": _or_nan(est.P_pose_absolute),
+               "map_reuse": est.map_reuse,
                **{f"s_{key}": est.timings.get(key, 0.0) for key in STAGES}}
         if self.n == self._capacity:
             self._capacity *= 2
@@ -123,6 +124,7 @@ class RunResult:
             nis=c["nis"].astype(float),
             ms_per_scan=np.asarray(self.wall_ms),
             P_relative=c["P_relative"],
+            P_revision=c["P_revision"],
             P_pose_absolute=c["P_pose_absolute"],
             map_reuse=c["map_reuse"],
             velocity_correlation_time=np.float64(self.config.uncertainty.velocity_correlation_time),
@@ -257,6 +259,10 @@ def write_run(out_dir: str | Path, result: RunResult) -> None:
 
 def _or_nan(P: np.ndarray | None) -> np.ndarray:
     return np.full((6, 6), np.nan) if P is None else P
+
+
+def _or_zeros(P: np.ndarray | None) -> np.ndarray:
+    return np.zeros((6, 6)) if P is None else P
 
 
 def relative_pose_errors(gt: Trajectory, est: Trajectory) -> tuple[np.ndarray, np.ndarray]:

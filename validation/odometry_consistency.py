@@ -60,8 +60,20 @@ def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, v
     e = _relative_errors(T_true, T_est, n)
     Sigma_rel = np.asarray(states["P_relative"], dtype=float)
     P_varpi = drift_velocity_covariances(states["P"], states["varpi"], velocity_inflation)
-    out[n:] = nees(e, span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma))
+    C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma)
+    if "P_revision" in states:  # the revision of each span's first emitted pose, by the scan after it
+        C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)
+    out[n:] = nees(e, C)
     return out
+
+
+def _transported(T: np.ndarray, R: np.ndarray, n: int) -> np.ndarray:
+    """(N - n, 6, 6) the revision covariance R[j] of the step into scan j = k - n + 1, carried to the frame of
+    the span's relative pose ending at scan k: Ad(T_k T_j^-1) R[j] Ad(T_k T_j^-1)^T (R[j] itself for n = 1)."""
+    j = np.arange(1, len(T) - n + 1)
+    A = se3.adjoint(T[j + n - 1] @ se3.inverse(T[j]))
+    R = np.where(np.isfinite(R[j]), R[j], 0.0)
+    return A @ R @ np.swapaxes(A, -1, -2)
 
 
 def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.25,
@@ -70,7 +82,8 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
 
     Args:
         states: states.npz arrays (t, T_vehicle_world, varpi, varpi_dot, P; P_relative and P_pose_absolute
-            when the run wrote them, else those measures are NaN; velocity_inflation when the run scaled its
+            when the run wrote them, else those measures are NaN; P_revision when the run wrote it, added to
+            every span at its first scan (`_transported`); velocity_inflation when the run scaled its
             reported velocity covariance: the span measures divide it out, as the run's drift recursion did).
         truth: truth.npz arrays (t, T_vehicle_world, varpi, varpi_dot).
         span: seconds of the relative_span measure (rounded to whole scans).

@@ -10,8 +10,8 @@ from scipy.stats import chi2
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
-from rodo.estimator.uncertainty import (DriftCovariance, relative_pose_covariance, span_covariance,
-                                        velocity_inflated)
+from rodo.estimator.uncertainty import (DriftCovariance, relative_pose_covariance, revision_covariance,
+                                        span_covariance, velocity_inflated)
 from tests.estimator import scene
 from tests.strategies import twists
 
@@ -53,8 +53,8 @@ def test_relative_covariance_between_emitted_poses_counts_the_revision(a, b):
     """A linear Gaussian window: the previous pose was emitted at its prior mean with covariance P0; a new
     scan's measurement z = H xi + v (informative about both poses) gives the posterior P_pair and revises the
     previous pose. The relative pose between the emitted poses (the previous one as emitted, the new one as
-    solved) has the covariance `relative_pose_covariance` gives with P_prev_emitted = P0 (mean NEES in the
-    99.9 % bounds), and not the one without it; a revision that lost information (P0 smaller than the
+    solved) has the covariance `relative_pose_covariance` gives plus `revision_covariance` of P0 (mean NEES in
+    the 99.9 % bounds), and not the first alone; a revision that lost information (P0 smaller than the
     posterior's, a forgetting prior) adds nothing."""
     rng = np.random.default_rng(np.random.SeedSequence(12))
     T_prev, T_new = se3.exp(a), se3.exp(b)
@@ -70,12 +70,12 @@ def test_relative_covariance_between_emitted_poses_counts_the_revision(a, b):
     R_true = se3.exp(xi[:, 6:]) @ T_new @ se3.inverse(se3.exp(xi[:, :6]) @ T_prev)
     R_emitted = se3.exp(m_new) @ T_new @ se3.inverse(T_prev)
     delta = se3.log(R_true @ se3.inverse(R_emitted))
-    ok, info = _mean_nees_in_bounds(delta, relative_pose_covariance(P_pair, T_prev, T_new, 6, P_prior[:6, :6]))
+    S = relative_pose_covariance(P_pair, T_prev, T_new, 6)
+    ok, info = _mean_nees_in_bounds(delta, S + revision_covariance(P_prior, P_pair, T_prev, T_new))
     assert ok, info
-    ok, info = _mean_nees_in_bounds(delta, relative_pose_covariance(P_pair, T_prev, T_new, 6))
+    ok, info = _mean_nees_in_bounds(delta, S)
     assert not ok and info[0] > info[2], info
-    np.testing.assert_array_equal(relative_pose_covariance(P_pair, T_prev, T_new, 6, 0.5 * P_pair[:6, :6]),
-                                  relative_pose_covariance(P_pair, T_prev, T_new, 6))
+    np.testing.assert_array_equal(revision_covariance(0.5 * P_pair[:6, :6], P_pair, T_prev, T_new), np.zeros((6, 6)))
 
 
 def _model_monte_carlo(rng, T, t, Sigma_rel, P_varpi, tau, P0, drift_rate_sigma=np.zeros(6)):
