@@ -58,9 +58,9 @@ class ScanColumns:
         row = {"t": est.t, "T_vehicle_world": est.T_vehicle_world, "T_world_vehicle": est.T_world_vehicle,
                "varpi": est.varpi, "varpi_dot": est.varpi_dot if est.varpi_dot is not None else np.zeros(6),
                "P": est.P, "n_detections": est.n_detections, "n_static": est.n_static,
-               "n_associated": est.n_associated, "nis": float(est.nis), "P_relative": _or_nan(est.P_relative),
-               "P_revision": _or_zeros(est.P_revision), "P_pose_absolute": _or_nan(est.P_pose_absolute),
-               "map_reuse": est.map_reuse,
+               "n_associated": est.n_associated, "nis": float(est.nis),
+               "P_relative": _or_filled(est.P_relative, np.nan), "P_revision": _or_filled(est.P_revision, 0.0),
+               "P_pose_absolute": _or_filled(est.P_pose_absolute, np.nan), "map_reuse": est.map_reuse,
                **{f"s_{key}": est.timings.get(key, 0.0) for key in STAGES}}
         if self.n == self._capacity:
             self._capacity *= 2
@@ -257,12 +257,8 @@ def write_run(out_dir: str | Path, result: RunResult) -> None:
     atomic_write_bytes(out / "summary.json", (json.dumps(result.summary(), indent=2) + "\n").encode())
 
 
-def _or_nan(P: np.ndarray | None) -> np.ndarray:
-    return np.full((6, 6), np.nan) if P is None else P
-
-
-def _or_zeros(P: np.ndarray | None) -> np.ndarray:
-    return np.zeros((6, 6)) if P is None else P
+def _or_filled(P: np.ndarray | None, fill: float) -> np.ndarray:
+    return np.full((6, 6), fill) if P is None else P
 
 
 def relative_pose_errors(gt: Trajectory, est: Trajectory) -> tuple[np.ndarray, np.ndarray]:

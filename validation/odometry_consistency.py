@@ -72,8 +72,7 @@ def _transported(T: np.ndarray, R: np.ndarray, n: int) -> np.ndarray:
     the span's relative pose ending at scan k: Ad(T_k T_j^-1) R[j] Ad(T_k T_j^-1)^T (R[j] itself for n = 1)."""
     j = np.arange(1, len(T) - n + 1)
     A = se3.adjoint(T[j + n - 1] @ se3.inverse(T[j]))
-    R = np.where(np.isfinite(R[j]), R[j], 0.0)
-    return A @ R @ np.swapaxes(A, -1, -2)
+    return A @ R[j] @ np.swapaxes(A, -1, -2)
 
 
 def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.25,
