@@ -1,6 +1,7 @@
 """`rodo calibrate`'s pipeline: learn the noise of a sequence and write an estimator config (docs/calibration.md).
 
-- `calibrate_with_truth(seq, truth, config)`: ML Qc of both priors from the true states of truth.npz
+- `calibrate_with_truth(seq, truth, config)`: ML Qc of both priors from the true states of truth.npz (of one
+  sequence, or of several pooled)
   (`calibrate.fit_qc_to_truth`) and the measurement noise from the static detections
   (`calibrate_sensor`); the config gets both Qc, `noise.sensor_sigma_scales` (per channel), `noise.cartesian_sigma`
   and `noise.doppler_common_sigma`;
@@ -59,31 +60,39 @@ def _qc_report(fit: cal.QcFit) -> dict:
     return {"qc": fit.qc.tolist(), "loglik": fit.loglik, "intervals": fit.intervals, "at_floor": fit.at_floor}
 
 
-def calibrate_with_truth(seq: Sequence, truth: dict, config: OdometryConfig, duration: float | None = None,
-                         floor: float = cal.DEFAULT_FLOOR, consistency: bool = True,
+def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: OdometryConfig,
+                         duration: float | None = None, floor: float = cal.DEFAULT_FLOOR, consistency: bool = True,
                          progress=None) -> tuple[OdometryConfig, dict]:
     """Learn qc_ca, qc_cv, the per-channel sensor sigma factors, the Cartesian sigma and the scans' common Doppler
     error (`calibrate_sensor.common_doppler_error`; 0 unless significant) from ground truth, then
     (`consistency`) the uncertainty section at that noise; returns (config, report). `progress` gets each
-    `calibrate_consistency.ConsistencyStep`."""
-    seq = truncate(seq, duration)
-    end = max(s.t for s in seq.scans) if seq.scans else None
-    track = truth_track(truth, end)
-    fits = {kind: cal.fit_qc_to_truth(kind, track, floor) for kind in ("ca", "cv")}
-    res, r = cs.detection_residuals(seq, truth, scans=len(track.t))
-    sensor = seq.sensor.noise.as_array()
+    `calibrate_consistency.ConsistencyStep`. `seq` and `truth` may be lists of several sequences (of one sensor):
+    every fit pools them (their prior intervals, detections and scans), `duration` cuts each."""
+    seqs, truths = ([seq], [truth]) if isinstance(truth, dict) else (list(seq), list(truth))
+    if not seqs or len(seqs) != len(truths):
+        raise InputError(f"calibrate: {len(seqs)} sequences for {len(truths)} truths")
+    other = next((i for i, q in enumerate(seqs) if q.sensor != seqs[0].sensor), None)
+    if other is not None:
+        raise InputError(f"calibrate: sequence {other + 1} has another sensor (sensor.toml) than sequence 1; "
+                         "calibrate the sequences of one sensor together")
+    seqs = [truncate(s, duration) for s in seqs]
+    tracks = [truth_track(t, max(s.t for s in q.scans) if q.scans else None) for q, t in zip(seqs, truths)]
+    fits = {kind: cal.fit_qc_to_truth(kind, tracks, floor) for kind in ("ca", "cv")}
+    residuals = [cs.detection_residuals(q, t, scans=len(k.t)) for q, t, k in zip(seqs, truths, tracks)]
+    res, r = (np.concatenate(x) for x in zip(*residuals))
+    sensor = seqs[0].sensor.noise.as_array()
     scale = cs.sigma_scale(res, sensor)
     channels = cs.channel_noise(res, r)
     scales = tuple(float(channels[c]["sigma"] / s) for c, s in zip(cs.CHANNELS, sensor))
     cart = cs.cartesian_sigma(res, r)
-    common = cs.common_doppler_error(seq, truth, scans=len(track.t))
+    common = cs.common_doppler_error(seqs, truths, scans=[len(k.t) for k in tracks])
     if common["significant"]:  # the radial velocity's own sigma without the scans' common error
         scales = scales[:3] + (common["sigma_vr_independent"] / sensor[3],)
     noise = dataclasses.replace(config.noise, qc_ca=tuple(fits["ca"].qc), qc_cv=tuple(fits["cv"].qc),
                                 sensor_sigma_scale=1.0, sensor_sigma_scales=scales, cartesian_sigma=cart,
                                 doppler_common_sigma=common["sigma_c"])
     report = {
-        "mode": "ground truth", "scans": len(track.t), "floor": floor,
+        "mode": "ground truth", "sequences": len(seqs), "scans": sum(len(k.t) for k in tracks), "floor": floor,
         "qc_ca": _qc_report(fits["ca"]), "qc_cv": _qc_report(fits["cv"]),
         "measurement": {"channels": channels,
                         "sensor_toml_sigmas": dict(zip(cs.CHANNELS, sensor.tolist())),
@@ -92,7 +101,9 @@ def calibrate_with_truth(seq: Sequence, truth: dict, config: OdometryConfig, dur
     }
     config = config.replace(noise=noise)
     if consistency:
-        config, report["consistency"] = cc.fit_consistency(seq, truth, config, progress=progress)
+        one = len(seqs) == 1
+        config, report["consistency"] = cc.fit_consistency(seqs[0] if one else seqs, truths[0] if one else truths,
+                                                           config, progress=progress)
     return config, report
 
 

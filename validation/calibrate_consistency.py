@@ -40,6 +40,11 @@ tells the truth (docs/consistency.md):
 The ratios are measured against the truth, so this needs truth.npz; on real data, carry kappa and tau over from
 a simulated sequence like it (docs/calibration.md).
 
+Several sequences: every fit takes one run (states and truth dicts) or several (two lists of the same length)
+and pools them: the median ratios over all their scans, one velocity and one drift-rate fit over all scans,
+tau on the pooled ratios. `fit_consistency` runs each sequence once per kappa. Drives of the length and kind
+the config will be used on carry over better than one long drive (docs/calibration.md).
+
 Checked by: tests/validation/test_calibrate_consistency.py
 """
 
@@ -81,6 +86,26 @@ def median_ratio(values) -> float:
     return float(np.median(v) / MEDIAN_CHI2) if v.size else float("nan")
 
 
+def runs_of(states, truth) -> list[tuple[dict, dict]]:
+    """[(states, truth), ...]: one run (two dicts) or several (two lists of the same length)."""
+    if isinstance(states, dict):
+        return [(states, truth)]
+    states, truth = list(states), list(truth)
+    if len(states) != len(truth) or not states:
+        raise ValueError(f"runs: {len(states)} states for {len(truth)} truths")
+    return list(zip(states, truth))
+
+
+def _each(fn, states, *args):
+    """fn(states, *args) of one run's states, or the list of it over several runs' states."""
+    return fn(states, *args) if isinstance(states, dict) else [fn(s, *args) for s in states]
+
+
+def _pooled(states, truth, name: str, **kwargs) -> np.ndarray:
+    """One measure's per-scan NEES (`odometry_nees`) of every run, concatenated."""
+    return np.concatenate([odometry_nees(s, t, **kwargs)[name] for s, t in runs_of(states, truth)])
+
+
 @dataclass(frozen=True)
 class ConsistencyStep:
     """One run of the fixed point (or the final, replayed ratios): kappa, tau and each REPORTED measure's median
@@ -109,7 +134,8 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
 
 def fit_relative_inflation(states: dict, truth: dict, inflation: float, ratio_tolerance: float,
                            drift_rate_sigma=None) -> dict:
-    """The factor on the one-scan relative pose covariance for a run that had `inflation`: the factor at which
+    """The factor on the one-scan relative pose covariance for a run (or runs, pooled) that had `inflation`: the
+    factor at which
     the median ratio of the one-scan relative pose is 1 (the scan's composed covariance, `span_covariances`:
     the factor scales the window's relative covariance and its revision term, not the velocity error's and this
     drift rate's shares), or `inflation` itself when that ratio is within ratio_tolerance of 1 already (|ln r| < ln(1 +
@@ -123,8 +149,8 @@ def fit_relative_inflation(states: dict, truth: dict, inflation: float, ratio_to
         ::test_relative_factor_out_of_reach_is_left_as_it_was
     """
     def ratio(f):
-        scaled = relative_inflated_states(states, f / inflation)
-        return median_ratio(odometry_nees(scaled, truth, drift_rate_sigma=drift_rate_sigma)["relative_scan"])
+        scaled = _each(relative_inflated_states, states, f / inflation)
+        return median_ratio(_pooled(scaled, truth, "relative_scan", drift_rate_sigma=drift_rate_sigma))
 
     def unchanged(outcome):
         return {"inflation": float(inflation), "median_ratio": [r, r], "outcome": outcome}
@@ -160,20 +186,23 @@ def relative_inflated_states(states: dict, factor: float) -> dict:
 
 
 def fit_velocity_inflation(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
-    """The velocity's variance factor c_k = a + b |nu_k| of one run by maximum likelihood: the velocity errors
-    e_k ~ N(0, c_k P_k), P_k the window's velocity covariance (`drift_velocity_covariances`: whatever factors the
-    run had are divided out), nu_k its estimated linear velocity, over every scan
+    """The velocity's variance factor c_k = a + b |nu_k| of one run (or runs, pooled) by maximum likelihood: the
+    velocity errors e_k ~ N(0, c_k P_k), P_k the window's velocity covariance (`drift_velocity_covariances`:
+    whatever factors the run had are divided out), nu_k its estimated linear velocity, over every scan
     (the start too: it holds the low speeds; left out, the factor came out over-confident at the start of
     every campaign drive); a > 0, b >= 0. Returns {"inflation": a, "per_speed": b, "scans", "nees_per_dof": the
     mean velocity NEES/dof before and after}.
 
     Checked by: tests/validation/test_calibrate_consistency.py::test_velocity_inflation_recovers_a_known_factor
     """
-    ia, ib = associate(states["t"], truth["t"], tolerance)
-    e = np.asarray(truth["varpi"], dtype=float)[ib] - np.asarray(states["varpi"], dtype=float)[ia]
-    P = drift_velocity_covariances(states["P"], states["varpi"], states.get("velocity_inflation"))[ia]
-    q = np.einsum("ki,ki->k", e, np.linalg.solve(P, e[..., None])[..., 0])
-    speed = np.linalg.norm(np.asarray(states["varpi"], dtype=float)[ia, :3], axis=1)
+    q, speed = [], []
+    for st, tr in runs_of(states, truth):
+        ia, ib = associate(st["t"], tr["t"], tolerance)
+        e = np.asarray(tr["varpi"], dtype=float)[ib] - np.asarray(st["varpi"], dtype=float)[ia]
+        P = drift_velocity_covariances(st["P"], st["varpi"], st.get("velocity_inflation"))[ia]
+        q.append(np.einsum("ki,ki->k", e, np.linalg.solve(P, e[..., None])[..., 0]))
+        speed.append(np.linalg.norm(np.asarray(st["varpi"], dtype=float)[ia, :3], axis=1))
+    q, speed = np.concatenate(q), np.concatenate(speed)
     finite = np.isfinite(q)
     q, speed = q[finite], speed[finite]
     if len(q) < 2 or not np.mean(q) > 0:  # too few scans, or no error at all (a noise-free drive)
@@ -199,15 +228,19 @@ def velocity_inflated_states(states: dict, inflation: float, per_speed: float) -
 
 
 def fit_drift_rate(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
-    """The drift rate of one run: beta (6,) = sum_k e_k / sum_k s_k, e_k = ln(R_true R_est^-1) the one-scan
-    relative error (vehicle frame) and s_k the true distance of the scan; its standard error se (6,) from the
-    scatter of e_k - s_k beta (scans as independent); sigma = sqrt(beta^2 + se^2); distance (m)."""
-    ia, ib = associate(states["t"], truth["t"], tolerance)
-    T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
-    T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
-    R_true = T_true[1:] @ se3.inverse(T_true[:-1])
-    e = se3.log(R_true @ se3.inverse(T_est[1:] @ se3.inverse(T_est[:-1])))
-    s = np.linalg.norm(R_true[:, :3, 3], axis=1)
+    """The drift rate of one run (or runs, pooled: one beta over all their scans): beta (6,) = sum_k e_k /
+    sum_k s_k, e_k = ln(R_true R_est^-1) the one-scan relative error (vehicle frame) and s_k the true distance of
+    the scan; its standard error se (6,) from the scatter of e_k - s_k beta (scans as independent);
+    sigma = sqrt(beta^2 + se^2); distance (m)."""
+    e, s = [np.zeros((0, 6))], [np.zeros(0)]
+    for st, tr in runs_of(states, truth):
+        ia, ib = associate(st["t"], tr["t"], tolerance)
+        T_est = np.asarray(st["T_vehicle_world"], dtype=float)[ia]
+        T_true = truth_in_estimator_frame(np.asarray(tr["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
+        R_true = T_true[1:] @ se3.inverse(T_true[:-1])
+        e.append(se3.log(R_true @ se3.inverse(T_est[1:] @ se3.inverse(T_est[:-1]))))
+        s.append(np.linalg.norm(R_true[:, :3, 3], axis=1))
+    e, s = np.concatenate(e), np.concatenate(s)
     distance = float(s.sum())
     if len(e) < 2 or distance <= 0:
         return {"beta": [0.0] * 6, "se": [0.0] * 6, "sigma": [0.0] * 6, "distance": distance}
@@ -217,14 +250,17 @@ def fit_drift_rate(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERAN
 
 
 def _ratios(states: dict, truth: dict, span: float, tau: float, drift_rate_sigma=None) -> dict:
-    """The median ratio of every REPORTED measure of one run's states at this tau (and drift rate)."""
-    m = odometry_nees(states, truth, span=span, tau=tau, drift_rate_sigma=drift_rate_sigma)
-    return {name: median_ratio(m[name]) for name in REPORTED}
+    """The median ratio of every REPORTED measure of one run's states (or runs', pooled) at this tau (and drift
+    rate)."""
+    m = [odometry_nees(s, t, span=span, tau=tau, drift_rate_sigma=drift_rate_sigma) for s, t in runs_of(states, truth)]
+    return {name: median_ratio(np.concatenate([x[name] for x in m])) for name in REPORTED}
 
 
-def _measure(seq: Sequence, truth: dict, config: OdometryConfig, span: float) -> tuple[dict, dict]:
-    """Run once; (states, median ratio of every REPORTED measure at the config's tau)."""
-    states = run_states(run_sequence(seq, config))
+def _measure(seq, truth, config: OdometryConfig, span: float) -> tuple:
+    """Run once (each sequence once: `seq` and `truth` may be lists); (states, median ratio of every REPORTED
+    measure at the config's tau, pooled)."""
+    run = lambda s: run_states(run_sequence(s, config))  # noqa: E731
+    states = [run(s) for s in seq] if isinstance(seq, (list, tuple)) else run(seq)
     return states, _ratios(states, truth, span, config.uncertainty.velocity_correlation_time)
 
 
@@ -255,11 +291,12 @@ def fit_tau(states: dict, truth: dict, span: float = 1.0, taus=TAUS, drift_rate_
     consistent: the least `tau_cost` of their median ratios; returns (tau, {tau: (r_span, r_pose)})."""
     ratios = {}
     for tau in taus:
-        r = _ratios(_replayed(states, tau, drift_rate_sigma), truth, span, tau, drift_rate_sigma)
+        r = _ratios(_each(_replayed, states, tau, drift_rate_sigma), truth, span, tau, drift_rate_sigma)
         ratios[float(tau)] = (r["relative_span"], r["pose"])
     finite = {tau: r for tau, r in ratios.items() if np.all(np.isfinite(r)) and min(r) > 0}
     if not finite:
-        return float(states.get("velocity_correlation_time", DEFAULT_TAU)), ratios
+        first = states if isinstance(states, dict) else states[0]
+        return float(first.get("velocity_correlation_time", DEFAULT_TAU)), ratios
     return min(finite, key=lambda tau: tau_cost(finite[tau])), ratios
 
 
@@ -270,10 +307,11 @@ def tau_cost(ratios) -> float:
     return float(np.sum(np.where(log_r > 0, OVERCONFIDENCE_WEIGHT, 1.0) * np.abs(log_r)))
 
 
-def fit_consistency(seq: Sequence, truth: dict, config: OdometryConfig, iterations: int = 4,
+def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryConfig, iterations: int = 4,
                     tolerance: float = 0.1, span: float = 1.0, progress=None) -> tuple[OdometryConfig, dict]:
     """Fit kappa (fixed point), then the relative pose's and the velocity's variance factors, the drift rate and
-    tau (on the last run's states, without running again) on a simulated sequence; returns (config, report).
+    tau (on the last run's states, without running again) on a simulated sequence, or on several (lists of
+    sequences and their truths, pooled: module docstring); returns (config, report).
 
     Each iteration runs the estimator once. It stops when the geometric mean r of the FIXED_POINT_MEASURES'
     median ratios is within `tolerance` of 1 (|ln r| < ln(1 + tolerance)), when kappa is at a bound of
@@ -298,13 +336,13 @@ def fit_consistency(seq: Sequence, truth: dict, config: OdometryConfig, iteratio
         states, ratios = _measure(seq, truth, _with(config, kappa, tau), span)
     drift = fit_drift_rate(states, truth)
     relative = fit_relative_inflation(states, truth, config.uncertainty.inflation, tolerance, drift["sigma"])
-    states = relative_inflated_states(states, relative["inflation"] / config.uncertainty.inflation)
+    states = _each(relative_inflated_states, states, relative["inflation"] / config.uncertainty.inflation)
     velocity = fit_velocity_inflation(states, truth)
     factors = (velocity["inflation"], velocity["per_speed"])
     tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"])
     fitted = _with(config, kappa, tau, drift["sigma"], factors, relative["inflation"])
-    final = _ratios(_replayed(velocity_inflated_states(states, *factors), tau, drift["sigma"]), truth, span, tau,
-                    drift["sigma"])
+    final = _ratios(_each(lambda s: _replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"]), states),
+                    truth, span, tau, drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))
     if progress is not None:
         progress(steps[-1])

@@ -119,35 +119,39 @@ def common_doppler_error(seq, truth: dict, scans: int | None = None, labels=STAT
     residuals (measured - true): per scan k, b_k = least-squares fit of the residuals e on the true directions u
     (e = -u . b_k + independent noise); the independent sigma_vr from what the fits leave; sigma_c^2 = mean over
     scans and axes of b_k^2 minus the fit's own noise sigma_vr^2 (U^T U)^-1, set to 0 unless it exceeds
-    `significance` standard errors of that mean (a clean simulation then gets exactly 0). Returns sigma_c,
+    `significance` standard errors of that mean (a clean simulation then gets exactly 0). `seq` and `truth` may
+    be lists (several sequences, their scans pooled; `scans` then one limit for each or a list). Returns sigma_c,
     sigma_vr (independent), the lag-1 correlation of the b_k, the scans used and whether it was significant.
 
     Checked by: tests/validation/test_calibrate.py::test_common_doppler_error_recovered_from_truth
     """
-    offsets = np.asarray(truth["scan_offsets"])
-    true = np.asarray(truth["det_true_polar"], dtype=float)
-    label = np.asarray(truth["det_label"])
-    n_scans = len(offsets) - 1 if scans is None else min(scans, len(offsets) - 1)
-    measured = [s.polar for s in seq.scans[:n_scans]]
+    if isinstance(truth, dict):
+        seq, truth, scans = [seq], [truth], [scans]
     b, excess_noise, rss, dof_sum = [], [], 0.0, 0
-    for k in range(n_scans):
-        rows = slice(offsets[k], offsets[k + 1])
-        keep = np.isin(label[rows], labels)
-        if len(measured[k]) != offsets[k + 1] - offsets[k]:
-            raise InputError(f"truth.npz: scan {k} has {offsets[k + 1] - offsets[k]} detections, radar.csv "
-                             f"{len(measured[k])}: not the same sequence")
-        t, m = true[rows][keep], measured[k][keep]
-        dof = 2 if np.all(np.abs(t[:, 2]) < PLANAR_ELEVATION) else 3
-        if len(t) < dof + 5:
-            continue
-        U = polar_to_cartesian(np.c_[np.ones(len(t)), t[:, 1], t[:, 2]])[:, :dof]
-        e = m[:, 3] - t[:, 3]
-        info = U.T @ U
-        b_k = -np.linalg.solve(info, U.T @ e)
-        r = e + U @ b_k
-        rss, dof_sum = rss + float(r @ r), dof_sum + len(e) - dof
-        b.append(b_k)
-        excess_noise.append(np.diag(np.linalg.inv(info)))
+    for seq, truth, limit in zip(seq, truth, scans if isinstance(scans, (list, tuple)) else [scans] * len(truth)):
+        offsets = np.asarray(truth["scan_offsets"])
+        true = np.asarray(truth["det_true_polar"], dtype=float)
+        label = np.asarray(truth["det_label"])
+        n_scans = len(offsets) - 1 if limit is None else min(limit, len(offsets) - 1)
+        measured = [s.polar for s in seq.scans[:n_scans]]
+        for k in range(n_scans):
+            rows = slice(offsets[k], offsets[k + 1])
+            keep = np.isin(label[rows], labels)
+            if len(measured[k]) != offsets[k + 1] - offsets[k]:
+                raise InputError(f"truth.npz: scan {k} has {offsets[k + 1] - offsets[k]} detections, radar.csv "
+                                 f"{len(measured[k])}: not the same sequence")
+            t, m = true[rows][keep], measured[k][keep]
+            dof = 2 if np.all(np.abs(t[:, 2]) < PLANAR_ELEVATION) else 3
+            if len(t) < dof + 5:
+                continue
+            U = polar_to_cartesian(np.c_[np.ones(len(t)), t[:, 1], t[:, 2]])[:, :dof]
+            e = m[:, 3] - t[:, 3]
+            info = U.T @ U
+            b_k = -np.linalg.solve(info, U.T @ e)
+            r = e + U @ b_k
+            rss, dof_sum = rss + float(r @ r), dof_sum + len(e) - dof
+            b.append(b_k)
+            excess_noise.append(np.diag(np.linalg.inv(info)))
     if len(b) < 10:
         raise InputError(f"common Doppler error: need >= 10 scans with static detections, got {len(b)}")
     b, inv_diag = np.array(b), np.array(excess_noise)

@@ -1,6 +1,7 @@
-"""`rodo calibrate SEQ_DIR --out CONFIG.toml [--model M] [--config BASE.toml] [--no-truth] [--iterations N]
-[--duration S] [--floor Q]`: learn the noise from a sequence and write a config for `rodo run --config`
-(docs/calibration.md), with CONFIG.json and CONFIG.md reports beside it."""
+"""`rodo calibrate SEQ_DIR [SEQ_DIR ...] --out CONFIG.toml [--model M] [--config BASE.toml] [--no-truth]
+[--iterations N] [--duration S] [--floor Q]`: learn the noise from a sequence (with ground truth: from several,
+pooled) and write a config for `rodo run --config` (docs/calibration.md), with CONFIG.json and CONFIG.md
+reports beside it."""
 
 from __future__ import annotations
 
@@ -27,7 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "priors from the true states, and the measurement noise from the static "
                                    "detections. With --no-truth: EM over the estimator's posteriors for the "
                                    "Qc of the model's prior. Writes CONFIG.toml, CONFIG.json and CONFIG.md.")
-    p.add_argument("sequence", metavar="SEQ_DIR", help="sequence directory (radar.csv, sensor.toml[, truth.npz])")
+    p.add_argument("sequence", metavar="SEQ_DIR", nargs="+",
+                   help="sequence directory (radar.csv, sensor.toml[, truth.npz]); with ground truth several, pooled "
+                        "(drives like those the config is for: docs/calibration.md)")
     p.add_argument("--model", choices=MODELS, default=None, help="the config's model (default ca-polar)")
     p.add_argument("--out", required=True, metavar="CONFIG.toml", help="the config to write")
     p.add_argument("--config", metavar="FILE", help="base TOML config (its other settings are kept)")
@@ -161,22 +164,32 @@ def main(args) -> int:
     out = _check_args(args)
     learn = parse_learn(args.learn)
     config = load_config(args)
-    seq = read_sequence(args.sequence)
+    if args.no_truth and len(args.sequence) > 1:
+        raise InputError(f"--no-truth: EM learns from one sequence, got {len(args.sequence)}")
+    seqs = [read_sequence(d) for d in args.sequence]
+    seq = seqs[0]
+    for d, other in zip(args.sequence[1:], seqs[1:]):
+        if other.sensor != seq.sensor:
+            raise InputError(f"{Path(d) / 'sensor.toml'}: another sensor than "
+                             f"{Path(args.sequence[0]) / 'sensor.toml'}; calibrate the sequences of one sensor together")
     if args.no_truth:
         def say(h):
             print(f"EM iteration: qc {np.array2string(h.qc_out, precision=4)}, change {h.change:.3g}")
         config, report = calibrate_without_truth(seq, config, args.iterations, args.tolerance, args.duration,
                                                  args.floor, progress=say, learn=learn)
     else:
-        if not (Path(args.sequence) / TRUTH_NPZ).is_file():
-            raise InputError(f"{Path(args.sequence) / TRUTH_NPZ}: not found (ground truth for the calibration); "
-                             "use --no-truth for EM without ground truth")
+        for d in args.sequence:
+            if not (Path(d) / TRUTH_NPZ).is_file():
+                raise InputError(f"{Path(d) / TRUTH_NPZ}: not found (ground truth for the calibration); "
+                                 "use --no-truth for EM without ground truth")
         def step(s):
             print(f"uncertainty: measurement_inflation {s.kappa:.3g}, median NEES ratio "
                   + ", ".join(f"{k} {v:.3g}" for k, v in s.ratios.items()))
-        config, report = calibrate_with_truth(seq, load_truth(args.sequence), config, args.duration, args.floor,
+        truths = [load_truth(d) for d in args.sequence]
+        config, report = calibrate_with_truth(seqs if len(seqs) > 1 else seq, truths if len(seqs) > 1 else truths[0],
+                                              config, args.duration, args.floor,
                                               consistency=not args.no_consistency, progress=step)
-    _write(out, config_toml(config, _header(report, args.sequence, config.model)))
+    _write(out, config_toml(config, _header(report, " ".join(args.sequence), config.model)))
     _write(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     _write(out.with_suffix(".md"), _markdown(report))
     print(_markdown(report), end="")

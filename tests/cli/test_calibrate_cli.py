@@ -42,6 +42,31 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
 
 
 @pytest.mark.slow
+def test_calibrate_pools_several_sequences(seq, tmp_path, capsys):
+    """Two sequences with truth: one config from both, Qc the maximum likelihood over both drives' intervals
+    (not either one's), the sensor noise over both drives' detections; the header names both."""
+    from rodo.sim.simulate import load_truth
+    from rodo.validation import calibrate as cal
+    from rodo.validation.calibrate_config import truth_track
+
+    second = tmp_path / "city3"
+    scenarios.simulate_to("city", 3, second, duration=2.0)
+    out = tmp_path / "both.toml"
+    assert main(["calibrate", str(seq), str(second), "--out", str(out)]) == 0
+    report = json.loads(out.with_suffix(".json").read_text())
+    tracks = [truth_track(load_truth(d)) for d in (seq, second)]
+    assert report["sequences"] == 2 and report["scans"] == sum(len(k.t) for k in tracks)
+    for kind in ("ca", "cv"):
+        pooled, first = cal.fit_qc_to_truth(kind, tracks), cal.fit_qc_to_truth(kind, tracks[0])
+        np.testing.assert_allclose(report[f"qc_{kind}"]["qc"], pooled.qc, rtol=1e-9)
+        assert report[f"qc_{kind}"]["loglik"] == pytest.approx(pooled.loglik, rel=1e-12)
+        assert abs(pooled.loglik - first.loglik) > 0.3 * abs(first.loglik)  # both drives' intervals count
+    assert report["qc_ca"]["intervals"] == sum(len(k.t) - 1 for k in tracks)
+    assert f"{seq} {second}" in out.read_text().splitlines()[0]
+    assert "consistency" in report and OdometryConfig.from_toml(out).model == "ca-polar"
+
+
+@pytest.mark.slow
 def test_calibrate_without_truth_runs_em(seq, tmp_path, capsys):
     base = tmp_path / "base.toml"
     base.write_text("window = 3\n[noise]\nqc_ca = [1.0, 0.1, 0.1, 0.001, 0.001, 0.01]\n")
@@ -83,4 +108,11 @@ def test_calibrate_bad_input(seq, tmp_path, capsys):
     lines = (other / "radar.csv").read_text().splitlines()
     (other / "radar.csv").write_text("\n".join(lines[:-5]) + "\n")  # truth.npz no longer matches radar.csv
     fails(capsys, ["calibrate", other, "--out", out], "truth.npz", "radar.csv")
+    fails(capsys, ["calibrate", seq, seq, "--no-truth", "--out", out], "--no-truth", "one sequence, got 2")
+    fails(capsys, ["calibrate", seq, no_truth, "--out", out], "no_truth", "truth.npz")
+    moved = tmp_path / "moved"
+    shutil.copytree(seq, moved)
+    toml = (moved / "sensor.toml").read_text()
+    (moved / "sensor.toml").write_text(toml.replace("max_range", "max_range = 60.0\n# was max_range", 1))
+    fails(capsys, ["calibrate", seq, moved, "--out", out], "moved", "sensor.toml", "another sensor")
     assert not out.exists()

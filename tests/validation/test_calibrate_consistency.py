@@ -226,3 +226,41 @@ def test_relative_factor_out_of_reach_is_left_as_it_was(city_run):
     fit = cc.fit_relative_inflation(states, truth, 0.7, 0.1, np.full(6, 1.0))
     assert fit["median_ratio"][0] < 0.5
     assert fit == {"inflation": 0.7, "median_ratio": [fit["median_ratio"][0]] * 2, "outcome": "out of reach"}
+
+
+def _halves(states: dict) -> list[dict]:
+    """The run cut into two runs at its middle scan (the per-scan arrays cut, the run constants kept)."""
+    n = len(states["t"])
+    return [{k: (np.asarray(v)[sl] if np.ndim(v) >= 1 and len(v) == n else v) for k, v in states.items()}
+            for sl in (slice(0, n // 2), slice(n // 2, n))]
+
+
+def test_several_runs_are_pooled(city_run):
+    """The fits of two runs (the city run cut in two) pool their scans: the velocity factor is the one of the
+    whole run (the same errors and covariances), the drift rate the distance-weighted mean of the halves'
+    (beta = sum e / sum s), every median ratio that of the halves' NEES together, and the one-scan factor of a
+    run given twice its own."""
+    from rodo.validation.odometry_consistency import odometry_nees
+
+    states, truth = city_run
+    runs, truths = _halves(states), [truth, truth]  # each half finds its scans in the whole truth
+    whole, pooled = cc.fit_velocity_inflation(states, truth), cc.fit_velocity_inflation(runs, truths)
+    assert pooled["scans"] == whole["scans"]
+    assert pooled["inflation"] == pytest.approx(whole["inflation"], rel=1e-6)
+    assert pooled["per_speed"] == pytest.approx(whole["per_speed"], rel=1e-6, abs=1e-9)
+    halves = [cc.fit_drift_rate(s, t) for s, t in zip(runs, truths)]
+    both = cc.fit_drift_rate(runs, truths)
+    assert both["distance"] == pytest.approx(sum(h["distance"] for h in halves))
+    np.testing.assert_allclose(both["beta"], sum(np.array(h["beta"]) * h["distance"] for h in halves)
+                               / both["distance"], rtol=1e-9, atol=1e-15)
+    ratios = cc._ratios(runs, truths, 1.0, 0.4, states["drift_rate_sigma"])
+    for name in cc.REPORTED:
+        nees = np.concatenate([odometry_nees(s, t, tau=0.4, drift_rate_sigma=states["drift_rate_sigma"])[name]
+                               for s, t in zip(runs, truths)])
+        assert ratios[name] == cc.median_ratio(nees)
+    drift = states["drift_rate_sigma"]
+    once = cc.fit_relative_inflation(states, truth, 1.0, 0.0, drift)
+    twice = cc.fit_relative_inflation([states, states], [truth, truth], 1.0, 0.0, drift)
+    assert twice["inflation"] == pytest.approx(once["inflation"], rel=1e-3)
+    with pytest.raises(ValueError, match="2 states for 1 truths"):
+        cc.fit_drift_rate(runs, truths[:1])
