@@ -136,13 +136,20 @@ class StandstillConfig:
     %) the newest state gets varpi = 0 and varpi_dot = 0 (the linear acceleration only from the second scan at
     rest: a vehicle that has just stopped or is starting is at rest with an acceleration) with these 1-sigmas.
     Doppler alone cannot tell a standstill from a turn on the spot about an axis near the sensor; a wheeled
-    vehicle at rest does not turn, which is what this assumes. speed = 0 disables it."""
+    vehicle at rest does not turn, which is what this assumes. speed = 0 disables it.
+
+    A vehicle's linear acceleration jumps when it stops (braking, then nothing) and when it moves off, which
+    white noise on jerk cannot describe: the interval into a scan whose standstill differs from the scan before
+    gets the prior noise of such a jump of 1-sigma sigma_accel_jump at an unknown time within it (CA only; Q_k of
+    the jerk PSD sigma_accel_jump^2 / dt on x, y, z: the acceleration's variance grows by sigma_accel_jump^2 over
+    the interval; docs/estimator.md, step 4)."""
 
     speed: float = 0.05  # m/s
     sigma_velocity: float = 0.005  # m/s
     sigma_rate: float = 0.002  # rad/s
     sigma_accel: float = 0.01  # m/s^2
     sigma_angular_accel: float = 0.005  # rad/s^2
+    sigma_accel_jump: float = 2.0  # m/s^2
 
 
 @dataclass(frozen=True)

@@ -100,6 +100,7 @@ RULES: dict[str, Rule] = {
     "standstill.sigma_rate": POSITIVE,
     "standstill.sigma_accel": POSITIVE,
     "standstill.sigma_angular_accel": POSITIVE,
+    "standstill.sigma_accel_jump": NONNEGATIVE,
     "vehicle.sigma_roll_rate": NONNEGATIVE,
     "vehicle.sigma_pitch_rate": NONNEGATIVE,
     "vehicle.sigma_lateral_velocity": NONNEGATIVE,

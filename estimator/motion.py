@@ -51,6 +51,15 @@ class MotionPrior(ABC):
         """Compiled kernels: the means of n intervals from states (T1 (n, 4, 4), tail1 (n, dim - 6)) and F_k
         (into F); returns the predicted poses (n, 4, 4) and Euclidean tails (n, dim - 6)."""
 
+    def with_jump(self, Q: np.ndarray, P: np.ndarray, x: State, t: float, sigma: float):
+        """(Q, P) of the interval from x to t with the prior noise of a linear acceleration jump of 1-sigma
+        `sigma` (m/s^2) at an unknown time within it added (`config.StandstillConfig.sigma_accel_jump`); as they
+        are for a prior without acceleration or sigma 0.
+
+        Checked by: tests/estimator/test_standstill.py::test_the_jump_noise_is_an_acceleration_jump
+        """
+        return Q, P
+
     def tail_sigmas(self, velocity, rate, accel, angular_accel) -> list[float]:
         """1-sigmas of the Euclidean part of a state in the layout of `State.vector_tail`: [velocity (3);
         rate (3)], and [accel (3); angular accel (3)] where the state has an acceleration."""
@@ -99,9 +108,21 @@ class ConstantAccelerationMotion(MotionPrior):
 
     def __init__(self, qc_diag):
         self.prior = ConstantAccelerationPrior(np.diag(np.asarray(qc_diag, dtype=float)))
+        self._jump_basis = None  # Q_k is linear in Qc: Q(diag(1, 1, 1, 0, 0, 0)) = Q(diag(2, 2, 2, 1, 1, 1)) - Q(I)
 
     def initial_state(self, t, T_vehicle_world, varpi):
         return State(t, T_vehicle_world, varpi, np.zeros(6))
+
+    def with_jump(self, Q, P, x, t, sigma):
+        if sigma <= 0:
+            return Q, P
+        if self._jump_basis is None:
+            self._jump_basis = (ConstantAccelerationPrior(np.diag([2.0, 2.0, 2.0, 1.0, 1.0, 1.0])),
+                                ConstantAccelerationPrior(np.eye(6)))
+        dt = t - x.t
+        both, unit = (p.transition_and_noise(x.varpi, x.varpi_dot, dt)[1] for p in self._jump_basis)
+        J = sigma**2 / dt * (both - unit)  # the jerk PSD sigma^2 / dt on x, y, z: Var(a) grows by sigma^2
+        return Q + J, P + J
 
     def predict(self, x, t):
         T, varpi, varpi_dot = self.prior.predict(x.T_vehicle_world, x.varpi, x.varpi_dot, t - x.t)

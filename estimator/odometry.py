@@ -12,7 +12,7 @@ Per scan k (paper sec. III-VI; docs/estimator.md gives the reasons and the measu
    RANSAC), or a free RANSAC fit when the prediction is uncertain (either rejects moving objects, as reve);
 3. when the scan's Doppler velocity contradicts the prediction (an unmodelled jerk; at the pairs' gate level
    when the gates lost the scan, `_recentre`), move the predicted mean to it: linearisation point, gate centre;
-4. a zero-velocity term when the Doppler says the sensor is at rest;
+4. a zero-velocity term when the Doppler says the sensor is at rest (a stop or start: an acceleration jump);
 5. associate map points with the static detections off the road (`association.ground_band`) by maximum
    likelihood, S = G P G^T + R (+ map-point term), gated at the chi-square quantile (eq. 86-88), in the FOV;
 6. Gauss-Newton over the window's prior, motion and measurement terms, re-associate, solve again, marginalise;
@@ -71,8 +71,7 @@ class RadarOdometry:
         self.motion = motion_prior_for(config)
         self.measurement = measurement_model(config.measurement)
         self.map_sigma = self.measurement.map_sigma(config.noise)
-        # the surface model puts each new point's resampling covariance (planar or isotropic) into the point itself
-        self.surface_model = config.map.surface_normal_sigma > 0
+        self.surface_model = config.map.surface_normal_sigma > 0  # new points carry their resampling covariance
         seeds = np.random.SeedSequence(config.seed).spawn(3)
         self.sensors: list[Sensor] = []
         self.sensor = self._sensor(T_vehicle_sensor, sensor_sigmas, max_range, fov, (seeds[0], seeds[2]))
@@ -224,10 +223,12 @@ class RadarOdometry:
             events += more
             x, P, Q, _ = self._restart(x, P, [], None)
         fit = self.doppler.fit(polar[static])
+        still = self.doppler.standstill_information(fit, self.motion, settled=self.at_rest)
         if Q is not None:
+            if (still is not None) != self.at_rest:  # stopped or moved off: the acceleration jumps
+                Q, P = self.motion.with_jump(Q, P, self.window.newest, t, self.config.standstill.sigma_accel_jump)
             x = self.doppler.correct(x, P, fit)
             self.window.push(x, Q)
-        still = self.doppler.standstill_information(fit, self.motion, settled=self.at_rest)
         self.at_rest = still is not None
         self.window.set_rate_prior(len(self.window.states) - 1, self.vehicle_information if still is None else still)
         return x, P, static, still, fit
@@ -347,10 +348,9 @@ class RadarOdometry:
                             int(static.sum()), len(pairs.map_idx), nis, timings, events, detail, standstill)
 
     # --- helpers ------------------------------------------------------------------------------------------
-    def _point_covariances(self, polar: np.ndarray, C_world_sensor: np.ndarray) -> np.ndarray:
-        """World-frame covariance of new map points under the model's own noise assumption."""
-        cov_sensor = self.measurement.position_covariance_sensor(polar, self.sigmas, self.config.noise.cartesian_sigma)
-        return C_world_sensor @ cov_sensor @ C_world_sensor.T
+    def _point_covariances(self, z: np.ndarray, C: np.ndarray) -> np.ndarray:
+        """World-frame covariance of new map points from detections z (C: world from sensor), model's noise."""
+        return C @ self.measurement.position_covariance_sensor(z, self.sigmas, self.config.noise.cartesian_sigma) @ C.T
 
     def _measurement_set(self, W_pairs, pairs, scan: ScanMeasurements) -> MeasurementSet | None:
         if W_pairs is None or len(pairs.map_idx) == 0:

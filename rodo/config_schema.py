@@ -78,6 +78,8 @@ DESCRIPTIONS = {  # keys whose source has no comment or docstring entry, or only
     "standstill.sigma_rate": "1-sigma of the zero-velocity term on the angular rates",
     "standstill.sigma_accel": "1-sigma of the zero-velocity term on the linear acceleration",
     "standstill.sigma_angular_accel": "1-sigma of the zero-velocity term on the angular acceleration",
+    "standstill.sigma_accel_jump": "1-sigma of the linear acceleration's jump when the vehicle stops or moves off "
+                                   "(the prior noise of the interval into it); 0 disables it",
     "vehicle.sigma_roll_rate": "1-sigma of the zero-mean term on the roll rate; 0 disables it",
     "vehicle.sigma_pitch_rate": "1-sigma of the zero-mean term on the pitch rate; 0 disables it",
     "vehicle.sigma_lateral_velocity": "1-sigma of the zero-mean term on the lateral velocity at the vehicle origin "
@@ -96,7 +98,7 @@ USED_BY = {  # keys that only some models read: key -> the model part that reads
     "noise.qc_ca": "ca", "noise.qc_cv": "cv", "noise.cartesian_sigma": "cartesian",
     "noise.map_sigma_polar": "polar", "noise.map_sigma_cartesian": "cartesian",
     "solver.init_accel_sigma": "ca", "solver.init_angular_accel_sigma": "ca",
-    "standstill.sigma_accel": "ca", "standstill.sigma_angular_accel": "ca",
+    "standstill.sigma_accel": "ca", "standstill.sigma_angular_accel": "ca", "standstill.sigma_accel_jump": "ca",
 }
 
 UNIT_RE = re.compile(r"^(m|s|seconds|m/s|rad/s|m/s\^2|rad/s\^2|deg|rad)(?=$|[,:;)\s])")
