@@ -56,7 +56,7 @@ class MotionPrior(ABC):
         `sigma` (m/s^2) at an unknown time within it added (`config.StandstillConfig.sigma_accel_jump`); as they
         are for a prior without acceleration or sigma 0.
 
-        Checked by: tests/estimator/test_standstill.py::test_the_jump_noise_is_an_acceleration_jump
+        Checked by: tests/estimator/test_priors_ca.py::test_the_jump_noise_is_an_acceleration_jump
         """
         return Q, P
 

@@ -116,24 +116,31 @@ def test_hard_braking_is_followed(model):
 @pytest.mark.parametrize("accel", [3.7, 3.85, -3.95])
 def test_a_departure_from_rest_at_the_start_is_followed(accel):
     """Moving off at about 4 sigma of the initial acceleration (`solver.init_accel_sigma` 1 m/s^2) from the second
-    scan of a drive: the predicted velocity's error and its sigma grow together, so its Doppler check stays just
-    below its 99.9 % at every scan while the pairs' 95 % gates reject every pair; CA/P coasted at zero velocity
-    (errors 0.3-2.4 m/s). The re-centring at the pairs' level (`RadarOdometry._recentre`) follows it from the
-    first moving scan; without a departure it never fires."""
+    scan of a drive. Without the start's acceleration jump (`standstill.sigma_accel_jump` 0) the predicted
+    velocity's error and its sigma grow together, so its Doppler check stays just below its 99.9 % at every scan
+    while the pairs' 95 % gates reject every pair; CA/P coasted at zero velocity (errors 0.3-2.4 m/s). The
+    re-centring at the pairs' level (`RadarOdometry._recentre`) follows it from the first moving scan; without a
+    departure it never fires. With the jump (the default) the prediction's own covariance holds the start and
+    every scan is followed as well."""
+    import dataclasses
+
     rng = np.random.default_rng(5)
     t, T, varpi, vd = _two_segments(1, 20, 0.0, accel)
     L = scene.landmarks(rng)
-    odo = RadarOdometry(OdometryConfig.for_model("ca-polar"), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
-    recentred = []
-    for k in range(len(t)):
-        est = odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
-        recentred.append("doppler-recentred" in est.events)
-        if k >= 1:
-            assert np.abs(est.varpi[:3] - varpi[k][:3]).max() < 0.05, k
-            assert est.n_associated > 0.8 * est.n_detections, k
-    assert recentred[1]
+    default = OdometryConfig.for_model("ca-polar")
+    no_jump = default.replace(standstill=dataclasses.replace(default.standstill, sigma_accel_jump=0.0))
+    for config in (no_jump, default):
+        odo = RadarOdometry(config, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+        recentred = []
+        for k in range(len(t)):
+            est = odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
+            recentred.append("doppler-recentred" in est.events)
+            if k >= 1:
+                assert np.abs(est.varpi[:3] - varpi[k][:3]).max() < 0.05, k
+                assert est.n_associated > 0.8 * est.n_detections, k
+        assert recentred[1] or config is default
     t, T, varpi, vd = _two_segments(20, 1, 0.0, 0.0)  # the same scene at rest
-    odo = RadarOdometry(OdometryConfig.for_model("ca-polar"), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+    odo = RadarOdometry(no_jump, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
     for k in range(len(t)):
         assert "doppler-recentred" not in odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng)).events
 
