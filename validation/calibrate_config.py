@@ -101,9 +101,7 @@ def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: Odome
     }
     config = config.replace(noise=noise)
     if consistency:
-        one = len(seqs) == 1
-        config, report["consistency"] = cc.fit_consistency(seqs[0] if one else seqs, truths[0] if one else truths,
-                                                           config, progress=progress)
+        config, report["consistency"] = cc.fit_consistency(seqs, truths, config, progress=progress)
     return config, report
 
 

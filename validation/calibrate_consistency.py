@@ -42,8 +42,8 @@ a simulated sequence like it (docs/calibration.md).
 
 Several sequences: every fit takes one run (states and truth dicts) or several (two lists of the same length)
 and pools them: the median ratios over all their scans, one velocity and one drift-rate fit over all scans,
-tau on the pooled ratios. `fit_consistency` runs each sequence once per kappa. Drives of the length and kind
-the config will be used on carry over better than one long drive (docs/calibration.md).
+tau on the pooled ratios. `fit_consistency` runs each sequence once per kappa. (Six 30 s drives did not carry
+over to other drives better than one 180 s drive: docs/calibration.md.)
 
 Checked by: tests/validation/test_calibrate_consistency.py
 """
@@ -132,18 +132,18 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
     return config.replace(uncertainty=unc)
 
 
-def fit_relative_inflation(states: dict, truth: dict, inflation: float, ratio_tolerance: float,
+def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: float, ratio_tolerance: float,
                            drift_rate_sigma=None) -> dict:
     """The factor on the one-scan relative pose covariance for a run (or runs, pooled) that had `inflation`: the
-    factor at which
-    the median ratio of the one-scan relative pose is 1 (the scan's composed covariance, `span_covariances`:
-    the factor scales the window's relative covariance and its revision term, not the velocity error's and this
-    drift rate's shares), or `inflation` itself when that ratio is within ratio_tolerance of 1 already (|ln r| < ln(1 +
-    ratio_tolerance), as the kappa fixed point stops) or when no factor within 2^30 of it reaches 1 (those
-    shares alone too cautious, or no finite ratio). Returns {"inflation": the factor, "median_ratio": [r at
-    `inflation`, r at the factor], "outcome": "fitted", "within tolerance" or "out of reach"}. The one-scan
-    measure is the same at every tau > 0 (at tau 0 it loses the velocity term, so a tau of 0 chosen after f
-    leaves it over-confident: hills CA/P with prior_memory 0.5 s, 1.28 where f made it 1).
+    factor at which the median ratio of the one-scan relative pose is 1 (the scan's composed covariance,
+    `span_covariances`: the factor scales the window's relative covariance and its revision term, not the
+    velocity error's and this drift rate's shares), or `inflation` itself when that ratio is within
+    ratio_tolerance of 1 already (|ln r| < ln(1 + ratio_tolerance), as the kappa fixed point stops) or when no
+    factor within 2^30 of it reaches 1 (those shares alone too cautious, or no finite ratio). Returns
+    {"inflation": the factor, "median_ratio": [r at `inflation`, r at the factor], "outcome": "fitted", "within
+    tolerance" or "out of reach"}. The one-scan measure is the same at every tau > 0 (at tau 0 it loses the
+    velocity term, so a tau of 0 chosen after f leaves it over-confident: hills CA/P with prior_memory 0.5 s,
+    1.28 where f made it 1).
 
     Checked by: tests/validation/test_calibrate_consistency.py::test_relative_factor_makes_the_one_scan_pose_consistent,
         ::test_relative_factor_out_of_reach_is_left_as_it_was
@@ -185,7 +185,7 @@ def relative_inflated_states(states: dict, factor: float) -> dict:
     return out
 
 
-def fit_velocity_inflation(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
+def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: float = DEFAULT_TOLERANCE) -> dict:
     """The velocity's variance factor c_k = a + b |nu_k| of one run (or runs, pooled) by maximum likelihood: the
     velocity errors e_k ~ N(0, c_k P_k), P_k the window's velocity covariance (`drift_velocity_covariances`:
     whatever factors the run had are divided out), nu_k its estimated linear velocity, over every scan
@@ -227,7 +227,7 @@ def velocity_inflated_states(states: dict, inflation: float, per_speed: float) -
     return dict(states, P=P, velocity_inflation=np.array([inflation, per_speed]))
 
 
-def fit_drift_rate(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE) -> dict:
+def fit_drift_rate(states: dict | list, truth: dict | list, tolerance: float = DEFAULT_TOLERANCE) -> dict:
     """The drift rate of one run (or runs, pooled: one beta over all their scans): beta (6,) = sum_k e_k /
     sum_k s_k, e_k = ln(R_true R_est^-1) the one-scan relative error (vehicle frame) and s_k the true distance of
     the scan; its standard error se (6,) from the scatter of e_k - s_k beta (scans as independent);
@@ -249,7 +249,7 @@ def fit_drift_rate(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERAN
     return {"beta": beta.tolist(), "se": se.tolist(), "sigma": np.hypot(beta, se).tolist(), "distance": distance}
 
 
-def _ratios(states: dict, truth: dict, span: float, tau: float, drift_rate_sigma=None) -> dict:
+def _ratios(states: dict | list, truth: dict | list, span: float, tau: float, drift_rate_sigma=None) -> dict:
     """The median ratio of every REPORTED measure of one run's states (or runs', pooled) at this tau (and drift
     rate)."""
     m = [odometry_nees(s, t, span=span, tau=tau, drift_rate_sigma=drift_rate_sigma) for s, t in runs_of(states, truth)]
@@ -286,7 +286,8 @@ def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None) -> np.
     return np.stack(out)
 
 
-def fit_tau(states: dict, truth: dict, span: float = 1.0, taus=TAUS, drift_rate_sigma=None) -> tuple[float, dict]:
+def fit_tau(states: dict | list, truth: dict | list, span: float = 1.0, taus=TAUS,
+            drift_rate_sigma=None) -> tuple[float, dict]:
     """The tau of the grid that makes the relative pose over `span` seconds and the absolute pose most
     consistent: the least `tau_cost` of their median ratios; returns (tau, {tau: (r_span, r_pose)})."""
     ratios = {}

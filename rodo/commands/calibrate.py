@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "Qc of the model's prior. Writes CONFIG.toml, CONFIG.json and CONFIG.md.")
     p.add_argument("sequence", metavar="SEQ_DIR", nargs="+",
                    help="sequence directory (radar.csv, sensor.toml[, truth.npz]); with ground truth several, pooled "
-                        "(drives like those the config is for: docs/calibration.md)")
+                        "(docs/calibration.md)")
     p.add_argument("--model", choices=MODELS, default=None, help="the config's model (default ca-polar)")
     p.add_argument("--out", required=True, metavar="CONFIG.toml", help="the config to write")
     p.add_argument("--config", metavar="FILE", help="base TOML config (its other settings are kept)")
@@ -170,8 +170,8 @@ def main(args) -> int:
     seq = seqs[0]
     for d, other in zip(args.sequence[1:], seqs[1:]):
         if other.sensor != seq.sensor:
-            raise InputError(f"{Path(d) / 'sensor.toml'}: another sensor than "
-                             f"{Path(args.sequence[0]) / 'sensor.toml'}; calibrate the sequences of one sensor together")
+            raise InputError(f"{Path(d) / 'sensor.toml'}: another sensor than {Path(args.sequence[0]) / 'sensor.toml'}"
+                             "; calibrate the sequences of one sensor together")
     if args.no_truth:
         def say(h):
             print(f"EM iteration: qc {np.array2string(h.qc_out, precision=4)}, change {h.change:.3g}")
@@ -186,8 +186,7 @@ def main(args) -> int:
             print(f"uncertainty: measurement_inflation {s.kappa:.3g}, median NEES ratio "
                   + ", ".join(f"{k} {v:.3g}" for k, v in s.ratios.items()))
         truths = [load_truth(d) for d in args.sequence]
-        config, report = calibrate_with_truth(seqs if len(seqs) > 1 else seq, truths if len(seqs) > 1 else truths[0],
-                                              config, args.duration, args.floor,
+        config, report = calibrate_with_truth(seqs, truths, config, args.duration, args.floor,
                                               consistency=not args.no_consistency, progress=step)
     _write(out, config_toml(config, _header(report, " ".join(args.sequence), config.model)))
     _write(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
