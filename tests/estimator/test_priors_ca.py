@@ -388,13 +388,14 @@ def test_bad_batches():
         prior.predict(np.stack([np.eye(4)] * 2), np.zeros((3, 6)), VD, 0.1)
 
 
-@given(motion=vehicle_motion(), dt=st.floats(0.03, 0.2), sigma=st.floats(0.1, 5.0), seed=st.integers(0, 2**16))
+@given(motion=vehicle_motion(), dt=st.floats(0.03, 0.2), sigma=st.floats(0.1, 5.0))
 @settings(max_examples=10, deadline=None)
-def test_the_jump_noise_is_an_acceleration_jump(motion, dt, sigma, seed):
+def test_the_jump_noise_is_an_acceleration_jump(motion, dt, sigma):
     """`ConstantAccelerationMotion.with_jump` adds the covariance of one linear acceleration jump of N(0,
-    sigma^2 I) at a uniform time within the interval (a stop, a start): 40 000 such jumps propagated through the
-    prior's own mean from a state at rest (where the mean is exact) have that sample covariance (every entry
-    within 4 % of the diagonal's scale); the added noise does not depend on how Q's linearity is used (its
+    sigma^2 I) at a uniform time within the interval (a stop, a start): 200 000 such jumps propagated through
+    the prior's own mean from a state at rest (where the mean is exact) have that sample covariance (every entry
+    within 2 % of the diagonal's scale; the sample's own spread is 0.6 %, and the draws are the same for every
+    dt and sigma, which only scale them); the added noise does not depend on how Q's linearity is used (its
     state-dependent form at a moving state equals Q(diag(q, q, q, 0, 0, 0)) built from another basis); CV and
     sigma 0 add nothing."""
     from rodo.estimator.motion import motion_prior
@@ -405,10 +406,10 @@ def test_the_jump_noise_is_an_acceleration_jump(motion, dt, sigma, seed):
     rest = State(0.0, se3.exp(np.array([1.0, 2.0, 0.3, 0.01, -0.02, 0.5])), np.zeros(6), np.zeros(6))
     J, P2 = ca.with_jump(Q, P, rest, dt, sigma)  # Q 0: J is the added noise itself
     np.testing.assert_allclose(P2 - P, J, rtol=1e-12, atol=1e-15)
-    rng = np.random.default_rng(np.random.SeedSequence([2026, 19, seed]))
-    n = 40_000
+    rng = np.random.default_rng(np.random.SeedSequence([2026, 19]))
+    n = 200_000
     T0, zero = np.repeat(rest.T_vehicle_world[None], n, axis=0), np.zeros((n, 6))
-    tau, jump = rng.uniform(0, dt, n), np.c_[rng.normal(0, sigma, (n, 3)), np.zeros((n, 3))]
+    tau, jump = dt * rng.uniform(0, 1, n), np.c_[sigma * rng.normal(0, 1, (n, 3)), np.zeros((n, 3))]
     T_mid, v_mid, a_mid = ca.predict_batch(T0, zero, zero, tau)
     T_end, v_end, a_end = ca.predict_batch(T_mid, v_mid, a_mid + jump, dt - tau)
     ref = ca.predict(rest, dt)
@@ -417,7 +418,7 @@ def test_the_jump_noise_is_an_acceleration_jump(motion, dt, sigma, seed):
     d = 1.0 / np.sqrt(np.maximum(np.diag(J), 1e-300))
     lin = np.r_[0:3, 6:9, 12:15]
     np.testing.assert_allclose((C * d[:, None] * d[None, :])[np.ix_(lin, lin)],
-                               (J * d[:, None] * d[None, :])[np.ix_(lin, lin)], atol=0.04)
+                               (J * d[:, None] * d[None, :])[np.ix_(lin, lin)], atol=0.02)
     assert np.abs(np.delete(np.delete(J, lin, 0), lin, 1)).max() < 1e-12 * np.abs(J).max()
     # at a moving state: the same noise from another split of Q's linearity in Qc (q e_i, not via I)
     from rodo.estimator.priors import ConstantAccelerationPrior
