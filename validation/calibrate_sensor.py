@@ -154,12 +154,13 @@ def common_doppler_error(seq, truth: dict, scans: int | None = None, labels=STAT
             excess_noise.append(np.diag(np.linalg.inv(info)))
     if len(b) < 10:
         raise InputError(f"common Doppler error: need >= 10 scans with static detections, got {len(b)}")
-    b, inv_diag = np.array(b), np.array(excess_noise)
     sigma_vr2 = rss / dof_sum
-    samples = b**2 - sigma_vr2 * inv_diag  # unbiased for sigma_c^2 per scan and axis
+    # unbiased for sigma_c^2 per scan and axis; a scan whose detections all lie in the sensor plane fits 2 axes
+    samples = np.concatenate([b_k**2 - sigma_vr2 * d for b_k, d in zip(b, excess_noise)])
     est, se = float(samples.mean()), float(samples.std(ddof=1) / np.sqrt(samples.size))
     significant = bool(est > significance * se)
-    lag1 = [float(np.corrcoef(b[1:, i], b[:-1, i])[0, 1]) for i in range(b.shape[1])]
+    axes = [np.array([b_k[i] for b_k in b if len(b_k) > i]) for i in range(max(len(b_k) for b_k in b))]
+    lag1 = [float(np.corrcoef(x[1:], x[:-1])[0, 1]) if len(x) > 2 else float("nan") for x in axes]
     return {"sigma_c": float(np.sqrt(est)) if significant else 0.0,
             "sigma_c_estimate": float(np.sqrt(max(est, 0.0))), "standard_error_of_sigma_c2": se,
             "significant": significant, "sigma_vr_independent": float(np.sqrt(sigma_vr2)), "lag1": lag1,
