@@ -56,7 +56,7 @@ class MotionPrior(ABC):
         `sigma` (m/s^2) at an unknown time within it added (`config.StandstillConfig.sigma_accel_jump`); as they
         are for a prior without acceleration or sigma 0.
 
-        Checked by: tests/estimator/test_priors_ca.py::test_the_jump_noise_is_an_acceleration_jump
+        Checked by: tests/estimator/test_standstill.py::test_the_jump_noise_is_an_acceleration_jump
         """
         return Q, P
 
@@ -108,7 +108,6 @@ class ConstantAccelerationMotion(MotionPrior):
 
     def __init__(self, qc_diag):
         self.prior = ConstantAccelerationPrior(np.diag(np.asarray(qc_diag, dtype=float)))
-        self._jump_basis = None  # Q_k is linear in Qc: Q(diag(1, 1, 1, 0, 0, 0)) = Q(diag(2, 2, 2, 1, 1, 1)) - Q(I)
 
     def initial_state(self, t, T_vehicle_world, varpi):
         return State(t, T_vehicle_world, varpi, np.zeros(6))
@@ -116,13 +115,12 @@ class ConstantAccelerationMotion(MotionPrior):
     def with_jump(self, Q, P, x, t, sigma):
         if sigma <= 0:
             return Q, P
-        if self._jump_basis is None:
-            self._jump_basis = (ConstantAccelerationPrior(np.diag([2.0, 2.0, 2.0, 1.0, 1.0, 1.0])),
-                                ConstantAccelerationPrior(np.eye(6)))
         dt = t - x.t
-        both, unit = (p.transition_and_noise(x.varpi, x.varpi_dot, dt)[1] for p in self._jump_basis)
-        J = sigma**2 / dt * (both - unit)  # the jerk PSD sigma^2 / dt on x, y, z: Var(a) grows by sigma^2
-        return Q + J, P + J
+        Qc = np.diag([sigma**2 / dt] * 3 + [0.0] * 3)  # the jerk PSD of the jump: Var(a) grows by sigma^2 over dt
+        F, J = np.empty((1, 18, 18)), np.empty((1, 18, 18))  # the kernel is linear in Qc, semi-definite or not
+        prior_kernels.ca_batch(x.varpi[None], x.varpi_dot[None], np.array([dt]), Qc, self.prior.magnus_order,
+                               self.prior.noise_code, F, J, True)
+        return Q + J[0], P + J[0]
 
     def predict(self, x, t):
         T, varpi, varpi_dot = self.prior.predict(x.T_vehicle_world, x.varpi, x.varpi_dot, t - x.t)
