@@ -48,8 +48,29 @@ def support(p: np.ndarray, voxel: float) -> int:
     return len(np.unique(voxel_keys(p, voxel))) if len(p) else 0
 
 
+@dataclasses.dataclass(frozen=True)
+class Voxels:
+    """A scan's points by voxel (edge `voxel` m), found once per scan for every check of the scan: `index` (n,)
+    numbers each point's voxel 0..K-1, `counts` (K,) the points in each.
+
+    Checked by: tests/estimator/test_moving_groups.py::test_voxels_of_a_scan_give_the_support_of_any_subset
+    """
+
+    index: np.ndarray
+    counts: np.ndarray
+
+    @classmethod
+    def of(cls, p: np.ndarray, voxel: float) -> "Voxels":
+        _, index, counts = np.unique(voxel_keys(p, voxel), return_inverse=True, return_counts=True)
+        return cls(index.reshape(-1), counts)
+
+    def support(self, rows: np.ndarray) -> int:
+        """`support` of the points p[rows] (a mask or indices), counted from the voxels found already."""
+        return int(np.count_nonzero(np.bincount(self.index[rows], minlength=len(self.counts))))
+
+
 def moving_voxels(pts, u, vr, var, gated, voxel: float, z: float, margin: float, max_residual: float,
-                  min_points: int = 5) -> np.ndarray:
+                  min_points: int = 5, voxels: Voxels | None = None) -> np.ndarray:
     """(n,) mask of the detections in voxels that move slowly against the world: as a group their Doppler
     disagrees with it, though each detection alone may be inside its gate. An object that starts to move (a
     queue of cars moving off) stays inside every detection's gate for a few scans, and as one dense group
@@ -60,12 +81,14 @@ def moving_voxels(pts, u, vr, var, gated, voxel: float, z: float, margin: float,
     detections, the mean residual r against that fit, with variance sum(var) / n^2 (var: each detection's
     radial-velocity variance, angle noise seen through the velocity included); flagged when
     z sqrt(variance) + margin < |r| <= max_residual and the voxel holds min_points. Nothing is flagged when the
-    flagged voxels would be half the gated voxels or more. u: (n, 3) directions, vr: (n,) radial velocities.
+    flagged voxels would be half the gated voxels or more. u: (n, 3) directions, vr: (n,) radial velocities;
+    voxels: `Voxels.of(pts, voxel)` when the caller has it.
     """
     out = np.zeros(len(vr), bool)
-    keys, inv, n = np.unique(voxel_keys(pts, voxel), return_inverse=True, return_counts=True)
+    voxels = Voxels.of(pts, voxel) if voxels is None else voxels
+    inv, n = voxels.index, voxels.counts
     g = np.flatnonzero(gated)
-    n_gated = np.bincount(inv[g], minlength=len(keys))
+    n_gated = np.bincount(inv[g], minlength=len(n))
     if len(g) < 2 * min_points or np.count_nonzero(n_gated) < 4:
         return out
     dof = 2 if np.all(np.abs(u[:, 2]) < np.sin(PLANAR_ELEVATION)) else 3  # the RANSAC's rule (u_z = sin el)
@@ -91,30 +114,34 @@ class ConsensusSwitch:
         self.rng = rng
         self.outvoted_scans = 0
 
-    def wider(self, az, el, vr, threshold, taken: np.ndarray, pts: np.ndarray) -> np.ndarray | None:
+    def wider(self, az, el, vr, threshold, taken: np.ndarray, pts: np.ndarray,
+              voxels: Voxels | None = None) -> np.ndarray | None:
         """The largest Doppler consensus among the detections outside `taken` (a mask), if it covers
-        `consensus_switch_ratio` times the space `taken` covers; else None. pts: the detections' positions."""
+        `consensus_switch_ratio` times the space `taken` covers; else None. pts: the detections' positions;
+        voxels: `Voxels.of(pts, consensus_voxel)` when the caller has it."""
         cfg = self.config
         rest = np.flatnonzero(~taken)
         if len(rest) < MIN_STATIC:
             return None
-        need = cfg.consensus_switch_ratio * max(support(pts[taken], cfg.consensus_voxel), 1)
-        if support(pts[rest], cfg.consensus_voxel) < need:  # no subset of the rest can cover enough
+        voxels = Voxels.of(pts, cfg.consensus_voxel) if voxels is None else voxels
+        need = cfg.consensus_switch_ratio * max(voxels.support(taken), 1)
+        if voxels.support(rest) < need:  # no subset of the rest can cover enough
             return None
         free = estimate_ego_velocity(az[rest], el[rest], vr[rest], self.rng, sigma_vr=self.sigma_vr,
                                      threshold=None if np.ndim(threshold) == 0 else threshold[rest])
         if not free.ok or free.inliers.sum() < MIN_STATIC \
-                or support(pts[rest[free.inliers]], cfg.consensus_voxel) < need:
+                or voxels.support(rest[free.inliers]) < need:
             return None
         mask = np.zeros(len(vr), bool)
         mask[rest[free.inliers]] = True
         return mask
 
-    def outvoted(self, az, el, vr, threshold, ours: np.ndarray, pts: np.ndarray, scan_dt: float):
+    def outvoted(self, az, el, vr, threshold, ours: np.ndarray, pts: np.ndarray, scan_dt: float,
+                 voxels: Voxels | None = None):
         """The wider consensus (a mask) once one has been seen for `consensus_switch_after` seconds of scans in
         a row (scan_dt: the time between scans), else None. Disabled when that time is 0."""
         after = self.config.consensus_switch_after
-        mask = None if after <= 0 else self.wider(az, el, vr, threshold, ours, pts)
+        mask = None if after <= 0 else self.wider(az, el, vr, threshold, ours, pts, voxels)
         self.outvoted_scans = 0 if mask is None else self.outvoted_scans + 1
         if mask is not None and self.outvoted_scans >= max(int(np.ceil(after / max(scan_dt, 1e-3))), 1):
             self.outvoted_scans = 0

@@ -26,7 +26,7 @@ import numpy as np
 
 from . import association
 from .config import OdometryConfig
-from .consensus import MIN_STATIC, ConsensusSwitch, moving_voxels
+from .consensus import MIN_STATIC, ConsensusSwitch, Voxels, moving_voxels
 from .ego_velocity import RANSAC_ITERATIONS, EgoVelocity, is_planar, least_squares_velocity, ransac_velocity
 from .lie import so3
 from .motion import MotionPrior
@@ -139,11 +139,12 @@ class DopplerFrontEnd:
         if confident:
             radius = 3.0 * np.sqrt(np.linalg.eigvalsh(Sv)[-1]) + acfg.doppler_jerk_margin
             pts = u * polar[:, :1]
-            moving = self._moving_groups(pts, u, vr, var_fit, mask, radius)
+            voxels = Voxels.of(pts, acfg.consensus_voxel)  # for both checks of the space a consensus covers
+            moving = self._moving_groups(pts, u, vr, var_fit, mask, radius, voxels)
             mask &= ~moving
             ego = self._gated_ransac(polar, u, fit_threshold, v, radius, ~moving)
             ours = ego.inliers if ego.ok and ego.inliers.sum() >= max(MIN_STATIC, mask.sum()) else mask
-            switch = self.consensus.outvoted(az, el, vr, fit_threshold, ours, pts, scan_dt)
+            switch = self.consensus.outvoted(az, el, vr, fit_threshold, ours, pts, scan_dt, voxels)
             if switch is not None:
                 return switch, "doppler-consensus-switch"
             # fewer than MIN_STATIC near a confident prediction: what fills the view is not the world (an
@@ -157,14 +158,14 @@ class DopplerFrontEnd:
         return mask, None
 
     def _moving_groups(self, pts: np.ndarray, u: np.ndarray, vr: np.ndarray, var_fit: np.ndarray,
-                       gated: np.ndarray, radius: float) -> np.ndarray:
+                       gated: np.ndarray, radius: float, voxels: Voxels) -> np.ndarray:
         """Detections in voxels that move slowly as a group (`consensus.moving_voxels`, within `radius` of the
         world's Doppler fit); none when `association.moving_group_z` is 0."""
         acfg = self.config.association
         if acfg.moving_group_z <= 0:
             return np.zeros(len(vr), bool)
         return moving_voxels(pts, u, vr, var_fit, gated, acfg.consensus_voxel, acfg.moving_group_z,
-                             acfg.moving_group_margin, radius)
+                             acfg.moving_group_margin, radius, voxels=voxels)
 
     def _gated_ransac(self, polar: np.ndarray, u: np.ndarray, threshold: np.ndarray, v: np.ndarray,
                       radius: float, keep: np.ndarray) -> EgoVelocity:

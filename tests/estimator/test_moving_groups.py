@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rodo.estimator.config import OdometryConfig
-from rodo.estimator.consensus import moving_voxels, voxel_keys
+from rodo.estimator.consensus import Voxels, moving_voxels, support, voxel_keys
 from rodo.estimator.radar_geometry import polar_to_cartesian
 
 SIGMA = 0.02  # m/s, radial velocity noise of the synthetic scans
@@ -100,3 +100,24 @@ def test_a_queue_of_cars_moving_off_is_not_followed(model):
         errors[z] = np.linalg.norm(states["varpi"][:, :3] - truth["varpi"][:, :3], axis=1).max()
     assert errors[4.0] < 0.1
     assert errors[0.0] > errors[4.0] + 0.05
+
+
+@given(seed=st.integers(0, 2**32 - 1), voxel=st.floats(0.3, 5.0), n=st.integers(0, 200))
+@settings(max_examples=40, deadline=None)
+def test_voxels_of_a_scan_give_the_support_of_any_subset(seed, voxel, n):
+    """The voxels found once per scan (`Voxels`) count the space of any subset (a mask or indices, empty too)
+    as `support` of that subset alone, and `moving_voxels` flags the same detections with them as without."""
+    rng = np.random.default_rng(seed)
+    p = np.c_[rng.uniform(-20, 60, n), rng.uniform(-30, 30, n), rng.uniform(-2, 3, n)]
+    voxels = Voxels.of(p, voxel)
+    for _ in range(5):
+        mask = rng.random(n) < rng.random()
+        assert voxels.support(mask) == support(p[mask], voxel)
+        idx = np.flatnonzero(mask)
+        assert voxels.support(idx) == support(p[idx], voxel)
+    p, u, vr, var, n_world = _scan(rng, np.array([8.0, 0.5, 0.0]), group_speed=0.08)
+    gated = np.abs(vr + u @ np.array([8.0, 0.5, 0.0])) <= GATE
+    want = moving_voxels(p, u, vr, var, gated, 2.0, 4.0, 0.02, 0.5)
+    assert want[n_world:].any()  # the case flags the group: the comparison below is not of two empty masks
+    np.testing.assert_array_equal(moving_voxels(p, u, vr, var, gated, 2.0, 4.0, 0.02, 0.5,
+                                                voxels=Voxels.of(p, 2.0)), want)
