@@ -198,6 +198,10 @@ class UncertaintyConfig:
     velocity_inflation, velocity_inflation_per_speed: the reported velocity variance is the window's times
         velocity_inflation + velocity_inflation_per_speed x speed (m/s): its error grows with the speed, the
         window's covariance hardly does (`uncertainty.velocity_inflated`). Not in the solve or the gates.
+    velocity_inflation_per_doppler: + this x ln(1 + the scan's Doppler innovation NIS per dof) on that factor:
+        where the motion leaves the prior's model (a turn's onset, a start) the scan's Doppler disagrees with
+        the prediction, and the velocity's error is larger than the window's covariance (docs/consistency.md,
+        "... and at a manoeuvre"). Not in the solve or the gates.
     prior_memory: time constant (s) of the marginalised prior's memory: at each marginalisation its information
         is multiplied by exp(-dt / prior_memory) (dt: the marginalised interval). It holds the past scans'
         information, which the map, made from the same scans, brings back again; with a stiff Qc it never
@@ -211,6 +215,7 @@ class UncertaintyConfig:
     prior_memory: float = 0.0  # s
     velocity_inflation: float = 1.0
     velocity_inflation_per_speed: float = 0.0
+    velocity_inflation_per_doppler: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -112,6 +112,7 @@ RULES: dict[str, Rule] = {
     "uncertainty.prior_memory": NONNEGATIVE,
     "uncertainty.velocity_inflation": Rule(0.0, lo_closed=False),
     "uncertainty.velocity_inflation_per_speed": NONNEGATIVE,
+    "uncertainty.velocity_inflation_per_doppler": NONNEGATIVE,
     "solver.iterations": Rule(1, 1000),
     "solver.step_tolerance": POSITIVE,
     "solver.step_sigma_tolerance": NONNEGATIVE,

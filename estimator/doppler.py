@@ -196,8 +196,12 @@ class DopplerFrontEnd:
         cov = fit[1] + sigma_c**2 * np.eye(len(fit[0])) if sigma_c > 0 else fit[1]
         return DopplerFit(fit[0], cov, static[:, 3])
 
-    def correct(self, x: State, P: np.ndarray, fit: DopplerFit | None, pairs_level: bool = False) -> State:
-        """The predicted state, corrected by the scan's Doppler ego-velocity when the two disagree.
+    def correct(self, x: State, P: np.ndarray, fit: DopplerFit | None,
+                pairs_level: bool = False) -> tuple[State, float]:
+        """The predicted state, corrected by the scan's Doppler ego-velocity when the two disagree, and the
+        innovation's NIS per dof, nu^T S^-1 nu / dof (NaN without a fit): how far the scan's Doppler is from the
+        prediction, which `uncertainty.velocity_inflation_per_doppler` turns into the reported velocity's
+        variance (the prior's mistakes at a manoeuvre show here first).
 
         Association gates the radial velocity at the sensor's few cm/s, so a velocity prediction off by a
         tenth of a m/s (an unmodelled jerk: hard braking, a hand-held sensor) would reject most true pairs. The
@@ -210,7 +214,7 @@ class DopplerFrontEnd:
         re-centring when the pairs' gates rejected the scan, `RadarOdometry._recentre`).
         """
         if fit is None:
-            return x
+            return x, float("nan")
         _, J = sensor_velocity(x.varpi, self.T_vehicle_sensor)
         J = J[:fit.dof]
         H = np.zeros((fit.dof, len(P)))
@@ -218,10 +222,11 @@ class DopplerFrontEnd:
         S = H @ P @ H.T + fit.cov
         innovation = fit.v - J @ x.varpi
         gate = (self.pair_gate if pairs_level else self.update_gate)[fit.dof]
-        if innovation @ np.linalg.solve(S, innovation) <= gate:
-            return x  # the prediction agrees with the scan's Doppler: nothing to correct
+        nis = float(innovation @ np.linalg.solve(S, innovation))
+        if nis <= gate:
+            return x, nis / fit.dof  # the prediction agrees with the scan's Doppler: nothing to correct
         K = np.linalg.solve(S, H @ P).T
-        return x.oplus(K @ innovation)
+        return x.oplus(K @ innovation), nis / fit.dof
 
     def standstill_information(self, fit: DopplerFit | None, motion: MotionPrior,
                                settled: bool = True) -> np.ndarray | None:

@@ -23,7 +23,6 @@ Per scan k (paper sec. III-VI; docs/estimator.md gives the reasons and the measu
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -40,6 +39,7 @@ from .motion import motion_prior_for
 from .radar_geometry import check_fov
 from .scan import ScanDetail, ScanEstimate
 from .scan_association import MapAssociation, ScanMeasurements
+from .sensor import Sensor
 from .state import State
 from .surface import surface_covariances
 from .uncertainty import DriftCovariance, relative_pose_covariance, revision_covariance, velocity_inflated
@@ -90,6 +90,7 @@ class RadarOdometry:
         self.restart_relative: np.ndarray | None = None  # relative pose covariance across a re-initialisation
         self.last_estimate: ScanEstimate | None = None
         self.at_rest = False  # the last scan's Doppler said the sensor was at rest (the standstill term)
+        self.doppler_nis = float("nan")  # this scan's Doppler innovation NIS per dof (`DopplerFrontEnd.correct`)
 
     def add_sensor(self, T_vehicle_sensor, sensor_sigmas, max_range: float = 200.0, fov=None) -> int:
         """Another radar on the same vehicle (multi-radar odometry): returns its index for `process`. Its scans
@@ -104,7 +105,7 @@ class RadarOdometry:
         self.map.max_age = self.config.map.max_age * len(self.sensors)
         return i
 
-    def _sensor(self, T_vehicle_sensor, sensor_sigmas, max_range, fov, seeds) -> "Sensor":
+    def _sensor(self, T_vehicle_sensor, sensor_sigmas, max_range, fov, seeds) -> Sensor:
         config = self.config
         T = check_finite("T_vehicle_sensor", T_vehicle_sensor, (4, 4))
         sig = check_finite("sensor_sigmas", sensor_sigmas, (4,))
@@ -224,10 +225,11 @@ class RadarOdometry:
             x, P, Q, _ = self._restart(x, P, [], None)
         fit = self.doppler.fit(polar[static])
         still = self.doppler.standstill_information(fit, self.motion, settled=self.at_rest)
+        self.doppler_nis = float("nan")  # the scan's Doppler against the prediction: none at a (re-)start
         if Q is not None:
             if (still is not None) != self.at_rest:  # stopped or moved off: the acceleration jumps
                 Q, P = self.motion.with_jump(Q, P, self.window.newest, t, self.config.standstill.sigma_accel_jump)
-            x = self.doppler.correct(x, P, fit)
+            x, self.doppler_nis = self.doppler.correct(x, P, fit)
             self.window.push(x, Q)
         self.at_rest = still is not None
         self.window.set_rate_prior(len(self.window.states) - 1, self.vehicle_information if still is None else still)
@@ -237,7 +239,7 @@ class RadarOdometry:
         """The gates lost the scan (under LOST_PAIRS of the static detections paired): if the Doppler contradicts
         the prediction at the pairs' gate level and the mean moved to it pairs RECOVERED_PAIRS of the scan's n
         detections, it moves there (event "doppler-recentred"; docs/estimator.md, step 3)."""
-        y = self.doppler.correct(x, P, fit, pairs_level=True)
+        y, _ = self.doppler.correct(x, P, fit, pairs_level=True)
         if y is x:
             return W_pairs, pairs
         W_new, new = self.associator.associate(y, P, self.map, scan)
@@ -298,7 +300,9 @@ class RadarOdometry:
                                            est.P[6:12, 6:12])
         self.last_estimate, self.restart_relative = est, None
         est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
-        est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed)
+        est.doppler_nis = self.doppler_nis
+        est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed,
+                                  cfg.velocity_inflation_per_doppler, est.doppler_nis)
         return est
 
     def _update_map(self, scan: ScanMeasurements, pairs) -> None:
@@ -388,13 +392,3 @@ class RadarOdometry:
                                                    cfg.init_angular_accel_sigma)
         return x0, np.diag(np.square(sig)), ["initialised"]
 
-
-@dataclass
-class Sensor:
-    """One radar of the odometry: extrinsics, the estimator's 1-sigma noise, range, association, Doppler."""
-
-    T_vehicle_sensor: np.ndarray
-    sigmas: np.ndarray
-    max_range: float
-    associator: MapAssociation
-    doppler: DopplerFrontEnd

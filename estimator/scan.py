@@ -84,6 +84,8 @@ class ScanEstimate:
         P_pose_absolute: (6, 6) pose covariance in the estimator's world (its first frame), composed from the
             relative ones: it grows as the drift does (P's pose block is relative to the local map).
         map_reuse: mean number of scans the associated map points have been associated in (NaN: none).
+        doppler_nis: the scan's Doppler velocity against the prediction, NIS per dof (`DopplerFrontEnd.correct`;
+            NaN without a prediction or a Doppler fit).
     """
 
     t: float
@@ -103,6 +105,7 @@ class ScanEstimate:
     P_revision: np.ndarray | None = None
     P_pose_absolute: np.ndarray | None = None
     map_reuse: float = float("nan")
+    doppler_nis: float = float("nan")
 
     @property
     def T_world_vehicle(self) -> np.ndarray:

@@ -72,30 +72,41 @@ def revision_covariance(P_prev_emitted: np.ndarray, P_prev_now: np.ndarray, T_pr
     return 0.5 * (R + R.T)
 
 
-def velocity_inflated(P: np.ndarray, varpi: np.ndarray, inflation: float, per_speed: float) -> np.ndarray:
-    """P with the velocity's variance scaled by c = inflation + per_speed |nu| (nu = varpi[:3], the speed in
-    m/s): the velocity block (6:12) times c, its cross blocks times sqrt(c), the rest unchanged (D P D with D
-    diagonal, so it stays a covariance). One (d, d) with varpi (6,), or a stack (N, d, d) with (N, 6). At c = 1
-    (inflation 1, per_speed 0) P itself, bit for bit.
+def velocity_inflated(P: np.ndarray, varpi: np.ndarray, inflation: float, per_speed: float, per_doppler: float = 0.0,
+                      doppler_nis=None) -> np.ndarray:
+    """P with the velocity's variance scaled by c = inflation + per_speed |nu| + per_doppler ln(1 + nis)
+    (`velocity_factor`; nu = varpi[:3], the speed in m/s; nis the scan's Doppler innovation NIS per dof): the
+    velocity block (6:12) times c, its cross blocks times sqrt(c), the rest unchanged (D P D with D diagonal, so
+    it stays a covariance). One (d, d) with varpi (6,) and a float nis, or a stack (N, d, d) with (N, 6) and
+    (N,). At c = 1 (inflation 1, per_speed 0, per_doppler 0) P itself, bit for bit.
 
-    Why (docs/consistency.md, "The velocity's error grows with the speed"): the window's velocity covariance
-    hardly depends on the speed (the same pairs and Doppler rows at any speed), its error does (surfaces
-    resampled from farther apart between scans); `rodo calibrate` learns both factors from the velocity errors
-    of a drive with ground truth (`validation.calibrate_consistency.fit_velocity_inflation`). The drift
-    recursion keeps the window's velocity covariance: its tau and drift rate are calibrated with that one.
+    Why (docs/consistency.md, "The velocity's error grows with the speed" and "... and at a manoeuvre"): the
+    window's velocity covariance hardly depends on the speed (the same pairs and Doppler rows at any speed),
+    its error does (surfaces resampled from farther apart between scans); and where the motion leaves the
+    prior's model (a turn's onset, a start), the window's velocity is wrong by more than its covariance says,
+    which the scan's Doppler shows against the prediction before any solve. `rodo calibrate` learns the three
+    from the velocity errors of a drive with ground truth (`validation.calibrate_consistency.
+    fit_velocity_inflation`). The drift recursion keeps the window's velocity covariance: its tau and drift
+    rate are calibrated with that one.
     """
-    if inflation == 1.0 and per_speed == 0.0:
+    if inflation == 1.0 and per_speed == 0.0 and per_doppler == 0.0:
         return P
     P = np.asarray(P, dtype=float)
-    c = velocity_factor(varpi, inflation, per_speed)
+    c = velocity_factor(varpi, inflation, per_speed, per_doppler, doppler_nis)
     d = np.ones(P.shape[:-1])
     d[..., 6:12] = np.sqrt(c)[..., None]
     return P * d[..., :, None] * d[..., None, :]
 
 
-def velocity_factor(varpi, inflation: float, per_speed: float):
-    """c = inflation + per_speed |nu| of one varpi (6,) (a float) or of a stack (N, 6) ((N,))."""
-    return inflation + per_speed * np.linalg.norm(np.asarray(varpi, dtype=float)[..., :3], axis=-1)
+def velocity_factor(varpi, inflation: float, per_speed: float, per_doppler: float = 0.0, doppler_nis=None):
+    """c = inflation + per_speed |nu| + per_doppler ln(1 + nis) of one varpi (6,) (a float) or of a stack
+    (N, 6) ((N,)); nis the Doppler innovation NIS per dof (NaN, a scan without a Doppler fit: no term; None:
+    none at all). Bit for bit the two-term factor when per_doppler is 0."""
+    c = inflation + per_speed * np.linalg.norm(np.asarray(varpi, dtype=float)[..., :3], axis=-1)
+    if per_doppler == 0.0 or doppler_nis is None:
+        return c
+    nis = np.asarray(doppler_nis, dtype=float)
+    return c + per_doppler * np.log1p(np.where(np.isfinite(nis), np.maximum(nis, 0.0), 0.0))
 
 
 def _initial(P_pose: np.ndarray, P_varpi: np.ndarray, tau: float, drift_rate_sigma) -> np.ndarray:

@@ -42,6 +42,7 @@ UNITS = {
     "outage.reinit_after": "s", "uncertainty.inflation": "factor", "uncertainty.measurement_inflation": "factor",
     "uncertainty.drift_rate_sigma": "m/m, rad/m", "uncertainty.prior_memory": "s",
     "uncertainty.velocity_inflation": "factor", "uncertainty.velocity_inflation_per_speed": "s/m",
+    "uncertainty.velocity_inflation_per_doppler": "factor per ln(1 + NIS)",
 }
 
 DESCRIPTIONS = {  # keys whose source has no comment or docstring entry, or only a unit

@@ -23,11 +23,13 @@ tells the truth (docs/consistency.md):
   error grows with the distance, not its square root). Its one realisation on the sequence is the least-squares
   fit beta = sum_k e_k / sum_k s_k of the one-scan relative errors e_k over the distances s_k; the sigma
   per axis is sqrt(beta^2 + se^2), se its standard error (a prior for the unknown drift of another run).
-- `uncertainty.velocity_inflation` a and `velocity_inflation_per_speed` b: the velocity's error grows with the
-  speed, the window's velocity covariance hardly does, so the reported one is (a + b |nu|) times it
-  (`estimator.uncertainty.velocity_inflated`). Maximum likelihood of the velocity errors of the last run (the
-  report only: no run is needed); a mean fit, as the N-run bounds of a campaign test means. The drift terms
-  below keep the window's velocity covariance.
+- `uncertainty.velocity_inflation` a, `velocity_inflation_per_speed` b and `velocity_inflation_per_doppler` d:
+  the velocity's error grows with the speed, and where the scan's Doppler disagrees with the prediction (a
+  manoeuvre the prior does not model); the window's velocity covariance hardly does either, so the reported one
+  is (a + b |nu| + d ln(1 + nis)) times it (`estimator.uncertainty.velocity_inflated`; nis the scan's Doppler
+  innovation NIS per dof). Maximum likelihood of the velocity errors of the last run (the report only: no run
+  is needed); a mean fit, as the N-run bounds of a campaign test means. The drift terms below keep the
+  window's velocity covariance.
 - `uncertainty.velocity_correlation_time` tau: how long the velocity error stays correlated, which decides how
   the per-scan covariances compose into the drift (the relative pose over a span and the absolute pose). It
   does not change the estimate: chosen on a grid, without running again, so that the relative pose over `span`
@@ -120,14 +122,15 @@ class ConsistencyStep:
 
 
 def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=None,
-          velocity=(1.0, 0.0), relative=None) -> OdometryConfig:
-    """The config with these uncertainty values; the velocity factors (a, b) default to none: the fit's runs
+          velocity=(1.0, 0.0, 0.0), relative=None) -> OdometryConfig:
+    """The config with these uncertainty values; the velocity factors (a, b, d) default to none: the fit's runs
     report the window's own velocity covariance; the relative pose factor (`relative`) to the config's."""
     drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
     relative = config.uncertainty.inflation if relative is None else relative
     unc = dataclasses.replace(config.uncertainty, measurement_inflation=float(kappa),
                               velocity_correlation_time=float(tau), drift_rate_sigma=tuple(float(x) for x in drift),
                               velocity_inflation=float(velocity[0]), velocity_inflation_per_speed=float(velocity[1]),
+                              velocity_inflation_per_doppler=float(velocity[2]),
                               inflation=float(relative))
     return config.replace(uncertainty=unc)
 
@@ -186,45 +189,50 @@ def relative_inflated_states(states: dict, factor: float) -> dict:
 
 
 def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: float = DEFAULT_TOLERANCE) -> dict:
-    """The velocity's variance factor c_k = a + b |nu_k| of one run (or runs, pooled) by maximum likelihood: the
-    velocity errors e_k ~ N(0, c_k P_k), P_k the window's velocity covariance (`drift_velocity_covariances`:
-    whatever factors the run had are divided out), nu_k its estimated linear velocity, over every scan
-    (the start too: it holds the low speeds; left out, the factor came out over-confident at the start of
-    every campaign drive); a > 0, b >= 0. Returns {"inflation": a, "per_speed": b, "scans", "nees_per_dof": the
-    mean velocity NEES/dof before and after}.
+    """The velocity's variance factor c_k = a + b |nu_k| + d ln(1 + nis_k) of one run (or runs, pooled) by
+    maximum likelihood: the velocity errors e_k ~ N(0, c_k P_k), P_k the window's velocity covariance
+    (`drift_velocity_covariances`: whatever factors the run had are divided out), nu_k its estimated linear
+    velocity, nis_k the scan's Doppler innovation NIS per dof (states' doppler_nis; NaN, and runs without it,
+    count 0), over every scan (the start too: it holds the low speeds; left out, the factor came out
+    over-confident at the start of every campaign drive); a > 0, b >= 0, d >= 0. Returns {"inflation": a,
+    "per_speed": b, "per_doppler": d, "scans", "nees_per_dof": the mean velocity NEES/dof before and after}.
 
     Checked by: tests/validation/test_calibrate_consistency.py::test_velocity_inflation_recovers_a_known_factor
     """
-    q, speed = [], []
+    q, speed, doppler = [], [], []
     for st, tr in runs_of(states, truth):
         ia, ib = associate(st["t"], tr["t"], tolerance)
         e = np.asarray(tr["varpi"], dtype=float)[ib] - np.asarray(st["varpi"], dtype=float)[ia]
-        P = drift_velocity_covariances(st["P"], st["varpi"], st.get("velocity_inflation"))[ia]
+        P = drift_velocity_covariances(st["P"], st["varpi"], st.get("velocity_inflation"), st.get("doppler_nis"))[ia]
         q.append(np.einsum("ki,ki->k", e, np.linalg.solve(P, e[..., None])[..., 0]))
         speed.append(np.linalg.norm(np.asarray(st["varpi"], dtype=float)[ia, :3], axis=1))
-    q, speed = np.concatenate(q), np.concatenate(speed)
+        nis = np.asarray(st["doppler_nis"], dtype=float)[ia] if "doppler_nis" in st else np.full(len(ia), np.nan)
+        doppler.append(np.log1p(np.where(np.isfinite(nis), np.maximum(nis, 0.0), 0.0)))
+    q, speed, doppler = np.concatenate(q), np.concatenate(speed), np.concatenate(doppler)
     finite = np.isfinite(q)
-    q, speed = q[finite], speed[finite]
+    q, X = q[finite], np.stack([np.ones(finite.sum()), speed[finite], doppler[finite]], axis=1)
     if len(q) < 2 or not np.mean(q) > 0:  # too few scans, or no error at all (a noise-free drive)
-        return {"inflation": 1.0, "per_speed": 0.0, "scans": int(len(q)), "nees_per_dof": [np.nan, np.nan]}
+        return {"inflation": 1.0, "per_speed": 0.0, "per_doppler": 0.0, "scans": int(len(q)),
+                "nees_per_dof": [np.nan, np.nan]}
 
     def nll(p):  # -2 log-likelihood up to a constant, its gradient
-        c = p[0] + p[1] * speed
-        g = DOF / c - q / c**2
-        return float(np.sum(DOF * np.log(c) + q / c)), np.array([g.sum(), g @ speed])
+        c = X @ p
+        return float(np.sum(DOF * np.log(c) + q / c)), (DOF / c - q / c**2) @ X
 
     a0 = float(np.mean(q)) / DOF
-    res = minimize(nll, [a0, 0.0], jac=True, method="L-BFGS-B", bounds=[(1e-6 * a0, None), (0.0, None)])
-    a, b = (float(x) for x in res.x)
-    return {"inflation": a, "per_speed": b, "scans": int(len(q)),
-            "nees_per_dof": [a0, float(np.mean(q / (a + b * speed))) / DOF]}
+    res = minimize(nll, [a0, 0.0, 0.0], jac=True, method="L-BFGS-B",
+                   bounds=[(1e-6 * a0, None), (0.0, None), (0.0, None)])
+    a, b, d = (float(x) for x in res.x)
+    return {"inflation": a, "per_speed": b, "per_doppler": d, "scans": int(len(q)),
+            "nees_per_dof": [a0, float(np.mean(q / (X @ res.x))) / DOF]}
 
 
-def velocity_inflated_states(states: dict, inflation: float, per_speed: float) -> dict:
+def velocity_inflated_states(states: dict, inflation: float, per_speed: float, per_doppler: float = 0.0) -> dict:
     """The states a run at these velocity factors would have written (from a run without them: the estimate does
     not depend on them): the reported velocity covariance scaled, the factors recorded."""
-    P = velocity_inflated(np.asarray(states["P"], dtype=float), states["varpi"], inflation, per_speed)
-    return dict(states, P=P, velocity_inflation=np.array([inflation, per_speed]))
+    P = velocity_inflated(np.asarray(states["P"], dtype=float), states["varpi"], inflation, per_speed, per_doppler,
+                          states.get("doppler_nis"))
+    return dict(states, P=P, velocity_inflation=np.array([inflation, per_speed, per_doppler]))
 
 
 def fit_drift_rate(states: dict | list, truth: dict | list, tolerance: float = DEFAULT_TOLERANCE) -> dict:
@@ -276,7 +284,7 @@ def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None) -> np.
     T = np.asarray(states["T_vehicle_world"], dtype=float)
     t = np.asarray(states["t"], dtype=float)
     P = np.asarray(states["P"], dtype=float)
-    P_varpi = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"))
+    P_varpi = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"), states.get("doppler_nis"))
     S = np.asarray(states["P_relative"], dtype=float)
     drift = DriftCovariance(P[0, :6, :6], P_varpi[0], tau, drift_rate_sigma)
     out = [P[0, :6, :6]]
@@ -339,7 +347,7 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     relative = fit_relative_inflation(states, truth, config.uncertainty.inflation, tolerance, drift["sigma"])
     states = _each(relative_inflated_states, states, relative["inflation"] / config.uncertainty.inflation)
     velocity = fit_velocity_inflation(states, truth)
-    factors = (velocity["inflation"], velocity["per_speed"])
+    factors = (velocity["inflation"], velocity["per_speed"], velocity["per_doppler"])
     tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"])
     fitted = _with(config, kappa, tau, drift["sigma"], factors, relative["inflation"])
     final = _ratios(_each(lambda s: _replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"]), states),

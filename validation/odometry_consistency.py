@@ -42,15 +42,19 @@ def _relative_errors(T_true: np.ndarray, T_est: np.ndarray, n: int) -> np.ndarra
     return se3.log(R_true @ se3.inverse(R_est))
 
 
-def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflation=None) -> np.ndarray:
+def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflation=None,
+                               doppler_nis=None) -> np.ndarray:
     """(N, 6, 6) the velocity covariances a run's drift recursion used: the window's, i.e. the reported ones
     (states.npz P) divided by the run's velocity factor (`estimator.uncertainty.velocity_factor`; states.npz
-    velocity_inflation = [a, b], none in runs before it)."""
+    velocity_inflation = [a, b] or [a, b, d] with the per-scan doppler_nis, none in runs before them)."""
     P_varpi = np.asarray(P, dtype=float)[:, 6:12, 6:12]
     if velocity_inflation is None:
         return P_varpi
-    a, b = (float(x) for x in np.asarray(velocity_inflation, dtype=float))
-    return P_varpi / velocity_factor(varpi, a, b)[:, None, None] if (a, b) != (1.0, 0.0) else P_varpi
+    a, b, d = (*(float(x) for x in np.asarray(velocity_inflation, dtype=float)), 0.0)[:3]
+    if d != 0.0 and doppler_nis is None:
+        raise ValueError("velocity_inflation has a Doppler term but the run has no doppler_nis")
+    c = velocity_factor(varpi, a, b, d, doppler_nis)
+    return P_varpi / c[:, None, None] if (a, b, d) != (1.0, 0.0, 0.0) else P_varpi
 
 
 def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, velocity_inflation) -> np.ndarray:
@@ -59,7 +63,7 @@ def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, v
         return out
     e = _relative_errors(T_true, T_est, n)
     Sigma_rel = np.asarray(states["P_relative"], dtype=float)
-    P_varpi = drift_velocity_covariances(states["P"], states["varpi"], velocity_inflation)
+    P_varpi = drift_velocity_covariances(states["P"], states["varpi"], velocity_inflation, states.get("doppler_nis"))
     C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma)
     if "P_revision" in states:  # the revision of each span's first emitted pose, by the scan after it
         C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)

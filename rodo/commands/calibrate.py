@@ -89,7 +89,8 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
             c = report["consistency"]
             v = c["velocity_inflation"]
             lines.append(f"uncertainty: measurement_inflation {c['measurement_inflation']:.3g}, velocity_inflation "
-                         f"{v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed, drift_rate_sigma and "
+                         f"{v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + {v['per_doppler']:.3g} x "
+                         "ln(1 + Doppler NIS), drift_rate_sigma and "
                          f"velocity_correlation_time {c['velocity_correlation_time']:g} s fitted so that the "
                          "estimator's NEES against the truth is consistent (docs/calibration.md).")
     else:
@@ -146,7 +147,8 @@ def _consistency_markdown(c: dict) -> list[str]:
     before, after = rel["median_ratio"]
     return lines + ["", f"relative pose covariance factor (uncertainty.inflation) {rel['inflation']:.3g} (median "
                     f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; {rel['outcome']})",
-                    f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed (maximum "
+                    f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
+                    f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS) (maximum "
                     f"likelihood over {v['scans']} scans: mean velocity NEES/dof {v['nees_per_dof'][0]:.3g} -> "
                     f"{v['nees_per_dof'][1]:.3g})",
                     f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m",

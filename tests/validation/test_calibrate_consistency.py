@@ -94,8 +94,8 @@ def test_kappa_compensates_information_counted_too_often(city):
     assert fitted.uncertainty.drift_rate_sigma == tuple(report["drift_rate"]["sigma"])
     assert fitted.uncertainty.inflation == report["relative_inflation"]["inflation"]
     v = report["velocity_inflation"]
-    assert (fitted.uncertainty.velocity_inflation, fitted.uncertainty.velocity_inflation_per_speed) == \
-        (v["inflation"], v["per_speed"])
+    assert (fitted.uncertainty.velocity_inflation, fitted.uncertainty.velocity_inflation_per_speed,
+            fitted.uncertainty.velocity_inflation_per_doppler) == (v["inflation"], v["per_speed"], v["per_doppler"])
     assert v["nees_per_dof"][1] == pytest.approx(1.0, abs=0.05), v
     assert report["velocity_correlation_time"] in cc.TAUS
 
@@ -135,36 +135,46 @@ def test_fit_tau_takes_the_grid_point_nearest_consistency(city_run):
     assert spans[0] > spans[-1]
 
 
-@given(a=st.floats(0.2, 5.0), b=st.floats(0.0, 0.3), seed=st.integers(0, 2**16))
+@given(a=st.floats(0.2, 5.0), b=st.floats(0.0, 0.3), d=st.floats(0.0, 2.0), seed=st.integers(0, 2**16))
 @settings(max_examples=15, deadline=None)
-def test_velocity_inflation_recovers_a_known_factor(a, b, seed):
-    """Velocity errors drawn from N(0, (a + b |nu|) P_v), P_v random per scan, speeds 0-20 m/s: the maximum
-    likelihood factor is (a + b |nu|) within 10 % at 3 and 15 m/s (4000 scans), and after it the mean NEES/dof
-    is 1 within 3 %."""
+def test_velocity_inflation_recovers_a_known_factor(a, b, d, seed):
+    """Velocity errors drawn from N(0, (a + b |nu| + d ln(1 + nis)) P_v), P_v random per scan, speeds 0-20 m/s,
+    Doppler NIS per dof chi-square(3) / 3 times 1 or 20 (a manoeuvre on one scan in five; a tenth of the scans
+    have none, NaN): the maximum likelihood factor is the true one within 10 % at 3 and 15 m/s, at rest and in
+    a manoeuvre (6000 scans), and after it the mean NEES/dof is 1 within 3 %."""
     rng = _rng(seed)
-    n = 4000
+    n = 6000
     t = 0.1 * np.arange(n)
     speed = rng.uniform(0.0, 20.0, n)
     u = rng.normal(size=(n, 3))
     varpi = np.concatenate([speed[:, None] * u / np.linalg.norm(u, axis=1, keepdims=True),
                             rng.normal(0, 0.1, (n, 3))], axis=1)
+    nis = rng.chisquare(3, n) / 3 * np.where(rng.random(n) < 0.2, 20.0, 1.0)
+    nis[rng.random(n) < 0.1] = np.nan
     A = rng.normal(size=(n, 12, 12)) * 0.05
     P = A @ np.swapaxes(A, 1, 2) + 1e-4 * np.eye(12)
-    c = a + b * speed
+    c = a + b * speed + d * np.log1p(np.nan_to_num(nis))
     L = np.linalg.cholesky(c[:, None, None] * P[:, 6:12, 6:12])
     e = np.einsum("kij,kj->ki", L, rng.normal(size=(n, 6)))
-    fit = cc.fit_velocity_inflation({"t": t, "varpi": varpi, "P": P}, {"t": t, "varpi": varpi + e})
+    states = {"t": t, "varpi": varpi, "P": P, "doppler_nis": nis}
+    fit = cc.fit_velocity_inflation(states, {"t": t, "varpi": varpi + e})
     assert fit["scans"] == n
     for s in (3.0, 15.0):
-        assert fit["inflation"] + fit["per_speed"] * s == pytest.approx(a + b * s, rel=0.1), fit
+        for x in (0.0, 1.0, 20.0):
+            want = a + b * s + d * np.log1p(x)
+            got = fit["inflation"] + fit["per_speed"] * s + fit["per_doppler"] * np.log1p(x)
+            assert got == pytest.approx(want, rel=0.1), fit
     assert fit["nees_per_dof"][1] == pytest.approx(1.0, abs=0.03)
-    scaled = cc.velocity_inflated_states({"t": t, "P": P, "varpi": varpi}, fit["inflation"], fit["per_speed"])
-    np.testing.assert_allclose(scaled["P"][:, 6:12, 6:12],
-                               (fit["inflation"] + fit["per_speed"] * speed)[:, None, None] * P[:, 6:12, 6:12])
+    scaled = cc.velocity_inflated_states(states, fit["inflation"], fit["per_speed"], fit["per_doppler"])
+    c_fit = fit["inflation"] + fit["per_speed"] * speed + fit["per_doppler"] * np.log1p(np.nan_to_num(nis))
+    np.testing.assert_allclose(scaled["P"][:, 6:12, 6:12], c_fit[:, None, None] * P[:, 6:12, 6:12])
     # from states that already carry factors, the same fit: it is relative to the window's covariance
     again = cc.fit_velocity_inflation(scaled, {"t": t, "varpi": varpi + e})
-    assert again["inflation"] == pytest.approx(fit["inflation"], rel=1e-6)
-    assert again["per_speed"] == pytest.approx(fit["per_speed"], rel=1e-6, abs=1e-9)
+    for key in ("inflation", "per_speed", "per_doppler"):
+        assert again[key] == pytest.approx(fit[key], rel=1e-6, abs=1e-9)
+    # without the Doppler NIS (a run before it) the Doppler term cannot be learned, and is 0
+    plain = cc.fit_velocity_inflation({"t": t, "varpi": varpi, "P": P}, {"t": t, "varpi": varpi + e})
+    assert plain["per_doppler"] == 0.0
 
 
 def test_velocity_factors_change_the_velocity_measure_only(city_run):
@@ -248,6 +258,7 @@ def test_several_runs_are_pooled(city_run):
     assert pooled["scans"] == whole["scans"]
     assert pooled["inflation"] == pytest.approx(whole["inflation"], rel=1e-6)
     assert pooled["per_speed"] == pytest.approx(whole["per_speed"], rel=1e-6, abs=1e-9)
+    assert pooled["per_doppler"] == pytest.approx(whole["per_doppler"], rel=1e-6, abs=1e-9)
     halves = [cc.fit_drift_rate(s, t) for s, t in zip(runs, truths)]
     both = cc.fit_drift_rate(runs, truths)
     assert both["distance"] == pytest.approx(sum(h["distance"] for h in halves))
