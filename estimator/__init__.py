@@ -23,6 +23,7 @@ A map of the package (each module's public names are re-exported here):
     window.py           SlidingWindow: Gauss-Newton over prior, motion and measurement terms, marginalisation
     uncertainty.py      the pose covariance that grows as drift does (relative, absolute, over a span)
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
+    sensor.py           Sensor: one radar of the odometry (extrinsics, noise, association, Doppler front end)
     scan.py             ScanEstimate, ScanDetail: what a scan returns
     config.py           OdometryConfig and its sections (TOML)
     config_rules.py     every config value's type, finiteness and range (one table, checked at load)
@@ -60,6 +61,7 @@ _EXPORTS = {
                        "wrap_angle"),
     "scan_association": ("MapAssociation", "ScanMeasurements"),
     "scan": ("ScanDetail", "ScanEstimate"),
+    "sensor": ("Sensor",),
     "state": ("State", "stacked"),
     "surface": ("surface_covariances",),
     "ground": ("off_road", "road_mask"),
