@@ -105,8 +105,14 @@ def velocity_factor(varpi, inflation: float, per_speed: float, per_doppler: floa
     c = inflation + per_speed * np.linalg.norm(np.asarray(varpi, dtype=float)[..., :3], axis=-1)
     if per_doppler == 0.0 or doppler_nis is None:
         return c
+    return c + per_doppler * doppler_term(doppler_nis)
+
+
+def doppler_term(doppler_nis):
+    """ln(1 + nis) of the Doppler innovation NIS per dof (a float or an array), 0 where it is NaN (a scan without
+    a prediction or a Doppler fit): the quantity `velocity_factor`'s per_doppler multiplies."""
     nis = np.asarray(doppler_nis, dtype=float)
-    return c + per_doppler * np.log1p(np.where(np.isfinite(nis), np.maximum(nis, 0.0), 0.0))
+    return np.log1p(np.where(np.isfinite(nis), np.maximum(nis, 0.0), 0.0))
 
 
 def _initial(P_pose: np.ndarray, P_varpi: np.ndarray, tau: float, drift_rate_sigma) -> np.ndarray:

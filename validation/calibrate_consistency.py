@@ -61,7 +61,7 @@ from scipy.stats import chi2
 
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
-from rodo.estimator.uncertainty import DriftCovariance, velocity_inflated
+from rodo.estimator.uncertainty import DriftCovariance, doppler_term, velocity_inflated
 from rodo.sim.sequence import Sequence
 
 from .alignment import truth_in_estimator_frame
@@ -206,8 +206,7 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
         P = drift_velocity_covariances(st["P"], st["varpi"], st.get("velocity_inflation"), st.get("doppler_nis"))[ia]
         q.append(np.einsum("ki,ki->k", e, np.linalg.solve(P, e[..., None])[..., 0]))
         speed.append(np.linalg.norm(np.asarray(st["varpi"], dtype=float)[ia, :3], axis=1))
-        nis = np.asarray(st["doppler_nis"], dtype=float)[ia] if "doppler_nis" in st else np.full(len(ia), np.nan)
-        doppler.append(np.log1p(np.where(np.isfinite(nis), np.maximum(nis, 0.0), 0.0)))
+        doppler.append(doppler_term(np.asarray(st["doppler_nis"])[ia]) if "doppler_nis" in st else np.zeros(len(ia)))
     q, speed, doppler = np.concatenate(q), np.concatenate(speed), np.concatenate(doppler)
     finite = np.isfinite(q)
     q, X = q[finite], np.stack([np.ones(finite.sum()), speed[finite], doppler[finite]], axis=1)
@@ -220,8 +219,8 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
         return float(np.sum(DOF * np.log(c) + q / c)), (DOF / c - q / c**2) @ X
 
     a0 = float(np.mean(q)) / DOF
-    res = minimize(nll, [a0, 0.0, 0.0], jac=True, method="L-BFGS-B",
-                   bounds=[(1e-6 * a0, None), (0.0, None), (0.0, None)])
+    res = minimize(nll, [a0, 0.0, 0.0], jac=True, method="L-BFGS-B",  # to 1e-7 or so relative in (a, b, d)
+                   bounds=[(1e-6 * a0, None), (0.0, None), (0.0, None)], options={"ftol": 1e-15, "gtol": 1e-10})
     a, b, d = (float(x) for x in res.x)
     return {"inflation": a, "per_speed": b, "per_doppler": d, "scans": int(len(q)),
             "nees_per_dof": [a0, float(np.mean(q / (X @ res.x))) / DOF]}

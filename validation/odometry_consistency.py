@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.estimator.uncertainty import velocity_factor
 
@@ -52,7 +53,7 @@ def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflat
         return P_varpi
     a, b, d = (*(float(x) for x in np.asarray(velocity_inflation, dtype=float)), 0.0)[:3]
     if d != 0.0 and doppler_nis is None:
-        raise ValueError("velocity_inflation has a Doppler term but the run has no doppler_nis")
+        raise InputError(f"states: velocity_inflation has a Doppler term (d = {d:g}) but no doppler_nis array")
     c = velocity_factor(varpi, a, b, d, doppler_nis)
     return P_varpi / c[:, None, None] if (a, b, d) != (1.0, 0.0, 0.0) else P_varpi
 

@@ -74,6 +74,15 @@ def test_summary_and_missing_inputs():
     assert np.isnan(m["pose"]).all() and np.isnan(m["relative_span"]).all() and np.isfinite(m["velocity"]).all()
     with pytest.raises(InputError, match="P"):
         odometry_nees({k: v for k, v in states.items() if k != "P"}, truth)
+    # a velocity factor with a Doppler term needs the per-scan Doppler NIS to be divided out of the spans
+    rng = np.random.default_rng(4)
+    states["P_relative"] = np.stack([_cov(rng, 0.01) for _ in range(N_SCANS)])
+    with pytest.raises(InputError, match="doppler_nis"):
+        odometry_nees(dict(states, velocity_inflation=np.array([1.0, 0.0, 0.5])), truth)
+    two = odometry_nees(dict(states, velocity_inflation=np.array([1.0, 0.0])), truth)
+    three = odometry_nees(dict(states, velocity_inflation=np.array([1.0, 0.0, 0.0])), truth)
+    assert np.isfinite(two["relative_scan"][1:]).all()
+    np.testing.assert_array_equal(two["relative_scan"], three["relative_scan"])  # [a, b] is [a, b, 0]
 
 
 @pytest.mark.slow
