@@ -8,7 +8,9 @@ full 90, 60, 60, 60 s), per method: median and p95 ms per scan (skipping the fir
 cache loading), the estimator's median per stage (predict, associate, solve, map), KITTI translational /
 rotational error on the lengths of LENGTHS shorter than the path (devkit formula, first frame every STEP scans),
 the final z / roll / pitch drift (both trajectories relative to their first pose); ratios against CV/C measured in
-the same run. BLAS, open3d's pool and KISS-ICP run on one thread for every method. The machine is shared, so the
+the same run; and CA/P against CV/C run in turn on 20 s of each scenario, 5 times (`_alternating`: the ratio a
+single run gives drifts with the machine's load). BLAS, open3d's pool and KISS-ICP run on one thread for every
+method. The machine is shared, so the
 load average before and after is part of the section. A missing open3d or kiss-icp leaves a note, not a traceback.
 
 Run: `python -m bench.odometry [--quick]`; `run(quick) -> str` returns the Markdown section.
@@ -30,6 +32,7 @@ SKIP = 5                       # first scans left out of the timing statistics (
 LENGTHS = (50.0, 100.0, 200.0)  # KITTI segment lengths, those shorter than the path are used
 STEP = 1                       # KITTI first-frame step (the devkit uses 10; our sequences are short)
 ESTIMATORS = (("CV/C", "cv-cartesian"), ("CA/P", "ca-polar"))
+ALTERNATE = {"duration": 20.0, "repeats": 5}  # CA/P against CV/C run in turn (`_alternating`); quick: 2 repeats
 STAGES = ("predict", "associate", "solve", "map")
 
 
@@ -171,6 +174,28 @@ def _icp_sensitivity(seqs: dict, settings: list[dict]) -> list[str]:
                         "open3d ICP, the winner and alternatives")
 
 
+def _alternating(names, repeats: int, duration: float = ALTERNATE["duration"]) -> list[str]:
+    """CA/P's time per scan against CV/C's where the machine's drift cannot decide it: on each scenario's first
+    `duration` s (seed SEED) the two run in turn, `repeats` times each, and each repeat's ratio of the median
+    ms/scan counts; the Markdown table of the median ratio and its range (one run per method, as the table above,
+    moved by 0.84-1.22x between runs on a shared machine)."""
+    from rodo import scenarios
+
+    rows = []
+    for name in names:
+        seq, _ = scenarios.get(name).simulate(SEED, duration=duration)
+        ms = {label: [] for label, _ in ESTIMATORS}
+        for _ in range(repeats):
+            for label, model in ESTIMATORS:
+                ms[label].append(_run_estimator(seq, model)[0]["median"])
+        ratio = np.array(ms["CA/P"]) / np.array(ms["CV/C"])
+        rows.append([f"{name} {duration:.0f} s", str(repeats), f"{np.median(ms['CV/C']):.1f}",
+                     f"{np.median(ms['CA/P']):.1f}", f"{np.median(ratio):.2f}x",
+                     f"{ratio.min():.2f}-{ratio.max():.2f}x"])
+    return ["", "CA/P against CV/C, run in turn (each repeat's ratio of median ms/scan):", ""] + \
+        _table(["sequence", "repeats", "CV/C median ms", "CA/P median ms", "CA/P / CV/C median", "range"], rows)
+
+
 def _result_rows(results: dict, durations: dict) -> list[list]:
     rows = []
     for name, by_method in results.items():
@@ -210,6 +235,7 @@ def run(quick: bool = False) -> str:
         for label, kind, arg in _methods(icp_kw, kiss_vx):
             sp, traj = _run_method(seqs[name], kind, arg)
             results[name][label] = (sp, _accuracy(seqs[name], traj))
+    alternating = _alternating(durations, 2 if quick else ALTERNATE["repeats"])
     sensitivity = _kiss_sensitivity(seqs) if kiss_vx is not None and not quick else []
     sensitivity += _icp_sensitivity(seqs, alternatives) if alternatives else []
     elapsed = time.perf_counter() - tic
@@ -230,7 +256,7 @@ def run(quick: bool = False) -> str:
     lines += ["", "Estimator stages (median ms per scan) and sizes:", ""]
     lines += _table(["sequence", "method", *(f"{k} ms" for k in STAGES), "median associations",
                      "median map points"], _stage_rows(results))
-    lines += sensitivity + ["", f"Total {elapsed:.0f} s."]
+    lines += alternating + sensitivity + ["", f"Total {elapsed:.0f} s."]
     return "\n".join(lines) + "\n"
 
 

@@ -56,3 +56,16 @@ def test_alternatives_are_the_winner_with_doppler_and_the_best_of_other_families
     alt = baselines.icp_alternatives(rows)
     assert alt[0] == grid[0] and alt[1] == {**grid[0], "doppler_filter": True}
     assert alt[2]["method"] == "point_to_plane" and len(alt) == 3  # grid[0] is already the best scan-to-scan
+
+
+def test_the_alternating_table_has_one_row_per_sequence_with_the_ratio_of_its_medians():
+    """`odometry._alternating`: CA/P and CV/C in turn on a short sequence; with one repeat the ratio is the two
+    medians' ratio (to the table's rounding) and its range is that one value."""
+    lines = odometry._alternating(["city"], 1, duration=2.0)
+    rows = [line for line in lines if line.startswith("| city")]
+    assert len(rows) == 1
+    cells = [c.strip() for c in rows[0].strip("|").split("|")]
+    assert cells[:2] == ["city 2 s", "1"]
+    cv, ca, ratio = float(cells[2]), float(cells[3]), float(cells[4].rstrip("x"))
+    assert ratio == pytest.approx(ca / cv, abs=0.01 + 0.06 * ca / cv)  # the ms are rounded to 0.1
+    assert cells[5] == f"{ratio:.2f}-{ratio:.2f}x"
