@@ -172,6 +172,10 @@ def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
     bounds = chi2_bounds(n_assoc, NIS_DOF)
     send("metrics/nis", "metrics/nis", np.c_[nis, bounds], ["mean NIS per pair (4 dof)", "2.5 % bound",
                                                             "97.5 % bound"], [blue, grey, grey])
+    # the scan's Doppler velocity against the prediction (`DopplerFrontEnd.correct`): high where the prior's
+    # model is wrong (a start, a turn's onset), which `velocity_inflation_per_doppler` turns into velocity variance
+    send("metrics/nis", "metrics/nis/doppler", np.array([e.doppler_nis for e in est], dtype=float),
+         ["Doppler velocity against the prediction, NIS per dof"], [(220, 120, 0)])
     counts = np.array([[e.n_detections, e.n_static, e.n_associated] for e in est], dtype=float)
     send("metrics/counts", "metrics/counts", counts, ["detections", "static (Doppler)", "associated"])
     stages = ("predict", "associate", "solve", "map")

@@ -95,7 +95,7 @@ def test_recording_has_every_entity_and_a_blueprint(recorded):
                    "/world/associations", "/world/estimate/trajectory", "/world/truth/trajectory",
                    "/world/estimate/covariance", "/world/truth/vehicle", "/metrics/error/translation",
                    "/metrics/drift", "/metrics/nees/pose", "/metrics/nees/velocity", "/metrics/nees/pose_window",
-                   "/metrics/nees/relative_scan", "/metrics/ellipsoid/fraction", "/metrics/nis",
+                   "/metrics/nees/relative_scan", "/metrics/ellipsoid/fraction", "/metrics/nis", "/metrics/nis/doppler",
                    "/metrics/counts", "/metrics/timing", "/velocity/nu_x", "/acceleration/omega_dot_z", "/events"):
         assert entity in paths, entity
     assert any(s.kind == "blueprint" for s in RrdReader(path).blueprints())
@@ -166,6 +166,10 @@ def test_recording_nees_and_nis_match_an_independent_computation(run, recorded):
     nis = np.array(_column(chunks, "/metrics/nis", "Scalars:scalars"))
     assoc = [e.n_associated for e in result.estimates if np.isfinite(e.nis)]
     assert nis[-1, 2] == pytest.approx(chi2.ppf(0.975, 4 * assoc[-1]) / assoc[-1])
+    doppler = np.array(_column(chunks, "/metrics/nis/doppler", "Scalars:scalars")).ravel()
+    want = np.array([e.doppler_nis for e in result.estimates])
+    assert np.isnan(want[0]) and len(doppler) == np.isfinite(want).sum() >= n - 1  # none at the first scan
+    np.testing.assert_allclose(doppler, want[np.isfinite(want)])
 
 
 def test_recording_has_every_consistency_measure(run, recorded):
