@@ -32,7 +32,8 @@ SKIP = 5                       # first scans left out of the timing statistics (
 LENGTHS = (50.0, 100.0, 200.0)  # KITTI segment lengths, those shorter than the path are used
 STEP = 1                       # KITTI first-frame step (the devkit uses 10; our sequences are short)
 ESTIMATORS = (("CV/C", "cv-cartesian"), ("CA/P", "ca-polar"))
-ALTERNATE = {"duration": 20.0, "repeats": 5}  # CA/P against CV/C run in turn (`_alternating`); quick: 2 repeats
+ALTERNATE_S = 20.0             # CA/P against CV/C run in turn (`_alternating`): seconds of each scenario
+ALTERNATE_REPEATS = 5          # and repeats (the quick run: 2)
 STAGES = ("predict", "associate", "solve", "map")
 
 
@@ -174,11 +175,11 @@ def _icp_sensitivity(seqs: dict, settings: list[dict]) -> list[str]:
                         "open3d ICP, the winner and alternatives")
 
 
-def _alternating(names, repeats: int, duration: float = ALTERNATE["duration"]) -> list[str]:
+def _alternating(names, repeats: int, duration: float = ALTERNATE_S) -> list[str]:
     """CA/P's time per scan against CV/C's where the machine's drift cannot decide it: on each scenario's first
     `duration` s (seed SEED) the two run in turn, `repeats` times each, and each repeat's ratio of the median
     ms/scan counts; the Markdown table of the median ratio and its range (one run per method, as the table above,
-    moved by 0.84-1.22x between runs on a shared machine)."""
+    moved by 0.84-1.27x between runs on a shared machine)."""
     from rodo import scenarios
 
     rows = []
@@ -235,7 +236,7 @@ def run(quick: bool = False) -> str:
         for label, kind, arg in _methods(icp_kw, kiss_vx):
             sp, traj = _run_method(seqs[name], kind, arg)
             results[name][label] = (sp, _accuracy(seqs[name], traj))
-    alternating = _alternating(durations, 2 if quick else ALTERNATE["repeats"])
+    alternating = _alternating(durations, 2 if quick else ALTERNATE_REPEATS)
     sensitivity = _kiss_sensitivity(seqs) if kiss_vx is not None and not quick else []
     sensitivity += _icp_sensitivity(seqs, alternatives) if alternatives else []
     elapsed = time.perf_counter() - tic

@@ -139,7 +139,9 @@ class DopplerFrontEnd:
         if confident:
             radius = 3.0 * np.sqrt(np.linalg.eigvalsh(Sv)[-1]) + acfg.doppler_jerk_margin
             pts = u * polar[:, :1]
-            voxels = Voxels.of(pts, acfg.consensus_voxel)  # for both checks of the space a consensus covers
+            # found once for both checks of the space a consensus covers (each finds them itself if it alone runs)
+            both = acfg.moving_group_z > 0 and acfg.consensus_switch_after > 0
+            voxels = Voxels.of(pts, acfg.consensus_voxel) if both else None
             moving = self._moving_groups(pts, u, vr, var_fit, mask, radius, voxels)
             mask &= ~moving
             ego = self._gated_ransac(polar, u, fit_threshold, v, radius, ~moving)
@@ -158,7 +160,7 @@ class DopplerFrontEnd:
         return mask, None
 
     def _moving_groups(self, pts: np.ndarray, u: np.ndarray, vr: np.ndarray, var_fit: np.ndarray,
-                       gated: np.ndarray, radius: float, voxels: Voxels) -> np.ndarray:
+                       gated: np.ndarray, radius: float, voxels: Voxels | None) -> np.ndarray:
         """Detections in voxels that move slowly as a group (`consensus.moving_voxels`, within `radius` of the
         world's Doppler fit); none when `association.moving_group_z` is 0."""
         acfg = self.config.association

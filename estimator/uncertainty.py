@@ -85,9 +85,9 @@ def velocity_inflated(P: np.ndarray, varpi: np.ndarray, inflation: float, per_sp
     its error does (surfaces resampled from farther apart between scans); and where the motion leaves the
     prior's model (a turn's onset, a start), the window's velocity is wrong by more than its covariance says,
     which the scan's Doppler shows against the prediction before any solve. `rodo calibrate` learns the three
-    from the velocity errors of a drive with ground truth (`validation.calibrate_consistency.
-    fit_velocity_inflation`). The drift recursion keeps the window's velocity covariance: its tau and drift
-    rate are calibrated with that one.
+    from the velocity errors of a drive with ground truth
+    (`validation.calibrate_consistency.fit_velocity_inflation`). The drift recursion keeps the window's velocity
+    covariance: its tau and drift rate are calibrated with that one.
     """
     if inflation == 1.0 and per_speed == 0.0 and per_doppler == 0.0:
         return P

@@ -51,7 +51,7 @@ def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflat
     P_varpi = np.asarray(P, dtype=float)[:, 6:12, 6:12]
     if velocity_inflation is None:
         return P_varpi
-    a, b, d = (*(float(x) for x in np.asarray(velocity_inflation, dtype=float)), 0.0)[:3]
+    a, b, d = np.r_[np.asarray(velocity_inflation, dtype=float), 0.0][:3]  # [a, b] is [a, b, 0]
     if d != 0.0 and doppler_nis is None:
         raise InputError(f"states: velocity_inflation has a Doppler term (d = {d:g}) but no doppler_nis array")
     c = velocity_factor(varpi, a, b, d, doppler_nis)
