@@ -150,14 +150,16 @@ def _brute_force(model, z, pred, S, gate):
 def test_matches_brute_force_and_is_one_to_one(model, xi, map_polar, polar):
     """Dense, ambiguous scenes (large P): the KD-tree radius loses no pair, and greedy = the loop reference.
     At most max_candidates (16) detections, so the per-point cap on candidates never binds (with more,
-    duplicated detections make the k nearest ambiguous). Map points at least 1 um apart: two at one place
-    (hypothesis found 2e-16 rad apart) tie to the last bit, and which one the greedy takes then depends on
-    rounding that the reference's d2 (a matrix inverse) and the kernel's (Cholesky) do differently."""
+    duplicated detections make the k nearest ambiguous). Map points, and detections, at least 1 um apart: two at
+    one place (hypothesis found map points 2e-16 rad apart, and detections 1e-15 rad apart) tie to the last bit,
+    and which one the greedy takes then depends on rounding that the reference's d2 (a matrix inverse) and the
+    kernel's (Cholesky) do differently."""
     T = se3.exp(xi)
     varpi = np.array([-5.0, 0, 0, 0, 0, -0.1])
     p = _to_world(T, map_polar)
-    gaps = np.linalg.norm(p[:, None] - p[None], axis=-1)[np.triu_indices(len(p), 1)]
-    assume(len(gaps) == 0 or gaps.min() > 1e-6)
+    for q in (p, ms.polar_to_cartesian(polar)):
+        gaps = np.linalg.norm(q[:, None] - q[None], axis=-1)[np.triu_indices(len(q), 1)]
+        assume(len(gaps) == 0 or gaps.min() > 1e-6)
     pred = ms.predict(model, T, varpi, p, T_VS)
     R = ms.noise_covariance(model, polar, SIGMAS, 0.5)[0]
     S = innovation_covariance(pred, np.diag((10 * P_STD) ** 2), R, map_sigma=0.5)
