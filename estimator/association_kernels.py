@@ -299,6 +299,7 @@ def grid_candidates(polar, points, x0, y0, cell, nx, ny, start, order, p, radius
     written, proposed = 0, 0
     for a in range(m):
         r = radius[a]
+        r2 = r * r
         ix0, ix1 = int(max(0.0, (p[a, 0] - r - x0) / cell)), int(min(nx - 1.0, (p[a, 0] + r - x0) / cell))
         iy0, iy1 = int(max(0.0, (p[a, 1] - r - y0) / cell)), int(min(ny - 1.0, (p[a, 1] + r - y0) / cell))
         found = 0
@@ -308,8 +309,8 @@ def grid_candidates(polar, points, x0, y0, cell, nx, ny, start, order, p, radius
                 for q in range(start[c], start[c + 1]):
                     i = order[q]
                     dx, dy, dz = points[i, 0] - p[a, 0], points[i, 1] - p[a, 1], points[i, 2] - p[a, 2]
-                    d = math.sqrt(dx * dx + dy * dy + dz * dz)
-                    if d <= r:
+                    d = dx * dx + dy * dy + dz * dz  # squared: the same order, no root per detection
+                    if d <= r2:
                         dist[found] = d
                         idx[found] = i
                         found += 1
