@@ -195,7 +195,9 @@ class LocalMap:
             raise InputError(f"idx: expected a 1-D integer array, got dtype {idx.dtype} shape {idx.shape}")
         if idx.min() < 0 or idx.max() >= len(self):
             raise InputError(f"idx: indices must be in [0, {len(self)}), got range [{idx.min()}, {idx.max()}]")
-        if len(np.unique(idx)) != len(idx):
+        seen = np.zeros(len(self), bool)
+        seen[idx] = True  # distinct: as many points marked as indices given (a mark, not a sort)
+        if np.count_nonzero(seen) != len(idx):
             raise InputError("idx: indices must be distinct")
         self._last_seen[idx] = scan
         self._hits[idx] += 1

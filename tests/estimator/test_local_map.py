@@ -118,8 +118,9 @@ def test_bad_input_names_the_argument():
     m.add(np.ones((2, 3)), 0)
     with pytest.raises(InputError, match="idx"):
         m.refresh(np.array([0, 5]), 1)
-    with pytest.raises(InputError, match="idx"):
+    with pytest.raises(InputError, match="distinct"):
         m.refresh(np.array([1, 1]), 1)
+    assert m.hits.tolist() == [1, 1] and m.last_seen.tolist() == [0, 0]  # nothing refreshed by a rejected call
     with pytest.raises(InputError, match="max_range"):
         m.prune(1, np.eye(4), np.eye(4), -1.0)
     with pytest.raises(InputError, match="capacity"):
