@@ -213,8 +213,9 @@ def test_grid_candidates_are_the_k_nearest_in_the_radius(points, p, k, cell, dat
     count, proposed = akernel.grid_candidates(False, grid.points, grid.x0, grid.y0, grid.cell, grid.nx, grid.ny,
                                               grid.start, grid.order, p, radius, k, z_meas, z_pred, S_inv,
                                               np.inf, j, i, d2)
-    dist = np.linalg.norm(p[:, None, :] - points[None, :, :], axis=2)
-    inside = dist <= radius[:, None]
+    sq = np.sum((p[:, None, :] - points[None, :, :]) ** 2, axis=2)  # as the kernel sums them
+    dist = np.sqrt(sq)
+    inside = sq <= radius[:, None] ** 2  # the kernel compares squares: a root rounded onto the radius is not inside
     assert proposed == count == int(np.minimum(inside.sum(axis=1), k).sum())
     for a in range(len(p)):
         got = np.sort(i[:count][j[:count] == a])
