@@ -48,7 +48,7 @@ def main(args) -> int:
     seq, truth = _simulate(args, out)
     results = {model: _run_and_evaluate(model, seq, truth, out) for model in MODELS}
     print("\n" + _table(results))
-    print(ONE_DRIVE)
+    print("\n" + ONE_DRIVE)
     report["runs"] = {m: {k: _jsonable(ev.get(k)) for k in ("kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m",
                                                              "drift")} for m, (_, ev) in results.items()}
     rrd = _record(out, seq, truth, results["ca-polar"][0])
