@@ -310,7 +310,9 @@ def grid_candidates(polar, points, x0, y0, cell, nx, ny, start, order, p, radius
                     i = order[q]
                     dx, dy, dz = points[i, 0] - p[a, 0], points[i, 1] - p[a, 1], points[i, 2] - p[a, 2]
                     d = dx * dx + dy * dy + dz * dz  # squared: the same order, no root per detection
-                    dist[found] = d  # written always, kept when inside: no branch to mispredict
+                    # written always, kept when inside: no branch to mispredict; in bounds because every
+                    # detection sits in one cell, so found < the detections examined <= len(points)
+                    dist[found] = d
                     idx[found] = i
                     found += d <= r2
         if found > k:  # the k nearest, by selection (equidistant detections: the first found in the grid)
