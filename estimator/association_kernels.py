@@ -34,7 +34,7 @@ def greedy_one_to_one(order, j, i, m, n):
 
 
 @njit(cache=True)
-def _lambda_max_sym3(M):
+def lambda_max_sym3(M):
     """Largest eigenvalue of a symmetric 3x3 matrix (trigonometric closed form, Smith 1961)."""
     p1 = M[0, 1] * M[0, 1] + M[0, 2] * M[0, 2] + M[1, 2] * M[1, 2]
     q = (M[0, 0] + M[1, 1] + M[2, 2]) / 3.0
@@ -208,7 +208,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
                 for j in range(3):
                     M[i, j] = S[a, i, j]
             k2 = 1.0
-        lam = _lambda_max_sym3(M)
+        lam = lambda_max_sym3(M)
         radius[a] = math.sqrt(gate * max(lam, 0.0) * k2) * (1.0 + 1e-9)
     return -1
 

@@ -29,6 +29,7 @@ import dataclasses
 
 import numpy as np
 
+from . import doppler_kernels
 from .config import AssociationConfig
 from .ego_velocity import PLANAR_ELEVATION, EgoVelocity, estimate_ego_velocity
 from .measurements import polar_to_cartesian
@@ -61,8 +62,7 @@ class Voxels:
 
     @classmethod
     def of(cls, p: np.ndarray, voxel: float) -> "Voxels":
-        _, index, counts = np.unique(voxel_keys(p, voxel), return_inverse=True, return_counts=True)
-        return cls(index.reshape(-1), counts)
+        return cls(*doppler_kernels.voxel_index(np.ascontiguousarray(p, dtype=float).reshape(-1, 3), float(voxel)))
 
     def support(self, rows: np.ndarray) -> int:
         """`support` of the points p[rows] (a mask or indices), counted from the voxels found already."""
@@ -84,23 +84,12 @@ def moving_voxels(pts, u, vr, var, gated, voxel: float, z: float, margin: float,
     flagged voxels would be half the gated voxels or more. u: (n, 3) directions, vr: (n,) radial velocities;
     voxels: `Voxels.of(pts, voxel)` when the caller has it.
     """
-    out = np.zeros(len(vr), bool)
+    out = np.empty(len(vr), bool)
     voxels = Voxels.of(pts, voxel) if voxels is None else voxels
-    inv, n = voxels.index, voxels.counts
-    g = np.flatnonzero(gated)
-    n_gated = np.bincount(inv[g], minlength=len(n))
-    if len(g) < 2 * min_points or np.count_nonzero(n_gated) < 4:
-        return out
-    dof = 2 if np.all(np.abs(u[:, 2]) < np.sin(PLANAR_ELEVATION)) else 3  # the RANSAC's rule (u_z = sin el)
-    w = np.sqrt(1.0 / n_gated[inv[g]])
-    v = np.linalg.lstsq(u[g, :dof] * w[:, None], -vr[g] * w, rcond=None)[0]
-    residual = u[:, :dof] @ v + vr
-    r = np.bincount(inv, residual) / n
-    sd = np.sqrt(np.bincount(inv, var)) / n
-    flagged = (n >= min_points) & (np.abs(r) > z * sd + margin) & (np.abs(r) <= max_residual)
-    if not flagged.any() or 2 * np.count_nonzero(flagged & (n_gated > 0)) >= np.count_nonzero(n_gated):
-        return out
-    out[flagged[inv]] = True
+    doppler_kernels.moving_voxels(np.ascontiguousarray(u, dtype=float), np.ascontiguousarray(vr, dtype=float),
+                                  np.ascontiguousarray(var, dtype=float), np.ascontiguousarray(gated, dtype=bool),
+                                  voxels.index, voxels.counts, float(z), float(margin), float(max_residual),
+                                  int(min_points), float(np.sin(PLANAR_ELEVATION)), out)
     return out
 
 

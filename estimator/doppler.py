@@ -24,7 +24,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import association
+from . import association, doppler_kernels
+from .association_kernels import lambda_max_sym3
 from .config import OdometryConfig
 from .consensus import MIN_STATIC, ConsensusSwitch, Voxels, moving_voxels
 from .ego_velocity import RANSAC_ITERATIONS, EgoVelocity, is_planar, least_squares_velocity, ransac_velocity
@@ -102,17 +103,20 @@ class DopplerFrontEnd:
         self.still_gate = {d: association.gate_threshold(0.99, d) for d in (2, 3)}
 
     def _thresholds(self, polar: np.ndarray, v: np.ndarray, Sv: np.ndarray):
-        """Per detection: unit direction u, the test sigma (radial velocity noise, the direction noise seen
-        through the velocity v . du/daz, v . du/del, and the predicted velocity's own uncertainty) and the
-        fit's variance without the prediction's part."""
+        """Per detection (compiled, `doppler_kernels.thresholds`): unit direction u (`polar_to_cartesian` at
+        range 1, bit for bit), position pts, the fit's variance var_fit (radial velocity noise and the direction
+        noise seen through the velocity v . du/daz, v . du/del), the prediction's gate mask (var_fit plus the
+        predicted velocity's own uncertainty u^T Sv u, at 3 sigma + `association.doppler_sigma_floor`) and the
+        fit's threshold 3 sqrt(var_fit) + the floor."""
+        n = len(polar)
         az, el = polar[:, 1], polar[:, 2]
-        ca, sa, ce, se = np.cos(az), np.sin(az), np.cos(el), np.sin(el)
-        u = np.stack([ce * ca, ce * sa, se], axis=1)  # `polar_to_cartesian` at range 1, bit for bit
-        d_az = np.stack([-ce * sa, ce * ca, np.zeros_like(az)], axis=1) @ v
-        d_el = np.stack([-se * ca, -se * sa, ce], axis=1) @ v
-        var_fit = self.sigmas[3] ** 2 + (self.sigmas[1] * d_az) ** 2 + (self.sigmas[2] * d_el) ** 2
-        sigma = np.sqrt(var_fit + np.sum((u @ Sv) * u, axis=1))
-        return u, sigma, var_fit
+        u, pts, var_fit = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
+        mask, fit_threshold = np.empty(n, bool), np.empty(n)
+        doppler_kernels.thresholds(np.ascontiguousarray(polar, dtype=float), np.cos(az), np.sin(az), np.cos(el),
+                                   np.sin(el), v, np.ascontiguousarray(Sv), self.sigmas,
+                                   float(self.config.association.doppler_sigma_floor), u, pts, var_fit, mask,
+                                   fit_threshold)
+        return u, pts, var_fit, mask, fit_threshold
 
     def static_mask(self, polar: np.ndarray, x: State, P: np.ndarray, scan_dt: float):
         """Static detections by Doppler: (mask (n,), event note or None).
@@ -132,13 +136,10 @@ class DopplerFrontEnd:
         az, el, vr = polar[:, 1], polar[:, 2], polar[:, 3]
         v, J = sensor_velocity(x.varpi, self.T_vehicle_sensor)
         Sv = J @ P[6:12, 6:12] @ J.T
-        u, sigma, var_fit = self._thresholds(polar, v, Sv)
-        mask = np.abs(vr + u @ v) <= 3.0 * sigma + acfg.doppler_sigma_floor
+        u, pts, var_fit, mask, fit_threshold = self._thresholds(polar, v, Sv)
         confident = np.sqrt(np.trace(Sv)) < acfg.ransac_above_sigma
-        fit_threshold = 3.0 * np.sqrt(var_fit) + acfg.doppler_sigma_floor
         if confident:
-            radius = 3.0 * np.sqrt(np.linalg.eigvalsh(Sv)[-1]) + acfg.doppler_jerk_margin
-            pts = u * polar[:, :1]
+            radius = 3.0 * np.sqrt(max(lambda_max_sym3(Sv), 0.0)) + acfg.doppler_jerk_margin
             # found once for both checks of the space a consensus covers (each finds them itself if it alone runs)
             both = acfg.moving_group_z > 0 and acfg.consensus_switch_after > 0
             voxels = Voxels.of(pts, acfg.consensus_voxel) if both else None

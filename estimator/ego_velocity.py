@@ -19,6 +19,10 @@ Algorithm:
 Planar mode (vz = 0, only vx, vy) is used when the caller says so or when every |elevation| < PLANAR_ELEVATION
 (elevation carries no information); the covariance then has zeros in the z row and column.
 
+Steps 1-4 run compiled, in one pass (`doppler_kernels.ransac`; the draws come from the Generator here, so the
+stream is the caller's): minimal sets solved by Cramer's rule (|det| <= `doppler_kernels.MIN_DET` skipped), the
+least squares by the normal equations.
+
 Failure (too few detections or inliers, or no non-degenerate minimal set) gives ok=False, v_sensor zeros,
 a zero covariance and no inliers: never an exception and never NaN.
 
@@ -31,12 +35,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rodo.estimator.doppler_kernels import count_inliers
+from rodo.estimator import doppler_kernels
 from rodo.estimator.errors import InputError, check_finite
 
 PLANAR_ELEVATION = 1e-3  # rad; all |elevation| below this -> planar mode
 MIN_THRESHOLD = 0.05     # m/s; the default inlier threshold is max(3 sigma_vr, MIN_THRESHOLD)
-MIN_DET = 1e-6           # |det| of a minimal set of unit directions below which the set is skipped
 RANSAC_ITERATIONS = 100  # minimal sets drawn per estimate (the default of `estimate_ego_velocity`)
 
 
@@ -104,24 +107,6 @@ def _failure(n: int, planar: bool) -> EgoVelocity:
     return EgoVelocity(np.zeros(3), np.zeros((3, 3)), np.zeros(n, dtype=bool), planar, False)
 
 
-def _least_squares(U: np.ndarray, b: np.ndarray):
-    sol, *_ = np.linalg.lstsq(U, b, rcond=None)
-    return sol
-
-
-def _fit(U: np.ndarray, b: np.ndarray, variance_floor: float, default_variance: float, max_cond: float):
-    """v = argmin |U v - b| and its covariance s^2 (U^T U)^-1, s^2 the residual variance (default_variance with
-    no redundancy), at least variance_floor; None when U^T U is worse conditioned than max_cond."""
-    n, dof = U.shape
-    info = U.T @ U
-    if np.linalg.cond(info) > max_cond:
-        return None
-    v = np.linalg.solve(info, U.T @ b)
-    res = U @ v - b
-    s2 = float(res @ res) / (n - dof) if n > dof else default_variance
-    return v, max(s2, variance_floor) * np.linalg.inv(info)
-
-
 def least_squares_velocity(azimuth, elevation, radial_velocity, *, variance_floor: float, max_cond: float = 1e12,
                            planar: bool | None = None):
     """Sensor velocity of detections all taken as static (no outlier rejection): (v, covariance) with v of
@@ -136,8 +121,12 @@ def least_squares_velocity(azimuth, elevation, radial_velocity, *, variance_floo
     dof = 2 if planar else 3
     if len(azimuth) <= dof:
         return None
-    U = _directions(azimuth, elevation)[:, :dof]
-    return _fit(U, -radial_velocity, variance_floor, variance_floor, max_cond)
+    U = np.ascontiguousarray(_directions(azimuth, elevation)[:, :dof])
+    v, cov = np.empty(dof), np.empty((dof, dof))
+    if not doppler_kernels.fit_velocity(U, -radial_velocity, np.ones(len(U), np.bool_), float(variance_floor),
+                                        float(variance_floor), float(max_cond), v, cov):
+        return None
+    return v, cov
 
 
 def estimate_ego_velocity(azimuth, elevation, radial_velocity, rng: np.random.Generator, *, sigma_vr: float = 0.01,
@@ -183,26 +172,18 @@ def ransac_velocity(u: np.ndarray, radial_velocity: np.ndarray, rng: np.random.G
     dof = 2 if planar else 3
     if n < dof:
         return _failure(n, planar)
-    U = u[:, :dof]
-    b = -radial_velocity
-    v = _best_hypothesis(U, b, rng, iterations, threshold, near)
-    inl = np.abs(U @ v - b) <= threshold
-    if inl.sum() < dof:
+    draws = rng.integers(0, n, size=(iterations, dof))  # with replacement: a repeated row has det 0, skipped
+    ref = np.zeros(dof) if near is None else np.array(near[0][:dof], dtype=float)
+    v, cov, inliers = np.empty(dof), np.empty((dof, dof)), np.empty(n, np.bool_)
+    if not doppler_kernels.ransac(np.ascontiguousarray(u[:, :dof], dtype=float), -np.asarray(radial_velocity, float),
+                                  draws, np.ascontiguousarray(threshold, dtype=float), ref,
+                                  np.inf if near is None else float(near[1]), float(sigma_vr) ** 2, v, cov, inliers):
         return _failure(n, planar)
-    for _ in range(2):
-        v_new = _least_squares(U[inl], b[inl])
-        inl_new = np.abs(U @ v_new - b) <= threshold
-        if inl_new.sum() < dof:  # the refit lost the consensus: keep the previous one
-            break
-        v, inl = v_new, inl_new
-    fit = _fit(U[inl], b[inl], 1e-12, sigma_vr**2, 1e12)
-    if fit is None:
-        return _failure(n, planar)
-    cov = np.zeros((3, 3))
-    cov[:dof, :dof] = fit[1]
+    cov_out = np.zeros((3, 3))
+    cov_out[:dof, :dof] = cov
     v_out = np.zeros(3)
-    v_out[:dof] = fit[0]
-    return EgoVelocity(v_out, cov, inl, planar, True)
+    v_out[:dof] = v
+    return EgoVelocity(v_out, cov_out, inliers, planar, True)
 
 
 def _check_ransac_args(azimuth, rng, sigma_vr, threshold, iterations) -> np.ndarray:
@@ -228,24 +209,3 @@ def _check_near(near) -> tuple[np.ndarray, float]:
     if not radius > 0:
         raise InputError(f"near radius: must be > 0, got {radius}")
     return v_near, radius
-
-
-def _best_hypothesis(U: np.ndarray, b: np.ndarray, rng: np.random.Generator, iterations: int, threshold,
-                     near) -> np.ndarray:
-    """The hypothesis with the most inliers (ties: the closest to zero, or to the `near` velocity).
-
-    Hypotheses from minimal sets, solved in one batch; degenerate sets dropped (a set that repeats a detection
-    has det = 0, so drawing with replacement is fine). Zero (or the near velocity) is a hypothesis too."""
-    n, dof = U.shape
-    idx = rng.integers(0, n, size=(iterations, dof))
-    A = U[idx]                                   # (k, dof, dof)
-    good = np.abs(np.linalg.det(A)) > MIN_DET
-    hyps = np.zeros((1, dof)) if near is None else near[0][None, :dof]
-    if np.any(good):
-        hyps = np.concatenate([hyps, np.linalg.solve(A[good], b[idx[good]][..., None])[..., 0]])
-    ref = np.zeros(dof) if near is None else near[0][:dof]
-    if near is not None:
-        hyps = hyps[np.linalg.norm(hyps - ref, axis=1) <= near[1]]
-    counts = count_inliers(np.ascontiguousarray(U), b, np.ascontiguousarray(hyps), np.ascontiguousarray(threshold))
-    order = np.lexsort((np.linalg.norm(hyps - ref, axis=1), -counts))  # most inliers, then closest to ref
-    return hyps[order[0]]

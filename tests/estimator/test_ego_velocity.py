@@ -163,6 +163,65 @@ def test_inlier_counts_equal_the_numpy_expression(dof, seed, n, m):
     np.testing.assert_array_equal(count_inliers(np.ascontiguousarray(U), -vr, hyps, threshold), want)
 
 
+def _reference_ransac(U, b, draws, threshold, ref, radius, sigma_vr2):
+    """The RANSAC in NumPy as it was before it was compiled (LAPACK's LU for the minimal sets, its SVD for the
+    least squares and the condition number): (v, cov, inliers) or None."""
+    dof = U.shape[1]
+    A = U[draws]
+    good = np.abs(np.linalg.det(A)) > 1e-6
+    hyps = np.concatenate([ref[None], np.linalg.solve(A[good], b[draws[good]][..., None])[..., 0]])
+    hyps = hyps[np.linalg.norm(hyps - ref, axis=1) <= radius]
+    counts = (np.abs(U @ hyps.T - b[:, None]) <= threshold[:, None]).sum(axis=0)
+    v = hyps[np.lexsort((np.linalg.norm(hyps - ref, axis=1), -counts))[0]]
+    inl = np.abs(U @ v - b) <= threshold
+    if inl.sum() < dof:
+        return None
+    for _ in range(2):
+        v_new = np.linalg.lstsq(U[inl], b[inl], rcond=None)[0]
+        inl_new = np.abs(U @ v_new - b) <= threshold
+        if inl_new.sum() < dof:
+            break
+        v, inl = v_new, inl_new
+    info = U[inl].T @ U[inl]
+    if np.linalg.cond(info) > 1e12:
+        return None
+    v = np.linalg.solve(info, U[inl].T @ b[inl])
+    res = U[inl] @ v - b[inl]
+    s2 = res @ res / (inl.sum() - dof) if inl.sum() > dof else sigma_vr2
+    return v, max(s2, 1e-12) * np.linalg.inv(info), inl
+
+
+@pytest.mark.parametrize("dof", [2, 3])
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 80), near=st.booleans(),
+       outliers=st.floats(0.0, 0.45))
+def test_compiled_ransac_equals_the_numpy_reference(dof, seed, n, near, outliers):
+    """The compiled RANSAC (`doppler_kernels.ransac`: Cramer's rule, normal equations) picks the hypothesis,
+    the inliers and the fit the NumPy reference does (LAPACK), to rounding: a static world with a moving
+    group, noise, per-detection thresholds, free or gated near a prediction, planar or 3-D, empty scans."""
+    from rodo.estimator.doppler_kernels import ransac
+
+    rng = _rng(seed)
+    v = rng.normal(size=3) * 8 * ([1, 1, 0] if dof == 2 else 1)
+    az, el, vr = _scene(rng, v, n=n, planar=dof == 2, sigma=0.02)
+    k = int(outliers * n)
+    vr[:k] += rng.normal(3.0, 0.01, k)  # one object moving at about 3 m/s radially
+    U = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=1)[:, :dof]
+    threshold = rng.uniform(0.04, 0.08, n)
+    draws = rng.integers(0, max(n, 1), size=(100, dof)) if n else np.zeros((100, dof), np.int64)
+    ref = v[:dof] + rng.normal(0, 0.1, dof) if near else np.zeros(dof)
+    radius = 0.5 if near else np.inf
+    if n < dof:
+        return
+    want = _reference_ransac(U, -vr, draws, threshold, ref, radius, 0.02**2)
+    got_v, got_cov, got_inl = np.empty(dof), np.empty((dof, dof)), np.empty(n, bool)
+    ok = ransac(np.ascontiguousarray(U), -vr, draws, threshold, ref, radius, 0.02**2, got_v, got_cov, got_inl)
+    assert ok == (want is not None)
+    if ok:
+        np.testing.assert_array_equal(got_inl, want[2])
+        np.testing.assert_allclose(got_v, want[0], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(got_cov, want[1], rtol=1e-7, atol=1e-15)
+
+
 def test_least_squares_velocity():
     """Exact on noise-free data (3D and planar), the covariance floor, and None where it cannot fit."""
     rng = _rng(13)

@@ -121,3 +121,75 @@ def test_voxels_of_a_scan_give_the_support_of_any_subset(seed, voxel, n):
     assert want[n_world:].any()  # the case flags the group: the comparison below is not of two empty masks
     np.testing.assert_array_equal(moving_voxels(p, u, vr, var, gated, 2.0, 4.0, 0.02, 0.5,
                                                 voxels=Voxels.of(p, 2.0)), want)
+
+
+def _reference_moving_voxels(p, u, vr, var, gated, voxel, z, margin, max_residual, min_points=5):
+    """`moving_voxels` in NumPy as it was before it was compiled (np.unique for the voxels, LAPACK's least
+    squares for the world's fit)."""
+    out = np.zeros(len(vr), bool)
+    _, inv, n = np.unique(voxel_keys(p, voxel), return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    g = np.flatnonzero(gated)
+    n_gated = np.bincount(inv[g], minlength=len(n))
+    if len(g) < 2 * min_points or np.count_nonzero(n_gated) < 4:
+        return out
+    dof = 2 if np.all(np.abs(u[:, 2]) < np.sin(1e-3)) else 3
+    w = np.sqrt(1.0 / n_gated[inv[g]])
+    v = np.linalg.lstsq(u[g, :dof] * w[:, None], -vr[g] * w, rcond=None)[0]
+    r = np.bincount(inv, u[:, :dof] @ v + vr) / n
+    sd = np.sqrt(np.bincount(inv, var)) / n
+    flagged = (n >= min_points) & (np.abs(r) > z * sd + margin) & (np.abs(r) <= max_residual)
+    if not flagged.any() or 2 * np.count_nonzero(flagged & (n_gated > 0)) >= np.count_nonzero(n_gated):
+        return out
+    out[flagged[inv]] = True
+    return out
+
+
+@given(seed=st.integers(0, 2**32 - 1), speed=st.floats(0.0, 0.3), n_group=st.integers(0, 150),
+       planar=st.booleans())
+@settings(max_examples=40, deadline=None)
+def test_compiled_moving_voxels_equal_the_numpy_reference(seed, speed, n_group, planar):
+    """The compiled voxels and moving-group test (`doppler_kernels.voxel_index`, `moving_voxels`: a sort for
+    the voxels, the normal equations for the world's fit) flag what the NumPy reference flags, planar or not."""
+    rng = np.random.default_rng(seed)
+    v = np.array([8.0, 0.5, 0.0])
+    p, u, vr, var, _ = _scan(rng, v, n_group=n_group, group_speed=speed)
+    if planar:
+        p[:, 2] = 0.0
+        u = p / np.linalg.norm(p, axis=1, keepdims=True)
+    gated = np.abs(vr + u @ v) <= GATE
+    np.testing.assert_array_equal(moving_voxels(p, u, vr, var, gated, 2.0, 4.0, 0.02, 0.5),
+                                  _reference_moving_voxels(p, u, vr, var, gated, 2.0, 4.0, 0.02, 0.5))
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 120))
+@settings(max_examples=40, deadline=None)
+def test_compiled_doppler_thresholds_equal_the_numpy_expressions(seed, n):
+    """`DopplerFrontEnd._thresholds` (`doppler_kernels.thresholds`): directions bit for bit those of
+    `polar_to_cartesian` at range 1, positions, the fit's variance and threshold, and the prediction's gate as
+    the NumPy expressions give them."""
+    from rodo.estimator.doppler import DopplerFrontEnd
+
+    rng = np.random.default_rng(seed)
+    polar = np.c_[rng.uniform(1, 80, n), rng.uniform(-1, 1, n), rng.uniform(-0.3, 0.3, n), rng.normal(-5, 2, n)]
+    sigmas = np.array([0.1, 0.01, 0.02, 0.03])
+    config = OdometryConfig.for_model("ca-polar")
+    front = DopplerFrontEnd(config, np.eye(4), sigmas, np.random.default_rng(0), np.random.default_rng(1))
+    v = rng.normal(0, 5, 3)
+    A = rng.normal(0, 0.1, (3, 3))
+    Sv = A @ A.T
+    u, pts, var_fit, mask, fit_threshold = front._thresholds(polar, v, Sv)
+    want_u = polar_to_cartesian(np.c_[np.ones(n), polar[:, 1:3]])
+    np.testing.assert_array_equal(u, want_u)
+    np.testing.assert_allclose(pts, want_u * polar[:, :1], rtol=1e-15)
+    az, el = polar[:, 1], polar[:, 2]
+    d_az = np.stack([-np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.zeros(n)], axis=1) @ v
+    d_el = np.stack([-np.sin(el) * np.cos(az), -np.sin(el) * np.sin(az), np.cos(el)], axis=1) @ v
+    want_var = sigmas[3] ** 2 + (sigmas[1] * d_az) ** 2 + (sigmas[2] * d_el) ** 2
+    np.testing.assert_allclose(var_fit, want_var, rtol=1e-12)
+    floor = config.association.doppler_sigma_floor
+    np.testing.assert_allclose(fit_threshold, 3 * np.sqrt(want_var) + floor, rtol=1e-12)
+    gate = 3 * np.sqrt(want_var + np.sum((want_u @ Sv) * want_u, axis=1)) + floor
+    margin = np.abs(np.abs(polar[:, 3] + want_u @ v) - gate)
+    sure = margin > 1e-9  # a detection on its gate's edge to rounding may fall either way
+    np.testing.assert_array_equal(mask[sure], (np.abs(polar[:, 3] + want_u @ v) <= gate)[sure])
