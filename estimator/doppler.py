@@ -245,9 +245,10 @@ class DopplerFrontEnd:
         cfg = self.config.standstill
         if fit is None or cfg.speed <= 0:
             return None
-        # at rest every static detection's Doppler is noise: a small median, and a fit consistent with zero
-        quiet = np.median(np.abs(fit.radial_velocity)) <= max(0.5 * cfg.speed, self.sigmas[3])
-        if not (quiet and fit.v @ np.linalg.solve(fit.cov, fit.v) <= self.still_gate[fit.dof]):
+        # at rest every static detection's Doppler is noise: a fit consistent with zero, and a small median (the
+        # fit's test first: moving, it fails and the median, a partial sort, is not needed)
+        if not (fit.v @ np.linalg.solve(fit.cov, fit.v) <= self.still_gate[fit.dof]
+                and np.median(np.abs(fit.radial_velocity)) <= max(0.5 * cfg.speed, self.sigmas[3])):
             return None
         sig = motion.tail_sigmas([cfg.sigma_velocity] * 3, [cfg.sigma_rate] * 3, [cfg.sigma_accel] * 3,
                                  [cfg.sigma_angular_accel] * 3)
