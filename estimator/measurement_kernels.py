@@ -25,7 +25,7 @@ POLAR, CARTESIAN = 0, 1
 @njit(cache=True, fastmath=FASTMATH, inline="always")
 def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
     """The measurement model of one map point p (3,) for a state (C, t, nu, om) and extrinsics (Cvs, rvs),
-    shared by `linearize_pairs` and `association_kernels.prepare`:
+    shared by `state_pairs` and `association_kernels.prepare`:
 
     z (4,) the predicted [r, az, el, v_r] (polar) or [x, y, z, v_r] (Cartesian); J (4, 12) = dz/d[xi, varpi]
     (rows 0-2 have zeros in the velocity columns); Js (3, 3) = dz[:3]/dp_s; am (2, 3) = (dv_r/dp_s,
@@ -130,21 +130,20 @@ def residual_d2(polar, z, zp, M, e):
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_out, robust_c):
-    """H (K, 12, 12), b (K, 12), cost for K states; pairs offsets[k]:offsets[k+1] belong to state k and were
-    measured by the radar with extrinsics Tvs[k] (K, 4, 4).
+def state_pairs(model, T, varpi, lo, hi, p_world, z, W, Tvs, weights, d2_out, robust_c, Hk, bk):
+    """The pairs lo:hi of one state (T, varpi), measured by the radar with extrinsics Tvs, added to its
+    normal equations Hk (12, 12), bk (12,) (Hk's lower triangle mirrored from the upper after); returns their
+    cost 1/2 sum_a w_a d2_a.
 
     W[a] are information matrices, symmetric (the pose-velocity block uses W[a, 3, :] for W[a, :, 3]).
     Each pair's squared Mahalanobis distance is written to d2_out; its term is weighted by weights[a]
-    (robust weights held fixed during a solve, see `SlidingWindow.optimize`): cost = 1/2 sum_a w_a d2_a.
-    A negative weights[a] is replaced first by the Cauchy weight 1 / (1 + d2_a / robust_c^2) of the current
-    residual (1 when robust_c is 0), so a solve sets its weights in its first linearisation.
+    (robust weights held fixed during a solve, see `SlidingWindow.optimize`). A negative weights[a] is replaced
+    first by the Cauchy weight 1 / (1 + d2_a / robust_c^2) of the current residual (1 when robust_c is 0), so a
+    solve sets its weights in its first linearisation. A map point at the sensor makes the cost NaN (its d2
+    NaN): the step that put it there is rejected.
 
     Checked by: tests/estimator/test_window.py::test_kernel_matches_numpy_linearisation
     """
-    K = T.shape[0]
-    H = np.zeros((K, 12, 12))
-    b = np.zeros((K, 12))
     cost = 0.0
     J = np.zeros((4, 12))
     WJ = np.empty((4, 6))
@@ -155,51 +154,48 @@ def linearize_pairs(model, T, varpi, offsets, p_world, z, W, Tvs, weights, d2_ou
     Js = np.empty((3, 3))
     am = np.empty((2, 3))
     ps = np.empty(3)
-    for k in range(K):
-        Cvs = Tvs[k, :3, :3]
-        rvs = Tvs[k, :3, 3]
-        C = T[k, :3, :3]
-        t = T[k, :3, 3]
-        nu = varpi[k, :3]
-        om = varpi[k, 3:]
-        Hk, bk = H[k], b[k]
-        for a in range(offsets[k], offsets[k + 1]):
-            if point_model(model == POLAR, C, t, Cvs, rvs, nu, om, p_world[a], A, J, zp, Js, am, ps) == 0.0:
-                d2_out[a] = np.nan  # a map point at the sensor: the cost is undefined, the step is rejected
-                cost = np.nan
-                continue
-            # residual derivative is -J; H, b are invariant to that sign pair (b flips with it)
-            Wa = W[a]
-            d2 = residual_d2(model == POLAR, z[a], zp, Wa, e)
-            d2_out[a] = d2
-            if weights[a] < 0.0:
-                weights[a] = 1.0 / (1.0 + d2 / (robust_c * robust_c)) if robust_c > 0.0 else 1.0
-            wgt = weights[a]
-            cost += 0.5 * wgt * d2
-            # J's velocity columns are zero but in row 3, so only w W e and w W J[:, :6] are needed:
-            # H_pv = (w W J)[3, :6]^T J[3, 6:], H_vv = w W_33 J[3, 6:]^T J[3, 6:], b_v = J[3, 6:] (w W e)_3
-            for i in range(4):
-                We[i] = wgt * (Wa[i, 0] * e[0] + Wa[i, 1] * e[1] + Wa[i, 2] * e[2] + Wa[i, 3] * e[3])
-                for j in range(6):
-                    WJ[i, j] = wgt * (Wa[i, 0] * J[0, j] + Wa[i, 1] * J[1, j] + Wa[i, 2] * J[2, j]
-                                      + Wa[i, 3] * J[3, j])
-            for i in range(6):
-                bk[i] -= J[0, i] * We[0] + J[1, i] * We[1] + J[2, i] * We[2] + J[3, i] * We[3]  # J_residual = -J
-            for i in range(6, 12):
-                bk[i] -= J[3, i] * We[3]
-            for i in range(6):
-                for j in range(i, 6):
-                    Hk[i, j] += J[0, i] * WJ[0, j] + J[1, i] * WJ[1, j] + J[2, i] * WJ[2, j] + J[3, i] * WJ[3, j]
-                c = WJ[3, i]  # W is symmetric: (w W J)[3, i] = (w J^T W)[i, 3]
-                for j in range(6, 12):
-                    Hk[i, j] += c * J[3, j]
-            w33 = wgt * Wa[3, 3]
-            for i in range(6, 12):
-                c = w33 * J[3, i]
-                for j in range(i, 12):
-                    Hk[i, j] += c * J[3, j]
-    for k in range(K):
-        for i in range(12):
-            for j in range(i + 1, 12):
-                H[k, j, i] = H[k, i, j]
-    return H, b, cost
+    Cvs = Tvs[:3, :3]
+    rvs = Tvs[:3, 3]
+    C = T[:3, :3]
+    t = T[:3, 3]
+    nu = varpi[:3]
+    om = varpi[3:]
+    for a in range(lo, hi):
+        if point_model(model == POLAR, C, t, Cvs, rvs, nu, om, p_world[a], A, J, zp, Js, am, ps) == 0.0:
+            d2_out[a] = np.nan  # a map point at the sensor: the cost is undefined, the step is rejected
+            cost = np.nan
+            continue
+        # residual derivative is -J; H, b are invariant to that sign pair (b flips with it)
+        Wa = W[a]
+        d2 = residual_d2(model == POLAR, z[a], zp, Wa, e)
+        d2_out[a] = d2
+        if weights[a] < 0.0:
+            weights[a] = 1.0 / (1.0 + d2 / (robust_c * robust_c)) if robust_c > 0.0 else 1.0
+        wgt = weights[a]
+        cost += 0.5 * wgt * d2
+        # J's velocity columns are zero but in row 3, so only w W e and w W J[:, :6] are needed:
+        # H_pv = (w W J)[3, :6]^T J[3, 6:], H_vv = w W_33 J[3, 6:]^T J[3, 6:], b_v = J[3, 6:] (w W e)_3
+        for i in range(4):
+            We[i] = wgt * (Wa[i, 0] * e[0] + Wa[i, 1] * e[1] + Wa[i, 2] * e[2] + Wa[i, 3] * e[3])
+            for j in range(6):
+                WJ[i, j] = wgt * (Wa[i, 0] * J[0, j] + Wa[i, 1] * J[1, j] + Wa[i, 2] * J[2, j]
+                                  + Wa[i, 3] * J[3, j])
+        for i in range(6):
+            bk[i] -= J[0, i] * We[0] + J[1, i] * We[1] + J[2, i] * We[2] + J[3, i] * We[3]  # J_residual = -J
+        for i in range(6, 12):
+            bk[i] -= J[3, i] * We[3]
+        for i in range(6):
+            for j in range(i, 6):
+                Hk[i, j] += J[0, i] * WJ[0, j] + J[1, i] * WJ[1, j] + J[2, i] * WJ[2, j] + J[3, i] * WJ[3, j]
+            c = WJ[3, i]  # W is symmetric: (w W J)[3, i] = (w J^T W)[i, 3]
+            for j in range(6, 12):
+                Hk[i, j] += c * J[3, j]
+        w33 = wgt * Wa[3, 3]
+        for i in range(6, 12):
+            c = w33 * J[3, i]
+            for j in range(i, 12):
+                Hk[i, j] += c * J[3, j]
+    for i in range(12):
+        for j in range(i + 1, 12):
+            Hk[j, i] = Hk[i, j]
+    return cost

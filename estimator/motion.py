@@ -108,6 +108,8 @@ class ConstantAccelerationMotion(MotionPrior):
 
     def __init__(self, qc_diag):
         self.prior = ConstantAccelerationPrior(np.diag(np.asarray(qc_diag, dtype=float)))
+        # (CA?, Magnus order, noise code, Qc): the prior as `window_kernels.normal_equations` takes it
+        self.kernel_args = (True, self.prior.magnus_order, self.prior.noise_code, self.prior.Qc)
 
     def initial_state(self, t, T_vehicle_world, varpi):
         return State(t, T_vehicle_world, varpi, np.zeros(6))
@@ -160,6 +162,7 @@ class ConstantVelocityMotion(MotionPrior):
 
     def __init__(self, qc_diag):
         self.prior = ConstantVelocityPrior(np.diag(np.asarray(qc_diag, dtype=float)))
+        self.kernel_args = (False, 1, 0, self.prior.Qc)  # as `ConstantAccelerationMotion.kernel_args`
 
     def initial_state(self, t, T_vehicle_world, varpi):
         return State(t, T_vehicle_world, varpi, None)

@@ -20,9 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from . import measurement_kernels as _kernel
-from . import motion_kernels
-from .lie import kernels as lie_kernels
+from . import motion_kernels, window_kernels
 from .lie import se3
 from .measurement_models import MeasurementModel
 from .motion import MotionPrior
@@ -60,9 +58,8 @@ class SlidingWindow:
         self.prior_grad: np.ndarray | None = None  # linear term g: cost 1/2 e^T Lam e + g^T e, e = x0 (-) mean
         self._packs: dict = {}  # measurement sets concatenated for the kernel, per tuple of sets (cached)
         # False: an older state's measurement terms are linearised once per solve (the first linearisation after
-        # a re-weighting), then taken from their quadratic model (`_lagged_terms`); the newest state's always
+        # a re-weighting), then taken from their quadratic model (`_normal_equations`); the newest state's always
         self.relinearize_older = relinearize_older
-        self._jacobian_scratch = (np.empty((6, 6)), np.empty((6, 6)))  # for `_lagged_terms`' log (not read)
         self._terms: dict = {}  # id(set) -> (set, its weights, T^-1, varpi, H, b, cost) at its last linearisation
         self._H: np.ndarray | None = None
         self._motion_info: np.ndarray | None = None  # motion_info stacked for the kernel (cached)
@@ -123,61 +120,13 @@ class SlidingWindow:
         self._stack = (list(states), T, tail, np.array([x.t for x in states]))
 
     # --- linearisation ----------------------------------------------------------------------------------
-    def _prior_term(self, x: State):
-        """e = x (-) prior_mean and de/dx = diag(J(e_xi)^-1, I)."""
-        J = np.eye(self.motion.dim)
-        xi, Jm = np.empty(6), np.empty((6, 6))
-        if self._prior_inverse is None or self._prior_inverse[0] is not self.prior_mean:
-            self._prior_inverse = (self.prior_mean, se3.inverse(self.prior_mean.T_vehicle_world))
-        lie_kernels.se3_log_and_jac_inv(x.T_vehicle_world @ self._prior_inverse[1], xi, J[:6, :6], Jm)
-        return np.concatenate((xi, x.vector_tail() - self.prior_mean.vector_tail())), J
-
-    def _measurement_terms(self, ks, T_all: np.ndarray, tail: np.ndarray, lagged: bool = False):
-        """Measurement blocks of the states ks, linearised in one compiled pass (`measurement_kernels`); T_all
-        (n, 4, 4) and tail (n, d - 6) are the window's states from its first, stacked (`state.stacked`).
-        lagged: the states other than the newest whose terms were linearised with their present set and
-        weights (`relinearize_older` False) come from that linearisation's quadratic model instead.
-
-        Returns per state H (K, 12, 12), b (K, 12) and the total cost; e = z - g(x), J = -[J_z_xi, J_z_varpi].
-        """
-        newest = len(self.states) - 1
-        lag = [q for q, k in enumerate(ks) if lagged and k != newest and self._lag_ready(self.meas[k])]
-        if not lag:
-            return self._linearize_sets(ks, T_all, tail)
-        fresh = [q for q in range(len(ks)) if q not in lag]
-        H, b, cost = np.empty((len(ks), 12, 12)), np.empty((len(ks), 12)), 0.0
-        if fresh:
-            H[fresh], b[fresh], cost = self._linearize_sets([ks[q] for q in fresh], T_all, tail)
-        for q in lag:
-            H[q], b[q], c = self._lagged_terms(self.meas[ks[q]], T_all[ks[q]], tail[ks[q], :6])
-            cost += c
-        return H, b, float(cost)
-
     def _lag_ready(self, m: MeasurementSet) -> bool:
         kept = self._terms.get(id(m))
         return not self.relinearize_older and kept is not None and kept[0] is m and kept[1] is m.weights
 
-    def _lagged_terms(self, m: MeasurementSet, T: np.ndarray, varpi: np.ndarray):
-        """H, b and cost of a set's terms from the quadratic model of its last linearisation at (T0, varpi0):
-        with d = [log(T T0^-1); varpi - varpi0], cost0 + b0^T d + 1/2 d^T H0 d and gradient b0 + H0 d. Between
-        two linearisations of one solve an older state moves by 1e-4 median (m, rad, m/s), where the cost is
-        right to second order in the move and the gradient and H to first (the residuals' curvature and the
-        Jacobians' change are left out).
-
-        Checked by: tests/estimator/test_window.py::test_lagged_terms_are_the_quadratic_model_of_the_last_linearisation
-        """
-        _, _, T0_inverse, varpi0, H0, b0, c0 = self._terms[id(m)]
-        d = np.empty(12)
-        lie_kernels.se3_log_and_jac_inv(T @ T0_inverse, d[:6], *self._jacobian_scratch)
-        d[6:] = varpi - varpi0
-        Hd = H0 @ d
-        return H0, b0 + Hd, c0 + b0 @ d + 0.5 * d @ Hd
-
-    def _linearize_sets(self, ks, T_all: np.ndarray, tail: np.ndarray):
-        """The compiled linearisation of the states ks' sets (robust weights set where a set has none); with
-        `relinearize_older` False the older states' blocks are kept for `_lagged_terms` (the newest's never lag:
-        its weights are set afresh by the next solve's re-weighting)."""
-        sets = [self.meas[k] for k in ks]
+    def _pack(self, sets: list[MeasurementSet]):
+        """The sets concatenated for the kernels, (offsets, p, z, W, Tvs, weights), cached per tuple of sets; the
+        weights -1 where a set has none (the kernel sets its Cauchy weights), else the set's."""
         # the sets change only when scans come and go; compared by identity with the packed sets held alive
         # (an id() of a freed set can be reused by the next one: a stale pack once read past the new set's end)
         key = tuple(id(m) for m in sets)
@@ -192,29 +141,27 @@ class SlidingWindow:
             self._packs[key] = packed = (sets, offsets, _joined([m.p_world for m in sets]),
                                          _joined([m.z for m in sets]), _joined([m.W for m in sets]), Tvs, w)
         _, offsets, p, z, W, Tvs, w = packed
-        # the kernel sets Cauchy weights where they are -1; a set's weights are then a view of the pack's
-        fresh = [q for q, m in enumerate(sets) if m.weights is None]
-        for q in fresh:
-            w[offsets[q]:offsets[q + 1]] = -1.0
-        for q, m in enumerate(sets):  # weights set in another pack (a set packed alone, then with others)
-            if m.weights is not None and m.weights.base is not w:
+        for q, m in enumerate(sets):  # a fresh set's weights to be set; weights set in another pack copied in
+            if m.weights is None:
+                w[offsets[q]:offsets[q + 1]] = -1.0
+            elif m.weights.base is not w:
                 w[offsets[q]:offsets[q + 1]] = m.weights
-        T, varpi = T_all[ks], np.ascontiguousarray(tail[ks, :6])
-        d2 = np.empty(len(z))
-        H, b, cost = _kernel.linearize_pairs(self.measurement_model.kernel_code, T, varpi, offsets, p, z, W, Tvs, w,
-                                             d2, float(self.robust_c))
-        for q in fresh:
-            sets[q].weights = w[offsets[q]:offsets[q + 1]]
-        if not self.relinearize_older:
-            for q, m in enumerate(sets):
-                if ks[q] == len(self.states) - 1:
-                    continue
-                c = 0.5 * float(m.weights @ d2[offsets[q]:offsets[q + 1]])
-                self._terms[id(m)] = (m, m.weights, se3.inverse(T[q]), varpi[q].copy(), H[q], b[q], c)
-            if len(self._terms) > len(self.meas):  # forget the sets that left the window
-                live = {id(m) for m in self.meas if m is not None}
-                self._terms = {i: v for i, v in self._terms.items() if i in live}
-        return H, b, float(cost)
+        return offsets, p, z, W, Tvs, w
+
+    def _linearized(self, sets, ks, w, offsets, T0_inverse, varpi0, H, b, costs) -> None:
+        """After a linearisation of `sets` (states ks) in a pack with weights w: a fresh set's weights are a view
+        of the pack's; with `relinearize_older` False the older states' blocks are kept to lag (`_normal_equations`)."""
+        for q, m in enumerate(sets):
+            if m.weights is None:
+                m.weights = w[offsets[q]:offsets[q + 1]]
+        if self.relinearize_older:
+            return
+        for q, m in enumerate(sets):
+            if ks[q] != len(self.states) - 1:
+                self._terms[id(m)] = (m, m.weights, T0_inverse[q], varpi0[q].copy(), H[q], b[q], costs[q])
+        if len(self._terms) > len(self.meas):  # forget the sets that left the window
+            live = {id(m) for m in self.meas if m is not None}
+            self._terms = {i: v for i, v in self._terms.items() if i in live}
 
     def reset_robust_weights(self) -> None:
         """Forget the Cauchy weights: the next linearisation sets them from the current residuals, and they
@@ -228,30 +175,56 @@ class SlidingWindow:
     def linearize(self, lagged: bool = False):
         """Normal equations (H, b) with H d = -b, and the cost, at the current estimate (lagged: the older
         states' measurement terms from their last linearisation's quadratic model, see `relinearize_older`)."""
-        n, d = len(self.states), self.motion.dim
-        H = np.zeros((n * d, n * d))
-        b = np.zeros(n * d)
+        return self._normal_equations(len(self.states), lagged)
+
+    def _normal_equations(self, n: int, lagged: bool, first_only: bool = False):
+        """(H, b, cost) of the window's first n states in one compiled call (`window_kernels.normal_equations`):
+        the prior on the oldest, the motion terms between them, and the measurement and rate terms of all n, or
+        with first_only of the oldest alone (the marginalisation's). An older state's measurement terms lag (come
+        from the quadratic model of their last linearisation, cost c0 + b0^T d + 1/2 d^T H0 d and gradient
+        b0 + H0 d, d the state's move since: its pose part the SE(3) log) when `lagged`, `relinearize_older` is
+        False and its set and weights are those of that linearisation. Between two linearisations of one solve
+        an older state moves by 1e-4 median (m, rad, m/s), where the cost is right to second order in the move
+        and the gradient and H to first. The newest state's never lag.
+
+        Checked by: tests/estimator/test_window.py::test_lagged_terms_are_the_quadratic_model_of_the_last_linearisation
+        """
+        d, newest = self.motion.dim, len(self.states) - 1
         T_all, tail, t = self._stacked()
-        e, J = self._prior_term(self.states[0])
-        H[:d, :d] += J.T @ self.prior_info @ J
-        b[:d] += J.T @ (self.prior_info @ e + self.prior_grad)
-        cost = 0.5 * e @ self.prior_info @ e + self.prior_grad @ e
-        if n > 1:
-            E, J1s, J2s = self.motion.stacked_residuals(T_all, tail, t)
-            if self._motion_info is None or len(self._motion_info) != n - 1:
-                self._motion_info = np.stack(self.motion_info)
-            cost += motion_kernels.accumulate(H, b, E, J1s, J2s, self._motion_info)
-        rate_on = np.array([info is not None for info in self.rate_prior])
+        if n < len(self.states):
+            T_all, tail, t = T_all[:n], tail[:n], t[:n]
+        if self._prior_inverse is None or self._prior_inverse[0] is not self.prior_mean:
+            self._prior_inverse = (self.prior_mean, se3.inverse(self.prior_mean.T_vehicle_world))
+        if len(self.states) > 1 and (self._motion_info is None or len(self._motion_info) != len(self.states) - 1):
+            self._motion_info = np.stack(self.motion_info)
+        motion_info = self._motion_info[:n - 1] if n > 1 else np.zeros((0, d, d))
+        rate_on = np.array([info is not None and (k == 0 or not first_only)
+                            for k, info in enumerate(self.rate_prior[:n])])
         rate_info = np.zeros((n, d - 6, d - 6))
         for k in np.flatnonzero(rate_on):
             rate_info[k] = self.rate_prior[k]
-        ks = np.array([k for k, m in enumerate(self.meas) if m is not None], dtype=np.int64)
-        Hm, bm = np.zeros((0, 12, 12)), np.zeros((0, 12))
-        if len(ks):
-            Hm, bm, c = self._measurement_terms(ks, T_all, tail, lagged)
-            cost += c
-        cost += motion_kernels.add_blocks(H, b, d, rate_info, rate_on, tail, ks, Hm, bm)
-        return H, b, cost
+        ks = np.array([k for k, m in enumerate(self.meas[:1 if first_only else n]) if m is not None], np.int64)
+        sets = [self.meas[k] for k in ks]
+        K = len(ks)
+        lag = [lagged and k != newest and self._lag_ready(m) for k, m in zip(ks, sets)]
+        fresh = [q for q in range(K) if not lag[q]]
+        slot = np.full(K, -1, np.int64)
+        slot[fresh] = np.arange(len(fresh))
+        T0_inverse, varpi0 = np.empty((K, 4, 4)), np.empty((K, 6))
+        H0, b0, c0 = np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K)
+        for q in np.flatnonzero(lag):
+            _, _, T0_inverse[q], varpi0[q], H0[q], b0[q], c0[q] = self._terms[id(sets[q])]
+        offsets, p, z, W, Tvs, w = self._pack([sets[q] for q in fresh]) if fresh else _NO_PACK
+        H, b = np.zeros((n * d, n * d)), np.zeros(n * d)
+        Hm, bm, cm = np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K)
+        cost = window_kernels.normal_equations(*self.motion.kernel_args, T_all, tail, t, self._prior_inverse[1],
+                                               self.prior_mean.vector_tail(), self.prior_info, self.prior_grad,
+                                               motion_info, rate_info, rate_on, self.measurement_model.kernel_code,
+                                               ks, slot, offsets, p, z, W, Tvs, w, float(self.robust_c),
+                                               np.empty(len(z)), T0_inverse, varpi0, H0, b0, c0, H, b, Hm, bm, cm)
+        self._linearized([sets[q] for q in fresh], ks[fresh], w, offsets, T0_inverse[fresh], varpi0[fresh],
+                         Hm[fresh], bm[fresh], cm[fresh])
+        return H, b, float(cost)
 
     # --- solving ----------------------------------------------------------------------------------------
     def optimize(self, iterations: int = 5, tol: float = 1e-6, sigma_tol: float = 0.0,
@@ -327,20 +300,7 @@ class SlidingWindow:
         d = self.motion.dim
         x0, x1 = self.states[0], self.states[1]
         keep = float(np.exp((x0.t - x1.t) / memory)) if memory > 0 else 1.0
-        H = np.zeros((2 * d, 2 * d))
-        b = np.zeros(2 * d)
-        e, J = self._prior_term(x0)
-        H[:d, :d] += J.T @ self.prior_info @ J
-        b[:d] += J.T @ (self.prior_info @ e + self.prior_grad)
-        T_all, tail, t = stacked([x0, x1])
-        motion_kernels.accumulate(H, b, *self.motion.stacked_residuals(T_all, tail, t), self.motion_info[0][None])
-        if self.meas[0] is not None:
-            Hm, bm, _ = self._measurement_terms([0], T_all, tail, lagged=True)
-            H[:12, :12] += Hm[0]
-            b[:12] += bm[0]
-        if self.rate_prior[0] is not None:
-            H[6:d, 6:d] += self.rate_prior[0]
-            b[6:d] += self.rate_prior[0] @ x0.vector_tail()
+        H, b, _ = self._normal_equations(2, lagged=True, first_only=True)
         H00, H01, H11 = H[:d, :d], H[:d, d:], H[d:, d:]
         X = _solve_spd(H00, np.column_stack((H01, b[:d])))
         Lam = H11 - H01.T @ X[:, :d]
@@ -367,6 +327,10 @@ def _oplus_all(states: list[State], T_all: np.ndarray, tail: np.ndarray, d: np.n
     out = [State(x.t, T[k], tail[k, :6], None if x.varpi_dot is None else tail[k, 6:12])
            for k, x in enumerate(states)]
     return out, T, tail
+
+
+_NO_PACK = (np.zeros(1, np.int64), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 4, 4)), np.zeros((0, 4, 4)),
+            np.zeros(0))  # `_pack` of no sets
 
 
 def _joined(arrays: list[np.ndarray]) -> np.ndarray:

@@ -53,8 +53,10 @@ def test_kernel_matches_numpy_linearisation(model, rng):
     mounting = np.array([1.0, 0.5, 0.3, 0.05, 0.05, 1.0])
     Tvs = np.stack([scene.T_VEHICLE_SENSOR] + [se3.exp(rng.normal(size=6) * mounting) @ scene.T_VEHICLE_SENSOR
                                                  for _ in range(K - 1)])
-    H, b, cost = kernel.linearize_pairs(kernel.POLAR if model == "polar" else kernel.CARTESIAN, T, varpi,
-                                        offsets, p, z, W, Tvs, w, d2, 3.0)
+    H, b = np.zeros((K, 12, 12)), np.zeros((K, 12))
+    code = kernel.POLAR if model == "polar" else kernel.CARTESIAN
+    cost = sum(kernel.state_pairs(code, T[k], varpi[k], offsets[k], offsets[k + 1], p, z, W, Tvs[k], w, d2, 3.0,
+                                  H[k], b[k]) for k in range(K))
     total = 0.0
     for k in range(K):
         sl = slice(k * m, (k + 1) * m)
@@ -375,3 +377,66 @@ def test_lagged_terms_are_the_quadratic_model_of_the_last_linearisation(kind, rn
         assert np.max(np.abs(b - b1)) < 5e-3 * np.max(np.abs(b1 - b0))
         H_gaps.append(np.max(np.abs(H - H1)))
     assert 0.4 < H_gaps[1] / H_gaps[0] < 0.6, H_gaps
+
+
+@pytest.mark.parametrize("kind", ["ca", "cv"])
+def test_compiled_normal_equations_equal_the_python_assembly(kind):
+    """`window_kernels.normal_equations` (through `SlidingWindow.linearize`) = the window's terms assembled in
+    NumPy from the references: the prior on the oldest state (its mean moved off, a linear term g), the motion
+    terms (`MotionPrior.residuals`), each state's measurements (`measurements.predict`, Cauchy weights) and
+    a rate term; the cost with them. And the marginalisation's (the oldest state's terms only) equals the same
+    restricted to the two oldest states."""
+    win, _ = _window_with_scene(kind)
+    rng = np.random.default_rng(9)
+    d, n = win.motion.dim, len(win.states)
+    win.prior_mean = win.states[0].oplus(rng.normal(size=d) * 1e-2)
+    win.prior_grad = rng.normal(size=d) * 1e3
+    A = rng.normal(size=(d, d))
+    win.prior_info = 1e6 * (A @ A.T + np.eye(d))  # as strong as the measurements: every term shows in H
+    info = np.diag(rng.uniform(1, 10, d - 6)) * 1e6
+    win.set_rate_prior(0, info)
+    win.set_rate_prior(2, 2 * info)
+    H, b, cost = win.linearize()
+
+    def reference(n_states, first_only):
+        states = win.states[:n_states]
+        Hr, br = np.zeros((n_states * d, n_states * d)), np.zeros(n_states * d)
+        x0, mean = states[0], win.prior_mean
+        xi = se3.log(x0.T_vehicle_world @ se3.inverse(mean.T_vehicle_world))
+        e = np.concatenate([xi, x0.vector_tail() - mean.vector_tail()])
+        J = np.eye(d)
+        J[:6, :6] = se3.left_jacobian_inv(xi)
+        Hr[:d, :d] += J.T @ win.prior_info @ J
+        br[:d] += J.T @ (win.prior_info @ e + win.prior_grad)
+        c = 0.5 * e @ win.prior_info @ e + win.prior_grad @ e
+        E, J1, J2 = win.motion.residuals(states)
+        for k in range(n_states - 1):
+            Jk = np.concatenate([J1[k], J2[k]], axis=1)
+            sl = slice(k * d, (k + 2) * d)
+            Hr[sl, sl] += Jk.T @ win.motion_info[k] @ Jk
+            br[sl] += Jk.T @ win.motion_info[k] @ E[k]
+            c += 0.5 * E[k] @ win.motion_info[k] @ E[k]
+        for k, x in enumerate(states[:1] if first_only else states):
+            if win.rate_prior[k] is not None:
+                tail = x.vector_tail()
+                Hr[k * d + 6:(k + 1) * d, k * d + 6:(k + 1) * d] += win.rate_prior[k]
+                br[k * d + 6:(k + 1) * d] += win.rate_prior[k] @ tail
+                c += 0.5 * tail @ win.rate_prior[k] @ tail
+            m = win.meas[k]
+            pred = measurements.predict("polar", x.T_vehicle_world, x.varpi, m.p_world, scene.T_VEHICLE_SENSOR)
+            r = measurements.residual("polar", m.z, pred.z)
+            Jm = np.concatenate([pred.J_z_xi, pred.J_z_varpi], axis=2)
+            d2 = np.einsum("ma,mab,mb->m", r, m.W, r)
+            w = m.weights if m.weights is not None else 1.0 / (1.0 + d2 / win.robust_c**2)
+            WJ = m.W @ Jm * w[:, None, None]
+            Hr[k * d:k * d + 12, k * d:k * d + 12] += np.einsum("mai,maj->ij", Jm, WJ)
+            br[k * d:k * d + 12] -= np.einsum("mai,ma->i", WJ, r)
+            c += 0.5 * np.sum(w * d2)
+        return Hr, br, c
+
+    for (got, want) in ((win.linearize(), reference(n, False)),
+                        (win._normal_equations(2, lagged=False, first_only=True), reference(2, True))):
+        np.testing.assert_allclose(got[0], want[0], rtol=1e-9, atol=1e-9 * np.abs(want[0]).max())
+        np.testing.assert_allclose(got[1], want[1], rtol=1e-9, atol=1e-9 * np.abs(want[1]).max())
+        assert got[2] == pytest.approx(want[2], rel=1e-9)
+    np.testing.assert_array_equal(H, win.linearize()[0])  # the weights set by the first stay

@@ -1,0 +1,166 @@
+"""The sliding window's normal equations in one compiled call (`SlidingWindow.linearize`, the solver's hot path).
+
+Per linearisation the window adds, in this order: the prior on its oldest state (e = x0 (-) mean, cost
+1/2 e^T Lam e + g^T e, de/dx0 = diag(J(e_xi)^-1, I)), the motion-prior terms between consecutive states (the
+priors' batched means and F_k, `motion_kernels.residuals` and `accumulate`), the measurement terms of every state
+with associated pairs (`measurement_kernels.state_pairs`, or the quadratic model of the set's last linearisation
+where the window lags it: `SlidingWindow._normal_equations`), and the rate terms with the measurement blocks
+(`motion_kernels.add_blocks`). Assembled in Python, the same took about a millisecond of array calls per CA/P
+scan on city (three linearisations) around the pair kernel's 0.8 ms. The references it is checked against: the
+priors' `residual` (through `MotionPrior.residuals`), `measurements.predict` and `lie.se3`.
+
+Checked by: tests/estimator/test_window.py::test_compiled_normal_equations_equal_the_python_assembly
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .jit import FASTMATH, njit
+from .lie.kernels import matmul_into, se3_log_and_jac_inv
+from .measurement_kernels import state_pairs
+from .motion_kernels import accumulate, add_blocks, residuals
+from .priors.kernels import ca_batch, cv_batch, predict_batch
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def _log_from(T, T0_inverse, xi):
+    """xi = ln(T T0^-1)^vee (6,); returns J(xi)^-1 (6, 6)."""
+    D = np.empty((4, 4))
+    matmul_into(T, T0_inverse, D)
+    Jp, Jm = np.empty((6, 6)), np.empty((6, 6))
+    se3_log_and_jac_inv(D, xi, Jp, Jm)
+    return Jp
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def _prior_terms(T0, tail0, mean_T_inverse, mean_tail, info, grad, H, b):
+    """The prior on the oldest state added to H[:d, :d], b[:d]; returns its cost."""
+    d = info.shape[0]
+    e = np.empty(d)
+    Jp = _log_from(T0, mean_T_inverse, e[:6])
+    for i in range(d - 6):
+        e[6 + i] = tail0[i] - mean_tail[i]
+    r = np.empty(d)  # Lam e + g
+    cost = 0.0
+    for i in range(d):
+        s = 0.0
+        for j in range(d):
+            s += info[i, j] * e[j]
+        r[i] = s + grad[i]
+        cost += e[i] * (0.5 * s + grad[i])
+    JL = np.empty((d, d))  # J^T Lam, J = diag(Jp, I)
+    for i in range(d):
+        for j in range(d):
+            if i < 6:
+                s = 0.0
+                for k in range(6):
+                    s += Jp[k, i] * info[k, j]
+                JL[i, j] = s
+            else:
+                JL[i, j] = info[i, j]
+    for i in range(d):
+        if i < 6:
+            s = 0.0
+            for k in range(6):
+                s += Jp[k, i] * r[k]
+            b[i] += s
+        else:
+            b[i] += r[i]
+        for j in range(d):
+            if j < 6:
+                s = 0.0
+                for k in range(6):
+                    s += JL[i, k] * Jp[k, j]
+                H[i, j] += s
+            else:
+                H[i, j] += JL[i, j]
+    return cost
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def _motion_terms(ca, order, noise, Qc, T, tail, t, motion_info, H, b):
+    """The motion-prior terms of consecutive states added to H, b; returns their cost."""
+    n, d = T.shape[0] - 1, tail.shape[1] + 6
+    dt = np.empty(n)
+    for k in range(n):
+        dt[k] = t[k + 1] - t[k]
+    T1, T2 = np.ascontiguousarray(T[:-1]), np.ascontiguousarray(T[1:])
+    varpi1 = np.ascontiguousarray(tail[:-1, :6])
+    vd1 = np.ascontiguousarray(tail[:-1, 6:]) if ca else np.zeros((n, 6))
+    Tp, varpi_p, vd_p = np.empty((n, 4, 4)), np.empty((n, 6)), np.empty((n, 6))
+    predict_batch(T1, varpi1, vd1, dt, order if ca else 1, Tp, varpi_p, vd_p)
+    F = np.empty((n, d, d))
+    if ca:
+        ca_batch(varpi1, vd1, dt, Qc, order, noise, F, np.empty((n, 0, 0)), False)
+    else:
+        cv_batch(varpi1, dt, Qc, F, np.empty((n, 0, 0)), False)
+    tail_pred = np.empty((n, d - 6))
+    tail_pred[:, :6] = varpi_p
+    if ca:
+        tail_pred[:, 6:] = vd_p
+    e, J1, J2 = np.empty((n, d)), np.empty((n, d, d)), np.empty((n, d, d))
+    residuals(Tp, tail_pred, T2, np.ascontiguousarray(tail[1:]), F, e, J1, J2)
+    return accumulate(H, b, e, J1, J2, motion_info)
+
+
+@njit(cache=True, error_model="numpy")
+def normal_equations(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, info, grad, motion_info,
+                     rate_info, rate_on, model, ks, slot, offsets, p, z, W, Tvs, weights, robust_c, d2,
+                     T0_inverse, varpi0, H0, b0, c0, H, b, Hm, bm, cm):
+    """The window's normal equations H d = -b (H, b zeroed by the caller) at the states T (n, 4, 4), tail
+    (n, d - 6), t (n,); returns the cost.
+
+    Args:
+        ca, order, noise, Qc: the motion prior (CA with its Magnus order and noise code, or CV) and its PSD.
+        mean_T_inverse, mean_tail, info, grad: the prior on the oldest state (its mean's T^-1 and tail, Lam, g).
+        motion_info: (n - 1, d, d) Q_k^-1. rate_info, rate_on: the rate terms (`motion_kernels.add_blocks`).
+        model, ks, slot: the measurement model's kernel code; the K states with pairs, and for each the slot of
+            its pairs in the pack (offsets, p, z, W, Tvs, weights: `measurement_kernels.state_pairs`; d2 the
+            pairs' d2 out), or -1: its terms from the quadratic model of its last linearisation at T0 (its
+            inverse T0_inverse[q]), varpi0[q]: H0[q], b0[q] + H0[q] d, c0[q] + b0[q]^T d + 1/2 d^T H0[q] d
+            with d = [ln(T T0^-1)^vee; varpi - varpi0].
+        Hm, bm, cm: (K, 12, 12), (K, 12), (K,) out: each state's measurement block and cost; for a state
+            linearised afresh also T0_inverse[q], varpi0[q] (the point of that linearisation).
+
+    Checked by: tests/estimator/test_window.py::test_compiled_normal_equations_equal_the_python_assembly
+    """
+    n, d = T.shape[0], tail.shape[1] + 6
+    cost = _prior_terms(T[0], tail[0], mean_T_inverse, mean_tail, info, grad, H, b)
+    if n > 1:
+        cost += _motion_terms(ca, order, noise, Qc, T, tail, t, motion_info, H, b)
+    dq = np.empty(12)
+    measured = 0.0
+    for q in range(len(ks)):
+        k = ks[q]
+        s = slot[q]
+        if s >= 0:
+            Hm[q] = 0.0
+            bm[q] = 0.0
+            cm[q] = state_pairs(model, T[k], tail[k, :6], offsets[s], offsets[s + 1], p, z, W, Tvs[s], weights,
+                                d2, robust_c, Hm[q], bm[q])
+            C = T[k, :3, :3]  # T0^-1 = [C^T, -C^T r]
+            for i in range(3):
+                for j in range(3):
+                    T0_inverse[q, i, j] = C[j, i]
+                T0_inverse[q, i, 3] = -(C[0, i] * T[k, 0, 3] + C[1, i] * T[k, 1, 3] + C[2, i] * T[k, 2, 3])
+                T0_inverse[q, 3, i] = 0.0
+            T0_inverse[q, 3, 3] = 1.0
+            varpi0[q] = tail[k, :6]
+        else:
+            _log_from(T[k], T0_inverse[q], dq[:6])
+            for i in range(6):
+                dq[6 + i] = tail[k, i] - varpi0[q, i]
+            c = c0[q]
+            for i in range(12):
+                s_ = 0.0
+                for j in range(12):
+                    s_ += H0[q, i, j] * dq[j]
+                Hm[q, i] = H0[q, i]
+                bm[q, i] = b0[q, i] + s_
+                c += dq[i] * (b0[q, i] + 0.5 * s_)
+            cm[q] = c
+        measured += cm[q]
+    cost += measured
+    cost += add_blocks(H, b, d, rate_info, rate_on, tail, ks, Hm, bm)
+    return cost
