@@ -81,8 +81,9 @@ def moving_voxels(pts, u, vr, var, gated, voxel: float, z: float, margin: float,
     detections, the mean residual r against that fit, with variance sum(var) / n^2 (var: each detection's
     radial-velocity variance, angle noise seen through the velocity included); flagged when
     z sqrt(variance) + margin < |r| <= max_residual and the voxel holds min_points. Nothing is flagged when the
-    flagged voxels would be half the gated voxels or more. u: (n, 3) directions, vr: (n,) radial velocities;
-    voxels: `Voxels.of(pts, voxel)` when the caller has it.
+    flagged voxels would be half the gated voxels or more, or when the world's fit is degenerate. u: (n, 3)
+    directions, vr: (n,) radial velocities; voxels: `Voxels.of(pts, voxel)` when the caller has it. Compiled
+    (`doppler_kernels.moving_voxels`: the weighted fit by its normal equations).
     """
     out = np.empty(len(vr), bool)
     voxels = Voxels.of(pts, voxel) if voxels is None else voxels

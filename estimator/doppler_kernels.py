@@ -1,12 +1,16 @@
 """Compiled Doppler RANSAC and least-squares fit (`ego_velocity.ransac_velocity`, `least_squares_velocity`):
 the hypotheses from the minimal sets, their scoring, the refits and the fit's covariance, in one pass per scan.
 
-The readable reference is the NumPy of `ego_velocity` (`_best_hypothesis`, `_least_squares`, `_fit`): the same
-steps, with the 2x2 and 3x3 systems solved in closed form (Cramer's rule for a minimal set, Cholesky for the
-normal equations U^T U v = U^T b) instead of LAPACK's LU and SVD, so results agree to rounding.
+Also the Doppler front end's per-detection gates (`thresholds`), a scan's voxels (`voxel_index`) and the
+moving-group test (`moving_voxels`). The readable references are the NumPy versions these replaced, kept in the
+tests (`_reference_ransac`, `_reference_moving_voxels`): the same steps, with the 2x2 and 3x3 systems solved in
+closed form (Cramer's rule for a minimal set, the adjugate for the normal equations U^T U v = U^T b) instead of
+LAPACK's LU and SVD, so results agree to rounding.
 
 Checked by: tests/estimator/test_ego_velocity.py (::test_inlier_counts_equal_the_numpy_expression,
-    ::test_compiled_ransac_equals_the_numpy_reference and the estimator's properties)
+    ::test_compiled_ransac_equals_the_numpy_reference and the estimator's properties),
+    tests/estimator/test_moving_groups.py (::test_compiled_moving_voxels_equal_the_numpy_reference,
+    ::test_compiled_doppler_thresholds_equal_the_numpy_expressions)
 """
 
 from __future__ import annotations
