@@ -65,25 +65,19 @@ def _minimal_solution(U, b, rows, out):
         out[0] = (y0 * e - c * y1) / det
         out[1] = (a * y1 - y0 * d) / det
         return True
-    A = np.empty((3, 3))
-    y = np.empty(3)
-    for i in range(3):
-        for j in range(3):
-            A[i, j] = U[rows[i], j]
-        y[i] = b[rows[i]]
-    c0 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
-    c1 = A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]
-    c2 = A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]
-    det = A[0, 0] * c0 + A[0, 1] * c1 + A[0, 2] * c2
+    r0, r1, r2 = rows[0], rows[1], rows[2]
+    c0 = U[r1, 1] * U[r2, 2] - U[r1, 2] * U[r2, 1]
+    c1 = U[r1, 2] * U[r2, 0] - U[r1, 0] * U[r2, 2]
+    c2 = U[r1, 0] * U[r2, 1] - U[r1, 1] * U[r2, 0]
+    det = U[r0, 0] * c0 + U[r0, 1] * c1 + U[r0, 2] * c2
     if not abs(det) > MIN_DET:
         return False
-    for k in range(3):  # x_k = det(A with column k replaced by y) / det
+    for k in range(3):  # x_k = det(A with column k replaced by b) / det, expanded along that column
+        j1, j2 = (k + 1) % 3, (k + 2) % 3
         s = 0.0
         for i in range(3):
-            i1, i2 = (i + 1) % 3, (i + 2) % 3
-            j1, j2 = (k + 1) % 3, (k + 2) % 3
-            # cofactor of A[i, k] times y[i]
-            s += y[i] * (A[i1, j1] * A[i2, j2] - A[i1, j2] * A[i2, j1])
+            i1, i2 = rows[(i + 1) % 3], rows[(i + 2) % 3]
+            s += b[rows[i]] * (U[i1, j1] * U[i2, j2] - U[i1, j2] * U[i2, j1])
         out[k] = s / det
     return True
 
