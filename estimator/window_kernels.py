@@ -9,6 +9,12 @@ where the window lags it: `SlidingWindow._normal_equations`), and the rate terms
 scan on city (three linearisations) around the pair kernel's 0.8 ms. The references it is checked against: the
 priors' `residual` (through `MotionPrior.residuals`), `measurements.predict` and `lie.se3`.
 
+IEEE arithmetic here (no fast-math flags; its callees keep theirs): with the fast-math subset on these helpers a
+freshly compiled `normal_equations` and the same one loaded from numba's cache gave results that differed by
+rounding (the flags let the compiler reorder sums; the mechanism was not isolated further), so a run right after
+an edit or an install was not bit for bit the runs after it. Without them the two agree bit for bit (20 s of five
+scenarios x two models, each run after a fresh compilation and after a load from the cache).
+
 Checked by: tests/estimator/test_window.py::test_compiled_normal_equations_equal_the_python_assembly
 """
 
@@ -16,14 +22,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .jit import FASTMATH, njit
+from .jit import njit
 from .lie.kernels import matmul_into, se3_log_and_jac_inv
 from .measurement_kernels import state_pairs
 from .motion_kernels import accumulate, add_blocks, residuals
 from .priors.kernels import ca_batch, cv_batch, predict_batch
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _log_from(T, T0_inverse, xi):
     """xi = ln(T T0^-1)^vee (6,); returns J(xi)^-1 (6, 6)."""
     D = np.empty((4, 4))
@@ -33,7 +39,7 @@ def _log_from(T, T0_inverse, xi):
     return Jp
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _prior_terms(T0, tail0, mean_T_inverse, mean_tail, info, grad, H, b):
     """The prior on the oldest state added to H[:d, :d], b[:d]; returns its cost."""
     d = info.shape[0]
@@ -78,7 +84,7 @@ def _prior_terms(T0, tail0, mean_T_inverse, mean_tail, info, grad, H, b):
     return cost
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _motion_terms(ca, order, noise, Qc, T, tail, t, motion_info, H, b):
     """The motion-prior terms of consecutive states added to H, b; returns their cost."""
     n, d = T.shape[0] - 1, tail.shape[1] + 6
