@@ -199,3 +199,33 @@ def state_pairs(model, T, varpi, lo, hi, p_world, z, W, Tvs, weights, d2_out, ro
         for j in range(i + 1, 12):
             Hk[j, i] = Hk[i, j]
     return cost
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def position_covariances(polar, sigmas, C, out):
+    """out[i] = (C J_i) diag(s_r^2, s_az^2, s_el^2) (C J_i)^T: detection i's polar noise propagated to its
+    Cartesian position (J_i = d[x, y, z]/d[r, az, el], `radar_geometry.cartesian_position_covariance`) and
+    rotated by C (world from sensor): the covariance a new map point inherits (`PolarModel.
+    world_position_covariance`).
+
+    Checked by: tests/estimator/test_measurements.py::test_world_position_covariance_is_the_rotated_reference
+    """
+    J = np.empty((3, 3))
+    M = np.empty((3, 3))
+    s2 = np.empty(3)
+    for k in range(3):
+        s2[k] = sigmas[k] * sigmas[k]
+    for i in range(polar.shape[0]):
+        r, az, el = polar[i, 0], polar[i, 1], polar[i, 2]
+        ca, sa, ce, se = math.cos(az), math.sin(az), math.cos(el), math.sin(el)
+        J[0, 0], J[1, 0], J[2, 0] = ce * ca, ce * sa, se
+        J[0, 1], J[1, 1], J[2, 1] = -r * ce * sa, r * ce * ca, 0.0
+        J[0, 2], J[1, 2], J[2, 2] = -r * se * ca, -r * se * sa, r * ce
+        for a in range(3):
+            for k in range(3):
+                M[a, k] = C[a, 0] * J[0, k] + C[a, 1] * J[1, k] + C[a, 2] * J[2, k]
+        for a in range(3):
+            for b in range(a, 3):
+                v = M[a, 0] * s2[0] * M[b, 0] + M[a, 1] * s2[1] * M[b, 1] + M[a, 2] * s2[2] * M[b, 2]
+                out[i, a, b] = v
+                out[i, b, a] = v

@@ -60,6 +60,11 @@ class MeasurementModel(ABC):
         """(n, 3, 3) sensor-frame covariance of the detections' positions under this model's own noise
         assumption (what a new map point inherits)."""
 
+    def world_position_covariance(self, polar: np.ndarray, sigmas: np.ndarray, cartesian_sigma: float,
+                                  C: np.ndarray) -> np.ndarray:
+        """(n, 3, 3) `position_covariance_sensor` rotated into the world, C P C^T (C: world from sensor)."""
+        return C @ self.position_covariance_sensor(polar, sigmas, cartesian_sigma) @ C.T
+
     @abstractmethod
     def map_sigma(self, noise) -> float:
         """The map-point sigma (m) this model uses, from a `NoiseConfig`."""
@@ -99,6 +104,16 @@ class PolarModel(MeasurementModel):
 
     def position_covariance_sensor(self, polar, sigmas, cartesian_sigma):
         return cartesian_position_covariance(polar, sigmas)
+
+    def world_position_covariance(self, polar, sigmas, cartesian_sigma, C):
+        # compiled: (C J) diag(s^2) (C J)^T per detection, J = d[x, y, z]/d[r, az, el] (one pass, no temporaries;
+        # imported here: this module is the models' definition, numba is the odometry's)
+        from .measurement_kernels import position_covariances
+
+        out = np.empty((len(polar), 3, 3))
+        position_covariances(np.ascontiguousarray(polar, dtype=float), np.asarray(sigmas, dtype=float),
+                             np.ascontiguousarray(C, dtype=float), out)
+        return out
 
     def map_sigma(self, noise):
         return noise.map_sigma_polar

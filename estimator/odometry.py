@@ -354,7 +354,7 @@ class RadarOdometry:
     # --- helpers ------------------------------------------------------------------------------------------
     def _point_covariances(self, z: np.ndarray, C: np.ndarray) -> np.ndarray:
         """World-frame covariance of new map points from detections z (C: world from sensor), model's noise."""
-        return C @ self.measurement.position_covariance_sensor(z, self.sigmas, self.config.noise.cartesian_sigma) @ C.T
+        return self.measurement.world_position_covariance(z, self.sigmas, self.config.noise.cartesian_sigma, C)
 
     def _measurement_set(self, W_pairs, pairs, scan: ScanMeasurements) -> MeasurementSet | None:
         if W_pairs is None or len(pairs.map_idx) == 0:

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from hypothesis import given
+from hypothesis import strategies as st
 
 from rodo.estimator import measurements
 from rodo.estimator import measurements as ms
@@ -191,3 +192,22 @@ def test_predict_batch_matches_predict(model):
     for field in ("z", "J_z_xi", "J_z_varpi", "J_z_p", "p_sensor"):
         np.testing.assert_allclose(getattr(batch, field), np.concatenate([getattr(s, field) for s in singles]),
                                    rtol=1e-13, atol=1e-12)
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 40))
+def test_world_position_covariance_is_the_rotated_reference(seed, n):
+    """What a new map point inherits: the compiled polar propagation rotated into the world
+    (`measurement_kernels.position_covariances`) = C (J diag(s^2) J^T) C^T from the NumPy reference; the
+    Cartesian model's C (sigma^2 I) C^T."""
+    from rodo.estimator.measurement_models import CartesianModel, PolarModel
+
+    rng = np.random.default_rng(seed)
+    polar = np.c_[rng.uniform(0.5, 120, n), rng.uniform(-1.5, 1.5, n), rng.uniform(-0.5, 0.5, n), rng.normal(0, 5, n)]
+    sig = np.array([0.1, 0.01, 0.02, 0.05])
+    C = se3.exp(rng.normal(size=6))[:3, :3]
+    want = C @ ms.cartesian_position_covariance(polar, sig) @ C.T
+    got = PolarModel().world_position_covariance(polar, sig, 0.3, C)
+    np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12 * max(np.abs(want).max(initial=0.0), 1e-300))
+    np.testing.assert_array_equal(got, np.swapaxes(got, 1, 2))
+    np.testing.assert_allclose(CartesianModel().world_position_covariance(polar, sig, 0.3, C),
+                               np.broadcast_to(0.09 * C @ C.T, (n, 3, 3)), rtol=1e-12)
