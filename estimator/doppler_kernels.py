@@ -36,7 +36,18 @@ def count_inliers(U, b, hyps, threshold):
 
 
 @njit(cache=True, inline="always")
+def _residual(U, b, v, i):
+    """U[i] . v - b[i]: detection i's Doppler residual under the hypothesis v, in the order `_count` sums it, so a
+    hypothesis's count and its inlier mask agree to the last bit."""
+    if U.shape[1] == 3:
+        return U[i, 0] * v[0] + U[i, 1] * v[1] + U[i, 2] * v[2] - b[i]
+    return U[i, 0] * v[0] + U[i, 1] * v[1] - b[i]
+
+
+@njit(cache=True, inline="always")
 def _count(U, b, v, threshold):
+    """The number of detections with |`_residual`| <= threshold, with the same expression written out per dof
+    (the RANSAC's hot loop: one branch outside it)."""
     n, dof = U.shape
     v0, v1 = v[0], v[1]
     v2 = v[2] if dof == 3 else 0.0
@@ -84,14 +95,12 @@ def _minimal_solution(U, b, rows, out):
 
 @njit(cache=True, error_model="numpy")
 def _normal_equations(U, b, inliers, info, rhs):
-    """info = U_in^T U_in, rhs = U_in^T b_in over the rows in `inliers`; returns their number."""
+    """info = U_in^T U_in, rhs = U_in^T b_in over the rows in `inliers`."""
     dof = U.shape[1]
     info[:] = 0.0
     rhs[:] = 0.0
-    k = 0
     for i in range(U.shape[0]):
         if inliers[i]:
-            k += 1
             for p in range(dof):
                 rhs[p] += U[i, p] * b[i]
                 for q in range(p + 1):
@@ -99,7 +108,6 @@ def _normal_equations(U, b, inliers, info, rhs):
     for p in range(dof):
         for q in range(p):
             info[q, p] = info[p, q]
-    return k
 
 
 @njit(cache=True, error_model="numpy")
@@ -166,10 +174,7 @@ def fit_velocity(U, b, inliers, variance_floor, default_variance, max_cond, v, c
     for i in range(n):
         if inliers[i]:
             k += 1
-            r = -b[i]
-            for p in range(dof):
-                r += U[i, p] * v[p]
-            ss += r * r
+            ss += _residual(U, b, v, i) ** 2
     s2 = max(ss / (k - dof) if k > dof else default_variance, variance_floor)
     for p in range(dof):
         for q in range(dof):
@@ -179,13 +184,10 @@ def fit_velocity(U, b, inliers, variance_floor, default_variance, max_cond, v, c
 
 @njit(cache=True, error_model="numpy")
 def _inliers(U, b, v, threshold, out):
-    n, dof = U.shape
+    """out (n,) = |U v - b| <= threshold, as `_count` counts them; returns their number."""
     k = 0
-    for i in range(n):
-        r = -b[i]
-        for p in range(dof):
-            r += U[i, p] * v[p]
-        out[i] = abs(r) <= threshold[i]
+    for i in range(U.shape[0]):
+        out[i] = abs(_residual(U, b, v, i)) <= threshold[i]
         k += out[i]
     return k
 

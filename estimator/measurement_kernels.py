@@ -8,7 +8,7 @@ e = z - g(x_k, p) (azimuth wrapped), its squared Mahalanobis distance, and accum
 
 without building any per-pair temporaries. `measurements.predict` stays the readable reference.
 
-Checked by: tests/estimator/test_window.py::test_kernel_matches_numpy_linearisation
+Checked by: tests/estimator/test_window_kernels.py::test_kernel_matches_numpy_linearisation
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
     ps (3,) the point in the sensor frame.
     Returns the range r, or 0.0 for a point at the sensor origin (nothing else is written then).
 
-    Checked by: tests/estimator/test_window.py::test_kernel_matches_numpy_linearisation
+    Checked by: tests/estimator/test_window_kernels.py::test_kernel_matches_numpy_linearisation
     """
     pv0 = C[0, 0] * p[0] + C[0, 1] * p[1] + C[0, 2] * p[2] + t[0]
     pv1 = C[1, 0] * p[0] + C[1, 1] * p[1] + C[1, 2] * p[2] + t[1]
@@ -113,7 +113,7 @@ def residual_d2(polar, z, zp, M, e):
     e^T M e. Inlined, so it compiles with its caller's flags (the linearisation's fast-math, the association's
     IEEE arithmetic).
 
-    Checked by: tests/estimator/test_window.py::test_kernel_matches_numpy_linearisation,
+    Checked by: tests/estimator/test_window_kernels.py::test_kernel_matches_numpy_linearisation,
         tests/estimator/test_association.py::test_grid_candidates_are_the_k_nearest_in_the_radius
     """
     for i in range(4):
@@ -142,7 +142,7 @@ def state_pairs(model, T, varpi, lo, hi, p_world, z, W, Tvs, weights, d2_out, ro
     solve sets its weights in its first linearisation. A map point at the sensor makes the cost NaN (its d2
     NaN): the step that put it there is rejected.
 
-    Checked by: tests/estimator/test_window.py::test_kernel_matches_numpy_linearisation
+    Checked by: tests/estimator/test_window_kernels.py::test_kernel_matches_numpy_linearisation
     """
     cost = 0.0
     J = np.zeros((4, 12))

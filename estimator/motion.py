@@ -10,7 +10,7 @@ window hold one and never branch on its kind.
 
 The array-level priors (`rodo.estimator.priors`) hold the mathematics; this is the estimator's view of them.
 
-Checked by: tests/estimator/test_window.py::test_batched_motion_residuals_equal_the_priors_residual,
+Checked by: tests/estimator/test_window_kernels.py::test_batched_motion_residuals_equal_the_priors_residual,
     ::test_motion_terms_in_the_normal_equations
 """
 
@@ -196,7 +196,7 @@ MOTION_PRIORS = {"ca": ConstantAccelerationMotion, "cv": ConstantVelocityMotion}
 def motion_prior(name: str, qc_diag) -> MotionPrior:
     """The motion prior "ca" or "cv" with the diagonal power spectral density qc_diag (6,).
 
-    Checked by: tests/estimator/test_window.py::test_motion_terms_in_the_normal_equations
+    Checked by: tests/estimator/test_window_kernels.py::test_motion_terms_in_the_normal_equations
     """
     try:
         kind = MOTION_PRIORS[name]
@@ -208,7 +208,7 @@ def motion_prior(name: str, qc_diag) -> MotionPrior:
 def motion_prior_for(config) -> MotionPrior:
     """The motion prior of an `OdometryConfig` (its model's prior, with that prior's Qc from the noise section).
 
-    Checked by: tests/estimator/test_window.py::test_motion_terms_in_the_normal_equations
+    Checked by: tests/estimator/test_window_kernels.py::test_motion_terms_in_the_normal_equations
     """
     kind = MOTION_PRIORS[config.prior]
     return kind(getattr(config.noise, kind.qc_field))

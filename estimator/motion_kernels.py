@@ -8,7 +8,7 @@ about 0.6 ms per window (many tiny array calls) and here a few microseconds. The
 `estimator.lie` (quaternion-based SO(3) logarithm, J from its degree-four curlyhat polynomial with Taylor
 coefficients below 1 rad), so the two agree to round-off.
 
-Checked by: tests/estimator/test_window.py::test_batched_motion_residuals_equal_the_priors_residual,
+Checked by: tests/estimator/test_window_kernels.py::test_batched_motion_residuals_equal_the_priors_residual,
     ::test_window_update_equals_state_oplus, ::test_motion_terms_in_the_normal_equations
 """
 
@@ -25,7 +25,7 @@ def residuals(T_pred, tail_pred, T2, tail2, F, e, J1, J2):
     """Motion residuals of n intervals: T_pred, T2 (n, 4, 4), tail_pred, tail2 (n, d - 6), F (n, d, d) ->
     e (n, d), J1 = J_e_x1, J2 = J_e_x2 (n, d, d), written in place.
 
-    Checked by: tests/estimator/test_window.py::test_batched_motion_residuals_equal_the_priors_residual
+    Checked by: tests/estimator/test_window_kernels.py::test_batched_motion_residuals_equal_the_priors_residual
     """
     n, d = F.shape[0], F.shape[1]
     D = np.empty((4, 4))
@@ -71,7 +71,7 @@ def residuals(T_pred, tail_pred, T2, tail2, F, e, J1, J2):
 def exp_times(xi, T, out):
     """out[n] = exp(xi[n]^) T[n] for n poses: the solver's state update (left perturbation).
 
-    Checked by: tests/estimator/test_window.py::test_window_update_equals_state_oplus
+    Checked by: tests/estimator/test_window_kernels.py::test_window_update_equals_state_oplus
     """
     E = np.empty((4, 4))
     c3 = np.empty(3)
@@ -89,7 +89,7 @@ def accumulate(H, b, e, J1, J2, W):
     sum_k 1/2 e_k^T W_k e_k. J2 has the structure `residuals` gives it, diag(J2[:6, :6], I): only its pose block
     is read.
 
-    Checked by: tests/estimator/test_window.py::test_motion_terms_in_the_normal_equations
+    Checked by: tests/estimator/test_window_kernels.py::test_motion_terms_in_the_normal_equations
     """
     n, d = e.shape[0], e.shape[1]
     JW = np.empty((2 * d, d))
@@ -152,7 +152,7 @@ def add_blocks(H, b, d, rate_info, rate_on, tail, ks, Hm, bm):
     ks[q] on its pose and velocity. Returns the rate terms' cost.
 
     Checked by: tests/estimator/test_window.py::test_rate_prior_is_a_zero_mean_gaussian_term,
-        ::test_kernel_matches_numpy_linearisation (through `SlidingWindow.linearize`)
+        ::test_compiled_normal_equations_equal_the_python_assembly (through `SlidingWindow.linearize`)
     """
     cost = 0.0
     m = d - 6

@@ -4,7 +4,7 @@ The constant-velocity prior has no acceleration (`varpi_dot is None`); which lay
 prior's business (`rodo.estimator.motion`). Perturbations are left ones:
 x (+) d = {exp(d_xi^) T_vehicle_world, varpi + d_eta, varpi_dot + d_zeta}, d = [xi; eta; zeta].
 
-Checked by: tests/estimator/test_window.py::test_window_update_equals_state_oplus
+Checked by: tests/estimator/test_window_kernels.py::test_window_update_equals_state_oplus
 """
 
 from __future__ import annotations

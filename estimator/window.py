@@ -148,17 +148,18 @@ class SlidingWindow:
                 w[offsets[q]:offsets[q + 1]] = m.weights
         return offsets, p, z, W, Tvs, w
 
-    def _linearized(self, sets, ks, w, offsets, T0_inverse, varpi0, H, b, costs) -> None:
-        """After a linearisation of `sets` (states ks) in a pack with weights w: a fresh set's weights are a view
-        of the pack's; with `relinearize_older` False the older states' blocks are kept to lag (`_normal_equations`)."""
-        for q, m in enumerate(sets):
+    def _linearized(self, sets, rows, ks, w, offsets, T0_inverse, varpi0, H, b, costs) -> None:
+        """After a linearisation that took `sets` afresh, in a pack with weights w: a fresh set's weights are a view
+        of the pack's; with `relinearize_older` False the older states' blocks (row rows[s] of the per-state
+        arrays, state ks[rows[s]]) are kept to lag (`_normal_equations`)."""
+        for s, m in enumerate(sets):
             if m.weights is None:
-                m.weights = w[offsets[q]:offsets[q + 1]]
+                m.weights = w[offsets[s]:offsets[s + 1]]
         if self.relinearize_older:
             return
-        for q, m in enumerate(sets):
+        for m, q in zip(sets, rows):
             if ks[q] != len(self.states) - 1:
-                self._terms[id(m)] = (m, m.weights, T0_inverse[q], varpi0[q].copy(), H[q], b[q], costs[q])
+                self._terms[id(m)] = (m, m.weights, T0_inverse[q], varpi0[q], H[q], b[q], costs[q])
         if len(self._terms) > len(self.meas):  # forget the sets that left the window
             live = {id(m) for m in self.meas if m is not None}
             self._terms = {i: v for i, v in self._terms.items() if i in live}
@@ -214,7 +215,8 @@ class SlidingWindow:
         H0, b0, c0 = np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K)
         for q in np.flatnonzero(lag):
             _, _, T0_inverse[q], varpi0[q], H0[q], b0[q], c0[q] = self._terms[id(sets[q])]
-        offsets, p, z, W, Tvs, w = self._pack([sets[q] for q in fresh]) if fresh else _NO_PACK
+        fresh_sets = [sets[q] for q in fresh]
+        offsets, p, z, W, Tvs, w = self._pack(fresh_sets) if fresh else _NO_PACK
         H, b = np.zeros((n * d, n * d)), np.zeros(n * d)
         Hm, bm, cm = np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K)
         cost = window_kernels.normal_equations(*self.motion.kernel_args, T_all, tail, t, self._prior_inverse[1],
@@ -222,8 +224,7 @@ class SlidingWindow:
                                                motion_info, rate_info, rate_on, self.measurement_model.kernel_code,
                                                ks, slot, offsets, p, z, W, Tvs, w, float(self.robust_c),
                                                np.empty(len(z)), T0_inverse, varpi0, H0, b0, c0, H, b, Hm, bm, cm)
-        self._linearized([sets[q] for q in fresh], ks[fresh], w, offsets, T0_inverse[fresh], varpi0[fresh],
-                         Hm[fresh], bm[fresh], cm[fresh])
+        self._linearized(fresh_sets, fresh, ks, w, offsets, T0_inverse, varpi0, Hm, bm, cm)  # views: fresh arrays
         return H, b, float(cost)
 
     # --- solving ----------------------------------------------------------------------------------------

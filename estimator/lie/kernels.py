@@ -11,7 +11,7 @@ c_i from closed forms at |phi| >= 1 rad and from the exact Taylor tables of `est
 as `estimator.lie.se3` does. Derivations: docs/priors.md.
 
 Checked by: tests/estimator/test_priors_ca.py, tests/estimator/test_priors_cv.py,
-    tests/estimator/test_window.py::test_motion_kernel_log_and_jacobians_match_lie
+    tests/estimator/test_window_kernels.py::test_motion_kernel_log_and_jacobians_match_lie
 """
 
 from __future__ import annotations
@@ -83,7 +83,7 @@ def se3_coeffs(kind, a, out):
 def so3_coeffs(kind, a, out):
     """c_0..c_2 of f(phi^) = c_0 I + c_1 phi^ + c_2 phi^2 for |phi| = a (kind 0 exp, 1 J); out (3,).
 
-    Checked by: tests/estimator/test_window.py::test_window_update_equals_state_oplus (through `se3_exp_into`)
+    Checked by: tests/estimator/test_window_kernels.py::test_window_update_equals_state_oplus (through `se3_exp_into`)
     """
     if a < _TB:
         x = a * a
@@ -235,7 +235,7 @@ def ub_powers(S, Sp):
 def matmul_into(A, B, out):
     """out = A B for small dense matrices (3x3 A^2, 4x4 poses); out must not alias A or B.
 
-    Checked by: tests/estimator/test_window.py::test_window_update_equals_state_oplus
+    Checked by: tests/estimator/test_window_kernels.py::test_window_update_equals_state_oplus
     """
     for i in range(A.shape[0]):
         for j in range(B.shape[1]):
@@ -249,7 +249,7 @@ def matmul_into(A, B, out):
 def se3_exp_into(xi, E, c3, A, A2):
     """E (4, 4) = exp(xi^) for xi = [rho; phi] (6,); c3 (3,), A, A2 (3, 3) are scratch.
 
-    Checked by: tests/estimator/test_window.py::test_window_update_equals_state_oplus,
+    Checked by: tests/estimator/test_window_kernels.py::test_window_update_equals_state_oplus,
         tests/estimator/test_priors_ca.py::test_magnus_pose_matches_exact_ode
     """
     a = math.sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5])
@@ -276,7 +276,7 @@ def se3_exp_into(xi, E, c3, A, A2):
 def so3_log(C, out):
     """out (3,) = log(C)^vee via the unit quaternion (Shepperd), |phi| <= pi; as `lie.so3.log`.
 
-    Checked by: tests/estimator/test_window.py::test_motion_kernel_log_and_jacobians_match_lie
+    Checked by: tests/estimator/test_window_kernels.py::test_motion_kernel_log_and_jacobians_match_lie
     """
     tr = C[0, 0] + C[1, 1] + C[2, 2]
     if tr >= C[0, 0] and tr >= C[1, 1] and tr >= C[2, 2]:
@@ -306,7 +306,7 @@ def so3_log(C, out):
 def inv3(A, out):
     """out = A^-1 for a 3x3 matrix (cofactors; J_so3 is well conditioned below 2 pi).
 
-    Checked by: tests/estimator/test_window.py::test_motion_kernel_log_and_jacobians_match_lie
+    Checked by: tests/estimator/test_window_kernels.py::test_motion_kernel_log_and_jacobians_match_lie
     """
     c00 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
     c01 = A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]
@@ -329,7 +329,7 @@ def jac_inv_into(Sp, c, sign, Ai, out, r0, c0):
 
     J = [[A, B], [0, A]] -> J^-1 = [[A^-1, -A^-1 B A^-1], [0, A^-1]]; Ai (3, 3) receives A^-1.
 
-    Checked by: tests/estimator/test_window.py::test_motion_kernel_log_and_jacobians_match_lie
+    Checked by: tests/estimator/test_window_kernels.py::test_motion_kernel_log_and_jacobians_match_lie
     """
     A = np.zeros((3, 3))
     B = np.zeros((3, 3))
@@ -358,7 +358,7 @@ def jac_inv_into(Sp, c, sign, Ai, out, r0, c0):
 def se3_log_and_jac_inv(T, xi, Jinv, Jinv_neg):
     """xi = ln(T)^vee (6,), Jinv = J(xi)^-1 and Jinv_neg = J(-xi)^-1 (6, 6) for one pose T (4, 4).
 
-    Checked by: tests/estimator/test_window.py::test_motion_kernel_log_and_jacobians_match_lie
+    Checked by: tests/estimator/test_window_kernels.py::test_motion_kernel_log_and_jacobians_match_lie
     """
     phi = np.empty(3)
     so3_log(T[:3, :3], phi)
