@@ -20,8 +20,10 @@ Policy (docs/measurements.md, "Local map"):
   first: smallest last_seen, then fewest hits, then oldest id.
 
 All randomness comes from the Generator given at construction (default: SeedSequence(0)), so the same inputs
-give the same map. The arrays exposed (points, last_seen, hits, ids) are read-only views; indices into them are
-valid until the next add/prune.
+give the same map. The arrays exposed (points, covariances, last_seen, hits, ids) are read-only views of the
+map's own preallocated arrays (capacity plus one scan's most new points), valid with the indices into them until
+the next add/prune, which move points within those arrays (copy what must outlive them). The bookkeeping of
+add and prune is compiled (`map_kernels`).
 
 Checked by: tests/estimator/test_local_map.py
 """
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rodo.estimator import map_kernels
 from rodo.estimator.errors import InputError, check_finite
 
 
@@ -70,11 +73,14 @@ class LocalMap:
         if not isinstance(rng, np.random.Generator):
             raise InputError(f"rng: expected a numpy.random.Generator or None, got {type(rng).__name__}")
         self._rng = rng
-        self._points = np.zeros((0, 3))
-        self._cov = np.zeros((0, 3, 3))
-        self._last_seen = np.zeros(0, dtype=np.int64)
-        self._hits = np.zeros(0, dtype=np.int64)
-        self._ids = np.zeros(0, dtype=np.int64)
+        self._max_new = max(1, int(self.max_new_fraction * self.capacity))
+        rows = self.capacity + self._max_new  # the most an add holds before it drops the excess
+        self._points = np.zeros((rows, 3))
+        self._cov = np.zeros((rows, 3, 3))
+        self._last_seen = np.zeros(rows, dtype=np.int64)
+        self._hits = np.zeros(rows, dtype=np.int64)
+        self._ids = np.zeros(rows, dtype=np.int64)
+        self._n = 0  # the points are the first _n rows
         self._next_id = 0
 
     def cleared(self) -> "LocalMap":
@@ -85,9 +91,8 @@ class LocalMap:
         return LocalMap(self.capacity, self.max_age, self.voxel, rng=self._rng,
                         max_new_fraction=self.max_new_fraction)
 
-    @staticmethod
-    def _view(a: np.ndarray) -> np.ndarray:
-        v = a.view()
+    def _view(self, a: np.ndarray) -> np.ndarray:
+        v = a[:self._n]
         v.flags.writeable = False
         return v
 
@@ -112,19 +117,12 @@ class LocalMap:
         return self._view(self._ids)
 
     def __len__(self) -> int:
-        return len(self._points)
+        return self._n
 
     @property
     def covariances(self) -> np.ndarray:
         """(m, 3, 3) world-frame covariance of each point at insertion (zeros when none was given)."""
         return self._view(self._cov)
-
-    def _keep(self, mask: np.ndarray) -> None:
-        self._cov = self._cov[mask]
-        self._points = self._points[mask]
-        self._last_seen = self._last_seen[mask]
-        self._hits = self._hits[mask]
-        self._ids = self._ids[mask]
 
     def add(self, p_world, scan: int, covariances=None) -> None:
         """Insert new world points (thinned as in the module docstring), then enforce the capacity.
@@ -152,7 +150,7 @@ class LocalMap:
             _, first = np.unique(keys, axis=0, return_index=True)
             sel = order[np.sort(first)]
             if len(self):
-                occupied = _voxel_keys(self._points, self.voxel)
+                occupied = _voxel_keys(self._points[:self._n], self.voxel)
                 both = np.concatenate([occupied, _voxel_keys(p[sel], self.voxel)])
                 _, inv = np.unique(both, axis=0, return_inverse=True)
                 inv = inv.ravel()
@@ -160,23 +158,13 @@ class LocalMap:
                 taken[inv[:len(occupied)]] = True
                 sel = sel[~taken[inv[len(occupied):]]]
             p, cov = p[sel], cov[sel]
-        max_new = max(1, int(self.max_new_fraction * self.capacity))
-        if len(p) > max_new:
-            sel = np.sort(self._rng.choice(len(p), size=max_new, replace=False))
+        if len(p) > self._max_new:
+            sel = np.sort(self._rng.choice(len(p), size=self._max_new, replace=False))
             p, cov = p[sel], cov[sel]
-        k = len(p)
-        self._points = np.concatenate([self._points, p])
-        self._cov = np.concatenate([self._cov, cov])
-        self._last_seen = np.concatenate([self._last_seen, np.full(k, scan, dtype=np.int64)])
-        self._hits = np.concatenate([self._hits, np.ones(k, dtype=np.int64)])
-        self._ids = np.concatenate([self._ids, self._next_id + np.arange(k, dtype=np.int64)])
-        self._next_id += k
-        excess = len(self) - self.capacity
-        if excess > 0:
-            stalest = np.lexsort((self._ids, self._hits, self._last_seen))[:excess]
-            mask = np.ones(len(self), dtype=bool)
-            mask[stalest] = False
-            self._keep(mask)
+        self._n = map_kernels.append(self._points, self._cov, self._last_seen, self._hits, self._ids, self._n,
+                                     np.ascontiguousarray(p), np.ascontiguousarray(cov), scan, self._next_id,
+                                     self.capacity)
+        self._next_id += len(p)
 
     def refresh(self, idx, scan: int) -> None:
         """Mark map points as seen in `scan` (last_seen = scan, hits += 1); positions stay fixed.
@@ -261,9 +249,8 @@ class LocalMap:
             raise InputError(f"max_range: must be > 0, got {max_range}")
         if len(self) == 0:
             return
-        p_v = self._points @ T_vehicle_world[:3, :3].T + T_vehicle_world[:3, 3]
-        p_s = (p_v - T_vehicle_sensor[:3, 3]) @ T_vehicle_sensor[:3, :3]
-        keep = ((scan - self._last_seen) <= self.max_age) & (np.linalg.norm(p_s, axis=1) <= max_range)
-        if behind:
-            keep &= p_s[:, 0] > 0
-        self._keep(keep)
+        # p_v = T_vehicle_world p, p_s = C_vs^T (p_v - r_vs): kept when seen within max_age, |p_s| <= max_range
+        # and (behind) x_s > 0
+        self._n = map_kernels.prune(self._points, self._cov, self._last_seen, self._hits, self._ids, self._n, scan,
+                                    self.max_age, np.ascontiguousarray(T_vehicle_world),
+                                    np.ascontiguousarray(T_vehicle_sensor), max_range, behind)

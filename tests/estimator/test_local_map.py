@@ -90,6 +90,9 @@ def test_prune():
     assert m.ids.tolist() == [0, 4]
     m.prune(6, T, T_vs, max_range=80.0)                         # age 6 > 5: everything goes
     assert len(m) == 0
+    m.add(np.array([[0.0, 5.0, 0.0], [1e-9, 5.0, 0.0]]), scan=6)
+    m.prune(6, np.eye(4), np.eye(4), max_range=80.0)            # on the sensor's plane (x_s = 0): behind
+    assert m.ids.tolist() == [6]
 
 
 def test_voxel_thinning():
@@ -230,3 +233,63 @@ def test_cleared_map_continues_the_random_stream():
     fresh.add(new, 1)
     np.testing.assert_array_equal(b.points, fresh.points)
     assert rng_a.random() == rng_b.random()
+
+
+class _ReferenceMap:
+    """The NumPy bookkeeping `map_kernels` replaced (no voxel thinning, which runs before it): new points
+    concatenated, the stalest over capacity found by a lexsort, pruning by a matrix product and a mask."""
+
+    def __init__(self, capacity, max_age):
+        self.capacity, self.max_age = capacity, max_age
+        self.points, self.cov = np.zeros((0, 3)), np.zeros((0, 3, 3))
+        self.last_seen, self.hits, self.ids = (np.zeros(0, np.int64) for _ in range(3))
+
+    def _keep(self, mask):
+        for name in ("points", "cov", "last_seen", "hits", "ids"):
+            setattr(self, name, getattr(self, name)[mask])
+
+    def add(self, p, cov, scan):  # p already at most max_new points
+        k, first = len(p), self.next_id  # the map's id counter (ids are never reused)
+        self.points, self.cov = np.concatenate([self.points, p]), np.concatenate([self.cov, cov])
+        self.last_seen = np.concatenate([self.last_seen, np.full(k, scan, np.int64)])
+        self.hits = np.concatenate([self.hits, np.ones(k, np.int64)])
+        self.ids = np.concatenate([self.ids, first + np.arange(k)])
+        excess = len(self.ids) - self.capacity
+        if excess > 0:
+            mask = np.ones(len(self.ids), bool)
+            mask[np.lexsort((self.ids, self.hits, self.last_seen))[:excess]] = False
+            self._keep(mask)
+
+    def prune(self, scan, T, T_vs, max_range, behind):
+        p_s = (self.points @ T[:3, :3].T + T[:3, 3] - T_vs[:3, 3]) @ T_vs[:3, :3]
+        keep = ((scan - self.last_seen) <= self.max_age) & (np.linalg.norm(p_s, axis=1) <= max_range)
+        self._keep(keep & (p_s[:, 0] > 0) if behind else keep)
+
+
+@given(data=st.data(), scans=scans_of_points(15, 60, extent=30.0), capacity=st.integers(1, 80),
+       max_age=st.integers(0, 4))
+def test_compiled_map_equals_the_numpy_reference(data, scans, capacity, max_age):
+    """Adds (over capacity: the stalest by last seen, hits, id), refreshes and prunes from random poses leave
+    the compiled map's arrays equal, bit for bit, to the NumPy reference's."""
+    m = LocalMap(capacity=capacity, max_age=max_age, max_new_fraction=1.0)
+    ref = _ReferenceMap(capacity, max_age)
+    for scan, p in enumerate(scans):
+        p = p[:capacity]  # at most max_new (the capacity here) per scan: no random subset
+        cov = np.arange(len(p) * 9.0).reshape(-1, 3, 3) + 100 * scan
+        ref.next_id = m._next_id
+        m.add(p, scan, covariances=cov)
+        ref.add(p, cov, scan)
+        if len(m):
+            seen = data.draw(st.lists(st.integers(0, len(m) - 1), max_size=len(m), unique=True))
+            m.refresh(np.array(seen, np.int64), scan)
+            ref.last_seen[seen] = scan
+            ref.hits[seen] += 1
+        if data.draw(st.booleans()):
+            T = se3.exp(np.array(data.draw(st.lists(st.floats(-3, 3), min_size=6, max_size=6))))
+            T_vs = se3.exp(np.array(data.draw(st.lists(st.floats(-1, 1), min_size=6, max_size=6))))
+            behind = data.draw(st.booleans())
+            m.prune(scan, T, T_vs, 40.0, behind=behind)
+            ref.prune(scan, T, T_vs, 40.0, behind)
+        for name, mine in (("points", m.points), ("cov", m.covariances), ("last_seen", m.last_seen),
+                           ("hits", m.hits), ("ids", m.ids)):
+            np.testing.assert_array_equal(mine, getattr(ref, name), err_msg=name)
