@@ -198,6 +198,17 @@ def test_pair_order_is_lexsort_with_ties(pairs):
     np.testing.assert_array_equal(kernel.order_by_d2(j, i, d2, 7), np.lexsort((i, j, d2)))
 
 
+@given(arrays(np.float64, st.integers(0, 300), elements=st.one_of(
+    st.sampled_from([0.0, -0.0, 1.0, -1.0, 2.0**-1074, np.inf, -np.inf]), st.floats(-1e300, 1e300),
+    st.floats(-20.0, 20.0), st.integers(-3, 3).map(float))))
+def test_radix_argsort_is_the_stable_argsort(x):
+    """The greedy matching's radix sort of d2 orders any floats without NaN as NumPy's stable argsort: negative
+    and positive, zeros of both signs (equal, so by index), subnormals, infinities, many ties."""
+    from rodo.estimator import association_kernels as kernel
+
+    np.testing.assert_array_equal(kernel._radix_argsort(x), np.argsort(x, kind="stable"))
+
+
 @given(points=cartesian_points(1, 60, 3.0), p=cartesian_points(1, 30, 3.0), k=st.integers(1, 8),
        cell=st.sampled_from([0.05, 0.3, 1.0, 10.0]), data=st.data())
 def test_grid_candidates_are_the_k_nearest_in_the_radius(points, p, k, cell, data):
