@@ -58,10 +58,9 @@ class LocalMap:
             rng: Generator for the random choices (default seeded from SeedSequence(0)).
             max_new_fraction: at most this fraction of `capacity` is added per scan.
         """
-        self.capacity = _int_arg("capacity", capacity)
         self.max_age = _int_arg("max_age", max_age)
-        if self.capacity < 1 or self.max_age < 0:
-            raise InputError(f"capacity, max_age: must be >= 1 and >= 0, got {capacity}, {max_age}")
+        if self.max_age < 0:
+            raise InputError(f"max_age: must be >= 0, got {max_age}")
         self.voxel = float(check_finite("voxel", voxel))
         if self.voxel < 0:
             raise InputError(f"voxel: must be >= 0, got {voxel}")
@@ -73,15 +72,38 @@ class LocalMap:
         if not isinstance(rng, np.random.Generator):
             raise InputError(f"rng: expected a numpy.random.Generator or None, got {type(rng).__name__}")
         self._rng = rng
-        self._max_new = max(1, int(self.max_new_fraction * self.capacity))
-        rows = self.capacity + self._max_new  # the most an add holds before it drops the excess
-        self._points = np.zeros((rows, 3))
-        self._cov = np.zeros((rows, 3, 3))
-        self._last_seen = np.zeros(rows, dtype=np.int64)
-        self._hits = np.zeros(rows, dtype=np.int64)
-        self._ids = np.zeros(rows, dtype=np.int64)
+        self._points = np.zeros((0, 3))
+        self._cov = np.zeros((0, 3, 3))
+        self._last_seen = np.zeros(0, dtype=np.int64)
+        self._hits = np.zeros(0, dtype=np.int64)
+        self._ids = np.zeros(0, dtype=np.int64)
         self._n = 0  # the points are the first _n rows
         self._next_id = 0
+        self.capacity = capacity  # sizes the arrays
+
+    @property
+    def capacity(self) -> int:
+        return self._capacity
+
+    @capacity.setter
+    def capacity(self, value: int) -> None:
+        """A new capacity, also after points were added (a multi-radar rig scales it with its radars): the arrays
+        grow to hold it and one scan's most new points; over a smaller one the stalest go at the next add.
+
+        Checked by: tests/estimator/test_local_map.py::test_compiled_map_equals_the_numpy_reference
+        """
+        value = _int_arg("capacity", value)
+        if value < 1:
+            raise InputError(f"capacity: must be >= 1, got {value}")
+        self._capacity = value
+        self._max_new = max(1, int(self.max_new_fraction * value))
+        rows = value + self._max_new  # the most an add holds before it drops the excess (the kernel relies on it)
+        if rows > len(self._points):
+            for name in ("_points", "_cov", "_last_seen", "_hits", "_ids"):
+                old = getattr(self, name)
+                new = np.zeros((rows,) + old.shape[1:], old.dtype)
+                new[:self._n] = old[:self._n]
+                setattr(self, name, new)
 
     def cleared(self) -> "LocalMap":
         """An empty map with the same settings that continues this map's random stream (a re-initialisation).
@@ -161,6 +183,8 @@ class LocalMap:
         if len(p) > self._max_new:
             sel = np.sort(self._rng.choice(len(p), size=self._max_new, replace=False))
             p, cov = p[sel], cov[sel]
+        if self._n + len(p) > len(self._points):  # the kernel writes without bounds checks: never past the arrays
+            raise RuntimeError(f"LocalMap: {self._n} + {len(p)} points exceed its {len(self._points)} rows")
         self._n = map_kernels.append(self._points, self._cov, self._last_seen, self._hits, self._ids, self._n,
                                      np.ascontiguousarray(p), np.ascontiguousarray(cov), scan, self._next_id,
                                      self.capacity)

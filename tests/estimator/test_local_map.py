@@ -269,12 +269,14 @@ class _ReferenceMap:
 @given(data=st.data(), scans=scans_of_points(15, 60, extent=30.0), capacity=st.integers(1, 80),
        max_age=st.integers(0, 4))
 def test_compiled_map_equals_the_numpy_reference(data, scans, capacity, max_age):
-    """Adds (over capacity: the stalest by last seen, hits, id), refreshes and prunes from random poses leave
-    the compiled map's arrays equal, bit for bit, to the NumPy reference's."""
+    """Adds (over capacity: the stalest by last seen, hits, id), refreshes, prunes from random poses and changes of
+    capacity leave the compiled map's arrays equal, bit for bit, to the NumPy reference's."""
     m = LocalMap(capacity=capacity, max_age=max_age, max_new_fraction=1.0)
     ref = _ReferenceMap(capacity, max_age)
     for scan, p in enumerate(scans):
-        p = p[:capacity]  # at most max_new (the capacity here) per scan: no random subset
+        if data.draw(st.integers(0, 4)) == 0:  # a new capacity (as `RadarOdometry.add_sensor` sets one)
+            m.capacity = ref.capacity = data.draw(st.integers(1, 120))
+        p = p[:m.capacity]  # at most max_new (the capacity here) per scan: no random subset
         cov = np.arange(len(p) * 9.0).reshape(-1, 3, 3) + 100 * scan
         ref.next_id = m._next_id
         m.add(p, scan, covariances=cov)
