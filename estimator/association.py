@@ -35,6 +35,7 @@ from .measurement_models import MeasurementModel, measurement_model
 from .measurements import Prediction
 
 from . import association_kernels as _kernel
+from . import matching_kernels
 
 GRID_CELL = 1.0  # m, the detection grid's cell (search radii: median 0.6 m, 95 % below 2 m on city)
 
@@ -99,7 +100,7 @@ def innovation_covariance(pred: Prediction, P_pose_vel, R, map_sigma: float = 0.
 
 def _greedy_one_to_one(j: np.ndarray, i: np.ndarray, d2: np.ndarray, m: int, n: int) -> np.ndarray:
     """Mask of pairs chosen greedily by smallest d2 (ties: smaller j, then i), each j and i used at most once."""
-    return _kernel.greedy_one_to_one(_kernel.order_by_d2(j, i, d2, n), j, i, m, n)
+    return matching_kernels.greedy_one_to_one(matching_kernels.order_by_d2(j, i, d2, n), j, i, m, n)
 
 
 def associate(model: str | MeasurementModel, z_meas, det_points_sensor, pred: Prediction, S, gate: float,

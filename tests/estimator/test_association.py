@@ -190,7 +190,7 @@ def test_empty_inputs_and_bad_input():
 def test_pair_order_is_lexsort_with_ties(pairs):
     """The compiled ordering of the greedy matching = np.lexsort((i, j, d2)): ascending d2, ties (frequent here:
     d2 takes four values) by map index j, then detection index i."""
-    from rodo.estimator import association_kernels as kernel
+    from rodo.estimator import matching_kernels as kernel
 
     j = np.array([p[0] for p in pairs], dtype=np.int64)
     i = np.array([p[1] for p in pairs], dtype=np.int64)
@@ -204,7 +204,7 @@ def test_pair_order_is_lexsort_with_ties(pairs):
 def test_radix_argsort_is_the_stable_argsort(x):
     """The greedy matching's radix sort of d2 orders any floats without NaN as NumPy's stable argsort: negative
     and positive, zeros of both signs (equal, so by index), subnormals, infinities, many ties."""
-    from rodo.estimator import association_kernels as kernel
+    from rodo.estimator import matching_kernels as kernel
 
     np.testing.assert_array_equal(kernel._radix_argsort(x), np.argsort(x, kind="stable"))
 
