@@ -64,8 +64,8 @@ class LocalMap:
         self.voxel = float(check_finite("voxel", voxel))
         if self.voxel < 0:
             raise InputError(f"voxel: must be >= 0, got {voxel}")
-        self.max_new_fraction = float(check_finite("max_new_fraction", max_new_fraction))
-        if not 0.0 < self.max_new_fraction <= 1.0:
+        self._max_new_fraction = float(check_finite("max_new_fraction", max_new_fraction))
+        if not 0.0 < self._max_new_fraction <= 1.0:
             raise InputError(f"max_new_fraction: must be in (0, 1], got {max_new_fraction}")
         if rng is None:
             rng = np.random.default_rng(np.random.SeedSequence(0))
@@ -80,6 +80,11 @@ class LocalMap:
         self._n = 0  # the points are the first _n rows
         self._next_id = 0
         self.capacity = capacity  # sizes the arrays
+
+    @property
+    def max_new_fraction(self) -> float:
+        """At most this fraction of the capacity is added per scan (fixed at construction)."""
+        return self._max_new_fraction
 
     @property
     def capacity(self) -> int:
@@ -162,6 +167,8 @@ class LocalMap:
             raise InputError(f"p_world: expected shape (k, 3), got {p.shape}")
         scan = _int_arg("scan", scan)
         if len(p) == 0:
+            if self._n > self.capacity:  # over a lowered capacity: the stalest go now
+                self._append(p, np.zeros((0, 3, 3)), scan)
             return
         cov = np.zeros((len(p), 3, 3)) if covariances is None else check_finite("covariances", covariances, (3, 3))
         if cov.shape != (len(p), 3, 3):
@@ -183,11 +190,15 @@ class LocalMap:
         if len(p) > self._max_new:
             sel = np.sort(self._rng.choice(len(p), size=self._max_new, replace=False))
             p, cov = p[sel], cov[sel]
+        self._append(p, cov, scan)
+
+    def _append(self, p: np.ndarray, cov: np.ndarray, scan: int) -> None:
+        """The compiled append of (k, 3) points and their covariances, then the stalest over capacity dropped."""
         if self._n + len(p) > len(self._points):  # the kernel writes without bounds checks: never past the arrays
             raise RuntimeError(f"LocalMap: {self._n} + {len(p)} points exceed its {len(self._points)} rows")
         self._n = map_kernels.append(self._points, self._cov, self._last_seen, self._hits, self._ids, self._n,
-                                     np.ascontiguousarray(p), np.ascontiguousarray(cov), scan, self._next_id,
-                                     self.capacity)
+                                     np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(cov, dtype=float),
+                                     scan, self._next_id, self.capacity)
         self._next_id += len(p)
 
     def refresh(self, idx, scan: int) -> None:
