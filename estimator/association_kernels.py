@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from .jit import njit
-from .measurement_kernels import point_model, residual_d2
+from .measurement_kernels import frames, point_model, polar_jacobian, residual_d2
 
 
 @njit(cache=True)
@@ -86,12 +86,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
     Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference
     """
     m = rows.shape[0]
-    C = T[:3, :3]
-    t = T[:3, 3]
-    Cvs = Tvs[:3, :3]
-    rvs = Tvs[:3, 3]
-    nu = varpi[:3]
-    om = varpi[3:]
+    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
     G = np.zeros((4, 12))
     Jp = np.zeros((4, 3))
     A = np.empty((3, 6))
@@ -176,9 +171,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
             # above the sensor the azimuth is arbitrary and the elevation's cosine as small as point_model's
             ce, se = max(rho, 1e-12 * r) / r, ps2 / r
             ca, sa = (ps0 / rho, ps1 / rho) if rho > 0.0 else (1.0, 0.0)
-            Ac[0, 0], Ac[1, 0], Ac[2, 0] = ce * ca, ce * sa, se
-            Ac[0, 1], Ac[1, 1], Ac[2, 1] = -r * ce * sa, r * ce * ca, 0.0
-            Ac[0, 2], Ac[1, 2], Ac[2, 2] = -r * se * ca, -r * se * sa, r * ce
+            polar_jacobian(r, ca, sa, ce, se, Ac)
             for i in range(3):
                 for j in range(3):
                     Pc[i, j] = Ac[i, 0] * S[a, 0, j] + Ac[i, 1] * S[a, 1, j] + Ac[i, 2] * S[a, 2, j]

@@ -22,6 +22,22 @@ from .jit import FASTMATH, njit  # the IEEE-safe fast-math subset all kernels sh
 POLAR, CARTESIAN = 0, 1
 
 
+@njit(cache=True, inline="always")
+def frames(T, varpi, Tvs):
+    """(C, t, C_vs, r_vs, nu, omega): the views `point_model` takes of a pose T (4, 4), its velocity varpi (6,)
+    and the radar's extrinsics Tvs (4, 4)."""
+    return T[:3, :3], T[:3, 3], Tvs[:3, :3], Tvs[:3, 3], varpi[:3], varpi[3:]
+
+
+@njit(cache=True, inline="always")
+def polar_jacobian(r, ca, sa, ce, se, J):
+    """J (3, 3) = d[x, y, z]/d[r, az, el] at range r with the azimuth's and the elevation's cosines and sines
+    (`radar_geometry.polar_to_cartesian_jacobian`)."""
+    J[0, 0], J[1, 0], J[2, 0] = ce * ca, ce * sa, se
+    J[0, 1], J[1, 1], J[2, 1] = -r * ce * sa, r * ce * ca, 0.0
+    J[0, 2], J[1, 2], J[2, 2] = -r * se * ca, -r * se * sa, r * ce
+
+
 @njit(cache=True, fastmath=FASTMATH, inline="always")
 def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
     """The measurement model of one map point p (3,) for a state (C, t, nu, om) and extrinsics (Cvs, rvs),
@@ -154,12 +170,7 @@ def state_pairs(model, T, varpi, lo, hi, p_world, z, W, Tvs, weights, d2_out, ro
     Js = np.empty((3, 3))
     am = np.empty((2, 3))
     ps = np.empty(3)
-    Cvs = Tvs[:3, :3]
-    rvs = Tvs[:3, 3]
-    C = T[:3, :3]
-    t = T[:3, 3]
-    nu = varpi[:3]
-    om = varpi[3:]
+    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
     for a in range(lo, hi):
         if point_model(model == POLAR, C, t, Cvs, rvs, nu, om, p_world[a], A, J, zp, Js, am, ps) == 0.0:
             d2_out[a] = np.nan  # a map point at the sensor: the cost is undefined, the step is rejected
@@ -218,9 +229,7 @@ def position_covariances(polar, sigmas, C, out):
     for i in range(polar.shape[0]):
         r, az, el = polar[i, 0], polar[i, 1], polar[i, 2]
         ca, sa, ce, se = math.cos(az), math.sin(az), math.cos(el), math.sin(el)
-        J[0, 0], J[1, 0], J[2, 0] = ce * ca, ce * sa, se
-        J[0, 1], J[1, 1], J[2, 1] = -r * ce * sa, r * ce * ca, 0.0
-        J[0, 2], J[1, 2], J[2, 2] = -r * se * ca, -r * se * sa, r * ce
+        polar_jacobian(r, ca, sa, ce, se, J)
         for a in range(3):
             for k in range(3):
                 M[a, k] = C[a, 0] * J[0, k] + C[a, 1] * J[1, k] + C[a, 2] * J[2, k]
