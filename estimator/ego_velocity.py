@@ -64,7 +64,7 @@ class EgoVelocity:
 
 def is_planar(elevation: np.ndarray) -> bool:
     """The planar rule (vz = 0): no detections, or every |elevation| below PLANAR_ELEVATION."""
-    return bool(len(elevation) == 0 or np.all(np.abs(elevation) < PLANAR_ELEVATION))
+    return bool(len(elevation) == 0 or (np.abs(elevation) < PLANAR_ELEVATION).all())
 
 
 def _directions(azimuth: np.ndarray, elevation: np.ndarray) -> np.ndarray:

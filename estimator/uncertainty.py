@@ -186,6 +186,6 @@ def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi
     """
     C = _initial(np.zeros((6, 6)), P_varpi[start], tau, drift_rate_sigma)
     for j in range(start + 1, end + 1):
-        S = Sigma_rel[j] if np.all(np.isfinite(Sigma_rel[j])) else np.zeros((6, 6))
+        S = Sigma_rel[j] if np.isfinite(Sigma_rel[j]).all() else np.zeros((6, 6))
         C = _step(C, T[j - 1], T[j], t[j] - t[j - 1], S, P_varpi[j], tau)
     return C[:6, :6]
