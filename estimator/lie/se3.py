@@ -78,14 +78,18 @@ def log(T: np.ndarray) -> np.ndarray:
 def inverse(T: np.ndarray) -> np.ndarray:
     """T^-1 using the group structure, (..., 4, 4)."""
     T = np.asarray(T, dtype=float)
-    if T.shape == (4, 4):  # one pose (the per-scan case): the same sums as the einsum below, without its set-up
+    # -C^T r as three products summed in the order j = 0, 1, 2, each rounded on its own (NumPy never fuses a
+    # multiply and an add), so a pose gives the same bits alone or in a stack, on any machine and memory layout
+    if T.shape == (4, 4):  # one pose (the per-scan case), from its floats: without the arrays' set-up
         (c00, c01, c02, r0), (c10, c11, c12, r1), (c20, c21, c22, r2), _ = T.tolist()
         return np.array([[c00, c10, c20, -(c00 * r0 + c10 * r1 + c20 * r2)],
                          [c01, c11, c21, -(c01 * r0 + c11 * r1 + c21 * r2)],
                          [c02, c12, c22, -(c02 * r0 + c12 * r1 + c22 * r2)],
                          [0.0, 0.0, 0.0, 1.0]])
-    Ct = np.swapaxes(T[..., :3, :3], -1, -2)
-    return from_rotation_translation(Ct, -np.einsum("...ij,...j->...i", Ct, T[..., :3, 3]))
+    C, r = T[..., :3, :3], T[..., :3, 3:]
+    return from_rotation_translation(np.swapaxes(C, -1, -2),
+                                     -(C[..., 0, :] * r[..., 0, :] + C[..., 1, :] * r[..., 1, :]
+                                       + C[..., 2, :] * r[..., 2, :]))
 
 
 def adjoint(T: np.ndarray) -> np.ndarray:

@@ -66,13 +66,17 @@ def test_curlyhat_is_the_lie_bracket(a, b):
     np.testing.assert_allclose(se3.adjoint(se3.exp(a)), sla.expm(se3.curlyhat(a)), atol=1e-10)
 
 
-@given(a=twists("any"), scale=st.floats(1e-3, 1e3))
-def test_inverse_of_one_pose_is_the_batched_inverse_bit_for_bit(a, scale):
-    """`se3.inverse`'s path for one (4, 4) pose computes the batched path's sums in its order: equal bits."""
+@given(a=twists("any"), scale=st.floats(1e-3, 1e3), zero=st.booleans())
+def test_inverse_of_one_pose_is_the_batched_inverse_bit_for_bit(a, scale, zero):
+    """`se3.inverse`'s path for one (4, 4) pose computes the batched path's sums in its order: equal bits, the
+    signs of zeros too (a translation of -0), whatever the memory layout."""
     T = se3.exp(a * np.r_[np.full(3, scale), np.ones(3)])
-    one, batched = se3.inverse(T), se3.inverse(T[None])[0]
-    assert one.shape == (4, 4) and np.array_equal(one, batched)
-    assert np.array_equal(np.signbit(one), np.signbit(batched)) or not np.all(one[:3, 3])
+    if zero:
+        T[:3, 3] = -0.0
+    one = se3.inverse(T)
+    for other in (se3.inverse(T[None])[0], se3.inverse(np.asfortranarray(T)), se3.inverse(np.stack([T, T]))[1]):
+        assert np.array_equal(one, other) and np.array_equal(np.signbit(one), np.signbit(other))
+    np.testing.assert_allclose(one, np.linalg.inv(T), atol=1e-9 * max(1.0, scale))
 
 
 @pytest.mark.parametrize("shape", [(), (5,), (2, 3)])
