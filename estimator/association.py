@@ -25,7 +25,7 @@ Checked by: tests/estimator/test_association.py
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import chi2
@@ -48,13 +48,35 @@ class Association:
         map_idx: (k,) int map-point indices.
         det_idx: (k,) int detection indices.
         d2: (k,) squared Mahalanobis distances (all <= gate).
-        n_candidates: number of (map point, detection) pairs the grid search proposed before gating.
+        n_candidates: number of (map point, detection) pairs the grid search proposed before gating (a
+            re-association: the candidates it scored again).
+        candidates: the candidates the pairs were chosen from, for a re-association (`MapAssociation.associate`'s;
+            None from `associate`).
     """
 
     map_idx: np.ndarray
     det_idx: np.ndarray
     d2: np.ndarray
     n_candidates: int
+    candidates: Candidates | None = field(default=None, repr=False, compare=False)
+
+
+@dataclass
+class Candidates:
+    """The candidate pairs an association gated (each map point's nearest detections inside its search radius),
+    kept for its re-association at a nearby state (`scan_association.MapAssociation.reassociate`).
+
+    Attributes:
+        rows: (m,) the map points the association looked at (indices into the map).
+        S_inv: (m, 4, 4) their innovation covariances' inverses, at the association's state and covariance.
+        j: (c,) each candidate's map point, an index into rows (ascending).
+        i: (c,) each candidate's detection, an index into the scan's detections inside the window.
+    """
+
+    rows: np.ndarray
+    S_inv: np.ndarray
+    j: np.ndarray
+    i: np.ndarray
 
 
 def gate_threshold(prob: float = 0.95, dof: int = 4) -> float:
@@ -98,8 +120,9 @@ def innovation_covariance(pred: Prediction, P_pose_vel, R, map_sigma: float = 0.
     return 0.5 * (S + np.swapaxes(S, 1, 2))
 
 
-def _greedy_one_to_one(j: np.ndarray, i: np.ndarray, d2: np.ndarray, m: int, n: int) -> np.ndarray:
-    """Mask of pairs chosen greedily by smallest d2 (ties: smaller j, then i), each j and i used at most once."""
+def one_to_one(j: np.ndarray, i: np.ndarray, d2: np.ndarray, m: int, n: int) -> np.ndarray:
+    """Mask of the gated pairs (j, i, d2) chosen greedily by smallest d2 (ties: smaller j, then i), each of the m
+    map points and n detections used at most once."""
     return matching_kernels.greedy_one_to_one(matching_kernels.order_by_d2(j, i, d2, n), j, i, m, n)
 
 
@@ -182,23 +205,32 @@ class DetectionGrid:
 def match(model: MeasurementModel, z_meas: np.ndarray, grid: DetectionGrid, z_pred: np.ndarray, p_sensor: np.ndarray,
           S_inv: np.ndarray, radius: np.ndarray, gate: float, max_candidates: int = 16) -> Association:
     """The candidate search, gating and one-to-one choice of `associate`, from prepared inputs (no checks): the
-    detections on a grid (`DetectionGrid`, one per scan, reused when re-associating), the m map points'
-    predictions z_pred (m, 4) and p_sensor (m, 3), S_inv (m, 4, 4) and search radii (m,) (capped). The
-    candidates of a map point are its max_candidates nearest detections inside its radius (bounded work per
-    point); `n_candidates` counts them before gating.
+    detections on a grid (`DetectionGrid`, one per scan), the m map points' predictions z_pred (m, 4) and
+    p_sensor (m, 3), S_inv (m, 4, 4) and search radii (m,) (capped). The candidates of a map point are its
+    max_candidates nearest detections inside its radius (bounded work per point); `n_candidates` counts them
+    before gating.
 
     Checked by: tests/estimator/test_association.py (through `associate`),
         tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference
     """
+    j, i, d2 = candidates(model, z_meas, grid, z_pred, p_sensor, S_inv, radius, max_candidates)
+    inside = d2 <= gate
+    j, i, d2 = j[inside], i[inside], d2[inside]
+    chosen = one_to_one(j, i, d2, len(z_pred), grid.n)
+    return Association(j[chosen], i[chosen], d2[chosen], len(inside))  # j ascending: written point by point
+
+
+def candidates(model: MeasurementModel, z_meas: np.ndarray, grid: DetectionGrid, z_pred: np.ndarray,
+               p_sensor: np.ndarray, S_inv: np.ndarray, radius: np.ndarray,
+               max_candidates: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`match`'s candidates before gating: (j, i, d2) of each map point's max_candidates nearest detections
+    inside its radius, j ascending (written map point by map point)."""
     m, n = len(z_pred), grid.n
     if m == 0 or n == 0:
-        return Association(np.zeros(0, int), np.zeros(0, int), np.zeros(0), 0)
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
     k = min(max_candidates, n)
     j, i, d2 = np.empty(m * k, np.int64), np.empty(m * k, np.int64), np.empty(m * k)
-    count, n_candidates = _kernel.grid_candidates(model.is_polar, grid.points, grid.x0, grid.y0, grid.cell, grid.nx,
-                                                  grid.ny, grid.start, grid.order, p_sensor, radius, k, z_meas,
-                                                  z_pred, S_inv, gate, j, i, d2)
-    j, i, d2 = j[:count], i[:count], d2[:count]
-    chosen = _greedy_one_to_one(j, i, d2, m, n)
-    j, i, d2 = j[chosen], i[chosen], d2[chosen]  # j ascending: the candidates were written point by point
-    return Association(j, i, d2, int(n_candidates))
+    count, _ = _kernel.grid_candidates(model.is_polar, grid.points, grid.x0, grid.y0, grid.cell, grid.nx, grid.ny,
+                                       grid.start, grid.order, p_sensor, radius, k, z_meas, z_pred, S_inv, np.inf, j,
+                                       i, d2)
+    return j[:count], i[:count], d2[:count]

@@ -66,6 +66,31 @@ def _inv_spd4(S, out, L, Li):
     return True
 
 
+@njit(cache=True, inline="always")
+def pair_covariance(Js, am, B, C, cov, map_var, R, Jp, Pc, JC, out):
+    """out (4, 4) = R + J_z_p (cov + map_var I) J_z_p^T, a pair's covariance without the state's part (its
+    inverse is the pair's information in the solve), from `point_model`'s Js and am, B = C_vs^T C and the
+    pose's rotation C: dz/dp_world = [Js; a^T] B + [0; m^T C]. Jp (4, 3), Pc (3, 3) and JC (4, 3) are scratch
+    (Jp is left holding dz/dp_world)."""
+    for j in range(3):
+        for i in range(3):
+            Jp[i, j] = Js[i, 0] * B[0, j] + Js[i, 1] * B[1, j] + Js[i, 2] * B[2, j]
+        Jp[3, j] = am[0, 0] * B[0, j] + am[0, 1] * B[1, j] + am[0, 2] * B[2, j] \
+            + am[1, 0] * C[0, j] + am[1, 1] * C[1, j] + am[1, 2] * C[2, j]
+    for i in range(3):
+        for j in range(3):
+            Pc[i, j] = cov[i, j]
+        Pc[i, i] += map_var
+    for i in range(4):
+        for j in range(3):
+            JC[i, j] = Jp[i, 0] * Pc[0, j] + Jp[i, 1] * Pc[1, j] + Jp[i, 2] * Pc[2, j]
+    for i in range(4):
+        for j in range(i, 4):
+            sm = R[i, j] + JC[i, 0] * Jp[j, 0] + JC[i, 1] * Jp[j, 1] + JC[i, 2] * Jp[j, 2]
+            out[i, j] = sm
+            out[j, i] = sm
+
+
 @njit(cache=True)
 def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate, z, p_s, S, S_inv, S_pair, radius):
     """Everything the association needs per map point, in one pass (the same model as
@@ -112,20 +137,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
             return a
         for i in range(4):
             z[a, i] = zp[i]
-        # dz/dp_world: [Js; a^T] C_vs^T C + [0; m^T C]
-        for j in range(3):
-            for i in range(3):
-                Jp[i, j] = Js[i, 0] * B[0, j] + Js[i, 1] * B[1, j] + Js[i, 2] * B[2, j]
-            Jp[3, j] = am[0, 0] * B[0, j] + am[0, 1] * B[1, j] + am[0, 2] * B[2, j] \
-                + am[1, 0] * C[0, j] + am[1, 1] * C[1, j] + am[1, 2] * C[2, j]
-        # map term
-        for i in range(3):
-            for j in range(3):
-                Pc[i, j] = cov_world[row, i, j]
-            Pc[i, i] += map_var
-        for i in range(4):
-            for j in range(3):
-                JC[i, j] = Jp[i, 0] * Pc[0, j] + Jp[i, 1] * Pc[1, j] + Jp[i, 2] * Pc[2, j]
+        pair_covariance(Js, am, B, C, cov_world[row], map_var, R, Jp, Pc, JC, S_pair[a])
         # G P G^T = Gp P_pp Gp^T, and for row 3 also Gp P_pv g_v + g_v P_vp Gp^T + g_v P_vv g_v (G = [Gp | e3 g_v])
         for i in range(4):
             for j in range(6):
@@ -156,11 +168,8 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
         SG[3, 3] += s + vv
         for i in range(4):
             for j in range(i, 4):
-                sm = R[i, j] + JC[i, 0] * Jp[j, 0] + JC[i, 1] * Jp[j, 1] + JC[i, 2] * Jp[j, 2]
-                S_pair[a, i, j] = sm
-                S_pair[a, j, i] = sm
-                S[a, i, j] = sm + SG[i, j]
-                S[a, j, i] = sm + SG[i, j]
+                S[a, i, j] = S_pair[a, i, j] + SG[i, j]
+                S[a, j, i] = S_pair[a, i, j] + SG[i, j]
         if not _inv_spd4(S[a], S_inv[a], L, Li):
             return m + a
         # search radius: the position block of S in Cartesian coordinates
@@ -198,6 +207,59 @@ def invert_pairs(S_pair, rows, W):
         if not _inv_spd4(S_pair[rows[q]], W[q], L, Li):
             return q
     return -1
+
+
+@njit(cache=True)
+def pair_information(polar, T, varpi, p_world, cov_world, rows, map_var, R, Tvs, W):
+    """W[q] = (R + map term)^-1 of the map point p_world[rows[q]], cov_world[rows[q]] at the state (T, varpi):
+    each associated pair's information in the solve, as `prepare` and `invert_pairs` give it (bit for bit), for
+    the pairs of a re-association (`rescore`). Returns -1, or q for the first point at the sensor origin, or
+    len(rows) + q for the first whose R + map term is not positive definite.
+
+    Checked by: tests/estimator/test_scan_association.py::test_reassociation_rescores_the_candidates_at_the_new_state
+    """
+    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
+    B = np.empty((3, 3))  # dp_s/dp_world = C_vs^T C
+    for i in range(3):
+        for j in range(3):
+            B[i, j] = Cvs[0, i] * C[0, j] + Cvs[1, i] * C[1, j] + Cvs[2, i] * C[2, j]
+    G, A, Js, am = np.zeros((4, 12)), np.empty((3, 6)), np.empty((3, 3)), np.empty((2, 3))
+    zp, ps = np.empty(4), np.empty(3)
+    Jp, Pc, JC, Sp = np.zeros((4, 3)), np.empty((3, 3)), np.empty((4, 3)), np.empty((4, 4))
+    L, Li = np.empty((4, 4)), np.empty((4, 4))
+    for q in range(rows.shape[0]):
+        if point_model(polar, C, t, Cvs, rvs, nu, om, p_world[rows[q]], A, G, zp, Js, am, ps) == 0.0:
+            return q
+        pair_covariance(Js, am, B, C, cov_world[rows[q]], map_var, R, Jp, Pc, JC, Sp)
+        if not _inv_spd4(Sp, W[q], L, Li):
+            return rows.shape[0] + q
+    return -1
+
+
+@njit(cache=True)
+def rescore(polar, T, varpi, p_world, rows, Tvs, z_meas, S_inv, j, i, gate, d2, keep):
+    """An association's candidate pairs (map point p_world[rows[j[q]]], detection z_meas[i[q]]; j ascending)
+    scored again at the state (T, varpi) with the S_inv they were gated with: d2[q] = e^T S_inv[j[q]] e, e the
+    detection minus the map point's prediction (`point_model`, the azimuth wrapped), keep[q] = d2[q] <= gate.
+    Returns the number kept, or -1 - j[q] for the first map point at the sensor origin.
+
+    Checked by: tests/estimator/test_scan_association.py::test_reassociation_rescores_the_candidates_at_the_new_state
+    """
+    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
+    G, A, Js, am = np.zeros((4, 12)), np.empty((3, 6)), np.empty((3, 3)), np.empty((2, 3))
+    zp, ps, e = np.empty(4), np.empty(3), np.empty(4)
+    last, kept = -1, 0
+    for q in range(j.shape[0]):
+        a = j[q]
+        if a != last:  # the candidates come map point by map point: one prediction each
+            if point_model(polar, C, t, Cvs, rvs, nu, om, p_world[rows[a]], A, G, zp, Js, am, ps) == 0.0:
+                return -1 - a
+            last = a
+        s = residual_d2(polar, z_meas[i[q]], zp, S_inv[a], e)
+        d2[q] = s
+        keep[q] = s <= gate
+        kept += s <= gate
+    return kept
 
 
 @njit(cache=True)

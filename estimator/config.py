@@ -75,7 +75,8 @@ class AssociationConfig:
     gate_probability: float = 0.95
     max_radius: float = 5.0
     doppler_sigma_floor: float = 0.05  # m/s, floor of the Doppler static/moving test
-    reassociate: int = 1  # re-associate after the first solve this many times
+    reassociate: int = 1  # re-associate after the first solve this many times (each scores the first association's
+    # candidates again at the solution: docs/estimator.md, step 5)
     ransac_above_sigma: float = 0.5  # m/s: the RANSAC Doppler fallback is used only when the predicted sensor
     # velocity is this uncertain (or explains fewer than 8 detections)
     doppler_jerk_margin: float = 0.5  # m/s: a confident prediction's Doppler fit may move this far beyond its

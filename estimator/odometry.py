@@ -163,7 +163,7 @@ class RadarOdometry:
 
         tic = time.perf_counter()
         reuse = float(np.mean(self.map.hits[pairs.map_idx])) if len(pairs.map_idx) else float("nan")
-        W_pairs, pairs, P_relative = self._solve(P, scan, W_pairs, pairs, timings)
+        W_pairs, pairs, P_relative = self._solve(scan, W_pairs, pairs, timings)
         timings["solve"] = time.perf_counter() - tic - timings.pop("reassociate", 0.0)
 
         detail = None
@@ -255,16 +255,18 @@ class RadarOdometry:
         self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_pairs, pairs, scan))
         return W_pairs, pairs
 
-    def _solve(self, P, scan: ScanMeasurements, W_pairs, pairs, timings: dict):
-        """Gauss-Newton, re-association at the solution and one refining step, the newest covariance, then
-        marginalisation of the states beyond the window. The re-association's time counts as association."""
+    def _solve(self, scan: ScanMeasurements, W_pairs, pairs, timings: dict):
+        """Gauss-Newton, re-association at the solution (`MapAssociation.reassociate`) and one refining step, the
+        newest covariance, then marginalisation of the states beyond the window. The re-association's time counts
+        as association."""
         cfg, solver = self.config, self.config.solver
         self.window.optimize(solver.iterations, solver.step_tolerance, solver.step_sigma_tolerance)
         for _ in range(cfg.association.reassociate):
             if W_pairs is None:
                 break
             tic = time.perf_counter()
-            W_pairs, pairs = self._associate(self.window.newest, P, scan)
+            W_pairs, pairs = self.associator.reassociate(self.window.newest, self.map, scan, pairs)
+            self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_pairs, pairs, scan))
             elapsed = time.perf_counter() - tic
             timings["associate"] += elapsed
             timings["reassociate"] = timings.get("reassociate", 0.0) + elapsed

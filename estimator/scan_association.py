@@ -3,12 +3,14 @@
 `MapAssociation.associate` windows the map points and the detections to the field of view, evaluates per map
 point the prediction, S = G P G^T + R + map term, its inverse and the search radius in one compiled pass
 (`association_kernels.prepare`; the NumPy reference is `measurements.predict` with
-`association.innovation_covariance` and `MeasurementModel.search_radius`) and matches with
-`association.match`. A `ScanMeasurements` caches the scan's detection grid for the re-association.
+`association.innovation_covariance` and `MeasurementModel.search_radius`) and matches as `association.match`
+does. `MapAssociation.reassociate` makes the association again at the solve's state from the candidates the
+first one gated (docs/estimator.md, step 5). A `ScanMeasurements` caches the scan's detection grid.
 
 Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference,
     ::test_association_window_is_the_same_for_map_points_and_detections,
-    ::test_compiled_map_window_equals_the_reference
+    ::test_compiled_map_window_equals_the_reference,
+    ::test_reassociation_rescores_the_candidates_at_the_new_state
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import numpy as np
 
 from . import association_kernels
 from . import association
-from .association import Association
+from .association import Association, Candidates
 from .lie import se3
 from .local_map import LocalMap
 from .measurement_models import MeasurementModel
@@ -37,7 +39,7 @@ class ScanMeasurements:
         polar: (n, 4) static detections [r, az, el, v_r].
         z: (n, 4) the same in the measurement model's space.
         points: (n, 3) their Cartesian sensor-frame positions.
-        cache: the detections inside the window and their grid (for the re-association).
+        cache: the detections inside the window, in the model's space, and their grid.
     """
 
     polar: np.ndarray
@@ -138,11 +140,49 @@ class MapAssociation:
             cache["z"] = scan.z[cache["di"]]
             cache["grid"] = association.DetectionGrid.of(scan.points[cache["di"]])
         di = cache["di"]
-        a = association.match(self.model, cache["z"], cache["grid"], zp, p_s, S_inv,
-                              np.minimum(radius, self.max_radius), self.gate)
-        W = np.empty((len(a.map_idx), 4, 4))
-        bad = association_kernels.invert_pairs(S_pair, a.map_idx, W)
+        jc, ic, d2 = association.candidates(self.model, cache["z"], cache["grid"], zp, p_s, S_inv,
+                                            np.minimum(radius, self.max_radius))
+        inside = d2 <= self.gate
+        j, i, d2 = jc[inside], ic[inside], d2[inside]
+        chosen = association.one_to_one(j, i, d2, m, len(di))
+        W = np.empty((int(chosen.sum()), 4, 4))
+        bad = association_kernels.invert_pairs(S_pair, j[chosen], W)
         if bad >= 0:
-            raise FloatingPointError(f"association: map point {mi[a.map_idx[bad]]} has a non positive definite "
+            raise FloatingPointError(f"association: map point {mi[j[chosen][bad]]} has a non positive definite "
                                      "R + map term")
-        return W, Association(mi[a.map_idx], di[a.det_idx], a.d2, a.n_candidates)
+        return W, Association(mi[j[chosen]], di[i[chosen]], d2[chosen], len(jc), Candidates(mi, S_inv, jc, ic))
+
+    def reassociate(self, x: State, local_map: LocalMap, scan: ScanMeasurements, pairs: Association):
+        """The association `pairs` (this scan's with this map, from `associate`) made again at the state x, a
+        solve away from the state it was made at: (W, Association) as `associate` gives them.
+
+        Its candidates (each map point's 16 nearest detections inside its search radius, gated or not) are
+        scored again with the map points' predictions at x and the S^-1 they were gated with (the same P; S's
+        Jacobians moved by the solve's step, ~1e-3 relatively), gated and chosen one to one; each chosen pair's
+        information, (R + map term)^-1, is taken at x as `associate` takes it (it holds the polar Jacobian and
+        the Doppler row's velocity, which the solve moves by up to 12 % on city). Only detections outside a
+        map point's search radius at the first state, or beyond its 16 nearest there, do not come back (the
+        radius holds the prediction's uncertainty). At the state `pairs` was made at, the result is `pairs`
+        itself, bit for bit. Accuracy and speed against a second association: docs/estimator.md, step 5.
+        """
+        c = pairs.candidates
+        if c is None:
+            return None, NO_PAIRS
+        di = scan.cache["di"]
+        d2, keep = np.empty(len(c.j)), np.empty(len(c.j), bool)
+        kept = association_kernels.rescore(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points, c.rows,
+                                           self.T_vehicle_sensor, scan.cache["z"], c.S_inv, c.j, c.i, self.gate, d2,
+                                           keep)
+        if kept < 0:
+            raise FloatingPointError(f"association: map point {c.rows[-1 - kept]} has range 0")
+        j, i, d2 = c.j[keep], c.i[keep], d2[keep]
+        chosen = association.one_to_one(j, i, d2, len(c.rows), len(di))
+        rows = c.rows[j[chosen]]
+        W = np.empty((len(rows), 4, 4))
+        bad = association_kernels.pair_information(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points,
+                                                   local_map.covariances, rows, self.map_sigma**2, self.R,
+                                                   self.T_vehicle_sensor, W)
+        if bad >= 0:
+            raise FloatingPointError(f"association: map point {rows[bad % len(rows)]} has "
+                                     + ("range 0" if bad < len(rows) else "a non positive definite R + map term"))
+        return W, Association(rows, di[i[chosen]], d2[chosen], len(c.j), c)

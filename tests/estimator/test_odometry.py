@@ -311,8 +311,9 @@ def test_non_holonomic_terms_hold_the_lateral_and_vertical_velocity():
 def test_a_blocked_view_is_not_recentred(monkeypatch):
     """A truck filling the view (blockage, seed 3411976877185804603 of the campaign seeds `--seed 7`): the pairs
     are lost and the few static detections' Doppler fit contradicts the prediction, but re-centred on that fit
-    the prediction pairs far less than a quarter of the scan, so it stays: the run is the one without
-    re-centring, bit for bit. Accepting a weaker recovery re-centres there (and made this drive worse)."""
+    the prediction pairs far less than a quarter of the scan (none of it), so it stays: the run is the one
+    without re-centring, bit for bit. Accepting any recovery re-centres there. (Before session 25's
+    re-association the drive's path left the truck with fewer pairs, and recoveries of 3-18 % were refused.)"""
     from rodo import scenarios
     from rodo.estimator import odometry
     from rodo.validation.driver import run_sequence
@@ -328,5 +329,5 @@ def test_a_blocked_view_is_not_recentred(monkeypatch):
     monkeypatch.setattr(odometry, "LOST_PAIRS", 0.0)
     np.testing.assert_array_equal(run()[0], T)
     monkeypatch.setattr(odometry, "LOST_PAIRS", 0.1)
-    monkeypatch.setattr(odometry, "RECOVERED_PAIRS", 0.05)
+    monkeypatch.setattr(odometry, "RECOVERED_PAIRS", 0.0)
     assert "doppler-recentred" in run()[1]

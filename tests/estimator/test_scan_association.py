@@ -2,6 +2,8 @@
 prepared per-map-point quantities and pairs against the readable reference, and the field-of-view window on
 both sides."""
 
+import functools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -114,3 +116,81 @@ def test_compiled_map_window_equals_the_reference(fov, seed):
     akernel.window_points(points, T_sw, odo.associator.limits, inside)
     np.testing.assert_array_equal(inside, m_ref)
     assert fov is not None or inside.all()
+
+
+@functools.lru_cache(maxsize=2)
+def _scene_association(model):
+    """An odometry seven scans into `scene`'s drive, the eighth scan and its association at the prediction."""
+    from rodo.estimator.scan_association import ScanMeasurements
+
+    rng = np.random.default_rng(5)
+    t, T, varpi, vd = scene.trajectory(8)
+    L = scene.landmarks(rng)
+    D = np.pi / 180
+    odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0,
+                        fov=((-60 * D, 60 * D), (-15 * D, 15 * D)))
+    for k in range(7):
+        odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
+    x = odo.motion.predict(odo.window.newest, t[7])
+    P = odo.P + np.diag(np.r_[np.full(6, 1e-4), np.full(6, 1e-2), np.zeros(odo.motion.dim - 12)])
+    scan = ScanMeasurements.of(scene.measure(T[7], varpi[7], vd[7], L, rng), odo.measurement)
+    W, pairs = odo.associator.associate(x, P, odo.map, scan)
+    return odo, x, P, scan, W, pairs
+
+
+def _greedy_reference(j, i, d2):
+    """The one-to-one choice by a plain loop: pairs by (d2, j, i), each taken while both ends are free."""
+    used_j, used_i, chosen = set(), set(), np.zeros(len(j), bool)
+    for q in sorted(range(len(j)), key=lambda q: (d2[q], j[q], i[q])):
+        if j[q] not in used_j and i[q] not in used_i:
+            used_j.add(j[q]), used_i.add(i[q])
+            chosen[q] = True
+    return chosen
+
+
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+@given(step=st.lists(st.floats(-1.0, 1.0), min_size=12, max_size=12))
+@settings(max_examples=10)
+def test_reassociation_rescores_the_candidates_at_the_new_state(model, step):
+    """`MapAssociation.reassociate` at a state moved by up to 0.2 m, 10 mrad, 0.5 m/s and 0.1 rad/s (a solve
+    moves it less; this much moves candidates across the gate): the first association's gated candidates scored
+    with `measurements.predict` at the new state and the S^-1 of the readable reference at the first, gated,
+    chosen one to one by a plain greedy loop, and each chosen pair's information (R + map term)^-1 at the new
+    state; at the first state, the first association itself, bit for bit."""
+    from rodo.estimator import association
+    from rodo.estimator.radar_geometry import wrap_angle
+
+    odo, x, P, scan, W0, a0 = _scene_association(model)
+    assoc = odo.associator
+    W_same, same = assoc.reassociate(x, odo.map, scan, a0)
+    for got, ref in ((W_same, W0), (same.map_idx, a0.map_idx), (same.det_idx, a0.det_idx), (same.d2, a0.d2)):
+        np.testing.assert_array_equal(got, ref)
+    assert len(a0.map_idx) > 100
+
+    d = np.r_[np.full(3, 0.2), np.full(3, 0.01), np.full(3, 0.5), np.full(3, 0.1)] * np.array(step)
+    y = x.oplus(np.r_[d, np.zeros(odo.motion.dim - 12)])
+    W, got = assoc.reassociate(y, odo.map, scan, a0)
+
+    c = a0.candidates
+    pred_x = measurements.predict(odo.config.measurement, x.T_vehicle_world, x.varpi, odo.map.points,
+                                  odo.T_vehicle_sensor)
+    cov = odo.map.covariances + odo.map_sigma**2 * np.eye(3)
+    Smap_x = assoc.R + pred_x.J_z_p @ cov @ np.swapaxes(pred_x.J_z_p, 1, 2)
+    S_inv = np.linalg.inv(association.innovation_covariance(pred_x, P[:12, :12], Smap_x, 0.0))[c.rows]
+    np.testing.assert_allclose(c.S_inv, S_inv, rtol=1e-8, atol=1e-10 * np.abs(S_inv).max())
+    pred = measurements.predict(odo.config.measurement, y.T_vehicle_world, y.varpi, odo.map.points,
+                                odo.T_vehicle_sensor)
+    di = scan.cache["di"]
+    e = scan.z[di[c.i]] - pred.z[c.rows[c.j]]
+    if odo.measurement.is_polar:
+        e[:, 1] = wrap_angle(e[:, 1])
+    d2 = np.einsum("ni,nij,nj->n", e, S_inv[c.j], e)
+    inside = d2 <= assoc.gate
+    chosen = _greedy_reference(c.j[inside], c.i[inside], d2[inside])
+    np.testing.assert_array_equal(got.map_idx, c.rows[c.j[inside][chosen]])
+    np.testing.assert_array_equal(got.det_idx, di[c.i[inside][chosen]])
+    np.testing.assert_allclose(got.d2, d2[inside][chosen], rtol=1e-7, atol=1e-9)
+    Smap = assoc.R + pred.J_z_p @ cov @ np.swapaxes(pred.J_z_p, 1, 2)
+    W_ref = np.linalg.inv(Smap[got.map_idx])
+    np.testing.assert_allclose(W, W_ref, rtol=1e-8, atol=1e-8 * np.abs(W_ref).max())
+    assert got.n_candidates == len(c.j) and got.candidates is c
