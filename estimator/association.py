@@ -50,8 +50,8 @@ class Association:
         d2: (k,) squared Mahalanobis distances (all <= gate).
         n_candidates: number of (map point, detection) pairs the grid search proposed before gating (a
             re-association: the candidates it scored again).
-        candidates: the candidates the pairs were chosen from, for a re-association (`MapAssociation.associate`'s;
-            None from `associate`).
+        candidates: the candidates the pairs were chosen from, for a re-association (set by
+            `scan_association.MapAssociation.associate`; None from this module's `associate` and `match`).
     """
 
     map_idx: np.ndarray
@@ -63,20 +63,26 @@ class Association:
 
 @dataclass
 class Candidates:
-    """The candidate pairs an association gated (each map point's nearest detections inside its search radius),
-    kept for its re-association at a nearby state (`scan_association.MapAssociation.reassociate`).
+    """Every candidate pair an association scored (each map point's nearest detections inside its search radius,
+    inside the gate or not), kept for its re-association at a nearby state
+    (`scan_association.MapAssociation.reassociate`).
 
     Attributes:
-        rows: (m,) the map points the association looked at (indices into the map).
+        rows: (m,) the map points inside the field-of-view window at the association's state (indices into the
+            map).
         S_inv: (m, 4, 4) their innovation covariances' inverses, at the association's state and covariance.
         j: (c,) each candidate's map point, an index into rows (ascending).
         i: (c,) each candidate's detection, an index into the scan's detections inside the window.
+        map_size, n_detections: the map's size and the number of the scan's detections inside the window then
+            (a re-association checks them before its kernels index with rows and i).
     """
 
     rows: np.ndarray
     S_inv: np.ndarray
     j: np.ndarray
     i: np.ndarray
+    map_size: int
+    n_detections: int
 
 
 def gate_threshold(prob: float = 0.95, dof: int = 4) -> float:

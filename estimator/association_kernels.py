@@ -1,9 +1,11 @@
-"""Compiled inner loops of the association (the per-scan hot path): the per-map-point preparation and the
-candidate search on a grid over the detections with the Mahalanobis distances of the candidates (the greedy
-one-to-one selection is in `matching_kernels`). `association.associate` is the public entry and documents the
-method.
+"""Compiled inner loops of the association (the per-scan hot path): the per-map-point preparation, the candidate
+search on a grid over the detections with the Mahalanobis distances of the candidates (the greedy one-to-one
+selection is in `matching_kernels`), and the re-association's scoring of those candidates at the solution with the
+chosen pairs' information there. `association.associate` is the public entry and documents the method;
+`scan_association.MapAssociation` is the odometry's.
 
-Checked by: tests/estimator/test_association.py (greedy against an all-pairs loop; gate statistics)
+Checked by: tests/estimator/test_association.py (greedy against an all-pairs loop; gate statistics),
+    tests/estimator/test_scan_association.py (the preparation and the re-association against the references)
 """
 
 from __future__ import annotations

@@ -4,8 +4,8 @@
 point the prediction, S = G P G^T + R + map term, its inverse and the search radius in one compiled pass
 (`association_kernels.prepare`; the NumPy reference is `measurements.predict` with
 `association.innovation_covariance` and `MeasurementModel.search_radius`) and matches as `association.match`
-does. `MapAssociation.reassociate` makes the association again at the solve's state from the candidates the
-first one gated (docs/estimator.md, step 5). A `ScanMeasurements` caches the scan's detection grid.
+does. `MapAssociation.reassociate` makes the association again at the solve's state from every candidate the
+first one scored (docs/estimator.md, step 5). A `ScanMeasurements` caches the scan's detection grid.
 
 Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference,
     ::test_association_window_is_the_same_for_map_points_and_detections,
@@ -150,7 +150,7 @@ class MapAssociation:
         if bad >= 0:
             raise FloatingPointError(f"association: map point {mi[j[chosen][bad]]} has a non positive definite "
                                      "R + map term")
-        return W, Association(mi[j[chosen]], di[i[chosen]], d2[chosen], len(jc), Candidates(mi, S_inv, jc, ic))
+        return W, Association(mi[j[chosen]], di[i[chosen]], d2[chosen], len(jc), Candidates(mi, S_inv, jc, ic, len(local_map), len(di)))
 
     def reassociate(self, x: State, local_map: LocalMap, scan: ScanMeasurements, pairs: Association):
         """The association `pairs` (this scan's with this map, from `associate`) made again at the state x, a
@@ -162,13 +162,17 @@ class MapAssociation:
         information, (R + map term)^-1, is taken at x as `associate` takes it (it holds the polar Jacobian and
         the Doppler row's velocity, which the solve moves by up to 12 % on city). Only detections outside a
         map point's search radius at the first state, or beyond its 16 nearest there, do not come back (the
-        radius holds the prediction's uncertainty). At the state `pairs` was made at, the result is `pairs`
-        itself, bit for bit. Accuracy and speed against a second association: docs/estimator.md, step 5.
+        radius holds the prediction's uncertainty), and the map points are those inside the field-of-view window
+        at the first state (a solve's step moves their angles by about a milliradian against the window's 3-sigma
+        margin). At the state `pairs` was made at, the result is `pairs` itself, bit for bit. Accuracy and speed
+        against a second association: docs/estimator.md, step 5.
         """
         c = pairs.candidates
         if c is None:
             return None, NO_PAIRS
-        di = scan.cache["di"]
+        di = scan.cache.get("di")
+        if di is None or len(di) != c.n_detections or len(local_map) != c.map_size:
+            raise ValueError("reassociate: pairs must come from `associate` with this scan and this map")
         d2, keep = np.empty(len(c.j)), np.empty(len(c.j), bool)
         kept = association_kernels.rescore(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points, c.rows,
                                            self.T_vehicle_sensor, scan.cache["z"], c.S_inv, c.j, c.i, self.gate, d2,

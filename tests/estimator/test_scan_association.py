@@ -153,10 +153,11 @@ def _greedy_reference(j, i, d2):
 @settings(max_examples=10)
 def test_reassociation_rescores_the_candidates_at_the_new_state(model, step):
     """`MapAssociation.reassociate` at a state moved by up to 0.2 m, 10 mrad, 0.5 m/s and 0.1 rad/s (a solve
-    moves it less; this much moves candidates across the gate): the first association's gated candidates scored
-    with `measurements.predict` at the new state and the S^-1 of the readable reference at the first, gated,
-    chosen one to one by a plain greedy loop, and each chosen pair's information (R + map term)^-1 at the new
-    state; at the first state, the first association itself, bit for bit."""
+    moves it less; this much moves candidates across the gate): every candidate the first association scored
+    (its pairs among them, and candidates outside the gate) scored with `measurements.predict` at the new state
+    and the S^-1 of the readable reference at the first, gated, chosen one to one by a plain greedy loop, and
+    each chosen pair's information (R + map term)^-1 at the new state; at the first state, the first association
+    itself, bit for bit; pairs of another scan refused."""
     from rodo.estimator import association
     from rodo.estimator.radar_geometry import wrap_angle
 
@@ -178,9 +179,14 @@ def test_reassociation_rescores_the_candidates_at_the_new_state(model, step):
     Smap_x = assoc.R + pred_x.J_z_p @ cov @ np.swapaxes(pred_x.J_z_p, 1, 2)
     S_inv = np.linalg.inv(association.innovation_covariance(pred_x, P[:12, :12], Smap_x, 0.0))[c.rows]
     np.testing.assert_allclose(c.S_inv, S_inv, rtol=1e-8, atol=1e-10 * np.abs(S_inv).max())
+    di = scan.cache["di"]
+    e_x = scan.z[di[c.i]] - pred_x.z[c.rows[c.j]]
+    if odo.measurement.is_polar:
+        e_x[:, 1] = wrap_angle(e_x[:, 1])
+    assert (np.einsum("ni,nij,nj->n", e_x, S_inv[c.j], e_x) > assoc.gate).any()  # not only the gated ones
+    assert set(zip(a0.map_idx, a0.det_idx)) <= set(zip(c.rows[c.j], di[c.i]))
     pred = measurements.predict(odo.config.measurement, y.T_vehicle_world, y.varpi, odo.map.points,
                                 odo.T_vehicle_sensor)
-    di = scan.cache["di"]
     e = scan.z[di[c.i]] - pred.z[c.rows[c.j]]
     if odo.measurement.is_polar:
         e[:, 1] = wrap_angle(e[:, 1])
@@ -194,3 +200,7 @@ def test_reassociation_rescores_the_candidates_at_the_new_state(model, step):
     W_ref = np.linalg.inv(Smap[got.map_idx])
     np.testing.assert_allclose(W, W_ref, rtol=1e-8, atol=1e-8 * np.abs(W_ref).max())
     assert got.n_candidates == len(c.j) and got.candidates is c
+    from rodo.estimator.scan_association import ScanMeasurements
+
+    with pytest.raises(ValueError, match="this scan"):
+        assoc.reassociate(y, odo.map, ScanMeasurements.of(scan.polar[:-1], odo.measurement), a0)
