@@ -150,7 +150,8 @@ class MapAssociation:
         if bad >= 0:
             raise FloatingPointError(f"association: map point {mi[j[chosen][bad]]} has a non positive definite "
                                      "R + map term")
-        return W, Association(mi[j[chosen]], di[i[chosen]], d2[chosen], len(jc), Candidates(mi, S_inv, jc, ic, len(local_map), len(di)))
+        candidates = Candidates(mi, S_inv, jc, ic, len(local_map), len(di))
+        return W, Association(mi[j[chosen]], di[i[chosen]], d2[chosen], len(jc), candidates)
 
     def reassociate(self, x: State, local_map: LocalMap, scan: ScanMeasurements, pairs: Association):
         """The association `pairs` (this scan's with this map, from `associate`) made again at the state x, a

@@ -16,16 +16,12 @@ from rodo.estimator.odometry import RadarOdometry
 from tests.estimator import scene
 
 
-@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
-def test_prepared_association_equals_the_reference(model):
-    """The odometry's compiled association (`association_kernels.prepare` + `association.match`, one KD-tree per
-    scan) gives the pairs, distances and solve information of the readable reference: `measurements.predict`,
-    `association.innovation_covariance` plus the map-point term, `association.associate`."""
-    from rodo.estimator import association_kernels as akernel
-    from rodo.estimator import association
+@functools.lru_cache(maxsize=4)
+def _scene_association(model, seed=5):
+    """An odometry seven scans into `scene`'s drive, the eighth scan and its association at the prediction."""
     from rodo.estimator.scan_association import ScanMeasurements
 
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     t, T, varpi, vd = scene.trajectory(8)
     L = scene.landmarks(rng)
     D = np.pi / 180
@@ -35,11 +31,24 @@ def test_prepared_association_equals_the_reference(model):
         odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
     x = odo.motion.predict(odo.window.newest, t[7])
     P = odo.P + np.diag(np.r_[np.full(6, 1e-4), np.full(6, 1e-2), np.zeros(odo.motion.dim - 12)])
-    polar = scene.measure(T[7], varpi[7], vd[7], L, rng)
+    scan = ScanMeasurements.of(scene.measure(T[7], varpi[7], vd[7], L, rng), odo.measurement)
+    W, pairs = odo.associator.associate(x, P, odo.map, scan)
+    return odo, x, P, scan, W, pairs
+
+
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+def test_prepared_association_equals_the_reference(model):
+    """The odometry's compiled association (`association_kernels.prepare`, the candidates on one grid per scan,
+    their one-to-one choice) gives the pairs, distances and solve information of the readable reference:
+    `measurements.predict`, `association.innovation_covariance` plus the map-point term, `association.associate`."""
+    from rodo.estimator import association_kernels as akernel
+    from rodo.estimator import association
+
+    odo, x, P, scan, W_pairs, got = _scene_association(model, 3)
+    polar = scan.polar
     z = measurements.to_model_space(odo.config.measurement, polar)
     pts = measurements.polar_to_cartesian(polar)
     assoc = odo.associator
-    W_pairs, got = assoc.associate(x, P, odo.map, ScanMeasurements.of(polar, odo.measurement))
 
     pred = measurements.predict(odo.config.measurement, x.T_vehicle_world, x.varpi, odo.map.points,
                                 odo.T_vehicle_sensor)
@@ -116,26 +125,6 @@ def test_compiled_map_window_equals_the_reference(fov, seed):
     akernel.window_points(points, T_sw, odo.associator.limits, inside)
     np.testing.assert_array_equal(inside, m_ref)
     assert fov is not None or inside.all()
-
-
-@functools.lru_cache(maxsize=2)
-def _scene_association(model):
-    """An odometry seven scans into `scene`'s drive, the eighth scan and its association at the prediction."""
-    from rodo.estimator.scan_association import ScanMeasurements
-
-    rng = np.random.default_rng(5)
-    t, T, varpi, vd = scene.trajectory(8)
-    L = scene.landmarks(rng)
-    D = np.pi / 180
-    odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0,
-                        fov=((-60 * D, 60 * D), (-15 * D, 15 * D)))
-    for k in range(7):
-        odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
-    x = odo.motion.predict(odo.window.newest, t[7])
-    P = odo.P + np.diag(np.r_[np.full(6, 1e-4), np.full(6, 1e-2), np.zeros(odo.motion.dim - 12)])
-    scan = ScanMeasurements.of(scene.measure(T[7], varpi[7], vd[7], L, rng), odo.measurement)
-    W, pairs = odo.associator.associate(x, P, odo.map, scan)
-    return odo, x, P, scan, W, pairs
 
 
 def _greedy_reference(j, i, d2):

@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.stats import chi2
 
@@ -136,6 +136,7 @@ def test_fit_tau_takes_the_grid_point_nearest_consistency(city_run):
 
 
 @given(a=st.floats(0.2, 5.0), b=st.floats(0.0, 0.3), d=st.floats(0.0, 2.0), seed=st.integers(0, 2**16))
+@example(a=1.794498157570615, b=0.0, d=0.5264036804350504, seed=244)
 @settings(max_examples=15, deadline=None)
 def test_velocity_inflation_recovers_a_known_factor(a, b, d, seed):
     """Velocity errors drawn from N(0, (a + b |nu| + d ln(1 + nis)) P_v), P_v random per scan, speeds 0-20 m/s,
@@ -168,10 +169,12 @@ def test_velocity_inflation_recovers_a_known_factor(a, b, d, seed):
     scaled = cc.velocity_inflated_states(states, fit["inflation"], fit["per_speed"], fit["per_doppler"])
     c_fit = fit["inflation"] + fit["per_speed"] * speed + fit["per_doppler"] * np.log1p(np.nan_to_num(nis))
     np.testing.assert_allclose(scaled["P"][:, 6:12, 6:12], c_fit[:, None, None] * P[:, 6:12, 6:12])
-    # from states that already carry factors, the same fit: it is relative to the window's covariance
+    # from states that already carry factors, the same fit: it is relative to the window's covariance (the same
+    # factor on every scan to the optimiser's tolerance; a coefficient near its bound 0 may differ by more than
+    # 1e-6 of itself, seed 244 below: 2.6e-9 in b = 0.0016)
     again = cc.fit_velocity_inflation(scaled, {"t": t, "varpi": varpi + e})
-    for key in ("inflation", "per_speed", "per_doppler"):
-        assert again[key] == pytest.approx(fit[key], rel=1e-6, abs=1e-9)
+    c_again = again["inflation"] + again["per_speed"] * speed + again["per_doppler"] * np.log1p(np.nan_to_num(nis))
+    np.testing.assert_allclose(c_again, c_fit, rtol=1e-6)
     # without the Doppler NIS (a run before it) the Doppler term cannot be learned, and is 0
     plain = cc.fit_velocity_inflation({"t": t, "varpi": varpi, "P": P}, {"t": t, "varpi": varpi + e})
     assert plain["per_doppler"] == 0.0
