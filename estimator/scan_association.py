@@ -158,15 +158,15 @@ class MapAssociation:
         solve away from the state it was made at: (W, Association) as `associate` gives them.
 
         Its candidates (each map point's 16 nearest detections inside its search radius, gated or not) are
-        scored again with the map points' predictions at x and the S^-1 they were gated with (the same P; S's
-        Jacobians moved by the solve's step, ~1e-3 relatively), gated and chosen one to one; each chosen pair's
-        information, (R + map term)^-1, is taken at x as `associate` takes it (it holds the polar Jacobian and
-        the Doppler row's velocity, which the solve moves by up to 12 % on city). Only detections outside a
-        map point's search radius at the first state, or beyond its 16 nearest there, do not come back (the
-        radius holds the prediction's uncertainty), and the map points are those inside the field-of-view window
-        at the first state (a solve's step moves their angles by about a milliradian against the window's 3-sigma
-        margin). At the state `pairs` was made at, the result is `pairs` itself, bit for bit. Accuracy and speed
-        against a second association: docs/estimator.md, step 5.
+        scored again with the map points' predictions at x and the S^-1 they were gated with (the same P; with
+        S formed at x a pair's d2 differs by at most a few per cent on city), gated and chosen one to one; each
+        chosen pair's information, (R + map term)^-1, is taken at x as `associate` takes it (it holds the polar
+        Jacobian and the Doppler row's velocity, which the solve moves by up to 12 % on city). Only detections
+        outside a map point's search radius at the first state, or beyond its 16 nearest there, do not come
+        back (the radius holds the prediction's uncertainty), and the map points are those inside the
+        field-of-view window at the first state (a solve's step moves their angles by about a milliradian
+        against the window's 3-sigma margin). At the state `pairs` was made at, the result is `pairs` itself,
+        bit for bit. Accuracy and speed against a second association: docs/estimator.md, step 5.
         """
         c = pairs.candidates
         if c is None:
