@@ -126,10 +126,14 @@ def innovation_covariance(pred: Prediction, P_pose_vel, R, map_sigma: float = 0.
     return 0.5 * (S + np.swapaxes(S, 1, 2))
 
 
-def one_to_one(j: np.ndarray, i: np.ndarray, d2: np.ndarray, m: int, n: int) -> np.ndarray:
-    """Mask of the gated pairs (j, i, d2) chosen greedily by smallest d2 (ties: smaller j, then i), each of the m
-    map points and n detections used at most once."""
-    return matching_kernels.greedy_one_to_one(matching_kernels.order_by_d2(j, i, d2, n), j, i, m, n)
+def choose(j: np.ndarray, i: np.ndarray, d2: np.ndarray, gate: float, m: int, n: int):
+    """The candidate pairs (j, i, d2) inside the gate, chosen greedily by smallest d2 (ties: smaller j, then i),
+    each of the m map points and n detections used at most once: (j, i, d2) of the chosen, in the candidates'
+    order (j ascending when the candidates come map point by map point)."""
+    inside = d2 <= gate
+    j, i, d2 = j[inside], i[inside], d2[inside]
+    chosen = matching_kernels.greedy_one_to_one(matching_kernels.order_by_d2(j, i, d2, n), j, i, m, n)
+    return j[chosen], i[chosen], d2[chosen]
 
 
 def associate(model: str | MeasurementModel, z_meas, det_points_sensor, pred: Prediction, S, gate: float,
@@ -220,10 +224,7 @@ def match(model: MeasurementModel, z_meas: np.ndarray, grid: DetectionGrid, z_pr
         tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference
     """
     j, i, d2 = candidates(model, z_meas, grid, z_pred, p_sensor, S_inv, radius, max_candidates)
-    inside = d2 <= gate
-    j, i, d2 = j[inside], i[inside], d2[inside]
-    chosen = one_to_one(j, i, d2, len(z_pred), grid.n)
-    return Association(j[chosen], i[chosen], d2[chosen], len(inside))  # j ascending: written point by point
+    return Association(*choose(j, i, d2, gate, len(z_pred), grid.n), len(j))
 
 
 def candidates(model: MeasurementModel, z_meas: np.ndarray, grid: DetectionGrid, z_pred: np.ndarray,

@@ -69,6 +69,16 @@ def _inv_spd4(S, out, L, Li):
 
 
 @njit(cache=True, inline="always")
+def sensor_from_world(Cvs, C):
+    """B (3, 3) = C_vs^T C: a map point's sensor-frame position's derivative by its world position."""
+    B = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            B[i, j] = Cvs[0, i] * C[0, j] + Cvs[1, i] * C[1, j] + Cvs[2, i] * C[2, j]
+    return B
+
+
+@njit(cache=True, inline="always")
 def pair_covariance(Js, am, B, C, cov, map_var, R, Jp, Pc, JC, out):
     """out (4, 4) = R + J_z_p (cov + map_var I) J_z_p^T, a pair's covariance without the state's part (its
     inverse is the pair's information in the solve), from `point_model`'s Js and am, B = C_vs^T C and the
@@ -117,10 +127,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
     G = np.zeros((4, 12))
     Jp = np.zeros((4, 3))
     A = np.empty((3, 6))
-    B = np.empty((3, 3))  # dp_s/dp_world = C_vs^T C
-    for i in range(3):
-        for j in range(3):
-            B[i, j] = Cvs[0, i] * C[0, j] + Cvs[1, i] * C[1, j] + Cvs[2, i] * C[2, j]
+    B = sensor_from_world(Cvs, C)  # dp_s/dp_world
     GP = np.empty((4, 6))
     SG = np.empty((4, 4))
     h = np.empty(12)
@@ -221,10 +228,7 @@ def pair_information(polar, T, varpi, p_world, cov_world, rows, map_var, R, Tvs,
     Checked by: tests/estimator/test_scan_association.py::test_reassociation_rescores_the_candidates_at_the_new_state
     """
     C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
-    B = np.empty((3, 3))  # dp_s/dp_world = C_vs^T C
-    for i in range(3):
-        for j in range(3):
-            B[i, j] = Cvs[0, i] * C[0, j] + Cvs[1, i] * C[1, j] + Cvs[2, i] * C[2, j]
+    B = sensor_from_world(Cvs, C)  # dp_s/dp_world
     G, A, Js, am = np.zeros((4, 12)), np.empty((3, 6)), np.empty((3, 3)), np.empty((2, 3))
     zp, ps = np.empty(4), np.empty(3)
     Jp, Pc, JC, Sp = np.zeros((4, 3)), np.empty((3, 3)), np.empty((4, 3)), np.empty((4, 4))
@@ -239,29 +243,26 @@ def pair_information(polar, T, varpi, p_world, cov_world, rows, map_var, R, Tvs,
 
 
 @njit(cache=True)
-def rescore(polar, T, varpi, p_world, rows, Tvs, z_meas, S_inv, j, i, gate, d2, keep):
+def rescore(polar, T, varpi, p_world, rows, Tvs, z_meas, S_inv, j, i, d2):
     """An association's candidate pairs (map point p_world[rows[j[q]]], detection z_meas[i[q]]; j ascending)
     scored again at the state (T, varpi) with the S_inv they were gated with: d2[q] = e^T S_inv[j[q]] e, e the
-    detection minus the map point's prediction (`point_model`, the azimuth wrapped), keep[q] = d2[q] <= gate.
-    Returns the number kept, or -1 - j[q] for the first map point at the sensor origin.
+    detection minus the map point's prediction (`point_model`, the azimuth wrapped). Returns -1, or j[q] for the
+    first map point at the sensor origin.
 
     Checked by: tests/estimator/test_scan_association.py::test_reassociation_rescores_the_candidates_at_the_new_state
     """
     C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
     G, A, Js, am = np.zeros((4, 12)), np.empty((3, 6)), np.empty((3, 3)), np.empty((2, 3))
     zp, ps, e = np.empty(4), np.empty(3), np.empty(4)
-    last, kept = -1, 0
+    last = -1
     for q in range(j.shape[0]):
         a = j[q]
         if a != last:  # the candidates come map point by map point: one prediction each
             if point_model(polar, C, t, Cvs, rvs, nu, om, p_world[rows[a]], A, G, zp, Js, am, ps) == 0.0:
-                return -1 - a
+                return a
             last = a
-        s = residual_d2(polar, z_meas[i[q]], zp, S_inv[a], e)
-        d2[q] = s
-        keep[q] = s <= gate
-        kept += s <= gate
-    return kept
+        d2[q] = residual_d2(polar, z_meas[i[q]], zp, S_inv[a], e)
+    return -1
 
 
 @njit(cache=True)

@@ -246,13 +246,13 @@ class RadarOdometry:
         if len(new.map_idx) < RECOVERED_PAIRS * n:
             return W_pairs, pairs
         self.window.replace_newest(y)
-        self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_new, new, scan))
+        self._set_newest_pairs(W_new, new, scan)
         events.append("doppler-recentred")
         return W_new, new
 
     def _associate(self, x: State, P: np.ndarray, scan: ScanMeasurements):
         W_pairs, pairs = self.associator.associate(x, P, self.map, scan)
-        self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_pairs, pairs, scan))
+        self._set_newest_pairs(W_pairs, pairs, scan)
         return W_pairs, pairs
 
     def _solve(self, scan: ScanMeasurements, W_pairs, pairs, timings: dict):
@@ -266,7 +266,7 @@ class RadarOdometry:
                 break
             tic = time.perf_counter()
             W_pairs, pairs = self.associator.reassociate(self.window.newest, self.map, scan, pairs)
-            self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_pairs, pairs, scan))
+            self._set_newest_pairs(W_pairs, pairs, scan)
             elapsed = time.perf_counter() - tic
             timings["associate"] += elapsed
             timings["reassociate"] = timings.get("reassociate", 0.0) + elapsed
@@ -357,6 +357,10 @@ class RadarOdometry:
     def _point_covariances(self, z: np.ndarray, C: np.ndarray) -> np.ndarray:
         """World-frame covariance of new map points from detections z (C: world from sensor), model's noise."""
         return self.measurement.world_position_covariance(z, self.sigmas, self.config.noise.cartesian_sigma, C)
+
+    def _set_newest_pairs(self, W_pairs, pairs, scan: ScanMeasurements) -> None:
+        """The pairs (their information W_pairs) the newest state is solved with."""
+        self.window.set_measurements(len(self.window.states) - 1, self._measurement_set(W_pairs, pairs, scan))
 
     def _measurement_set(self, W_pairs, pairs, scan: ScanMeasurements) -> MeasurementSet | None:
         if W_pairs is None or len(pairs.map_idx) == 0:

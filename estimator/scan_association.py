@@ -142,16 +142,14 @@ class MapAssociation:
         di = cache["di"]
         jc, ic, d2 = association.candidates(self.model, cache["z"], cache["grid"], zp, p_s, S_inv,
                                             np.minimum(radius, self.max_radius))
-        inside = d2 <= self.gate
-        j, i, d2 = jc[inside], ic[inside], d2[inside]
-        chosen = association.one_to_one(j, i, d2, m, len(di))
-        W = np.empty((int(chosen.sum()), 4, 4))
-        bad = association_kernels.invert_pairs(S_pair, j[chosen], W)
+        j, i, d2 = association.choose(jc, ic, d2, self.gate, m, len(di))
+        W = np.empty((len(j), 4, 4))
+        bad = association_kernels.invert_pairs(S_pair, j, W)
         if bad >= 0:
-            raise FloatingPointError(f"association: map point {mi[j[chosen][bad]]} has a non positive definite "
+            raise FloatingPointError(f"association: map point {mi[j[bad]]} has a non positive definite "
                                      "R + map term")
         candidates = Candidates(mi, S_inv, jc, ic, len(local_map), len(di))
-        return W, Association(mi[j[chosen]], di[i[chosen]], d2[chosen], len(jc), candidates)
+        return W, Association(mi[j], di[i], d2, len(jc), candidates)
 
     def reassociate(self, x: State, local_map: LocalMap, scan: ScanMeasurements, pairs: Association):
         """The association `pairs` (this scan's with this map, from `associate`) made again at the state x, a
@@ -174,15 +172,13 @@ class MapAssociation:
         di = scan.cache.get("di")
         if di is None or len(di) != c.n_detections or len(local_map) != c.map_size:
             raise ValueError("reassociate: pairs must come from `associate` with this scan and this map")
-        d2, keep = np.empty(len(c.j)), np.empty(len(c.j), bool)
-        kept = association_kernels.rescore(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points, c.rows,
-                                           self.T_vehicle_sensor, scan.cache["z"], c.S_inv, c.j, c.i, self.gate, d2,
-                                           keep)
-        if kept < 0:
-            raise FloatingPointError(f"association: map point {c.rows[-1 - kept]} has range 0")
-        j, i, d2 = c.j[keep], c.i[keep], d2[keep]
-        chosen = association.one_to_one(j, i, d2, len(c.rows), len(di))
-        rows = c.rows[j[chosen]]
+        d2 = np.empty(len(c.j))
+        bad = association_kernels.rescore(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points, c.rows,
+                                          self.T_vehicle_sensor, scan.cache["z"], c.S_inv, c.j, c.i, d2)
+        if bad >= 0:
+            raise FloatingPointError(f"association: map point {c.rows[bad]} has range 0")
+        j, i, d2 = association.choose(c.j, c.i, d2, self.gate, len(c.rows), len(di))
+        rows = c.rows[j]
         W = np.empty((len(rows), 4, 4))
         bad = association_kernels.pair_information(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points,
                                                    local_map.covariances, rows, self.map_sigma**2, self.R,
@@ -190,4 +186,4 @@ class MapAssociation:
         if bad >= 0:
             raise FloatingPointError(f"association: map point {rows[bad % len(rows)]} has "
                                      + ("range 0" if bad < len(rows) else "a non positive definite R + map term"))
-        return W, Association(rows, di[i[chosen]], d2[chosen], len(c.j), c)
+        return W, Association(rows, di[i], d2, len(c.j), c)
