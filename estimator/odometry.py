@@ -42,7 +42,7 @@ from .scan_association import MapAssociation, ScanMeasurements
 from .sensor import Sensor
 from .state import State
 from .surface import surface_covariances
-from .uncertainty import DriftCovariance, relative_pose_covariance, revision_covariance, velocity_inflated
+from .uncertainty import DriftCovariance, scan_relative_covariances, velocity_inflated
 from .window import MeasurementSet, SlidingWindow
 
 LOST_PAIRS = 0.1  # share of the static detections paired below which the gates lost the scan (_recentre)
@@ -285,8 +285,7 @@ class RadarOdometry:
             return None if self.restart_relative is None else (self.restart_relative, np.zeros((6, 6)))
         prev, new = self.window.states[-2].T_vehicle_world, self.window.states[-1].T_vehicle_world
         solved = getattr(self.last_estimate, "t", None) == self.window.states[-2].t  # emitted as solved
-        return (relative_pose_covariance(P_pair, prev, new, self.motion.dim),
-                revision_covariance(P_emitted, P_pair, prev, new) if solved else np.zeros((6, 6)))
+        return scan_relative_covariances(P_pair, P_emitted, prev, new, self.motion.dim, solved)
 
     def _with_uncertainty(self, est: ScanEstimate, P_relative, reuse: float) -> ScanEstimate:
         """The estimate with relative and absolute pose covariances, its velocity variance scaled (`uncertainty`)."""

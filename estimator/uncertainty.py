@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from .lie import se3
+from .uncertainty_kernels import drift_step, relative_covariances
 
 
 def relative_pose_covariance(P_pair: np.ndarray, T_prev: np.ndarray, T_new: np.ndarray, dim: int) -> np.ndarray:
@@ -70,6 +71,18 @@ def revision_covariance(P_prev_emitted: np.ndarray, P_prev_now: np.ndarray, T_pr
     w, V = np.linalg.eigh(0.5 * (D + D.T))
     R = Ad @ ((V * np.maximum(w, 0.0)) @ V.T) @ Ad.T
     return 0.5 * (R + R.T)
+
+
+def scan_relative_covariances(P_pair: np.ndarray, P_emitted: np.ndarray | None, T_prev: np.ndarray,
+                              T_new: np.ndarray, dim: int, solved: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(`relative_pose_covariance`, `revision_covariance` if the previous pose was emitted as solved, else zeros) of
+    one scan from one compiled call (`uncertainty_kernels.relative_covariances`; equal to the two to rounding):
+    the odometry's per-scan pair."""
+    rel, rev = np.empty((6, 6)), np.empty((6, 6))
+    P_pair = _matrix(P_pair, 2 * dim)
+    relative_covariances(P_pair, P_pair if P_emitted is None else np.ascontiguousarray(P_emitted, dtype=float),
+                         _pose(T_prev), _pose(T_new), int(dim), bool(solved), rel, rev)
+    return rel, rev
 
 
 def velocity_inflated(P: np.ndarray, varpi: np.ndarray, inflation: float, per_speed: float, per_doppler: float = 0.0,
@@ -165,9 +178,21 @@ class DriftCovariance:
         self.C = _initial(P_pose0, P_varpi0, self.tau, drift_rate_sigma)
 
     def update(self, T_prev, T_new, dt: float, Sigma_rel: np.ndarray, P_varpi: np.ndarray) -> np.ndarray:
-        """Advance by one scan; returns the new absolute pose covariance (6, 6)."""
-        self.C = _step(self.C, T_prev, T_new, dt, Sigma_rel, P_varpi, self.tau)
-        return self.C[:6, :6].copy()
+        """Advance by one scan (`_step`, compiled: `uncertainty_kernels.drift_step`); returns the new absolute
+        pose covariance (6, 6)."""
+        C = np.empty((18, 18))
+        drift_step(self.C, _pose(T_prev), _pose(T_new), float(dt), _matrix(Sigma_rel, 6), _matrix(P_varpi, 6),
+                   self.tau, C)
+        self.C = C
+        return C[:6, :6].copy()
+
+
+def _pose(T) -> np.ndarray:
+    return np.ascontiguousarray(T, dtype=float).reshape(4, 4)
+
+
+def _matrix(A, n: int) -> np.ndarray:
+    return np.ascontiguousarray(A, dtype=float).reshape(n, n)
 
 
 def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, start: int,
