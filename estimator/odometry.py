@@ -260,7 +260,8 @@ class RadarOdometry:
         newest covariance, then marginalisation of the states beyond the window. The re-association's time counts
         as association."""
         cfg, solver = self.config, self.config.solver
-        self.window.optimize(solver.iterations, solver.step_tolerance, solver.step_sigma_tolerance)
+        self.window.optimize(solver.iterations, solver.step_tolerance, solver.step_sigma_tolerance,
+                             reweight=solver.reweight_older)
         for _ in range(cfg.association.reassociate):
             if W_pairs is None:
                 break

@@ -36,7 +36,7 @@ UNITS = {
     "map.capacity": "points", "map.max_age": "scans", "map.voxel": "m", "map.fuse": "true/false",
     "map.max_fused": "observations",
     "solver.iterations": "steps", "solver.step_tolerance": "m, rad, m/s, ...", "solver.step_sigma_tolerance": "posterior sigmas", "solver.refine_iterations": "steps",
-    "solver.relinearize_older": "true/false",
+    "solver.relinearize_older": "true/false", "solver.reweight_older": "true/false",
     "solver.robust_c": "whitened units", "solver.init_velocity_sigma": "m/s",
     "solver.init_rate_sigma": "rad/s", "solver.init_accel_sigma": "m/s^2", "solver.init_angular_accel_sigma": "rad/s^2",
     "outage.reinit_after": "s", "uncertainty.inflation": "factor", "uncertainty.measurement_inflation": "factor",

@@ -364,3 +364,44 @@ def test_the_newest_state_is_solved_with_the_reassociated_pairs(monkeypatch, tim
             np.testing.assert_array_equal(mset.W, W)
             np.testing.assert_array_equal(mset.p_world, p)
             np.testing.assert_array_equal(mset.z, z)
+
+
+@pytest.mark.parametrize("reweight", [True, False])
+def test_older_states_keep_their_terms_across_scans_unless_reweighted(monkeypatch, reweight):
+    """`solver.reweight_older`: true (the default) re-weights and re-linearises every state's pairs at each scan's
+    first solve; false linearises a state's pairs afresh in its own scan and the next only (where its robust
+    weights are set for good), and takes them from that linearisation's quadratic model after: each scan's first
+    linearisation is then fresh for the two newest states alone, and an older set keeps its weights, the same
+    array with the same values. Both follow the truth on a noisy scene."""
+    from rodo.estimator import window_kernels
+
+    calls = []
+    normal_equations = window_kernels.normal_equations
+
+    def spy(*args):
+        n, ks, slot = len(args[6]), args[15], args[16]
+        calls.append((n, sorted(int(n - 1 - k) for k in ks[slot >= 0])))  # ages of the fresh states (0: newest)
+        return normal_equations(*args)
+
+    monkeypatch.setattr(window_kernels, "normal_equations", spy)
+    rng = np.random.default_rng(3)
+    t, T, varpi, vd = scene.trajectory(16)
+    L = scene.landmarks(rng)
+    config = OdometryConfig.from_dict({"model": "ca-polar", "solver": {"reweight_older": reweight}})
+    odo = RadarOdometry(config, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+    seen = {}  # id(set) -> (set, its weights array, a copy of their values) when it was last an older state's
+    for k in range(len(t)):
+        calls.clear()
+        est = odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
+        n, fresh = calls[0]
+        if k >= 6:  # a full window: every state has pairs
+            assert n == odo.config.window + 1
+            assert fresh == (list(range(n)) if reweight else [0, 1]), (k, fresh)
+            for m in odo.window.meas[:-2]:
+                if id(m) in seen:
+                    same = m.weights is seen[id(m)][1] and np.array_equal(m.weights, seen[id(m)][2])
+                    assert same != reweight, k
+        seen = {id(m): (m, m.weights, m.weights.copy()) for m in odo.window.meas[:-1] if m is not None}
+    Tgt = T[-1] @ se3.inverse(T[0])
+    err = se3.log(est.T_vehicle_world @ se3.inverse(Tgt))
+    assert np.linalg.norm(err[:3]) < 0.05 and np.linalg.norm(err[3:]) < 5e-3, err
