@@ -62,16 +62,16 @@ PROBABILITY = Rule(0.0, 1.0, lo_closed=False, hi_closed=False)
 RULES: dict[str, Rule] = {
     "window": Rule(2, 1000),
     "seed": Rule(0, 2**63 - 1),
-    "noise.qc_ca": Rule(0.0, lo_closed=False, size=6),
-    "noise.qc_cv": Rule(0.0, lo_closed=False, size=6),
+    "noise.qc_ca": Rule(1e-20, 1e8, size=6),  # wider: Q_k underflows or overflows (calibrate fits within)
+    "noise.qc_cv": Rule(1e-20, 1e8, size=6),
     "noise.cartesian_sigma": POSITIVE,
     "noise.map_sigma_polar": NONNEGATIVE,
     "noise.map_sigma_cartesian": NONNEGATIVE,
-    "noise.sensor_sigma_scale": POSITIVE,
-    "noise.sensor_sigma_scales": Rule(0.0, lo_closed=False, size=4),
-    "noise.sigma_floor": Rule(0.0, lo_closed=False, size=4),
+    "noise.sensor_sigma_scale": Rule(0.0, 1e3, lo_closed=False),
+    "noise.sensor_sigma_scales": Rule(0.0, 1e3, lo_closed=False, size=4),
+    "noise.sigma_floor": Rule(0.0, 1e3, lo_closed=False, size=4),
     "noise.doppler_common_sigma": NONNEGATIVE,
-    "noise.min_prior_dt": NONNEGATIVE,
+    "noise.min_prior_dt": Rule(0.0, 1.0),  # s: a floor on the scan interval, not a time in ms
     "association.gate_probability": PROBABILITY,
     "association.max_radius": POSITIVE,
     "association.doppler_sigma_floor": NONNEGATIVE,

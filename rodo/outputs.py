@@ -3,6 +3,11 @@
 - `check_output_file(path, option)`: an InputError naming the option unless `path` can be written: it is not a
   directory, its directory exists, and a file can be created there (probed by creating and removing one, which
   also catches read-only file systems, where permission bits say nothing to root).
+- `check_output_dir(path, option)`: the same for an output directory (created unless told not to); one that does
+  not exist yet is probed in its nearest existing parent.
+- `check_not_input(path, option, inputs)`: an InputError unless the output file `path` is none of the command's
+  input files (`sequence_inputs(dir)`: a sequence's or a rig's files), so an output never overwrites what it is
+  made from, or another output of the same command.
 - `write_text_atomic(path, text)`: `rodo.sim.sequence.atomic_write_bytes` of the UTF-8 text: a uniquely named
   temporary file in the target directory (O_EXCL, no symlink followed), fsync, rename; the temporary file is
   removed on any failure; the file gets 0666 less the umask, as from open().
@@ -36,13 +41,63 @@ def check_output_file(path, option: str, parents: bool = False) -> Path:
     if not parent.is_dir():
         what = "is not a directory" if parent.exists() else "does not exist"
         raise InputError(f"{option}: cannot write {out}: {parent} {what}")
+    _probe(parent, option, out)
+    return out
+
+
+def _probe(directory: Path, option: str, target: Path) -> None:
     try:
-        fd, probe = tempfile.mkstemp(dir=parent, prefix=f".{out.name}.", suffix=".probe")
+        fd, probe = tempfile.mkstemp(dir=directory, prefix=f".{target.name}.", suffix=".probe")
     except OSError as exc:
-        raise InputError(f"{option}: cannot write {out}: directory {parent} is not writable "
+        raise InputError(f"{option}: cannot write {target}: directory {directory} is not writable "
                          f"({exc.strerror or exc})") from None
     os.close(fd)
     os.unlink(probe)
+
+
+def check_output_dir(path, option: str = "--out", create: bool = True) -> Path:
+    """The output directory `path` (created with its parents when `create`), or an InputError naming `option`: it
+    is not a file, nor below one, and a file can be written in it (or, not yet created, in its nearest existing
+    parent). Checked before the work, so a bad directory fails early, not after."""
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{option}: {out} exists and is not a directory")
+    parent = out
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(f"{option}: cannot create {out} ({parent} is not a directory)")
+    _probe(parent, option, out)
+    if create and not out.exists():
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise InputError(f"{option}: cannot create {out} ({exc.strerror or exc})") from None
+    return out
+
+
+def sequence_inputs(seq_dir) -> list[Path]:
+    """The input files of a sequence directory, or of a rig (rig.toml and each radar's sequence files)."""
+    from rodo.sim.rig import RIG_TOML
+    from rodo.sim.sequence import GROUNDTRUTH_TXT, RADAR_CSV, SENSOR_TOML
+    from rodo.sim.simulate import TRUTH_NPZ
+
+    root = Path(seq_dir)
+    names = (RADAR_CSV, SENSOR_TOML, GROUNDTRUTH_TXT, TRUTH_NPZ, RIG_TOML)
+    dirs = [root] + ([d for d in root.iterdir() if d.is_dir()] if (root / RIG_TOML).is_file() else [])
+    return [d / name for d in dirs for name in names]
+
+
+def check_not_input(path, option: str, inputs) -> Path:
+    """The output file `path`, or an InputError naming `option` if it is one of `inputs`, the command's input
+    files and its other outputs (the same path after resolving links and relative paths)."""
+    out = Path(path)
+    target = out.resolve()
+    for given in inputs:
+        if Path(given).resolve() == target:
+            same = "" if Path(given) == out else f" (the same file as {given})"
+            raise InputError(f"{option}: {out}{same} is a file this command reads or writes itself, which it would "
+                             "overwrite; give another file name")
     return out
 
 

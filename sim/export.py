@@ -41,6 +41,22 @@ def _mkdir(path: Path) -> Path:
     return path
 
 
+def _remove_stale(directory: Path, suffix: str, written: set[str]) -> None:
+    """Remove the files of an earlier export in `directory` (NNNNNN`suffix`, six digits) that this one did not
+    write: a scan directory holds one drive, not the tail of another."""
+    for path in directory.glob(f"*{suffix}"):
+        stem = path.name[:-len(suffix)]
+        if len(stem) == 6 and stem.isdigit() and path.name not in written:
+            _unlink(path)
+
+
+def _unlink(path: Path) -> None:
+    try:
+        path.unlink(missing_ok=True)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot remove the earlier export's file ({exc.strerror or exc})") from None
+
+
 def ply_bytes(columns: dict[str, np.ndarray]) -> bytes:
     """A binary little-endian PLY with one `vertex` element whose properties are `columns` (name -> (n,)
     array, in order; x, y, z first for point-cloud readers). Types follow the arrays' dtypes (PLY_TYPES)."""
@@ -120,7 +136,10 @@ def export_ply(seq: Sequence, out_dir, trajectory: Trajectory | None = None, whe
     scans_dir = _mkdir(out / "scans")
     for scan in seq.scans:
         _atomic_write(scans_dir / f"{scan.scan:06d}.ply", ply_bytes(scan_columns(scan)))
+    _remove_stale(scans_dir, ".ply", {f"{scan.scan:06d}.ply" for scan in seq.scans})
     map_path = None
+    if T_world_vehicle is None:
+        _unlink(out / "map.ply")  # an earlier export's map is not this drive's
     if T_world_vehicle is not None:
         T_world_sensor = T_world_vehicle @ seq.sensor.T_vehicle_sensor
         parts = [scan_columns(s, T) for s, T in zip(seq.scans, T_world_sensor)]
@@ -169,6 +188,7 @@ def export_kitti(seq: Sequence, out_dir, intensity: str | None = None) -> dict:
         i = np.zeros(len(scan)) if intensity is None else (
             scan.radial_velocity if intensity == "radial_velocity" else scan.extra[intensity])
         _atomic_write(velodyne / f"{k:06d}.bin", np.c_[p, i].astype("<f4").tobytes())
+    _remove_stale(velodyne, ".bin", {f"{k:06d}.bin" for k in range(len(seq.scans))})
     _atomic_write(seq_dir / "times.txt", "".join(f"{s.t:.9e}\n" for s in seq.scans).encode("ascii"))
     _atomic_write(seq_dir / "calib.txt", b"Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
     poses = None
@@ -181,5 +201,7 @@ def export_kitti(seq: Sequence, out_dir, intensity: str | None = None) -> dict:
             poses = _mkdir(Path(out_dir) / "poses") / f"{KITTI_SEQUENCE}.txt"
             rows = kitti_pose_rows(T_world_vehicle @ seq.sensor.T_vehicle_sensor)
             _atomic_write(poses, rows.encode("ascii"))
+    if poses is None:
+        _unlink(Path(out_dir) / "poses" / f"{KITTI_SEQUENCE}.txt")  # an earlier export's poses are not this drive's
     return {"scans": len(seq.scans), "points": sum(len(s) for s in seq.scans), "poses": poses,
             "intensity": intensity}

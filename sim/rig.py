@@ -24,7 +24,7 @@ from rodo.estimator.tomlcompat import tomllib
 
 from ._seqio import SequenceFormatError, atomic_write_bytes, read_text
 from .sensor_geometry import DEG, mount
-from .sequence import GROUNDTRUTH_TXT, read_sequence, read_tum, write_sequence
+from .sequence import GROUNDTRUTH_TXT, check_one_layout, read_sequence, read_tum, write_sequence
 from .sequence_types import RadarScan, Sequence, Trajectory
 from .tum import format_tum
 
@@ -57,7 +57,11 @@ class Rig:
 
 
 def is_rig(path) -> bool:
-    return (Path(path) / RIG_TOML).is_file()
+    """Whether `path` is a rig directory (rig.toml); InputError if it is a single sequence too."""
+    if (Path(path) / RIG_TOML).is_file():
+        check_one_layout(Path(path))
+        return True
+    return False
 
 
 def _names(path: Path, text: str) -> list[str]:

@@ -36,7 +36,8 @@ GROUNDTRUTH_TXT = "groundtruth.txt"
 
 __all__ = [
     "GROUNDTRUTH_TXT", "RADAR_CSV", "SENSOR_TOML", "NoiseSigmas", "RadarScan", "SensorConfig", "Sequence",
-    "SequenceFormatError", "atomic_write_bytes", "Trajectory", "cache_path", "polar_to_cartesian", "read_radar_csv",
+    "SequenceFormatError", "atomic_write_bytes", "Trajectory", "cache_path", "check_one_layout", "polar_to_cartesian",
+    "read_radar_csv",
     "read_sensor_config", "read_sequence", "read_tum", "write_sensor_config", "write_sequence", "write_tum",
 ]
 
@@ -63,6 +64,7 @@ def read_sequence(path, *, use_cache: bool = True) -> Sequence:
     path = Path(path)
     if not path.is_dir():
         raise SequenceFormatError(path, "not a sequence directory (expected radar.csv and sensor.toml in it)")
+    check_one_layout(path)
     sensor = read_sensor_config(path / SENSOR_TOML)
     scans = read_radar_csv(path / RADAR_CSV, use_cache=use_cache)
     gt_path = path / GROUNDTRUTH_TXT
@@ -70,6 +72,14 @@ def read_sequence(path, *, use_cache: bool = True) -> Sequence:
     if groundtruth is not None and scans and len(groundtruth.t):
         _check_time_bases(path, scans[0].t, scans[-1].t, float(groundtruth.t[0]), float(groundtruth.t[-1]))
     return Sequence(sensor=sensor, scans=scans, groundtruth=groundtruth)
+
+
+def check_one_layout(path: Path) -> None:
+    """InputError unless the directory is one sequence (radar.csv) or one rig (rig.toml), not both: which one a
+    command reads would otherwise depend on the command."""
+    if (path / "rig.toml").is_file() and (path / RADAR_CSV).is_file():
+        raise InputError(f"{path}: holds both a rig (rig.toml) and a single sequence ({RADAR_CSV}); keep one per "
+                         "directory")
 
 
 TIME_BASE_TOLERANCE = 1e-3  # s, as validation.association.DEFAULT_TOLERANCE

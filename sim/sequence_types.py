@@ -29,6 +29,10 @@ def _number(name: str, value) -> float:
     return value
 
 
+MAX_DOPPLER_SIGMA = 50.0  # m/s: a radial-velocity sigma above it is a unit mistake
+MAX_MOUNT = 50.0  # m: no radar is mounted farther from the vehicle's origin (a larger value is a unit mistake)
+
+
 def check_sensor_values(rate_hz, sigmas, azimuth_fov, elevation_fov, max_range, min_range, fail) -> None:
     """Value rules of a sensor configuration, shared by `SensorConfig` and the TOML reader.
 
@@ -49,6 +53,11 @@ def check_sensor_values(rate_hz, sigmas, azimuth_fov, elevation_fov, max_range, 
             fail(key, f"need -{bound:.6g} <= min < max <= {bound:.6g} rad, got [{lo!r}, {hi!r}]{hint}")
     if max_range <= 0:
         fail("fov.max_range", f"must be > 0, got {max_range!r}")
+    if sigmas[0] >= max_range:
+        fail("noise.range", f"1-sigma {sigmas[0]!r} m is not below fov.max_range {max_range!r} m")
+    if sigmas[3] > MAX_DOPPLER_SIGMA:
+        fail("noise.radial_velocity", f"{sigmas[3]!r} m/s is implausibly large (above {MAX_DOPPLER_SIGMA:g}): "
+             "km/h? radial velocities are in m/s")
     if not (0 <= min_range < max_range):
         fail("fov.min_range", f"need 0 <= min_range < max_range, got {min_range!r}")
 
@@ -121,6 +130,9 @@ class SensorConfig:
             raise InputError(f"SensorConfig.T_vehicle_sensor: expected shape (4, 4), got {T.shape}")
         T.setflags(write=False)
         set_(self, "T_vehicle_sensor", T)
+        if np.abs(T[:3, 3]).max() > MAX_MOUNT:
+            raise InputError(f"SensorConfig.T_vehicle_sensor: translation {T[:3, 3].tolist()} m puts the radar more "
+                             f"than {MAX_MOUNT:g} m from the vehicle's origin: millimetres? it is in metres")
 
         def fail(key, reason):
             raise InputError(f"SensorConfig.{key}: {reason}")

@@ -162,8 +162,16 @@ def load_truth(path) -> dict:
         path = path / TRUTH_NPZ
     if not path.is_file():
         raise InputError(f"{path}: truth file not found")
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    try:
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:  # ours to close when the load fails
+            truth = {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError, TypeError, zipfile.BadZipFile) as exc:  # TypeError: a bare .npy
+        raise InputError(f"{path}: not a readable .npz file ({exc})") from None
+    for key in ("t", "T_vehicle_world", "varpi", "varpi_dot"):  # the states' arrays: finite numbers
+        a = truth.get(key)
+        if a is not None and not (np.issubdtype(a.dtype, np.number) and np.isfinite(a).all()):
+            raise InputError(f"{path}: array {key} holds NaN, infinity or non-numbers")
+    return truth
 
 
 def path_length(T_world_vehicle: np.ndarray) -> float:

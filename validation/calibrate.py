@@ -26,6 +26,7 @@ from rodo.estimator.lie import se3
 from rodo.estimator.motion import MotionPrior, motion_prior
 COMPONENTS = ("x", "y", "z", "roll", "pitch", "yaw")  # the diagonal of Qc: linear, then angular, body axes
 DEFAULT_FLOOR = 1e-9  # lower bound of every q_i (a component the data never excites goes there)
+QC_MAX = 1e8  # the fit's upper bound of each Qc element
 
 
 @dataclass(frozen=True)
@@ -153,7 +154,7 @@ def fit_qc(B, S, floor: float = DEFAULT_FLOOR, qc0=None, fixed=None) -> QcFit:
         qc0 = np.einsum("kaa->a", S) @ diag_b.T / np.maximum((diag_b**2).sum(axis=1), 1e-300)
     theta0 = np.log(np.maximum(np.asarray(qc0, dtype=float), floor))
     fixed = np.zeros(6, bool) if fixed is None else np.asarray(fixed, dtype=bool)
-    bounds = [(t, t) if f else (np.log(floor), np.log(1e8)) for t, f in zip(theta0, fixed)]
+    bounds = [(t, t) if f else (np.log(floor), np.log(QC_MAX)) for t, f in zip(theta0, fixed)]
     scale = float(B.shape[0] * S.shape[-1])
 
     def objective(theta):

@@ -41,7 +41,7 @@ from rodo.estimator.errors import InputError
 from .campaign_dir import campaign_lock, check_and_save_meta
 from .campaign_consistency import campaign_consistency, consistency_lines
 from .campaign_files import (CONSISTENCY_FIELDS, FIELDS, METRICS, append_rows, cell, load_trial_arrays, npz_path,
-                             read_results, rewrite_results, save_arrays)
+                             read_results, rewrite_results, save_arrays, writes_arrays)
 from .campaign_compare import compare_models, comparison_lines
 from .consistency import average_nees, chi2_bounds, fraction_within
 from .metrics import jsonable
@@ -147,8 +147,8 @@ def remaining(trials: list[Trial], out_dir) -> int:
 
 
 def unreadable_runs(out: Path, rows: list[dict]) -> set[tuple[int, str]]:
-    """(trial, model) of the ok rows whose trials/*.npz exists but cannot be read (truncated, corrupt):
-    resume runs them again."""
+    """(trial, model) of the ok rows whose trials/*.npz cannot be read (truncated, corrupt), or is missing while
+    other ok rows of its model have theirs (the campaign writes them): resume runs them again."""
     bad = set()
     for r in rows:
         p = npz_path(out, int(r["trial"]), r["model"])
@@ -157,6 +157,8 @@ def unreadable_runs(out: Path, rows: list[dict]) -> set[tuple[int, str]]:
                 load_trial_arrays(p)
             except InputError:
                 bad.add((int(r["trial"]), r["model"]))
+        elif r["status"] == "ok" and writes_arrays(out, rows, r["model"]):
+            bad.add((int(r["trial"]), r["model"]))
     return bad
 
 
@@ -182,7 +184,7 @@ def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[T
         out_dir: campaign directory (created), locked for the call (`campaign_dir.campaign_lock`: a second
             writer in another process is refused).
         resume: continue a campaign in out_dir, skipping (trial, model) rows already written (ok or error),
-            except ok rows whose trial arrays are unreadable (their file is removed and the run done again).
+            except ok rows whose trial arrays are unreadable or missing (the run is done again).
             Without it, an existing results.csv is an error (nothing is overwritten). A resumed row whose seed
             differs from its trial's is an error (another campaign).
         progress: optional object with update(n) (rodo.progress.Progress), called once per (trial, model).
@@ -203,7 +205,7 @@ def run_campaign(trial_fn: Callable[[Trial], list[TrialOutcome]], trials: list[T
         _check_seeds(csv_path, rows, trials)
         broken = unreadable_runs(out, rows)
         for trial, model in broken:  # a truncated or corrupt trial file: the run is done again
-            npz_path(out, trial, model).unlink()
+            npz_path(out, trial, model).unlink(missing_ok=True)
         rows = [r for r in rows if (int(r["trial"]), r["model"]) not in broken]
         if resume and csv_path.exists():
             rewrite_results(csv_path, rows)  # drops a torn final row
@@ -324,8 +326,12 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
                  "error_examples": sorted({r["error"] for r in mine if r["status"] == "error"})[:3],
                  "metrics": {k: _describe(num(k)) for k in SUMMARY_METRICS}}
         runs, t, dim, arrays = [], np.zeros(0), None, []
+        with_arrays = writes_arrays(out, ok, m)
         for r in ok:
             p = npz_path(out, int(r["trial"]), m)
+            if not p.exists() and with_arrays:  # not summarised over fewer runs than the table says
+                raise InputError(f"{p}: missing (results.csv has the run as ok); run the campaign again with "
+                                 "--resume to redo it")
             if not p.exists():
                 continue
             z = load_trial_arrays(p, ("t", "nees", "nees_dim"))

@@ -67,12 +67,32 @@ def read_results(path: str | Path) -> list[dict]:
     if header not in (FIELDS, FIELDS_V1):
         raise InputError(f"{path}: line 1: unexpected header (expected {','.join(FIELDS)})")
     body = rows[1:] if text.endswith("\n") else rows[1:-1]  # a final row without its newline is torn: drop it
-    out = []
+    out, first = [], {}
     for line, row in enumerate(body, start=2):
         if len(row) != len(header) or row[3] not in ("ok", "error") or not row[0].isdigit():
             raise InputError(f"{path}: line {line}: malformed row ({len(row)} fields, status {row[3:4]})")
-        out.append({**dict.fromkeys(FIELDS, ""), **dict(zip(header, row))})
+        r = {**dict.fromkeys(FIELDS, ""), **dict(zip(header, row))}
+        key = (int(r["trial"]), r["model"])
+        if key in first:  # each run is written once (a resume rewrites the file without the runs it repeats)
+            raise InputError(f"{path}: line {line}: trial {key[0]}, model {key[1]} again (first on line "
+                             f"{first[key]})")
+        first[key] = line
+        for k in METRICS:
+            if not _number(r[k]):
+                raise InputError(f"{path}: line {line}: {k} is {r[k]!r}, not a number")
+        out.append(r)
     return out
+
+
+def _number(text: str) -> bool:
+    """A metric cell: empty, None (not measured), or a float's text (nan and inf included)."""
+    if text in ("", "None"):
+        return True
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def rewrite_results(path: Path, rows: list[dict]) -> None:
@@ -88,6 +108,12 @@ def rewrite_results(path: Path, rows: list[dict]) -> None:
 def npz_path(out_dir: str | Path, trial: int, model: str) -> Path:
     """trials/trial_XXXX_MODEL.npz of one run."""
     return Path(out_dir) / "trials" / f"trial_{trial:04d}_{model}.npz"
+
+
+def writes_arrays(out: Path, rows: list[dict], model: str) -> bool:
+    """Whether any ok row of `model` among `rows` has its trial arrays on disk (the campaign writes them)."""
+    return any(npz_path(out, int(r["trial"]), model).exists() for r in rows
+               if r["model"] == model and r["status"] == "ok")
 
 
 def save_arrays(path: Path, arrays: dict) -> None:

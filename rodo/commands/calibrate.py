@@ -7,16 +7,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
 from rodo.estimator.config import MODELS
 from rodo.estimator.errors import InputError
+from rodo.outputs import check_not_input, check_output_file, sequence_inputs, write_text_atomic
 from rodo.sim.sequence import read_sequence
 from rodo.sim.simulate import TRUTH_NPZ, load_truth
-from rodo.validation.calibrate import COMPONENTS, DEFAULT_FLOOR
+from rodo.validation.calibrate import COMPONENTS, DEFAULT_FLOOR, QC_MAX
 from rodo.validation.calibrate_config import calibrate_with_truth, calibrate_without_truth, config_toml
 
 from .run import load_config
@@ -55,15 +55,17 @@ def _check_args(args) -> Path:
         raise InputError(f"--tolerance: must be > 0, got {args.tolerance}")
     if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
-    if not (np.isfinite(args.floor) and args.floor > 0):
-        raise InputError(f"--floor: must be > 0, got {args.floor}")
+    if not (np.isfinite(args.floor) and 0 < args.floor < QC_MAX):
+        raise InputError(f"--floor: must be > 0 and below the fit's upper bound {QC_MAX:g}, got {args.floor}")
     out = Path(args.out)
     if out.is_dir():
         raise InputError(f"--out: {out} is a directory, expected a .toml file name")
     if out.suffix in (".json", ".md"):
         raise InputError(f"--out: {out} would be overwritten by the report; name the config CONFIG.toml")
-    if not out.parent.is_dir():
-        raise InputError(f"--out: directory {out.parent} does not exist")
+    inputs = [p for d in args.sequence for p in sequence_inputs(d)] + ([Path(args.config)] if args.config else [])
+    for path in (out, out.with_suffix(".json"), out.with_suffix(".md")):  # the config and its two reports
+        check_output_file(path, "--out")
+        check_not_input(path, "--out", inputs)
     return out
 
 
@@ -156,12 +158,6 @@ def _consistency_markdown(c: dict) -> list[str]:
                     + ", ".join(f"{t} s: {r['relative_span']:.3g} / {r['pose']:.3g}" for t, r in c["tau_grid"].items())]
 
 
-def _write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-
-
 def main(args) -> int:
     out = _check_args(args)
     learn = parse_learn(args.learn)
@@ -174,6 +170,9 @@ def main(args) -> int:
         if other.sensor != seq.sensor:
             raise InputError(f"{Path(d) / 'sensor.toml'}: another sensor than {Path(args.sequence[0]) / 'sensor.toml'}"
                              "; calibrate the sequences of one sensor together")
+    if args.no_truth and not any(len(scan) for scan in seq.scans):
+        raise InputError(f"{Path(args.sequence[0]) / 'radar.csv'}: no detections; EM learns from the estimator's "
+                         "solutions on them")
     if args.no_truth:
         def say(h):
             print(f"EM iteration: qc {np.array2string(h.qc_out, precision=4)}, change {h.change:.3g}")
@@ -190,9 +189,9 @@ def main(args) -> int:
         truths = [load_truth(d) for d in args.sequence]
         config, report = calibrate_with_truth(seqs, truths, config, args.duration, args.floor,
                                               consistency=not args.no_consistency, progress=step)
-    _write(out, config_toml(config, _header(report, " ".join(args.sequence), config.model)))
-    _write(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
-    _write(out.with_suffix(".md"), _markdown(report))
+    write_text_atomic(out, config_toml(config, _header(report, " ".join(args.sequence), config.model)))
+    write_text_atomic(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
+    write_text_atomic(out.with_suffix(".md"), _markdown(report))
     print(_markdown(report), end="")
     print(f"wrote {out}, {out.with_suffix('.json')}, {out.with_suffix('.md')}")
     return 0

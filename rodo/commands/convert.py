@@ -11,6 +11,7 @@ import argparse
 import dataclasses
 
 from rodo.estimator.errors import InputError
+from rodo.outputs import check_output_dir
 
 FORMATS = ("radarscenes", "ti-mmwave", "vod", "rosbag", "raflow")
 
@@ -130,8 +131,6 @@ def _conversions(args) -> list:
 
 
 def run(args) -> int:
-    from pathlib import Path
-
     import numpy as np
 
     from rodo.progress import Progress
@@ -147,7 +146,7 @@ def run(args) -> int:
     if args.rate is not None and not (np.isfinite(args.rate) and 1e-3 <= args.rate <= 1e4):
         raise InputError(f"--rate: must be > 0, a finite scan rate from 0.001 to 10000 Hz, got {args.rate}")
     noise = _sigmas(args.sigma) if args.sigma is not None else None
-    out = Path(args.out)
+    out = check_output_dir(args.out, create=False)  # before the conversion, not after it
     jobs = _conversions(args)
     with Progress(len(jobs), f"convert {args.format}", unit="sequence") as bar:
         convs = []

@@ -68,13 +68,13 @@ def _check_args(args) -> Path:
     import numpy as np
 
     from rodo import scenarios
-    from rodo.commands.run import check_out_dir
+    from rodo.outputs import check_output_dir
 
     if args.scenario not in scenarios.names():
         scenarios.get(args.scenario)  # raises InputError listing the known names
     if not (np.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
-    return check_out_dir(args.out)
+    return check_output_dir(args.out)
 
 
 def _prior_montecarlo(args, out: Path) -> dict:

@@ -8,7 +8,6 @@ Checked by: tests/estimator/test_ego_velocity.py::test_cli_ego_velocity
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 
@@ -46,9 +45,9 @@ def run(args) -> int:
 
     if args.seed < 0:
         raise InputError(f"--seed: must be >= 0, got {args.seed}")
-    out = Path(args.out)
-    if not out.parent.is_dir():
-        raise InputError(f"--out: directory {out.parent} does not exist")
+    from rodo.outputs import check_not_input, check_output_file, sequence_inputs, write_text_atomic
+
+    out = check_not_input(check_output_file(args.out, "--out"), "--out", sequence_inputs(args.seq_dir))
     seq = read_sequence(args.seq_dir)
     sigma_vr = seq.sensor.noise.radial_velocity
     el_lo, el_hi = seq.sensor.elevation_fov
@@ -68,7 +67,7 @@ def run(args) -> int:
             rows.append(f"{scan.scan},{scan.t:.9f},{vx},{vy},{vz},{n_in}")
             bar.update()
     try:
-        out.write_text("\n".join(rows) + "\n", encoding="ascii")
+        write_text_atomic(out, "\n".join(rows) + "\n")  # ASCII: numbers only
     except OSError as exc:
         raise InputError(f"--out: cannot write {out} ({exc.strerror or exc})") from None
     return 0

@@ -14,7 +14,7 @@ import numpy as np
 from rodo.estimator.errors import InputError
 from rodo.sim.sequence import read_tum
 from rodo.validation.association import DEFAULT_TOLERANCE, associate
-from rodo.outputs import check_output_file, write_text_atomic
+from rodo.outputs import check_not_input, check_output_file, write_text_atomic
 from rodo.validation.metrics import evaluate, jsonable
 
 
@@ -153,10 +153,17 @@ def main(args) -> int:
         raise InputError(f"--tolerance: must be >= 0 seconds, got {args.tolerance}")
     if args.json:
         check_output_file(args.json, "--json")  # before any work
+        check_not_input(args.json, "--json", [f for f in (args.gt, args.est, args.states, args.truth) if f])
     gt = read_tum(args.gt)
     est = read_tum(args.est)
     states = load_npz(args.states, "--states", ("t", "T_vehicle_world", "varpi", "P")) if args.states else None
     truth = load_npz(args.truth, "--truth", ("t", "T_vehicle_world", "varpi")) if args.truth else None
+    if (states is None) != (truth is None):  # the NEES needs both; one alone would be ignored
+        raise InputError(f"{'--states' if args.states else '--truth'}: give --states and --truth together "
+                         "(the run's states.npz and the sequence's truth.npz)")
+    if truth is not None and "P" in truth:
+        raise InputError(f"--truth {args.truth}: has a covariance P, as a run's states.npz does; give the "
+                         "sequence's truth.npz")
     _check(lambda: associate(gt.t, est.t, args.tolerance), f"--gt {args.gt} and --est {args.est}")
     if states is not None and truth is not None:
         _check(lambda: associate(states["t"], truth["t"], args.tolerance),

@@ -25,10 +25,10 @@ def register(subparsers) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from rodo.commands.run import check_out_dir
+    from rodo.outputs import check_output_dir
     from rodo.progress import Progress
 
-    out = check_out_dir(args.out)
+    out = check_output_dir(args.out)
     from rodo.viz.figures import FIGURES  # after the output check: a bad --out fails first
 
     with Progress(len(FIGURES), "figures", unit="figure") as bar:

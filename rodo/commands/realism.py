@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 
 from rodo.estimator.errors import InputError
+from rodo.outputs import check_output_dir
 
 REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
 
@@ -65,9 +66,7 @@ def run_realism(args: argparse.Namespace) -> int:
     seeds = _seeds(args.seeds)
     if args.duration is not None and not (0 < args.duration <= 600):
         raise InputError(f"--duration: must be in (0, 600] s, got {args.duration}")
-    out = None if args.out is None else Path(args.out)
-    if out is not None and out.exists() and not out.is_dir():
-        raise InputError(f"--out: {out} exists and is not a directory")
+    out = None if args.out is None else check_output_dir(args.out, create=False)  # before the work
     report = realism.realism(args.profile, Path(args.realdata), seeds, args.duration)
     table = realism.format_table(report)
     print(table)

@@ -17,7 +17,7 @@ import numpy as np
 
 from rodo.estimator.config import MODELS, OdometryConfig
 from rodo.estimator.errors import InputError
-from rodo.outputs import check_output_file
+from rodo.outputs import check_not_input, check_output_dir, check_output_file, sequence_inputs
 from rodo.progress import Progress
 from rodo.sim.kitti_poses import write_kitti_poses
 from rodo.sim.rig import is_rig
@@ -58,24 +58,6 @@ def load_config(args) -> OdometryConfig:
     return OdometryConfig.for_model(args.model or "ca-polar")
 
 
-def check_out_dir(path, create: bool = True) -> Path:
-    """Check (and create) the output directory before the work, so a bad --out fails early, not after."""
-    out = Path(path)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out: {out} exists and is not a directory")
-    for parent in out.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise InputError(f"--out: cannot create {out} ({parent} is not a directory)")
-            break
-    if create:
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise InputError(f"--out: cannot create {out} ({exc.strerror})") from None
-    return out
-
-
 def wait_for_interrupt() -> None:
     """Keep the process (and its web viewer) alive until Ctrl-C."""
     import time
@@ -106,7 +88,7 @@ def input_warnings(seq, summary: dict) -> list[str]:
 
 def main(args) -> int:
     config = load_config(args)
-    check_out_dir(args.out, create=False)
+    check_output_dir(args.out, create=False)
     if args.connect is not None and args.serve:
         raise InputError("--connect and --serve: give one of them")
     live_stream = args.connect is not None or args.serve
@@ -116,10 +98,14 @@ def main(args) -> int:
         grpc_url(args.connect)  # a bad address fails before the work
     if args.rerun:
         check_output_file(args.rerun, "--rerun", parents=True)  # before the run, not after the estimate is written
+        check_not_input(args.rerun, "--rerun", sequence_inputs(args.sequence) + [Path(args.out) / name
+                                                                                 for name in RUN_FILES])
     if is_rig(args.sequence):
         return _run_rig(args, config)
     seq = read_sequence(args.sequence)
-    check_out_dir(args.out)
+    truth_path = Path(args.sequence) / TRUTH_NPZ  # the recording's truth, read before the run
+    truth = load_truth(truth_path) if args.rerun and truth_path.exists() else None
+    check_output_dir(args.out)
     live = None
     if live_stream:
         from rodo.viz.live import LiveRun  # viz is the only package importing rerun
@@ -137,8 +123,6 @@ def main(args) -> int:
     if args.rerun:
         from rodo.viz.recording import record_run  # viz is the only package importing rerun
 
-        truth_path = Path(args.sequence) / TRUTH_NPZ
-        truth = load_truth(args.sequence) if truth_path.exists() else None
         details = [e.detail for e in result.estimates]
         record_run(args.rerun, seq, result, truth=truth, detail=details)
         print(f"wrote {args.rerun} (open it with: {rodo_command()} view {args.rerun})")
@@ -155,6 +139,7 @@ def main(args) -> int:
 
 
 KITTI_POSES = "estimate.kitti.txt"
+RUN_FILES = ("estimate.txt", KITTI_POSES, "states.npz", "summary.json")  # what --out receives
 
 
 def _write(out, result) -> None:
@@ -179,7 +164,7 @@ def _run_rig(args, config: OdometryConfig) -> int:
         if given:
             raise InputError(f"{flag}: not available for a rig yet (run one radar: {args.sequence}/RADAR)")
     rig = read_rig(args.sequence)
-    check_out_dir(args.out)
+    check_output_dir(args.out)
     with Progress(sum(len(s.scans) for s in rig.sequences), f"rodo run {config.model}, {len(rig.names)} radars",
                   unit="scan") as bar:
         result = run_rig(rig, config, progress=bar, keep_estimates=False)

@@ -113,12 +113,14 @@ def run_simulate(args: argparse.Namespace) -> int:
     faults = parse_faults(args.fault)  # InputError naming --fault NAME -> exit 2
     radar = scenario.radar_config(args.profile)  # InputError listing the known profiles -> exit 2
     faults.check_rate(faults.radar(radar).rate_hz)
+    from rodo.outputs import check_not_input, check_output_dir, check_output_file, sequence_inputs
+
+    check_output_dir(args.out, create=False)  # before the simulation, not after it
     if args.rig is not None:
         return _simulate_rig(args, scenario, params, faults)
     if args.rerun:
-        from rodo.outputs import check_output_file
-
-        check_output_file(args.rerun, "--rerun", parents=True)  # before the simulation
+        check_output_file(args.rerun, "--rerun", parents=True)
+        check_not_input(args.rerun, "--rerun", sequence_inputs(args.out))  # the sequence it writes
     duration = scenario.default_duration(args.seed, **params) if args.duration is None else args.duration
     n_scans = int(np.floor(duration * radar.rate_hz + 1e-9)) + 1
     with Progress(n_scans, f"simulate {scenario.name}", unit="scan") as bar:

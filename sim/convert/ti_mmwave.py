@@ -105,10 +105,13 @@ def convert(source) -> Conversion:
     noise = NoiseSigmas(range=RANGE_SIGMA, azimuth=float(AZIMUTH_SIGMA), elevation=float(ELEVATION_SIGMA),
                         radial_velocity=float(sigma_vr))
     rate = float(1.0 / np.median(np.diff(t_scan))) if len(t_scan) > 1 else 10.0
-    sensor = SensorConfig(rate_hz=rate, T_vehicle_sensor=T_vehicle_sensor, noise=noise,
-                          azimuth_fov=field_of_view(az[keep], np.pi / 2, np.pi),
-                          elevation_fov=field_of_view(el[keep], np.pi / 4, np.pi / 2),
-                          max_range=float(np.ceil(rng[keep].max())) if keep.any() else 20.0)
+    try:  # the calibration's mount and the data's Doppler step go into it
+        sensor = SensorConfig(rate_hz=rate, T_vehicle_sensor=T_vehicle_sensor, noise=noise,
+                              azimuth_fov=field_of_view(az[keep], np.pi / 2, np.pi),
+                              elevation_fov=field_of_view(el[keep], np.pi / 4, np.pi / 2),
+                              max_range=float(np.ceil(rng[keep].max())) if keep.any() else 20.0)
+    except InputError as exc:
+        raise InputError(f"{source}: {exc} (from {CALIB_YAML} and {DETECTIONS_CSV})") from None
     report.info.update({"t0_ns": t0_ns, "time": "trigger + radar_frame_ms / 2, seconds from t0_ns",
                         "radar_frame_ms": frame_ms, "rate_hz": rate, "doppler_quantisation": quant,
                         "sigma_radial_velocity_mps": float(sigma_vr)})

@@ -96,6 +96,13 @@ def test_calibrate_bad_input(seq, tmp_path, capsys):
     fails(capsys, ["calibrate", seq, "--out", out, "--iterations", "0"], "--iterations")
     fails(capsys, ["calibrate", seq, "--out", out, "--duration", "-1"], "--duration")
     fails(capsys, ["calibrate", seq, "--out", out, "--floor", "0"], "--floor")
+    fails(capsys, ["calibrate", seq, "--out", out, "--floor", "1e8"], "--floor", "upper bound")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for name in ("sensor.toml", "groundtruth.txt"):
+        (empty / name).write_bytes((seq / name).read_bytes())
+    (empty / "radar.csv").write_text((seq / "radar.csv").read_text().splitlines()[0] + "\n")  # the header only
+    fails(capsys, ["calibrate", empty, "--out", out, "--no-truth"], "radar.csv", "no detections")
     fails(capsys, ["calibrate", seq, "--out", out, "--no-truth", "--learn", "x,jaw"], "--learn", "jaw")
     fails(capsys, ["calibrate", seq, "--out", tmp_path], "--out", "is a directory")
     fails(capsys, ["calibrate", seq, "--out", tmp_path / "missing" / "c.toml"], "--out", "does not exist")

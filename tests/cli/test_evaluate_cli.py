@@ -119,3 +119,11 @@ def test_errors_exit_2_with_a_clear_message(files, capsys):
     assert "--lengths" in capsys.readouterr().err
     assert _run(["--gt", d / "missing.txt", "--est", d / "est.txt"]) == 2
     assert "missing.txt" in capsys.readouterr().err
+    n = len(gt.t)
+    np.savez(d / "run_states.npz", t=gt.t, T_vehicle_world=np.linalg.inv(gt.T_world_vehicle), varpi=np.zeros((n, 6)),
+             P=np.broadcast_to(np.eye(12), (n, 12, 12)))
+    assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", "--truth", d / "run_states.npz"]) == 2  # alone
+    assert "--states and --truth together" in capsys.readouterr().err
+    assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", "--states", d / "run_states.npz", "--truth",
+                 d / "run_states.npz"]) == 2  # a run's states given as the truth
+    assert "--truth" in (err := capsys.readouterr().err) and "covariance P" in err

@@ -119,6 +119,52 @@ def test_unreadable_trial_arrays_name_the_file(tmp_path):
         summarize_campaign(tmp_path)
 
 
+def test_results_with_a_run_twice_or_a_word_for_a_number_name_the_line(tmp_path):
+    """results.csv with a (trial, model) row twice (a summary would count it twice) or a metric that is not a
+    number: an error naming the file, the line and the field, not a summary or a traceback."""
+    import csv
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1) as ex:
+        run_campaign(FakeTrial(), make_trials(0, 2, MODELS), ex, tmp_path)
+    path = tmp_path / "results.csv"
+    text = path.read_text()
+    lines = text.splitlines(keepends=True)
+    path.write_text(text + lines[1])
+    with pytest.raises(InputError, match=rf"{path}: line {len(lines) + 1}: trial \d+, model \S+ again "
+                                         r"\(first on line 2\)"):
+        summarize_campaign(tmp_path)
+    rows = list(csv.DictReader(text.splitlines()))
+    rows[0]["ate_rmse_m"] = "abc"
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    with pytest.raises(InputError, match=rf"{path}: line 2: ate_rmse_m is 'abc', not a number"):
+        summarize_campaign(tmp_path)
+
+
+def test_a_missing_trial_file_is_redone_on_resume_not_summarised_over_fewer_runs(tmp_path):
+    """An ok run whose trial arrays are gone (deleted) while the campaign's other runs have theirs: the summary
+    refuses (it would average fewer runs than the table counts) and a resume runs it again."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rodo.validation.campaign import remaining
+
+    trials = make_trials(0, 2, MODELS)
+    with ProcessPoolExecutor(1) as ex:
+        run_campaign(FakeTrial(), trials, ex, tmp_path)
+    p = npz_path(tmp_path, 1, MODELS[0])
+    p.unlink()
+    with pytest.raises(InputError, match=f"{p}: missing .*--resume"):
+        summarize_campaign(tmp_path)
+    assert remaining(trials, tmp_path) == 1
+    with ProcessPoolExecutor(1) as ex:
+        report = run_campaign(FakeTrial(), trials, ex, tmp_path, resume=True)
+    assert report.ran == 1 and p.exists()
+    assert summarize_campaign(tmp_path)["models"][MODELS[0]]["ok"] == 2
+
+
 def test_campaign_files_are_written_atomically_without_leftovers(tmp_path, monkeypatch, umask):
     from concurrent.futures import ProcessPoolExecutor
 
@@ -141,3 +187,59 @@ def test_campaign_files_are_written_atomically_without_leftovers(tmp_path, monke
         save_arrays(npz_path(tmp_path, 5, MODELS[0]), {"t": np.zeros(2)})
     assert (tmp_path / "results.csv").read_bytes() == before  # the old file stands
     assert not _leftovers(tmp_path) and not _leftovers(tmp_path / "trials")
+
+
+def test_an_output_never_overwrites_an_input_or_another_output(seq, tmp_path, capsys):
+    """An output path that is one of the command's inputs (the sequence's files, through a link too) or another of
+    its outputs (the run's summary) is refused before any work: exit 2 naming the option and the path, and every
+    file of the sequence unchanged."""
+    import shutil
+
+    copy = tmp_path / "seq"
+    shutil.copytree(seq, copy)
+    before = {p.name: p.read_bytes() for p in copy.iterdir() if p.is_file()}
+    gt, radar = copy / "groundtruth.txt", copy / "radar.csv"
+    out = tmp_path / "o"
+    fails(capsys, ["run", copy, "--out", out, "--rerun", out / "summary.json"], "--rerun", "summary.json", "overwrite")
+    assert not out.exists()
+    fails(capsys, ["run", copy, "--out", out, "--rerun", radar], "--rerun", str(radar), "overwrite")
+    fails(capsys, ["ego-velocity", copy, "--out", radar], "--out", str(radar))
+    link = tmp_path / "link.csv"
+    link.symlink_to(radar)
+    fails(capsys, ["ego-velocity", copy, "--out", link], "--out", str(link), f"the same file as {radar}")
+    fails(capsys, ["evaluate", "--gt", gt, "--est", gt, "--json", gt], "--json", str(gt))
+    fails(capsys, ["calibrate", copy, "--no-consistency", "--out", copy / "sensor.toml"], "--out", "sensor.toml")
+    fails(capsys, ["simulate", "city", "--duration", "0.3", "--out", copy, "--rerun", radar], "--rerun", "radar.csv")
+    assert {p.name: p.read_bytes() for p in copy.iterdir() if p.is_file()} == before
+    assert not out.exists() and not _leftovers(copy)
+
+
+def test_an_unwritable_output_directory_fails_before_the_work(seq, tmp_path, capsys):
+    """A directory the command cannot write in (/proc, where even root cannot create a file) is refused before the
+    work, for the commands that write a directory and for calibrate's config, not with a traceback after it."""
+    for argv in (["run", seq, "--out", "/proc/rodo_run"], ["simulate", "city", "--duration", "0.3", "--out",
+                                                            "/proc/rodo_sim"],
+                 ["figures", "--quick", "--out", "/proc/rodo_figures"],
+                 ["calibrate", seq, "--no-consistency", "--out", "/proc/rodo.toml"],
+                 ["ego-velocity", seq, "--out", "/proc/rodo_ego.csv"]):
+        fails(capsys, argv, "--out", "/proc", "not writable")
+
+
+def test_an_unreadable_truth_file_is_an_error_naming_it_before_the_work(seq, tmp_path, capsys):
+    """A truncated truth.npz, or one whose states hold NaN: an error naming the file (and the array), from
+    calibrate and from a run that records it, before the run writes anything."""
+    import shutil
+
+    copy = tmp_path / "seq"
+    shutil.copytree(seq, copy)
+    truth = copy / "truth.npz"
+    whole = truth.read_bytes()
+    truth.write_bytes(whole[:len(whole) // 3])
+    fails(capsys, ["calibrate", copy, "--no-consistency", "--out", tmp_path / "c.toml"], str(truth), "not a readable")
+    fails(capsys, ["run", copy, "--out", tmp_path / "o", "--rerun", tmp_path / "r.rrd"], str(truth), "not a readable")
+    assert not (tmp_path / "o").exists()
+    with np.load(seq / "truth.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["varpi"][3, 1] = np.nan
+    np.savez(truth, **arrays)
+    fails(capsys, ["calibrate", copy, "--no-consistency", "--out", tmp_path / "c.toml"], str(truth), "varpi", "NaN")

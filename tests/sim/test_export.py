@@ -120,6 +120,32 @@ def test_kitti_without_groundtruth_at_every_scan_writes_no_poses(seq_dir, tmp_pa
     assert not (tmp_path / "out" / "poses").exists()
 
 
+def test_an_export_over_an_earlier_one_leaves_only_its_own_drive(seq_dir, tmp_path, capsys):
+    """Exporting a shorter drive into the directory of a longer one's export leaves that drive's files only: its
+    scans (no tail of the other's), and no poses or map of the other drive where it has none."""
+    seq = read_sequence(seq_dir)
+    short = tmp_path / "short"
+    seq.scans = seq.scans[:3]
+    late = seq.groundtruth.t > seq.scans[1].t  # ground truth at the first two scans only: no poses to export
+    seq.groundtruth = Trajectory(seq.groundtruth.t[~late], seq.groundtruth.T_world_vehicle[~late])
+    write_sequence(short, seq)
+    est = tmp_path / "run"
+    assert _run(["run", seq_dir, "--out", est]) == 0
+    out = tmp_path / "out"
+    assert _run(["export", "kitti-bin", seq_dir, "--out", out]) == 0
+    assert _run(["export", "ply", seq_dir, "--out", out, "--run", est]) == 0
+    mine = out / "sequences" / "00" / "velodyne" / "notes.bin"
+    mine.write_bytes(b"x")  # not an export's name: kept
+    assert _run(["export", "kitti-bin", short, "--out", out]) == 0
+    assert _run(["export", "ply", short, "--out", out]) == 0
+    capsys.readouterr()
+    velodyne = sorted(p.name for p in (out / "sequences" / "00" / "velodyne").iterdir())
+    assert velodyne == ["000000.bin", "000001.bin", "000002.bin", "notes.bin"]
+    assert len(np.loadtxt(out / "sequences" / "00" / "times.txt")) == 3
+    assert not (out / "poses" / "00.txt").exists() and not (out / "map.ply").exists()
+    assert sorted(p.name for p in (out / "scans").iterdir()) == [f"{s.scan:06d}.ply" for s in seq.scans]
+
+
 def test_export_bad_inputs(seq_dir, tmp_path, capsys):
     """Missing sequence, missing or short estimate, an option of the other format, an unknown intensity
     column, an --out that is a file: exit 2 with one line naming the file, option or scan."""

@@ -67,6 +67,20 @@ def test_not_a_rig(tmp_path):
         read_rig(tmp_path)
 
 
+def test_a_directory_that_is_a_rig_and_a_sequence_is_refused(tmp_path):
+    """rig.toml beside a radar.csv: `is_rig` and `read_sequence` refuse it alike, naming the directory, instead of
+    each command picking one (a run of the rig scored against the single sequence's ground truth)."""
+    from rodo.sim.sequence import write_sequence
+
+    write_rig(tmp_path, Rig(["a"], [_radar(0.0, [0.0, 0.1])]))
+    write_sequence(tmp_path, _radar(0.5, [0.0, 0.1, 0.2]))
+    for call in (is_rig, read_sequence):
+        with pytest.raises(InputError, match="both a rig .rig.toml. and a single sequence .radar.csv.") as err:
+            call(tmp_path)
+        assert str(tmp_path) in str(err.value)
+    assert is_rig(tmp_path / "a") is False and len(read_sequence(tmp_path / "a").scans) == 2
+
+
 def test_a_simulated_rig_is_one_drive_seen_by_radars_taking_turns(tmp_path):
     """`scenarios.simulate_rig_to`: the front radar is the single-radar simulation bit for bit, the corner radars
     have their layout's mounts and scan i / (n rate) s later, and the rig reads back and merges without two

@@ -22,7 +22,7 @@ def sensor_configs(draw):
     sig = [draw(st.floats(1e-9, 1.0)) for _ in range(4)]
     az = (draw(st.floats(-np.pi, -1e-3)), draw(st.floats(1e-3, np.pi)))
     el = (draw(st.floats(-np.pi / 2, -1e-3)), draw(st.floats(1e-3, np.pi / 2)))
-    max_range = draw(st.floats(1.0, 1e4))
+    max_range = draw(st.floats(1.0, 1e4).filter(lambda m: m > sig[0]))  # the range noise below the range
     return SensorConfig(rate_hz=draw(st.floats(0.1, 1e3)), T_vehicle_sensor=T, noise=NoiseSigmas(*sig),
                         azimuth_fov=az, elevation_fov=el, max_range=max_range,
                         min_range=draw(st.floats(0.0, 0.5)))
@@ -316,6 +316,33 @@ def test_sensor_config_rejects_bad_values():
             SensorConfig(**{**good, key: value})
     with pytest.raises(InputError, match="NoiseSigmas.range"):
         NoiseSigmas(0.0, 1.0, 1.0, 1.0)
+    for noise, message in [(NoiseSigmas(100.0, 0.003, 0.005, 0.01), "noise.range.*not below fov.max_range"),
+                           (NoiseSigmas(0.02, 0.003, 0.005, 0.036 * 3600), "noise.radial_velocity.*km/h")]:
+        with pytest.raises(InputError, match=message):  # values the estimator cannot use, or in other units
+            SensorConfig(**{**good, "noise": noise})
+    mm = np.eye(4)
+    mm[:3, 3] = [3500.0, 0.0, 500.0]
+    with pytest.raises(InputError, match="T_vehicle_sensor: translation .* millimetres"):
+        SensorConfig(**{**good, "T_vehicle_sensor": mm})
+
+
+def test_sensor_toml_in_other_units_names_the_field(tmp_path):
+    """sensor.toml with the mount in millimetres, or a range noise beyond the field of view, is refused naming
+    the file, line and field, not run (the millimetres gave an ATE of 0.9 m on a 19 m path with no word)."""
+    good = tmp_path / "good"
+    write_sequence(good, Sequence(SensorConfig(13.0, np.eye(4), NoiseSigmas(0.02, 0.003, 0.005, 0.01), (-1.0, 1.0),
+                                               (-0.3, 0.3), 100.0), [RadarScan(0, 0.0, [10.0], [0.1], [0.0], [1.0])]))
+    text = (good / "sensor.toml").read_text()
+    for old, new, field in [("translation = [0.0, 0.0, 0.0]", "translation = [3500.0, 0.0, 500.0]",
+                             "extrinsics.translation"), ("range = 0.02", "range = 1000000.0", "noise.range")]:
+        assert old in text
+        bad = tmp_path / field
+        bad.mkdir()
+        for name in ("radar.csv",):
+            (bad / name).write_bytes((good / name).read_bytes())
+        (bad / "sensor.toml").write_text(text.replace(old, new))
+        with pytest.raises(InputError, match=f"sensor.toml, line \\d+, field '{field}'"):
+            read_sequence(bad)
 
 
 def test_examples_in_the_format_document_are_valid(tmp_path):
