@@ -235,7 +235,7 @@ class SolverConfig:
     relinearize_older: bool = False  # re-linearise the older states' measurement terms at every step of a solve
     # (true) or once per solve, then from its quadratic model (false: ~0.9x the time per scan; docs/estimator.md)
     reweight_older: bool = True  # (if false above) re-weight and re-linearise them at each scan's first solve
-    # (true), or keep their weights and model from the scan after their own (false: ~0.92x time, less accurate)
+    # (true), or keep their own scan's weights and the next scan's model (false: ~0.92x time, less accurate)
     robust_c: float = 3.0  # Cauchy scale in whitened units; 0 disables the robust loss
     init_velocity_sigma: float = 0.2  # m/s on the Doppler initialisation
     init_rate_sigma: tuple[float, ...] = (0.02, 0.02, 0.2)  # rad/s

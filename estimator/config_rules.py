@@ -67,8 +67,8 @@ RULES: dict[str, Rule] = {
     "noise.cartesian_sigma": POSITIVE,
     "noise.map_sigma_polar": NONNEGATIVE,
     "noise.map_sigma_cartesian": NONNEGATIVE,
-    "noise.sensor_sigma_scale": Rule(0.0, 1e3, lo_closed=False),
-    "noise.sensor_sigma_scales": Rule(0.0, 1e3, lo_closed=False, size=4),
+    "noise.sensor_sigma_scale": Rule(0.0, 1e6, lo_closed=False),  # ratios to sensor.toml's sigmas (may be tiny)
+    "noise.sensor_sigma_scales": Rule(0.0, 1e6, lo_closed=False, size=4),
     "noise.sigma_floor": Rule(0.0, 1e3, lo_closed=False, size=4),
     "noise.doppler_common_sigma": NONNEGATIVE,
     "noise.min_prior_dt": Rule(0.0, 1.0),  # s: a floor on the scan interval, not a time in ms

@@ -88,6 +88,22 @@ def sequence_inputs(seq_dir) -> list[Path]:
     return [d / name for d in dirs for name in names]
 
 
+def check_layout_target(path, option: str, rig: bool) -> Path:
+    """The directory a sequence (rig False) or a rig (True) is to be written to, or an InputError naming `option`
+    if it holds the other layout (a rig's rig.toml, a sequence's radar.csv): every reader refuses a directory that
+    is both."""
+    from rodo.sim.rig import RIG_TOML
+    from rodo.sim.sequence import RADAR_CSV
+
+    out = Path(path)
+    other = out / (RADAR_CSV if rig else RIG_TOML)
+    if other.is_file():
+        what = "a single sequence" if rig else "a rig"
+        raise InputError(f"{option}: {out} holds {what} ({other.name}); write the "
+                         f"{'rig' if rig else 'sequence'} to another directory")
+    return out
+
+
 def check_not_input(path, option: str, inputs) -> Path:
     """The output file `path`, or an InputError naming `option` if it is one of `inputs`, the command's input
     files and its other outputs (the same path after resolving links and relative paths)."""

@@ -21,12 +21,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize
 
+from rodo.estimator.config_rules import RULES
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.estimator.motion import MotionPrior, motion_prior
 COMPONENTS = ("x", "y", "z", "roll", "pitch", "yaw")  # the diagonal of Qc: linear, then angular, body axes
 DEFAULT_FLOOR = 1e-9  # lower bound of every q_i (a component the data never excites goes there)
-QC_MAX = 1e8  # the fit's upper bound of each Qc element
+QC_MIN, QC_MAX = RULES["noise.qc_ca"].lo, RULES["noise.qc_ca"].hi  # the config's bounds: the lowest floor, the fit's top
 
 
 @dataclass(frozen=True)
@@ -316,7 +317,7 @@ def em_qc(run, kind: str, qc0, iterations: int = 5, tolerance: float = 0.05, flo
                      qc0=qc, fixed=None if learn is None else ~np.asarray(learn, dtype=bool))
         step = np.log(fit.qc) - np.log(qc)
         jump = aitken_step(step, previous) if accelerate else step
-        qc_next = np.clip(qc * np.exp(jump), floor, None)
+        qc_next = np.clip(qc * np.exp(jump), floor, QC_MAX)
         change = float(np.max(np.abs(fit.qc - qc) / qc))
         history.append(EmIteration(qc, fit.qc, fit.loglik, change, fit.intervals, qc_next))
         if on_iteration is not None:

@@ -16,7 +16,7 @@ from rodo.estimator.errors import InputError
 from rodo.outputs import check_not_input, check_output_file, sequence_inputs, write_text_atomic
 from rodo.sim.sequence import read_sequence
 from rodo.sim.simulate import TRUTH_NPZ, load_truth
-from rodo.validation.calibrate import COMPONENTS, DEFAULT_FLOOR, QC_MAX
+from rodo.validation.calibrate import COMPONENTS, DEFAULT_FLOOR, QC_MAX, QC_MIN
 from rodo.validation.calibrate_config import calibrate_with_truth, calibrate_without_truth, config_toml
 
 from .run import load_config
@@ -55,14 +55,15 @@ def _check_args(args) -> Path:
         raise InputError(f"--tolerance: must be > 0, got {args.tolerance}")
     if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
-    if not (np.isfinite(args.floor) and 0 < args.floor < QC_MAX):
-        raise InputError(f"--floor: must be > 0 and below the fit's upper bound {QC_MAX:g}, got {args.floor}")
+    if not (np.isfinite(args.floor) and QC_MIN <= args.floor < QC_MAX):
+        raise InputError(f"--floor: must be from {QC_MIN:g} (the config's lower bound) to below the fit's upper "
+                         f"bound {QC_MAX:g}, got {args.floor}")
     out = Path(args.out)
     if out.is_dir():
         raise InputError(f"--out: {out} is a directory, expected a .toml file name")
     if out.suffix in (".json", ".md"):
         raise InputError(f"--out: {out} would be overwritten by the report; name the config CONFIG.toml")
-    inputs = [p for d in args.sequence for p in sequence_inputs(d)] + ([Path(args.config)] if args.config else [])
+    inputs = [p for d in args.sequence for p in sequence_inputs(d)]  # (--config may be the output: read first)
     for path in (out, out.with_suffix(".json"), out.with_suffix(".md")):  # the config and its two reports
         check_output_file(path, "--out")
         check_not_input(path, "--out", inputs)

@@ -11,7 +11,7 @@ import argparse
 import dataclasses
 
 from rodo.estimator.errors import InputError
-from rodo.outputs import check_output_dir
+from rodo.outputs import check_layout_target, check_output_dir
 
 FORMATS = ("radarscenes", "ti-mmwave", "vod", "rosbag", "raflow")
 
@@ -154,8 +154,12 @@ def run(args) -> int:
             made = convert()
             convs += made if isinstance(made, list) else [made]
             bar.update()
-    for conv in convs:
-        target = out if len(convs) == 1 else out / conv.name
+    targets = [out] if len(convs) == 1 else [out / conv.name for conv in convs]
+    for target in targets:  # every target checked before anything is written
+        check_layout_target(target, "--out", rig=False)
+    if args.format == "radarscenes" and len(convs) > 1:
+        check_layout_target(out, "--out", rig=True)
+    for conv, target in zip(convs, targets):
         if noise is not None:
             conv.sequence.sensor = dataclasses.replace(conv.sequence.sensor, noise=noise)
             conv.report.notes.append(f"noise sigmas from --sigma {args.sigma}")

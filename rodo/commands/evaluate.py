@@ -158,9 +158,8 @@ def main(args) -> int:
     est = read_tum(args.est)
     states = load_npz(args.states, "--states", ("t", "T_vehicle_world", "varpi", "P")) if args.states else None
     truth = load_npz(args.truth, "--truth", ("t", "T_vehicle_world", "varpi")) if args.truth else None
-    if (states is None) != (truth is None):  # the NEES needs both; one alone would be ignored
-        raise InputError(f"{'--states' if args.states else '--truth'}: give --states and --truth together "
-                         "(the run's states.npz and the sequence's truth.npz)")
+    if truth is not None and states is None:  # the truth serves the NEES alone, which needs the run's states
+        raise InputError("--truth: give it with --states (the run's states.npz); alone it would be ignored")
     if truth is not None and "P" in truth:
         raise InputError(f"--truth {args.truth}: has a covariance P, as a run's states.npz does; give the "
                          "sequence's truth.npz")

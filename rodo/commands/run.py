@@ -165,6 +165,8 @@ def _run_rig(args, config: OdometryConfig) -> int:
             raise InputError(f"{flag}: not available for a rig yet (run one radar: {args.sequence}/RADAR)")
     rig = read_rig(args.sequence)
     check_output_dir(args.out)
+    if rig.groundtruth is None:  # the radars' ground truths merged are written to --out: not over one of them
+        check_not_input(Path(args.out) / GROUNDTRUTH_TXT, "--out", sequence_inputs(args.sequence))
     with Progress(sum(len(s.scans) for s in rig.sequences), f"rodo run {config.model}, {len(rig.names)} radars",
                   unit="scan") as bar:
         result = run_rig(rig, config, progress=bar, keep_estimates=False)

@@ -113,9 +113,11 @@ def run_simulate(args: argparse.Namespace) -> int:
     faults = parse_faults(args.fault)  # InputError naming --fault NAME -> exit 2
     radar = scenario.radar_config(args.profile)  # InputError listing the known profiles -> exit 2
     faults.check_rate(faults.radar(radar).rate_hz)
-    from rodo.outputs import check_not_input, check_output_dir, check_output_file, sequence_inputs
+    from rodo.outputs import (check_layout_target, check_not_input, check_output_dir, check_output_file,
+                              sequence_inputs)
 
     check_output_dir(args.out, create=False)  # before the simulation, not after it
+    check_layout_target(args.out, "--out", rig=args.rig is not None)
     if args.rig is not None:
         return _simulate_rig(args, scenario, params, faults)
     if args.rerun:

@@ -97,6 +97,7 @@ def test_calibrate_bad_input(seq, tmp_path, capsys):
     fails(capsys, ["calibrate", seq, "--out", out, "--duration", "-1"], "--duration")
     fails(capsys, ["calibrate", seq, "--out", out, "--floor", "0"], "--floor")
     fails(capsys, ["calibrate", seq, "--out", out, "--floor", "1e8"], "--floor", "upper bound")
+    fails(capsys, ["calibrate", seq, "--out", out, "--floor", "1e-25"], "--floor", "lower bound")
     empty = tmp_path / "empty"
     empty.mkdir()
     for name in ("sensor.toml", "groundtruth.txt"):

@@ -95,6 +95,10 @@ def test_states_and_truth_add_nees_nis_and_velocity(files, capsys):
     assert rep["velocity"]["nu_rmse_mps"] == pytest.approx(np.sqrt(np.mean(np.sum(e[:, 6:9] ** 2, axis=1))))
     assert rep["nis"]["mean"] == pytest.approx(4.0) and rep["ms_per_scan"]["median"] == 12.0
     assert "NEES (d=12)" in capsys.readouterr().out
+    # the run's states alone (real data has no truth.npz): its NIS and time per scan, no NEES
+    assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", "--states", d / "states.npz"]) == 0
+    out = capsys.readouterr().out
+    assert "NIS" in out and "NEES" not in out
 
 
 def test_errors_exit_2_with_a_clear_message(files, capsys):
@@ -123,7 +127,7 @@ def test_errors_exit_2_with_a_clear_message(files, capsys):
     np.savez(d / "run_states.npz", t=gt.t, T_vehicle_world=np.linalg.inv(gt.T_world_vehicle), varpi=np.zeros((n, 6)),
              P=np.broadcast_to(np.eye(12), (n, 12, 12)))
     assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", "--truth", d / "run_states.npz"]) == 2  # alone
-    assert "--states and --truth together" in capsys.readouterr().err
+    assert "--truth: give it with --states" in capsys.readouterr().err
     assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", "--states", d / "run_states.npz", "--truth",
                  d / "run_states.npz"]) == 2  # a run's states given as the truth
     assert "--truth" in (err := capsys.readouterr().err) and "covariance P" in err

@@ -214,6 +214,22 @@ def test_an_output_never_overwrites_an_input_or_another_output(seq, tmp_path, ca
     assert not out.exists() and not _leftovers(copy)
 
 
+def test_a_rig_and_a_sequence_are_not_written_over_each_other(seq, tmp_path, capsys):
+    """simulate or convert a sequence into a rig's directory, or a rig into a sequence's, is refused before the
+    work (every reader refuses a directory that is both); a rig run does not write its merged ground truth over
+    one of its radars' own."""
+    from tests.sim.test_rig import Rig, _radar, write_rig
+
+    rig = tmp_path / "rig"
+    write_rig(rig, Rig(["a", "b"], [_radar(0.0, [0.0, 0.1, 0.2]), _radar(1.0, [0.05, 0.15])]))
+    before = (rig / "a" / "groundtruth.txt").read_bytes()
+    fails(capsys, ["simulate", "city", "--duration", "0.3", "--out", rig], "--out", "holds a rig", "rig.toml")
+    fails(capsys, ["simulate", "city", "--duration", "0.3", "--rig", "front-corners", "--out", seq], "--out",
+          "holds a single sequence", "radar.csv")
+    fails(capsys, ["run", rig, "--out", rig / "a"], "--out", "groundtruth.txt")
+    assert (rig / "a" / "groundtruth.txt").read_bytes() == before and not (rig / "radar.csv").exists()
+
+
 def test_an_unwritable_output_directory_fails_before_the_work(seq, tmp_path, capsys):
     """A directory the command cannot write in (/proc, where even root cannot create a file) is refused before the
     work, for the commands that write a directory and for calibrate's config, not with a traceback after it."""
@@ -243,3 +259,5 @@ def test_an_unreadable_truth_file_is_an_error_naming_it_before_the_work(seq, tmp
     arrays["varpi"][3, 1] = np.nan
     np.savez(truth, **arrays)
     fails(capsys, ["calibrate", copy, "--no-consistency", "--out", tmp_path / "c.toml"], str(truth), "varpi", "NaN")
+    fails(capsys, ["run", copy, "--out", tmp_path / "o", "--rerun", tmp_path / "r.rrd"], str(truth), "varpi")
+    assert not (tmp_path / "o").exists()

@@ -369,10 +369,11 @@ def test_the_newest_state_is_solved_with_the_reassociated_pairs(monkeypatch, tim
 @pytest.mark.parametrize("reweight", [True, False])
 def test_older_states_keep_their_terms_across_scans_unless_reweighted(monkeypatch, reweight):
     """`solver.reweight_older`: true (the default) re-weights and re-linearises every state's pairs at each scan's
-    first solve; false linearises a state's pairs afresh in its own scan and the next only (where its robust
-    weights are set for good), and takes them from that linearisation's quadratic model after: each scan's first
-    linearisation is then fresh for the two newest states alone, and an older set keeps its weights, the same
-    array with the same values. Both follow the truth on a noisy scene."""
+    first solve; false keeps a set's robust weights from its own scan for good and linearises it afresh in its own
+    scan and the next only, taking it from that linearisation's quadratic model after: each scan's first
+    linearisation is then fresh for the two newest states alone, and every older set keeps its weights, the same
+    array with the same values (with true, a new array from the new scan's residuals). Both follow the truth on a
+    noisy scene."""
     from rodo.estimator import window_kernels
 
     calls = []
@@ -397,11 +398,11 @@ def test_older_states_keep_their_terms_across_scans_unless_reweighted(monkeypatc
         if k >= 6:  # a full window: every state has pairs
             assert n == odo.config.window + 1
             assert fresh == (list(range(n)) if reweight else [0, 1]), (k, fresh)
-            for m in odo.window.meas[:-2]:
-                if id(m) in seen:
-                    same = m.weights is seen[id(m)][1] and np.array_equal(m.weights, seen[id(m)][2])
-                    assert same != reweight, k
-        seen = {id(m): (m, m.weights, m.weights.copy()) for m in odo.window.meas[:-1] if m is not None}
+            for m in odo.window.meas[:-1]:  # every older set, the one newest at the scan before included
+                assert id(m) in seen
+                same = m.weights is seen[id(m)][1] and np.array_equal(m.weights, seen[id(m)][2])
+                assert same != reweight, k
+        seen = {id(m): (m, m.weights, m.weights.copy()) for m in odo.window.meas if m is not None}
     Tgt = T[-1] @ se3.inverse(T[0])
     err = se3.log(est.T_vehicle_world @ se3.inverse(Tgt))
     assert np.linalg.norm(err[:3]) < 0.05 and np.linalg.norm(err[3:]) < 5e-3, err
