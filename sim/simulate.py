@@ -21,6 +21,7 @@ from .faults import Faults
 from .faults import apply as apply_faults
 from .radar import Radar, RadarConfig, empty_detections
 from .sequence import RadarScan, Sequence, Trajectory, write_sequence
+from .sequence_types import check_pose
 from .trajectory import Profile
 from .world import World
 
@@ -171,6 +172,8 @@ def load_truth(path) -> dict:
         a = truth.get(key)
         if a is not None and not (np.issubdtype(a.dtype, np.number) and np.isfinite(a).all()):
             raise InputError(f"{path}: array {key} holds NaN, infinity or non-numbers")
+    if "T_vehicle_world" in truth and len(truth["T_vehicle_world"]):  # poses, not any 4 x 4 matrices
+        check_pose(f"{path}: array T_vehicle_world", truth["T_vehicle_world"])
     return truth
 
 

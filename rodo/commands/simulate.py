@@ -9,6 +9,7 @@ import argparse
 
 import numpy as np
 
+from rodo.estimator.config_rules import RULES
 from rodo.estimator.errors import InputError
 
 
@@ -74,6 +75,9 @@ def parse_qc(text: str | None, scenario) -> dict:
     if len(qc) != 6 or not all(np.isfinite(qc)) or min(qc) <= 0:
         raise InputError(f"--qc: expected 6 positive finite numbers separated by commas "
                          f"(linear x,y,z, angular x,y,z), got {text!r}")
+    rule = RULES["noise.qc_ca"]  # the estimator's bounds: beyond them the drawn motion overflows
+    if not all(rule.holds(q) for q in qc):
+        raise InputError(f"--qc: each element must be {rule.text()}, got {text!r}")
     return {"qc": qc}
 
 

@@ -242,8 +242,8 @@ def test_an_unwritable_output_directory_fails_before_the_work(seq, tmp_path, cap
 
 
 def test_an_unreadable_truth_file_is_an_error_naming_it_before_the_work(seq, tmp_path, capsys):
-    """A truncated truth.npz, or one whose states hold NaN: an error naming the file (and the array), from
-    calibrate and from a run that records it, before the run writes anything."""
+    """A truncated truth.npz, one whose states hold NaN, or one whose poses are not rigid: an error naming the file
+    (and the array), from calibrate and from a run that records it, before the run writes anything."""
     import shutil
 
     copy = tmp_path / "seq"
@@ -261,3 +261,8 @@ def test_an_unreadable_truth_file_is_an_error_naming_it_before_the_work(seq, tmp
     fails(capsys, ["calibrate", copy, "--no-consistency", "--out", tmp_path / "c.toml"], str(truth), "varpi", "NaN")
     fails(capsys, ["run", copy, "--out", tmp_path / "o", "--rerun", tmp_path / "r.rrd"], str(truth), "varpi")
     assert not (tmp_path / "o").exists()
+    arrays["varpi"][3, 1] = 0.0
+    arrays["T_vehicle_world"][5, :3, :3] *= 2.0  # not a rotation: calibrate would fit Qc to it
+    np.savez(truth, **arrays)
+    fails(capsys, ["calibrate", copy, "--no-consistency", "--out", tmp_path / "c.toml"], str(truth),
+          "T_vehicle_world", "not a proper rotation")

@@ -70,7 +70,7 @@ def test_cli_qc_flag(tmp_path, capsys):
     assert cli.main(argv, commands=[simulate_cmd]) == 0
     np.testing.assert_array_equal(load_truth(out)["prior_qc"], QC)
     assert "CA prior SDE" in capsys.readouterr().out
-    for bad in ("1,2,3", "1,1,1,1,1,-1", "1,1,1,1,1,nan", "a,b,c,d,e,f", "1,1,1,1,1,inf"):
+    for bad in ("1,2,3", "1,1,1,1,1,-1", "1,1,1,1,1,nan", "a,b,c,d,e,f", "1,1,1,1,1,inf", "1,2,3,4,5,1e300"):
         argv = ["simulate", "prior_cv", "--qc", bad, "--duration", "1", "--out", str(tmp_path / "x")]
         assert cli.main(argv, commands=[simulate_cmd]) == 2
         assert "--qc" in capsys.readouterr().err
