@@ -62,7 +62,7 @@ PROBABILITY = Rule(0.0, 1.0, lo_closed=False, hi_closed=False)
 RULES: dict[str, Rule] = {
     "window": Rule(2, 1000),
     "seed": Rule(0, 2**63 - 1),
-    "noise.qc_ca": Rule(1e-20, 1e8, size=6),  # wider: Q_k underflows or overflows (calibrate fits within)
+    "noise.qc_ca": Rule(1e-20, 1e8, size=6),  # beyond: Q_k under- or overflows (calibrate fits inside)
     "noise.qc_cv": Rule(1e-20, 1e8, size=6),
     "noise.cartesian_sigma": POSITIVE,
     "noise.map_sigma_polar": NONNEGATIVE,

@@ -70,12 +70,8 @@ def relative_covariances(P_pair, P_emitted, T_prev, T_new, dim, solved, rel, rev
     `uncertainty.revision_covariance`."""
     Ad = np.empty((6, 6))
     relative_adjoint(T_prev, T_new, Ad)
-    B11 = np.empty((6, 6))
-    for i in range(6):
-        for j in range(6):
-            B11[i, j] = P_pair[i, j]
     S = np.empty((6, 6))
-    _sandwich(Ad, B11, S)
+    _sandwich(Ad, P_pair[:6, :6], S)
     # rel = Ad B11 Ad^T - Ad B12 - (Ad B12)^T + B22 with A = [-Ad, I] on the pose blocks
     AB12 = np.empty((6, 6))
     for i in range(6):

@@ -78,8 +78,7 @@ def check_output_dir(path, option: str = "--out", create: bool = True) -> Path:
 
 def sequence_inputs(seq_dir) -> list[Path]:
     """The input files of a sequence directory, or of a rig (rig.toml and each radar's sequence files)."""
-    from rodo.sim.rig import RIG_TOML
-    from rodo.sim.sequence import GROUNDTRUTH_TXT, RADAR_CSV, SENSOR_TOML
+    from rodo.sim.sequence import GROUNDTRUTH_TXT, RADAR_CSV, RIG_TOML, SENSOR_TOML
     from rodo.sim.simulate import TRUTH_NPZ
 
     root = Path(seq_dir)
@@ -92,8 +91,7 @@ def check_layout_target(path, option: str, rig: bool) -> Path:
     """The directory a sequence (rig False) or a rig (True) is to be written to, or an InputError naming `option`
     if it holds the other layout (a rig's rig.toml, a sequence's radar.csv): every reader refuses a directory that
     is both."""
-    from rodo.sim.rig import RIG_TOML
-    from rodo.sim.sequence import RADAR_CSV
+    from rodo.sim.sequence import RADAR_CSV, RIG_TOML
 
     out = Path(path)
     other = out / (RADAR_CSV if rig else RIG_TOML)

@@ -24,11 +24,10 @@ from rodo.estimator.tomlcompat import tomllib
 
 from ._seqio import SequenceFormatError, atomic_write_bytes, read_text
 from .sensor_geometry import DEG, mount
-from .sequence import GROUNDTRUTH_TXT, check_one_layout, read_sequence, read_tum, write_sequence
+from .sequence import GROUNDTRUTH_TXT, RIG_TOML, check_one_layout, read_sequence, read_tum, write_sequence
 from .sequence_types import RadarScan, Sequence, Trajectory
 from .tum import format_tum
 
-RIG_TOML = "rig.toml"
 
 # simulated rigs: name -> [(radar sub-directory, T_vehicle_sensor)]; the first is the scenario's own front radar
 # (`sim.sensor_geometry.default_mount`), the others corner radars at the front bumper's ends, looking 50 deg outwards

@@ -16,7 +16,7 @@ from rodo.estimator.lie import so3
 from rodo.estimator.tomlcompat import tomllib
 
 from ._seqio import UNIT_QUATERNION_TOL, SequenceFormatError, atomic_write_bytes, float_text, read_text
-from .sequence_types import MAX_MOUNT, SIGMA_NAMES, NoiseSigmas, SensorConfig, check_sensor_values
+from .sequence_types import SIGMA_NAMES, NoiseSigmas, SensorConfig, check_sensor_values
 
 # section -> (required keys, optional keys); None is the top level
 _SCHEMA = {
@@ -115,9 +115,6 @@ def parse_sensor_config(path, text: str) -> SensorConfig:
     ext, noise, fov = (r.table(data[s], s) for s in ("extrinsics", "noise", "fov"))
     rate_hz = r.number(data["rate_hz"], "rate_hz")
     translation = r.vector(ext["translation"], "extrinsics.translation", 3)
-    if max(abs(x) for x in translation) > MAX_MOUNT:
-        r.fail("extrinsics.translation", f"{list(translation)} m puts the radar more than {MAX_MOUNT:g} m from the "
-               "vehicle's origin: millimetres? the translation is in metres")
     q = np.array(r.vector(ext["quaternion"], "extrinsics.quaternion", 4))
     norm = float(np.linalg.norm(q))
     if abs(norm - 1.0) > UNIT_QUATERNION_TOL:
@@ -128,7 +125,7 @@ def parse_sensor_config(path, text: str) -> SensorConfig:
     el = r.vector(fov["elevation"], "fov.elevation", 2)
     max_range = r.number(fov["max_range"], "fov.max_range")
     min_range = r.number(fov.get("min_range", 0.0), "fov.min_range")
-    check_sensor_values(rate_hz, sigmas, az, el, max_range, min_range, r.fail)
+    check_sensor_values(rate_hz, sigmas, az, el, max_range, min_range, translation, r.fail)
     T = np.eye(4)
     T[:3, :3] = so3.from_quaternion(q)
     T[:3, 3] = translation

@@ -33,9 +33,10 @@ from .tum import format_tum, read_tum, write_tum
 RADAR_CSV = "radar.csv"
 SENSOR_TOML = "sensor.toml"
 GROUNDTRUTH_TXT = "groundtruth.txt"
+RIG_TOML = "rig.toml"  # a rig directory (sim/rig.py) instead of one sequence
 
 __all__ = [
-    "GROUNDTRUTH_TXT", "RADAR_CSV", "SENSOR_TOML", "NoiseSigmas", "RadarScan", "SensorConfig", "Sequence",
+    "GROUNDTRUTH_TXT", "RADAR_CSV", "RIG_TOML", "SENSOR_TOML", "NoiseSigmas", "RadarScan", "SensorConfig", "Sequence",
     "SequenceFormatError", "atomic_write_bytes", "Trajectory", "cache_path", "check_one_layout", "polar_to_cartesian",
     "read_radar_csv",
     "read_sensor_config", "read_sequence", "read_tum", "write_sensor_config", "write_sequence", "write_tum",
@@ -77,8 +78,8 @@ def read_sequence(path, *, use_cache: bool = True) -> Sequence:
 def check_one_layout(path: Path) -> None:
     """InputError unless the directory is one sequence (radar.csv) or one rig (rig.toml), not both: which one a
     command reads would otherwise depend on the command."""
-    if (path / "rig.toml").is_file() and (path / RADAR_CSV).is_file():
-        raise InputError(f"{path}: holds both a rig (rig.toml) and a single sequence ({RADAR_CSV}); keep one per "
+    if (path / RIG_TOML).is_file() and (path / RADAR_CSV).is_file():
+        raise InputError(f"{path}: holds both a rig ({RIG_TOML}) and a single sequence ({RADAR_CSV}); keep one per "
                          "directory")
 
 

@@ -33,7 +33,8 @@ MAX_DOPPLER_SIGMA = 50.0  # m/s: a radial-velocity sigma above it is a unit mist
 MAX_MOUNT = 50.0  # m: no radar is mounted farther from the vehicle's origin (a larger value is a unit mistake)
 
 
-def check_sensor_values(rate_hz, sigmas, azimuth_fov, elevation_fov, max_range, min_range, fail) -> None:
+def check_sensor_values(rate_hz, sigmas, azimuth_fov, elevation_fov, max_range, min_range, translation,
+                        fail) -> None:
     """Value rules of a sensor configuration, shared by `SensorConfig` and the TOML reader.
 
     `fail(key, reason)` raises the caller's error for a dotted key such as 'fov.max_range'.
@@ -53,6 +54,9 @@ def check_sensor_values(rate_hz, sigmas, azimuth_fov, elevation_fov, max_range, 
             fail(key, f"need -{bound:.6g} <= min < max <= {bound:.6g} rad, got [{lo!r}, {hi!r}]{hint}")
     if max_range <= 0:
         fail("fov.max_range", f"must be > 0, got {max_range!r}")
+    if max(abs(float(x)) for x in translation) > MAX_MOUNT:
+        fail("extrinsics.translation", f"{[float(x) for x in translation]} m puts the radar more than {MAX_MOUNT:g} m "
+             "from the vehicle's origin: millimetres? it is in metres")
     if sigmas[0] >= max_range:
         fail("noise.range", f"1-sigma {sigmas[0]!r} m is not below fov.max_range {max_range!r} m")
     if sigmas[3] > MAX_DOPPLER_SIGMA:
@@ -130,15 +134,12 @@ class SensorConfig:
             raise InputError(f"SensorConfig.T_vehicle_sensor: expected shape (4, 4), got {T.shape}")
         T.setflags(write=False)
         set_(self, "T_vehicle_sensor", T)
-        if np.abs(T[:3, 3]).max() > MAX_MOUNT:
-            raise InputError(f"SensorConfig.T_vehicle_sensor: translation {T[:3, 3].tolist()} m puts the radar more "
-                             f"than {MAX_MOUNT:g} m from the vehicle's origin: millimetres? it is in metres")
 
         def fail(key, reason):
             raise InputError(f"SensorConfig.{key}: {reason}")
 
         check_sensor_values(self.rate_hz, tuple(self.noise.as_array()), self.azimuth_fov, self.elevation_fov,
-                            self.max_range, self.min_range, fail)
+                            self.max_range, self.min_range, T[:3, 3], fail)
 
     def __eq__(self, other):
         if not isinstance(other, SensorConfig):

@@ -322,7 +322,7 @@ def test_sensor_config_rejects_bad_values():
             SensorConfig(**{**good, "noise": noise})
     mm = np.eye(4)
     mm[:3, 3] = [3500.0, 0.0, 500.0]
-    with pytest.raises(InputError, match="T_vehicle_sensor: translation .* millimetres"):
+    with pytest.raises(InputError, match="extrinsics.translation: .* millimetres"):
         SensorConfig(**{**good, "T_vehicle_sensor": mm})
 
 
