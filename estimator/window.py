@@ -15,6 +15,8 @@ Checked by: tests/estimator/test_window.py
 
 from __future__ import annotations
 
+import functools
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,11 +59,13 @@ class SlidingWindow:
         self.prior_info: np.ndarray | None = None
         self.prior_grad: np.ndarray | None = None  # linear term g: cost 1/2 e^T Lam e + g^T e, e = x0 (-) mean
         self._packs: dict = {}  # measurement sets concatenated for the kernel, per tuple of sets (cached)
+        self._rates: dict = {}  # the rate terms as the kernel takes them, per (n, first_only, terms) (cached)
         # False: an older state's measurement terms are linearised once per solve (the first linearisation after
         # a re-weighting), then taken from their quadratic model (`_normal_equations`); the newest state's always
         self.relinearize_older = relinearize_older
         self._terms: dict = {}  # id(set) -> (set, its weights, T^-1, varpi, H, b, cost) at its last linearisation
         self._H: np.ndarray | None = None
+        self._factor: tuple[np.ndarray, np.ndarray] | None = None  # (H, its Cholesky factor) of the last step
         self._motion_info: np.ndarray | None = None  # motion_info stacked for the kernel (cached)
         self._stack = None  # (states, T, tail, t): the states as arrays (`state.stacked`), for those states
         self._prior_inverse: tuple | None = None  # (prior_mean, its T^-1), kept while prior_mean is that object
@@ -134,10 +138,10 @@ class SlidingWindow:
         if packed is None or any(a is not b for a, b in zip(packed[0], sets)):
             if len(self._packs) > 4:
                 self._packs.clear()
-            offsets = np.concatenate(([0], np.cumsum([len(m) for m in sets]))).astype(np.int64)
+            offsets = np.array([0, *itertools.accumulate(len(m) for m in sets)], np.int64)
             Tvs = np.array([self.T_vehicle_sensor if m.T_vehicle_sensor is None else m.T_vehicle_sensor
                             for m in sets], dtype=float)  # np.stack's result, faster for a few sets
-            w = np.concatenate([np.full(len(m), -1.0) if m.weights is None else m.weights for m in sets])
+            w = np.empty(offsets[-1])  # filled below
             self._packs[key] = packed = (sets, offsets, _joined([m.p_world for m in sets]),
                                          _joined([m.z for m in sets]), _joined([m.W for m in sets]), Tvs, w)
         _, offsets, p, z, W, Tvs, w = packed
@@ -178,6 +182,25 @@ class SlidingWindow:
         states' measurement terms from their last linearisation's quadratic model, see `relinearize_older`)."""
         return self._normal_equations(len(self.states), lagged)
 
+    def _rate_terms(self, n: int, first_only: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(rate_on (n,), rate_info (n, d - 6, d - 6)) of the first n states for the kernel: each state's rate
+        term, only the oldest's with first_only. Kept while the window holds the same rate terms (compared by
+        identity: `set_rate_prior` replaces a term, it never changes one in place)."""
+        key = (n, first_only, *(id(r) for r in self.rate_prior[:n]))
+        kept = self._rates.get(key)
+        if kept is not None and all(a is b for a, b in zip(kept[0], self.rate_prior[:n])):
+            return kept[1], kept[2]
+        d = self.motion.dim
+        rate_on = np.array([info is not None and (k == 0 or not first_only)
+                            for k, info in enumerate(self.rate_prior[:n])], dtype=bool)
+        rate_info = np.zeros((n, d - 6, d - 6))
+        for k in np.flatnonzero(rate_on):
+            rate_info[k] = self.rate_prior[k]
+        if len(self._rates) > 8:
+            self._rates.clear()
+        self._rates[key] = (list(self.rate_prior[:n]), rate_on, rate_info)  # the terms held alive: ids stay theirs
+        return rate_on, rate_info
+
     def _normal_equations(self, n: int, lagged: bool, first_only: bool = False):
         """(H, b, cost) of the window's first n states in one compiled call (`window_kernels.normal_equations`):
         the prior on the oldest, the motion terms between them, and the measurement and rate terms of all n, or
@@ -199,22 +222,22 @@ class SlidingWindow:
         if len(self.states) > 1 and (self._motion_info is None or len(self._motion_info) != len(self.states) - 1):
             self._motion_info = np.array(self.motion_info, dtype=float)  # np.stack's result, faster
         motion_info = self._motion_info[:n - 1] if n > 1 else np.zeros((0, d, d))
-        rate_on = np.array([info is not None and (k == 0 or not first_only)
-                            for k, info in enumerate(self.rate_prior[:n])])
-        rate_info = np.zeros((n, d - 6, d - 6))
-        for k in np.flatnonzero(rate_on):
-            rate_info[k] = self.rate_prior[k]
-        ks = np.array([k for k, m in enumerate(self.meas[:1 if first_only else n]) if m is not None], np.int64)
-        sets = [self.meas[k] for k in ks]
-        K = len(ks)
-        lag = [lagged and k != newest and self._lag_ready(m) for k, m in zip(ks, sets)]
+        rate_on, rate_info = self._rate_terms(n, first_only)
+        ks_list = [k for k, m in enumerate(self.meas[:1 if first_only else n]) if m is not None]
+        sets = [self.meas[k] for k in ks_list]
+        K = len(ks_list)
+        ks = np.array(ks_list, np.int64)
+        lag = [lagged and k != newest and self._lag_ready(m) for k, m in zip(ks_list, sets)]
         fresh = [q for q in range(K) if not lag[q]]
-        slot = np.full(K, -1, np.int64)
-        slot[fresh] = np.arange(len(fresh))
+        slot_list, next_slot = [-1] * K, 0
+        for q in fresh:
+            slot_list[q], next_slot = next_slot, next_slot + 1
+        slot = np.array(slot_list, np.int64)
         T0_inverse, varpi0 = np.empty((K, 4, 4)), np.empty((K, 6))
         H0, b0, c0 = np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K)
-        for q in np.flatnonzero(lag):
-            _, _, T0_inverse[q], varpi0[q], H0[q], b0[q], c0[q] = self._terms[id(sets[q])]
+        for q in range(K):
+            if lag[q]:
+                _, _, T0_inverse[q], varpi0[q], H0[q], b0[q], c0[q] = self._terms[id(sets[q])]
         fresh_sets = [sets[q] for q in fresh]
         offsets, p, z, W, Tvs, w = self._pack(fresh_sets) if fresh else _NO_PACK
         H, b = np.zeros((n * d, n * d)), np.zeros(n * d)
@@ -250,7 +273,8 @@ class SlidingWindow:
         H, b, cost = self.linearize(lagged=not reweight)
         step, it = 1.0, 0
         for it in range(1, iterations + 1):
-            delta = _solve_spd(H, -b)
+            delta, factor = _solve_spd(H, -b, factor=True)
+            self._factor = (H, factor)
             if not np.isfinite(delta).all():
                 break
             T_all, tail, _ = self._stacked()
@@ -281,18 +305,15 @@ class SlidingWindow:
 
     def newest_covariances(self) -> tuple[np.ndarray, np.ndarray | None]:
         """(P of the newest state, joint covariance (2 dim, 2 dim) of the two newest states [x_{n-2}; x_{n-1}] or
-        None when the window holds one state), from one solve of the window's information. (The newest block of
-        the joint solve equals a solve for the newest state alone, bit for bit: each right-hand side column is
-        solved on its own.)"""
+        None when the window holds one state): the trailing block of the inverse of the window's information
+        (`_trailing_inverse`), from the Cholesky factor of the solve's last step when that was taken with the
+        kept information (P is the newest block of the joint covariance)."""
         H = self._H if self._H is not None else self.linearize()[0]
         d = self.motion.dim
         k = min(len(self.states), 2) * d
-        E = np.zeros((H.shape[0], k))
-        E[-k:, :] = np.eye(k)
-        X = _solve_spd(H, E)[-k:, :]
-        P = X[-d:, -d:]
-        P_pair = 0.5 * (X + X.T) if k == 2 * d else None
-        return 0.5 * (P + P.T), P_pair
+        kept = self._factor if self._factor is not None and self._factor[0] is H else None
+        X = _trailing_inverse(H, k, None if kept is None else kept[1])
+        return X[-d:, -d:].copy(), (X if k == 2 * d else None)
 
     def marginalize_oldest(self, memory: float = 0.0) -> None:
         """Schur complement of the oldest state into a Gaussian prior on the next one; with memory > 0 (s) its
@@ -339,16 +360,49 @@ def _joined(arrays: list[np.ndarray]) -> np.ndarray:
     return np.ascontiguousarray(arrays[0], dtype=float) if len(arrays) == 1 else np.concatenate(arrays)
 
 
-def _solve_spd(H: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+def _solve_spd(H: np.ndarray, rhs: np.ndarray, factor: bool = False):
     """Solve H x = rhs for symmetric positive (semi-)definite H (LAPACK dposv; the fastest here for the
-    window's sizes), with a tiny relative jitter if the Cholesky factorisation fails."""
+    window's sizes), with a tiny relative jitter if the Cholesky factorisation fails. With factor, returns
+    (x, the factor of H as dposv leaves it, its lower triangle L with H = L L^T; None when H needed the jitter
+    or the least-squares fallback)."""
     jitter = 0.0
     for _ in range(6):
-        _, x, info = sla.lapack.dposv(H + jitter * np.eye(len(H)) if jitter else H, rhs, lower=1)
+        c, x, info = sla.lapack.dposv(H + jitter * np.eye(len(H)) if jitter else H, rhs, lower=1)
         if info == 0:
-            return x
+            return (x, c if jitter == 0.0 else None) if factor else x
         jitter = max(np.max(np.abs(np.diag(H))), 1e-300) * 1e-12 if jitter == 0 else jitter * 100
-    return np.linalg.lstsq(H, rhs, rcond=None)[0]
+    x = np.linalg.lstsq(H, rhs, rcond=None)[0]
+    return (x, None) if factor else x
+
+
+def _trailing_inverse(H: np.ndarray, k: int, factor: np.ndarray | None = None) -> np.ndarray:
+    """The trailing k x k block of H^-1 (H symmetric positive definite), from the trailing block of its Cholesky
+    factor: with H = L L^T, H^-1 = L^-T L^-1 and L^-1 lower triangular, so (H^-1)_BB = (L_BB L_BB^T)^-1 for the
+    last block B (LAPACK dpotri on L_BB). factor: H's factor if known (`_solve_spd`), else H is factored here.
+    Falls back to solving for the block's columns when H is not numerically positive definite.
+
+    Checked by: tests/estimator/test_window.py::test_trailing_inverse_is_the_block_of_the_inverse
+    """
+    if factor is None:
+        c, info = sla.lapack.dpotrf(H, lower=1)
+        factor = c if info == 0 else None
+    if factor is not None:
+        X, info = sla.lapack.dpotri(factor[-k:, -k:], lower=1)
+        if info == 0:
+            upper, lower = _triangles(k)
+            X[upper] = X[lower]  # dpotri leaves the lower triangle
+            return X
+    E = np.zeros((len(H), k))
+    E[-k:, :] = np.eye(k)
+    X = _solve_spd(H, E)[-k:, :]
+    return 0.5 * (X + X.T)
+
+
+@functools.lru_cache(maxsize=8)
+def _triangles(k: int) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """The indices of the strict upper triangle of a k x k matrix and of its mirror image in the lower one."""
+    i, j = np.triu_indices(k, 1)
+    return (i, j), (j, i)
 
 
 def _inv_spd(P: np.ndarray) -> np.ndarray:

@@ -6,6 +6,7 @@ import copy
 
 import numpy as np
 import pytest
+import scipy.linalg as sla
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -14,9 +15,9 @@ from rodo.estimator.lie import se3
 from rodo.estimator.measurement_models import PolarModel
 from rodo.estimator.motion import motion_prior
 from rodo.estimator.state import State, stacked
-from rodo.estimator.window import MeasurementSet, SlidingWindow
+from rodo.estimator.window import MeasurementSet, SlidingWindow, _trailing_inverse
 from tests.estimator import scene
-from tests.strategies import hypothesis_rngs
+from tests.strategies import covariances, hypothesis_rngs
 
 
 def _window_with_scene(kind="ca", n=4, noisy=True, robust_c=3.0):
@@ -97,6 +98,50 @@ def test_marginalisation_keeps_the_solution_and_the_newest_covariance():
     win.optimize(10)
     for a, b in zip(before, win.states):
         assert np.abs(a.ominus(b)).max() < 1e-7
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.sampled_from([(12, 6), (18, 12), (36, 12), (60, 24)]).flatmap(
+    lambda nk: st.tuples(st.just(nk[1]), covariances(nk[0]))), st.booleans())
+def test_trailing_inverse_is_the_block_of_the_inverse(k_and_H, factored):
+    """The trailing k x k block of H^-1 from the trailing block of H's Cholesky factor, whether the factor is
+    passed in (the solve's) or computed: equal to the block of a full solve to the conditioning's rounding, and
+    exactly symmetric."""
+    k, H = k_and_H
+    factor = sla.lapack.dpotrf(H, lower=1)[0] if factored else None
+    X = _trailing_inverse(H, k, factor)
+    E = np.zeros((len(H), k))
+    E[-k:] = np.eye(k)
+    reference = np.linalg.solve(H, E)[-k:]
+    assert np.array_equal(X, X.T)
+    np.testing.assert_allclose(X, reference, rtol=0, atol=1e-12 * np.linalg.cond(H) * np.abs(reference).max())
+
+
+def test_trailing_inverse_of_a_semidefinite_information_is_the_jittered_solve():
+    """An H whose leading block is singular (a state nothing constrains) has no Cholesky factor: the trailing
+    block, decoupled from it, is still the inverse of its own block (the solve's relative jitter, 1e-12)."""
+    B = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
+    H = np.zeros((5, 5))
+    H[2:, 2:] = B
+    np.testing.assert_allclose(_trailing_inverse(H, 3), np.linalg.inv(B), rtol=1e-10)
+
+
+@pytest.mark.parametrize("kind", ["ca", "cv"])
+def test_newest_covariances_are_the_trailing_block_of_the_inverse_information(kind):
+    """After a solve (the factor of its last step reused) and after a fresh linearisation (factored anew), P of
+    the newest state and the joint P of the two newest are the trailing blocks of the inverse of the window's
+    information."""
+    win, _ = _window_with_scene(kind)
+    win.optimize(10)
+    d = win.motion.dim
+    for fresh in (False, True):
+        if fresh:
+            win.set_measurements(len(win.states) - 1, win.meas[-1])  # forgets the kept information
+        P, P_pair = win.newest_covariances()
+        inverse = np.linalg.inv(win._H if not fresh else win.linearize()[0])[-2 * d:, -2 * d:]
+        atol = 1e-10 * np.abs(inverse).max()
+        np.testing.assert_allclose(P_pair, inverse, rtol=1e-8, atol=atol)
+        np.testing.assert_allclose(P, inverse[-d:, -d:], rtol=1e-8, atol=atol)
 
 
 @pytest.mark.parametrize("memory", [0.05, 0.5, 5.0])
