@@ -130,10 +130,7 @@ def choose(j: np.ndarray, i: np.ndarray, d2: np.ndarray, gate: float, m: int, n:
     """The candidate pairs (j, i, d2) inside the gate, chosen greedily by smallest d2 (ties: smaller j, then i),
     each of the m map points and n detections used at most once: (j, i, d2) of the chosen, in the candidates'
     order (j ascending when the candidates come map point by map point)."""
-    inside = d2 <= gate
-    j, i, d2 = j[inside], i[inside], d2[inside]
-    chosen = matching_kernels.greedy_one_to_one(matching_kernels.order_by_d2(j, i, d2, n), j, i, m, n)
-    return j[chosen], i[chosen], d2[chosen]
+    return matching_kernels.choose(j, i, np.asarray(d2, dtype=float), float(gate), m, n)  # compiled, one pass
 
 
 def associate(model: str | MeasurementModel, z_meas, det_points_sensor, pred: Prediction, S, gate: float,

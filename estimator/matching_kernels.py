@@ -31,6 +31,35 @@ def greedy_one_to_one(order, j, i, m, n):
 
 
 @njit(cache=True)
+def choose(j, i, d2, gate, m, n):
+    """The candidate pairs (j, i, d2) with d2 <= gate (NaN never), ordered by `order_by_d2` and taken by
+    `greedy_one_to_one`: (j, i, d2) of the chosen, in the candidates' order (`association.choose`).
+
+    Checked by: tests/estimator/test_association.py::test_matches_brute_force_and_is_one_to_one
+    """
+    inside = np.empty(len(d2), np.int64)
+    k = 0
+    for a in range(len(d2)):
+        if d2[a] <= gate:
+            inside[k] = a
+            k += 1
+    inside = inside[:k]
+    jg, ig, dg = j[inside], i[inside], d2[inside]
+    chosen = greedy_one_to_one(order_by_d2(jg, ig, dg, n), jg, ig, m, n)
+    c = 0
+    for a in range(k):
+        if chosen[a]:
+            c += 1
+    jo, io, do = np.empty(c, j.dtype), np.empty(c, i.dtype), np.empty(c)
+    c = 0
+    for a in range(k):
+        if chosen[a]:
+            jo[c], io[c], do[c] = jg[a], ig[a], dg[a]
+            c += 1
+    return jo, io, do
+
+
+@njit(cache=True)
 def order_by_d2(j, i, d2, n):
     """np.lexsort((i, j, d2)): ascending d2, ties by j, then i: a radix sort of d2 (`_radix_argsort`), then the
     rare exact ties put in (j, i, index) order.
