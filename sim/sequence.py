@@ -15,6 +15,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
+
 from rodo.estimator.errors import InputError
 
 from ._seqio import SequenceFormatError, atomic_write_bytes
@@ -68,6 +70,7 @@ def read_sequence(path, *, use_cache: bool = True) -> Sequence:
     check_one_layout(path)
     sensor = read_sensor_config(path / SENSOR_TOML)
     scans = read_radar_csv(path / RADAR_CSV, use_cache=use_cache)
+    check_scan_rate(scans, sensor.rate_hz, path)
     gt_path = path / GROUNDTRUTH_TXT
     groundtruth = read_tum(gt_path) if gt_path.exists() else None
     if groundtruth is not None and scans and len(groundtruth.t):
@@ -81,6 +84,37 @@ def check_one_layout(path: Path) -> None:
     if (path / RIG_TOML).is_file() and (path / RADAR_CSV).is_file():
         raise InputError(f"{path}: holds both a rig ({RIG_TOML}) and a single sequence ({RADAR_CSV}); keep one per "
                          "directory")
+
+
+RATE_MISMATCH = 10.0  # the scans' period over 1 / rate_hz beyond which the two disagree (milliseconds: 1000)
+
+
+def check_scan_rate(scans, rate_hz: float, path) -> None:
+    """InputError unless the scans' period agrees with sensor.toml's rate_hz within a factor RATE_MISMATCH: times
+    in milliseconds, microseconds or nanoseconds (or a rate in the wrong unit) would otherwise run as a drive 1000x
+    slower, silently wrong. The period is the median over consecutive scans of their time step per scan index
+    (a scan without detections writes no rows, so indices may skip); one pair of scans is enough.
+
+    Checked by: tests/sim/test_sequence_rate.py
+    """
+    if len(scans) < 2:
+        return
+    index = np.array([s.scan for s in scans], dtype=float)
+    t = np.array([s.t for s in scans], dtype=float)
+    step = np.diff(index)
+    if not np.any(step > 0):
+        return
+    period = float(np.median(np.diff(t)[step > 0] / step[step > 0]))  # the readers refuse steps <= 0
+    ratio = period * rate_hz
+    if 1.0 / RATE_MISMATCH <= ratio <= RATE_MISMATCH:
+        return
+    units = {3: "milliseconds", 6: "microseconds", 9: "nanoseconds"}
+    decade = int(round(np.log10(ratio)))
+    hint = f"radar.csv's t is in seconds, {SENSOR_TOML}'s rate_hz in Hz"
+    hint = f"times in {units[decade]}? {hint}" if decade in units else f"{hint}: is one of them in another unit?"
+    raise SequenceFormatError(Path(path) / RADAR_CSV, f"the scans are {period:.6g} apart per scan (median), but "
+                              f"{SENSOR_TOML}'s rate_hz = {rate_hz:g} means {1.0 / rate_hz:.6g} s: {hint}",
+                              field="t")
 
 
 TIME_BASE_TOLERANCE = 1e-3  # s, as validation.association.DEFAULT_TOLERANCE
@@ -115,6 +149,7 @@ def write_sequence(path, seq: Sequence) -> None:
         raise InputError(f"seq.groundtruth: expected a Trajectory or None, got {type(seq.groundtruth).__name__}")
     # format everything first: nothing is written when any part is invalid
     radar_bytes = format_radar_csv(seq.scans)
+    check_scan_rate(seq.scans, seq.sensor.rate_hz, path)
     sensor_bytes = format_sensor_config(seq.sensor).encode("utf-8")
     gt_bytes = None if seq.groundtruth is None else format_tum(seq.groundtruth).encode("ascii")
     path = Path(path)

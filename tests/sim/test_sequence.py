@@ -33,11 +33,14 @@ def _col(n, lo, hi):
 
 
 @st.composite
-def scan_lists(draw, min_nonempty: int = 0, max_scans: int = 6, max_rows: int = 5):
-    """Scans with increasing (gappy) indices and times, some empty, full-range float values."""
+def scan_lists(draw, rate_hz: float = 10.0, min_nonempty: int = 0, max_scans: int = 6, max_rows: int = 5):
+    """Scans with increasing (gappy) indices, some empty, full-range float values; times whose period per scan
+    index is within a factor 5 of 1 / rate_hz, each scan up to 0.4 periods late (sequence.check_scan_rate)."""
     k = draw(st.integers(min_nonempty, max_scans))
     indices = sorted(draw(st.lists(st.integers(0, 10**6), min_size=k, max_size=k, unique=True)))
-    t = draw(st.floats(-1e6, 1e6)) + np.cumsum([draw(st.floats(1e-3, 10.0)) for _ in range(k)])
+    period = draw(st.floats(0.2, 5.0)) / rate_hz
+    t = draw(st.floats(-1e6, 1e6)) + period * (np.array(indices, dtype=float)
+                                               + np.array([draw(st.floats(0.0, 0.4)) for _ in range(k)]))
     extras = draw(st.sampled_from([(), ("snr",), ("snr", "rcs")]))
     nonempty = set(draw(st.permutations(range(k)))[:min_nonempty]) if k else set()
     scans = []
@@ -60,12 +63,13 @@ def trajectories_at(draw, times):
 
 @st.composite
 def sequences(draw, min_nonempty: int = 0, with_groundtruth=None):
-    scans = draw(scan_lists(min_nonempty=min_nonempty))
+    sensor = draw(sensor_configs())
+    scans = draw(scan_lists(sensor.rate_hz, min_nonempty=min_nonempty))
     gt = None
     want_gt = draw(st.booleans()) if with_groundtruth is None else with_groundtruth
     if scans and want_gt:
         gt = draw(trajectories_at([s.t for s in scans]))
-    return Sequence(sensor=draw(sensor_configs()), scans=scans, groundtruth=gt)
+    return Sequence(sensor=sensor, scans=scans, groundtruth=gt)
 
 
 def same_bits(a, b) -> bool:
