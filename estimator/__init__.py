@@ -21,6 +21,7 @@ A map of the package (each module's public names are re-exported here):
     surface.py          surface-shaped covariances of new map points (the optional surface model)
     ground.py           the road returns kept out of the pairs and the map (the optional ground band)
     window.py           SlidingWindow: Gauss-Newton over prior, motion and measurement terms, marginalisation
+    spd.py              the window's dense SPD solves, the trailing block of an inverse (its covariances)
     uncertainty.py      the pose covariance that grows as drift does (relative, absolute, over a span)
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
     sensor.py           Sensor: one radar of the odometry (extrinsics, noise, association, Doppler front end)
@@ -61,6 +62,7 @@ _EXPORTS = {
                        "wrap_angle"),
     "scan_association": ("MapAssociation", "ScanMeasurements"),
     "scan": ("ScanDetail", "ScanEstimate"),
+    "spd": ("inv_spd", "solve_spd", "trailing_inverse"),
     "sensor": ("Sensor",),
     "state": ("State", "stacked"),
     "surface": ("surface_covariances",),

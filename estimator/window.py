@@ -15,17 +15,16 @@ Checked by: tests/estimator/test_window.py
 
 from __future__ import annotations
 
-import functools
 import itertools
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
 
 from . import motion_kernels, window_kernels
 from .lie import se3
 from .measurement_models import MeasurementModel
 from .motion import MotionPrior
+from .spd import inv_spd, solve_spd, trailing_inverse
 from .state import State, stacked
 
 
@@ -77,7 +76,7 @@ class SlidingWindow:
         self.motion_info = []
         self._motion_info = None
         self.prior_mean = x0.copy()
-        self.prior_info = _inv_spd(P0)
+        self.prior_info = inv_spd(P0)
         self.prior_grad = np.zeros(len(P0))
         self.rate_prior = [None]
         self._H = None
@@ -87,7 +86,7 @@ class SlidingWindow:
         self.states.append(x.copy())
         self.meas.append(None)
         self.rate_prior.append(None)
-        self.motion_info.append(_inv_spd(Q))
+        self.motion_info.append(inv_spd(Q))
         self._motion_info = None
         self._H = None
 
@@ -273,7 +272,7 @@ class SlidingWindow:
         H, b, cost = self.linearize(lagged=not reweight)
         step, it = 1.0, 0
         for it in range(1, iterations + 1):
-            delta, factor = _solve_spd(H, -b, factor=True)
+            delta, factor = solve_spd(H, -b, factor=True)
             self._factor = (H, factor)
             if not np.isfinite(delta).all():
                 break
@@ -306,13 +305,13 @@ class SlidingWindow:
     def newest_covariances(self) -> tuple[np.ndarray, np.ndarray | None]:
         """(P of the newest state, joint covariance (2 dim, 2 dim) of the two newest states [x_{n-2}; x_{n-1}] or
         None when the window holds one state): the trailing block of the inverse of the window's information
-        (`_trailing_inverse`), from the Cholesky factor of the solve's last step when that was taken with the
+        (`spd.trailing_inverse`), from the Cholesky factor of the solve's last step when that was taken with the
         kept information (P is the newest block of the joint covariance)."""
         H = self._H if self._H is not None else self.linearize()[0]
         d = self.motion.dim
         k = min(len(self.states), 2) * d
         kept = self._factor if self._factor is not None and self._factor[0] is H else None
-        X = _trailing_inverse(H, k, None if kept is None else kept[1])
+        X = trailing_inverse(H, k, None if kept is None else kept[1])
         return X[-d:, -d:].copy(), (X if k == 2 * d else None)
 
     def marginalize_oldest(self, memory: float = 0.0) -> None:
@@ -324,7 +323,7 @@ class SlidingWindow:
         keep = float(np.exp((x0.t - x1.t) / memory)) if memory > 0 else 1.0
         H, b, _ = self._normal_equations(2, lagged=True, first_only=True)
         H00, H01, H11 = H[:d, :d], H[:d, d:], H[d:, d:]
-        X = _solve_spd(H00, np.column_stack((H01, b[:d])))
+        X = solve_spd(H00, np.column_stack((H01, b[:d])))
         Lam = H11 - H01.T @ X[:, :d]
         g = b[d:] - H01.T @ X[:, d]
         # the new prior on x1: 1/2 e^T Lam e + g^T e with e = x1 (-) x1_now, exactly the Schur complement here
@@ -358,53 +357,3 @@ _NO_PACK = (np.zeros(1, np.int64), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros(
 def _joined(arrays: list[np.ndarray]) -> np.ndarray:
     """The arrays concatenated along their first axis for the kernel; one array as it is (C-contiguous floats)."""
     return np.ascontiguousarray(arrays[0], dtype=float) if len(arrays) == 1 else np.concatenate(arrays)
-
-
-def _solve_spd(H: np.ndarray, rhs: np.ndarray, factor: bool = False):
-    """Solve H x = rhs for symmetric positive (semi-)definite H (LAPACK dposv; the fastest here for the
-    window's sizes), with a tiny relative jitter if the Cholesky factorisation fails. With factor, returns
-    (x, the factor of H as dposv leaves it, its lower triangle L with H = L L^T; None when H needed the jitter
-    or the least-squares fallback)."""
-    jitter = 0.0
-    for _ in range(6):
-        c, x, info = sla.lapack.dposv(H + jitter * np.eye(len(H)) if jitter else H, rhs, lower=1)
-        if info == 0:
-            return (x, c if jitter == 0.0 else None) if factor else x
-        jitter = max(np.max(np.abs(np.diag(H))), 1e-300) * 1e-12 if jitter == 0 else jitter * 100
-    x = np.linalg.lstsq(H, rhs, rcond=None)[0]
-    return (x, None) if factor else x
-
-
-def _trailing_inverse(H: np.ndarray, k: int, factor: np.ndarray | None = None) -> np.ndarray:
-    """The trailing k x k block of H^-1 (H symmetric positive definite), from the trailing block of its Cholesky
-    factor: with H = L L^T, H^-1 = L^-T L^-1 and L^-1 lower triangular, so (H^-1)_BB = (L_BB L_BB^T)^-1 for the
-    last block B (LAPACK dpotri on L_BB). factor: H's factor if known (`_solve_spd`), else H is factored here.
-    Falls back to solving for the block's columns when H is not numerically positive definite.
-
-    Checked by: tests/estimator/test_window.py::test_trailing_inverse_is_the_block_of_the_inverse
-    """
-    if factor is None:
-        c, info = sla.lapack.dpotrf(H, lower=1)
-        factor = c if info == 0 else None
-    if factor is not None:
-        X, info = sla.lapack.dpotri(factor[-k:, -k:], lower=1)
-        if info == 0:
-            upper, lower = _triangles(k)
-            X[upper] = X[lower]  # dpotri leaves the lower triangle
-            return X
-    E = np.zeros((len(H), k))
-    E[-k:, :] = np.eye(k)
-    X = _solve_spd(H, E)[-k:, :]
-    return 0.5 * (X + X.T)
-
-
-@functools.lru_cache(maxsize=8)
-def _triangles(k: int) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """The indices of the strict upper triangle of a k x k matrix and of its mirror image in the lower one."""
-    i, j = np.triu_indices(k, 1)
-    return (i, j), (j, i)
-
-
-def _inv_spd(P: np.ndarray) -> np.ndarray:
-    W = _solve_spd(P, np.eye(len(P)))
-    return 0.5 * (W + W.T)

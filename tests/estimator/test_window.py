@@ -15,7 +15,8 @@ from rodo.estimator.lie import se3
 from rodo.estimator.measurement_models import PolarModel
 from rodo.estimator.motion import motion_prior
 from rodo.estimator.state import State, stacked
-from rodo.estimator.window import MeasurementSet, SlidingWindow, _trailing_inverse
+from rodo.estimator.spd import trailing_inverse
+from rodo.estimator.window import MeasurementSet, SlidingWindow
 from tests.estimator import scene
 from tests.strategies import covariances, hypothesis_rngs
 
@@ -109,7 +110,7 @@ def test_trailing_inverse_is_the_block_of_the_inverse(k_and_H, factored):
     exactly symmetric."""
     k, H = k_and_H
     factor = sla.lapack.dpotrf(H, lower=1)[0] if factored else None
-    X = _trailing_inverse(H, k, factor)
+    X = trailing_inverse(H, k, factor)
     E = np.zeros((len(H), k))
     E[-k:] = np.eye(k)
     reference = np.linalg.solve(H, E)[-k:]
@@ -123,7 +124,7 @@ def test_trailing_inverse_of_a_semidefinite_information_is_the_jittered_solve():
     B = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
     H = np.zeros((5, 5))
     H[2:, 2:] = B
-    np.testing.assert_allclose(_trailing_inverse(H, 3), np.linalg.inv(B), rtol=1e-10)
+    np.testing.assert_allclose(trailing_inverse(H, 3), np.linalg.inv(B), rtol=1e-10)
 
 
 @pytest.mark.parametrize("kind", ["ca", "cv"])
