@@ -8,7 +8,6 @@ Checked by: tests/sim/test_export.py
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +15,7 @@ import numpy as np
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.sim.kitti_poses import format_kitti_poses
-from rodo.sim.sequence import RadarScan, Sequence, Trajectory
+from rodo.sim.sequence import RadarScan, Sequence, Trajectory, atomic_write_bytes
 
 PLY_TYPES = {"f4": "float", "f8": "double", "i4": "int", "u4": "uint", "i2": "short", "u2": "ushort",
              "i1": "char", "u1": "uchar"}
@@ -25,10 +24,8 @@ KITTI_SEQUENCE = "00"
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
     try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
+        atomic_write_bytes(path, data)  # a uniquely named temporary file, fsync, rename; removed on failure
     except OSError as exc:
         raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
 

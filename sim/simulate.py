@@ -20,7 +20,7 @@ from rodo.estimator.errors import InputError
 from .faults import Faults
 from .faults import apply as apply_faults
 from .radar import Radar, RadarConfig, empty_detections
-from .sequence import RadarScan, Sequence, Trajectory, write_sequence
+from .sequence import RadarScan, Sequence, Trajectory, atomic_write_bytes, write_sequence
 from .sequence_types import check_pose
 from .trajectory import Profile
 from .world import World
@@ -145,7 +145,7 @@ def save_npz(path, arrays: dict) -> None:
             data = io.BytesIO()
             np.lib.format.write_array(data, np.ascontiguousarray(arrays[key]), allow_pickle=False)
             zf.writestr(info, data.getvalue(), compresslevel=1)
-    Path(path).write_bytes(buf.getvalue())
+    atomic_write_bytes(path, buf.getvalue())  # a crash never leaves a truncated truth.npz
 
 
 def write_simulation(out_dir, seq: Sequence, truth: dict) -> Path:

@@ -37,6 +37,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.sim.sequence import atomic_write_bytes
 
 from .campaign_dir import campaign_lock, check_and_save_meta
 from .campaign_consistency import campaign_consistency, consistency_lines
@@ -363,7 +364,7 @@ def write_summary(out_dir, summary: dict, plot_note: str = "") -> None:
     out = Path(out_dir)
     slim = {**summary, "models": {m: {k: v for k, v in e.items() if k not in ("nees_curve", "consistency_curves")}
                                   for m, e in summary["models"].items()}}
-    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    atomic_write_bytes(out / "summary.json", (json.dumps(summary, indent=1) + "\n").encode())
     fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
     lines = ["# Monte Carlo campaign", ""]
     meta_path = out / "campaign.json"
@@ -395,4 +396,4 @@ def write_summary(out_dir, summary: dict, plot_note: str = "") -> None:
     lines += comparison_lines(summary.get("comparisons", []), fmt)
     if plot_note:
         lines += [plot_note, ""]
-    (out / "summary.md").write_text("\n".join(lines))
+    atomic_write_bytes(out / "summary.md", "\n".join(lines).encode())

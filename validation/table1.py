@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.sim.sequence import atomic_write_bytes
 
 from .campaign import npz_path, read_results
 from .campaign_files import load_trial_arrays
@@ -242,6 +243,7 @@ def write_table(out_dir, table: dict, meta: dict | None = None) -> str:
     text = render_markdown(table)
     if meta:
         text += "Parameters: " + ", ".join(f"{k}={v}" for k, v in sorted(meta.items())) + "\n"
-    (out / "table1.md").write_text(text)
-    (out / "table1.json").write_text(json.dumps(jsonable({**table, "parameters": meta or {}}), indent=1) + "\n")
+    atomic_write_bytes(out / "table1.md", text.encode())
+    meta_table = jsonable({**table, "parameters": meta or {}})
+    atomic_write_bytes(out / "table1.json", (json.dumps(meta_table, indent=1) + "\n").encode())
     return text

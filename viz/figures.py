@@ -10,11 +10,13 @@ Checked by: tests/viz/test_figures.py
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.sim.sequence import atomic_write_bytes
 from rodo.validation.consistency import fraction_within
 from rodo.validation.covariance import covariance_axes
 
@@ -33,10 +35,13 @@ def _figure(w: float, h: float):
     return fig
 
 
-def _save(fig, path) -> Path:
+def save_png(fig, path) -> Path:
+    """The figure as PNG at path, written atomically (an interrupted run leaves no half-written figure)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png")
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    atomic_write_bytes(path, buf.getvalue())
     return path
 
 
@@ -103,7 +108,7 @@ def plot_nees(path, t, nees_mean, bounds, labels, title: str = "Normalised estim
     ax.grid(alpha=0.3)
     ax.legend(loc="upper left", fontsize=8)
     ax.set_title(title)
-    return _save(fig, path)
+    return save_png(fig, path)
 
 
 def figure1_prior(path, data: dict) -> Path:
@@ -151,7 +156,7 @@ def figure1_prior(path, data: dict) -> Path:
     c = d["case"]
     fig.suptitle(f"Fig. 1: constant-acceleration prior, pure yaw acceleration {-c['vd0'][5]:.2f} rad/s^2 at "
                  f"{-c['varpi0'][0]:.0f} m/s ({d['samples_pos'].shape[1]} samples per time)", fontsize=11)
-    return _save(fig, path)
+    return save_png(fig, path)
 
 
 # ------------------------------------------------------------------------------------------------ Fig. 2
@@ -187,7 +192,7 @@ def figure2_measurement_models(path, data: dict, magnify: float = 5.0) -> Path:
     ax_r.grid(alpha=0.3, which="both")
     ax_r.legend(fontsize=8, loc="lower right")
     fig.suptitle("Fig. 2: polar vs Cartesian measurement model", fontsize=11)
-    return _save(fig, path)
+    return save_png(fig, path)
 
 
 # ------------------------------------------------------------------------------------------------ Fig. 3
@@ -228,7 +233,7 @@ def figure3_association(path, data: dict) -> Path:
     ax_v.grid(alpha=0.3)
     fig.suptitle(f"Fig. 3: unmodelled yaw acceleration {d['yaw_accel']:.2f} rad/s^2 over dt = {d['dt']*1e3:.0f} ms "
                  f"(azimuth bias {np.degrees(d['bias'][1]):.3f} deg)", fontsize=11)
-    return _save(fig, path)
+    return save_png(fig, path)
 
 
 # ------------------------------------------------------------------------------------------------ Fig. 4
@@ -263,7 +268,7 @@ def figure4_trajectories(path, data: dict) -> Path:
     ax_h.grid(alpha=0.3)
     fig.suptitle(f"Fig. 4: odometry on simulated '{d['scenario']}' (seed {d['seed']}, {d['duration']:.0f} s, "
                  f"{d['path_length']:.0f} m)", fontsize=11)
-    return _save(fig, path)
+    return save_png(fig, path)
 
 
 def figure5_out_of_plane(path, data: dict) -> Path:
@@ -287,7 +292,7 @@ def figure5_out_of_plane(path, data: dict) -> Path:
     fig.suptitle(f"Fig. 5: out-of-plane drift on simulated '{d['scenario']}' (seed {d['seed']}, "
                  f"{d['duration']:.0f} s, {d['path_length']:.0f} m): solid with the roll and pitch rate terms, "
                  "dashed without", fontsize=10)
-    return _save(fig, path)
+    return save_png(fig, path)
 
 
 FIGURES = ((1, "fig1_prior.png", figure1_prior), (2, "fig2_measurement_models.png", figure2_measurement_models),

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .figures import save_png
+
 SIM, REAL = "#3b6fd8", "#e0479e"
 
 
@@ -46,7 +48,4 @@ def plot_realism(path, report) -> Path:
         ax.set_title(f"{name}{dist}", fontsize=10)
     axes[0].legend(fontsize=8)
     fig.suptitle(f"rodo realism {report.profile}: simulated vs real", fontsize=12)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png")
-    return path
+    return save_png(fig, path)

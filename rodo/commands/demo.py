@@ -17,6 +17,7 @@ from pathlib import Path
 
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.errors import InputError
+from rodo.outputs import write_text_atomic
 from rodo.progress import Progress
 
 
@@ -54,7 +55,7 @@ def main(args) -> int:
     rrd = _record(out, seq, truth, results["ca-polar"][0])
     if not args.no_figures:
         _figures(out)
-    (out / "demo.json").write_text(json.dumps(_jsonable(report), indent=2) + "\n")
+    write_text_atomic(out / "demo.json", json.dumps(_jsonable(report), indent=2) + "\n")
     from rodo.commands.run import rodo_command
 
     print(f"\nDone. Results in {out}/ (demo.json, per-model estimate.txt / states.npz / summary.json / "
@@ -123,7 +124,7 @@ def _run_and_evaluate(model: str, seq, truth: dict, out: Path):
     path_len = float(np.sum(np.linalg.norm(np.diff(seq.groundtruth.T_world_vehicle[:, :3, 3], axis=0), axis=1)))
     lengths = [L for L in (50.0, 100.0, 200.0, 400.0, 800.0) if L < 0.9 * path_len] or [path_len / 2]
     ev = evaluate(seq.groundtruth, res.trajectory(), lengths=lengths, states=states, truth=truth)
-    (run_dir / "evaluation.json").write_text(json.dumps(_jsonable(ev), indent=2) + "\n")
+    write_text_atomic(run_dir / "evaluation.json", json.dumps(_jsonable(ev), indent=2) + "\n")
     print(f"    {time.perf_counter() - tic:.1f} s -> {run_dir}")
     return res, ev
 

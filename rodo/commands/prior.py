@@ -3,14 +3,17 @@ the prior's propagated Gaussian against the samples (mean NEES within chi-square
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.outputs import write_text_atomic
 from rodo.estimator.priors import ConstantAccelerationPrior
 from rodo.sim import prior_sampling as ps
+from rodo.sim.sequence import atomic_write_bytes
 
 
 def register(subparsers) -> None:
@@ -55,10 +58,11 @@ def run(args) -> int:
     }
     try:
         args.out.mkdir(parents=True, exist_ok=True)
-        np.savez(args.out / "prior_montecarlo.npz", T=samples[0], varpi=samples[1], varpi_dot=samples[2],
-                 mean_T=T_m, mean_varpi=w_m, mean_varpi_dot=v_m, covariance=P, nees=eps,
-                 Qc=case["Qc"], P0=case["P0"])
-        (args.out / "prior_montecarlo.json").write_text(json.dumps(result, indent=2) + "\n")
+        buf = io.BytesIO()
+        np.savez(buf, T=samples[0], varpi=samples[1], varpi_dot=samples[2], mean_T=T_m, mean_varpi=w_m,
+                 mean_varpi_dot=v_m, covariance=P, nees=eps, Qc=case["Qc"], P0=case["P0"])
+        atomic_write_bytes(args.out / "prior_montecarlo.npz", buf.getvalue())
+        write_text_atomic(args.out / "prior_montecarlo.json", json.dumps(result, indent=2) + "\n")
     except OSError as exc:
         raise InputError(f"--out: cannot write to {args.out} ({exc})") from None
     verdict = "PASS" if result["pass"] else "FAIL"

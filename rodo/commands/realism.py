@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 
 from rodo.estimator.errors import InputError
-from rodo.outputs import check_output_dir
+from rodo.outputs import check_output_dir, write_text_atomic
 
 REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
 
@@ -75,11 +75,11 @@ def run_realism(args: argparse.Namespace) -> int:
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         stem = out / f"realism_{args.profile}"
-        (stem.with_suffix(".md")).write_text(table + "\n\n" + "\n".join(f"- {n}" for n in report.notes) + "\n")
+        write_text_atomic(stem.with_suffix(".md"), table + "\n\n" + "\n".join(f"- {n}" for n in report.notes) + "\n")
         rows = [dict(statistic=r.name, sim=r.sim, real=r.real, distance=r.distance, measure=r.measure, ok=r.ok)
                 for r in report.rows]
-        (stem.with_suffix(".json")).write_text(json.dumps({"profile": args.profile, "goal": realism.GOAL,
-                                                           "rows": rows, "notes": report.notes}, indent=1) + "\n")
+        write_text_atomic(stem.with_suffix(".json"), json.dumps({"profile": args.profile, "goal": realism.GOAL,
+                                                                 "rows": rows, "notes": report.notes}, indent=1) + "\n")
         if extras.is_installed("matplotlib"):
             from rodo.viz.realism import plot_realism  # viz is the only package importing matplotlib
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
-from rodo.sim.sequence import RadarScan, Sequence, write_sequence
+from rodo.sim.sequence import RadarScan, Sequence, atomic_write_bytes, write_sequence
 
 CONVERSION_JSON = "conversion.json"
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -232,10 +232,10 @@ def write_conversion(out_dir, conv: Conversion) -> Path:
     out = Path(out_dir)
     write_sequence(out, conv.sequence)
     try:
-        (out / CONVERSION_JSON).write_text(json.dumps(conv.report.to_dict(), indent=2, sort_keys=True) + "\n",
-                                           encoding="utf-8")
+        atomic_write_bytes(out / CONVERSION_JSON,
+                           (json.dumps(conv.report.to_dict(), indent=2, sort_keys=True) + "\n").encode("utf-8"))
         for name, text in conv.extra_files.items():
-            (out / name).write_text(text, encoding="utf-8")
+            atomic_write_bytes(out / name, text.encode("utf-8"))
     except OSError as exc:
         raise InputError(f"{out}: cannot write ({exc.strerror or exc})") from None
     return out

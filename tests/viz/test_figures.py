@@ -85,8 +85,8 @@ def test_plot_nees_of_several_measures_per_dof(tmp_path, monkeypatch):
     rng = np.random.default_rng(np.random.SeedSequence(4))
     y = np.c_[rng.chisquare(60, 40) / 60, np.full(40, np.nan), 100 * rng.chisquare(60, 40) / 60]
     drawn = []
-    save = figures._save
-    monkeypatch.setattr(figures, "_save", lambda fig, path: (drawn.append(fig), save(fig, path))[1])
+    save = figures.save_png
+    monkeypatch.setattr(figures, "save_png", lambda fig, path: (drawn.append(fig), save(fig, path))[1])
     lo, hi = chi2_bounds(10, 6) / 6
     assert_png(figures.plot_nees(tmp_path / "c.png", t, y, (lo, hi), ["velocity", "acceleration", "pose_window"],
                                  title="m", ylabel="average NEES / dof"))
