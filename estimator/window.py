@@ -228,9 +228,9 @@ class SlidingWindow:
         ks = np.array(ks_list, np.int64)
         lag = [lagged and k != newest and self._lag_ready(m) for k, m in zip(ks_list, sets)]
         fresh = [q for q in range(K) if not lag[q]]
-        slot_list, next_slot = [-1] * K, 0
-        for q in fresh:
-            slot_list[q], next_slot = next_slot, next_slot + 1
+        slot_list = [-1] * K  # a fresh state's slot in the pack; -1: its terms lag
+        for s, q in enumerate(fresh):
+            slot_list[q] = s
         slot = np.array(slot_list, np.int64)
         T0_inverse, varpi0 = np.empty((K, 4, 4)), np.empty((K, 6))
         H0, b0, c0 = np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K)
