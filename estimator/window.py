@@ -98,8 +98,8 @@ class SlidingWindow:
     def set_rate_prior(self, k: int, info: np.ndarray | None) -> None:
         """A zero-mean term on state k's rates: cost 1/2 t^T info t with t = [varpi; varpi_dot] (a standstill seen by
         the Doppler: a wheeled vehicle at rest neither moves nor turns; or a moving road vehicle's roll and pitch
-        rates), or None to remove it."""
-        self.rate_prior[k] = info
+        rates), or None to remove it. The window keeps a copy (its kernel arrays are kept per term, `_rate_terms`)."""
+        self.rate_prior[k] = None if info is None else np.array(info, dtype=float)
         self._H = None
 
     def set_measurements(self, k: int, mset: MeasurementSet | None) -> None:
@@ -184,7 +184,7 @@ class SlidingWindow:
     def _rate_terms(self, n: int, first_only: bool) -> tuple[np.ndarray, np.ndarray]:
         """(rate_on (n,), rate_info (n, d - 6, d - 6)) of the first n states for the kernel: each state's rate
         term, only the oldest's with first_only. Kept while the window holds the same rate terms (compared by
-        identity: `set_rate_prior` replaces a term, it never changes one in place)."""
+        identity: `set_rate_prior` stores its own copy of a term, which nothing changes in place)."""
         key = (n, first_only, *(id(r) for r in self.rate_prior[:n]))
         kept = self._rates.get(key)
         if kept is not None and all(a is b for a, b in zip(kept[0], self.rate_prior[:n])):

@@ -95,6 +95,26 @@ def create_temp(directory, name: str) -> tuple[int, str]:
     raise FileExistsError(f"no free temporary name for {name} in {directory}")
 
 
+def temporary_beside(path) -> Path:
+    """A uniquely named empty file beside `path` (`create_temp`), for a writer that opens files by name (Rerun's
+    recordings); finish with `replace_synced`."""
+    path = Path(path)
+    fd, tmp = create_temp(path.parent, path.name)
+    os.close(fd)
+    return Path(tmp)
+
+
+def replace_synced(tmp, path) -> None:
+    """The written temporary file `tmp` on disk (fsync), then renamed to `path`; on failure `tmp` is removed."""
+    try:
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
 def atomic_write_bytes(path, data: bytes) -> None:
     """Write `data` to `path` atomically: a temporary file in the same directory, fsync, then os.replace.
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 
-from ._seqio import SequenceFormatError, atomic_write_bytes
+from ._seqio import SequenceFormatError, atomic_write_bytes, replace_synced, temporary_beside
 from .radar_csv import cache_path, format_radar_csv, read_radar_csv
 from .sensor_config import format_sensor_config, read_sensor_config, write_sensor_config
 from .sequence_types import (
@@ -41,7 +41,8 @@ __all__ = [
     "GROUNDTRUTH_TXT", "RADAR_CSV", "RIG_TOML", "SENSOR_TOML", "NoiseSigmas", "RadarScan", "SensorConfig", "Sequence",
     "SequenceFormatError", "atomic_write_bytes", "Trajectory", "cache_path", "check_one_layout", "polar_to_cartesian",
     "read_radar_csv",
-    "read_sensor_config", "read_sequence", "read_tum", "write_sensor_config", "write_sequence", "write_tum",
+    "read_sensor_config", "read_sequence", "read_tum", "replace_synced", "temporary_beside", "write_sensor_config",
+    "write_sequence", "write_tum", "check_scan_rate",
 ]
 
 
@@ -92,27 +93,29 @@ RATE_MISMATCH = 10.0  # the scans' period over 1 / rate_hz beyond which the two 
 def check_scan_rate(scans, rate_hz: float, path) -> None:
     """InputError unless the scans' period agrees with sensor.toml's rate_hz within a factor RATE_MISMATCH: times
     in milliseconds, microseconds or nanoseconds (or a rate in the wrong unit) would otherwise run as a drive 1000x
-    slower, silently wrong. The period is the median over consecutive scans of their time step per scan index
-    (a scan without detections writes no rows, so indices may skip); one pair of scans is enough.
+    slower, silently wrong. The period is the median time step between consecutive scans. Scans without detections
+    write no rows, which lengthens the steps; so a period too long is refused only when the median step per scan
+    index is too long as well (for indices that count the radar's scans it is the period itself; an index that
+    counts something else cannot make a sequence refused). One pair of scans is enough.
 
     Checked by: tests/sim/test_sequence_rate.py
     """
     if len(scans) < 2:
         return
-    index = np.array([s.scan for s in scans], dtype=float)
-    t = np.array([s.t for s in scans], dtype=float)
-    step = np.diff(index)
-    if not np.any(step > 0):
-        return
-    period = float(np.median(np.diff(t)[step > 0] / step[step > 0]))  # the readers refuse steps <= 0
-    ratio = period * rate_hz
-    if 1.0 / RATE_MISMATCH <= ratio <= RATE_MISMATCH:
+    step = np.diff(np.array([s.scan for s in scans], dtype=np.int64))
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):  # finite times may step by inf
+        dt = np.diff(np.array([s.t for s in scans], dtype=float))
+        period = float(np.median(dt))
+        per_index = float(np.median(dt[step > 0] / step[step > 0])) if np.any(step > 0) else period
+        ratio = period * rate_hz
+        slow = min(ratio, per_index * rate_hz)
+    if 1.0 / RATE_MISMATCH <= ratio and not slow > RATE_MISMATCH:
         return
     units = {3: "milliseconds", 6: "microseconds", 9: "nanoseconds"}
-    decade = int(round(np.log10(ratio)))
+    decade = int(round(np.log10(ratio))) if np.isfinite(ratio) and ratio > 0 else None
     hint = f"radar.csv's t is in seconds, {SENSOR_TOML}'s rate_hz in Hz"
     hint = f"times in {units[decade]}? {hint}" if decade in units else f"{hint}: is one of them in another unit?"
-    raise SequenceFormatError(Path(path) / RADAR_CSV, f"the scans are {period:.6g} apart per scan (median), but "
+    raise SequenceFormatError(Path(path) / RADAR_CSV, f"the scans are {period:.6g} apart (median), but "
                               f"{SENSOR_TOML}'s rate_hz = {rate_hz:g} means {1.0 / rate_hz:.6g} s: {hint}",
                               field="t")
 

@@ -23,6 +23,7 @@ from rodo.estimator.errors import InputError, check_finite
 from rodo.estimator.lie import se3, so3
 from rodo.estimator.measurements import polar_to_cartesian
 from rodo.estimator.scan import ScanDetail
+from rodo.sim.sequence import replace_synced, temporary_beside
 from rodo.validation.alignment import align_to_first
 from rodo.validation.association import match_index
 from rodo.validation.consistency import NIS_DOF, chi2_bounds
@@ -272,7 +273,7 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     truth_m = _Truth(seq, result, truth)
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = temporary_beside(path)
     rec = rr.RecordingStream("rodo", recording_id=recording_id)
     rec.save(tmp)
     try:
@@ -283,7 +284,7 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
         tmp.unlink(missing_ok=True)
         raise
     rec.disconnect()  # closes the file sink: the .rrd is complete when this returns
-    os.replace(tmp, path)  # a crash never leaves half a recording under the final name
+    replace_synced(tmp, path)  # a crash never leaves half a recording under the final name
     return path
 
 
@@ -306,7 +307,7 @@ def record_sequence(path, seq, truth: dict | None = None, recording_id: str | No
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     gt = seq.groundtruth
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = temporary_beside(path)
     rec = rr.RecordingStream("rodo", recording_id=recording_id)
     rec.save(tmp)
     try:
@@ -340,7 +341,7 @@ def record_sequence(path, seq, truth: dict | None = None, recording_id: str | No
         tmp.unlink(missing_ok=True)
         raise
     rec.disconnect()
-    os.replace(tmp, path)
+    replace_synced(tmp, path)
     return path
 
 
@@ -386,3 +387,4 @@ def _write(rec, rr, seq, result, truth_m: _Truth, detail) -> None:
     _log_scans(rec, rr, seq, result, truth_m, detail)
     pts = positions if truth_m.T_world_vehicle is None else np.r_[positions, truth_m.T_world_vehicle[:, :3, 3]]
     rec.send_blueprint(build_blueprint(pts, logged))
+

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
-from rodo.outputs import write_text_atomic
 from rodo.estimator.priors import ConstantAccelerationPrior
+from rodo.outputs import write_text_atomic
 from rodo.sim import prior_sampling as ps
 from rodo.sim.sequence import atomic_write_bytes
 

@@ -1,5 +1,6 @@
 """Results are never lost to an interrupted write: the simulator's truth.npz, a campaign's summaries, Table I and
-every figure are written through `atomic_write_bytes` (a temporary file, fsync, rename). A write that fails
+every figure are written through `atomic_write_bytes` (a temporary file, fsync, rename), Rerun's recordings into a
+uniquely named temporary file that is synced and renamed (`replace_synced`). A write that fails
 part-way (here: fsync raising, as on a full disk) leaves the previous file whole and no temporary file behind."""
 
 import os
@@ -42,8 +43,18 @@ def _figure(path, value):
     save_png(fig, path / "figure.png")
 
 
+def _recording(path, value):
+    pytest.importorskip("rerun")
+    from rodo import scenarios
+    from rodo.viz.recording import record_sequence
+
+    seq, _ = scenarios.get("city").simulate(int(value), duration=0.2)
+    record_sequence(path / "seq.rrd", seq)
+
+
 @pytest.mark.parametrize("write, names", [(_truth, ["truth.npz"]), (_summary, ["summary.json", "summary.md"]),
-                                          (_table, ["table1.md", "table1.json"]), (_figure, ["figure.png"])])
+                                          (_table, ["table1.md", "table1.json"]), (_figure, ["figure.png"]),
+                                          (_recording, ["seq.rrd"])])
 def test_an_interrupted_write_keeps_the_previous_file(tmp_path, monkeypatch, write, names):
     write(tmp_path, 1.0)
     before = {n: (tmp_path / n).read_bytes() for n in names}

@@ -6,7 +6,6 @@ import copy
 
 import numpy as np
 import pytest
-import scipy.linalg as sla
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -15,7 +14,7 @@ from rodo.estimator.lie import se3
 from rodo.estimator.measurement_models import PolarModel
 from rodo.estimator.motion import motion_prior
 from rodo.estimator.state import State, stacked
-from rodo.estimator.spd import trailing_inverse
+from rodo.estimator.spd import solve_spd, trailing_inverse
 from rodo.estimator.window import MeasurementSet, SlidingWindow
 from tests.estimator import scene
 from tests.strategies import covariances, hypothesis_rngs
@@ -109,7 +108,7 @@ def test_trailing_inverse_is_the_block_of_the_inverse(k_and_H, factored):
     passed in (the solve's) or computed: equal to the block of a full solve to the conditioning's rounding, and
     exactly symmetric."""
     k, H = k_and_H
-    factor = sla.lapack.dpotrf(H, lower=1)[0] if factored else None
+    factor = solve_spd(H, np.ones(len(H)), factor=True)[1] if factored else None  # dposv's: H above the diagonal
     X = trailing_inverse(H, k, factor)
     E = np.zeros((len(H), k))
     E[-k:] = np.eye(k)
@@ -138,6 +137,7 @@ def test_newest_covariances_are_the_trailing_block_of_the_inverse_information(ki
     for fresh in (False, True):
         if fresh:
             win.set_measurements(len(win.states) - 1, win.meas[-1])  # forgets the kept information
+        assert (win._factor[0] is win._H) is not fresh  # the solve's factor is the kept information's, or stale
         P, P_pair = win.newest_covariances()
         inverse = np.linalg.inv(win._H if not fresh else win.linearize()[0])[-2 * d:, -2 * d:]
         atol = 1e-10 * np.abs(inverse).max()

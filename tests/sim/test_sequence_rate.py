@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 
 from rodo import scenarios
 from rodo.estimator.errors import InputError
-from rodo.sim.sequence import RATE_MISMATCH, read_sequence, write_sequence
+from rodo.sim.sequence import RATE_MISMATCH, check_scan_rate, read_sequence, write_sequence
+from rodo.sim.sequence_types import RadarScan
 from tests.cli.helpers import fails
 
 
@@ -69,25 +70,47 @@ def test_a_rate_in_the_wrong_unit_is_refused(city, tmp_path, rate_hz, hint):
 
 
 def test_missing_scans_are_no_mismatch(city, tmp_path):
-    """Every third scan alone (the others without detections write no rows): the period per scan index is still
-    1 / rate_hz, bit for bit the simulator's times."""
-    seq = _with_times(city, keep=lambda k: k % 3 == 0)
+    """Every twelfth scan alone (the others without detections write no rows): the time steps are 12 periods, more
+    than RATE_MISMATCH, but per scan index the period is 1 / rate_hz; read back bit for bit."""
+    seq = _with_times(city, keep=lambda k: k % 12 == 0)
+    assert len(seq.scans) >= 2
     write_sequence(tmp_path, seq)
     back = read_sequence(tmp_path, use_cache=False)
     assert [s.t for s in back.scans] == [s.t for s in seq.scans]
 
 
-@settings(max_examples=40, deadline=None)
-@given(st.floats(0.01, 100.0), st.floats(0.5, 2.0 * RATE_MISMATCH))
-def test_the_bound_is_a_factor_of_the_period(rate_hz, factor):
-    """Scans a factor of the rate's period apart per scan index: accepted up to RATE_MISMATCH, refused beyond."""
-    from rodo.sim.sequence import check_scan_rate
-    from rodo.sim.sequence_types import RadarScan
+def _scans(index, t):
     empty = np.zeros(0)
-    scans = [RadarScan(scan=2 * k, t=2.0 * k * factor / rate_hz, range=empty, azimuth=empty, elevation=empty,
-                       radial_velocity=empty) for k in range(4)]
-    if factor * (1 + 1e-9) < RATE_MISMATCH:
+    return [RadarScan(scan=int(k), t=float(tk), range=empty, azimuth=empty, elevation=empty, radial_velocity=empty)
+            for k, tk in zip(index, t)]
+
+
+def test_an_index_that_counts_something_else_is_no_mismatch():
+    """Scans 1/13 s apart whose index steps by 1000 (a hardware counter): the per-index period is tiny, the time
+    steps are right; accepted. Times 1000x too long with that index are still refused."""
+    index = 1000 * np.arange(6)
+    check_scan_rate(_scans(index, np.arange(6) / 13.0), 13.0, "seq")
+    with pytest.raises(InputError, match="milliseconds"):
+        check_scan_rate(_scans(np.arange(6), 1000 * np.arange(6) / 13.0), 13.0, "seq")
+
+
+@pytest.mark.parametrize("t", [[-1e308, 1e308], [0.0, 5e-324]])
+def test_extreme_times_are_an_error_not_a_traceback(t):
+    """Finite times whose step overflows, or underflows to a period of 0: refused with the generic hint."""
+    with pytest.raises(InputError, match="is one of them in another unit"):
+        check_scan_rate(_scans([0, 1], t), 13.0, "seq")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.01, 100.0), st.floats(-np.log(2 * RATE_MISMATCH), np.log(2 * RATE_MISMATCH)))
+def test_the_bound_is_a_factor_of_the_period_both_ways(rate_hz, log_factor):
+    """Consecutive scans a factor of the rate's period apart: accepted within RATE_MISMATCH either way, refused
+    beyond it, above or below."""
+    factor = float(np.exp(log_factor))
+    scans = _scans(np.arange(4), np.arange(4) * factor / rate_hz)
+    margin = 1 + 1e-9
+    if 1 / RATE_MISMATCH * margin < factor < RATE_MISMATCH / margin:
         check_scan_rate(scans, rate_hz, "seq")
-    elif factor > RATE_MISMATCH * (1 + 1e-9):
+    elif factor > RATE_MISMATCH * margin or factor < 1 / (RATE_MISMATCH * margin):
         with pytest.raises(InputError, match="field 't'"):
             check_scan_rate(scans, rate_hz, "seq")
