@@ -87,57 +87,67 @@ def accumulate(H, b, e, J1, J2, W):
     """Adds the motion terms of consecutive states k, k+1 to the window's normal equations: with
     J = [J1_k, J2_k] (d x 2d), H[kd:(k+2)d, kd:(k+2)d] += J^T W_k J, b[...] += J^T W_k e_k; returns
     sum_k 1/2 e_k^T W_k e_k. J2 has the structure `residuals` gives it, diag(J2[:6, :6], I): only its pose block
-    is read.
+    is read. The products run row by row (a row of the result accumulates rows of the right factor, so the
+    innermost loops are contiguous and vectorise); each entry still sums its terms in the order of the
+    matrix product.
 
     Checked by: tests/estimator/test_window_kernels.py::test_motion_terms_in_the_normal_equations
     """
     n, d = e.shape[0], e.shape[1]
     JW = np.empty((2 * d, d))
     We = np.empty(d)
+    row = np.empty(d)
     cost = 0.0
     for k in range(n):
+        Wk, J1k, J2k = W[k], J1[k], J2[k]
         for i in range(d):
             s = 0.0
             for l in range(d):
-                s += W[k, i, l] * e[k, l]
+                s += Wk[i, l] * e[k, l]
             We[i] = s
             cost += 0.5 * e[k, i] * s
-        for c in range(d):  # JW = J^T W: J1 dense, J2 = diag(J2[:6, :6], I)
-            for r in range(d):
-                s = 0.0
-                for l in range(d):
-                    s += J1[k, l, r] * W[k, l, c]
-                JW[r, c] = s
-            for r in range(6):
-                s = 0.0
+        # JW = J^T W: J1 dense, J2 = diag(J2[:6, :6], I)
+        JW[:] = 0.0
+        for r in range(d):
+            for l in range(d):
+                a = J1k[l, r]
+                for c in range(d):
+                    JW[r, c] += a * Wk[l, c]
+            if r < 6:
                 for l in range(6):
-                    s += J2[k, l, r] * W[k, l, c]
-                JW[d + r, c] = s
-            for r in range(6, d):
-                JW[d + r, c] = W[k, r, c]
+                    a = J2k[l, r]
+                    for c in range(d):
+                        JW[d + r, c] += a * Wk[l, c]
+            else:
+                for c in range(d):
+                    JW[d + r, c] = Wk[r, c]
         o = k * d
         for r in range(2 * d):
             if r < d:
                 s = 0.0
                 for l in range(d):
-                    s += J1[k, l, r] * We[l]
+                    s += J1k[l, r] * We[l]
             elif r < d + 6:
                 s = 0.0
                 for l in range(6):
-                    s += J2[k, l, r - d] * We[l]
+                    s += J2k[l, r - d] * We[l]
             else:
                 s = We[r - d]
             b[o + r] += s
+            row[:] = 0.0
+            for l in range(d):
+                a = JW[r, l]
+                for c in range(d):
+                    row[c] += a * J1k[l, c]
             for c in range(d):
-                s = 0.0
-                for l in range(d):
-                    s += JW[r, l] * J1[k, l, c]
-                H[o + r, o + c] += s
+                H[o + r, o + c] += row[c]
+            row[:6] = 0.0
+            for l in range(6):
+                a = JW[r, l]
+                for c in range(6):
+                    row[c] += a * J2k[l, c]
             for c in range(6):
-                s = 0.0
-                for l in range(6):
-                    s += JW[r, l] * J2[k, l, c]
-                H[o + r, o + d + c] += s
+                H[o + r, o + d + c] += row[c]
             for c in range(6, d):
                 H[o + r, o + d + c] += JW[r, c]
     return cost
