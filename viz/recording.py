@@ -14,7 +14,6 @@ Checked by: tests/viz/test_recording.py (recordings read back with rerun.chunk.R
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
