@@ -37,26 +37,10 @@ def choose(j, i, d2, gate, m, n):
 
     Checked by: tests/estimator/test_association.py::test_matches_brute_force_and_is_one_to_one
     """
-    inside = np.empty(len(d2), np.int64)
-    k = 0
-    for a in range(len(d2)):
-        if d2[a] <= gate:
-            inside[k] = a
-            k += 1
-    inside = inside[:k]
+    inside = np.flatnonzero(d2 <= gate)
     jg, ig, dg = j[inside], i[inside], d2[inside]
     chosen = greedy_one_to_one(order_by_d2(jg, ig, dg, n), jg, ig, m, n)
-    c = 0
-    for a in range(k):
-        if chosen[a]:
-            c += 1
-    jo, io, do = np.empty(c, j.dtype), np.empty(c, i.dtype), np.empty(c)
-    c = 0
-    for a in range(k):
-        if chosen[a]:
-            jo[c], io[c], do[c] = jg[a], ig[a], dg[a]
-            c += 1
-    return jo, io, do
+    return jg[chosen], ig[chosen], dg[chosen]
 
 
 @njit(cache=True)

@@ -137,7 +137,7 @@ def export_ply(seq: Sequence, out_dir, trajectory: Trajectory | None = None, whe
     map_path = None
     if T_world_vehicle is None:
         _unlink(out / "map.ply")  # an earlier export's map is not this drive's
-    if T_world_vehicle is not None:
+    else:
         T_world_sensor = T_world_vehicle @ seq.sensor.T_vehicle_sensor
         parts = [scan_columns(s, T) for s, T in zip(seq.scans, T_world_sensor)]
         names = [k for k in parts[0] if all(k in p for p in parts)]

@@ -39,10 +39,9 @@ RIG_TOML = "rig.toml"  # a rig directory (sim/rig.py) instead of one sequence
 
 __all__ = [
     "GROUNDTRUTH_TXT", "RADAR_CSV", "RIG_TOML", "SENSOR_TOML", "NoiseSigmas", "RadarScan", "SensorConfig", "Sequence",
-    "SequenceFormatError", "atomic_write_bytes", "Trajectory", "cache_path", "check_one_layout", "polar_to_cartesian",
-    "read_radar_csv",
-    "read_sensor_config", "read_sequence", "read_tum", "replace_synced", "temporary_beside", "write_sensor_config",
-    "write_sequence", "write_tum", "check_scan_rate",
+    "SequenceFormatError", "atomic_write_bytes", "Trajectory", "cache_path", "check_one_layout", "check_scan_rate",
+    "polar_to_cartesian", "read_radar_csv", "read_sensor_config", "read_sequence", "read_tum", "replace_synced",
+    "temporary_beside", "write_sensor_config", "write_sequence", "write_tum",
 ]
 
 

@@ -150,7 +150,7 @@ def remaining(trials: list[Trial], out_dir) -> int:
 def unreadable_runs(out: Path, rows: list[dict]) -> set[tuple[int, str]]:
     """(trial, model) of the ok rows whose trials/*.npz cannot be read (truncated, corrupt), or is missing while
     other ok rows of its model have theirs (the campaign writes them): resume runs them again."""
-    bad = set()
+    bad, with_arrays = set(), {m: writes_arrays(out, rows, m) for m in {r["model"] for r in rows}}
     for r in rows:
         p = npz_path(out, int(r["trial"]), r["model"])
         if r["status"] == "ok" and p.exists():
@@ -158,7 +158,7 @@ def unreadable_runs(out: Path, rows: list[dict]) -> set[tuple[int, str]]:
                 load_trial_arrays(p)
             except InputError:
                 bad.add((int(r["trial"]), r["model"]))
-        elif r["status"] == "ok" and writes_arrays(out, rows, r["model"]):
+        elif r["status"] == "ok" and with_arrays[r["model"]]:
             bad.add((int(r["trial"]), r["model"]))
     return bad
 

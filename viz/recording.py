@@ -386,4 +386,3 @@ def _write(rec, rr, seq, result, truth_m: _Truth, detail) -> None:
     _log_scans(rec, rr, seq, result, truth_m, detail)
     pts = positions if truth_m.T_world_vehicle is None else np.r_[positions, truth_m.T_world_vehicle[:, :3, 3]]
     rec.send_blueprint(build_blueprint(pts, logged))
-

@@ -3,7 +3,6 @@ the prior's propagated Gaussian against the samples (mean NEES within chi-square
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
@@ -13,7 +12,7 @@ from rodo.estimator.errors import InputError
 from rodo.estimator.priors import ConstantAccelerationPrior
 from rodo.outputs import write_text_atomic
 from rodo.sim import prior_sampling as ps
-from rodo.sim.sequence import atomic_write_bytes
+from rodo.sim.simulate import save_npz
 
 
 def register(subparsers) -> None:
@@ -58,10 +57,9 @@ def run(args) -> int:
     }
     try:
         args.out.mkdir(parents=True, exist_ok=True)
-        buf = io.BytesIO()
-        np.savez(buf, T=samples[0], varpi=samples[1], varpi_dot=samples[2], mean_T=T_m, mean_varpi=w_m,
-                 mean_varpi_dot=v_m, covariance=P, nees=eps, Qc=case["Qc"], P0=case["P0"])
-        atomic_write_bytes(args.out / "prior_montecarlo.npz", buf.getvalue())
+        save_npz(args.out / "prior_montecarlo.npz", dict(  # atomic, as the simulator's truth.npz
+            T=samples[0], varpi=samples[1], varpi_dot=samples[2], mean_T=T_m, mean_varpi=w_m, mean_varpi_dot=v_m,
+            covariance=P, nees=eps, Qc=case["Qc"], P0=case["P0"]))
         write_text_atomic(args.out / "prior_montecarlo.json", json.dumps(result, indent=2) + "\n")
     except OSError as exc:
         raise InputError(f"--out: cannot write to {args.out} ({exc})") from None
