@@ -1,7 +1,9 @@
 """The scenario definitions (each registered explicitly at import; see docs/simulator.md for what they test).
 
 `prior_ca` / `prior_cv` draw the motion from the estimator's own prior SDE (sim/sde_trajectory.py) with a `qc`
-parameter: `scenarios.get("prior_ca").simulate(seed, qc=[...])`.
+parameter: `scenarios.get("prior_ca").simulate(seed, qc=[...])`; `prior_ca_points` / `prior_cv_points` drive the
+same motion through a world of persistent point scatterers only (`sim.world.landmark_world`), where the
+estimator's point-to-point measurement model is exact too.
 
 Mover ids start at MOVER_ID (well above any static object id) so truth ids never collide.
 """
@@ -110,6 +112,10 @@ def _prior_world(rng, profile, duration):
     return w.build_world(rng, _route(profile), w.CITY)
 
 
+def _landmark_world(rng, profile, duration):
+    return w.landmark_world(rng, _route(profile))
+
+
 def _prior_truth(profile) -> dict:
     return profile.truth_arrays()
 
@@ -140,3 +146,11 @@ PRIOR_CV = register(Scenario(
     "prior_cv", 1, "motion drawn from the CV prior's SDE (white acceleration, Qc = diag(qc)), city scene",
     _prior_profile("cv"), _prior_world, estimator_defaults=dict(CV_POLAR), duration=60.0, params=("qc",),
     extra_truth=_prior_truth))
+PRIOR_CA_POINTS = register(Scenario(
+    "prior_ca_points", 1, "prior_ca's motion in a world of persistent point scatterers only (an exact measurement "
+    "model)", _prior_profile("ca"), _landmark_world, estimator_defaults=dict(CA_POLAR), duration=60.0,
+    params=("qc",), extra_truth=_prior_truth))
+PRIOR_CV_POINTS = register(Scenario(
+    "prior_cv_points", 1, "prior_cv's motion in a world of persistent point scatterers only (an exact measurement "
+    "model)", _prior_profile("cv"), _landmark_world, estimator_defaults=dict(CV_POLAR), duration=60.0,
+    params=("qc",), extra_truth=_prior_truth))

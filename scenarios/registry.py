@@ -185,7 +185,7 @@ class Scenario:
 
     def summary(self) -> str:
         extent = f"{self.length:.0f} m" if self.length is not None else f"{self.duration:.0f} s"
-        return f"{self.name:<12} v{self.version:<3} {extent:>7}  {self.description}"
+        return f"{self.name:<16} v{self.version:<3} {extent:>7}  {self.description}"
 
 
 def _streams(seed: int) -> list[np.random.SeedSequence]:

@@ -9,7 +9,7 @@ The package, file by file (the names below are re-exported here; submodules stay
                        `empty_patches`; detection labels `STATIC_SURFACE`, `STATIC_POINT`, `MOVING`, `CLUTTER`,
                        `GHOST`.
     world.py           scenes around a route: `World`, `SceneParams` (`CITY`, `HIGHWAY`, `RURAL`), `build_world`,
-                       traffic (`lead_vehicle`, `oncoming_vehicle`, `overtaking_vehicle`).
+                       `landmark_world` (persistent point scatterers only), traffic (`lead_vehicle`, `oncoming_vehicle`, `overtaking_vehicle`).
     sensor_geometry.py where a radar sits and what it sees of a point: `mount`, `default_mount`,
                        `sensor_velocity`, `polar`.
     radar.py           the sensor model: `Radar`, `RadarConfig`, `Detections`; built on culling.py (what a scan can see at all: per-scene patch geometry and the
@@ -58,8 +58,8 @@ from .simulate import TRUTH_NPZ, load_truth, write_simulation
 from .simulate import simulate as simulate_sequence
 from .trajectory import Motion, Profile, ProfileBuilder, Route, Segment, city, crawl, highway, hills, route_of, \
     stop_and_go, yaw_accel
-from .world import CITY, HIGHWAY, RURAL, SceneParams, World, build_world, lead_vehicle, oncoming_vehicle, \
-    overtaking_vehicle
+from .world import CITY, HIGHWAY, RURAL, SceneParams, World, build_world, landmark_world, lead_vehicle, \
+    oncoming_vehicle, overtaking_vehicle
 
 __all__ = [
     # trajectory.py
@@ -69,8 +69,8 @@ __all__ = [
     "CLUTTER", "GHOST", "MOVING", "STATIC_POINT", "STATIC_SURFACE", "MovingBox", "Patches", "Points", "RigidStates", "box",
     "empty_patches", "rectangle",
     # world.py
-    "CITY", "HIGHWAY", "RURAL", "SceneParams", "World", "build_world", "lead_vehicle", "oncoming_vehicle",
-    "overtaking_vehicle",
+    "CITY", "HIGHWAY", "RURAL", "SceneParams", "World", "build_world", "landmark_world", "lead_vehicle",
+    "oncoming_vehicle", "overtaking_vehicle",
     # radar.py
     "Detections", "Radar", "RadarConfig",
     # sensor_geometry.py

@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 
 from rodo.estimator.lie import se3, so3
 
-from .objects import MovingBox, Patches, Points, box
+from .objects import MovingBox, Patches, Points, box, empty_patches
 from .trajectory import Profile, Route
 
 GROUND_BELOW = 0.35  # m, ground under the vehicle frame origin
@@ -143,6 +143,22 @@ def build_world(rng: np.random.Generator, route: Route, params: SceneParams = CI
     _add_roadside_clutter(scene, rng)
     scene.patches.append(_ground(route, params, scene.ids.next_object()))
     return World(Patches.concat(scene.patches), Points.concat(scene.points))
+
+
+def landmark_world(rng: np.random.Generator, route: Route, per_100m: float = 400.0, lateral: tuple = (3.0, 40.0),
+                   height: tuple = (0.2, 6.0), pd: tuple = (0.6, 0.95)) -> World:
+    """A scene of persistent point scatterers only: no surfaces, no ground. `per_100m` points per 100 m of route
+    (Poisson), `lateral` metres to either side of it, `height` metres above the road, each with its own detection
+    probability drawn from `pd`. Every return but clutter is then one of a fixed set of points seen again scan
+    after scan, so the estimator's point-to-point pairs are an exact measurement model (resampled surfaces are
+    not: docs/consistency.md). Random draws only from `rng`."""
+    n = int(rng.poisson(per_100m * (route.length + 60.0) / 100.0))
+    g, _, left, _ = _frame(route, rng.uniform(-20.0, route.length + 40.0, n))
+    side = rng.choice([-1.0, 1.0], n) * rng.uniform(*lateral, n)
+    p = g + side[:, None] * left + np.array([0.0, 0.0, 1.0]) * rng.uniform(*height, (n, 1))
+    keep = _Scene(route, SceneParams()).far(p)
+    points = Points(p[keep], rng.uniform(*pd, n)[keep], np.arange(int(keep.sum())))
+    return World(empty_patches(), points)
 
 
 def _add_buildings(scene: _Scene, rng: np.random.Generator) -> None:

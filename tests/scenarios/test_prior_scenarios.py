@@ -9,6 +9,7 @@ from rodo.commands import simulate as simulate_cmd
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.errors import InputError
 from rodo.sim import sde_trajectory as sde
+from rodo.sim.objects import CLUTTER, STATIC_POINT
 from rodo.sim.simulate import load_truth, path_length
 from rodo.validation.driver import run_sequence
 
@@ -80,7 +81,8 @@ def test_cli_qc_flag(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name, model", [("prior_ca", "ca-polar"), ("prior_cv", "cv-polar")])
+@pytest.mark.parametrize("name, model", [("prior_ca", "ca-polar"), ("prior_cv", "cv-polar"),
+                                         ("prior_ca_points", "ca-polar"), ("prior_cv_points", "cv-polar")])
 def test_estimator_runs_on_the_prior_scenario(name, model):
     """10 s of the default draw: the estimator tracks it (final position error < 2 % of the path length)."""
     seq, truth = scenarios.get(name).simulate(0, duration=10.0)
@@ -91,3 +93,24 @@ def test_estimator_runs_on_the_prior_scenario(name, model):
     length = path_length(seq.groundtruth.T_world_vehicle)
     assert length > 80.0
     assert np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]) < 0.02 * length
+
+
+@pytest.mark.parametrize("name, base", [("prior_ca_points", "prior_ca"), ("prior_cv_points", "prior_cv")])
+def test_points_scenario_drives_the_prior_through_persistent_points(name, base):
+    """prior_*_points: the motion of prior_* for the same seed, bit for bit; every detection but clutter is a
+    fixed landmark seen again scan after scan at the same true position."""
+    sc = scenarios.get(name)
+    assert sc.params == ("qc",) and sc.estimator_defaults == scenarios.get(base).estimator_defaults
+    _, truth = sc.simulate(3, duration=2.0)
+    _, base_truth = scenarios.get(base).simulate(3, duration=2.0)
+    assert np.array_equal(truth["T_vehicle_world"], base_truth["T_vehicle_world"])
+    np.testing.assert_array_equal(truth["prior_qc"], base_truth["prior_qc"])
+    labels = truth["det_label"]
+    assert set(np.unique(labels)) <= {STATIC_POINT, CLUTTER} and np.mean(labels == STATIC_POINT) > 0.8
+    points = labels == STATIC_POINT
+    ids, first, seen = np.unique(truth["det_landmark_id"][points], return_index=True, return_counts=True)
+    assert ids.min() >= 0 and np.median(seen) >= 10  # 26 scans: most landmarks are seen again and again
+    p = truth["det_p_world"][points]
+    same = np.repeat(np.arange(len(ids)), seen)
+    order = np.argsort(truth["det_landmark_id"][points], kind="stable")
+    np.testing.assert_array_equal(p[order], p[first][same])
