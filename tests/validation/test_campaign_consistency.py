@@ -7,9 +7,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from rodo.validation.campaign import Trial, TrialOutcome, make_trials, read_results, run_campaign, \
     summarize_campaign, write_summary
+from rodo.validation.campaign_consistency import fraction_within_at_best, measure_summary, spread_between_runs
 from rodo.validation.consistency import chi2_bounds
 from rodo.validation.odometry_consistency import MEASURES
 from tests.validation.test_campaign import MODELS, FakeTrial
@@ -122,3 +125,54 @@ def test_run_consistency_per_scan_and_ellipsoid_coverage():
     assert abs(cov["fraction"] - cov["claimed"]) < 0.01 and cov["running_fraction"][-1] == cov["fraction"]
     far = ellipsoid_coverage(p_est, p_est + 10.0, T, P)
     assert far["fraction"] == 0.0
+
+
+def _chi2_runs(rng, n_runs, scans, per_run_sigma=0.0, per_scan_mean=None):
+    """(n_runs, scans) NEES: chi-square(6) draws, each run scaled by its own lognormal factor (drives that
+    disagree beyond chi-square's spread) and each scan by a common mean (a time structure)."""
+    X = rng.chisquare(6, (n_runs, scans)) * np.exp(per_run_sigma * rng.standard_normal((n_runs, 1)))
+    return X if per_scan_mean is None else X * per_scan_mean
+
+
+def test_spread_between_runs_and_the_share_within_at_best():
+    """Chi-square runs: spread about 1 and at best about 95 % within, as many as are; runs that disagree (a
+    lognormal factor per run) spread more and no per-scan factor brings 90 % within; a mean that moves over
+    the scans (the same for every run) loses scans within but changes neither."""
+    rng = np.random.default_rng(np.random.SeedSequence(28))
+    n = 20
+    X = _chi2_runs(rng, n, 2000)
+    spread = spread_between_runs(list(X))
+    assert 0.9 < spread < 1.1
+    best = fraction_within_at_best(spread, n)
+    assert best == pytest.approx(0.95, abs=0.015)
+    summary, _ = measure_summary(list(X))
+    assert summary["spread_between_runs"] == spread and summary["fraction_within_at_best"] == best
+    assert summary["fraction_scans_within"] == pytest.approx(best, abs=0.03)
+
+    wide = _chi2_runs(rng, n, 2000, per_run_sigma=0.4)
+    w_spread = spread_between_runs(list(wide))
+    assert w_spread > 1.3 and fraction_within_at_best(w_spread, n) < 0.9
+
+    moving = np.where(np.arange(2000) < 1000, 0.7, 1.3)
+    shaped, _ = measure_summary(list(_chi2_runs(rng, n, 2000, per_scan_mean=moving)))
+    assert shaped["spread_between_runs"] == pytest.approx(1.0, abs=0.1)
+    assert shaped["fraction_within_at_best"] == pytest.approx(0.95, abs=0.015)
+    assert shaped["fraction_scans_within"] < 0.7
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(2, 30), st.floats(1e-3, 1e3), st.integers(0, 2**32 - 1))
+def test_spread_is_scale_free_and_the_bound_is_monotone(n_runs, scale, seed):
+    """Scaling every NEES (a covariance off by a factor) leaves the spread unchanged; more spread never brings
+    more scans within at best, and spread 1 gives 1 - alpha."""
+    X = np.random.default_rng(seed).chisquare(6, (n_runs, 50))
+    assert spread_between_runs(list(scale * X)) == pytest.approx(spread_between_runs(list(X)), rel=1e-9)
+    values = [fraction_within_at_best(s, n_runs) for s in (0.5, 1.0, 1.5, 3.0)]
+    assert all(a >= b for a, b in zip(values, values[1:]))
+    assert values[1] == pytest.approx(0.95, abs=1e-9)
+
+
+def test_spread_is_undefined_without_two_runs_or_a_common_scan():
+    assert spread_between_runs([np.ones(5)]) is None and fraction_within_at_best(None, 3) is None
+    assert spread_between_runs([np.full(3, np.nan), np.ones(3)]) is None
+    assert measure_summary([np.ones(4)])[0]["fraction_within_at_best"] is None
