@@ -8,14 +8,15 @@ The package, file by file:
                     radars on one drive -> a rig directory); `MARGIN`.
     definitions.py  the scenario definitions, each registered explicitly at import: `CITY`, `HIGHWAY`,
                     `HILLS`, `STOP_AND_GO`, `BLOCKAGE` (with its `BLOCKAGE_*` timings), `YAW_ACCEL`,
-                    `PRIOR_CA`, `PRIOR_CV` (motion drawn from the prior's SDE, parameter `qc`);
+                    `PRIOR_CA`, `PRIOR_CV` (motion drawn from the prior's SDE, parameter `qc`), `PRIOR_CA_POINTS`,
+                    `PRIOR_CV_POINTS` (the same motion among persistent point scatterers only);
                     `MOVER_ID` (first id of moving objects).
 
 Checked by: tests/scenarios/test_registry.py
 """
 
 from .definitions import (BLOCKAGE, BLOCKAGE_BLACKOUT, BLOCKAGE_DELTA, BLOCKAGE_SLOW, CITY, HIGHWAY, HILLS, MOVER_ID,
-                          PRIOR_CA, PRIOR_CV, STOP_AND_GO, YAW_ACCEL)
+                          PRIOR_CA, PRIOR_CA_POINTS, PRIOR_CV, PRIOR_CV_POINTS, STOP_AND_GO, YAW_ACCEL)
 from .registry import MARGIN, Parts, Scenario, get, names, register, simulate_rig_to, simulate_to
 
 __all__ = [
@@ -23,5 +24,5 @@ __all__ = [
     "MARGIN", "Parts", "Scenario", "get", "names", "register", "simulate_rig_to", "simulate_to",
     # definitions.py
     "BLOCKAGE", "BLOCKAGE_BLACKOUT", "BLOCKAGE_DELTA", "BLOCKAGE_SLOW", "CITY", "HIGHWAY", "HILLS", "MOVER_ID",
-    "PRIOR_CA", "PRIOR_CV", "STOP_AND_GO", "YAW_ACCEL",
+    "PRIOR_CA", "PRIOR_CA_POINTS", "PRIOR_CV", "PRIOR_CV_POINTS", "STOP_AND_GO", "YAW_ACCEL",
 ]

@@ -2,7 +2,8 @@
 clutter, ground that follows the road's height, and moving vehicles (lead, oncoming, overtaking).
 
 Everything static is placed relative to the route polyline (`sim.trajectory.Route`) and rejected if it would
-come closer than `clearance` to the driven path. The ground is `GROUND_BELOW` metres under the vehicle frame
+come closer than `clearance` to the driven path. `landmark_world` is the other kind of scene: persistent point
+scatterers only (the exact measurement model of the `prior_*_points` scenarios). The ground is `GROUND_BELOW` metres under the vehicle frame
 origin (the rear-axle centre), so on hills it follows the road's height.
 
 Checked by: tests/sim/test_world.py
@@ -148,12 +149,12 @@ def build_world(rng: np.random.Generator, route: Route, params: SceneParams = CI
 def landmark_world(rng: np.random.Generator, route: Route, per_100m: float = 400.0, lateral: tuple = (3.0, 40.0),
                    height: tuple = (0.2, 6.0), pd: tuple = (0.6, 0.95)) -> World:
     """A scene of persistent point scatterers only: no surfaces, no ground. `per_100m` points per 100 m of route
-    (Poisson), `lateral` metres to either side of it, `height` metres above the road, each with its own detection
-    probability drawn from `pd`. Every return but clutter is then one of a fixed set of points seen again scan
-    after scan, so the estimator's point-to-point pairs are an exact measurement model (resampled surfaces are
-    not: docs/consistency.md). Random draws only from `rng`."""
-    n = int(rng.poisson(per_100m * (route.length + 60.0) / 100.0))
-    g, _, left, _ = _frame(route, rng.uniform(-20.0, route.length + 40.0, n))
+    (Poisson, uniform along it from its start to its end), `lateral` metres to either side of it, `height` metres
+    above the road, each with its own detection probability drawn from `pd`. Every return but clutter is then one
+    of a fixed set of points seen again scan after scan, so the estimator's point-to-point pairs are an exact
+    measurement model (resampled surfaces are not: docs/consistency.md). Random draws only from `rng`."""
+    n = int(rng.poisson(per_100m * route.length / 100.0))
+    g, _, left, _ = _frame(route, rng.uniform(0.0, route.length, n))
     side = rng.choice([-1.0, 1.0], n) * rng.uniform(*lateral, n)
     p = g + side[:, None] * left + np.array([0.0, 0.0, 1.0]) * rng.uniform(*height, (n, 1))
     keep = _Scene(route, SceneParams()).far(p)

@@ -1,4 +1,5 @@
-"""The prior-consistent scenarios prior_ca / prior_cv: the qc parameter, what truth.npz records, determinism,
+"""The prior-consistent scenarios prior_ca / prior_cv (and prior_ca_points / prior_cv_points, the same motion among
+persistent point scatterers): the qc parameter, what truth.npz records, determinism,
 bad input (Python and `rodo simulate --qc`), and the estimator end to end."""
 
 import numpy as np

@@ -114,15 +114,19 @@ def test_a_side_a_whole_number_of_tiles_long_does_not_hang_on_round_off():
 
 def test_landmark_world_is_persistent_points_only(city):
     """`landmark_world`: no surfaces, points clear of the route, at the asked heights above the road, about
-    `per_100m` per 100 m, and the same rng state gives the same points."""
+    `per_100m` per 100 m and spread along the whole route (none piled up at its ends), and the same rng state
+    gives the same points."""
     _, route, _ = city
     world = w.landmark_world(np.random.default_rng(5), route, per_100m=200.0, height=(0.5, 4.0))
     again = w.landmark_world(np.random.default_rng(5), route, per_100m=200.0, height=(0.5, 4.0))
     assert len(world.patches) == 0 and world.movers == ()
     np.testing.assert_array_equal(world.points.p, again.points.p)
     np.testing.assert_array_equal(world.points.pd, again.points.pd)
-    expected = 200.0 * (route.length + 60.0) / 100.0
+    expected = 200.0 * route.length / 100.0
     assert 0.8 * expected < len(world.points) <= 1.1 * expected  # a few fall too near the route
+    nearest = np.argmin(np.linalg.norm(world.points.p[:, None, :2] - route.p_world[None, :, :2], axis=-1), axis=1)
+    per_metre = np.bincount(nearest, minlength=len(route.s))  # the route is sampled every metre
+    assert per_metre.max() <= 12 and per_metre[[0, -1]].max() <= 12  # 2 a metre on average
     d = np.min(np.linalg.norm(world.points.p[:, None, :2] - route.p_world[None, :, :2], axis=-1), axis=1)
     assert d.min() >= w.SceneParams().clearance
     assert np.all((world.points.pd >= 0.6) & (world.points.pd <= 0.95))
