@@ -292,8 +292,8 @@ class RadarOdometry:
         """The estimate with relative and absolute pose covariances, its velocity variance scaled (`uncertainty`)."""
         cfg = self.config.uncertainty
         if P_relative is None or self.drift is None:
-            self.drift = DriftCovariance(est.P[:6, :6], est.P[6:12, 6:12], cfg.velocity_correlation_time,
-                                         cfg.drift_rate_sigma)
+            self.drift = DriftCovariance.at_first_scan(est.P[:6, :6], cfg.velocity_correlation_time,
+                                                       cfg.drift_rate_sigma)
             P_relative, P_revision, P_absolute = np.full((6, 6), np.nan), np.zeros((6, 6)), est.P[:6, :6].copy()
         else:
             P_relative, P_revision = (cfg.inflation * P for P in P_relative)

@@ -12,7 +12,9 @@ of its relative motion, accumulated. Two parts make it up (docs/consistency.md h
    composition below does not carry;
 2. the velocity error, which the motion prior keeps correlated from scan to scan, so that it integrates into
    pose: a first-order Gauss-Markov process b with the window's velocity covariance P_varpi,k as its variance
-   and correlation time tau, b_k = phi b_{k-1} + w_k, phi = exp(-dt / tau), Var(w_k) = (1 - phi^2) P_varpi,k;
+   and correlation time tau, b_k = phi b_{k-1} + w_k, phi = exp(-dt / tau), Var(w_k) = (1 - phi^2) P_varpi,k,
+   from b_0 = 0 at a run's first scan (`DriftCovariance.at_first_scan`: that scan's velocity covariance is the
+   initial prior's);
 3. a drift rate beta (per metre travelled, vehicle frame), unknown but constant over a run, beta ~ N(0,
    diag(drift_rate_sigma^2)): the registration's systematic error (scan-to-map association on resampled
    surfaces makes every scan's relative pose err the same way; KITTI-style drift is its visible part), which
@@ -176,6 +178,16 @@ class DriftCovariance:
     def __init__(self, P_pose0: np.ndarray, P_varpi0: np.ndarray, tau: float, drift_rate_sigma=None):
         self.tau = float(tau)
         self.C = _initial(P_pose0, P_varpi0, self.tau, drift_rate_sigma)
+
+    @classmethod
+    def at_first_scan(cls, P_pose0: np.ndarray, tau: float, drift_rate_sigma=None) -> "DriftCovariance":
+        """The recursion of a run from its first scan: the velocity error b starts at zero. The first scan's
+        velocity covariance is the initial prior's (a yaw rate of 0.2 rad/s with the defaults: one scan's
+        Doppler does not see it), and the next scan's pose is registered against the first scan's map, not
+        dead-reckoned with that velocity. Taken as b's variance it put 9 mrad of yaw into the first step where
+        the registration allowed 0.6 (hills), and that yaw times the distance into the lateral position for
+        the rest of the drive. b reaches its stationary variance within a few tau."""
+        return cls(P_pose0, np.zeros((6, 6)), tau, drift_rate_sigma)
 
     def update(self, T_prev, T_new, dt: float, Sigma_rel: np.ndarray, P_varpi: np.ndarray) -> np.ndarray:
         """Advance by one scan (`_step`, compiled: `uncertainty_kernels.drift_step`); returns the new absolute

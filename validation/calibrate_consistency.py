@@ -285,7 +285,7 @@ def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None) -> np.
     P = np.asarray(states["P"], dtype=float)
     P_varpi = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"), states.get("doppler_nis"))
     S = np.asarray(states["P_relative"], dtype=float)
-    drift = DriftCovariance(P[0, :6, :6], P_varpi[0], tau, drift_rate_sigma)
+    drift = DriftCovariance.at_first_scan(P[0, :6, :6], tau, drift_rate_sigma)
     out = [P[0, :6, :6]]
     for k in range(1, len(t)):
         rel = S[k] if np.all(np.isfinite(S[k])) else np.zeros((6, 6))

@@ -163,6 +163,34 @@ def test_absolute_covariance_grows_while_the_windows_stays_flat(model):
     assert np.all(np.diff(absolute[1:]) > 0)
 
 
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+def test_the_drift_recursion_starts_without_the_first_scans_velocity_error(model):
+    """At a run's first scan the window's velocity covariance is the initial prior's (the yaw rate unseen), and the
+    second scan is registered against the first one's map: the absolute covariance of the second scan is the first
+    pose's carried over plus that step's registration, velocity (b_0 = 0: only w_1, (1 - phi^2) P_varpi,1) and
+    drift rate terms, none of the first velocity covariance, whatever the initial yaw rate sigma."""
+    from rodo.estimator.config import SolverConfig, UncertaintyConfig
+
+    rng = np.random.default_rng(5)
+    t, T, varpi, vd = scene.trajectory(6)
+    L = scene.landmarks(rng)
+    scans = [scene.measure(T[k], varpi[k], vd[k], L, np.random.default_rng(k)) for k in range(3)]
+    tau, beta = 0.3, np.array([1e-3, 1e-4, 2e-3, 1e-5, 2e-5, 3e-5])
+    for yaw_rate_sigma in (0.2, 2.0):
+        cfg = OdometryConfig.for_model(model).replace(
+            uncertainty=UncertaintyConfig(velocity_correlation_time=tau, drift_rate_sigma=tuple(beta)),
+            solver=SolverConfig(init_rate_sigma=(0.02, 0.02, yaw_rate_sigma)))
+        odo = RadarOdometry(cfg, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+        e0, e1 = (odo.process(t[k], scans[k]) for k in range(2))
+        assert e0.P[11, 11] > 0.5 * yaw_rate_sigma ** 2  # the first scan's yaw rate is the prior's
+        R = e1.T_vehicle_world @ se3.inverse(e0.T_vehicle_world)
+        dt = e1.t - e0.t
+        A = se3.adjoint(R)
+        expected = (A @ e0.P_pose_absolute @ A.T + e1.P_relative + dt ** 2 * (1 - np.exp(-2 * dt / tau)) * e1.P[6:12, 6:12]
+                    + np.linalg.norm(R[:3, 3]) ** 2 * np.diag(beta ** 2))
+        np.testing.assert_allclose(e1.P_pose_absolute, expected, rtol=1e-9, atol=1e-15)
+
+
 def test_measurement_inflation_scales_the_information_of_the_pairs():
     """uncertainty.measurement_inflation kappa divides every pair's information in the solve: the
     relative pose covariance grows by up to kappa (the prior keeps its share), the estimate stays close, and a
