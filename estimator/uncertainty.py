@@ -30,6 +30,7 @@ speed where calibrated (`velocity_inflated`).
 
 Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_known_joint_gaussian,
     ::test_drift_covariance_matches_monte_carlo_of_the_model, ::test_span_covariance_equals_the_recursion,
+    ::test_the_drift_recursion_starts_without_the_first_scans_velocity_error,
     ::test_velocity_inflation_scales_the_velocity_variance_only
 """
 
@@ -210,8 +211,8 @@ def _matrix(A, n: int) -> np.ndarray:
 def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, start: int,
                     end: int, tau: float, drift_rate_sigma=None) -> np.ndarray:
     """Covariance (6, 6) of the relative pose T_end T_start^-1 of a run: the recursion from a known pose at
-    scan `start` (the velocity error at its stationary variance P_varpi[start], the drift rate at its prior)
-    to scan `end`.
+    scan `start` (the velocity error at its stationary variance P_varpi[start], at zero from the run's first scan
+    as in `DriftCovariance.at_first_scan`; the drift rate at its prior) to scan `end`.
 
     Args:
         T: (N, 4, 4) estimated T_vehicle_world; t: (N,) times.
@@ -221,7 +222,7 @@ def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi
         tau: the velocity error's correlation time (s).
         drift_rate_sigma: (6,) sigma of the drift rate per metre; None: none.
     """
-    C = _initial(np.zeros((6, 6)), P_varpi[start], tau, drift_rate_sigma)
+    C = _initial(np.zeros((6, 6)), P_varpi[start] if start > 0 else np.zeros((6, 6)), tau, drift_rate_sigma)
     for j in range(start + 1, end + 1):
         S = Sigma_rel[j] if np.isfinite(Sigma_rel[j]).all() else np.zeros((6, 6))
         C = _step(C, T[j - 1], T[j], t[j] - t[j - 1], S, P_varpi[j], tau)

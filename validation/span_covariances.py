@@ -62,6 +62,8 @@ def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varp
         C = np.zeros((b1 - b0, 18, 18))  # uncertainty._initial with a known start pose
         if tau > 0:
             C[:, 6:12, 6:12] = P_varpi[b0:b1]
+            if b0 == 0:  # from the run's first scan the velocity error starts at zero (DriftCovariance.at_first_scan)
+                C[0, 6:12, 6:12] = 0.0
         C[:, 12:, 12:] = prior
         for i in range(n):  # step into scan start + i + 1 of every span
             A, Q = A_all[i:i + b1 - b0], Q_all[i:i + b1 - b0]

@@ -130,7 +130,8 @@ def test_drift_covariance_matches_monte_carlo_of_the_model(tau, drift_rate_sigma
 
 
 def test_span_covariance_equals_the_recursion():
-    """A span from scan s to e is the recursion started at s with a known pose."""
+    """A span from scan s to e is the recursion started at s with a known pose (from scan 0, the run's start:
+    the velocity error at zero, as the absolute recursion starts)."""
     rng = np.random.default_rng(np.random.SeedSequence(13))
     t = np.cumsum(np.r_[0.0, rng.uniform(0.05, 0.1, 14)])
     T = np.stack([se3.exp(np.array([-8.0 * s, 0.0, 0.0, 0.0, 0.0, 0.3 * s])) for s in t])
@@ -142,6 +143,11 @@ def test_span_covariance_equals_the_recursion():
         for k in range(5, 12):
             P = drift.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
         np.testing.assert_allclose(span_covariance(T, t, Sigma_rel, P_varpi, 4, 11, 0.5, drift_rate_sigma), P,
+                                   rtol=1e-12, atol=1e-18)
+        first = DriftCovariance.at_first_scan(np.zeros((6, 6)), 0.5, drift_rate_sigma)  # a span from scan 0
+        for k in range(1, 8):
+            P = first.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
+        np.testing.assert_allclose(span_covariance(T, t, Sigma_rel, P_varpi, 0, 7, 0.5, drift_rate_sigma), P,
                                    rtol=1e-12, atol=1e-18)
 
 
