@@ -67,8 +67,8 @@ _EXPORTS = {
     "state": ("State", "stacked"),
     "surface": ("surface_covariances",),
     "ground": ("off_road", "road_mask"),
-    "uncertainty": ("DriftCovariance", "relative_pose_covariance", "revision_covariance", "scan_relative_covariances",
-                    "span_covariance"),
+    "uncertainty": ("DriftCovariance", "predicted_relative_covariance", "relative_pose_covariance",
+                    "revision_covariance", "scan_relative_covariances", "span_covariance"),
     "window": ("MeasurementSet", "SlidingWindow"),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}

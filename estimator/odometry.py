@@ -42,7 +42,7 @@ from .scan_association import MapAssociation, ScanMeasurements
 from .sensor import Sensor
 from .state import State
 from .surface import surface_covariances
-from .uncertainty import DriftCovariance, scan_relative_covariances, velocity_inflated
+from .uncertainty import DriftCovariance, predicted_relative_covariance, scan_relative_covariances, velocity_inflated
 from .window import MeasurementSet, SlidingWindow
 
 LOST_PAIRS = 0.1  # share of the static detections paired below which the gates lost the scan (_recentre)
@@ -377,7 +377,7 @@ class RadarOdometry:
         dead-reckoned pose's uncertainty relative to the last estimate carries the absolute covariance across."""
         T = self.motion.predict(self.window.newest, t).T_vehicle_world
         F, Q = self.motion.transition_and_noise(self.window.newest, t - self.window.newest.t)
-        self.restart_relative = (F @ self.P @ F.T + Q)[:6, :6]
+        self.restart_relative = predicted_relative_covariance(self.P, F, Q, self.window.newest.T_vehicle_world, T)
         x, P, _ = self._initial_state(t, polar, T=T, rates=self.last_with_data.varpi[3:])
         self.map = self.map.cleared()
         if reason is None:

@@ -51,6 +51,17 @@ def relative_pose_covariance(P_pair: np.ndarray, T_prev: np.ndarray, T_new: np.n
     return 0.5 * (S + S.T)
 
 
+def predicted_relative_covariance(P: np.ndarray, F: np.ndarray, Q: np.ndarray, T_prev: np.ndarray,
+                                  T_new: np.ndarray) -> np.ndarray:
+    """Sigma_rel (6, 6) of a state predicted by the motion prior (Jacobian F, noise Q) relative to the state it
+    was predicted from (covariance P, dim x dim): `relative_pose_covariance` of their joint covariance [[P, P F^T],
+    [F P, F P F^T + Q]]. What dead reckoning across an outage adds to the absolute pose covariance; the covariance
+    of the state it starts from (relative to the map, grown over the outage) is in that already."""
+    FP = F @ P
+    joint = np.block([[P, FP.T], [FP, FP @ F.T + Q]])
+    return relative_pose_covariance(joint, T_prev, T_new, P.shape[0])
+
+
 def revision_covariance(P_prev_emitted: np.ndarray, P_prev_now: np.ndarray, T_prev: np.ndarray,
                         T_new: np.ndarray) -> np.ndarray:
     """(6, 6) what the new scan's revision of the previous pose adds to the covariance of the relative pose

@@ -197,6 +197,55 @@ def test_the_drift_recursion_starts_without_the_first_scans_velocity_error(model
         np.testing.assert_allclose(e1.P_pose_absolute, expected, rtol=1e-9, atol=1e-15)
 
 
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+def test_the_restart_adds_the_prediction_not_the_last_states_own_covariance(model):
+    """Across a re-initialisation the odometry dead-reckons from its last state; the relative pose of the
+    prediction is what it adds to the absolute covariance. The last state's own pose covariance (relative to the
+    map, grown over the outage, and composed into the absolute covariance scan by scan already) cancels: inflated
+    10^4 times, it moves the result by rounding; with no covariance at all the result is the prior's Q."""
+    from rodo.estimator.uncertainty import predicted_relative_covariance
+
+    rng = np.random.default_rng(7)
+    t, T, varpi, vd = scene.trajectory(8)
+    L = scene.landmarks(rng)
+    odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+    for k in range(6):
+        odo.process(t[k], scene.measure(T[k], varpi[k], vd[k], L, rng))
+    last, dt = odo.window.newest, 0.9
+    T_new = odo.motion.predict(last, last.t + dt).T_vehicle_world
+    F, Q = odo.motion.transition_and_noise(last, dt)
+    P = odo.P.copy()
+    got = predicted_relative_covariance(P, F, Q, last.T_vehicle_world, T_new)
+    inflated = P.copy()
+    inflated[:6, :6] += 1e4 * P[:6, :6]
+    after = predicted_relative_covariance(inflated, F, Q, last.T_vehicle_world, T_new)
+    np.testing.assert_allclose(after, got, rtol=1e-5, atol=1e-12 * np.abs(got).max())
+    old = (F @ inflated @ F.T + Q)[:6, :6]  # what the restart carried before: the inflation too
+    assert np.trace(old) - np.trace(after) > 0.5e4 * np.trace(P[:6, :6])
+    np.testing.assert_allclose(predicted_relative_covariance(np.zeros_like(P), F, Q, last.T_vehicle_world, T_new),
+                               Q[:6, :6], rtol=1e-9, atol=1e-15)
+    assert np.all(np.linalg.eigvalsh(got) > 0)
+
+
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+def test_a_blackout_is_not_counted_twice_at_the_restart(model):
+    """3 s of empty scans, then a re-initialisation: the window's pose covariance has grown over the blackout
+    (and the absolute covariance with it, scan by scan); the relative covariance the restart reports is one
+    prediction step's, not that grown covariance again."""
+    rng = np.random.default_rng(1)
+    t, T, varpi, vd = scene.trajectory(62, accel=0.2, yaw_rate=0.02, yaw_acc=0.0, pitch_acc=0.0)
+    L = scene.landmarks(rng)
+    odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+    est = []
+    for k in range(len(t)):
+        est.append(odo.process(t[k], np.zeros((0, 4)) if 20 <= k < 59 else scene.measure(T[k], varpi[k], vd[k], L, rng)))
+    restart = next(k for k, e in enumerate(est) if any("re-initialised" in m for m in e.events))
+    before = est[restart - 1]
+    assert np.trace(before.P[:6, :6]) > 10.0  # grown over the blackout
+    assert np.trace(est[restart].P_relative) < 0.01 * np.trace(before.P[:6, :6])
+    assert np.all(np.linalg.eigvalsh(est[restart].P_relative) > 0)
+
+
 def test_measurement_inflation_scales_the_information_of_the_pairs():
     """uncertainty.measurement_inflation kappa divides every pair's information in the solve: the
     relative pose covariance grows by up to kappa (the prior keeps its share), the estimate stays close, and a
