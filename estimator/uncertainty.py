@@ -31,6 +31,8 @@ speed where calibrated (`velocity_inflated`).
 Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_known_joint_gaussian,
     ::test_drift_covariance_matches_monte_carlo_of_the_model, ::test_span_covariance_equals_the_recursion,
     ::test_the_drift_recursion_starts_without_the_first_scans_velocity_error,
+    ::test_the_restart_adds_the_prediction_not_the_last_states_own_covariance,
+    ::test_a_blackout_is_not_counted_twice_at_the_restart,
     ::test_velocity_inflation_scales_the_velocity_variance_only
 """
 

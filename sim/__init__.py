@@ -9,7 +9,8 @@ The package, file by file (the names below are re-exported here; submodules stay
                        `empty_patches`; detection labels `STATIC_SURFACE`, `STATIC_POINT`, `MOVING`, `CLUTTER`,
                        `GHOST`.
     world.py           scenes around a route: `World`, `SceneParams` (`CITY`, `HIGHWAY`, `RURAL`), `build_world`,
-                       `landmark_world` (persistent point scatterers only), traffic (`lead_vehicle`, `oncoming_vehicle`, `overtaking_vehicle`).
+                       `landmark_world` (persistent point scatterers only), traffic (`lead_vehicle`,
+                       `oncoming_vehicle`, `overtaking_vehicle`).
     sensor_geometry.py where a radar sits and what it sees of a point: `mount`, `default_mount`,
                        `sensor_velocity`, `polar`.
     radar.py           the sensor model: `Radar`, `RadarConfig`, `Detections`; built on culling.py (what a scan can see at all: per-scene patch geometry and the

@@ -2,9 +2,9 @@
 clutter, ground that follows the road's height, and moving vehicles (lead, oncoming, overtaking).
 
 Everything static is placed relative to the route polyline (`sim.trajectory.Route`) and rejected if it would
-come closer than `clearance` to the driven path. `landmark_world` is the other kind of scene: persistent point
-scatterers only (the exact measurement model of the `prior_*_points` scenarios). The ground is `GROUND_BELOW` metres under the vehicle frame
-origin (the rear-axle centre), so on hills it follows the road's height.
+come closer than `clearance` to the driven path. The ground is `GROUND_BELOW` metres under the vehicle frame
+origin (the rear-axle centre), so on hills it follows the road's height. `landmark_world` is the other kind of
+scene: persistent point scatterers only (the exact measurement model of the `prior_*_points` scenarios).
 
 Checked by: tests/sim/test_world.py
 """

@@ -117,7 +117,8 @@ def consistency_lines(consistency: dict, fmt) -> list[str]:
     lines = ["", "Odometry consistency (average NEES over runs per scan, 6 dof, divided by 6; bounds for the N runs "
              "of the measure; spread: the runs' disagreement at a scan against chi-square's, and the share of scans a "
              "per-scan factor common to all runs would bring within at that spread):", "",
-             "| measure | runs | mean NEES/dof | median | bounds/dof | scans within | spread | with a per-scan factor |",
+             "| measure | runs | mean NEES/dof | median | bounds/dof | scans within | spread "
+             "| with a per-scan factor |",
              "| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: |"]
     for name in MEASURES:
         c = consistency.get(name)

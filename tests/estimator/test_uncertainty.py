@@ -192,7 +192,8 @@ def test_the_drift_recursion_starts_without_the_first_scans_velocity_error(model
         R = e1.T_vehicle_world @ se3.inverse(e0.T_vehicle_world)
         dt = e1.t - e0.t
         A = se3.adjoint(R)
-        expected = (A @ e0.P_pose_absolute @ A.T + e1.P_relative + dt ** 2 * (1 - np.exp(-2 * dt / tau)) * e1.P[6:12, 6:12]
+        w1 = (1 - np.exp(-2 * dt / tau)) * e1.P[6:12, 6:12]  # Var(w_1) = (1 - phi^2) P_varpi,1
+        expected = (A @ e0.P_pose_absolute @ A.T + e1.P_relative + dt ** 2 * w1
                     + np.linalg.norm(R[:3, 3]) ** 2 * np.diag(beta ** 2))
         np.testing.assert_allclose(e1.P_pose_absolute, expected, rtol=1e-9, atol=1e-15)
 
@@ -238,7 +239,8 @@ def test_a_blackout_is_not_counted_twice_at_the_restart(model):
     odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
     est = []
     for k in range(len(t)):
-        est.append(odo.process(t[k], np.zeros((0, 4)) if 20 <= k < 59 else scene.measure(T[k], varpi[k], vd[k], L, rng)))
+        z = np.zeros((0, 4)) if 20 <= k < 59 else scene.measure(T[k], varpi[k], vd[k], L, rng)
+        est.append(odo.process(t[k], z))
     restart = next(k for k, e in enumerate(est) if any("re-initialised" in m for m in e.events))
     before = est[restart - 1]
     assert np.trace(before.P[:6, :6]) > 10.0  # grown over the blackout
