@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from .consistency import average_nees, chi2_bounds, fraction_within
+from .consistency import average_nees, chi2_bounds, fraction_within, stacked_runs
 from .odometry_consistency import DOF, MEASURES
 
 
@@ -45,9 +45,7 @@ def spread_between_runs(runs: list[np.ndarray]) -> float | None:
     returned as S / (1 - S mean_k(1 / (3 c_k))), unbiased for that model when every scan has the same count."""
     if len(runs) < 2:
         return None
-    stack = np.full((len(runs), max(len(r) for r in runs)), np.nan)
-    for i, r in enumerate(runs):
-        stack[i, :len(r)] = r
+    stack = stacked_runs(runs)
     count = np.sum(np.isfinite(stack), axis=0)
     enough = count >= max(2, (len(runs) + 1) // 2)
     X, c = stack[:, enough], count[enough]

@@ -200,15 +200,20 @@ def nees_sequence(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANC
     return {"t": np.asarray(states["t"], dtype=float)[ia], "nees": nees(e, P[ia]), "dim": d, "error": e}
 
 
+def stacked_runs(runs: list[np.ndarray]) -> np.ndarray:
+    """(N, K) the runs' per-scan values one row each, K the longest run, NaN past a run's end."""
+    stack = np.full((len(runs), max((len(r) for r in runs), default=0)), np.nan)
+    for k, r in enumerate(runs):
+        stack[k, :len(r)] = r
+    return stack
+
+
 def average_nees(runs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Average per scan over runs of possibly different lengths (NaN entries skipped).
 
     Returns (mean (K,), count (K,)) with K the longest run; mean is NaN where count is 0.
     """
-    K = max((len(r) for r in runs), default=0)
-    stack = np.full((len(runs), K), np.nan)
-    for k, r in enumerate(runs):
-        stack[k, :len(r)] = r
+    stack = stacked_runs(runs)
     count = np.sum(np.isfinite(stack), axis=0)
     with np.errstate(invalid="ignore"):
         mean = np.where(count > 0, np.nansum(stack, axis=0) / np.maximum(count, 1), np.nan)

@@ -14,6 +14,7 @@ Checked by: tests/viz/test_recording.py (recordings read back with rerun.chunk.R
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -269,22 +270,31 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
         raise InputError("result: no estimates to record")
     if detail is not None and len(detail) != len(est):
         raise InputError(f"detail: expected {len(est)} entries (one per estimate), got {len(detail)}")
+    truth_m = _Truth(seq, result, truth)
+    with _recording_file(rr, path, recording_id) as rec:
+        _write(rec, rr, seq, result, truth_m, detail)
+    return Path(path)
+
+
+@contextlib.contextmanager
+def _recording_file(rr, path, recording_id: str | None):
+    """A RecordingStream saving to a uniquely named temporary file beside `path`; when the block completes it is
+    flushed, closed, synced and renamed to `path` (a crash never leaves half a recording under the final name),
+    and when the block raises, the temporary file is removed."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    truth_m = _Truth(seq, result, truth)
     tmp = temporary_beside(path)
     rec = rr.RecordingStream("rodo", recording_id=recording_id)
     rec.save(tmp)
     try:
-        _write(rec, rr, seq, result, truth_m, detail)
+        yield rec
         rec.flush()
     except BaseException:
         rec.disconnect()
         tmp.unlink(missing_ok=True)
         raise
     rec.disconnect()  # closes the file sink: the .rrd is complete when this returns
-    replace_synced(tmp, path)  # a crash never leaves half a recording under the final name
-    return path
+    replace_synced(tmp, path)
 
 
 def record_sequence(path, seq, truth: dict | None = None, recording_id: str | None = None) -> Path:
@@ -303,13 +313,8 @@ def record_sequence(path, seq, truth: dict | None = None, recording_id: str | No
 
     if seq.groundtruth is None or len(seq.groundtruth.t) == 0:
         raise InputError("sequence: a recording of a sequence needs its groundtruth.txt")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     gt = seq.groundtruth
-    tmp = temporary_beside(path)
-    rec = rr.RecordingStream("rodo", recording_id=recording_id)
-    rec.save(tmp)
-    try:
+    with _recording_file(rr, path, recording_id) as rec:
         _log_world(rec, rr)
         _log_frames(rec, rr, seq)
         pos = gt.T_world_vehicle[:, :3, 3]
@@ -334,14 +339,7 @@ def record_sequence(path, seq, truth: dict | None = None, recording_id: str | No
         T_gt_truth = None if truth is None else gt.T_world_vehicle[0] @ np.asarray(truth["T_vehicle_world"])[0]
         log_sequence_layers(rec, rr, by_frame, truth, T_gt_truth, gt.t)
         rec.send_blueprint(sequence_blueprint(pos))
-        rec.flush()
-    except BaseException:
-        rec.disconnect()
-        tmp.unlink(missing_ok=True)
-        raise
-    rec.disconnect()
-    replace_synced(tmp, path)
-    return path
+    return Path(path)
 
 
 def _write(rec, rr, seq, result, truth_m: _Truth, detail) -> None:
