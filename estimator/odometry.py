@@ -165,11 +165,8 @@ class RadarOdometry:
         reuse = float(np.mean(self.map.hits[pairs.map_idx])) if len(pairs.map_idx) else float("nan")
         W_pairs, pairs, P_relative = self._solve(scan, W_pairs, pairs, timings)
         timings["solve"] = time.perf_counter() - tic - timings.pop("reassociate", 0.0)
-
-        detail = None
-        if self.record_detail:
-            detail = ScanDetail(polar, static, np.flatnonzero(used)[pairs.det_idx], pairs.map_idx.copy(),
-                                self.map.points.copy(), np.flatnonzero(in_range))
+        detail = ScanDetail(polar, static, np.flatnonzero(used)[pairs.det_idx], pairs.map_idx.copy(),
+                            self.map.points.copy(), np.flatnonzero(in_range)) if self.record_detail else None
         tic = time.perf_counter()
         self._update_map(scan, pairs)
         timings["map"] = time.perf_counter() - tic
@@ -290,14 +287,16 @@ class RadarOdometry:
 
     def _with_uncertainty(self, est: ScanEstimate, P_relative, reuse: float) -> ScanEstimate:
         """The estimate with relative and absolute pose covariances, its velocity variance scaled (`uncertainty`)."""
-        cfg = self.config.uncertainty
+        cfg, last = self.config.uncertainty, self.last_estimate  # the drift composes smoothed, unrevised pairs
         if P_relative is None or self.drift is None:
             self.drift = DriftCovariance.at_first_scan(est.P[:6, :6], cfg.velocity_correlation_time,
                                                        cfg.drift_rate_sigma)
             P_relative, P_revision, P_absolute = np.full((6, 6), np.nan), np.zeros((6, 6)), est.P[:6, :6].copy()
+        elif self.restart_relative is not None:  # dead-reckoned across a re-initialisation: not a registration's
+            (P_relative, P_revision), est.restarted = P_relative, True  # so not scaled by `inflation` either
+            P_absolute = self.drift.restart(last.T_vehicle_world, est.T_vehicle_world, P_relative)
         else:
             P_relative, P_revision = (cfg.inflation * P for P in P_relative)
-            last = self.last_estimate  # the drift composes the smoothed pairs: the newest pose has no revision
             P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, est.t - last.t, P_relative,
                                            est.P[6:12, 6:12])
         self.last_estimate, self.restart_relative = est, None

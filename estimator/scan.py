@@ -86,6 +86,8 @@ class ScanEstimate:
         map_reuse: mean number of scans the associated map points have been associated in (NaN: none).
         doppler_nis: the scan's Doppler velocity against the prediction, NIS per dof (`DopplerFrontEnd.correct`;
             NaN without a prediction or a Doppler fit).
+        restarted: the odometry re-initialised at this scan (after an outage, or on the consensus switch):
+            P_relative is the dead-reckoned step from the last estimate (`uncertainty.restart_matrices`).
     """
 
     t: float
@@ -106,6 +108,7 @@ class ScanEstimate:
     P_pose_absolute: np.ndarray | None = None
     map_reuse: float = float("nan")
     doppler_nis: float = float("nan")
+    restarted: bool = False
 
     @property
     def T_world_vehicle(self) -> np.ndarray:

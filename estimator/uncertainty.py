@@ -25,6 +25,10 @@ of its relative motion, accumulated. Two parts make it up (docs/consistency.md h
 `DriftCovariance` runs this recursion over [xi; b; beta] (18 x 18) from scan to scan (the absolute pose
 covariance) and `span_covariance` over any span (the covariance of a relative pose over, e.g., 1 s). tau = 0
 drops the second part (the per-scan relative errors composed as independent), drift_rate_sigma = 0 the third.
+Across a re-initialisation (`restart_matrices`) the step is the dead-reckoned relative pose alone: no
+registration ran over the outage, so neither the velocity error nor the drift rate adds to it, and b starts
+again at zero as at a run's first scan (the fresh window's velocity covariance is the initial prior's, and the
+next scan is registered against the fresh map).
 The velocity covariance the recursion uses is the window's; the reported one has its variance scaled with the
 speed where calibrated (`velocity_inflated`).
 
@@ -33,6 +37,7 @@ Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_k
     ::test_the_drift_recursion_starts_without_the_first_scans_velocity_error,
     ::test_the_restart_adds_the_prediction_not_the_last_states_own_covariance,
     ::test_a_blackout_is_not_counted_twice_at_the_restart,
+    ::test_the_restart_starts_the_velocity_error_again,
     ::test_velocity_inflation_scales_the_velocity_variance_only
 """
 
@@ -179,6 +184,27 @@ def _step(C: np.ndarray, T_prev, T_new, dt: float, Sigma_rel, P_varpi, tau: floa
     return 0.5 * (C + C.T)
 
 
+def restart_matrices(T_prev, T_new, Sigma_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A, Q (18, 18) of the recursion's step across a re-initialisation, x <- A x + w, Cov(w) = Q: the pose carried
+    by Ad(T_new T_prev^-1) plus the dead-reckoned relative pose (covariance Sigma_rel,
+    `predicted_relative_covariance`), the velocity error b set to zero (its row of A zero, no noise: the fresh
+    window starts from the initial prior's velocity and the next scan is registered against the fresh map, as
+    at a run's first scan), the drift rate kept and not applied over the outage (no registration ran)."""
+    A = np.zeros((18, 18))
+    A[:6, :6] = se3.adjoint(T_new @ se3.inverse(T_prev))
+    A[12:, 12:] = np.eye(6)
+    Q = np.zeros((18, 18))
+    Q[:6, :6] = Sigma_rel
+    return A, Q
+
+
+def _restart_step(C: np.ndarray, T_prev, T_new, Sigma_rel) -> np.ndarray:
+    """One scan of the recursion across a re-initialisation (`restart_matrices`)."""
+    A, Q = restart_matrices(T_prev, T_new, Sigma_rel)
+    C = A @ C @ A.T + Q
+    return 0.5 * (C + C.T)
+
+
 class DriftCovariance:
     """The absolute pose covariance of one run, scan by scan (the recursion of the module docstring).
 
@@ -212,6 +238,12 @@ class DriftCovariance:
         self.C = C
         return C[:6, :6].copy()
 
+    def restart(self, T_prev, T_new, Sigma_rel: np.ndarray) -> np.ndarray:
+        """Advance across a re-initialisation (`restart_matrices`: the dead-reckoned relative pose Sigma_rel,
+        the velocity error started again); returns the new absolute pose covariance (6, 6)."""
+        self.C = _restart_step(self.C, _pose(T_prev), _pose(T_new), _matrix(Sigma_rel, 6))
+        return self.C[:6, :6].copy()
+
 
 def _pose(T) -> np.ndarray:
     return np.ascontiguousarray(T, dtype=float).reshape(4, 4)
@@ -222,10 +254,11 @@ def _matrix(A, n: int) -> np.ndarray:
 
 
 def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, start: int,
-                    end: int, tau: float, drift_rate_sigma=None) -> np.ndarray:
+                    end: int, tau: float, drift_rate_sigma=None, restarts=None) -> np.ndarray:
     """Covariance (6, 6) of the relative pose T_end T_start^-1 of a run: the recursion from a known pose at
     scan `start` (the velocity error at its stationary variance P_varpi[start], at zero from the run's first scan
-    as in `DriftCovariance.at_first_scan`; the drift rate at its prior) to scan `end`.
+    as in `DriftCovariance.at_first_scan` or from a re-initialisation; the drift rate at its prior) to scan `end`;
+    the step into a scan flagged in `restarts` is the re-initialisation's (`restart_matrices`).
 
     Args:
         T: (N, 4, 4) estimated T_vehicle_world; t: (N,) times.
@@ -234,9 +267,15 @@ def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi
         start, end: scan indices, start < end.
         tau: the velocity error's correlation time (s).
         drift_rate_sigma: (6,) sigma of the drift rate per metre; None: none.
+        restarts: (N,) bool, the scans at which the run re-initialised (states.npz `restarted`); None: none.
     """
-    C = _initial(np.zeros((6, 6)), P_varpi[start] if start > 0 else np.zeros((6, 6)), tau, drift_rate_sigma)
+    restarts = np.zeros(len(t), bool) if restarts is None else np.asarray(restarts, dtype=bool)
+    b0 = P_varpi[start] if start > 0 and not restarts[start] else np.zeros((6, 6))
+    C = _initial(np.zeros((6, 6)), b0, tau, drift_rate_sigma)
     for j in range(start + 1, end + 1):
         S = Sigma_rel[j] if np.isfinite(Sigma_rel[j]).all() else np.zeros((6, 6))
-        C = _step(C, T[j - 1], T[j], t[j] - t[j - 1], S, P_varpi[j], tau)
+        if restarts[j]:
+            C = _restart_step(C, T[j - 1], T[j], S)
+        else:
+            C = _step(C, T[j - 1], T[j], t[j] - t[j - 1], S, P_varpi[j], tau)
     return C[:6, :6]

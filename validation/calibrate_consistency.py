@@ -279,17 +279,20 @@ def _replayed(states: dict, tau: float, drift_rate_sigma) -> dict:
 
 def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None) -> np.ndarray:
     """(N, 6, 6) the absolute pose covariances a run would have reported with this tau and drift rate
-    (`DriftCovariance` over its stored relative and velocity covariances; row 0: the first pose's)."""
+    (`DriftCovariance` over its stored relative and velocity covariances, across its re-initialisations where
+    states.npz flags them, `restarted`; row 0: the first pose's)."""
     T = np.asarray(states["T_vehicle_world"], dtype=float)
     t = np.asarray(states["t"], dtype=float)
     P = np.asarray(states["P"], dtype=float)
     P_varpi = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"), states.get("doppler_nis"))
     S = np.asarray(states["P_relative"], dtype=float)
+    restarted = np.asarray(states.get("restarted", np.zeros(len(t), bool)), dtype=bool)
     drift = DriftCovariance.at_first_scan(P[0, :6, :6], tau, drift_rate_sigma)
     out = [P[0, :6, :6]]
     for k in range(1, len(t)):
         rel = S[k] if np.all(np.isfinite(S[k])) else np.zeros((6, 6))
-        out.append(drift.update(T[k - 1], T[k], t[k] - t[k - 1], rel, P_varpi[k]))
+        out.append(drift.restart(T[k - 1], T[k], rel) if restarted[k]
+                   else drift.update(T[k - 1], T[k], t[k] - t[k - 1], rel, P_varpi[k]))
     return np.stack(out)
 
 

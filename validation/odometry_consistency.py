@@ -65,7 +65,7 @@ def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, v
     e = _relative_errors(T_true, T_est, n)
     Sigma_rel = np.asarray(states["P_relative"], dtype=float)
     P_varpi = drift_velocity_covariances(states["P"], states["varpi"], velocity_inflation, states.get("doppler_nis"))
-    C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma)
+    C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma, states.get("restarted"))
     if "P_revision" in states:  # the revision of each span's first emitted pose, by the scan after it
         C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)
     out[n:] = nees(e, C)

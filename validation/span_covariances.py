@@ -17,19 +17,24 @@ from __future__ import annotations
 import numpy as np
 
 from rodo.estimator.lie import se3
-from rodo.estimator.uncertainty import drift_rate_sigma_array
+from rodo.estimator.uncertainty import drift_rate_sigma_array, restart_matrices
 
 BLOCK = 2048  # spans advanced together (bounds the memory: 2 x BLOCK x 18 x 18 floats, ~10 MB)
 
 
 def step_matrices(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, tau: float,
-                  scans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                  scans: np.ndarray, restarts=None) -> tuple[np.ndarray, np.ndarray]:
     """A_j, Q_j (len(scans), 18, 18) of the recursion's step from scan j - 1 to scan j, for j in `scans` (>= 1):
-    the matrices `uncertainty._step` builds, x <- A x + w, Cov(w) = Q (NaN rows of Sigma_rel count as 0)."""
+    the matrices `uncertainty._step` builds, x <- A x + w, Cov(w) = Q (NaN rows of Sigma_rel count as 0), or
+    `uncertainty.restart_matrices` at a scan flagged in `restarts` (a re-initialisation)."""
     A = np.zeros((len(scans), 18, 18))
     Q = np.zeros((len(scans), 18, 18))
     eye = np.eye(6)
     for i, j in enumerate(scans):
+        if restarts is not None and restarts[j]:
+            S = Sigma_rel[j] if np.all(np.isfinite(Sigma_rel[j])) else np.zeros((6, 6))
+            A[i], Q[i] = restart_matrices(T[j - 1], T[j], S)
+            continue
         dt = t[j] - t[j - 1]
         phi = np.exp(-dt / tau) if tau > 0 else 0.0
         R = T[j] @ se3.inverse(T[j - 1])
@@ -47,9 +52,9 @@ def step_matrices(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: 
 
 
 def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, n: int, tau: float,
-                     drift_rate_sigma=None) -> np.ndarray:
+                     drift_rate_sigma=None, restarts=None) -> np.ndarray:
     """Covariances (N - n, 6, 6) of T_k T_{k-n}^-1 for k = n .. N-1: row k - n equals
-    `span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, tau, drift_rate_sigma)` bit for bit.
+    `span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, tau, drift_rate_sigma, restarts)` bit for bit.
 
     Args: as `uncertainty.span_covariance`; n >= 1 scans per span.
     """
@@ -58,12 +63,14 @@ def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varp
     prior = np.diag(np.square(drift_rate_sigma_array(drift_rate_sigma)))
     for b0 in range(0, N - n, BLOCK):  # spans starting at scans b0 .. b1 - 1
         b1 = min(b0 + BLOCK, N - n)
-        A_all, Q_all = step_matrices(T, t, Sigma_rel, P_varpi, tau, np.arange(b0 + 1, b1 + n))
+        A_all, Q_all = step_matrices(T, t, Sigma_rel, P_varpi, tau, np.arange(b0 + 1, b1 + n), restarts)
         C = np.zeros((b1 - b0, 18, 18))  # uncertainty._initial with a known start pose
         if tau > 0:
             C[:, 6:12, 6:12] = P_varpi[b0:b1]
             if b0 == 0:  # from the run's first scan the velocity error starts at zero (DriftCovariance.at_first_scan)
                 C[0, 6:12, 6:12] = 0.0
+            if restarts is not None:  # and from a re-initialisation
+                C[np.asarray(restarts[b0:b1], dtype=bool), 6:12, 6:12] = 0.0
         C[:, 12:, 12:] = prior
         for i in range(n):  # step into scan start + i + 1 of every span
             A, Q = A_all[i:i + b1 - b0], Q_all[i:i + b1 - b0]

@@ -78,15 +78,21 @@ def test_relative_covariance_between_emitted_poses_counts_the_revision(a, b):
     np.testing.assert_array_equal(revision_covariance(0.5 * P_pair[:6, :6], P_pair, T_prev, T_new), np.zeros((6, 6)))
 
 
-def _model_monte_carlo(rng, T, t, Sigma_rel, P_varpi, tau, P0, drift_rate_sigma=np.zeros(6)):
+def _model_monte_carlo(rng, T, t, Sigma_rel, P_varpi, tau, P0, drift_rate_sigma=np.zeros(6), restart=None):
     """Samples of the drift model on SE(3): true poses exp(dt b_k + s_k beta + delta_k) R_k T_{k-1} with the
-    velocity error b a Gauss-Markov process and the drift rate beta constant per sample (s_k = |t(R_k)|);
-    returns the pose perturbations log(T_true T^-1) at the last scan."""
+    velocity error b a Gauss-Markov process and the drift rate beta constant per sample (s_k = |t(R_k)|); at the
+    scan `restart` a re-initialisation, exp(delta_k) R_k T_{k-1} with b zero from there; returns the pose
+    perturbations log(T_true T^-1) at the last scan."""
     n = len(t)
     T_true = se3.exp(rng.multivariate_normal(np.zeros(6), P0, size=N_MC)) @ T[0]
     b = rng.multivariate_normal(np.zeros(6), P_varpi[0], size=N_MC)
     beta = rng.normal(size=(N_MC, 6)) * drift_rate_sigma
     for k in range(1, n):
+        if k == restart:
+            b = np.zeros_like(b)
+            d = rng.multivariate_normal(np.zeros(6), Sigma_rel[k], size=N_MC)
+            T_true = se3.exp(d) @ T[k] @ se3.inverse(T[k - 1]) @ T_true
+            continue
         dt = t[k] - t[k - 1]
         phi = np.exp(-dt / tau) if tau > 0 else 0.0
         w = rng.multivariate_normal(np.zeros(6), (1 - phi**2) * P_varpi[k], size=N_MC)
@@ -127,6 +133,46 @@ def test_drift_covariance_matches_monte_carlo_of_the_model(tau, drift_rate_sigma
         for k in range(1, len(t)):
             P0_only = small.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
         assert not _mean_nees_in_bounds(xi, P0_only)[0]
+
+
+def test_the_restart_starts_the_velocity_error_again():
+    """Across a re-initialisation the recursion adds the dead-reckoned relative pose alone and starts the velocity
+    error b again at zero: the absolute covariance matches Monte Carlo of that model, and what b was before the
+    restart (its variance) changes nothing after it but through the pose it left, at the restart and 8 scans
+    later. (An ordinary update at the restart, as before session 29, adds the velocity error over the 2 s outage
+    that the dead-reckoned step holds already: the closed form at the restart fails then.)"""
+    rng = np.random.default_rng(np.random.SeedSequence(14))
+    t = np.cumsum(np.r_[0.0, rng.uniform(0.05, 0.1, 19)])
+    t[10:] += 2.0  # a 2 s outage before scan 10
+    T = np.stack([se3.exp(np.array([-8.0 * s, 0.3 * s, 0.0, 0.01, -0.02, 0.4 * s])) for s in t])
+    Sigma_rel = np.stack([_random_cov(rng, 3e-3) for _ in t])
+    Sigma_rel[10] = _random_cov(rng, 1e-2)  # the dead-reckoned step
+    P_varpi = np.stack([_random_cov(rng, 2e-2) for _ in t])
+    P0, tau = _random_cov(rng, 1e-3), 0.5
+
+    def run(big_b: bool, restart: bool):
+        drift = DriftCovariance(P0, (100.0 if big_b else 1.0) * P_varpi[0], tau, DRIFT_RATE)
+        out = []
+        for k in range(1, len(t)):
+            if k == 10 and restart:
+                out.append(drift.restart(T[k - 1], T[k], Sigma_rel[k]))
+            else:
+                out.append(drift.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k]))
+        return np.stack(out)
+
+    P = run(False, True)
+    xi = _model_monte_carlo(rng, T, t, Sigma_rel, P_varpi, tau, P0, DRIFT_RATE, restart=10)
+    ok, info = _mean_nees_in_bounds(xi, P[-1])
+    assert ok, info
+    A = se3.adjoint(T[10] @ se3.inverse(T[9]))  # at the restart: the pose carried, plus the dead-reckoned step
+    np.testing.assert_allclose(P[9], A @ P[8] @ A.T + Sigma_rel[10], rtol=1e-12, atol=1e-18)
+    big = run(True, True)
+    assert not np.allclose(big[8], P[8], rtol=1e-3)  # b mattered before the restart
+    for k in (9, 17):  # after it, only through the pose it left
+        A = np.eye(6)
+        for j in range(10, k + 2):
+            A = se3.adjoint(T[j] @ se3.inverse(T[j - 1])) @ A
+        np.testing.assert_allclose(big[k] - P[k], A @ (big[8] - P[8]) @ A.T, rtol=1e-9, atol=1e-15)
 
 
 def test_span_covariance_equals_the_recursion():
@@ -246,6 +292,34 @@ def test_a_blackout_is_not_counted_twice_at_the_restart(model):
     assert np.trace(before.P[:6, :6]) > 10.0  # grown over the blackout
     assert np.trace(est[restart].P_relative) < 0.01 * np.trace(before.P[:6, :6])
     assert np.all(np.linalg.eigvalsh(est[restart].P_relative) > 0)
+
+
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+def test_the_restart_is_flagged_and_adds_the_dead_reckoned_step_alone(model):
+    """The re-initialisation's scan is flagged (`restarted`, states.npz's too) and its absolute covariance is the
+    last one carried over plus the dead-reckoned relative pose, no velocity error or drift rate over the outage
+    (`uncertainty.restart_matrices`); that relative pose is the prior's, not a registration's, so the factor on
+    the registrations' relative covariance (`uncertainty.inflation`) leaves it as it is."""
+    from rodo.estimator.config import UncertaintyConfig
+
+    rng = np.random.default_rng(1)
+    t, T, varpi, vd = scene.trajectory(66, accel=0.2, yaw_rate=0.02, yaw_acc=0.0, pitch_acc=0.0)
+    L = scene.landmarks(rng)
+    scans = [np.zeros((0, 4)) if 20 <= k < 59 else scene.measure(T[k], varpi[k], vd[k], L, rng) for k in range(66)]
+    runs = {}
+    for f in (1.0, 0.5):
+        cfg = OdometryConfig.for_model(model).replace(uncertainty=UncertaintyConfig(
+            velocity_correlation_time=0.3, drift_rate_sigma=(1e-3, 1e-4, 2e-3, 1e-5, 2e-5, 3e-5), inflation=f))
+        odo = RadarOdometry(cfg, scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
+        runs[f] = [odo.process(t[k], scans[k]) for k in range(len(t))]
+    est = runs[0.5]
+    r = next(k for k, e in enumerate(est) if any("re-initialised" in m for m in e.events))
+    assert [k for k, e in enumerate(est) if e.restarted] == [r]
+    A = se3.adjoint(est[r].T_vehicle_world @ se3.inverse(est[r - 1].T_vehicle_world))
+    np.testing.assert_allclose(est[r].P_pose_absolute, A @ est[r - 1].P_pose_absolute @ A.T + est[r].P_relative,
+                               rtol=1e-9, atol=1e-15)
+    np.testing.assert_array_equal(est[r].P_relative, runs[1.0][r].P_relative)  # not scaled by inflation
+    np.testing.assert_allclose(est[r + 3].P_relative, 0.5 * runs[1.0][r + 3].P_relative, rtol=1e-12)
 
 
 def test_measurement_inflation_scales_the_information_of_the_pairs():

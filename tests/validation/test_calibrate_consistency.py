@@ -122,6 +122,25 @@ def test_absolute_covariances_replay_the_run(city_run):
     assert not np.allclose(cc.absolute_covariances(states, 0.05, drift), states["P_pose_absolute"], rtol=1e-3)
 
 
+def test_absolute_covariances_replay_a_run_across_its_restart():
+    """A run that re-initialises after a blackout (`blockage`'s 5-7 s): the replay takes the restart's step where
+    states.npz flags it (`restarted`) and gives the absolute covariances the run reported; without the flags it
+    does not."""
+    from rodo.validation.driver import run_sequence
+
+    seq, _ = scenarios.get("blockage").simulate(0, 8.0)
+    config = OdometryConfig.for_model("cv-cartesian")
+    config = config.replace(uncertainty=dataclasses.replace(
+        config.uncertainty, velocity_correlation_time=0.4, drift_rate_sigma=(1e-4, 1e-4, 5e-4, 3e-5, 3e-5, 1e-5)))
+    states = run_sequence(seq, config).state_arrays()
+    assert states["restarted"].dtype == bool and states["restarted"].sum() == 1
+    replay = cc.absolute_covariances(states, 0.4, states["drift_rate_sigma"])
+    np.testing.assert_allclose(replay, states["P_pose_absolute"], rtol=1e-9, atol=1e-15)
+    unflagged = dict(states, restarted=np.zeros_like(states["restarted"]))
+    assert not np.allclose(cc.absolute_covariances(unflagged, 0.4, states["drift_rate_sigma"]),
+                           states["P_pose_absolute"], rtol=1e-3)
+
+
 def test_fit_tau_takes_the_grid_point_nearest_consistency(city_run):
     """The chosen tau minimises w |ln r_span| + w |ln r_pose| over the grid it reports, w = 2 for an
     over-confident ratio (> 1), else 1."""

@@ -31,6 +31,25 @@ def test_equals_span_covariance_bit_for_bit(states, n, tau, drift, monkeypatch):
     assert sc.span_covariances(T, t, Sigma_rel, P_varpi, n, tau, drift).tobytes() == want.tobytes()
 
 
+@pytest.mark.parametrize("n", [1, 4])
+def test_equals_span_covariance_bit_for_bit_across_restarts(states, n, monkeypatch):
+    """Scans flagged as re-initialisations (states.npz `restarted`) take the restart's step in both, and a span
+    that starts at one starts its velocity error at zero in both."""
+    T, t = states["T_vehicle_world"], states["t"]
+    Sigma_rel, P_varpi = states["P_relative"], states["P"][:, 6:12, 6:12]
+    restarts = np.zeros(len(t), bool)
+    restarts[[6, 9, 20]] = True
+    want = np.stack([span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, 0.3, None, restarts)
+                     for k in range(n, len(t))])
+    got = sc.span_covariances(T, t, Sigma_rel, P_varpi, n, 0.3, None, restarts)
+    assert got.tobytes() == want.tobytes()
+    monkeypatch.setattr(sc, "BLOCK", 4)
+    assert sc.span_covariances(T, t, Sigma_rel, P_varpi, n, 0.3, None, restarts).tobytes() == want.tobytes()
+    plain = sc.span_covariances(T, t, Sigma_rel, P_varpi, n, 0.3)
+    assert not np.allclose(got[6 - n], plain[6 - n], rtol=1e-6)  # the restart's step is another
+    np.testing.assert_array_equal(got[:6 - n], plain[:6 - n])  # spans before it are the same
+
+
 def test_no_span_fits(states):
     t = states["t"][:3]
     assert sc.span_covariances(states["T_vehicle_world"][:3], t, states["P_relative"][:3],
