@@ -183,13 +183,11 @@ class UncertaintyConfig:
     """How the reported pose covariance accounts for what the window's covariance leaves out
     (`rodo.estimator.uncertainty`, docs/consistency.md).
 
-    velocity_correlation_time: tau (s) of the velocity error, which the motion prior keeps correlated from
-        scan to scan so that it integrates into pose; 0 composes the per-scan relative covariances as
-        independent. 0.25 s: CA/P on city, hills, stop_and_go (docs/consistency.md).
-    inflation: factor (> 0) on each scan's relative pose covariance, before it is composed into the relative
-        pose over a span and the absolute pose. Reported covariances only: not in the solve or the gates.
-        `rodo calibrate` fits it where kappa cannot make the one-scan relative pose consistent (kappa at 1
-        with a cautious relative pose, or kappa's compromise with the velocity).
+    velocity_correlation_time: tau (s) of the velocity error, which the motion prior keeps correlated from scan
+        to scan so that it integrates into pose; 0 composes the per-scan relative covariances as independent.
+    inflation: factor (> 0) on each scan's relative pose covariance, before it is composed over a span and into
+        the absolute pose (reported covariances only); `rodo calibrate` fits it where kappa cannot make the
+        one-scan relative pose consistent.
     measurement_inflation: factor (>= 1) on every associated pair's covariance in the solve (not in the gates):
         a scan's pairs share map errors (points made in one scan share its pose error, surfaces are resampled),
         so they carry less information than counted as independent. 1 leaves the solve as the paper's.
@@ -203,10 +201,11 @@ class UncertaintyConfig:
         where the motion leaves the prior's model (a turn's onset, a start) the scan's Doppler disagrees with
         the prediction, and the velocity's error is larger than the window's covariance (docs/consistency.md,
         "... and at a manoeuvre"). Not in the solve or the gates.
-    prior_memory: time constant (s) of the marginalised prior's memory: at each marginalisation its information
-        is multiplied by exp(-dt / prior_memory) (dt: the marginalised interval). It holds the past scans'
-        information, which the map, made from the same scans, brings back again; with a stiff Qc it never
-        forgets that (docs/consistency.md, "A prior that forgets"). 0: off (the paper's marginalisation).
+    velocity_axis_inflation: and that variance times these per axis [vx, vy, vz, wx, wy, wz] (body frame): the
+        window's velocity covariance has the wrong shape (docs/consistency.md, "... and per axis").
+    prior_memory: time constant (s) of the marginalised prior's memory (its information times exp(-dt /
+        prior_memory) at each marginalisation): the map, made from the same scans, brings their information back
+        (docs/consistency.md, "A prior that forgets"). 0: off (the paper's marginalisation).
     """
 
     velocity_correlation_time: float = 0.25  # s
@@ -217,6 +216,7 @@ class UncertaintyConfig:
     velocity_inflation: float = 1.0
     velocity_inflation_per_speed: float = 0.0
     velocity_inflation_per_doppler: float = 0.0
+    velocity_axis_inflation: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
 
 
 @dataclass(frozen=True)

@@ -303,7 +303,7 @@ class RadarOdometry:
         est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
         est.doppler_nis = self.doppler_nis
         est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed,
-                                  cfg.velocity_inflation_per_doppler, est.doppler_nis)
+                                  cfg.velocity_inflation_per_doppler, est.doppler_nis, cfg.velocity_axis_inflation)
         return est
 
     def _update_map(self, scan: ScanMeasurements, pairs) -> None:

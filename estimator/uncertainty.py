@@ -107,12 +107,14 @@ def scan_relative_covariances(P_pair: np.ndarray, P_emitted: np.ndarray | None, 
 
 
 def velocity_inflated(P: np.ndarray, varpi: np.ndarray, inflation: float, per_speed: float, per_doppler: float = 0.0,
-                      doppler_nis=None) -> np.ndarray:
+                      doppler_nis=None, per_axis=None) -> np.ndarray:
     """P with the velocity's variance scaled by c = inflation + per_speed |nu| + per_doppler ln(1 + nis)
-    (`velocity_factor`; nu = varpi[:3], the speed in m/s; nis the scan's Doppler innovation NIS per dof): the
-    velocity block (6:12) times c, its cross blocks times sqrt(c), the rest unchanged (D P D with D diagonal, so
-    it stays a covariance). One (d, d) with varpi (6,) and a float nis, or a stack (N, d, d) with (N, 6) and
-    (N,). At c = 1 (inflation 1, per_speed 0, per_doppler 0) P itself, bit for bit.
+    (`velocity_factor`; nu = varpi[:3], the speed in m/s; nis the scan's Doppler innovation NIS per dof) and per
+    axis by per_axis (6,) ([vx, vy, vz, wx, wy, wz]; None: ones): velocity element i's variance times c g_i, its
+    covariances with element j times sqrt(c g_i c g_j) or sqrt(c g_i), the rest unchanged (D P D with D diagonal,
+    so it stays a covariance). One (d, d) with varpi (6,) and a float nis, or a stack (N, d, d) with (N, 6) and
+    (N,). At c = 1 (inflation 1, per_speed 0, per_doppler 0) and g = 1, P itself, bit for bit; at g = 1 bit for
+    bit the factor c alone.
 
     Why (docs/consistency.md, "The velocity's error grows with the speed" and "... and at a manoeuvre"): the
     window's velocity covariance hardly depends on the speed (the same pairs and Doppler rows at any speed),
@@ -123,12 +125,13 @@ def velocity_inflated(P: np.ndarray, varpi: np.ndarray, inflation: float, per_sp
     (`validation.calibrate_consistency.fit_velocity_inflation`). The drift recursion keeps the window's velocity
     covariance: its tau and drift rate are calibrated with that one.
     """
-    if inflation == 1.0 and per_speed == 0.0 and per_doppler == 0.0:
+    axes = np.ones(6) if per_axis is None else np.asarray(per_axis, dtype=float).reshape(6)
+    if inflation == 1.0 and per_speed == 0.0 and per_doppler == 0.0 and np.all(axes == 1.0):
         return P
     P = np.asarray(P, dtype=float)
     c = velocity_factor(varpi, inflation, per_speed, per_doppler, doppler_nis)
     d = np.ones(P.shape[:-1])
-    d[..., 6:12] = np.sqrt(c)[..., None]
+    d[..., 6:12] = np.sqrt(c)[..., None] * np.sqrt(axes)
     return P * d[..., :, None] * d[..., None, :]
 
 

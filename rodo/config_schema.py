@@ -43,6 +43,7 @@ UNITS = {
     "uncertainty.drift_rate_sigma": "m/m, rad/m", "uncertainty.prior_memory": "s",
     "uncertainty.velocity_inflation": "factor", "uncertainty.velocity_inflation_per_speed": "s/m",
     "uncertainty.velocity_inflation_per_doppler": "factor per ln(1 + NIS)",
+    "uncertainty.velocity_axis_inflation": "factors",
 }
 
 DESCRIPTIONS = {  # keys whose source has no comment or docstring entry, or only a unit

@@ -62,10 +62,11 @@ def _qc_report(fit: cal.QcFit) -> dict:
 
 def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: OdometryConfig,
                          duration: float | None = None, floor: float = cal.DEFAULT_FLOOR, consistency: bool = True,
-                         progress=None) -> tuple[OdometryConfig, dict]:
+                         progress=None, velocity_axes: bool = False) -> tuple[OdometryConfig, dict]:
     """Learn qc_ca, qc_cv, the per-channel sensor sigma factors, the Cartesian sigma and the scans' common Doppler
     error (`calibrate_sensor.common_doppler_error`; 0 unless significant) from ground truth, then
-    (`consistency`) the uncertainty section at that noise; returns (config, report). `progress` gets each
+    (`consistency`) the uncertainty section at that noise (the velocity's per-axis factors with `velocity_axes`);
+    returns (config, report). `progress` gets each
     `calibrate_consistency.ConsistencyStep`. `seq` and `truth` may be lists of several sequences (of one sensor):
     every fit pools them (their prior intervals, detections and scans), `duration` cuts each."""
     seqs, truths = ([seq], [truth]) if isinstance(truth, dict) else (list(seq), list(truth))
@@ -101,7 +102,8 @@ def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: Odome
     }
     config = config.replace(noise=noise)
     if consistency:
-        config, report["consistency"] = cc.fit_consistency(seqs, truths, config, progress=progress)
+        config, report["consistency"] = cc.fit_consistency(seqs, truths, config, progress=progress,
+                                                           velocity_axes=velocity_axes)
     return config, report
 
 

@@ -135,6 +135,7 @@ class RunResult:
             velocity_inflation=np.array([self.config.uncertainty.velocity_inflation,
                                          self.config.uncertainty.velocity_inflation_per_speed,
                                          self.config.uncertainty.velocity_inflation_per_doppler]),
+            velocity_axis_inflation=np.asarray(self.config.uncertainty.velocity_axis_inflation, dtype=float),
         )
 
     def trajectory(self) -> Trajectory:

@@ -31,7 +31,7 @@ from .association import DEFAULT_TOLERANCE, associate
 from .consistency import nees, require_arrays
 from .span_covariances import span_covariances
 
-RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation")  # states.npz arrays that are not per scan
+RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation")  # not per scan
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
 
@@ -44,11 +44,16 @@ def _relative_errors(T_true: np.ndarray, T_est: np.ndarray, n: int) -> np.ndarra
 
 
 def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflation=None,
-                               doppler_nis=None) -> np.ndarray:
+                               doppler_nis=None, axis_inflation=None) -> np.ndarray:
     """(N, 6, 6) the velocity covariances a run's drift recursion used: the window's, i.e. the reported ones
     (states.npz P) divided by the run's velocity factor (`estimator.uncertainty.velocity_factor`; states.npz
-    velocity_inflation = [a, b] or [a, b, d] with the per-scan doppler_nis, none in runs before them)."""
+    velocity_inflation = [a, b] or [a, b, d] with the per-scan doppler_nis, none in runs before them) and by its
+    per-axis factors (states.npz velocity_axis_inflation g: element (i, j) by sqrt(g_i g_j); none in runs
+    before them)."""
     P_varpi = np.asarray(P, dtype=float)[:, 6:12, 6:12]
+    if axis_inflation is not None and np.any(np.asarray(axis_inflation) != 1.0):
+        h = np.sqrt(np.asarray(axis_inflation, dtype=float).reshape(6))
+        P_varpi = P_varpi / (h[:, None] * h[None, :])
     if velocity_inflation is None:
         return P_varpi
     a, b, d = np.r_[np.asarray(velocity_inflation, dtype=float), 0.0][:3]  # [a, b] is [a, b, 0]
@@ -58,13 +63,15 @@ def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflat
     return P_varpi / c[:, None, None] if (a, b, d) != (1.0, 0.0, 0.0) else P_varpi
 
 
-def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, velocity_inflation) -> np.ndarray:
+def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, velocity_inflation,
+               axis_inflation=None) -> np.ndarray:
     out = np.full(len(t), np.nan)
     if "P_relative" not in states or n >= len(t):
         return out
     e = _relative_errors(T_true, T_est, n)
     Sigma_rel = np.asarray(states["P_relative"], dtype=float)
-    P_varpi = drift_velocity_covariances(states["P"], states["varpi"], velocity_inflation, states.get("doppler_nis"))
+    P_varpi = drift_velocity_covariances(states["P"], states["varpi"], velocity_inflation, states.get("doppler_nis"),
+                                         axis_inflation)
     C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma, states.get("restarted"))
     if "P_revision" in states:  # the revision of each span's first emitted pose, by the scan after it
         C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)
@@ -87,8 +94,9 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
     Args:
         states: states.npz arrays (t, T_vehicle_world, varpi, varpi_dot, P; P_relative and P_pose_absolute
             when the run wrote them, else those measures are NaN; P_revision when the run wrote it, added to
-            every span at its first scan (`_transported`); velocity_inflation when the run scaled its
-            reported velocity covariance: the span measures divide it out, as the run's drift recursion did).
+            every span at its first scan (`_transported`); velocity_inflation (and velocity_axis_inflation) when
+            the run scaled its reported velocity covariance: the span measures divide it out, as the run's drift
+            recursion did).
         truth: truth.npz arrays (t, T_vehicle_world, varpi, varpi_dot).
         span: seconds of the relative_span measure (rounded to whole scans).
         tau: the velocity error's correlation time the run used (config `uncertainty`).
@@ -118,9 +126,10 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
     out["acceleration"] = np.full(len(t), np.nan)
     if P.shape[-1] == 18 and "varpi_dot" in truth and "varpi_dot" in sub:
         out["acceleration"] = nees(np.asarray(truth["varpi_dot"])[ib] - sub["varpi_dot"], P[:, 12:18, 12:18])
-    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau, drift_rate_sigma, velocity_inflation)
+    axes = states.get("velocity_axis_inflation")
+    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau, drift_rate_sigma, velocity_inflation, axes)
     n = max(1, int(round(span / np.median(np.diff(t))))) if len(t) > 1 else 1
-    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau, drift_rate_sigma, velocity_inflation)
+    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau, drift_rate_sigma, velocity_inflation, axes)
     out["pose"] = nees(xi, sub["P_pose_absolute"]) if "P_pose_absolute" in sub else np.full(len(t), np.nan)
     out["pose_window"] = nees(xi, P[:, :6, :6])
     return out

@@ -37,6 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-truth", action="store_true", help="ignore truth.npz; EM without ground truth")
     p.add_argument("--no-consistency", action="store_true",
                    help="with truth: skip the uncertainty section (kappa, drift rate, tau; a few estimator runs)")
+    p.add_argument("--velocity-axes", action="store_true",
+                   help="with truth: learn the velocity variance per axis too (uncertainty.velocity_axis_inflation; "
+                        "docs/calibration.md)")
     p.add_argument("--iterations", type=int, default=5, help="EM iterations at most (%(default)s)")
     p.add_argument("--tolerance", type=float, default=0.05, help="EM stops below this relative change of Qc "
                                                                  "(%(default)s)")
@@ -93,7 +96,7 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
             v = c["velocity_inflation"]
             lines.append(f"uncertainty: measurement_inflation {c['measurement_inflation']:.3g}, velocity_inflation "
                          f"{v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + {v['per_doppler']:.3g} x "
-                         "ln(1 + Doppler NIS), drift_rate_sigma and "
+                         "ln(1 + Doppler NIS) and per axis (velocity_axis_inflation), drift_rate_sigma and "
                          f"velocity_correlation_time {c['velocity_correlation_time']:g} s fitted so that the "
                          "estimator's NEES against the truth is consistent (docs/calibration.md).")
     else:
@@ -151,7 +154,8 @@ def _consistency_markdown(c: dict) -> list[str]:
     return lines + ["", f"relative pose covariance factor (uncertainty.inflation) {rel['inflation']:.3g} (median "
                     f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; {rel['outcome']})",
                     f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
-                    f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS) (maximum "
+                    f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS), per axis vx, vy, vz, wx, wy, wz x "
+                    f"[{', '.join(f'{g:.3g}' for g in v.get('per_axis', [1.0] * 6))}] (maximum "
                     f"likelihood over {v['scans']} scans: mean velocity NEES/dof {v['nees_per_dof'][0]:.3g} -> "
                     f"{v['nees_per_dof'][1]:.3g})",
                     f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m",
@@ -189,7 +193,8 @@ def main(args) -> int:
                   + ", ".join(f"{k} {v:.3g}" for k, v in s.ratios.items()))
         truths = [load_truth(d) for d in args.sequence]
         config, report = calibrate_with_truth(seqs, truths, config, args.duration, args.floor,
-                                              consistency=not args.no_consistency, progress=step)
+                                              consistency=not args.no_consistency, progress=step,
+                                              velocity_axes=args.velocity_axes)
     write_text_atomic(out, config_toml(config, _header(report, " ".join(args.sequence), config.model)))
     write_text_atomic(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     write_text_atomic(out.with_suffix(".md"), _markdown(report))

@@ -39,6 +39,21 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
     assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["model"] == "cv-polar" and summary["config"] == config.to_dict()
+    assert config.uncertainty.velocity_axis_inflation == (1.0,) * 6  # per axis only when asked
+
+
+@pytest.mark.slow
+def test_calibrate_learns_the_velocity_per_axis_when_asked(seq, tmp_path, capsys):
+    """--velocity-axes: the config carries the fitted per-axis factors (product 1), the report and its markdown
+    name them, and `rodo run` accepts the config."""
+    out = tmp_path / "axes.toml"
+    assert main(["calibrate", str(seq), "--velocity-axes", "--out", str(out)]) == 0
+    g = OdometryConfig.from_toml(out).uncertainty.velocity_axis_inflation
+    report = json.loads(out.with_suffix(".json").read_text())
+    assert list(g) == report["consistency"]["velocity_inflation"]["per_axis"]
+    assert np.prod(g) == pytest.approx(1.0, rel=1e-9) and max(g) / min(g) > 1.1
+    assert "per axis vx, vy, vz, wx, wy, wz" in out.with_suffix(".md").read_text()
+    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
 
 
 @pytest.mark.slow

@@ -353,7 +353,8 @@ def test_velocity_inflation_scales_the_velocity_variance_only(inflation, per_spe
     """`velocity_inflated`: the velocity block times c = inflation + per_speed |nu| + per_doppler ln(1 + nis)
     (no Doppler term for a scan without one, NaN), its cross blocks times sqrt(c) (the covariance of the state
     with its velocity error scaled by sqrt(c)), everything else as it was; a stack of states as one at a time;
-    no factor returns P itself."""
+    no factor returns P itself; per-axis factors scale each velocity element's variance, and ones change
+    nothing, bit for bit."""
     rng = np.random.default_rng(seed)
     A = rng.normal(size=(18, 18))
     P = A @ A.T + 0.1 * np.eye(18)
@@ -373,6 +374,14 @@ def test_velocity_inflation_scales_the_velocity_variance_only(inflation, per_spe
     np.testing.assert_allclose(stack[0], out, rtol=1e-12)
     assert velocity_inflated(P, varpi, 1.0, 0.0, 0.0, nis) is P
     assert velocity_inflated(P, varpi, 1.0, 0.0) is P
+    # per-axis factors g: velocity element i's variance times c g_i, its cross terms by the square roots
+    g = np.exp(rng.uniform(-2.0, 2.0, 6))
+    axes = velocity_inflated(P, varpi, inflation, per_speed, per_doppler, nis, g)
+    D = np.diag(np.r_[np.ones(6), np.sqrt(c * g), np.ones(6)])
+    np.testing.assert_allclose(axes, D @ P @ D, rtol=1e-12)
+    np.testing.assert_allclose(np.diag(axes)[6:12], c * g * np.diag(P)[6:12], rtol=1e-12)
+    assert velocity_inflated(P, varpi, inflation, per_speed, per_doppler, nis, np.ones(6)).tobytes() == out.tobytes()
+    assert velocity_inflated(P, varpi, 1.0, 0.0, 0.0, nis, np.ones(6)) is P
 
 
 def test_velocity_inflation_changes_the_report_not_the_estimate():
