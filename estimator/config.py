@@ -188,9 +188,8 @@ class UncertaintyConfig:
     inflation: factor (> 0) on each scan's relative pose covariance, before it is composed over a span and into
         the absolute pose (reported covariances only); `rodo calibrate` fits it where kappa cannot make the
         one-scan relative pose consistent.
-    measurement_inflation: factor (>= 1) on every associated pair's covariance in the solve (not in the gates):
-        a scan's pairs share map errors (points made in one scan share its pose error, surfaces are resampled),
-        so they carry less information than counted as independent. 1 leaves the solve as the paper's.
+    measurement_inflation: factor (>= 1) on every associated pair's covariance in the solve (not the gates): a
+        scan's pairs share map errors and carry less information than counted as independent; 1: the paper's.
     drift_rate_sigma: sigma of the registration's systematic error per metre driven, unknown but constant
         over a run ([x, y, z] m/m, [roll, pitch, yaw] rad/m, vehicle frame): the absolute pose's error grows
         with the distance, not its square root. Not in the solve.
@@ -201,8 +200,9 @@ class UncertaintyConfig:
         where the motion leaves the prior's model (a turn's onset, a start) the scan's Doppler disagrees with
         the prediction, and the velocity's error is larger than the window's covariance (docs/consistency.md,
         "... and at a manoeuvre"). Not in the solve or the gates.
-    velocity_axis_inflation: and that variance times these per axis [vx, vy, vz, wx, wy, wz] (body frame): the
-        window's velocity covariance has the wrong shape (docs/consistency.md, "... and per axis").
+    velocity_axis_inflation: factors per axis [vx, vy, vz, wx, wy, wz] (body frame) on that reported variance, for
+        the shape of the window's velocity covariance (docs/consistency.md, "... and per axis"); `rodo calibrate
+        --velocity-axes` learns them. Not in the solve, the gates or the drift recursion.
     prior_memory: time constant (s) of the marginalised prior's memory (its information times exp(-dt /
         prior_memory) at each marginalisation): the map, made from the same scans, brings their information back
         (docs/consistency.md, "A prior that forgets"). 0: off (the paper's marginalisation).

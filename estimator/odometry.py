@@ -292,8 +292,9 @@ class RadarOdometry:
             self.drift = DriftCovariance.at_first_scan(est.P[:6, :6], cfg.velocity_correlation_time,
                                                        cfg.drift_rate_sigma)
             P_relative, P_revision, P_absolute = np.full((6, 6), np.nan), np.zeros((6, 6)), est.P[:6, :6].copy()
-        elif self.restart_relative is not None:  # dead-reckoned across a re-initialisation: not a registration's
-            (P_relative, P_revision), est.restarted = P_relative, True  # so not scaled by `inflation` either
+        elif self.restart_relative is not None:  # dead-reckoned across a re-initialisation, not registered:
+            P_relative, P_revision = P_relative  # so not scaled by `inflation` either
+            est.restarted = True
             P_absolute = self.drift.restart(last.T_vehicle_world, est.T_vehicle_world, P_relative)
         else:
             P_relative, P_revision = (cfg.inflation * P for P in P_relative)

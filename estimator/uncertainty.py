@@ -38,6 +38,7 @@ Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_k
     ::test_the_restart_adds_the_prediction_not_the_last_states_own_covariance,
     ::test_a_blackout_is_not_counted_twice_at_the_restart,
     ::test_the_restart_starts_the_velocity_error_again,
+    ::test_the_restart_is_flagged_and_adds_the_dead_reckoned_step_alone,
     ::test_velocity_inflation_scales_the_velocity_variance_only
 """
 
@@ -192,7 +193,14 @@ def restart_matrices(T_prev, T_new, Sigma_rel: np.ndarray) -> tuple[np.ndarray, 
     by Ad(T_new T_prev^-1) plus the dead-reckoned relative pose (covariance Sigma_rel,
     `predicted_relative_covariance`), the velocity error b set to zero (its row of A zero, no noise: the fresh
     window starts from the initial prior's velocity and the next scan is registered against the fresh map, as
-    at a run's first scan), the drift rate kept and not applied over the outage (no registration ran)."""
+    at a run's first scan), the drift rate kept and not applied over the outage (no registration ran).
+
+    An approximation: the dead-reckoned step starts from the last window's velocity, whose error b was, so the
+    step's error is correlated with the pose's (by about dt C[xi, b]); zeroing b drops that. Small where the
+    outage's empty scans were processed (dt one scan interval), larger where a gap had none.
+
+    Checked by: tests/estimator/test_uncertainty.py::test_the_restart_starts_the_velocity_error_again
+    """
     A = np.zeros((18, 18))
     A[:6, :6] = se3.adjoint(T_new @ se3.inverse(T_prev))
     A[12:, 12:] = np.eye(6)

@@ -23,7 +23,7 @@ Modules:
   ellipsoid coverage); `campaign_consistency` (over N runs);
 - `calibrate`, `calibrate_sensor`, `calibrate_config`: noise learned from data (`rodo calibrate`,
   docs/calibration.md); `calibrate_consistency`: the uncertainty parameters (kappa, drift rate, tau) fitted
-  against the truth.
+  against the truth; `replayed_states`: a run's states at other uncertainty settings, without running again.
 
 Documentation: docs/evaluation.md (metrics, campaigns), docs/visualisation.md (figures).
 """

@@ -15,29 +15,26 @@ tells the truth (docs/consistency.md):
   one-scan relative pose stays cautious (its Cartesian sigma, learned over all ranges, is too large for the near
   detections that carry the relative pose), and where the velocity and the relative pose disagree kappa's
   fixed point settles between them. The velocity has its own factors (below); f makes the last run's median
-  ratio of the one-scan relative pose 1, the velocity error's and the drift rate's shares of the scan's composed
-  covariance as they are (the median, as the fixed point: a mean follows the tails, and once came out 1.52 on
-  city and put fewer scans inside the bounds); fitted only when that ratio is off by more than the fixed point's
-  tolerance. The relative pose over a span and the absolute pose compose the scaled covariances.
+  ratio of the one-scan relative pose 1 (the velocity error's and the drift rate's shares of the scan's composed
+  covariance as they are; the median, as the fixed point), fitted only when that ratio is off by more than the
+  fixed point's tolerance. The relative pose over a span and the absolute pose compose the scaled covariances.
 - `uncertainty.drift_rate_sigma`: the registration's systematic error per metre driven (the absolute pose's
   error grows with the distance, not its square root). Its one realisation on the sequence is the least-squares
   fit beta = sum_k e_k / sum_k s_k of the one-scan relative errors e_k over the distances s_k; the sigma
   per axis is sqrt(beta^2 + se^2), se its standard error (a prior for the unknown drift of another run).
-- `uncertainty.velocity_inflation` a, `velocity_inflation_per_speed` b and `velocity_inflation_per_doppler` d:
-  the velocity's error grows with the speed, and where the scan's Doppler disagrees with the prediction (a
-  manoeuvre the prior does not model); the window's velocity covariance hardly does either, so the reported one
-  is (a + b |nu| + d ln(1 + nis)) times it (`estimator.uncertainty.velocity_inflated`; nis the scan's Doppler
-  innovation NIS per dof). Maximum likelihood of the velocity errors of the last run (the report only: no run
-  is needed); a mean fit, as the N-run bounds of a campaign test means. The drift terms below keep the
-  window's velocity covariance.
+- `uncertainty.velocity_inflation` a, `velocity_inflation_per_speed` b and `velocity_inflation_per_doppler` d
+  (and, when asked, `velocity_axis_inflation` g per axis): the velocity's error grows with the speed, and where
+  the scan's Doppler disagrees with the prediction; the window's velocity covariance hardly does either, so the
+  reported one is (a + b |nu| + d ln(1 + nis)) times it (`estimator.uncertainty.velocity_inflated`). Maximum
+  likelihood of the velocity errors of the last run (no run is needed); a mean fit, as the N-run bounds of a
+  campaign test means. The drift terms below keep the window's velocity covariance.
 - `uncertainty.velocity_correlation_time` tau: how long the velocity error stays correlated, which decides how
   the per-scan covariances compose into the drift (the relative pose over a span and the absolute pose). It
   does not change the estimate: chosen on a grid, without running again, so that the relative pose over `span`
   seconds and the absolute pose are as consistent as one tau can make them: the least sum of |ln ratio|, a
-  ratio above 1 (over-confident) counted OVERCONFIDENCE_WEIGHT times. A drive's own ratios do not carry over
-  exactly to other drives; where two taus are about equally consistent on it, the cautious one is the safe
-  choice (the symmetric sum took tau 0 over 0.02 s for CV/C on hills by 0.49 to 0.51, and its campaign's
-  relative pose over 1 s came out at 2.14 per dof; with the weight, 1.17).
+  ratio above 1 (over-confident) counted OVERCONFIDENCE_WEIGHT times (a drive's own ratios do not carry over
+  exactly to other drives; between two about equally consistent taus the cautious one is the safe choice:
+  docs/calibration.md, step 5).
 
 The ratios are measured against the truth, so this needs truth.npz; on real data, carry kappa and tau over from
 a simulated sequence like it (docs/calibration.md).
@@ -61,13 +58,14 @@ from scipy.stats import chi2
 
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
-from rodo.estimator.uncertainty import DriftCovariance, doppler_term, velocity_inflated
+from rodo.estimator.uncertainty import doppler_term
 from rodo.sim.sequence import Sequence
 
 from .alignment import truth_in_estimator_frame
 from .association import DEFAULT_TOLERANCE, associate
 from .driver import run_sequence
 from .odometry_consistency import DOF, drift_velocity_covariances, odometry_nees
+from .replayed_states import relative_inflated_states, replayed, velocity_inflated_states
 from .run_consistency import run_states
 
 # s, the grid of velocity correlation times: steps of about sqrt(2) from 0.01 s (a coarser grid, 0, 0.02, 0.05, 0.1,
@@ -180,16 +178,6 @@ def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: f
     return unchanged("out of reach")
 
 
-def relative_inflated_states(states: dict, factor: float) -> dict:
-    """The states a run would have written with its relative pose covariances (and their revision terms) times
-    `factor` (the estimate does not depend on them); the absolute covariances are replayed from these
-    (`_replayed`)."""
-    out = dict(states, P_relative=factor * np.asarray(states["P_relative"], dtype=float))
-    if "P_revision" in states:
-        out["P_revision"] = factor * np.asarray(states["P_revision"], dtype=float)
-    return out
-
-
 def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: float = DEFAULT_TOLERANCE,
                            per_axis: bool = False) -> dict:
     """The velocity's variance factor c_k = a + b |nu_k| + d ln(1 + nis_k) and, with `per_axis`, its per-axis
@@ -245,36 +233,26 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
                    bounds=[(1e-6 * a0, None), (0.0, None), (0.0, None)] + [(-12.0, 12.0) if per_axis else (0, 0)] * 5,
                    options={"ftol": 1e-15, "gtol": 1e-10, "maxiter": 2000})
     (a, b, d), h = split(res.x)
-    q = (M @ h)[:, None, :] @ h[:, None]
     return {"inflation": float(a), "per_speed": float(b), "per_doppler": float(d),
             "per_axis": [float(x) for x in 1.0 / h**2], "scans": int(len(q0)),
-            "nees_per_dof": [a0, float(np.mean(q.ravel() / (X @ res.x[:3]))) / DOF]}
-
-
-def velocity_inflated_states(states: dict, inflation: float, per_speed: float, per_doppler: float = 0.0,
-                             per_axis=None) -> dict:
-    """The states a run at these velocity factors would have written (from a run without them: the estimate does
-    not depend on them): the reported velocity covariance scaled, the factors recorded."""
-    axes = np.ones(6) if per_axis is None else np.asarray(per_axis, dtype=float)
-    P = velocity_inflated(np.asarray(states["P"], dtype=float), states["varpi"], inflation, per_speed, per_doppler,
-                          states.get("doppler_nis"), axes)
-    return dict(states, P=P, velocity_inflation=np.array([inflation, per_speed, per_doppler]),
-                velocity_axis_inflation=axes)
+            "nees_per_dof": [a0, float(np.mean((M @ h) @ h / (X @ res.x[:3]))) / DOF]}
 
 
 def fit_drift_rate(states: dict | list, truth: dict | list, tolerance: float = DEFAULT_TOLERANCE) -> dict:
     """The drift rate of one run (or runs, pooled: one beta over all their scans): beta (6,) = sum_k e_k /
     sum_k s_k, e_k = ln(R_true R_est^-1) the one-scan relative error (vehicle frame) and s_k the true distance of
-    the scan; its standard error se (6,) from the scatter of e_k - s_k beta (scans as independent);
-    sigma = sqrt(beta^2 + se^2); distance (m)."""
+    the scan (not the dead-reckoned steps of re-initialisations, states' `restarted`: no registration there); its
+    standard error se (6,) from the scatter of e_k - s_k beta (scans as independent); sigma = sqrt(beta^2 +
+    se^2); distance (m)."""
     e, s = [np.zeros((0, 6))], [np.zeros(0)]
     for st, tr in runs_of(states, truth):
         ia, ib = associate(st["t"], tr["t"], tolerance)
         T_est = np.asarray(st["T_vehicle_world"], dtype=float)[ia]
         T_true = truth_in_estimator_frame(np.asarray(tr["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
         R_true = T_true[1:] @ se3.inverse(T_true[:-1])
-        e.append(se3.log(R_true @ se3.inverse(T_est[1:] @ se3.inverse(T_est[:-1]))))
-        s.append(np.linalg.norm(R_true[:, :3, 3], axis=1))
+        keep = ~np.asarray(st.get("restarted", np.zeros(len(st["t"]), bool)), dtype=bool)[ia][1:]
+        e.append(se3.log(R_true @ se3.inverse(T_est[1:] @ se3.inverse(T_est[:-1])))[keep])
+        s.append(np.linalg.norm(R_true[:, :3, 3], axis=1)[keep])
     e, s = np.concatenate(e), np.concatenate(s)
     distance = float(s.sum())
     if len(e) < 2 or distance <= 0:
@@ -299,39 +277,13 @@ def _measure(seq, truth, config: OdometryConfig, span: float) -> tuple:
     return states, _ratios(states, truth, span, config.uncertainty.velocity_correlation_time)
 
 
-def _replayed(states: dict, tau: float, drift_rate_sigma) -> dict:
-    """The states with the absolute covariances the run would have reported at this tau and drift rate (the
-    estimate itself does not depend on them)."""
-    return dict(states, P_pose_absolute=absolute_covariances(states, tau, drift_rate_sigma))
-
-
-def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None) -> np.ndarray:
-    """(N, 6, 6) the absolute pose covariances a run would have reported with this tau and drift rate
-    (`DriftCovariance` over its stored relative and velocity covariances, across its re-initialisations where
-    states.npz flags them, `restarted`; row 0: the first pose's)."""
-    T = np.asarray(states["T_vehicle_world"], dtype=float)
-    t = np.asarray(states["t"], dtype=float)
-    P = np.asarray(states["P"], dtype=float)
-    P_varpi = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"), states.get("doppler_nis"),
-                                         states.get("velocity_axis_inflation"))
-    S = np.asarray(states["P_relative"], dtype=float)
-    restarted = np.asarray(states.get("restarted", np.zeros(len(t), bool)), dtype=bool)
-    drift = DriftCovariance.at_first_scan(P[0, :6, :6], tau, drift_rate_sigma)
-    out = [P[0, :6, :6]]
-    for k in range(1, len(t)):
-        rel = S[k] if np.all(np.isfinite(S[k])) else np.zeros((6, 6))
-        out.append(drift.restart(T[k - 1], T[k], rel) if restarted[k]
-                   else drift.update(T[k - 1], T[k], t[k] - t[k - 1], rel, P_varpi[k]))
-    return np.stack(out)
-
-
 def fit_tau(states: dict | list, truth: dict | list, span: float = 1.0, taus=TAUS,
             drift_rate_sigma=None) -> tuple[float, dict]:
     """The tau of the grid that makes the relative pose over `span` seconds and the absolute pose most
     consistent: the least `tau_cost` of their median ratios; returns (tau, {tau: (r_span, r_pose)})."""
     ratios = {}
     for tau in taus:
-        r = _ratios(_each(_replayed, states, tau, drift_rate_sigma), truth, span, tau, drift_rate_sigma)
+        r = _ratios(_each(replayed, states, tau, drift_rate_sigma), truth, span, tau, drift_rate_sigma)
         ratios[float(tau)] = (r["relative_span"], r["pose"])
     finite = {tau: r for tau, r in ratios.items() if np.all(np.isfinite(r)) and min(r) > 0}
     if not finite:
@@ -383,7 +335,7 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     factors = (velocity["inflation"], velocity["per_speed"], velocity["per_doppler"], tuple(velocity["per_axis"]))
     tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"])
     fitted = _with(config, kappa, tau, drift["sigma"], factors, relative["inflation"])
-    final = _ratios(_each(lambda s: _replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"]), states),
+    final = _ratios(_each(lambda s: replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"]), states),
                     truth, span, tau, drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))
     if progress is not None:

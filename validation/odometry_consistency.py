@@ -120,6 +120,9 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
     T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
     P = np.asarray(states["P"], dtype=float)[ia]
     sub = {k: np.asarray(states[k])[ia] for k in per_scan}
+    if "restarted" in sub:  # a restart at a scan without truth: the kept scan after it takes the restart's step
+        n_restarts = np.cumsum(np.asarray(states["restarted"], dtype=bool))[ia]
+        sub["restarted"] = np.diff(n_restarts, prepend=0) > 0
     xi = se3.log(T_true @ se3.inverse(T_est))
     out = {"t": t, "dof": DOF, "span": float(span)}
     out["velocity"] = nees(np.asarray(truth["varpi"])[ib] - sub["varpi"], P[:, 6:12, 6:12])

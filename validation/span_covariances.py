@@ -9,7 +9,8 @@ the span, so they are built once per scan (with the same arithmetic as `_step`, 
 recursions advance together: step i applies A_{start+i} to every span at once. Each span's products are the
 same BLAS calls on the same operands as in the loop, so the result is identical, not merely close.
 
-Checked by: tests/validation/test_span_covariances.py::test_equals_span_covariance_bit_for_bit
+Checked by: tests/validation/test_span_covariances.py::test_equals_span_covariance_bit_for_bit,
+    ::test_equals_span_covariance_bit_for_bit_across_restarts
 """
 
 from __future__ import annotations

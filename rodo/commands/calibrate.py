@@ -96,7 +96,8 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
             v = c["velocity_inflation"]
             lines.append(f"uncertainty: measurement_inflation {c['measurement_inflation']:.3g}, velocity_inflation "
                          f"{v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + {v['per_doppler']:.3g} x "
-                         "ln(1 + Doppler NIS) and per axis (velocity_axis_inflation), drift_rate_sigma and "
+                         "ln(1 + Doppler NIS)" + (" and per axis" if set(v.get("per_axis", [1.0])) != {1.0} else "")
+                         + ", drift_rate_sigma and "
                          f"velocity_correlation_time {c['velocity_correlation_time']:g} s fitted so that the "
                          "estimator's NEES against the truth is consistent (docs/calibration.md).")
     else:

@@ -176,8 +176,9 @@ def test_the_restart_starts_the_velocity_error_again():
 
 
 def test_span_covariance_equals_the_recursion():
-    """A span from scan s to e is the recursion started at s with a known pose (from scan 0, the run's start:
-    the velocity error at zero, as the absolute recursion starts)."""
+    """A span from scan s to e is the recursion started at s with a known pose (from scan 0, the run's start, or
+    from a re-initialisation: the velocity error at zero, as the absolute recursion starts), with the restart's
+    step into a scan flagged as one."""
     rng = np.random.default_rng(np.random.SeedSequence(13))
     t = np.cumsum(np.r_[0.0, rng.uniform(0.05, 0.1, 14)])
     T = np.stack([se3.exp(np.array([-8.0 * s, 0.0, 0.0, 0.0, 0.0, 0.3 * s])) for s in t])
@@ -195,6 +196,20 @@ def test_span_covariance_equals_the_recursion():
             P = first.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
         np.testing.assert_allclose(span_covariance(T, t, Sigma_rel, P_varpi, 0, 7, 0.5, drift_rate_sigma), P,
                                    rtol=1e-12, atol=1e-18)
+        restarts = np.zeros(len(t), bool)
+        restarts[[7, 9]] = True  # across a re-initialisation the restart's step; from one, b at zero
+        drift = DriftCovariance(np.zeros((6, 6)), P_varpi[4], 0.5, drift_rate_sigma)
+        for k in range(5, 12):
+            P = (drift.restart(T[k - 1], T[k], Sigma_rel[k]) if restarts[k]
+                 else drift.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k]))
+        np.testing.assert_allclose(span_covariance(T, t, Sigma_rel, P_varpi, 4, 11, 0.5, drift_rate_sigma, restarts),
+                                   P, rtol=1e-12, atol=1e-18)
+        after = DriftCovariance.at_first_scan(np.zeros((6, 6)), 0.5, drift_rate_sigma)
+        for k in range(8, 12):
+            P = (after.restart(T[k - 1], T[k], Sigma_rel[k]) if restarts[k]
+                 else after.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k]))
+        np.testing.assert_allclose(span_covariance(T, t, Sigma_rel, P_varpi, 7, 11, 0.5, drift_rate_sigma, restarts),
+                                   P, rtol=1e-12, atol=1e-18)
 
 
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
@@ -296,7 +311,7 @@ def test_a_blackout_is_not_counted_twice_at_the_restart(model):
 
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
 def test_the_restart_is_flagged_and_adds_the_dead_reckoned_step_alone(model):
-    """The re-initialisation's scan is flagged (`restarted`, states.npz's too) and its absolute covariance is the
+    """The re-initialisation's scan is flagged (`restarted`) and its absolute covariance is the
     last one carried over plus the dead-reckoned relative pose, no velocity error or drift rate over the outage
     (`uncertainty.restart_matrices`); that relative pose is the prior's, not a registration's, so the factor on
     the registrations' relative covariance (`uncertainty.inflation`) leaves it as it is."""

@@ -13,6 +13,7 @@ from rodo import scenarios
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
 from rodo.validation import calibrate_consistency as cc
+from rodo.validation import replayed_states as rs
 
 
 def _rng(*key):
@@ -117,9 +118,9 @@ def test_absolute_covariances_replay_the_run(city_run):
     absolute covariances the run reported; another tau gives others (what `fit_tau` compares)."""
     states, _ = city_run
     drift = states["drift_rate_sigma"]
-    replay = cc.absolute_covariances(states, 0.4, drift)
+    replay = rs.absolute_covariances(states, 0.4, drift)
     np.testing.assert_allclose(replay, states["P_pose_absolute"], rtol=1e-9, atol=1e-15)
-    assert not np.allclose(cc.absolute_covariances(states, 0.05, drift), states["P_pose_absolute"], rtol=1e-3)
+    assert not np.allclose(rs.absolute_covariances(states, 0.05, drift), states["P_pose_absolute"], rtol=1e-3)
 
 
 def test_absolute_covariances_replay_a_run_across_its_restart():
@@ -134,11 +135,47 @@ def test_absolute_covariances_replay_a_run_across_its_restart():
         config.uncertainty, velocity_correlation_time=0.4, drift_rate_sigma=(1e-4, 1e-4, 5e-4, 3e-5, 3e-5, 1e-5)))
     states = run_sequence(seq, config).state_arrays()
     assert states["restarted"].dtype == bool and states["restarted"].sum() == 1
-    replay = cc.absolute_covariances(states, 0.4, states["drift_rate_sigma"])
+    replay = rs.absolute_covariances(states, 0.4, states["drift_rate_sigma"])
     np.testing.assert_allclose(replay, states["P_pose_absolute"], rtol=1e-9, atol=1e-15)
     unflagged = dict(states, restarted=np.zeros_like(states["restarted"]))
-    assert not np.allclose(cc.absolute_covariances(unflagged, 0.4, states["drift_rate_sigma"]),
+    assert not np.allclose(rs.absolute_covariances(unflagged, 0.4, states["drift_rate_sigma"]),
                            states["P_pose_absolute"], rtol=1e-3)
+
+
+def test_relative_factor_states_are_a_run_at_that_factor():
+    """A run that re-initialises (`blockage`'s blackout at 5-7 s) at `inflation` 2 writes what
+    `relative_inflated_states` makes of the same run at 1: every relative covariance doubled but the
+    re-initialisation's dead-reckoned one, and the same absolute covariances replayed. Its one-scan relative pose
+    at the restart takes the restart's step (the flags cleared, another NEES); the drift-rate fit leaves that
+    dead-reckoned step out."""
+    from rodo.validation.driver import run_sequence
+    from rodo.validation.odometry_consistency import odometry_nees
+
+    seq, truth = scenarios.get("blockage").simulate(0, 8.0)
+    runs = {}
+    for f in (1.0, 2.0):
+        config = OdometryConfig.for_model("cv-cartesian")
+        config = config.replace(uncertainty=dataclasses.replace(
+            config.uncertainty, velocity_correlation_time=0.4, inflation=f,
+            drift_rate_sigma=(1e-4, 1e-4, 5e-4, 3e-5, 3e-5, 1e-5)))
+        runs[f] = run_sequence(seq, config).state_arrays()
+    emulated = rs.relative_inflated_states(runs[1.0], 2.0)
+    r = int(np.flatnonzero(runs[1.0]["restarted"])[0])
+    for key in ("P_relative", "P_revision"):
+        np.testing.assert_allclose(emulated[key][1:], runs[2.0][key][1:], rtol=1e-12, atol=1e-18)
+    np.testing.assert_array_equal(emulated["P_relative"][r], runs[1.0]["P_relative"][r])
+    drift = runs[1.0]["drift_rate_sigma"]
+    np.testing.assert_allclose(rs.absolute_covariances(emulated, 0.4, drift), runs[2.0]["P_pose_absolute"],
+                               rtol=1e-9, atol=1e-15)
+    states = runs[1.0]
+    m = odometry_nees(states, truth, tau=0.4)
+    unflagged = odometry_nees(dict(states, restarted=np.zeros_like(states["restarted"])), truth, tau=0.4)
+    k = int(np.argmin(np.abs(m["t"] - states["t"][r])))
+    assert m["relative_scan"][k] != pytest.approx(unflagged["relative_scan"][k], rel=1e-3)
+    np.testing.assert_array_equal(m["relative_scan"][:k], unflagged["relative_scan"][:k])
+    kept = cc.fit_drift_rate(states, truth)
+    all_steps = cc.fit_drift_rate(dict(states, restarted=np.zeros_like(states["restarted"])), truth)
+    assert kept["distance"] < all_steps["distance"]  # the dead-reckoned step's distance left out
 
 
 def test_fit_tau_takes_the_grid_point_nearest_consistency(city_run):
@@ -182,13 +219,13 @@ def test_velocity_axis_inflation_recovers_known_factors(log_g, seed):
     assert np.prod(fit["per_axis"]) == pytest.approx(1.0, rel=1e-9)
     for s in (3.0, 15.0):
         assert fit["inflation"] + fit["per_speed"] * s == pytest.approx(0.7 + 0.05 * s, rel=0.1), fit
-    scaled = cc.velocity_inflated_states(states, fit["inflation"], fit["per_speed"], fit["per_doppler"],
+    scaled = rs.velocity_inflated_states(states, fit["inflation"], fit["per_speed"], fit["per_doppler"],
                                          fit["per_axis"])
     Pv = scaled["P"][:, 6:12, 6:12]
     ratio = np.mean(e**2 / np.einsum("kii->ki", Pv), axis=0)
     np.testing.assert_allclose(ratio, 1.0, atol=0.08)
     plain = np.mean(e**2 / np.einsum("kii->ki", c[:, None, None] * P[:, 6:12, 6:12]), axis=0)
-    assert np.max(np.abs(np.log(plain))) > 0.5 or np.max(np.abs(log_g)) < 0.6
+    np.testing.assert_allclose(plain, g, rtol=0.15)  # without them each axis is off by its g
     np.testing.assert_array_equal(scaled["velocity_axis_inflation"], fit["per_axis"])
     again = cc.fit_velocity_inflation(scaled, {"t": t, "varpi": varpi + e}, per_axis=True)
     np.testing.assert_allclose(again["per_axis"], fit["per_axis"], rtol=1e-5)
@@ -225,7 +262,7 @@ def test_velocity_inflation_recovers_a_known_factor(a, b, d, seed):
             got = fit["inflation"] + fit["per_speed"] * s + fit["per_doppler"] * np.log1p(x)
             assert got == pytest.approx(want, rel=0.1), fit
     assert fit["nees_per_dof"][1] == pytest.approx(1.0, abs=0.03)
-    scaled = cc.velocity_inflated_states(states, fit["inflation"], fit["per_speed"], fit["per_doppler"])
+    scaled = rs.velocity_inflated_states(states, fit["inflation"], fit["per_speed"], fit["per_doppler"])
     c_fit = fit["inflation"] + fit["per_speed"] * speed + fit["per_doppler"] * np.log1p(np.nan_to_num(nis))
     np.testing.assert_allclose(scaled["P"][:, 6:12, 6:12], c_fit[:, None, None] * P[:, 6:12, 6:12])
     # from states that already carry factors, the same fit: it is relative to the window's covariance (the same
@@ -242,20 +279,26 @@ def test_velocity_inflation_recovers_a_known_factor(a, b, d, seed):
 def test_velocity_factors_change_the_velocity_measure_only(city_run):
     """States as a run with velocity factors writes them (`velocity_inflated_states`): the velocity NEES divided
     by a + b |nu| of each scan; the relative and absolute pose measures, whose drift recursion keeps the window's
-    velocity covariance, as they were; and the absolute covariances replay as before."""
+    velocity covariance, as they were; and the absolute covariances replay as before; with per-axis factors the
+    velocity NEES moves otherwise, and the replays divide them out as well."""
     from rodo.estimator.uncertainty import velocity_factor
     from rodo.validation.odometry_consistency import odometry_nees
 
     states, truth = city_run
-    scaled = cc.velocity_inflated_states(states, 0.5, 0.08)
-    before, after = odometry_nees(states, truth, tau=0.4), odometry_nees(scaled, truth, tau=0.4)
+    before = odometry_nees(states, truth, tau=0.4)
     c = velocity_factor(states["varpi"], 0.5, 0.08)
-    np.testing.assert_allclose(after["velocity"], before["velocity"] / c, rtol=1e-9)
-    for name in ("relative_scan", "relative_span", "pose", "pose_window"):
-        np.testing.assert_allclose(after[name], before[name], rtol=1e-9)
     drift = states["drift_rate_sigma"]
-    np.testing.assert_allclose(cc.absolute_covariances(scaled, 0.4, drift), cc.absolute_covariances(states, 0.4, drift),
-                               rtol=1e-9, atol=1e-15)
+    for g in (None, np.array([1.5, 0.5, 3.0, 0.4, 1.2, 0.8])):  # with per-axis factors too
+        scaled = rs.velocity_inflated_states(states, 0.5, 0.08, 0.0, g)
+        after = odometry_nees(scaled, truth, tau=0.4)
+        if g is None:
+            np.testing.assert_allclose(after["velocity"], before["velocity"] / c, rtol=1e-9)
+        else:
+            assert not np.allclose(after["velocity"], before["velocity"] / c, rtol=1e-3)
+        for name in ("relative_scan", "relative_span", "pose", "pose_window"):
+            np.testing.assert_allclose(after[name], before[name], rtol=1e-9)
+        np.testing.assert_allclose(rs.absolute_covariances(scaled, 0.4, drift),
+                                   rs.absolute_covariances(states, 0.4, drift), rtol=1e-9, atol=1e-15)
 
 
 @given(r=st.floats(1.001, 100.0), other=st.floats(0.01, 100.0))
@@ -275,7 +318,7 @@ def test_relative_factor_makes_the_one_scan_pose_consistent(city_run, s):
 
     states, truth = city_run
     drift = states["drift_rate_sigma"]
-    ran = cc.relative_inflated_states(states, s)
+    ran = rs.relative_inflated_states(states, s)
     fit = cc.fit_relative_inflation(ran, truth, s, 0.1, drift)
     reference = cc.fit_relative_inflation(states, truth, 1.0, 0.0, drift)
     r_before, r_after = fit["median_ratio"]
@@ -285,7 +328,7 @@ def test_relative_factor_makes_the_one_scan_pose_consistent(city_run, s):
     assert fit["outcome"] == "fitted"
     assert r_after == pytest.approx(1.0, abs=2e-3), fit
     assert fit["inflation"] == pytest.approx(reference["inflation"], rel=2e-3), (fit, reference)
-    fitted = cc.relative_inflated_states(ran, fit["inflation"] / s)
+    fitted = rs.relative_inflated_states(ran, fit["inflation"] / s)
     after = odometry_nees(fitted, truth, drift_rate_sigma=drift)
     assert cc.median_ratio(after["relative_scan"]) == pytest.approx(1.0, abs=2e-3)
     np.testing.assert_array_equal(after["velocity"], odometry_nees(states, truth)["velocity"])

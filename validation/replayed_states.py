@@ -1,0 +1,75 @@
+"""The states a run would have written at other uncertainty settings, from the states it wrote: the reported
+covariances those settings scale or compose change, the estimate does not (none of them is in the solve), so no
+run is needed. `rodo calibrate`'s uncertainty fits (`calibrate_consistency`) compare settings this way.
+
+- `relative_inflated_states`: the relative pose covariances times a factor (`[uncertainty] inflation`);
+- `velocity_inflated_states`: the velocity covariance at other velocity factors;
+- `absolute_covariances`, `replayed`: the absolute pose covariances at another tau and drift rate.
+
+Checked by: tests/validation/test_calibrate_consistency.py
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rodo.estimator.uncertainty import DriftCovariance, velocity_inflated
+
+from .odometry_consistency import drift_velocity_covariances
+
+
+def relative_inflated_states(states: dict, factor: float) -> dict:
+    """The states a run would have written with its relative pose covariances (and their revision terms) times
+    `factor` (the estimate does not depend on them), but at its re-initialisations (states' `restarted`), whose
+    dead-reckoned step the factor does not scale; the absolute covariances are replayed from these
+    (`_replayed`).
+
+    Checked by: tests/validation/test_calibrate_consistency.py::test_relative_factor_states_are_a_run_at_that_factor
+    """
+    f = np.where(np.asarray(states.get("restarted", False), dtype=bool), 1.0, factor)
+    f = f[:, None, None] if f.ndim else f
+    out = dict(states, P_relative=f * np.asarray(states["P_relative"], dtype=float))
+    if "P_revision" in states:
+        out["P_revision"] = f * np.asarray(states["P_revision"], dtype=float)
+    return out
+
+
+def velocity_inflated_states(states: dict, inflation: float, per_speed: float, per_doppler: float = 0.0,
+                             per_axis=None) -> dict:
+    """The states a run at these velocity factors would have written (from a run without them: the estimate does
+    not depend on them): the reported velocity covariance scaled, the factors recorded."""
+    axes = np.ones(6) if per_axis is None else np.asarray(per_axis, dtype=float)
+    P = velocity_inflated(np.asarray(states["P"], dtype=float), states["varpi"], inflation, per_speed, per_doppler,
+                          states.get("doppler_nis"), axes)
+    return dict(states, P=P, velocity_inflation=np.array([inflation, per_speed, per_doppler]),
+                velocity_axis_inflation=axes)
+
+
+def replayed(states: dict, tau: float, drift_rate_sigma) -> dict:
+    """The states with the absolute covariances the run would have reported at this tau and drift rate (the
+    estimate itself does not depend on them)."""
+    return dict(states, P_pose_absolute=absolute_covariances(states, tau, drift_rate_sigma))
+
+
+def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None) -> np.ndarray:
+    """(N, 6, 6) the absolute pose covariances a run would have reported with this tau and drift rate
+    (`DriftCovariance` over its stored relative and velocity covariances, across its re-initialisations where
+    states.npz flags them, `restarted`; row 0: the first pose's).
+
+    Checked by: tests/validation/test_calibrate_consistency.py::test_absolute_covariances_replay_the_run,
+        ::test_absolute_covariances_replay_a_run_across_its_restart
+    """
+    T = np.asarray(states["T_vehicle_world"], dtype=float)
+    t = np.asarray(states["t"], dtype=float)
+    P = np.asarray(states["P"], dtype=float)
+    P_varpi = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"), states.get("doppler_nis"),
+                                         states.get("velocity_axis_inflation"))
+    S = np.asarray(states["P_relative"], dtype=float)
+    restarted = np.asarray(states.get("restarted", np.zeros(len(t), bool)), dtype=bool)
+    drift = DriftCovariance.at_first_scan(P[0, :6, :6], tau, drift_rate_sigma)
+    out = [P[0, :6, :6]]
+    for k in range(1, len(t)):
+        rel = S[k] if np.all(np.isfinite(S[k])) else np.zeros((6, 6))
+        out.append(drift.restart(T[k - 1], T[k], rel) if restarted[k]
+                   else drift.update(T[k - 1], T[k], t[k] - t[k - 1], rel, P_varpi[k]))
+    return np.stack(out)
