@@ -183,12 +183,12 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
     """The velocity's variance factor c_k = a + b |nu_k| + d ln(1 + nis_k) and, with `per_axis`, its per-axis
     factors g (6,; else ones) of one run (or runs, pooled) by maximum likelihood: the velocity errors
     e_k ~ N(0, c_k D P_k D), D = diag(sqrt(g)), prod g = 1 (the overall scale is c's), P_k the window's velocity
-    covariance (`drift_velocity_covariances`:
-    whatever factors the run had are divided out), nu_k its estimated linear velocity, nis_k the scan's Doppler
-    innovation NIS per dof (states' doppler_nis; NaN, and runs without it, count 0), over every scan (the start
-    too: it holds the low speeds; left out, the factor came out over-confident at the start of every campaign
-    drive); a > 0, b >= 0, d >= 0. Returns {"inflation": a, "per_speed": b, "per_doppler": d, "per_axis": g,
-    "scans", "nees_per_dof": the mean velocity NEES/dof before and after}.
+    covariance (`drift_velocity_covariances`: whatever factors the run had are divided out), nu_k its estimated
+    linear velocity, nis_k the scan's Doppler innovation NIS per dof (states' doppler_nis; NaN, and runs without
+    it, count 0), over every scan (the start too: it holds the low speeds; left out, the factor came out
+    over-confident at the start of every campaign drive); a > 0, b >= 0, d >= 0. Returns {"inflation": a,
+    "per_speed": b, "per_doppler": d, "per_axis": g, "scans", "nees_per_dof": the mean velocity NEES/dof before
+    and after}.
 
     The per-axis factors correct the shape of the window's velocity covariance, which c alone cannot: on the
     verdict's drives its vertical velocity was over-confident 2-4 times, its lateral velocity and roll and yaw
