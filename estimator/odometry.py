@@ -42,7 +42,7 @@ from .scan_association import MapAssociation, ScanMeasurements
 from .sensor import Sensor
 from .state import State
 from .surface import surface_covariances
-from .uncertainty import DriftCovariance, predicted_relative_covariance, scan_relative_covariances, velocity_inflated
+from .uncertainty import ReportedCovariances, predicted_relative_covariance, scan_relative_covariances
 from .window import MeasurementSet, SlidingWindow
 
 LOST_PAIRS = 0.1  # share of the static detections paired below which the gates lost the scan (_recentre)
@@ -86,9 +86,7 @@ class RadarOdometry:
         self.map_clock = 0  # counts scans with static detections: the map ages with observations, not time
         self.last_t: float | None = None
         self.scan_dt = 0.1  # s, the latest time between scans (counts the consensus-switch scans)
-        self.drift: DriftCovariance | None = None  # the absolute pose covariance (`uncertainty`)
-        self.restart_relative: np.ndarray | None = None  # relative pose covariance across a re-initialisation
-        self.last_estimate: ScanEstimate | None = None
+        self.report = ReportedCovariances(config.uncertainty)  # relative, absolute and velocity (`uncertainty`)
         self.at_rest = False  # the last scan's Doppler said the sensor was at rest (the standstill term)
         self.doppler_nis = float("nan")  # this scan's Doppler innovation NIS per dof (`DopplerFrontEnd.correct`)
 
@@ -171,7 +169,7 @@ class RadarOdometry:
         self._update_map(scan, pairs)
         timings["map"] = time.perf_counter() - tic
         est = self._estimate(t, polar, static, pairs, timings, events, detail, still is not None)
-        return self._with_uncertainty(est, P_relative, reuse)
+        return self.report.annotate(est, P_relative, reuse, self.doppler_nis)
 
     # --- stages -----------------------------------------------------------------------------------------
     def _accept(self, t, polar) -> tuple[float, np.ndarray, np.ndarray]:
@@ -280,32 +278,11 @@ class RadarOdometry:
         """(the window's two newest states' relative pose covariance, this scan's revision of the previous pose if
         that was emitted as solved); across a (re-)initialisation the dead-reckoned one; None at the first scan."""
         if P_pair is None:
-            return None if self.restart_relative is None else (self.restart_relative, np.zeros((6, 6)))
+            restart = self.report.restart_relative
+            return None if restart is None else (restart, np.zeros((6, 6)))
         prev, new = self.window.states[-2].T_vehicle_world, self.window.states[-1].T_vehicle_world
-        solved = getattr(self.last_estimate, "t", None) == self.window.states[-2].t  # emitted as solved
+        solved = getattr(self.report.last, "t", None) == self.window.states[-2].t  # emitted as solved
         return scan_relative_covariances(P_pair, P_emitted, prev, new, self.motion.dim, solved)
-
-    def _with_uncertainty(self, est: ScanEstimate, P_relative, reuse: float) -> ScanEstimate:
-        """The estimate with relative and absolute pose covariances, its velocity variance scaled (`uncertainty`)."""
-        cfg, last = self.config.uncertainty, self.last_estimate  # the drift composes smoothed, unrevised pairs
-        if P_relative is None or self.drift is None:
-            self.drift = DriftCovariance.at_first_scan(est.P[:6, :6], cfg.velocity_correlation_time,
-                                                       cfg.drift_rate_sigma)
-            P_relative, P_revision, P_absolute = np.full((6, 6), np.nan), np.zeros((6, 6)), est.P[:6, :6].copy()
-        elif self.restart_relative is not None:  # dead-reckoned across a re-initialisation, not registered:
-            P_relative, P_revision = P_relative  # so not scaled by `inflation` either
-            est.restarted = True
-            P_absolute = self.drift.restart(last.T_vehicle_world, est.T_vehicle_world, P_relative)
-        else:
-            P_relative, P_revision = (cfg.inflation * P for P in P_relative)
-            P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, est.t - last.t, P_relative,
-                                           est.P[6:12, 6:12])
-        self.last_estimate, self.restart_relative = est, None
-        est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
-        est.doppler_nis = self.doppler_nis
-        est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed,
-                                  cfg.velocity_inflation_per_doppler, est.doppler_nis, cfg.velocity_axis_inflation)
-        return est
 
     def _update_map(self, scan: ScanMeasurements, pairs) -> None:
         """Refresh (or fuse) the associated map points, add the unassociated static detections, prune. The map
@@ -375,9 +352,10 @@ class RadarOdometry:
     def _reinitialise(self, t: float, polar: np.ndarray, reason: str | None = None) -> tuple[State, np.ndarray, list]:
         """After an outage: dead-reckoned pose, Doppler velocity, last rates, zero acceleration, empty map. The
         dead-reckoned pose's uncertainty relative to the last estimate carries the absolute covariance across."""
-        T = self.motion.predict(self.window.newest, t).T_vehicle_world
-        F, Q = self.motion.transition_and_noise(self.window.newest, t - self.window.newest.t)
-        self.restart_relative = predicted_relative_covariance(self.P, F, Q, self.window.newest.T_vehicle_world, T)
+        last = self.window.newest
+        T = self.motion.predict(last, t).T_vehicle_world
+        F, Q = self.motion.transition_and_noise(last, t - last.t)
+        self.report.restart_relative = predicted_relative_covariance(self.P, F, Q, last.T_vehicle_world, T)
         x, P, _ = self._initial_state(t, polar, T=T, rates=self.last_with_data.varpi[3:])
         self.map = self.map.cleared()
         if reason is None:

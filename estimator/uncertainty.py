@@ -256,6 +256,55 @@ class DriftCovariance:
         return self.C[:6, :6].copy()
 
 
+class ReportedCovariances:
+    """What the odometry reports beside the window's covariance, scan by scan: each scan's relative pose
+    covariance and its revision (times `[uncertainty] inflation`), the absolute pose covariance through the drift
+    recursion (`DriftCovariance`: from the run's first scan, across re-initialisations with their dead-reckoned
+    step, unscaled), the velocity's variance scaled (`velocity_inflated`).
+
+    Attributes:
+        config: the odometry's `UncertaintyConfig`.
+        last: the last estimate annotated (None before the first).
+        restart_relative: (6, 6) the dead-reckoned relative pose of a re-initialisation in progress (set by the
+            odometry, `predicted_relative_covariance`), None otherwise.
+
+    Checked by: tests/estimator/test_uncertainty.py::test_the_restart_is_flagged_and_adds_the_dead_reckoned_step_alone,
+        ::test_the_drift_recursion_starts_without_the_first_scans_velocity_error,
+        ::test_velocity_inflation_changes_the_report_not_the_estimate
+    """
+
+    def __init__(self, config):
+        self.config = config
+        self.drift: DriftCovariance | None = None
+        self.last = None
+        self.restart_relative: np.ndarray | None = None
+
+    def annotate(self, est, P_relative, reuse: float, doppler_nis: float):
+        """The estimate (`ScanEstimate`) with P_relative, P_revision, P_pose_absolute, map_reuse, doppler_nis and
+        restarted set and its velocity variance scaled. P_relative: (relative, revision) of the window's two newest
+        states (`scan_relative_covariances`), or the re-initialisation's (restart_relative, zeros), or None at the
+        first scan."""
+        cfg, last = self.config, self.last  # the drift composes smoothed, unrevised pairs
+        if P_relative is None or self.drift is None:
+            self.drift = DriftCovariance.at_first_scan(est.P[:6, :6], cfg.velocity_correlation_time,
+                                                       cfg.drift_rate_sigma)
+            P_relative, P_revision, P_absolute = np.full((6, 6), np.nan), np.zeros((6, 6)), est.P[:6, :6].copy()
+        elif self.restart_relative is not None:  # dead-reckoned across a re-initialisation, not registered:
+            P_relative, P_revision = P_relative  # so not scaled by `inflation` either
+            est.restarted = True
+            P_absolute = self.drift.restart(last.T_vehicle_world, est.T_vehicle_world, P_relative)
+        else:
+            P_relative, P_revision = (cfg.inflation * P for P in P_relative)
+            P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, est.t - last.t, P_relative,
+                                           est.P[6:12, 6:12])
+        self.last, self.restart_relative = est, None
+        est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
+        est.doppler_nis = doppler_nis
+        est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed,
+                                  cfg.velocity_inflation_per_doppler, est.doppler_nis, cfg.velocity_axis_inflation)
+        return est
+
+
 def _pose(T) -> np.ndarray:
     return np.ascontiguousarray(T, dtype=float).reshape(4, 4)
 
