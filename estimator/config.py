@@ -17,9 +17,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-from .config_rules import check_values, section_from_dict
+from .config_rules import check_sections, check_values, section_from_dict
 from .errors import InputError
 from .tomlcompat import tomllib
 
@@ -259,81 +257,8 @@ class OdometryConfig:
 
     def __post_init__(self):
         check_values(self, ranges=False)  # every value's type first (estimator/config_rules.py), so that the
-        self._check_model_and_noise()  # checks below compare numbers
-        self._check_solver()
-        self._check_association_and_map()
+        check_sections(self, MODELS)  # checks across keys compare numbers
         check_values(self)  # every value finite and in its range (estimator/config_rules.py)
-
-    def _check_model_and_noise(self):
-        if self.model not in MODELS:
-            raise InputError(f"model: unknown {self.model!r}; known: {', '.join(MODELS)}")
-        if not (isinstance(self.window, int) and self.window >= 2):
-            raise InputError(f"window: must be an integer >= 2, got {self.window!r}")
-        for name, qc in (("noise.qc_ca", self.noise.qc_ca), ("noise.qc_cv", self.noise.qc_cv)):
-            if len(qc) != 6 or not all(np.isfinite(qc)) or min(qc) <= 0:
-                raise InputError(f"{name}: must be 6 positive numbers, got {list(qc)}")
-        if not 0 < self.association.gate_probability < 1:
-            raise InputError("association.gate_probability: must be in (0, 1)")
-        if self.map.capacity < 10:
-            raise InputError("map.capacity: must be >= 10")
-        for name in ("cartesian_sigma", "sensor_sigma_scale"):
-            if not getattr(self.noise, name) > 0:
-                raise InputError(f"noise.{name}: must be > 0")
-        if self.noise.map_sigma_polar < 0 or self.noise.map_sigma_cartesian < 0:
-            raise InputError("noise.map_sigma_polar, noise.map_sigma_cartesian: must be >= 0")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise InputError(f"seed: must be an integer >= 0, got {self.seed!r}")
-        scales = self.noise.sensor_sigma_scales
-        if len(scales) != 4 or not all(np.isfinite(scales)) or min(scales) <= 0:
-            raise InputError(f"noise.sensor_sigma_scales: must be 4 positive numbers [range, azimuth, elevation, "
-                             f"radial_velocity], got {list(scales)}")
-        if len(self.noise.sigma_floor) != 4 or min(self.noise.sigma_floor) <= 0:
-            raise InputError("noise.sigma_floor: must be 4 positive numbers [range, azimuth, elevation, "
-                             f"radial_velocity], got {list(self.noise.sigma_floor)}")
-
-    def _check_solver(self):
-        if not self.solver.step_tolerance > 0:
-            raise InputError(f"solver.step_tolerance: must be > 0, got {self.solver.step_tolerance}")
-        if self.solver.iterations < 1 or self.solver.refine_iterations < 1:
-            raise InputError(f"solver.iterations, solver.refine_iterations: must be >= 1, got "
-                             f"{self.solver.iterations}, {self.solver.refine_iterations}")
-        if self.solver.robust_c < 0:
-            raise InputError(f"solver.robust_c: must be >= 0 (0 disables the robust loss), got {self.solver.robust_c}")
-        for name in ("init_rate_sigma", "init_accel_sigma", "init_angular_accel_sigma"):
-            v = getattr(self.solver, name)
-            if len(v) != 3 or min(v) <= 0:
-                raise InputError(f"solver.{name}: must be 3 positive numbers, got {list(v)}")
-        if not self.solver.init_velocity_sigma > 0:
-            raise InputError("solver.init_velocity_sigma: must be > 0")
-
-    def _check_association_and_map(self):
-        if not self.association.max_radius > 0:
-            raise InputError(f"association.max_radius: must be > 0, got {self.association.max_radius}")
-        if self.association.reassociate < 0 or self.association.doppler_sigma_floor < 0:
-            raise InputError("association.reassociate, association.doppler_sigma_floor: must be >= 0")
-        # [standstill]: speed >= 0 (0 disables it), the sigmas > 0: config_rules.RULES
-        for name in ("sigma_roll_rate", "sigma_pitch_rate", "sigma_lateral_velocity", "sigma_vertical_velocity"):
-            if not getattr(self.vehicle, name) >= 0:
-                unit = "rad/s" if name.endswith("rate") else "m/s"
-                raise InputError(f"vehicle.{name}: must be >= 0 {unit} (0 disables it), "
-                                 f"got {getattr(self.vehicle, name)}")
-        for name, ok, rule in (("doppler_update_probability", lambda x: 0 < x < 1, "in (0, 1)"),
-                               ("consensus_switch_ratio", lambda x: x > 1, "> 1"),
-                               ("consensus_switch_after", lambda x: x >= 0, ">= 0 s"),
-                               ("consensus_voxel", lambda x: x > 0, "> 0 m"),
-                               ("doppler_jerk_margin", lambda x: x > 0, "> 0 m/s")):
-            value = getattr(self.association, name)
-            if not ok(value):
-                raise InputError(f"association.{name}: must be {rule}, got {value}")
-        # [uncertainty]: every key's range is in config_rules.RULES
-        if not self.outage.reinit_after >= 0:
-            raise InputError(f"outage.reinit_after: must be >= 0 seconds, got {self.outage.reinit_after}")
-        if self.map.max_age < 0 or self.map.voxel < 0:
-            raise InputError("map.max_age, map.voxel: must be >= 0")
-        if not isinstance(self.map.fuse, bool):
-            raise InputError(f"map.fuse: must be true or false, got {self.map.fuse!r}")
-        if self.map.max_fused < 0 or self.map.max_fused == 1:
-            raise InputError(f"map.max_fused: must be 0 (no fading) or >= 2, got {self.map.max_fused}")
 
     @property
     def prior(self) -> str:

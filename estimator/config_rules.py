@@ -5,8 +5,9 @@ must be numbers (not booleans, integers where the default is one), finite (TOML 
 the estimator cannot), and inside the range that `RULES` gives for "section.key". A key without a rule (one
 added since) still gets the type and finiteness checks. The error names the section and key as in the TOML
 file, `[noise] map_sigma_polar = nan: must be a finite number >= 0`; `OdometryConfig.from_dict` prefixes the
-file. The checks read the values and never change them (results stay bit-identical). `section_from_dict` reads
-one section from its TOML table first (unknown keys and types, named).
+file. The checks read the values and never change them (results stay bit-identical). `check_sections` holds
+the checks no single key's rule expresses (the model, vector lengths, messages of their own). `section_from_dict`
+reads one section from its TOML table first (unknown keys and types, named).
 
 Checked by: tests/cli/test_bad_config.py
 """
@@ -216,3 +217,83 @@ def section_from_dict(kind, values: dict, where: str):
             raise InputError(f"{where} {key}: expected an integer, got {value!r}")
         out[key] = type(default)(value) if not isinstance(default, tuple) else value
     return kind(**out)
+
+
+def check_sections(config, models) -> None:
+    """The checks that do not fit one key's rule (`RULES`): the model among `models`, lengths of the vector keys,
+    ranges with a message of their own. Raises InputError naming the key."""
+    _check_model_and_noise(config, models)
+    _check_solver(config)
+    _check_association_and_map(config)
+
+
+def _check_model_and_noise(c, models) -> None:
+    if c.model not in models:
+        raise InputError(f"model: unknown {c.model!r}; known: {', '.join(models)}")
+    if not (isinstance(c.window, int) and c.window >= 2):
+        raise InputError(f"window: must be an integer >= 2, got {c.window!r}")
+    for name, qc in (("noise.qc_ca", c.noise.qc_ca), ("noise.qc_cv", c.noise.qc_cv)):
+        if len(qc) != 6 or not all(np.isfinite(qc)) or min(qc) <= 0:
+            raise InputError(f"{name}: must be 6 positive numbers, got {list(qc)}")
+    if not 0 < c.association.gate_probability < 1:
+        raise InputError("association.gate_probability: must be in (0, 1)")
+    if c.map.capacity < 10:
+        raise InputError("map.capacity: must be >= 10")
+    for name in ("cartesian_sigma", "sensor_sigma_scale"):
+        if not getattr(c.noise, name) > 0:
+            raise InputError(f"noise.{name}: must be > 0")
+    if c.noise.map_sigma_polar < 0 or c.noise.map_sigma_cartesian < 0:
+        raise InputError("noise.map_sigma_polar, noise.map_sigma_cartesian: must be >= 0")
+    if isinstance(c.seed, bool) or not isinstance(c.seed, int) or c.seed < 0:
+        raise InputError(f"seed: must be an integer >= 0, got {c.seed!r}")
+    scales = c.noise.sensor_sigma_scales
+    if len(scales) != 4 or not all(np.isfinite(scales)) or min(scales) <= 0:
+        raise InputError(f"noise.sensor_sigma_scales: must be 4 positive numbers [range, azimuth, elevation, "
+                         f"radial_velocity], got {list(scales)}")
+    if len(c.noise.sigma_floor) != 4 or min(c.noise.sigma_floor) <= 0:
+        raise InputError("noise.sigma_floor: must be 4 positive numbers [range, azimuth, elevation, "
+                         f"radial_velocity], got {list(c.noise.sigma_floor)}")
+
+def _check_solver(c) -> None:
+    if not c.solver.step_tolerance > 0:
+        raise InputError(f"solver.step_tolerance: must be > 0, got {c.solver.step_tolerance}")
+    if c.solver.iterations < 1 or c.solver.refine_iterations < 1:
+        raise InputError(f"solver.iterations, solver.refine_iterations: must be >= 1, got "
+                         f"{c.solver.iterations}, {c.solver.refine_iterations}")
+    if c.solver.robust_c < 0:
+        raise InputError(f"solver.robust_c: must be >= 0 (0 disables the robust loss), got {c.solver.robust_c}")
+    for name in ("init_rate_sigma", "init_accel_sigma", "init_angular_accel_sigma"):
+        v = getattr(c.solver, name)
+        if len(v) != 3 or min(v) <= 0:
+            raise InputError(f"solver.{name}: must be 3 positive numbers, got {list(v)}")
+    if not c.solver.init_velocity_sigma > 0:
+        raise InputError("solver.init_velocity_sigma: must be > 0")
+
+def _check_association_and_map(c) -> None:
+    if not c.association.max_radius > 0:
+        raise InputError(f"association.max_radius: must be > 0, got {c.association.max_radius}")
+    if c.association.reassociate < 0 or c.association.doppler_sigma_floor < 0:
+        raise InputError("association.reassociate, association.doppler_sigma_floor: must be >= 0")
+    # [standstill]: speed >= 0 (0 disables it), the sigmas > 0: config_rules.RULES
+    for name in ("sigma_roll_rate", "sigma_pitch_rate", "sigma_lateral_velocity", "sigma_vertical_velocity"):
+        if not getattr(c.vehicle, name) >= 0:
+            unit = "rad/s" if name.endswith("rate") else "m/s"
+            raise InputError(f"vehicle.{name}: must be >= 0 {unit} (0 disables it), "
+                             f"got {getattr(c.vehicle, name)}")
+    for name, ok, rule in (("doppler_update_probability", lambda x: 0 < x < 1, "in (0, 1)"),
+                           ("consensus_switch_ratio", lambda x: x > 1, "> 1"),
+                           ("consensus_switch_after", lambda x: x >= 0, ">= 0 s"),
+                           ("consensus_voxel", lambda x: x > 0, "> 0 m"),
+                           ("doppler_jerk_margin", lambda x: x > 0, "> 0 m/s")):
+        value = getattr(c.association, name)
+        if not ok(value):
+            raise InputError(f"association.{name}: must be {rule}, got {value}")
+    # [uncertainty]: every key's range is in config_rules.RULES
+    if not c.outage.reinit_after >= 0:
+        raise InputError(f"outage.reinit_after: must be >= 0 seconds, got {c.outage.reinit_after}")
+    if c.map.max_age < 0 or c.map.voxel < 0:
+        raise InputError("map.max_age, map.voxel: must be >= 0")
+    if not isinstance(c.map.fuse, bool):
+        raise InputError(f"map.fuse: must be true or false, got {c.map.fuse!r}")
+    if c.map.max_fused < 0 or c.map.max_fused == 1:
+        raise InputError(f"map.max_fused: must be 0 (no fading) or >= 2, got {c.map.max_fused}")
