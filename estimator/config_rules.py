@@ -254,6 +254,7 @@ def _check_model_and_noise(c, models) -> None:
         raise InputError("noise.sigma_floor: must be 4 positive numbers [range, azimuth, elevation, "
                          f"radial_velocity], got {list(c.noise.sigma_floor)}")
 
+
 def _check_solver(c) -> None:
     if not c.solver.step_tolerance > 0:
         raise InputError(f"solver.step_tolerance: must be > 0, got {c.solver.step_tolerance}")
@@ -268,6 +269,7 @@ def _check_solver(c) -> None:
             raise InputError(f"solver.{name}: must be 3 positive numbers, got {list(v)}")
     if not c.solver.init_velocity_sigma > 0:
         raise InputError("solver.init_velocity_sigma: must be > 0")
+
 
 def _check_association_and_map(c) -> None:
     if not c.association.max_radius > 0:

@@ -39,7 +39,7 @@ Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_k
     ::test_a_blackout_is_not_counted_twice_at_the_restart,
     ::test_the_restart_starts_the_velocity_error_again,
     ::test_the_restart_is_flagged_and_adds_the_dead_reckoned_step_alone,
-    ::test_velocity_inflation_scales_the_velocity_variance_only
+    tests/estimator/test_uncertainty_inflation.py::test_velocity_inflation_scales_the_velocity_variance_only
 """
 
 from __future__ import annotations
@@ -270,11 +270,12 @@ class ReportedCovariances:
 
     Checked by: tests/estimator/test_uncertainty.py::test_the_restart_is_flagged_and_adds_the_dead_reckoned_step_alone,
         ::test_the_drift_recursion_starts_without_the_first_scans_velocity_error,
-        ::test_velocity_inflation_changes_the_report_not_the_estimate
+        tests/estimator/test_uncertainty_inflation.py::test_velocity_inflation_changes_the_report_not_the_estimate
     """
 
     def __init__(self, config):
         self.config = config
+        self.axes = np.asarray(config.velocity_axis_inflation, dtype=float)  # converted once, not per scan
         self.drift: DriftCovariance | None = None
         self.last = None
         self.restart_relative: np.ndarray | None = None
@@ -301,8 +302,17 @@ class ReportedCovariances:
         est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
         est.doppler_nis = doppler_nis
         est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed,
-                                  cfg.velocity_inflation_per_doppler, est.doppler_nis, cfg.velocity_axis_inflation)
+                                  cfg.velocity_inflation_per_doppler, est.doppler_nis, self.axes)
         return est
+
+
+def fresh_starts(restarts, n: int) -> np.ndarray:
+    """(n,) bool: the scans from which the velocity error b starts at zero, a run's first
+    (`DriftCovariance.at_first_scan`) and every re-initialisation (`restarts` (n,), states.npz `restarted`; None:
+    none); a span from any other scan starts b at its stationary variance."""
+    starts = np.zeros(n, bool) if restarts is None else np.array(restarts, dtype=bool)
+    starts[:1] = True
+    return starts
 
 
 def _pose(T) -> np.ndarray:
@@ -330,8 +340,8 @@ def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi
         restarts: (N,) bool, the scans at which the run re-initialised (states.npz `restarted`); None: none.
     """
     restarts = np.zeros(len(t), bool) if restarts is None else np.asarray(restarts, dtype=bool)
-    b0 = P_varpi[start] if start > 0 and not restarts[start] else np.zeros((6, 6))
-    C = _initial(np.zeros((6, 6)), b0, tau, drift_rate_sigma)
+    C = _initial(np.zeros((6, 6)), np.zeros((6, 6)) if fresh_starts(restarts, len(t))[start] else P_varpi[start], tau,
+                 drift_rate_sigma)
     for j in range(start + 1, end + 1):
         S = Sigma_rel[j] if np.isfinite(Sigma_rel[j]).all() else np.zeros((6, 6))
         if restarts[j]:

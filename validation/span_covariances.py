@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from rodo.estimator.lie import se3
-from rodo.estimator.uncertainty import drift_rate_sigma_array, restart_matrices
+from rodo.estimator.uncertainty import drift_rate_sigma_array, fresh_starts, restart_matrices
 
 BLOCK = 2048  # spans advanced together (bounds the memory: 2 x BLOCK x 18 x 18 floats, ~10 MB)
 
@@ -60,6 +60,7 @@ def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varp
     Args: as `uncertainty.span_covariance`; n >= 1 scans per span.
     """
     N = len(t)
+    starts = fresh_starts(restarts, N)
     out = np.zeros((max(N - n, 0), 6, 6))
     prior = np.diag(np.square(drift_rate_sigma_array(drift_rate_sigma)))
     for b0 in range(0, N - n, BLOCK):  # spans starting at scans b0 .. b1 - 1
@@ -68,10 +69,7 @@ def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varp
         C = np.zeros((b1 - b0, 18, 18))  # uncertainty._initial with a known start pose
         if tau > 0:
             C[:, 6:12, 6:12] = P_varpi[b0:b1]
-            if b0 == 0:  # from the run's first scan the velocity error starts at zero (DriftCovariance.at_first_scan)
-                C[0, 6:12, 6:12] = 0.0
-            if restarts is not None:  # and from a re-initialisation
-                C[np.asarray(restarts[b0:b1], dtype=bool), 6:12, 6:12] = 0.0
+            C[starts[b0:b1], 6:12, 6:12] = 0.0  # from the run's first scan or a re-initialisation: at zero
         C[:, 12:, 12:] = prior
         for i in range(n):  # step into scan start + i + 1 of every span
             A, Q = A_all[i:i + b1 - b0], Q_all[i:i + b1 - b0]
