@@ -23,6 +23,7 @@ A map of the package (each module's public names are re-exported here):
     window.py           SlidingWindow: Gauss-Newton over prior, motion and measurement terms, marginalisation
     spd.py              the window's dense SPD solves, the trailing block of an inverse (its covariances)
     uncertainty.py      the pose covariance that grows as drift does (relative, absolute, over a span)
+    heading_reversion.py  the yaw error's reversion to an anchor in that drift (optional)
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
     sensor.py           Sensor: one radar of the odometry (extrinsics, noise, association, Doppler front end)
     scan.py             ScanEstimate, ScanDetail: what a scan returns
@@ -67,6 +68,7 @@ _EXPORTS = {
     "state": ("State", "stacked"),
     "surface": ("surface_covariances",),
     "ground": ("off_road", "road_mask"),
+    "heading_reversion": ("heading_reversion_matrix",),
     "uncertainty": ("DriftCovariance", "predicted_relative_covariance", "relative_pose_covariance",
                     "revision_covariance", "scan_relative_covariances", "span_covariance"),
     "window": ("MeasurementSet", "SlidingWindow"),

@@ -201,6 +201,9 @@ class UncertaintyConfig:
     velocity_axis_inflation: factors per axis [vx, vy, vz, wx, wy, wz] (body frame) on that reported variance, for
         the shape of the window's velocity covariance (docs/consistency.md, "... and per axis"); `rodo calibrate
         --velocity-axes` learns them. Not in the solve, the gates or the drift recursion.
+    heading_reversion_time, heading_anchor_time: the time constants (s) with which the drift recursion's yaw
+        error reverts to an anchor and the anchor follows it (`estimator.heading_reversion`; docs/consistency.md,
+        "The heading reverts"); `rodo calibrate` learns them. Reported covariances only. 0 (the first): off.
     prior_memory: time constant (s) of the marginalised prior's memory (its information times exp(-dt /
         prior_memory) at each marginalisation): the map, made from the same scans, brings their information back
         (docs/consistency.md, "A prior that forgets"). 0: off (the paper's marginalisation).
@@ -215,6 +218,8 @@ class UncertaintyConfig:
     velocity_inflation_per_speed: float = 0.0
     velocity_inflation_per_doppler: float = 0.0
     velocity_axis_inflation: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+    heading_reversion_time: float = 0.0  # s
+    heading_anchor_time: float = 100.0  # s
 
 
 @dataclass(frozen=True)

@@ -115,6 +115,8 @@ RULES: dict[str, Rule] = {
     "uncertainty.velocity_inflation_per_speed": NONNEGATIVE,
     "uncertainty.velocity_inflation_per_doppler": NONNEGATIVE,
     "uncertainty.velocity_axis_inflation": Rule(0.0, lo_closed=False, size=6),
+    "uncertainty.heading_reversion_time": NONNEGATIVE,
+    "uncertainty.heading_anchor_time": POSITIVE,
     "solver.iterations": Rule(1, 1000),
     "solver.step_tolerance": POSITIVE,
     "solver.step_sigma_tolerance": NONNEGATIVE,

@@ -22,9 +22,17 @@ of its relative motion, accumulated. Two parts make it up (docs/consistency.md h
 
     xi_k = Ad(R_k) xi_{k-1} + dt phi b_{k-1} + dt w_k + s_k beta + delta_k
 
-`DriftCovariance` runs this recursion over [xi; b; beta] (18 x 18) from scan to scan (the absolute pose
-covariance) and `span_covariance` over any span (the covariance of a relative pose over, e.g., 1 s). tau = 0
-drops the second part (the per-scan relative errors composed as independent), drift_rate_sigma = 0 the third.
+4. optionally, the heading's reversion (`heading_reversion_matrix`; off by default): the yaw error reverts, with
+   time constant T_r, to an anchor a that follows it with time constant T_a >> T_r (the far scene, seen for tens
+   of scans, holds the heading: on hills and highway the yaw error over 20 s is a fraction of the composed
+   steps', docs/consistency.md, "The heading reverts"). Before each step, d yaw = -(yaw - a) / T_r dt,
+   d a = (yaw - a) / T_a dt, exactly over dt; the weighted mean (T_r yaw + T_a a) / (T_r + T_a) keeps random
+   walking, so the yaw's variance still grows without bound, (T_r / (T_r + T_a))^2 as fast over long spans.
+
+`DriftCovariance` runs this recursion over [xi; b; beta] (18 x 18; [xi; b; beta; a], 19 x 19, with the heading's
+reversion) from scan to scan (the absolute pose covariance) and `span_covariance` over any span (the covariance
+of a relative pose over, e.g., 1 s). tau = 0 drops the second part (the per-scan relative errors composed as
+independent), drift_rate_sigma = 0 the third, a reversion time of 0 the fourth.
 Across a re-initialisation (`restart_matrices`) the step is the dead-reckoned relative pose alone: no
 registration ran over the outage, so neither the velocity error nor the drift rate adds to it, and b starts
 again at zero as at a run's first scan (the fresh window's velocity covariance is the initial prior's, and the
@@ -39,6 +47,7 @@ Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_k
     ::test_a_blackout_is_not_counted_twice_at_the_restart,
     ::test_the_restart_starts_the_velocity_error_again,
     ::test_the_restart_is_flagged_and_adds_the_dead_reckoned_step_alone,
+    tests/estimator/test_heading_reversion.py,
     tests/estimator/test_uncertainty_inflation.py::test_velocity_inflation_scales_the_velocity_variance_only
 """
 
@@ -46,6 +55,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .heading_reversion import (ANCHOR, YAW, anchored_at_yaw, heading_reversion_array, heading_reversion_matrix,
+                               state_size)
 from .lie import se3
 from .uncertainty_kernels import drift_step, relative_covariances
 
@@ -153,15 +164,16 @@ def doppler_term(doppler_nis):
     return np.log1p(np.where(np.isfinite(nis), np.maximum(nis, 0.0), 0.0))
 
 
-def _initial(P_pose: np.ndarray, P_varpi: np.ndarray, tau: float, drift_rate_sigma) -> np.ndarray:
+def _initial(P_pose: np.ndarray, P_varpi: np.ndarray, tau: float, drift_rate_sigma, heading=None) -> np.ndarray:
     """C = Cov([xi; b; beta]) (18, 18) at a start: the pose's, the velocity error at its stationary variance
-    (when tau > 0), the drift rate at its prior."""
-    C = np.zeros((18, 18))
+    (when tau > 0), the drift rate at its prior; with the heading's reversion on (`heading`, [T_r, T_a]) (19, 19),
+    the anchor at the yaw error (`heading_reversion.anchored_at_yaw`)."""
+    C = np.zeros((state_size(heading),) * 2)
     C[:6, :6] = P_pose
     if tau > 0:
         C[6:12, 6:12] = P_varpi
-    C[12:, 12:] = np.diag(np.square(drift_rate_sigma_array(drift_rate_sigma)))
-    return C
+    C[12:18, 12:18] = np.diag(np.square(drift_rate_sigma_array(drift_rate_sigma)))
+    return anchored_at_yaw(C) if len(C) > 18 else C
 
 
 def drift_rate_sigma_array(drift_rate_sigma) -> np.ndarray:
@@ -169,18 +181,22 @@ def drift_rate_sigma_array(drift_rate_sigma) -> np.ndarray:
     return np.zeros(6) if drift_rate_sigma is None else np.asarray(drift_rate_sigma, dtype=float).reshape(6)
 
 
-def _step(C: np.ndarray, T_prev, T_new, dt: float, Sigma_rel, P_varpi, tau: float) -> np.ndarray:
-    """One scan of the recursion over C = Cov([xi; b; beta]) (18, 18)."""
+def _step(C: np.ndarray, T_prev, T_new, dt: float, Sigma_rel, P_varpi, tau: float, heading=None) -> np.ndarray:
+    """One scan of the recursion over C = Cov([xi; b; beta]) (18, 18), or (19, 19) with the heading's anchor
+    (reverted first: `heading_reversion_matrix`)."""
+    n = len(C)
     phi = np.exp(-dt / tau) if tau > 0 else 0.0
     R = T_new @ se3.inverse(T_prev)
-    A = np.zeros((18, 18))
+    A = np.zeros((n, n))
     A[:6, :6] = se3.adjoint(R)
     A[:6, 6:12] = dt * phi * np.eye(6)
     A[6:12, 6:12] = phi * np.eye(6)
-    A[:6, 12:] = np.linalg.norm(R[:3, 3]) * np.eye(6)
-    A[12:, 12:] = np.eye(6)
+    A[:6, 12:18] = np.linalg.norm(R[:3, 3]) * np.eye(6)
+    A[12:, 12:] = np.eye(n - 12)
+    if n > 18:
+        A = A @ heading_reversion_matrix(dt, heading)
     W = (1.0 - phi**2) * P_varpi if tau > 0 else np.zeros((6, 6))
-    Q = np.zeros((18, 18))
+    Q = np.zeros((n, n))
     Q[:6, :6] = dt * dt * W + Sigma_rel
     Q[:6, 6:12] = Q[6:12, :6] = dt * W
     Q[6:12, 6:12] = W
@@ -188,12 +204,13 @@ def _step(C: np.ndarray, T_prev, T_new, dt: float, Sigma_rel, P_varpi, tau: floa
     return 0.5 * (C + C.T)
 
 
-def restart_matrices(T_prev, T_new, Sigma_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def restart_matrices(T_prev, T_new, Sigma_rel: np.ndarray, heading=None) -> tuple[np.ndarray, np.ndarray]:
     """A, Q (18, 18) of the recursion's step across a re-initialisation, x <- A x + w, Cov(w) = Q: the pose carried
     by Ad(T_new T_prev^-1) plus the dead-reckoned relative pose (covariance Sigma_rel,
     `predicted_relative_covariance`), the velocity error b set to zero (its row of A zero, no noise: the fresh
     window starts from the initial prior's velocity and the next scan is registered against the fresh map, as
-    at a run's first scan), the drift rate kept and not applied over the outage (no registration ran).
+    at a run's first scan), the drift rate kept and not applied over the outage (no registration ran). With the
+    heading's reversion (19, 19): the anchor set to the new yaw error (the map is new).
 
     An approximation: the dead-reckoned step starts from the last window's velocity, whose error b was, so the
     step's error is correlated with the pose's (by about dt C[xi, b]); zeroing b drops that. Small where the
@@ -201,17 +218,21 @@ def restart_matrices(T_prev, T_new, Sigma_rel: np.ndarray) -> tuple[np.ndarray, 
 
     Checked by: tests/estimator/test_uncertainty.py::test_the_restart_starts_the_velocity_error_again
     """
-    A = np.zeros((18, 18))
+    n = state_size(heading)
+    A = np.zeros((n, n))
     A[:6, :6] = se3.adjoint(T_new @ se3.inverse(T_prev))
-    A[12:, 12:] = np.eye(6)
-    Q = np.zeros((18, 18))
+    A[12:18, 12:18] = np.eye(6)
+    Q = np.zeros((n, n))
     Q[:6, :6] = Sigma_rel
+    if n > 18:
+        A[ANCHOR] = A[YAW]
+        anchored_at_yaw(Q)
     return A, Q
 
 
-def _restart_step(C: np.ndarray, T_prev, T_new, Sigma_rel) -> np.ndarray:
+def _restart_step(C: np.ndarray, T_prev, T_new, Sigma_rel, heading=None) -> np.ndarray:
     """One scan of the recursion across a re-initialisation (`restart_matrices`)."""
-    A, Q = restart_matrices(T_prev, T_new, Sigma_rel)
+    A, Q = restart_matrices(T_prev, T_new, Sigma_rel, heading)
     C = A @ C @ A.T + Q
     return 0.5 * (C + C.T)
 
@@ -224,35 +245,37 @@ class DriftCovariance:
         P_varpi0: (6, 6) covariance of the first velocity.
         tau: correlation time (s) of the velocity error; 0: none.
         drift_rate_sigma: (6,) sigma of the constant drift rate per metre (m/m, rad/m); None: none.
+        heading: [T_r, T_a] (s) of the heading's reversion (`heading_reversion`); None or T_r = 0: off.
     """
 
-    def __init__(self, P_pose0: np.ndarray, P_varpi0: np.ndarray, tau: float, drift_rate_sigma=None):
+    def __init__(self, P_pose0: np.ndarray, P_varpi0: np.ndarray, tau: float, drift_rate_sigma=None, heading=None):
         self.tau = float(tau)
-        self.C = _initial(P_pose0, P_varpi0, self.tau, drift_rate_sigma)
+        self.heading = heading_reversion_array(heading)
+        self.C = _initial(P_pose0, P_varpi0, self.tau, drift_rate_sigma, self.heading)
 
     @classmethod
-    def at_first_scan(cls, P_pose0: np.ndarray, tau: float, drift_rate_sigma=None) -> "DriftCovariance":
+    def at_first_scan(cls, P_pose0: np.ndarray, tau: float, drift_rate_sigma=None, heading=None) -> "DriftCovariance":
         """The recursion of a run from its first scan: the velocity error b starts at zero. The first scan's
         velocity covariance is the initial prior's (a yaw rate of 0.2 rad/s with the defaults: one scan's
         Doppler does not see it), and the next scan's pose is registered against the first scan's map, not
         dead-reckoned with that velocity. Taken as b's variance it put 9 mrad of yaw into the first step where
         the registration allowed 0.6 (hills), and that yaw times the distance into the lateral position for
         the rest of the drive. b reaches its stationary variance within a few tau."""
-        return cls(P_pose0, np.zeros((6, 6)), tau, drift_rate_sigma)
+        return cls(P_pose0, np.zeros((6, 6)), tau, drift_rate_sigma, heading)
 
     def update(self, T_prev, T_new, dt: float, Sigma_rel: np.ndarray, P_varpi: np.ndarray) -> np.ndarray:
         """Advance by one scan (`_step`, compiled: `uncertainty_kernels.drift_step`); returns the new absolute
         pose covariance (6, 6)."""
-        C = np.empty((18, 18))
+        C = np.empty_like(self.C)
         drift_step(self.C, _pose(T_prev), _pose(T_new), float(dt), _matrix(Sigma_rel, 6), _matrix(P_varpi, 6),
-                   self.tau, C)
+                   self.tau, *self.heading, C)
         self.C = C
         return C[:6, :6].copy()
 
     def restart(self, T_prev, T_new, Sigma_rel: np.ndarray) -> np.ndarray:
         """Advance across a re-initialisation (`restart_matrices`: the dead-reckoned relative pose Sigma_rel,
         the velocity error started again); returns the new absolute pose covariance (6, 6)."""
-        self.C = _restart_step(self.C, _pose(T_prev), _pose(T_new), _matrix(Sigma_rel, 6))
+        self.C = _restart_step(self.C, _pose(T_prev), _pose(T_new), _matrix(Sigma_rel, 6), self.heading)
         return self.C[:6, :6].copy()
 
 
@@ -288,7 +311,7 @@ class ReportedCovariances:
         cfg, last = self.config, self.last  # the drift composes smoothed, unrevised pairs
         if P_relative is None or self.drift is None:
             self.drift = DriftCovariance.at_first_scan(est.P[:6, :6], cfg.velocity_correlation_time,
-                                                       cfg.drift_rate_sigma)
+                                                       cfg.drift_rate_sigma, heading_of(cfg))
             P_relative, P_revision, P_absolute = np.full((6, 6), np.nan), np.zeros((6, 6)), est.P[:6, :6].copy()
         elif self.restart_relative is not None:  # dead-reckoned across a re-initialisation, not registered:
             P_relative, P_revision = P_relative  # so not scaled by `inflation` either
@@ -324,11 +347,13 @@ def _matrix(A, n: int) -> np.ndarray:
 
 
 def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, start: int,
-                    end: int, tau: float, drift_rate_sigma=None, restarts=None) -> np.ndarray:
+                    end: int, tau: float, drift_rate_sigma=None, restarts=None, heading=None) -> np.ndarray:
     """Covariance (6, 6) of the relative pose T_end T_start^-1 of a run: the recursion from a known pose at
     scan `start` (the velocity error at its stationary variance P_varpi[start], at zero from the run's first scan
-    as in `DriftCovariance.at_first_scan` or from a re-initialisation; the drift rate at its prior) to scan `end`;
-    the step into a scan flagged in `restarts` is the re-initialisation's (`restart_matrices`).
+    as in `DriftCovariance.at_first_scan` or from a re-initialisation; the drift rate at its prior; the heading's
+    anchor, where on, at the start pose: a deviation already there, and its reversion over the span, is not
+    counted) to scan `end`; the step into a scan flagged in `restarts` is the re-initialisation's
+    (`restart_matrices`).
 
     Args:
         T: (N, 4, 4) estimated T_vehicle_world; t: (N,) times.
@@ -338,14 +363,20 @@ def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi
         tau: the velocity error's correlation time (s).
         drift_rate_sigma: (6,) sigma of the drift rate per metre; None: none.
         restarts: (N,) bool, the scans at which the run re-initialised (states.npz `restarted`); None: none.
+        heading: [T_r, T_a] (s) of the heading's reversion; None: off.
     """
     restarts = np.zeros(len(t), bool) if restarts is None else np.asarray(restarts, dtype=bool)
     C = _initial(np.zeros((6, 6)), np.zeros((6, 6)) if fresh_starts(restarts, len(t))[start] else P_varpi[start], tau,
-                 drift_rate_sigma)
+                 drift_rate_sigma, heading)
     for j in range(start + 1, end + 1):
         S = Sigma_rel[j] if np.isfinite(Sigma_rel[j]).all() else np.zeros((6, 6))
         if restarts[j]:
-            C = _restart_step(C, T[j - 1], T[j], S)
+            C = _restart_step(C, T[j - 1], T[j], S, heading)
         else:
-            C = _step(C, T[j - 1], T[j], t[j] - t[j - 1], S, P_varpi[j], tau)
+            C = _step(C, T[j - 1], T[j], t[j] - t[j - 1], S, P_varpi[j], tau, heading)
     return C[:6, :6]
+
+
+def heading_of(config) -> np.ndarray:
+    """[T_r, T_a] (s) of an `UncertaintyConfig`'s heading reversion ([0, 0]: off)."""
+    return heading_reversion_array((config.heading_reversion_time, config.heading_anchor_time))

@@ -1,6 +1,7 @@
 """Compiled per-scan uncertainty of `RadarOdometry`: the scan's relative pose covariance and its revision
 (`uncertainty.relative_pose_covariance`, `uncertainty.revision_covariance`) in one call, and one step of the
-drift recursion (`uncertainty._step`, which `DriftCovariance.update` runs through `drift_step`).
+drift recursion (`uncertainty._step`, which `DriftCovariance.update` runs through `drift_step`), with the heading's
+reversion where it is on.
 
 The readable references stay in `uncertainty` (the validation's replays use them); these equal them to rounding:
 they sum in their own order and skip the zero blocks. They feed only the reported covariances (P_relative,
@@ -105,11 +106,26 @@ def relative_covariances(P_pair, P_emitted, T_prev, T_new, dim, solved, rel, rev
 
 
 @njit(cache=True)
-def drift_step(C, T_prev, T_new, dt, Sigma_rel, P_varpi, tau, out):
+def drift_step(C, T_prev, T_new, dt, Sigma_rel, P_varpi, tau, reversion, anchor, out):
     """One scan of the drift recursion over C = Cov([xi; b; beta]) (18, 18) into out (18, 18): A C A^T + Q,
-    symmetrised (`uncertainty._step`)."""
+    symmetrised (`uncertainty._step`); over Cov([xi; b; beta; a]) (19, 19) the heading's reversion (time
+    constants `reversion` and `anchor`, `uncertainty.heading_reversion_matrix`) comes first."""
+    n = C.shape[0]
+    if n > 18:
+        r = reversion / (reversion + anchor)
+        e = np.exp(-dt * (1.0 / reversion + 1.0 / anchor))
+        M = np.eye(n)
+        M[5, 5] = r + (1.0 - r) * e
+        M[5, 18] = (1.0 - r) * (1.0 - e)
+        M[18, 5] = r * (1.0 - e)
+        M[18, 18] = 1.0 - r + r * e
+        reverted = np.empty((n, n))
+        _sandwich(M, C, reverted)
+        C = reverted
     phi = np.exp(-dt / tau) if tau > 0 else 0.0
-    A = np.zeros((18, 18))
+    A = np.zeros((n, n))
+    if n > 18:
+        A[18, 18] = 1.0  # the anchor is carried as it is
     Ad = np.empty((6, 6))
     s = relative_adjoint(T_prev, T_new, Ad)
     for i in range(6):

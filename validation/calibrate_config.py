@@ -62,10 +62,12 @@ def _qc_report(fit: cal.QcFit) -> dict:
 
 def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: OdometryConfig,
                          duration: float | None = None, floor: float = cal.DEFAULT_FLOOR, consistency: bool = True,
-                         progress=None, velocity_axes: bool = False) -> tuple[OdometryConfig, dict]:
+                         progress=None, velocity_axes: bool = False,
+                         heading_reversion: bool = False) -> tuple[OdometryConfig, dict]:
     """Learn qc_ca, qc_cv, the per-channel sensor sigma factors, the Cartesian sigma and the scans' common Doppler
     error (`calibrate_sensor.common_doppler_error`; 0 unless significant) from ground truth, then
-    (`consistency`) the uncertainty section at that noise (the velocity's per-axis factors with `velocity_axes`);
+    (`consistency`) the uncertainty section at that noise (the velocity's per-axis factors with `velocity_axes`,
+    the heading's reversion with `heading_reversion`);
     returns (config, report). `progress` gets each
     `calibrate_consistency.ConsistencyStep`. `seq` and `truth` may be lists of several sequences (of one sensor):
     every fit pools them (their prior intervals, detections and scans), `duration` cuts each."""
@@ -103,7 +105,8 @@ def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: Odome
     config = config.replace(noise=noise)
     if consistency:
         config, report["consistency"] = cc.fit_consistency(seqs, truths, config, progress=progress,
-                                                           velocity_axes=velocity_axes)
+                                                           velocity_axes=velocity_axes,
+                                                           heading_reversion=heading_reversion)
     return config, report
 
 

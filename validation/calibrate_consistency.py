@@ -35,6 +35,11 @@ tells the truth (docs/consistency.md):
   ratio above 1 (over-confident) counted OVERCONFIDENCE_WEIGHT times (a drive's own ratios do not carry over
   exactly to other drives; between two about equally consistent taus the cautious one is the safe choice:
   docs/calibration.md, step 5).
+- `uncertainty.heading_reversion_time` T_r and `heading_anchor_time` T_a (`estimator.heading_reversion`), when
+  asked: the yaw error reverts to an anchor where the far scene holds the heading. Chosen after tau on the grid
+  HEADINGS (off among them) with the same cost, then tau chosen again with them (`fit_heading`). Not by default:
+  one drive's absolute pose is one slowly varying path, and the choice did not carry over to the campaigns'
+  drives (docs/consistency.md, "The heading reverts").
 
 The ratios are measured against the truth, so this needs truth.npz; on real data, carry kappa and tau over from
 a simulated sequence like it (docs/calibration.md).
@@ -58,7 +63,7 @@ from scipy.stats import chi2
 
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
-from rodo.estimator.uncertainty import doppler_term
+from rodo.estimator.uncertainty import doppler_term, heading_of
 from rodo.sim.sequence import Sequence
 
 from .alignment import truth_in_estimator_frame
@@ -71,6 +76,10 @@ from .run_consistency import run_states
 # s, the grid of velocity correlation times: steps of about sqrt(2) from 0.01 s (a coarser grid, 0, 0.02, 0.05, 0.1,
 # 0.15, 0.25, 0.5, 1, 2, flipped between near-equal neighbours when the estimate moved a little: 0.25 -> 0.5 s)
 TAUS = (0.0, 0.01, 0.02, 0.03, 0.05, 0.07, 0.1, 0.15, 0.2, 0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0)
+# s, [T_r, T_a] of the heading's reversion: off, and T_r 1-12 s with an anchor 20-200 s (hills and highway's 180 s
+# drives chose 4 / 200 and 6 / 20 s; docs/consistency.md, "The heading reverts")
+HEADINGS = ((0.0, 0.0),) + tuple((r, a) for r in (1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0)
+                                 for a in (20.0, 50.0, 100.0, 200.0))
 DEFAULT_TAU = 0.25  # s, kept when no tau of the grid gives finite ratios
 OVERCONFIDENCE_WEIGHT = 2.0  # how much more an over-confident ln ratio (> 0) counts than a cautious one in fit_tau
 KAPPA_RANGE = (1.0, 100.0)
@@ -120,10 +129,10 @@ class ConsistencyStep:
 
 
 def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=None,
-          velocity=(1.0, 0.0, 0.0, (1.0,) * 6), relative=None) -> OdometryConfig:
+          velocity=(1.0, 0.0, 0.0, (1.0,) * 6), relative=None, heading=None) -> OdometryConfig:
     """The config with these uncertainty values; the velocity factors (a, b, d, per-axis g) default to none: the
-    fit's runs report the window's own velocity covariance; the relative pose factor (`relative`) to the
-    config's."""
+    fit's runs report the window's own velocity covariance; the relative pose factor (`relative`) and the heading's
+    reversion ([T_r, T_a]) to the config's."""
     drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
     relative = config.uncertainty.inflation if relative is None else relative
     unc = dataclasses.replace(config.uncertainty, measurement_inflation=float(kappa),
@@ -132,6 +141,9 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
                               velocity_inflation_per_doppler=float(velocity[2]),
                               velocity_axis_inflation=tuple(float(x) for x in velocity[3]),
                               inflation=float(relative))
+    if heading is not None:
+        unc = dataclasses.replace(unc, heading_reversion_time=float(heading[0]),
+                                  heading_anchor_time=float(heading[1]) if heading[0] > 0 else unc.heading_anchor_time)
     return config.replace(uncertainty=unc)
 
 
@@ -278,18 +290,33 @@ def _measure(seq, truth, config: OdometryConfig, span: float) -> tuple:
 
 
 def fit_tau(states: dict | list, truth: dict | list, span: float = 1.0, taus=TAUS,
-            drift_rate_sigma=None) -> tuple[float, dict]:
+            drift_rate_sigma=None, heading=None) -> tuple[float, dict]:
     """The tau of the grid that makes the relative pose over `span` seconds and the absolute pose most
-    consistent: the least `tau_cost` of their median ratios; returns (tau, {tau: (r_span, r_pose)})."""
+    consistent (at this heading reversion, [T_r, T_a]; None: off): the least `tau_cost` of their median ratios;
+    returns (tau, {tau: (r_span, r_pose)})."""
+    first = states if isinstance(states, dict) else states[0]
+    default = float(first.get("velocity_correlation_time", DEFAULT_TAU))
+    return _grid_fit(states, truth, span, drift_rate_sigma, {float(tau): (tau, heading) for tau in taus}, default)
+
+
+def fit_heading(states: dict | list, truth: dict | list, span: float, tau: float, drift_rate_sigma=None,
+                headings=HEADINGS) -> tuple[tuple, dict]:
+    """The heading reversion [T_r, T_a] of the grid (off, (0, 0), among it) that makes the relative pose over
+    `span` seconds and the absolute pose most consistent at this tau, as `fit_tau`; returns (heading, {heading:
+    (r_span, r_pose)})."""
+    grid = {(float(r), float(a)): (tau, (r, a)) for r, a in headings}
+    return _grid_fit(states, truth, span, drift_rate_sigma, grid, (0.0, 0.0))
+
+
+def _grid_fit(states, truth, span: float, drift_rate_sigma, grid: dict, default):
+    """(the key of `grid` whose (tau, heading) gives the least `tau_cost`, or `default` when none gives finite
+    ratios; {key: (r_span, r_pose)})."""
     ratios = {}
-    for tau in taus:
-        r = _ratios(_each(replayed, states, tau, drift_rate_sigma), truth, span, tau, drift_rate_sigma)
-        ratios[float(tau)] = (r["relative_span"], r["pose"])
-    finite = {tau: r for tau, r in ratios.items() if np.all(np.isfinite(r)) and min(r) > 0}
-    if not finite:
-        first = states if isinstance(states, dict) else states[0]
-        return float(first.get("velocity_correlation_time", DEFAULT_TAU)), ratios
-    return min(finite, key=lambda tau: tau_cost(finite[tau])), ratios
+    for key, (tau, heading) in grid.items():
+        r = _ratios(_each(replayed, states, tau, drift_rate_sigma, heading), truth, span, tau, drift_rate_sigma)
+        ratios[key] = (r["relative_span"], r["pose"])
+    finite = {key: r for key, r in ratios.items() if np.all(np.isfinite(r)) and min(r) > 0}
+    return (min(finite, key=lambda key: tau_cost(finite[key])) if finite else default), ratios
 
 
 def tau_cost(ratios) -> float:
@@ -301,11 +328,12 @@ def tau_cost(ratios) -> float:
 
 def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryConfig, iterations: int = 4,
                     tolerance: float = 0.1, span: float = 1.0, progress=None,
-                    velocity_axes: bool = False) -> tuple[OdometryConfig, dict]:
+                    velocity_axes: bool = False, heading_reversion: bool = False) -> tuple[OdometryConfig, dict]:
     """Fit kappa (fixed point), then the relative pose's and the velocity's variance factors (per axis too with
     `velocity_axes`, `fit_velocity_inflation`), the drift rate and tau (on the last run's states, without running
-    again) on a simulated sequence, or on several (lists of sequences and their truths, pooled: module
-    docstring); returns (config, report).
+    again; at the config's heading reversion, or, with `heading_reversion`, the reversion too: `fit_heading`) on
+    a simulated sequence, or on several (lists of sequences and their truths, pooled: module docstring); returns
+    (config, report).
 
     Each iteration runs the estimator once. It stops when the geometric mean r of the FIXED_POINT_MEASURES'
     median ratios is within `tolerance` of 1 (|ln r| < ln(1 + tolerance)), when kappa is at a bound of
@@ -333,10 +361,17 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     states = _each(relative_inflated_states, states, relative["inflation"] / config.uncertainty.inflation)
     velocity = fit_velocity_inflation(states, truth, per_axis=velocity_axes)
     factors = (velocity["inflation"], velocity["per_speed"], velocity["per_doppler"], tuple(velocity["per_axis"]))
-    tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"])
-    fitted = _with(config, kappa, tau, drift["sigma"], factors, relative["inflation"])
-    final = _ratios(_each(lambda s: replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"]), states),
-                    truth, span, tau, drift["sigma"])
+    heading = tuple(float(x) for x in heading_of(config.uncertainty))  # kept, unless asked to fit it
+    tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"],
+                              heading=None if heading_reversion else heading)
+    tau_alone, heading_ratios = tau, {}
+    if heading_reversion:
+        heading, heading_ratios = fit_heading(states, truth, span, tau, drift["sigma"])
+        if heading[0] > 0:
+            tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"], heading=heading)
+    fitted = _with(config, kappa, tau, drift["sigma"], factors, relative["inflation"], heading)
+    final = _ratios(_each(lambda s: replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"], heading),
+                          states), truth, span, tau, drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))
     if progress is not None:
         progress(steps[-1])
@@ -345,5 +380,9 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
               "drift_rate": drift, "span": span,
               "tolerance": tolerance, "at_lower_bound": kappa == KAPPA_RANGE[0],
               "steps": [s.as_dict() for s in steps],
-              "tau_grid": {f"{t:g}": {"relative_span": r[0], "pose": r[1]} for t, r in tau_ratios.items()}}
+              "tau_grid": {f"{t:g}": {"relative_span": r[0], "pose": r[1]} for t, r in tau_ratios.items()},
+              "heading_reversion": {"time": heading[0], "anchor_time": heading[1], "fitted": heading_reversion,
+                                    "tau_without": tau_alone,
+                                    "grid": {f"{r:g}/{a:g}": {"relative_span": x[0], "pose": x[1]}
+                                             for (r, a), x in heading_ratios.items()}}}
     return fitted, report

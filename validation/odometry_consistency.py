@@ -31,7 +31,8 @@ from .association import DEFAULT_TOLERANCE, associate
 from .consistency import nees, require_arrays
 from .span_covariances import span_covariances
 
-RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation")  # not per scan
+RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation", "heading_reversion")  # not
+# per scan
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
 
@@ -64,7 +65,7 @@ def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflat
 
 
 def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, velocity_inflation,
-               axis_inflation=None) -> np.ndarray:
+               axis_inflation=None, heading=None) -> np.ndarray:
     out = np.full(len(t), np.nan)
     if "P_relative" not in states or n >= len(t):
         return out
@@ -72,7 +73,7 @@ def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, v
     Sigma_rel = np.asarray(states["P_relative"], dtype=float)
     P_varpi = drift_velocity_covariances(states["P"], states["varpi"], velocity_inflation, states.get("doppler_nis"),
                                          axis_inflation)
-    C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma, states.get("restarted"))
+    C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma, states.get("restarted"), heading)
     if "P_revision" in states:  # the revision of each span's first emitted pose, by the scan after it
         C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)
     out[n:] = nees(e, C)
@@ -88,7 +89,7 @@ def _transported(T: np.ndarray, R: np.ndarray, n: int) -> np.ndarray:
 
 
 def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.25,
-                  tolerance: float = DEFAULT_TOLERANCE, drift_rate_sigma=None) -> dict:
+                  tolerance: float = DEFAULT_TOLERANCE, drift_rate_sigma=None, heading=None) -> dict:
     """Per-scan NEES of every measure (module docstring) of one run against the simulator's truth.
 
     Args:
@@ -102,6 +103,8 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
         tau: the velocity error's correlation time the run used (config `uncertainty`).
         drift_rate_sigma: (6,) the drift rate sigma for the span measures; None: the run's own (states'
             `drift_rate_sigma`, none when absent).
+        heading: [T_r, T_a] (s) of the heading's reversion for the span measures; None: the run's own (states'
+            `heading_reversion`, off when absent).
         tolerance: seconds within which a state and a truth time match.
 
     Returns:
@@ -111,6 +114,8 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
     require_arrays(states, truth)
     if drift_rate_sigma is None and "drift_rate_sigma" in states:
         drift_rate_sigma = np.asarray(states["drift_rate_sigma"], dtype=float)
+    if heading is None:
+        heading = states.get("heading_reversion")
     per_scan = {k for k, v in states.items()
                 if k not in RUN_CONSTANTS and np.ndim(v) >= 1 and len(v) == len(states["t"])}
     velocity_inflation = states.get("velocity_inflation")
@@ -130,9 +135,11 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
     if P.shape[-1] == 18 and "varpi_dot" in truth and "varpi_dot" in sub:
         out["acceleration"] = nees(np.asarray(truth["varpi_dot"])[ib] - sub["varpi_dot"], P[:, 12:18, 12:18])
     axes = states.get("velocity_axis_inflation")
-    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau, drift_rate_sigma, velocity_inflation, axes)
+    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau, drift_rate_sigma, velocity_inflation, axes,
+                                      heading)
     n = max(1, int(round(span / np.median(np.diff(t))))) if len(t) > 1 else 1
-    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau, drift_rate_sigma, velocity_inflation, axes)
+    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau, drift_rate_sigma, velocity_inflation, axes,
+                                      heading)
     out["pose"] = nees(xi, sub["P_pose_absolute"]) if "P_pose_absolute" in sub else np.full(len(t), np.nan)
     out["pose_window"] = nees(xi, P[:, :6, :6])
     return out

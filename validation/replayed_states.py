@@ -4,7 +4,8 @@ run is needed. `rodo calibrate`'s uncertainty fits (`calibrate_consistency`) com
 
 - `relative_inflated_states`: the relative pose covariances times a factor (`[uncertainty] inflation`);
 - `velocity_inflated_states`: the velocity covariance at other velocity factors;
-- `absolute_covariances`, `replayed`: the absolute pose covariances at another tau and drift rate.
+- `absolute_covariances`, `replayed`: the absolute pose covariances at another tau, drift rate and heading
+  reversion.
 
 Checked by: tests/validation/test_calibrate_consistency.py
 """
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rodo.estimator.heading_reversion import heading_reversion_array
 from rodo.estimator.uncertainty import DriftCovariance, velocity_inflated
 
 from .odometry_consistency import drift_velocity_covariances
@@ -45,14 +47,18 @@ def velocity_inflated_states(states: dict, inflation: float, per_speed: float, p
                 velocity_axis_inflation=axes)
 
 
-def replayed(states: dict, tau: float, drift_rate_sigma) -> dict:
-    """The states with the absolute covariances the run would have reported at this tau and drift rate (the
-    estimate itself does not depend on them)."""
-    return dict(states, P_pose_absolute=absolute_covariances(states, tau, drift_rate_sigma))
+def replayed(states: dict, tau: float, drift_rate_sigma, heading=None) -> dict:
+    """The states with the absolute covariances the run would have reported at this tau, drift rate and heading
+    reversion ([T_r, T_a]; None: off), the reversion recorded (the span measures read it); the estimate itself
+    does not depend on them."""
+    heading = heading_reversion_array(heading)
+    return dict(states, P_pose_absolute=absolute_covariances(states, tau, drift_rate_sigma, heading),
+                heading_reversion=heading)
 
 
-def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None) -> np.ndarray:
-    """(N, 6, 6) the absolute pose covariances a run would have reported with this tau and drift rate
+def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None, heading=None) -> np.ndarray:
+    """(N, 6, 6) the absolute pose covariances a run would have reported with this tau, drift rate and heading
+    reversion ([T_r, T_a]; None: off)
     (`DriftCovariance` over its stored relative and velocity covariances, across its re-initialisations where
     states.npz flags them, `restarted`; row 0: the first pose's).
 
@@ -66,7 +72,7 @@ def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None) -> np.
                                          states.get("velocity_axis_inflation"))
     S = np.asarray(states["P_relative"], dtype=float)
     restarted = np.asarray(states.get("restarted", np.zeros(len(t), bool)), dtype=bool)
-    drift = DriftCovariance.at_first_scan(P[0, :6, :6], tau, drift_rate_sigma)
+    drift = DriftCovariance.at_first_scan(P[0, :6, :6], tau, drift_rate_sigma, heading)
     out = [P[0, :6, :6]]
     for k in range(1, len(t)):
         rel = S[k] if np.all(np.isfinite(S[k])) else np.zeros((6, 6))

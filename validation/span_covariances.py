@@ -10,7 +10,8 @@ recursions advance together: step i applies A_{start+i} to every span at once. E
 same BLAS calls on the same operands as in the loop, so the result is identical, not merely close.
 
 Checked by: tests/validation/test_span_covariances.py::test_equals_span_covariance_bit_for_bit,
-    ::test_equals_span_covariance_bit_for_bit_across_restarts
+    ::test_equals_span_covariance_bit_for_bit_across_restarts,
+    tests/estimator/test_heading_reversion.py::test_span_covariances_equal_span_covariance_with_the_reversion
 """
 
 from __future__ import annotations
@@ -18,23 +19,26 @@ from __future__ import annotations
 import numpy as np
 
 from rodo.estimator.lie import se3
+from rodo.estimator.heading_reversion import heading_reversion_matrix, state_size
 from rodo.estimator.uncertainty import drift_rate_sigma_array, fresh_starts, restart_matrices
 
-BLOCK = 2048  # spans advanced together (bounds the memory: 2 x BLOCK x 18 x 18 floats, ~10 MB)
+BLOCK = 2048  # spans advanced together (bounds the memory: 2 x BLOCK x 19 x 19 floats at most, ~12 MB)
 
 
 def step_matrices(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, tau: float,
-                  scans: np.ndarray, restarts=None) -> tuple[np.ndarray, np.ndarray]:
+                  scans: np.ndarray, restarts=None, heading=None) -> tuple[np.ndarray, np.ndarray]:
     """A_j, Q_j (len(scans), 18, 18) of the recursion's step from scan j - 1 to scan j, for j in `scans` (>= 1):
     the matrices `uncertainty._step` builds, x <- A x + w, Cov(w) = Q (NaN rows of Sigma_rel count as 0), or
-    `uncertainty.restart_matrices` at a scan flagged in `restarts` (a re-initialisation)."""
-    A = np.zeros((len(scans), 18, 18))
-    Q = np.zeros((len(scans), 18, 18))
+    `uncertainty.restart_matrices` at a scan flagged in `restarts` (a re-initialisation); (19, 19) with the
+    heading's reversion on (`heading`, [T_r, T_a])."""
+    n = state_size(heading)
+    A = np.zeros((len(scans), n, n))
+    Q = np.zeros((len(scans), n, n))
     eye = np.eye(6)
     for i, j in enumerate(scans):
         if restarts is not None and restarts[j]:
             S = Sigma_rel[j] if np.all(np.isfinite(Sigma_rel[j])) else np.zeros((6, 6))
-            A[i], Q[i] = restart_matrices(T[j - 1], T[j], S)
+            A[i], Q[i] = restart_matrices(T[j - 1], T[j], S, heading)
             continue
         dt = t[j] - t[j - 1]
         phi = np.exp(-dt / tau) if tau > 0 else 0.0
@@ -42,8 +46,10 @@ def step_matrices(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: 
         A[i, :6, :6] = se3.adjoint(R)
         A[i, :6, 6:12] = dt * phi * eye
         A[i, 6:12, 6:12] = phi * eye
-        A[i, :6, 12:] = np.linalg.norm(R[:3, 3]) * eye
-        A[i, 12:, 12:] = eye
+        A[i, :6, 12:18] = np.linalg.norm(R[:3, 3]) * eye
+        A[i, 12:, 12:] = np.eye(n - 12)
+        if n > 18:
+            A[i] = A[i] @ heading_reversion_matrix(dt, heading)
         S = Sigma_rel[j] if np.all(np.isfinite(Sigma_rel[j])) else np.zeros((6, 6))
         W = (1.0 - phi**2) * P_varpi[j] if tau > 0 else np.zeros((6, 6))
         Q[i, :6, :6] = dt * dt * W + S
@@ -53,9 +59,9 @@ def step_matrices(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: 
 
 
 def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, n: int, tau: float,
-                     drift_rate_sigma=None, restarts=None) -> np.ndarray:
+                     drift_rate_sigma=None, restarts=None, heading=None) -> np.ndarray:
     """Covariances (N - n, 6, 6) of T_k T_{k-n}^-1 for k = n .. N-1: row k - n equals
-    `span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, tau, drift_rate_sigma, restarts)` bit for bit.
+    `span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, tau, drift_rate_sigma, restarts, heading)` bit for bit.
 
     Args: as `uncertainty.span_covariance`; n >= 1 scans per span.
     """
@@ -65,12 +71,12 @@ def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varp
     prior = np.diag(np.square(drift_rate_sigma_array(drift_rate_sigma)))
     for b0 in range(0, N - n, BLOCK):  # spans starting at scans b0 .. b1 - 1
         b1 = min(b0 + BLOCK, N - n)
-        A_all, Q_all = step_matrices(T, t, Sigma_rel, P_varpi, tau, np.arange(b0 + 1, b1 + n), restarts)
-        C = np.zeros((b1 - b0, 18, 18))  # uncertainty._initial with a known start pose
+        A_all, Q_all = step_matrices(T, t, Sigma_rel, P_varpi, tau, np.arange(b0 + 1, b1 + n), restarts, heading)
+        C = np.zeros((b1 - b0,) + A_all.shape[1:])  # uncertainty._initial with a known start pose
         if tau > 0:
             C[:, 6:12, 6:12] = P_varpi[b0:b1]
             C[starts[b0:b1], 6:12, 6:12] = 0.0  # from the run's first scan or a re-initialisation: at zero
-        C[:, 12:, 12:] = prior
+        C[:, 12:18, 12:18] = prior
         for i in range(n):  # step into scan start + i + 1 of every span
             A, Q = A_all[i:i + b1 - b0], Q_all[i:i + b1 - b0]
             C = A @ C @ np.swapaxes(A, -1, -2) + Q

@@ -40,6 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--velocity-axes", action="store_true",
                    help="with truth: learn the velocity variance per axis too (uncertainty.velocity_axis_inflation; "
                         "docs/calibration.md)")
+    p.add_argument("--heading-reversion", action="store_true",
+                   help="with truth: learn the yaw error's reversion too (uncertainty.heading_reversion_time and "
+                        "heading_anchor_time; docs/calibration.md)")
     p.add_argument("--iterations", type=int, default=5, help="EM iterations at most (%(default)s)")
     p.add_argument("--tolerance", type=float, default=0.05, help="EM stops below this relative change of Qc "
                                                                  "(%(default)s)")
@@ -98,7 +101,8 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                          f"{v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + {v['per_doppler']:.3g} x "
                          "ln(1 + Doppler NIS)" + (" and per axis" if set(v.get("per_axis", [1.0])) != {1.0} else "")
                          + ", drift_rate_sigma and "
-                         f"velocity_correlation_time {c['velocity_correlation_time']:g} s fitted so that the "
+                         f"velocity_correlation_time {c['velocity_correlation_time']:g} s"
+                         + _heading_words(c) + " fitted so that the "
                          "estimator's NEES against the truth is consistent (docs/calibration.md).")
     else:
         it = report["iterations"]
@@ -152,16 +156,30 @@ def _consistency_markdown(c: dict) -> list[str]:
     d, v, rel = c["drift_rate"], c["velocity_inflation"], c["relative_inflation"]
     vec = ", ".join(f"{x:.3g}" for x in d["sigma"])
     before, after = rel["median_ratio"]
-    return lines + ["", f"relative pose covariance factor (uncertainty.inflation) {rel['inflation']:.3g} (median "
-                    f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; {rel['outcome']})",
-                    f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
-                    f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS), per axis vx, vy, vz, wx, wy, wz x "
-                    f"[{', '.join(f'{g:.3g}' for g in v.get('per_axis', [1.0] * 6))}] (maximum "
-                    f"likelihood over {v['scans']} scans: mean velocity NEES/dof {v['nees_per_dof'][0]:.3g} -> "
-                    f"{v['nees_per_dof'][1]:.3g})",
-                    f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m",
-                    "tau grid (median ratio of the relative pose over the span / of the absolute pose): "
-                    + ", ".join(f"{t} s: {r['relative_span']:.3g} / {r['pose']:.3g}" for t, r in c["tau_grid"].items())]
+    lines += ["", f"relative pose covariance factor (uncertainty.inflation) {rel['inflation']:.3g} (median "
+              f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; {rel['outcome']})",
+              f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
+              f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS), per axis vx, vy, vz, wx, wy, wz x "
+              f"[{', '.join(f'{g:.3g}' for g in v.get('per_axis', [1.0] * 6))}] (maximum "
+              f"likelihood over {v['scans']} scans: mean velocity NEES/dof {v['nees_per_dof'][0]:.3g} -> "
+              f"{v['nees_per_dof'][1]:.3g})",
+              f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m",
+              "tau grid (median ratio of the relative pose over the span / of the absolute pose): "
+              + ", ".join(f"{t} s: {r['relative_span']:.3g} / {r['pose']:.3g}" for t, r in c["tau_grid"].items())]
+    if c.get("heading_reversion", {}).get("grid"):
+        h = c["heading_reversion"]
+        chosen = f"{h['time']:g} / {h['anchor_time']:g} s" if h["time"] > 0 else "off"
+        lines.append("heading reversion grid (T_r / T_a s: the same ratios, at the first tau): "
+                     + ", ".join(f"{k}: {r['relative_span']:.3g} / {r['pose']:.3g}" for k, r in h["grid"].items())
+                     + f"; chosen: {chosen}")
+    return lines
+
+
+def _heading_words(c: dict) -> str:
+    """', heading_reversion_time T_r s and heading_anchor_time T_a s' of a consistency report, '' when off."""
+    h = c.get("heading_reversion", {"time": 0.0})
+    return (f", heading_reversion_time {h['time']:g} s and heading_anchor_time {h['anchor_time']:g} s"
+            if h["time"] > 0 else "")
 
 
 def main(args) -> int:
@@ -195,7 +213,8 @@ def main(args) -> int:
         truths = [load_truth(d) for d in args.sequence]
         config, report = calibrate_with_truth(seqs, truths, config, args.duration, args.floor,
                                               consistency=not args.no_consistency, progress=step,
-                                              velocity_axes=args.velocity_axes)
+                                              velocity_axes=args.velocity_axes,
+                                              heading_reversion=args.heading_reversion)
     write_text_atomic(out, config_toml(config, _header(report, " ".join(args.sequence), config.model)))
     write_text_atomic(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     write_text_atomic(out.with_suffix(".md"), _markdown(report))

@@ -40,6 +40,8 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["model"] == "cv-polar" and summary["config"] == config.to_dict()
     assert config.uncertainty.velocity_axis_inflation == (1.0,) * 6  # per axis only when asked
+    assert config.uncertainty.heading_reversion_time == 0.0  # and the heading's reversion
+    assert report["consistency"]["heading_reversion"]["fitted"] is False
 
 
 @pytest.mark.slow
@@ -53,6 +55,26 @@ def test_calibrate_learns_the_velocity_per_axis_when_asked(seq, tmp_path, capsys
     assert list(g) == report["consistency"]["velocity_inflation"]["per_axis"]
     assert np.prod(g) == pytest.approx(1.0, rel=1e-9) and max(g) / min(g) > 1.1
     assert "per axis vx, vy, vz, wx, wy, wz" in out.with_suffix(".md").read_text()
+    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+
+
+@pytest.mark.slow
+def test_calibrate_learns_the_heading_reversion_when_asked(seq, tmp_path, capsys):
+    """--heading-reversion: the report holds the whole grid, the config the point of least cost (at the tau
+    before it), the markdown the grid and the choice, and `rodo run` accepts the config."""
+    from rodo.validation import calibrate_consistency as cc
+
+    out = tmp_path / "heading.toml"
+    assert main(["calibrate", str(seq), "--heading-reversion", "--out", str(out)]) == 0
+    unc = OdometryConfig.from_toml(out).uncertainty
+    h = json.loads(out.with_suffix(".json").read_text())["consistency"]["heading_reversion"]
+    assert h["fitted"] is True and len(h["grid"]) == len(cc.HEADINGS)
+    cost = {k: cc.tau_cost((r["relative_span"], r["pose"])) for k, r in h["grid"].items()}
+    chosen = f"{h['time']:g}/{h['anchor_time']:g}"
+    assert cost[chosen] == min(cost.values())
+    assert unc.heading_reversion_time == h["time"]
+    assert unc.heading_anchor_time == (h["anchor_time"] if h["time"] > 0 else 100.0)
+    assert "heading reversion grid" in out.with_suffix(".md").read_text()
     assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
 
 

@@ -1,0 +1,91 @@
+"""`rodo calibrate`'s choice of the heading's reversion (rodo.validation.calibrate_consistency.fit_heading): on
+runs whose pose errors follow the drift model with and without a reverting yaw, it turns the reversion on
+only where the errors revert, and the run's states replay it."""
+
+import numpy as np
+import pytest
+
+from rodo.estimator.heading_reversion import heading_reversion_matrix
+from rodo.estimator.lie import se3
+from rodo.validation import calibrate_consistency as cc
+from rodo.validation import replayed_states as rs
+
+DT, N = 0.1, 800
+SIGMA = np.array([3e-3, 3e-3, 3e-3, 2e-4, 2e-4, 1e-3])  # per scan: the yaw the largest rotation
+
+
+def _run(seed: int, heading):
+    """(states, truth) of a drive whose absolute pose error follows the recursion with tau 0 and no drift rate,
+    xi_k = Ad(R_k) M(heading) xi_{k-1} + delta_k, delta_k ~ N(0, diag(SIGMA^2)) (M: the reversion, identity
+    when heading is None), the states carrying that covariance as P_relative."""
+    rng = np.random.default_rng(np.random.SeedSequence([2026, 30, seed]))
+    T_true = [np.eye(4)]
+    for _ in range(N - 1):
+        step = np.array([-rng.uniform(0.6, 1.0), 0.0, 0.0, 0.0, 0.0, rng.normal(0, 0.01)])
+        T_true.append(se3.exp(step) @ T_true[-1])
+    T_true = np.stack(T_true)
+    x = np.zeros(19)
+    T_est = [T_true[0]]
+    M = np.eye(19) if heading is None else heading_reversion_matrix(DT, heading)
+    for k in range(1, N):
+        x = M @ x
+        x[:6] = se3.adjoint(T_true[k] @ se3.inverse(T_true[k - 1])) @ x[:6] + rng.normal(size=6) * SIGMA
+        T_est.append(se3.exp(-x[:6]) @ T_true[k])
+    t = DT * np.arange(N)
+    P = np.tile(np.eye(18) * 1e-12, (N, 1, 1))  # the first pose known (the errors start at zero)
+    Sigma = np.tile(np.diag(SIGMA**2), (N, 1, 1))
+    Sigma[0] = np.nan
+    states = {"t": t, "T_vehicle_world": np.stack(T_est), "varpi": np.zeros((N, 6)), "P": P, "P_relative": Sigma,
+              "P_revision": np.zeros((N, 6, 6)), "restarted": np.zeros(N, bool)}
+    truth = {"t": t, "T_vehicle_world": T_true, "varpi": np.zeros((N, 6))}
+    return rs.replayed(states, 0.0, None, heading), truth
+
+
+GRID = ((0.0, 0.0), (1.0, 50.0), (2.0, 50.0), (4.0, 50.0), (8.0, 50.0), (12.0, 50.0), (2.0, 20.0), (2.0, 200.0))
+
+
+def _runs(seed: int, heading):
+    """Four runs pooled, as `rodo calibrate` pools several sequences: one drive's absolute pose error is one
+    slowly varying path, and its median NEES ratio alone strays far from 1 (0.26 at the true model, off, on
+    one of these drives)."""
+    runs = [_run(4 * seed + i, heading) for i in range(4)]
+    return [s for s, _ in runs], [t for _, t in runs]
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_the_reversion_is_chosen_where_the_errors_revert(seed):
+    """Errors with a yaw reverting at T_r 2 s to an anchor of 50 s: the fit turns the reversion on, with T_r
+    within a factor 2, and the chosen point is the cheapest of the grid it reports; errors without it: off."""
+    states, truth = _runs(seed, (2.0, 50.0))
+    heading, grid = cc.fit_heading(states, truth, 1.0, 0.0, headings=GRID)
+    assert set(grid) == set(GRID)
+    assert 1.0 <= heading[0] <= 4.0, (heading, grid)
+    assert cc.tau_cost(grid[heading]) == min(cc.tau_cost(r) for r in grid.values())
+    # the reversion takes yaw variance away: the absolute pose's ratio rises as T_r falls (at one anchor time)
+    poses = [grid[(r, 50.0)][1] for r in (1.0, 2.0, 4.0, 8.0, 12.0)]
+    assert poses == sorted(poses, reverse=True)
+
+    states, truth = _runs(seed, None)
+    heading, grid = cc.fit_heading(states, truth, 1.0, 0.0, headings=GRID)
+    assert heading == (0.0, 0.0), (heading, grid)
+
+
+def test_the_default_grid_holds_off_and_a_range_of_reversions():
+    """HEADINGS: off first, T_r from 1 to 12 s, every anchor slower than its reversion."""
+    assert cc.HEADINGS[0] == (0.0, 0.0)
+    assert {r for r, _ in cc.HEADINGS[1:]} == {1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0}
+    assert all(a > r for r, a in cc.HEADINGS[1:])
+
+
+def test_replayed_states_carry_the_reversion_to_the_span_measures():
+    """`replayed` records the reversion it composed with, and the span measure (`odometry_nees`) uses the run's
+    own when not told otherwise: the same as given explicitly, not the same as off."""
+    from rodo.validation.odometry_consistency import odometry_nees
+
+    states, truth = _run(3, (2.0, 50.0))
+    np.testing.assert_array_equal(states["heading_reversion"], [2.0, 50.0])
+    own = odometry_nees(states, truth, tau=0.0)["relative_span"]
+    given = odometry_nees(states, truth, tau=0.0, heading=(2.0, 50.0))["relative_span"]
+    off = odometry_nees(states, truth, tau=0.0, heading=(0.0, 0.0))["relative_span"]
+    np.testing.assert_array_equal(own, given)
+    assert not np.allclose(own[20:], off[20:])
