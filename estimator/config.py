@@ -203,7 +203,8 @@ class UncertaintyConfig:
         --velocity-axes` learns them. Not in the solve, the gates or the drift recursion.
     heading_reversion_time, heading_anchor_time: the time constants (s) with which the drift recursion's yaw
         error reverts to an anchor and the anchor follows it (`estimator.heading_reversion`; docs/consistency.md,
-        "The heading reverts"); `rodo calibrate` learns them. Reported covariances only. 0 (the first): off.
+        "The heading reverts"); `rodo calibrate --heading-reversion` learns them. Reported covariances only. 0 (the
+        first): off.
     prior_memory: time constant (s) of the marginalised prior's memory (its information times exp(-dt /
         prior_memory) at each marginalisation): the map, made from the same scans, brings their information back
         (docs/consistency.md, "A prior that forgets"). 0: off (the paper's marginalisation).
