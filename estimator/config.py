@@ -201,10 +201,11 @@ class UncertaintyConfig:
     velocity_axis_inflation: factors per axis [vx, vy, vz, wx, wy, wz] (body frame) on that reported variance, for
         the shape of the window's velocity covariance (docs/consistency.md, "... and per axis"); `rodo calibrate
         --velocity-axes` learns them. Not in the solve, the gates or the drift recursion.
-    heading_reversion_time, heading_anchor_time: the time constants (s) with which the drift recursion's yaw
-        error reverts to an anchor and the anchor follows it (`estimator.heading_reversion`; docs/consistency.md,
-        "The heading reverts"); `rodo calibrate --heading-reversion` learns them. Reported covariances only. 0 (the
-        first): off.
+    heading_reversion_time: the time constant (s) with which the drift recursion's yaw error reverts to an anchor
+        (`estimator.heading_reversion`; docs/consistency.md, "The heading reverts"); `rodo calibrate
+        --heading-reversion` learns it. Reported covariances only. 0: off.
+    heading_anchor_time: the time constant (s, > 0) with which that anchor follows the yaw error (with the
+        reversion on; learned with it).
     prior_memory: time constant (s) of the marginalised prior's memory (its information times exp(-dt /
         prior_memory) at each marginalisation): the map, made from the same scans, brings their information back
         (docs/consistency.md, "A prior that forgets"). 0: off (the paper's marginalisation).

@@ -15,7 +15,8 @@ over 1 s; roll and pitch do not revert so (docs/consistency.md, "The heading rev
 
 The recursion's state gains the anchor, [xi; b; beta; a] (19): `heading_reversion_matrix` is applied before each
 step (x <- A M x + w), the anchor is carried unchanged by the step, and it starts at the yaw error (a run's
-first scan, a re-initialisation: no deviation to revert, the map is new) or at the span's start pose.
+first scan, a re-initialisation: no deviation to revert, the map is new); a span starts with the anchor off its
+start pose by the deviation the run's recursion has there (`DriftCovariance.deviation`).
 
 Checked by: tests/estimator/test_heading_reversion.py
 """
@@ -29,11 +30,18 @@ YAW, ANCHOR = 5, 18
 
 
 def heading_reversion_array(heading) -> np.ndarray:
-    """(2,) [T_r, T_a] (s), the reversion's and the anchor's time constants; None, or T_r = 0: [0, 0], off."""
+    """(2,) [T_r, T_a] (s), the reversion's and the anchor's time constants; None, or T_r = 0: [0, 0], off.
+    ValueError unless both are finite, T_r >= 0 and, with T_r > 0, T_a > 0."""
     if heading is None:
         return np.zeros(2)
     h = np.asarray(heading, dtype=float).reshape(2)
-    return h if h[0] > 0 else np.zeros(2)
+    if not (np.all(np.isfinite(h)) and h[0] >= 0):
+        raise ValueError(f"heading reversion [T_r, T_a]: finite, T_r >= 0 expected, got {h.tolist()}")
+    if h[0] == 0:
+        return np.zeros(2)
+    if h[1] <= 0:
+        raise ValueError(f"heading reversion [T_r, T_a]: T_a > 0 expected with T_r > 0, got {h.tolist()}")
+    return h
 
 
 def state_size(heading) -> int:
@@ -43,8 +51,11 @@ def state_size(heading) -> int:
 
 def heading_reversion_matrix(dt: float, heading) -> np.ndarray:
     """M (19, 19), the reversion over dt (module docstring): the identity but for the yaw (index 5) and its
-    anchor (index 18), yaw <- (r + (1 - r) e) yaw + (1 - r)(1 - e) a, a <- r (1 - e) yaw + (1 - r + r e) a."""
+    anchor (index 18), yaw <- (r + (1 - r) e) yaw + (1 - r)(1 - e) a, a <- r (1 - e) yaw + (1 - r + r e) a.
+    ValueError when the reversion is off (there is no anchor)."""
     T_r, T_a = heading_reversion_array(heading)
+    if T_r == 0:
+        raise ValueError("heading_reversion_matrix: the reversion is off (T_r = 0): no anchor to revert to")
     r = T_r / (T_r + T_a)
     e = np.exp(-dt * (1.0 / T_r + 1.0 / T_a))
     M = np.eye(BASE + 1)

@@ -278,6 +278,13 @@ class DriftCovariance:
         self.C = _restart_step(self.C, _pose(T_prev), _pose(T_new), _matrix(Sigma_rel, 6), self.heading)
         return self.C[:6, :6].copy()
 
+    @property
+    def deviation(self) -> float:
+        """Var(yaw - a), the variance of the yaw error's deviation from its anchor (0 without the heading's
+        reversion): what a span starting here carries (`span_covariance`'s `deviation`)."""
+        C = self.C
+        return float(C[YAW, YAW] + C[ANCHOR, ANCHOR] - 2.0 * C[YAW, ANCHOR]) if len(C) > ANCHOR else 0.0
+
 
 class ReportedCovariances:
     """What the odometry reports beside the window's covariance, scan by scan: each scan's relative pose
@@ -347,13 +354,14 @@ def _matrix(A, n: int) -> np.ndarray:
 
 
 def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, start: int,
-                    end: int, tau: float, drift_rate_sigma=None, restarts=None, heading=None) -> np.ndarray:
+                    end: int, tau: float, drift_rate_sigma=None, restarts=None, heading=None,
+                    deviation: float = 0.0) -> np.ndarray:
     """Covariance (6, 6) of the relative pose T_end T_start^-1 of a run: the recursion from a known pose at
     scan `start` (the velocity error at its stationary variance P_varpi[start], at zero from the run's first scan
     as in `DriftCovariance.at_first_scan` or from a re-initialisation; the drift rate at its prior; the heading's
-    anchor, where on, at the start pose: a deviation already there, and its reversion over the span, is not
-    counted) to scan `end`; the step into a scan flagged in `restarts` is the re-initialisation's
-    (`restart_matrices`).
+    anchor, where on, off the start pose by the yaw's deviation from it, variance `deviation` (the run's
+    `DriftCovariance.deviation` at `start`), which reverts over the span) to scan `end`; the step into a scan
+    flagged in `restarts` is the re-initialisation's (`restart_matrices`).
 
     Args:
         T: (N, 4, 4) estimated T_vehicle_world; t: (N,) times.
@@ -364,10 +372,14 @@ def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi
         drift_rate_sigma: (6,) sigma of the drift rate per metre; None: none.
         restarts: (N,) bool, the scans at which the run re-initialised (states.npz `restarted`); None: none.
         heading: [T_r, T_a] (s) of the heading's reversion; None: off.
+        deviation: Var(yaw - anchor) at `start` (with the heading's reversion; taken as uncorrelated with the
+            rest of the state).
     """
     restarts = np.zeros(len(t), bool) if restarts is None else np.asarray(restarts, dtype=bool)
     C = _initial(np.zeros((6, 6)), np.zeros((6, 6)) if fresh_starts(restarts, len(t))[start] else P_varpi[start], tau,
                  drift_rate_sigma, heading)
+    if len(C) > ANCHOR:
+        C[ANCHOR, ANCHOR] = deviation  # the anchor at -(yaw - a) from the start pose
     for j in range(start + 1, end + 1):
         S = Sigma_rel[j] if np.isfinite(Sigma_rel[j]).all() else np.zeros((6, 6))
         if restarts[j]:

@@ -29,10 +29,10 @@ from rodo.estimator.uncertainty import velocity_factor
 from .alignment import truth_in_estimator_frame
 from .association import DEFAULT_TOLERANCE, associate
 from .consistency import nees, require_arrays
-from .span_covariances import span_covariances
+from .span_covariances import heading_deviations, span_covariances
 
-RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation", "heading_reversion")  # not
-# per scan
+# not per scan
+RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation", "heading_reversion")
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
 
@@ -73,7 +73,9 @@ def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, v
     Sigma_rel = np.asarray(states["P_relative"], dtype=float)
     P_varpi = drift_velocity_covariances(states["P"], states["varpi"], velocity_inflation, states.get("doppler_nis"),
                                          axis_inflation)
-    C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma, states.get("restarted"), heading)
+    restarts = states.get("restarted")
+    deviations = heading_deviations(T_est, t, Sigma_rel, P_varpi, tau, drift_rate_sigma, restarts, heading)
+    C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma, restarts, heading, deviations)
     if "P_revision" in states:  # the revision of each span's first emitted pose, by the scan after it
         C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)
     out[n:] = nees(e, C)

@@ -20,7 +20,7 @@ import numpy as np
 
 from rodo.estimator.lie import se3
 from rodo.estimator.heading_reversion import heading_reversion_matrix, state_size
-from rodo.estimator.uncertainty import drift_rate_sigma_array, fresh_starts, restart_matrices
+from rodo.estimator.uncertainty import DriftCovariance, drift_rate_sigma_array, fresh_starts, restart_matrices
 
 BLOCK = 2048  # spans advanced together (bounds the memory: 2 x BLOCK x 19 x 19 floats at most, ~12 MB)
 
@@ -59,11 +59,13 @@ def step_matrices(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: 
 
 
 def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, n: int, tau: float,
-                     drift_rate_sigma=None, restarts=None, heading=None) -> np.ndarray:
+                     drift_rate_sigma=None, restarts=None, heading=None, deviations=None) -> np.ndarray:
     """Covariances (N - n, 6, 6) of T_k T_{k-n}^-1 for k = n .. N-1: row k - n equals
-    `span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, tau, drift_rate_sigma, restarts, heading)` bit for bit.
+    `span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, tau, drift_rate_sigma, restarts, heading,
+    deviations[k - n])` bit for bit.
 
-    Args: as `uncertainty.span_covariance`; n >= 1 scans per span.
+    Args: as `uncertainty.span_covariance`; n >= 1 scans per span; deviations (N,) each scan's Var(yaw - anchor)
+    (`heading_deviations`; None: zeros).
     """
     N = len(t)
     starts = fresh_starts(restarts, N)
@@ -77,9 +79,30 @@ def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varp
             C[:, 6:12, 6:12] = P_varpi[b0:b1]
             C[starts[b0:b1], 6:12, 6:12] = 0.0  # from the run's first scan or a re-initialisation: at zero
         C[:, 12:18, 12:18] = prior
+        if C.shape[-1] > 18 and deviations is not None:
+            C[:, 18, 18] = deviations[b0:b1]  # the anchor at -(yaw - a) from each span's start pose
         for i in range(n):  # step into scan start + i + 1 of every span
             A, Q = A_all[i:i + b1 - b0], Q_all[i:i + b1 - b0]
             C = A @ C @ np.swapaxes(A, -1, -2) + Q
             C = 0.5 * (C + np.swapaxes(C, -1, -2))
         out[b0:b1] = C[:, :6, :6]
+    return out
+
+
+def heading_deviations(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, tau: float,
+                       drift_rate_sigma=None, restarts=None, heading=None) -> np.ndarray | None:
+    """(N,) Var(yaw - anchor) of the run's absolute recursion at each scan (`DriftCovariance.deviation`: zero at
+    its first scan and at each re-initialisation), the deviation a span starting there carries; None without the
+    heading's reversion. The first pose is taken as known: the deviation starts at zero whatever its covariance."""
+    if state_size(heading) == 18:
+        return None
+    drift = DriftCovariance.at_first_scan(np.zeros((6, 6)), tau, drift_rate_sigma, heading)
+    out = np.zeros(len(t))
+    for k in range(1, len(t)):
+        S = Sigma_rel[k] if np.all(np.isfinite(Sigma_rel[k])) else np.zeros((6, 6))
+        if restarts is not None and restarts[k]:
+            drift.restart(T[k - 1], T[k], S)
+        else:
+            drift.update(T[k - 1], T[k], t[k] - t[k - 1], S, P_varpi[k])
+        out[k] = drift.deviation
     return out

@@ -64,6 +64,11 @@ def _check_args(args) -> Path:
     if not (np.isfinite(args.floor) and QC_MIN <= args.floor < QC_MAX):
         raise InputError(f"--floor: must be from {QC_MIN:g} (the config's lower bound) to below the fit's upper "
                          f"bound {QC_MAX:g}, got {args.floor}")
+    for flag, given in (("--velocity-axes", args.velocity_axes), ("--heading-reversion", args.heading_reversion)):
+        for other, off in (("--no-truth", args.no_truth), ("--no-consistency", args.no_consistency)):
+            if given and off:
+                raise InputError(f"{flag}: learned in the uncertainty section with ground truth, which {other} "
+                                 "leaves out; drop one of the two")
     out = Path(args.out)
     if out.is_dir():
         raise InputError(f"--out: {out} is a directory, expected a .toml file name")

@@ -60,22 +60,38 @@ def test_calibrate_learns_the_velocity_per_axis_when_asked(seq, tmp_path, capsys
 
 @pytest.mark.slow
 def test_calibrate_learns_the_heading_reversion_when_asked(seq, tmp_path, capsys):
-    """--heading-reversion: the report holds the whole grid, the config the point of least cost (at the tau
-    before it), the markdown the grid and the choice, and `rodo run` accepts the config."""
+    """--heading-reversion on a 12 s drive: the report holds the grid's points with T_r up to a tenth of the
+    drive (off and 1 s), the config the point of least cost (at the tau before it) and tau chosen again with it,
+    the markdown the grid and the choice, and `rodo run` accepts the config. On the 2 s drive only off is tried."""
     from rodo.validation import calibrate_consistency as cc
 
+    longer = tmp_path / "city12"
+    scenarios.simulate_to("city", 2, longer, duration=12.0)
     out = tmp_path / "heading.toml"
-    assert main(["calibrate", str(seq), "--heading-reversion", "--out", str(out)]) == 0
+    assert main(["calibrate", str(longer), "--heading-reversion", "--out", str(out)]) == 0
     unc = OdometryConfig.from_toml(out).uncertainty
-    h = json.loads(out.with_suffix(".json").read_text())["consistency"]["heading_reversion"]
-    assert h["fitted"] is True and len(h["grid"]) == len(cc.HEADINGS)
+    c = json.loads(out.with_suffix(".json").read_text())["consistency"]
+    h = c["heading_reversion"]
+    assert h["fitted"] is True and set(h["grid"]) == {"0/0", "1/20", "1/50", "1/100", "1/200"}
     cost = {k: cc.tau_cost((r["relative_span"], r["pose"])) for k, r in h["grid"].items()}
-    chosen = f"{h['time']:g}/{h['anchor_time']:g}"
-    assert cost[chosen] == min(cost.values())
+    assert cost[f"{h['time']:g}/{h['anchor_time']:g}"] == min(cost.values())
     assert unc.heading_reversion_time == h["time"]
     assert unc.heading_anchor_time == (h["anchor_time"] if h["time"] > 0 else 100.0)
+    taus = {float(k): cc.tau_cost((r["relative_span"], r["pose"])) for k, r in c["tau_grid"].items()}
+    assert taus[unc.velocity_correlation_time] == min(taus.values())  # at the chosen reversion
     assert "heading reversion grid" in out.with_suffix(".md").read_text()
-    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    assert main(["run", str(longer), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+
+    assert main(["calibrate", str(seq), "--heading-reversion", "--out", str(tmp_path / "short.toml")]) == 0
+    h = json.loads((tmp_path / "short.json").read_text())["consistency"]["heading_reversion"]
+    assert set(h["grid"]) == {"0/0"} and h["time"] == 0.0
+
+
+@pytest.mark.parametrize("flag", ["--velocity-axes", "--heading-reversion"])
+@pytest.mark.parametrize("other", ["--no-truth", "--no-consistency"])
+def test_an_uncertainty_flag_without_the_uncertainty_section_is_refused(seq, tmp_path, capsys, flag, other):
+    """Asking to learn a term of the uncertainty section while leaving that section out exits 2 naming both."""
+    fails(capsys, ["calibrate", str(seq), flag, other, "--out", tmp_path / "x.toml"], flag, other)
 
 
 @pytest.mark.slow

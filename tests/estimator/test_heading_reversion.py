@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from rodo.estimator.heading_reversion import ANCHOR, YAW, heading_reversion_matrix, state_size
 from rodo.estimator.lie import se3
 from rodo.estimator.uncertainty import DriftCovariance, _initial, _step, span_covariance
-from rodo.validation.span_covariances import span_covariances
+from rodo.validation.span_covariances import heading_deviations, span_covariances
 from tests.estimator.test_uncertainty import N_MC, _mean_nees_in_bounds, _random_cov
 
 HEADING = (0.4, 3.0)  # s: short, so that it shows within 20 scans
@@ -112,6 +112,85 @@ def test_the_yaw_still_random_walks_at_the_reduced_rate(T_r, ratio):
     assert (var[-1] - var[n - 1]) / (len(var) - n) == pytest.approx(r * r * q, rel=0.05)
 
 
+def _step_without_reversion(C, T_prev, T_new, dt, Sigma_rel, P_varpi, tau):
+    """`uncertainty._step` as it was before the heading's reversion (session 29), verbatim: the reference the
+    18-state path must still equal bit for bit."""
+    phi = np.exp(-dt / tau) if tau > 0 else 0.0
+    R = T_new @ se3.inverse(T_prev)
+    A = np.zeros((18, 18))
+    A[:6, :6] = se3.adjoint(R)
+    A[:6, 6:12] = dt * phi * np.eye(6)
+    A[6:12, 6:12] = phi * np.eye(6)
+    A[:6, 12:] = np.linalg.norm(R[:3, 3]) * np.eye(6)
+    A[12:, 12:] = np.eye(6)
+    W = (1.0 - phi**2) * P_varpi if tau > 0 else np.zeros((6, 6))
+    Q = np.zeros((18, 18))
+    Q[:6, :6] = dt * dt * W + Sigma_rel
+    Q[:6, 6:12] = Q[6:12, :6] = dt * W
+    Q[6:12, 6:12] = W
+    C = A @ C @ A.T + Q
+    return 0.5 * (C + C.T)
+
+
+def test_off_is_the_recursion_as_it_was_bit_for_bit():
+    """Without the reversion the step is the 18-state one as it was before the reversion existed, bit for bit
+    (`_step_without_reversion`), over a turning drive."""
+    rng = _rng(5)
+    t, T = _drive(rng, 60)
+    Sigma_rel, P_varpi = _random_cov(rng, 2e-3), _random_cov(rng, 1e-2)
+    C = _initial(_random_cov(rng, 1e-3), P_varpi, 0.3, [1e-4] * 6)
+    want = C.copy()
+    for k in range(1, len(t)):
+        C = _step(C, T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel, P_varpi, 0.3, None)
+        want = _step_without_reversion(want, T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel, P_varpi, 0.3)
+    assert C.shape == (18, 18)
+    np.testing.assert_array_equal(C, want)
+
+
+def test_the_anchor_starts_at_the_yaw_error():
+    """At a start the anchor is the yaw error itself (its row and column the yaw's): no deviation to revert."""
+    rng = _rng(6)
+    C = _initial(_random_cov(rng, 1e-2), _random_cov(rng, 1e-2), 0.3, [1e-4] * 6, HEADING)
+    np.testing.assert_array_equal(C[ANCHOR, :ANCHOR], C[YAW, :ANCHOR])
+    np.testing.assert_array_equal(C[:ANCHOR, ANCHOR], C[:ANCHOR, YAW])
+    assert C[ANCHOR, ANCHOR] == C[YAW, YAW] > 0
+    assert DriftCovariance(_random_cov(rng, 1e-2), np.eye(6), 0.3, None, HEADING).deviation == pytest.approx(0.0,
+                                                                                                              abs=1e-18)
+
+
+def test_a_span_carries_the_deviation_it_starts_with():
+    """Yaw noise alone, standing still: the relative yaw over a span from scan k0 of a running recursion has the
+    variance of the exact joint (yaw, anchor, the yaw at k0) propagated by the ODE's own flow (`_euler`), when the
+    span starts with the run's deviation; without it (a span from an anchor at the start pose) it is smaller."""
+    T_r, T_a, dt, q = 1.5, 20.0, 0.1, 1e-6
+    m = np.array([_euler(1.0, 0.0, dt, T_r, T_a), _euler(0.0, 1.0, dt, T_r, T_a)]).T  # columns: images of e_yaw, e_a
+    Sigma = np.zeros((6, 6))
+    Sigma[YAW, YAW] = q
+    zeros, eye4 = np.zeros((6, 6)), np.eye(4)
+    k0, n = 300, 40
+    drift = DriftCovariance.at_first_scan(zeros, 0.0, None, (T_r, T_a))
+    J = np.zeros((3, 3))  # Cov of (yaw, a, yaw at k0), exact for the linear model
+    for k in range(1, k0 + n + 1):
+        if k == k0 + 1:
+            J[2, :2] = J[:2, 0]
+            J[:2, 2] = J[0, :2]
+            J[2, 2] = J[0, 0]
+        if k <= k0:
+            drift.update(eye4, eye4, dt, Sigma, zeros)
+        A = np.eye(3)
+        A[:2, :2] = m
+        J = A @ J @ A.T
+        J[0, 0] += q
+    exact = J[0, 0] + J[2, 2] - 2 * J[0, 2]
+    T = np.tile(eye4, (k0 + n + 1, 1, 1))
+    t = dt * np.arange(k0 + n + 1)
+    S = np.tile(Sigma, (len(t), 1, 1))
+    span = span_covariance(T, t, S, np.zeros_like(S), k0, k0 + n, 0.0, None, None, (T_r, T_a), drift.deviation)
+    assert span[YAW, YAW] == pytest.approx(exact, rel=2e-3)
+    without = span_covariance(T, t, S, np.zeros_like(S), k0, k0 + n, 0.0, None, None, (T_r, T_a))
+    assert without[YAW, YAW] < 0.9 * exact
+
+
 def test_off_is_the_recursion_without_it_bit_for_bit():
     """A reversion time of 0 (or none) is the 18-state recursion, whatever the anchor time: the same arrays."""
     rng = _rng(2)
@@ -140,8 +219,8 @@ def test_the_compiled_step_equals_the_reference():
 
 
 def test_span_covariances_equal_span_covariance_with_the_reversion():
-    """The batched spans equal `span_covariance` with the reversion bit for bit, across a restart too, and the
-    restart sets the anchor to the new yaw error."""
+    """The batched spans equal `span_covariance` with the reversion and each start's deviation bit for bit,
+    across a restart too, and the restart sets the anchor to the new yaw error."""
     rng = _rng(4)
     t, T = _drive(rng, 40)
     Sigma_rel = np.stack([_random_cov(rng, 2e-3) for _ in t])
@@ -156,10 +235,13 @@ def test_span_covariances_equal_span_covariance_with_the_reversion():
             assert drift.C[ANCHOR, ANCHOR] == drift.C[YAW, YAW]
         else:
             drift.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
+    deviations = heading_deviations(T, t, Sigma_rel, P_varpi, 0.3, [1e-4] * 6, restarts, HEADING)
+    assert deviations[0] == deviations[17] == 0.0 and np.all(deviations[1:17] > 0)  # zero at each (re)start
     for n in (1, 5, 13):
-        batched = span_covariances(T, t, Sigma_rel, P_varpi, n, 0.3, [1e-4] * 6, restarts, HEADING)
+        batched = span_covariances(T, t, Sigma_rel, P_varpi, n, 0.3, [1e-4] * 6, restarts, HEADING, deviations)
         for k in range(n, len(t)):
-            want = span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, 0.3, [1e-4] * 6, restarts, HEADING)
+            want = span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, 0.3, [1e-4] * 6, restarts, HEADING,
+                                   deviations[k - n])
             np.testing.assert_array_equal(batched[k - n], want)
     # from the run's first scan the span is the absolute recursion from a known pose
     whole = span_covariance(T, t, Sigma_rel, P_varpi, 0, 16, 0.3, [1e-4] * 6, restarts, HEADING)
@@ -167,3 +249,27 @@ def test_span_covariances_equal_span_covariance_with_the_reversion():
     for k in range(1, 17):
         P = drift.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k])
     np.testing.assert_allclose(whole, P, rtol=1e-9, atol=1e-18)
+
+
+def test_a_run_with_the_reversion_reports_and_replays_it():
+    """The odometry with the reversion on writes it to its states, and replaying the run's stored covariances
+    with it gives the absolute covariances the run reported (and without it others)."""
+    import dataclasses
+
+    from rodo import scenarios
+    from rodo.estimator.config import OdometryConfig
+    from rodo.validation import replayed_states as rs
+    from rodo.validation.driver import run_sequence
+    from rodo.validation.run_consistency import run_states
+
+    seq, _ = scenarios.get("hills").simulate(3, duration=4.0)
+    config = OdometryConfig.for_model("ca-polar")
+    config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, heading_reversion_time=1.0,
+                                                            heading_anchor_time=20.0))
+    states = run_states(run_sequence(seq, config))
+    np.testing.assert_array_equal(states["heading_reversion"], [1.0, 20.0])
+    tau = float(states["velocity_correlation_time"])
+    replay = rs.absolute_covariances(states, tau, states["drift_rate_sigma"], states["heading_reversion"])
+    np.testing.assert_allclose(replay, states["P_pose_absolute"], rtol=1e-9, atol=1e-15)
+    off = rs.absolute_covariances(states, tau, states["drift_rate_sigma"])
+    assert not np.allclose(off[-1], states["P_pose_absolute"][-1], rtol=1e-3)

@@ -41,7 +41,7 @@ def _run(seed: int, heading):
     return rs.replayed(states, 0.0, None, heading), truth
 
 
-GRID = ((0.0, 0.0), (1.0, 50.0), (2.0, 50.0), (4.0, 50.0), (8.0, 50.0), (12.0, 50.0), (2.0, 20.0), (2.0, 200.0))
+GRID = ((0.0, 0.0), (1.0, 50.0), (2.0, 50.0), (4.0, 50.0), (6.0, 50.0), (12.0, 50.0), (2.0, 20.0), (2.0, 200.0))
 
 
 def _runs(seed: int, heading):
@@ -58,11 +58,11 @@ def test_the_reversion_is_chosen_where_the_errors_revert(seed):
     within a factor 2, and the chosen point is the cheapest of the grid it reports; errors without it: off."""
     states, truth = _runs(seed, (2.0, 50.0))
     heading, grid = cc.fit_heading(states, truth, 1.0, 0.0, headings=GRID)
-    assert set(grid) == set(GRID)
+    assert set(grid) == set(GRID) - {(12.0, 50.0)}  # T_r 12 s is more than a tenth of the 80 s drives
     assert 1.0 <= heading[0] <= 4.0, (heading, grid)
     assert cc.tau_cost(grid[heading]) == min(cc.tau_cost(r) for r in grid.values())
     # the reversion takes yaw variance away: the absolute pose's ratio rises as T_r falls (at one anchor time)
-    poses = [grid[(r, 50.0)][1] for r in (1.0, 2.0, 4.0, 8.0, 12.0)]
+    poses = [grid[(r, 50.0)][1] for r in (1.0, 2.0, 4.0, 6.0)]
     assert poses == sorted(poses, reverse=True)
 
     states, truth = _runs(seed, None)
