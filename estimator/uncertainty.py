@@ -3,7 +3,7 @@
 The sliding window holds the local map as constants, so its marginal pose covariance says how well the newest
 pose is known RELATIVE TO THE MAP, which was built from earlier estimates: it stays flat while the error
 against the world grows (pose NEES of hundreds on the simulated city). Odometry's honest uncertainty is that
-of its relative motion, accumulated. Two parts make it up (docs/consistency.md has the measurements):
+of its relative motion, accumulated. These parts make it up (docs/consistency.md has the measurements):
 
 1. the registration of each scan: delta_k = xi_k - Ad(R_k) xi_{k-1}, R_k = T_k T_{k-1}^-1 (left perturbations,
    T = T_vehicle_world), Sigma_rel,k = A P_pair A^T with A = [-Ad(R_k), I] on the pose blocks of the window's
