@@ -49,18 +49,24 @@ def state_size(heading) -> int:
     return BASE + 1 if heading_reversion_array(heading)[0] > 0 else BASE
 
 
-def heading_reversion_matrix(dt: float, heading) -> np.ndarray:
-    """M (19, 19), the reversion over dt (module docstring): the identity but for the yaw (index 5) and its
-    anchor (index 18), yaw <- (r + (1 - r) e) yaw + (1 - r)(1 - e) a, a <- r (1 - e) yaw + (1 - r + r e) a.
-    ValueError when the reversion is off (there is no anchor)."""
+def reversion_coefficients(dt: float, heading) -> np.ndarray:
+    """(4,) the reversion over dt (module docstring) on (yaw, a): [m_yy, m_ya, m_ay, m_aa] with
+    yaw <- (r + (1 - r) e) yaw + (1 - r)(1 - e) a, a <- r (1 - e) yaw + (1 - r + r e) a. ValueError when the
+    reversion is off (there is no anchor)."""
     T_r, T_a = heading_reversion_array(heading)
     if T_r == 0:
-        raise ValueError("heading_reversion_matrix: the reversion is off (T_r = 0): no anchor to revert to")
+        raise ValueError("heading reversion: it is off (T_r = 0): no anchor to revert to")
     r = T_r / (T_r + T_a)
     e = np.exp(-dt * (1.0 / T_r + 1.0 / T_a))
+    return np.array([r + (1.0 - r) * e, (1.0 - r) * (1.0 - e), r * (1.0 - e), 1.0 - r + r * e])
+
+
+def heading_reversion_matrix(dt: float, heading) -> np.ndarray:
+    """M (19, 19), the reversion over dt: the identity but for the yaw (index 5) and its anchor (index 18), the
+    2 x 2 block `reversion_coefficients`. ValueError when the reversion is off."""
+    m = reversion_coefficients(dt, heading)
     M = np.eye(BASE + 1)
-    M[YAW, YAW], M[YAW, ANCHOR] = r + (1.0 - r) * e, (1.0 - r) * (1.0 - e)
-    M[ANCHOR, YAW], M[ANCHOR, ANCHOR] = r * (1.0 - e), 1.0 - r + r * e
+    M[YAW, YAW], M[YAW, ANCHOR], M[ANCHOR, YAW], M[ANCHOR, ANCHOR] = m
     return M
 
 

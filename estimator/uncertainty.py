@@ -56,9 +56,11 @@ from __future__ import annotations
 import numpy as np
 
 from .heading_reversion import (ANCHOR, YAW, anchored_at_yaw, heading_reversion_array, heading_reversion_matrix,
-                               state_size)
+                               reversion_coefficients, state_size)
 from .lie import se3
 from .uncertainty_kernels import drift_step, relative_covariances
+
+NO_REVERSION = np.zeros(4)  # drift_step's coefficients without the heading's reversion (unused there)
 
 
 def relative_pose_covariance(P_pair: np.ndarray, T_prev: np.ndarray, T_new: np.ndarray, dim: int) -> np.ndarray:
@@ -267,8 +269,9 @@ class DriftCovariance:
         """Advance by one scan (`_step`, compiled: `uncertainty_kernels.drift_step`); returns the new absolute
         pose covariance (6, 6)."""
         C = np.empty_like(self.C)
+        reversion = reversion_coefficients(float(dt), self.heading) if len(C) > ANCHOR else NO_REVERSION
         drift_step(self.C, _pose(T_prev), _pose(T_new), float(dt), _matrix(Sigma_rel, 6), _matrix(P_varpi, 6),
-                   self.tau, *self.heading, C)
+                   self.tau, reversion, C)
         self.C = C
         return C[:6, :6].copy()
 

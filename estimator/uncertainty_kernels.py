@@ -106,19 +106,14 @@ def relative_covariances(P_pair, P_emitted, T_prev, T_new, dim, solved, rel, rev
 
 
 @njit(cache=True)
-def drift_step(C, T_prev, T_new, dt, Sigma_rel, P_varpi, tau, reversion, anchor, out):
+def drift_step(C, T_prev, T_new, dt, Sigma_rel, P_varpi, tau, reversion, out):
     """One scan of the drift recursion over C = Cov([xi; b; beta]) (18, 18) into out (18, 18): A C A^T + Q,
-    symmetrised (`uncertainty._step`); over Cov([xi; b; beta; a]) (19, 19) the heading's reversion (time
-    constants `reversion` and `anchor`, `uncertainty.heading_reversion_matrix`) comes first."""
+    symmetrised (`uncertainty._step`); over Cov([xi; b; beta; a]) (19, 19) the heading's reversion comes first,
+    `reversion` (4,) its coefficients on (yaw, a) (`heading_reversion.reversion_coefficients`; unused at 18)."""
     n = C.shape[0]
     if n > 18:
-        r = reversion / (reversion + anchor)
-        e = np.exp(-dt * (1.0 / reversion + 1.0 / anchor))
         M = np.eye(n)
-        M[5, 5] = r + (1.0 - r) * e
-        M[5, 18] = (1.0 - r) * (1.0 - e)
-        M[18, 5] = r * (1.0 - e)
-        M[18, 18] = 1.0 - r + r * e
+        M[5, 5], M[5, 18], M[18, 5], M[18, 18] = reversion[0], reversion[1], reversion[2], reversion[3]
         reverted = np.empty((n, n))
         _sandwich(M, C, reverted)
         C = reverted

@@ -64,17 +64,14 @@ def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflat
     return P_varpi / c[:, None, None] if (a, b, d) != (1.0, 0.0, 0.0) else P_varpi
 
 
-def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, velocity_inflation,
-               axis_inflation=None, heading=None) -> np.ndarray:
+def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, drift_inputs, heading) -> np.ndarray:
+    """Per-scan NEES of the relative pose over n scans; drift_inputs: (Sigma_rel, P_varpi, restarts, deviations)
+    of the run, the same for every span (`odometry_nees`)."""
     out = np.full(len(t), np.nan)
-    if "P_relative" not in states or n >= len(t):
+    if drift_inputs is None or n >= len(t):
         return out
     e = _relative_errors(T_true, T_est, n)
-    Sigma_rel = np.asarray(states["P_relative"], dtype=float)
-    P_varpi = drift_velocity_covariances(states["P"], states["varpi"], velocity_inflation, states.get("doppler_nis"),
-                                         axis_inflation)
-    restarts = states.get("restarted")
-    deviations = heading_deviations(T_est, t, Sigma_rel, P_varpi, tau, drift_rate_sigma, restarts, heading)
+    Sigma_rel, P_varpi, restarts, deviations = drift_inputs
     C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma, restarts, heading, deviations)
     if "P_revision" in states:  # the revision of each span's first emitted pose, by the scan after it
         C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)
@@ -136,12 +133,17 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
     out["acceleration"] = np.full(len(t), np.nan)
     if P.shape[-1] == 18 and "varpi_dot" in truth and "varpi_dot" in sub:
         out["acceleration"] = nees(np.asarray(truth["varpi_dot"])[ib] - sub["varpi_dot"], P[:, 12:18, 12:18])
-    axes = states.get("velocity_axis_inflation")
-    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau, drift_rate_sigma, velocity_inflation, axes,
-                                      heading)
+    drift_inputs = None  # what the run's drift recursion composed, for both span measures
+    if "P_relative" in sub:
+        Sigma_rel = np.asarray(sub["P_relative"], dtype=float)
+        P_varpi = drift_velocity_covariances(sub["P"], sub["varpi"], velocity_inflation, sub.get("doppler_nis"),
+                                             states.get("velocity_axis_inflation"))
+        restarts = sub.get("restarted")
+        deviations = heading_deviations(T_est, t, Sigma_rel, P_varpi, tau, drift_rate_sigma, restarts, heading)
+        drift_inputs = Sigma_rel, P_varpi, restarts, deviations
+    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau, drift_rate_sigma, drift_inputs, heading)
     n = max(1, int(round(span / np.median(np.diff(t))))) if len(t) > 1 else 1
-    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau, drift_rate_sigma, velocity_inflation, axes,
-                                      heading)
+    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau, drift_rate_sigma, drift_inputs, heading)
     out["pose"] = nees(xi, sub["P_pose_absolute"]) if "P_pose_absolute" in sub else np.full(len(t), np.nan)
     out["pose_window"] = nees(xi, P[:, :6, :6])
     return out

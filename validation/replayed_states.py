@@ -15,9 +15,10 @@ from __future__ import annotations
 import numpy as np
 
 from rodo.estimator.heading_reversion import heading_reversion_array
-from rodo.estimator.uncertainty import DriftCovariance, velocity_inflated
+from rodo.estimator.uncertainty import velocity_inflated
 
 from .odometry_consistency import drift_velocity_covariances
+from .span_covariances import drift_replay
 
 
 def relative_inflated_states(states: dict, factor: float) -> dict:
@@ -58,24 +59,17 @@ def replayed(states: dict, tau: float, drift_rate_sigma, heading=None) -> dict:
 
 def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None, heading=None) -> np.ndarray:
     """(N, 6, 6) the absolute pose covariances a run would have reported with this tau, drift rate and heading
-    reversion ([T_r, T_a]; None: off)
-    (`DriftCovariance` over its stored relative and velocity covariances, across its re-initialisations where
-    states.npz flags them, `restarted`; row 0: the first pose's).
+    reversion ([T_r, T_a]; None: off): its recursion replayed over its stored relative and velocity covariances,
+    across its re-initialisations where states.npz flags them, `restarted` (`span_covariances.drift_replay`); row
+    0: the first pose's.
 
     Checked by: tests/validation/test_calibrate_consistency.py::test_absolute_covariances_replay_the_run,
         ::test_absolute_covariances_replay_a_run_across_its_restart
     """
-    T = np.asarray(states["T_vehicle_world"], dtype=float)
-    t = np.asarray(states["t"], dtype=float)
     P = np.asarray(states["P"], dtype=float)
-    P_varpi = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"), states.get("doppler_nis"),
-                                         states.get("velocity_axis_inflation"))
-    S = np.asarray(states["P_relative"], dtype=float)
-    restarted = np.asarray(states.get("restarted", np.zeros(len(t), bool)), dtype=bool)
-    drift = DriftCovariance.at_first_scan(P[0, :6, :6], tau, drift_rate_sigma, heading)
-    out = [P[0, :6, :6]]
-    for k in range(1, len(t)):
-        rel = S[k] if np.all(np.isfinite(S[k])) else np.zeros((6, 6))
-        out.append(drift.restart(T[k - 1], T[k], rel) if restarted[k]
-                   else drift.update(T[k - 1], T[k], t[k] - t[k - 1], rel, P_varpi[k]))
-    return np.stack(out)
+    P_varpi = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"),
+                                         states.get("doppler_nis"), states.get("velocity_axis_inflation"))
+    steps = drift_replay(np.asarray(states["T_vehicle_world"], dtype=float), np.asarray(states["t"], dtype=float),
+                         np.asarray(states["P_relative"], dtype=float), P_varpi, P[0, :6, :6], tau, drift_rate_sigma,
+                         states.get("restarted"), heading)
+    return np.stack([P[0, :6, :6]] + [drift.C[:6, :6] for drift in steps])

@@ -89,6 +89,21 @@ def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varp
     return out
 
 
+def drift_replay(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, P_pose0: np.ndarray,
+                 tau: float, drift_rate_sigma=None, restarts=None, heading=None):
+    """The run's absolute recursion replayed from its stored covariances, as the odometry ran it (`DriftCovariance`
+    from its first scan, the re-initialisations' step where `restarts` flags them; NaN rows of Sigma_rel count as
+    0): yields the recursion after each scan k = 1 .. N-1."""
+    drift = DriftCovariance.at_first_scan(P_pose0, tau, drift_rate_sigma, heading)
+    for k in range(1, len(t)):
+        S = Sigma_rel[k] if np.all(np.isfinite(Sigma_rel[k])) else np.zeros((6, 6))
+        if restarts is not None and restarts[k]:
+            drift.restart(T[k - 1], T[k], S)
+        else:
+            drift.update(T[k - 1], T[k], t[k] - t[k - 1], S, P_varpi[k])
+        yield drift
+
+
 def heading_deviations(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, tau: float,
                        drift_rate_sigma=None, restarts=None, heading=None) -> np.ndarray | None:
     """(N,) Var(yaw - anchor) of the run's absolute recursion at each scan (`DriftCovariance.deviation`: zero at
@@ -96,13 +111,5 @@ def heading_deviations(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_va
     heading's reversion. The first pose is taken as known: the deviation starts at zero whatever its covariance."""
     if state_size(heading) == 18:
         return None
-    drift = DriftCovariance.at_first_scan(np.zeros((6, 6)), tau, drift_rate_sigma, heading)
-    out = np.zeros(len(t))
-    for k in range(1, len(t)):
-        S = Sigma_rel[k] if np.all(np.isfinite(Sigma_rel[k])) else np.zeros((6, 6))
-        if restarts is not None and restarts[k]:
-            drift.restart(T[k - 1], T[k], S)
-        else:
-            drift.update(T[k - 1], T[k], t[k] - t[k - 1], S, P_varpi[k])
-        out[k] = drift.deviation
-    return out
+    steps = drift_replay(T, t, Sigma_rel, P_varpi, np.zeros((6, 6)), tau, drift_rate_sigma, restarts, heading)
+    return np.r_[0.0, [drift.deviation for drift in steps]]
