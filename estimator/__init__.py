@@ -24,6 +24,7 @@ A map of the package (each module's public names are re-exported here):
     spd.py              the window's dense SPD solves, the trailing block of an inverse (its covariances)
     uncertainty.py      the pose covariance that grows as drift does (relative, absolute, over a span)
     heading_reversion.py  the yaw error's reversion to an anchor in that drift (optional)
+    attitude_jitter.py  a smooth roll and pitch error beside that drift (optional)
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
     sensor.py           Sensor: one radar of the odometry (extrinsics, noise, association, Doppler front end)
     scan.py             ScanEstimate, ScanDetail: what a scan returns
@@ -69,6 +70,7 @@ _EXPORTS = {
     "surface": ("surface_covariances",),
     "ground": ("off_road", "road_mask"),
     "heading_reversion": ("heading_reversion_matrix",),
+    "attitude_jitter": ("absolute_excess", "span_excess", "span_variance"),
     "uncertainty": ("DriftCovariance", "predicted_relative_covariance", "relative_pose_covariance",
                     "revision_covariance", "scan_relative_covariances", "span_covariance"),
     "window": ("MeasurementSet", "SlidingWindow"),

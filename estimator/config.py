@@ -206,6 +206,12 @@ class UncertaintyConfig:
         --heading-reversion` learns it. Reported covariances only. 0: off.
     heading_anchor_time: the time constant (s, > 0) with which that anchor follows the yaw error (with the
         reversion on; learned with it).
+    attitude_jitter_variance: the variance V (rad^2, per axis) of a smooth, bounded roll and pitch error beside
+        the drift recursion (`estimator.attitude_jitter`; docs/consistency.md, "Roll and pitch jitter"): a relative
+        pose over L s gains, on its roll and pitch variances, the covariance between its one-scan changes that
+        composing them leaves out (about 1.1 V over 1 s at T 1 s), the absolute pose the same since the run's
+        first scan. `rodo calibrate` learns it. Reported covariances only. 0: off.
+    attitude_jitter_time: that error's correlation time T (s, > 0).
     prior_memory: time constant (s) of the marginalised prior's memory (its information times exp(-dt /
         prior_memory) at each marginalisation): the map, made from the same scans, brings their information back
         (docs/consistency.md, "A prior that forgets"). 0: off (the paper's marginalisation).
@@ -222,6 +228,8 @@ class UncertaintyConfig:
     velocity_axis_inflation: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     heading_reversion_time: float = 0.0  # s
     heading_anchor_time: float = 100.0  # s
+    attitude_jitter_variance: float = 0.0  # rad^2
+    attitude_jitter_time: float = 1.0  # s
 
 
 @dataclass(frozen=True)

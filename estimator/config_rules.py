@@ -117,6 +117,8 @@ RULES: dict[str, Rule] = {
     "uncertainty.velocity_axis_inflation": Rule(0.0, lo_closed=False, size=6),
     "uncertainty.heading_reversion_time": NONNEGATIVE,
     "uncertainty.heading_anchor_time": POSITIVE,
+    "uncertainty.attitude_jitter_variance": NONNEGATIVE,
+    "uncertainty.attitude_jitter_time": POSITIVE,
     "solver.iterations": Rule(1, 1000),
     "solver.step_tolerance": POSITIVE,
     "solver.step_sigma_tolerance": NONNEGATIVE,

@@ -77,3 +77,8 @@ def anchored_at_yaw(C: np.ndarray) -> np.ndarray:
     C[:ANCHOR, ANCHOR] = C[:ANCHOR, YAW]
     C[ANCHOR, ANCHOR] = C[YAW, YAW]
     return C
+
+
+def heading_of(config) -> np.ndarray:
+    """[T_r, T_a] (s) of an `UncertaintyConfig`'s heading reversion ([0, 0]: off)."""
+    return heading_reversion_array((config.heading_reversion_time, config.heading_anchor_time))

@@ -32,7 +32,8 @@ of its relative motion, accumulated. These parts make it up (docs/consistency.md
 `DriftCovariance` runs this recursion over [xi; b; beta] (18 x 18; [xi; b; beta; a], 19 x 19, with the heading's
 reversion) from scan to scan (the absolute pose covariance) and `span_covariance` over any span (the covariance
 of a relative pose over, e.g., 1 s). tau = 0 drops the second part (the per-scan relative errors composed as
-independent), drift_rate_sigma = 0 the third, a reversion time of 0 the fourth.
+independent), drift_rate_sigma = 0 the third, a reversion time of 0 the fourth. Beside the recursion, not in it,
+a smooth roll and pitch jitter adds to the reported covariances (`attitude_jitter`; off by default).
 Across a re-initialisation (`restart_matrices`) the step is the dead-reckoned relative pose alone: no
 registration ran over the outage, so neither the velocity error nor the drift rate adds to it, and b starts
 again at zero as at a run's first scan (the fresh window's velocity covariance is the initial prior's, and the
@@ -55,8 +56,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .heading_reversion import (ANCHOR, YAW, anchored_at_yaw, heading_reversion_array, heading_reversion_matrix,
-                               reversion_coefficients, state_size)
+from .attitude_jitter import AbsoluteJitter, attitude_jitter_of, with_roll_pitch_variance
+from .heading_reversion import (ANCHOR, YAW, anchored_at_yaw, heading_of, heading_reversion_array,
+                               heading_reversion_matrix, reversion_coefficients, state_size)
 from .lie import se3
 from .uncertainty_kernels import drift_step, relative_covariances
 
@@ -276,8 +278,7 @@ class DriftCovariance:
         return C[:6, :6].copy()
 
     def restart(self, T_prev, T_new, Sigma_rel: np.ndarray) -> np.ndarray:
-        """Advance across a re-initialisation (`restart_matrices`: the dead-reckoned relative pose Sigma_rel,
-        the velocity error started again); returns the new absolute pose covariance (6, 6)."""
+        """Advance across a re-initialisation (`restart_matrices`); returns the new absolute pose covariance."""
         self.C = _restart_step(self.C, _pose(T_prev), _pose(T_new), _matrix(Sigma_rel, 6), self.heading)
         return self.C[:6, :6].copy()
 
@@ -293,7 +294,8 @@ class ReportedCovariances:
     """What the odometry reports beside the window's covariance, scan by scan: each scan's relative pose
     covariance and its revision (times `[uncertainty] inflation`), the absolute pose covariance through the drift
     recursion (`DriftCovariance`: from the run's first scan, across re-initialisations with their dead-reckoned
-    step, unscaled), the velocity's variance scaled (`velocity_inflated`).
+    step, unscaled) with the roll and pitch jitter's excess since that scan (`attitude_jitter`), the velocity's
+    variance scaled (`velocity_inflated`).
 
     Attributes:
         config: the odometry's `UncertaintyConfig`.
@@ -309,6 +311,7 @@ class ReportedCovariances:
     def __init__(self, config):
         self.config = config
         self.axes = np.asarray(config.velocity_axis_inflation, dtype=float)  # converted once, not per scan
+        self.jitter = AbsoluteJitter(attitude_jitter_of(config))
         self.drift: DriftCovariance | None = None
         self.last = None
         self.restart_relative: np.ndarray | None = None
@@ -323,6 +326,7 @@ class ReportedCovariances:
             self.drift = DriftCovariance.at_first_scan(est.P[:6, :6], cfg.velocity_correlation_time,
                                                        cfg.drift_rate_sigma, heading_of(cfg))
             P_relative, P_revision, P_absolute = np.full((6, 6), np.nan), np.zeros((6, 6)), est.P[:6, :6].copy()
+            self.jitter.start(est.t)
         elif self.restart_relative is not None:  # dead-reckoned across a re-initialisation, not registered:
             P_relative, P_revision = P_relative  # so not scaled by `inflation` either
             est.restarted = True
@@ -331,6 +335,7 @@ class ReportedCovariances:
             P_relative, P_revision = (cfg.inflation * P for P in P_relative)
             P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, est.t - last.t, P_relative,
                                            est.P[6:12, 6:12])
+        P_absolute = with_roll_pitch_variance(P_absolute, self.jitter.at(est.t))
         self.last, self.restart_relative = est, None
         est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
         est.doppler_nis = doppler_nis
@@ -391,7 +396,3 @@ def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi
             C = _step(C, T[j - 1], T[j], t[j] - t[j - 1], S, P_varpi[j], tau, heading)
     return C[:6, :6]
 
-
-def heading_of(config) -> np.ndarray:
-    """[T_r, T_a] (s) of an `UncertaintyConfig`'s heading reversion ([0, 0]: off)."""
-    return heading_reversion_array((config.heading_reversion_time, config.heading_anchor_time))

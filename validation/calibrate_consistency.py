@@ -11,13 +11,11 @@ tells the truth (docs/consistency.md):
   association fails outright), multiply kappa by that ratio, run again. kappa >= 1: it models over-counting
   only (a cautious run is left as it is, and the report says so).
 - `uncertainty.inflation` f: a factor on the reported one-scan relative pose covariance (not in the solve).
-  kappa is one number for two measures and cannot always make both consistent: at its lower bound 1 CV/C's
-  one-scan relative pose stays cautious (its Cartesian sigma, learned over all ranges, is too large for the near
-  detections that carry the relative pose), and where the velocity and the relative pose disagree kappa's
-  fixed point settles between them. The velocity has its own factors (below); f makes the last run's median
-  ratio of the one-scan relative pose 1 (the velocity error's and the drift rate's shares of the scan's composed
-  covariance as they are; the median, as the fixed point), fitted only when that ratio is off by more than the
-  fixed point's tolerance. The relative pose over a span and the absolute pose compose the scaled covariances.
+  kappa cannot always make two measures consistent: at its lower bound 1 CV/C's one-scan relative pose stays
+  cautious (its Cartesian sigma, learned over all ranges, is too large for the near detections), and where the
+  velocity and the relative pose disagree kappa settles between them. f makes the last run's median ratio of
+  the one-scan relative pose 1 (the velocity error's and the drift rate's shares as they are), fitted only when
+  that ratio is off by more than the fixed point's tolerance. The spans and the absolute pose compose it.
 - `uncertainty.drift_rate_sigma`: the registration's systematic error per metre driven (the absolute pose's
   error grows with the distance, not its square root). Its one realisation on the sequence is the least-squares
   fit beta = sum_k e_k / sum_k s_k of the one-scan relative errors e_k over the distances s_k; the sigma
@@ -32,22 +30,19 @@ tells the truth (docs/consistency.md):
   the per-scan covariances compose into the drift (the relative pose over a span and the absolute pose). It
   does not change the estimate: chosen on a grid, without running again, so that the relative pose over `span`
   seconds and the absolute pose are as consistent as one tau can make them: the least sum of |ln ratio|, a
-  ratio above 1 (over-confident) counted OVERCONFIDENCE_WEIGHT times (a drive's own ratios do not carry over
-  exactly to other drives; between two about equally consistent taus the cautious one is the safe choice:
-  docs/calibration.md, step 5).
+  ratio above 1 (over-confident) counted OVERCONFIDENCE_WEIGHT times (between two about equally consistent taus
+  the cautious one is the safe choice: docs/calibration.md, step 5).
 - `uncertainty.heading_reversion_time` T_r and `heading_anchor_time` T_a (`estimator.heading_reversion`), when
   asked: the yaw error reverts to an anchor where the far scene holds the heading. Chosen after tau on the grid
   HEADINGS (off among them) with the same cost, then tau chosen again with them (`fit_heading`). Not by default:
   one drive's absolute pose is one slowly varying path, and the choice did not carry over to the campaigns'
   drives (docs/consistency.md, "The heading reverts").
+- `uncertainty.attitude_jitter_variance` V (`estimator.attitude_jitter`): last (`calibrate_jitter`).
 
-The ratios are measured against the truth, so this needs truth.npz; on real data, carry kappa and tau over from
-a simulated sequence like it (docs/calibration.md).
-
+Needs truth.npz; on real data, carry kappa and tau over from a simulated sequence like it (docs/calibration.md).
 Several sequences: every fit takes one run (states and truth dicts) or several (two lists of the same length)
-and pools them: the median ratios over all their scans, one velocity and one drift-rate fit over all scans,
-tau on the pooled ratios. `fit_consistency` runs each sequence once per kappa. (Six 30 s drives did not carry
-over to other drives better than one 180 s drive: docs/calibration.md.)
+and pools them (the ratios over all their scans, one velocity and one drift-rate fit, tau on the pooled ratios;
+six 30 s drives did not carry over better than one 180 s drive: docs/calibration.md).
 
 Checked by: tests/validation/test_calibrate_consistency.py
 """
@@ -68,6 +63,7 @@ from rodo.sim.sequence import Sequence
 
 from .alignment import truth_in_estimator_frame
 from .association import DEFAULT_TOLERANCE, associate
+from .calibrate_jitter import attitude_jitter_report
 from .driver import run_sequence
 from .odometry_consistency import DOF, drift_velocity_covariances, odometry_nees
 from .replayed_states import relative_inflated_states, replayed, velocity_inflated_states
@@ -130,10 +126,10 @@ class ConsistencyStep:
 
 
 def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=None,
-          velocity=(1.0, 0.0, 0.0, (1.0,) * 6), relative=None, heading=None) -> OdometryConfig:
+          velocity=(1.0, 0.0, 0.0, (1.0,) * 6), relative=None, heading=None, jitter=None) -> OdometryConfig:
     """The config with these uncertainty values; the velocity factors (a, b, d, per-axis g) default to none: the
-    fit's runs report the window's own velocity covariance; the relative pose factor (`relative`) and the heading's
-    reversion ([T_r, T_a]) to the config's."""
+    fit's runs report the window's own velocity covariance; the relative pose factor (`relative`), the heading's
+    reversion ([T_r, T_a]) and the roll and pitch jitter ([V, T]) to the config's."""
     drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
     relative = config.uncertainty.inflation if relative is None else relative
     unc = dataclasses.replace(config.uncertainty, measurement_inflation=float(kappa),
@@ -145,6 +141,8 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
     if heading is not None:
         unc = dataclasses.replace(unc, heading_reversion_time=float(heading[0]),
                                   heading_anchor_time=float(heading[1]) if heading[0] > 0 else unc.heading_anchor_time)
+    if jitter is not None:
+        unc = dataclasses.replace(unc, attitude_jitter_variance=float(jitter[0]), attitude_jitter_time=float(jitter[1]))
     return config.replace(uncertainty=unc)
 
 
@@ -329,21 +327,8 @@ def tau_cost(ratios) -> float:
     return float(np.sum(np.where(log_r > 0, OVERCONFIDENCE_WEIGHT, 1.0) * np.abs(log_r)))
 
 
-def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryConfig, iterations: int = 4,
-                    tolerance: float = 0.1, span: float = 1.0, progress=None,
-                    velocity_axes: bool = False, heading_reversion: bool = False) -> tuple[OdometryConfig, dict]:
-    """Fit kappa (fixed point), then the relative pose's and the velocity's variance factors (per axis too with
-    `velocity_axes`, `fit_velocity_inflation`), the drift rate and tau (on the last run's states, without running
-    again; at the config's heading reversion, or, with `heading_reversion`, the reversion too: `fit_heading`) on
-    a simulated sequence, or on several (lists of sequences and their truths, pooled: module docstring); returns
-    (config, report).
-
-    Each iteration runs the estimator once. It stops when the geometric mean r of the FIXED_POINT_MEASURES'
-    median ratios is within `tolerance` of 1 (|ln r| < ln(1 + tolerance)), when kappa is at a bound of
-    KAPPA_RANGE and r points beyond it, or after `iterations` runs. The report ends with that last run's ratios
-    at the fitted tau and drift rate (its covariances replayed: they do not change the estimate, so no run is
-    needed). `progress(ConsistencyStep)` is called after every run and for the final ratios.
-    """
+def _fixed_point(seq, truth, config: OdometryConfig, iterations: int, tolerance: float, span: float, progress):
+    """kappa's fixed point (`fit_consistency`): (kappa, the last run's states, [ConsistencyStep per run])."""
     kappa = float(np.clip(config.uncertainty.measurement_inflation, *KAPPA_RANGE))
     tau = config.uncertainty.velocity_correlation_time
     steps = []
@@ -359,6 +344,27 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
         kappa = new
     else:
         states, ratios = _measure(seq, truth, _with(config, kappa, tau), span)
+    return kappa, states, steps
+
+
+def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryConfig, iterations: int = 4,
+                    tolerance: float = 0.1, span: float = 1.0, progress=None,
+                    velocity_axes: bool = False, heading_reversion: bool = False,
+                    attitude_jitter: bool = True) -> tuple[OdometryConfig, dict]:
+    """Fit kappa (fixed point), then the relative pose's and the velocity's variance factors (per axis too with
+    `velocity_axes`, `fit_velocity_inflation`), the drift rate and tau (on the last run's states, without running
+    again; at the config's heading reversion, or, with `heading_reversion`, the reversion too: `fit_heading`; with
+    `attitude_jitter` the roll and pitch jitter's variance last, without it the config's kept) on a simulated
+    sequence, or on several (lists of sequences and their truths, pooled: module docstring); returns (config,
+    report).
+
+    Each iteration runs the estimator once. It stops when the geometric mean r of the FIXED_POINT_MEASURES'
+    median ratios is within `tolerance` of 1 (|ln r| < ln(1 + tolerance)), when kappa is at a bound of
+    KAPPA_RANGE and r points beyond it, or after `iterations` runs. The report ends with that last run's ratios
+    at the fitted tau and drift rate (its covariances replayed: they do not change the estimate, so no run is
+    needed). `progress(ConsistencyStep)` is called after every run and for the final ratios.
+    """
+    kappa, states, steps = _fixed_point(seq, truth, config, iterations, tolerance, span, progress)
     drift = fit_drift_rate(states, truth)
     relative = fit_relative_inflation(states, truth, config.uncertainty.inflation, tolerance, drift["sigma"])
     states = _each(relative_inflated_states, states, relative["inflation"] / config.uncertainty.inflation)
@@ -372,20 +378,23 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
         heading, heading_ratios = fit_heading(states, truth, span, tau, drift["sigma"])
         if heading[0] > 0:
             tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"], heading=heading)
-    fitted = _with(config, kappa, tau, drift["sigma"], factors, relative["inflation"], heading)
-    final = _ratios(_each(lambda s: replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"], heading),
-                          states), truth, span, tau, drift["sigma"])
+    jitter = attitude_jitter_report(config.uncertainty, attitude_jitter, span, tau, drift["sigma"],
+                                    lambda: runs_of(_each(replayed, states, tau, drift["sigma"], heading), truth))
+    jitter_pair = (jitter["variance"], jitter["time"])
+    fitted = _with(config, kappa, tau, drift["sigma"], factors, relative["inflation"], heading, jitter_pair)
+    final = _ratios(_each(lambda s: replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"], heading,
+                                             jitter_pair), states), truth, span, tau, drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))
     if progress is not None:
         progress(steps[-1])
     report = {"measurement_inflation": kappa, "relative_inflation": relative, "velocity_inflation": velocity,
-              "velocity_correlation_time": tau,
-              "drift_rate": drift, "span": span,
+              "velocity_correlation_time": tau, "drift_rate": drift, "span": span,
               "tolerance": tolerance, "at_lower_bound": kappa == KAPPA_RANGE[0],
               "steps": [s.as_dict() for s in steps],
               "tau_grid": {f"{t:g}": {"relative_span": r[0], "pose": r[1]} for t, r in tau_ratios.items()},
               "heading_reversion": {"time": heading[0], "anchor_time": heading[1], "fitted": heading_reversion,
                                     "tau_without": tau_alone,
                                     "grid": {f"{r:g}/{a:g}": {"relative_span": x[0], "pose": x[1]}
-                                             for (r, a), x in heading_ratios.items()}}}
+                                             for (r, a), x in heading_ratios.items()}},
+              "attitude_jitter": jitter}
     return fitted, report

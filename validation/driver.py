@@ -32,6 +32,7 @@ from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
 from rodo.estimator.scan import ScanEstimate
+from rodo.estimator.attitude_jitter import attitude_jitter_of
 from rodo.estimator.uncertainty import heading_of
 from rodo.sim.sequence import Sequence, Trajectory, atomic_write_bytes, write_tum
 
@@ -138,6 +139,7 @@ class RunResult:
                                          self.config.uncertainty.velocity_inflation_per_doppler]),
             velocity_axis_inflation=np.asarray(self.config.uncertainty.velocity_axis_inflation, dtype=float),
             heading_reversion=heading_of(self.config.uncertainty),
+            attitude_jitter=attitude_jitter_of(self.config.uncertainty),
         )
 
     def trajectory(self) -> Trajectory:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rodo.estimator.attitude_jitter import span_excess, with_roll_pitch_variance
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.estimator.uncertainty import velocity_factor
@@ -32,7 +33,8 @@ from .consistency import nees, require_arrays
 from .span_covariances import heading_deviations, span_covariances
 
 # not per scan
-RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation", "heading_reversion")
+RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation", "heading_reversion",
+                 "attitude_jitter")
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
 
@@ -64,18 +66,28 @@ def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflat
     return P_varpi / c[:, None, None] if (a, b, d) != (1.0, 0.0, 0.0) else P_varpi
 
 
-def _span_nees(T_true, T_est, t, states, n: int, tau: float, drift_rate_sigma, drift_inputs, heading) -> np.ndarray:
-    """Per-scan NEES of the relative pose over n scans; drift_inputs: (Sigma_rel, P_varpi, restarts, deviations)
-    of the run, the same for every span (`odometry_nees`)."""
-    out = np.full(len(t), np.nan)
-    if drift_inputs is None or n >= len(t):
-        return out
-    e = _relative_errors(T_true, T_est, n)
-    Sigma_rel, P_varpi, restarts, deviations = drift_inputs
+def _span_terms(m: dict, n: int, tau: float, drift_rate_sigma, heading):
+    """(e (K - n, 6), C (K - n, 6, 6), t (K,), n) of the relative poses over n scans of a matched run (`_matched`):
+    their errors, covariances (the drift's composed over the span and the revision at its first scan; no jitter),
+    the scan times and n; None where there are none."""
+    t, T_est, states = m["t"], m["T_est"], m["sub"]
+    if m["drift_inputs"] is None or n >= len(t):
+        return None
+    Sigma_rel, P_varpi, restarts, deviations = m["drift_inputs"]
     C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma, restarts, heading, deviations)
     if "P_revision" in states:  # the revision of each span's first emitted pose, by the scan after it
         C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)
-    out[n:] = nees(e, C)
+    return _relative_errors(m["T_true"], T_est, n), C, t, n
+
+
+def _span_nees(m: dict, n: int, tau: float, drift_rate_sigma, heading, jitter) -> np.ndarray:
+    """Per-scan NEES of the relative pose over n scans of a matched run (`_matched`), with the roll and pitch
+    jitter [V, T] (None: off)."""
+    out = np.full(len(m["t"]), np.nan)
+    terms = _span_terms(m, n, tau, drift_rate_sigma, heading)
+    if terms is not None:
+        e, C, t, n = terms
+        out[n:] = nees(e, with_roll_pitch_variance(C, span_excess(t, n, jitter)))
     return out
 
 
@@ -88,7 +100,7 @@ def _transported(T: np.ndarray, R: np.ndarray, n: int) -> np.ndarray:
 
 
 def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.25,
-                  tolerance: float = DEFAULT_TOLERANCE, drift_rate_sigma=None, heading=None) -> dict:
+                  tolerance: float = DEFAULT_TOLERANCE, drift_rate_sigma=None, heading=None, jitter=None) -> dict:
     """Per-scan NEES of every measure (module docstring) of one run against the simulator's truth.
 
     Args:
@@ -104,6 +116,9 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
             `drift_rate_sigma`, none when absent).
         heading: [T_r, T_a] (s) of the heading's reversion for the span measures; None: the run's own (states'
             `heading_reversion`, off when absent).
+        jitter: [V, T] (rad^2, s) of the roll and pitch jitter for the span measures (`estimator.attitude_jitter`);
+            None: the run's own (states' `attitude_jitter`, off when absent). The absolute pose's is in its stored
+            covariance.
         tolerance: seconds within which a state and a truth time match.
 
     Returns:
@@ -111,42 +126,68 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
         undefined: the first scans of a span, a singular covariance, acceleration of a CV run).
     """
     require_arrays(states, truth)
+    if jitter is None:
+        jitter = states.get("attitude_jitter")
+    m = _matched(states, truth, tolerance, tau, drift_rate_sigma, heading)
+    t, P, sub, ib = m["t"], m["P"], m["sub"], m["ib"]
+    xi = se3.log(m["T_true"] @ se3.inverse(m["T_est"]))
+    out = {"t": t, "dof": DOF, "span": float(span)}
+    out["velocity"] = nees(np.asarray(truth["varpi"])[ib] - sub["varpi"], P[:, 6:12, 6:12])
+    out["acceleration"] = np.full(len(t), np.nan)
+    if P.shape[-1] == 18 and "varpi_dot" in truth and "varpi_dot" in sub:
+        out["acceleration"] = nees(np.asarray(truth["varpi_dot"])[ib] - sub["varpi_dot"], P[:, 12:18, 12:18])
+    for name, n in (("relative_scan", 1), ("relative_span", span_scans(t, span))):
+        out[name] = _span_nees(m, n, tau, m["drift_rate_sigma"], m["heading"], jitter)
+    out["pose"] = nees(xi, sub["P_pose_absolute"]) if "P_pose_absolute" in sub else np.full(len(t), np.nan)
+    out["pose_window"] = nees(xi, P[:, :6, :6])
+    return out
+
+
+def span_scans(t: np.ndarray, span: float) -> int:
+    """The scans (>= 1) of a relative pose over `span` seconds: span over the median scan interval, rounded."""
+    return max(1, int(round(span / np.median(np.diff(t))))) if len(t) > 1 else 1
+
+
+def span_terms(states: dict, truth: dict, span: float = 1.0, tau: float = 0.25,
+               tolerance: float = DEFAULT_TOLERANCE, drift_rate_sigma=None, heading=None):
+    """(e (M, 6), C (M, 6, 6), t (M + n,), n) of one run's relative poses over `span` seconds (as `odometry_nees`'s
+    relative_span, M of them, n scans each): errors, covariances without the roll and pitch jitter, the matched
+    scan times and n; None without P_relative or with too few scans. For fitting the jitter
+    (`validation.calibrate_jitter`)."""
+    require_arrays(states, truth)
+    m = _matched(states, truth, tolerance, tau, drift_rate_sigma, heading)
+    return _span_terms(m, span_scans(m["t"], span), tau, m["drift_rate_sigma"], m["heading"])
+
+
+def _matched(states: dict, truth: dict, tolerance: float, tau: float, drift_rate_sigma, heading) -> dict:
+    """A run's scans matched to the truth (`odometry_nees`'s arguments): t, T_est, T_true (in the estimator's
+    world), P, sub (the per-scan states arrays at the matched scans), ib (the truth's indices), the drift rate and
+    heading reversion in use (the run's own where None), and drift_inputs, what the run's drift recursion
+    composed, for every span measure ((Sigma_rel, P_varpi, restarts, deviations); None without P_relative)."""
     if drift_rate_sigma is None and "drift_rate_sigma" in states:
         drift_rate_sigma = np.asarray(states["drift_rate_sigma"], dtype=float)
     if heading is None:
         heading = states.get("heading_reversion")
     per_scan = {k for k, v in states.items()
                 if k not in RUN_CONSTANTS and np.ndim(v) >= 1 and len(v) == len(states["t"])}
-    velocity_inflation = states.get("velocity_inflation")
     ia, ib = associate(states["t"], truth["t"], tolerance)
     t = np.asarray(states["t"], dtype=float)[ia]
     T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
     T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
-    P = np.asarray(states["P"], dtype=float)[ia]
     sub = {k: np.asarray(states[k])[ia] for k in per_scan}
     if "restarted" in sub:  # a restart at a scan without truth: the kept scan after it takes the restart's step
         n_restarts = np.cumsum(np.asarray(states["restarted"], dtype=bool))[ia]
         sub["restarted"] = np.diff(n_restarts, prepend=0) > 0
-    xi = se3.log(T_true @ se3.inverse(T_est))
-    out = {"t": t, "dof": DOF, "span": float(span)}
-    out["velocity"] = nees(np.asarray(truth["varpi"])[ib] - sub["varpi"], P[:, 6:12, 6:12])
-    out["acceleration"] = np.full(len(t), np.nan)
-    if P.shape[-1] == 18 and "varpi_dot" in truth and "varpi_dot" in sub:
-        out["acceleration"] = nees(np.asarray(truth["varpi_dot"])[ib] - sub["varpi_dot"], P[:, 12:18, 12:18])
-    drift_inputs = None  # what the run's drift recursion composed, for both span measures
+    drift_inputs = None
     if "P_relative" in sub:
         Sigma_rel = np.asarray(sub["P_relative"], dtype=float)
-        P_varpi = drift_velocity_covariances(sub["P"], sub["varpi"], velocity_inflation, sub.get("doppler_nis"),
-                                             states.get("velocity_axis_inflation"))
+        P_varpi = drift_velocity_covariances(sub["P"], sub["varpi"], states.get("velocity_inflation"),
+                                             sub.get("doppler_nis"), states.get("velocity_axis_inflation"))
         restarts = sub.get("restarted")
         deviations = heading_deviations(T_est, t, Sigma_rel, P_varpi, tau, drift_rate_sigma, restarts, heading)
         drift_inputs = Sigma_rel, P_varpi, restarts, deviations
-    out["relative_scan"] = _span_nees(T_true, T_est, t, sub, 1, tau, drift_rate_sigma, drift_inputs, heading)
-    n = max(1, int(round(span / np.median(np.diff(t))))) if len(t) > 1 else 1
-    out["relative_span"] = _span_nees(T_true, T_est, t, sub, n, tau, drift_rate_sigma, drift_inputs, heading)
-    out["pose"] = nees(xi, sub["P_pose_absolute"]) if "P_pose_absolute" in sub else np.full(len(t), np.nan)
-    out["pose_window"] = nees(xi, P[:, :6, :6])
-    return out
+    return {"t": t, "T_est": T_est, "T_true": T_true, "P": np.asarray(states["P"], dtype=float)[ia], "sub": sub,
+            "ib": ib, "drift_rate_sigma": drift_rate_sigma, "heading": heading, "drift_inputs": drift_inputs}
 
 
 def summarise(measures: dict, alpha: float = 0.05) -> dict:

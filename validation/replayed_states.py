@@ -4,8 +4,8 @@ run is needed. `rodo calibrate`'s uncertainty fits (`calibrate_consistency`) com
 
 - `relative_inflated_states`: the relative pose covariances times a factor (`[uncertainty] inflation`);
 - `velocity_inflated_states`: the velocity covariance at other velocity factors;
-- `absolute_covariances`, `replayed`: the absolute pose covariances at another tau, drift rate and heading
-  reversion.
+- `absolute_covariances`, `replayed`: the absolute pose covariances at another tau, drift rate, heading
+  reversion and roll and pitch jitter.
 
 Checked by: tests/validation/test_calibrate_consistency.py
 """
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rodo.estimator.attitude_jitter import absolute_excess, attitude_jitter_array, with_roll_pitch_variance
 from rodo.estimator.heading_reversion import heading_reversion_array
 from rodo.estimator.uncertainty import velocity_inflated
 
@@ -48,20 +49,21 @@ def velocity_inflated_states(states: dict, inflation: float, per_speed: float, p
                 velocity_axis_inflation=axes)
 
 
-def replayed(states: dict, tau: float, drift_rate_sigma, heading=None) -> dict:
-    """The states with the absolute covariances the run would have reported at this tau, drift rate and heading
-    reversion ([T_r, T_a]; None: off), the reversion recorded (the span measures read it); the estimate itself
-    does not depend on them."""
-    heading = heading_reversion_array(heading)
-    return dict(states, P_pose_absolute=absolute_covariances(states, tau, drift_rate_sigma, heading),
-                heading_reversion=heading)
+def replayed(states: dict, tau: float, drift_rate_sigma, heading=None, jitter=None) -> dict:
+    """The states with the absolute covariances the run would have reported at this tau, drift rate, heading
+    reversion ([T_r, T_a]; None: off) and roll and pitch jitter ([V, T]; None: off), the reversion and the jitter
+    recorded (the span measures read them); the estimate itself does not depend on them."""
+    heading, jitter = heading_reversion_array(heading), attitude_jitter_array(jitter)
+    return dict(states, P_pose_absolute=absolute_covariances(states, tau, drift_rate_sigma, heading, jitter),
+                heading_reversion=heading, attitude_jitter=jitter)
 
 
-def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None, heading=None) -> np.ndarray:
-    """(N, 6, 6) the absolute pose covariances a run would have reported with this tau, drift rate and heading
-    reversion ([T_r, T_a]; None: off): its recursion replayed over its stored relative and velocity covariances,
-    across its re-initialisations where states.npz flags them, `restarted` (`span_covariances.drift_replay`); row
-    0: the first pose's.
+def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None, heading=None, jitter=None) -> np.ndarray:
+    """(N, 6, 6) the absolute pose covariances a run would have reported with this tau, drift rate, heading
+    reversion ([T_r, T_a]; None: off) and roll and pitch jitter ([V, T]; None: off): its recursion replayed over its
+    stored relative and velocity covariances, across its re-initialisations where states.npz flags them,
+    `restarted` (`span_covariances.drift_replay`), the jitter's excess since its first scan added
+    (`attitude_jitter.absolute_excess`); row 0: the first pose's.
 
     Checked by: tests/validation/test_calibrate_consistency.py::test_absolute_covariances_replay_the_run,
         ::test_absolute_covariances_replay_a_run_across_its_restart
@@ -72,4 +74,5 @@ def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None, headin
     steps = drift_replay(np.asarray(states["T_vehicle_world"], dtype=float), np.asarray(states["t"], dtype=float),
                          np.asarray(states["P_relative"], dtype=float), P_varpi, P[0, :6, :6], tau, drift_rate_sigma,
                          states.get("restarted"), heading)
-    return np.stack([P[0, :6, :6]] + [drift.C[:6, :6] for drift in steps])
+    P_absolute = np.stack([P[0, :6, :6]] + [drift.C[:6, :6] for drift in steps])
+    return with_roll_pitch_variance(P_absolute, absolute_excess(states["t"], attitude_jitter_array(jitter)))

@@ -43,6 +43,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--heading-reversion", action="store_true",
                    help="with truth: learn the yaw error's reversion too (uncertainty.heading_reversion_time and "
                         "heading_anchor_time; docs/calibration.md)")
+    p.add_argument("--attitude-jitter", action=argparse.BooleanOptionalAction, default=None,
+                   help="with truth: learn the roll and pitch jitter's variance (uncertainty.attitude_jitter_variance, "
+                        "at the config's attitude_jitter_time; docs/calibration.md): on by default with truth; "
+                        "--no-attitude-jitter keeps the config's")
     p.add_argument("--iterations", type=int, default=5, help="EM iterations at most (%(default)s)")
     p.add_argument("--tolerance", type=float, default=0.05, help="EM stops below this relative change of Qc "
                                                                  "(%(default)s)")
@@ -64,7 +68,8 @@ def _check_args(args) -> Path:
     if not (np.isfinite(args.floor) and QC_MIN <= args.floor < QC_MAX):
         raise InputError(f"--floor: must be from {QC_MIN:g} (the config's lower bound) to below the fit's upper "
                          f"bound {QC_MAX:g}, got {args.floor}")
-    for flag, given in (("--velocity-axes", args.velocity_axes), ("--heading-reversion", args.heading_reversion)):
+    for flag, given in (("--velocity-axes", args.velocity_axes), ("--heading-reversion", args.heading_reversion),
+                        ("--attitude-jitter", args.attitude_jitter)):
         for other, off in (("--no-truth", args.no_truth), ("--no-consistency", args.no_consistency)):
             if given and off:
                 raise InputError(f"{flag}: learned in the uncertainty section with ground truth, which {other} "
@@ -107,7 +112,7 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                          "ln(1 + Doppler NIS)" + (" and per axis" if set(v.get("per_axis", [1.0])) != {1.0} else "")
                          + ", drift_rate_sigma and "
                          f"velocity_correlation_time {c['velocity_correlation_time']:g} s"
-                         + _heading_words(c) + " fitted so that the "
+                         + _heading_words(c) + _jitter_words(c) + " fitted so that the "
                          "estimator's NEES against the truth is consistent (docs/calibration.md).")
     else:
         it = report["iterations"]
@@ -177,6 +182,10 @@ def _consistency_markdown(c: dict) -> list[str]:
         lines.append("heading reversion grid (T_r / T_a s: the same ratios, at the first tau): "
                      + ", ".join(f"{k}: {r['relative_span']:.3g} / {r['pose']:.3g}" for k, r in h["grid"].items())
                      + f"; chosen: {chosen}")
+    j = c.get("attitude_jitter", {})
+    if j.get("fitted"):
+        lines.append(f"attitude jitter variance {j['variance']:.3g} rad^2 at T {j['time']:g} s (mean NEES/dof of the "
+                     f"relative pose over the span {j['mean_without']:.3g} -> {j['mean_with']:.3g})")
     return lines
 
 
@@ -187,10 +196,17 @@ def _heading_words(c: dict) -> str:
             if h["time"] > 0 else "")
 
 
+def _jitter_words(c: dict) -> str:
+    """', attitude_jitter_variance V rad^2' of a consistency report whose jitter was fitted, '' otherwise."""
+    j = c.get("attitude_jitter", {})
+    return f", attitude_jitter_variance {j['variance']:.3g} rad^2" if j.get("fitted") else ""
+
+
 def main(args) -> int:
     out = _check_args(args)
     learn = parse_learn(args.learn)
     config = load_config(args)
+    attitude_jitter = args.attitude_jitter is not False  # the default: learned where the uncertainty section is
     if args.no_truth and len(args.sequence) > 1:
         raise InputError(f"--no-truth: EM learns from one sequence, got {len(args.sequence)}")
     seqs = [read_sequence(d) for d in args.sequence]
@@ -219,7 +235,8 @@ def main(args) -> int:
         config, report = calibrate_with_truth(seqs, truths, config, args.duration, args.floor,
                                               consistency=not args.no_consistency, progress=step,
                                               velocity_axes=args.velocity_axes,
-                                              heading_reversion=args.heading_reversion)
+                                              heading_reversion=args.heading_reversion,
+                                              attitude_jitter=attitude_jitter)
     write_text_atomic(out, config_toml(config, _header(report, " ".join(args.sequence), config.model)))
     write_text_atomic(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     write_text_atomic(out.with_suffix(".md"), _markdown(report))

@@ -42,6 +42,8 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
     assert config.uncertainty.velocity_axis_inflation == (1.0,) * 6  # per axis only when asked
     assert config.uncertainty.heading_reversion_time == 0.0  # and the heading's reversion
     assert report["consistency"]["heading_reversion"]["fitted"] is False
+    assert report["consistency"]["attitude_jitter"]["fitted"] is True  # the attitude jitter by default
+    assert config.uncertainty.attitude_jitter_variance == report["consistency"]["attitude_jitter"]["variance"]
 
 
 @pytest.mark.slow
@@ -87,7 +89,40 @@ def test_calibrate_learns_the_heading_reversion_when_asked(seq, tmp_path, capsys
     assert set(h["grid"]) == {"0/0"} and h["time"] == 0.0
 
 
-@pytest.mark.parametrize("flag", ["--velocity-axes", "--heading-reversion"])
+@pytest.mark.slow
+def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, capsys):
+    """By default (and with --attitude-jitter) the report holds the fit (the 1 s span's mean NEES/dof without
+    and with the jitter; V positive only where it was over 1, and then bringing it to 1), the config its V at the
+    base config's T, the markdown and the header name it, and `rodo run` reports it in its states;
+    --no-attitude-jitter keeps the base config's (here V 3e-6 rad^2 at T 0.5 s) and fits nothing."""
+    out = tmp_path / "jitter.toml"
+    assert main(["calibrate", str(seq), "--attitude-jitter", "--out", str(out)]) == 0
+    unc = OdometryConfig.from_toml(out).uncertainty
+    j = json.loads(out.with_suffix(".json").read_text())["consistency"]["attitude_jitter"]
+    assert j["fitted"] is True and j["time"] == unc.attitude_jitter_time == 1.0
+    assert unc.attitude_jitter_variance == j["variance"]
+    if j["mean_without"] > 1.0:
+        assert j["variance"] > 0 and j["mean_with"] == pytest.approx(1.0, abs=1e-6)
+    else:
+        assert j["variance"] == 0.0
+    assert "attitude jitter variance" in out.with_suffix(".md").read_text()
+    assert "attitude_jitter_variance" in "".join(line for line in out.read_text().splitlines() if line[:1] == "#")
+    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    states = np.load(tmp_path / "run" / "states.npz")
+    np.testing.assert_array_equal(states["attitude_jitter"], [j["variance"], 1.0])
+
+    base = tmp_path / "base.toml"
+    base.write_text("[uncertainty]\nattitude_jitter_variance = 3e-6\nattitude_jitter_time = 0.5\n")
+    kept = tmp_path / "kept.toml"
+    assert main(["calibrate", str(seq), "--config", str(base), "--no-attitude-jitter", "--out", str(kept)]) == 0
+    unc = OdometryConfig.from_toml(kept).uncertainty
+    assert (unc.attitude_jitter_variance, unc.attitude_jitter_time) == (3e-6, 0.5)
+    j = json.loads(kept.with_suffix(".json").read_text())["consistency"]["attitude_jitter"]
+    assert j == {"variance": 3e-6, "time": 0.5, "fitted": False}
+    assert "attitude_jitter_variance" not in "".join(line for line in kept.read_text().splitlines() if line[:1] == "#")
+
+
+@pytest.mark.parametrize("flag", ["--velocity-axes", "--heading-reversion", "--attitude-jitter"])
 @pytest.mark.parametrize("other", ["--no-truth", "--no-consistency"])
 def test_an_uncertainty_flag_without_the_uncertainty_section_is_refused(seq, tmp_path, capsys, flag, other):
     """Asking to learn a term of the uncertainty section while leaving that section out exits 2 naming both."""

@@ -99,6 +99,8 @@ def test_kappa_compensates_information_counted_too_often(city):
             fitted.uncertainty.velocity_inflation_per_doppler) == (v["inflation"], v["per_speed"], v["per_doppler"])
     assert v["nees_per_dof"][1] == pytest.approx(1.0, abs=0.05), v
     assert report["velocity_correlation_time"] in cc.TAUS
+    assert fitted.uncertainty.attitude_jitter_variance == report["attitude_jitter"]["variance"]  # fitted last
+    assert report["attitude_jitter"]["fitted"] is True
 
 
 @pytest.fixture(scope="module")
