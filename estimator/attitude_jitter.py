@@ -4,7 +4,7 @@ The registration's roll and pitch errors are correlated over a few scans to two 
 drive (docs/consistency.md, "The relative pose over 1 s"): the ground and the near surfaces tilt the solution one
 way for a while, then another. Every term of the drift recursion is a random walk, so a recursion tuned to the
 drive's end over-states the roll and pitch over tens of seconds, and one tuned to a second under-states them over
-that second (CA/P at learned noise, held-out drives: roll over 1 s 2.1-3.0, pitch 1.5-4.5 per axis).
+that second (CA/P at learned noise, held-out drives: roll over 1 s 2.1-3.0, pitch 1.5-4.6 per axis).
 
 So the reported covariances model a stationary error j = (j_roll, j_pitch) of variance V per axis, smooth in
 time, with the squared-exponential correlation
@@ -26,6 +26,9 @@ composed one-scan changes over-state the bounded jitter already (they are not ta
 reduced for a model's sake). The smooth shape, not an exponential one: an exponential correlation's change
 over one scan, 2 V dt / T, is far larger than the registration's one-scan roll and pitch variance (city CA/P
 at V 4e-6 rad^2, T 1 s, added to the one-scan covariance: 1.77 -> 0.29 per axis on held-out drives).
+
+Across a re-initialisation the dead-reckoned step counts as a step like any other (its covariance is large
+anyway): an outage longer than about T leaves no excess for the rest of the run.
 
 It is the rotation's alone: carried into the position by the distance driven (as the drift recursion does with a
 pose error) it made the vertical position over 1 s cautious (city 1.11 -> 0.29 per axis): the registration's
@@ -84,6 +87,8 @@ def absolute_excess(t: np.ndarray, jitter) -> np.ndarray:
 def with_roll_pitch_variance(P: np.ndarray, variance) -> np.ndarray:
     """P (6, 6) or (N, 6, 6) with `variance` (a float or (N,)) added to its roll and pitch variances: a new array;
     P itself where the variance is all 0 (the jitter off: bit for bit)."""
+    if isinstance(variance, float) and variance == 0.0:  # the odometry's per-scan call with the jitter off
+        return P
     variance = np.asarray(variance, dtype=float)
     if not np.any(variance):
         return P
@@ -107,6 +112,8 @@ class AbsoluteJitter:
 
     def at(self, t: float) -> float:
         """The excess at scan time t (0 at the first scan; 0.0 whenever the jitter is off)."""
+        if self.jitter[0] == 0.0:  # off: nothing to add, at no cost per scan
+            return 0.0
         self.steps += float(span_variance(t - self.t, self.jitter)) if t != self.t else 0.0
         self.t = float(t)
         return max(float(span_variance(t - self.t0, self.jitter)) - self.steps, 0.0)

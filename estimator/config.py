@@ -228,7 +228,7 @@ class UncertaintyConfig:
     velocity_axis_inflation: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     heading_reversion_time: float = 0.0  # s
     heading_anchor_time: float = 100.0  # s
-    attitude_jitter_variance: float = 0.0  # rad^2
+    attitude_jitter_variance: float = 0.0
     attitude_jitter_time: float = 1.0  # s
 
 

@@ -37,7 +37,7 @@ tells the truth (docs/consistency.md):
   HEADINGS (off among them) with the same cost, then tau chosen again with them (`fit_heading`). Not by default:
   one drive's absolute pose is one slowly varying path, and the choice did not carry over to the campaigns'
   drives (docs/consistency.md, "The heading reverts").
-- `uncertainty.attitude_jitter_variance` V (`estimator.attitude_jitter`): last (`calibrate_jitter`).
+- `uncertainty.attitude_jitter_variance` V (`estimator.attitude_jitter`): last, tau chosen without it.
 
 Needs truth.npz; on real data, carry kappa and tau over from a simulated sequence like it (docs/calibration.md).
 Several sequences: every fit takes one run (states and truth dicts) or several (two lists of the same length)
@@ -361,8 +361,8 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     Each iteration runs the estimator once. It stops when the geometric mean r of the FIXED_POINT_MEASURES'
     median ratios is within `tolerance` of 1 (|ln r| < ln(1 + tolerance)), when kappa is at a bound of
     KAPPA_RANGE and r points beyond it, or after `iterations` runs. The report ends with that last run's ratios
-    at the fitted tau and drift rate (its covariances replayed: they do not change the estimate, so no run is
-    needed). `progress(ConsistencyStep)` is called after every run and for the final ratios.
+    at the fitted factors, tau, drift rate and jitter (its covariances replayed: they do not change the estimate,
+    so no run is needed). `progress(ConsistencyStep)` is called after every run and for the final ratios.
     """
     kappa, states, steps = _fixed_point(seq, truth, config, iterations, tolerance, span, progress)
     drift = fit_drift_rate(states, truth)
@@ -378,8 +378,8 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
         heading, heading_ratios = fit_heading(states, truth, span, tau, drift["sigma"])
         if heading[0] > 0:
             tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"], heading=heading)
-    jitter = attitude_jitter_report(config.uncertainty, attitude_jitter, span, tau, drift["sigma"],
-                                    lambda: runs_of(_each(replayed, states, tau, drift["sigma"], heading), truth))
+    jitter = attitude_jitter_report(config.uncertainty, attitude_jitter, span, tau, drift["sigma"], heading,
+                                    runs_of(states, truth))
     jitter_pair = (jitter["variance"], jitter["time"])
     fitted = _with(config, kappa, tau, drift["sigma"], factors, relative["inflation"], heading, jitter_pair)
     final = _ratios(_each(lambda s: replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"], heading,

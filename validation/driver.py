@@ -27,12 +27,12 @@ from typing import Iterable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from rodo.estimator.attitude_jitter import attitude_jitter_of
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
 from rodo.estimator.scan import ScanEstimate
-from rodo.estimator.attitude_jitter import attitude_jitter_of
 from rodo.estimator.uncertainty import heading_of
 from rodo.sim.sequence import Sequence, Trajectory, atomic_write_bytes, write_tum
 

@@ -184,8 +184,9 @@ def _consistency_markdown(c: dict) -> list[str]:
                      + f"; chosen: {chosen}")
     j = c.get("attitude_jitter", {})
     if j.get("fitted"):
-        lines.append(f"attitude jitter variance {j['variance']:.3g} rad^2 at T {j['time']:g} s (mean NEES/dof of the "
-                     f"relative pose over the span {j['mean_without']:.3g} -> {j['mean_with']:.3g})")
+        lines.append(f"attitude jitter variance {j['variance']:.3g} rad^2 at T {j['time']:g} s ({j['outcome']}: mean "
+                     f"roll and pitch NEES/dof of the relative pose over the span {j['mean_without']:.3g} -> "
+                     f"{j['mean_with']:.3g})")
     return lines
 
 

@@ -59,6 +59,15 @@ def test_the_excess_is_the_covariance_between_the_one_scan_changes():
     assert np.all(span_excess(t, 1, (V, T)) == 0.0)
 
 
+def test_the_excess_at_thirteen_scans_per_second():
+    """At T = 1 s and 13 scans per second, what the docs quote: about 1.11 V over 1 s, 0 over one scan, and the
+    absolute pose's excess positive until about 13 s ((T / dt)^2 scans) and 0 after it."""
+    t = np.arange(400) / 13
+    assert span_excess(t, 13, (1.0, 1.0)) == pytest.approx(1.11, abs=0.01)
+    absolute = absolute_excess(t, (1.0, 1.0))
+    assert absolute[1] == 0 and np.all(absolute[2:int(12.9 * 13)] > 0) and np.all(absolute[int(13.1 * 13):] == 0)
+
+
 @given(dts=st.lists(st.floats(0.01, 0.5), min_size=2, max_size=60), V=st.floats(1e-8, 1e-4),
        T=st.floats(0.2, 5.0))
 def test_the_absolute_excess_scan_by_scan_is_the_batch_one(dts, V, T):

@@ -127,21 +127,26 @@ def test_absolute_covariances_replay_the_run(city_run):
 
 def test_absolute_covariances_replay_a_run_across_its_restart():
     """A run that re-initialises after a blackout (`blockage`'s 5-7 s): the replay takes the restart's step where
-    states.npz flags it (`restarted`) and gives the absolute covariances the run reported; without the flags it
-    does not."""
+    states.npz flags it (`restarted`) and gives the absolute covariances the run reported, its roll and pitch
+    jitter included (the odometry's scan-by-scan excess across the restart equals the batch one); without the
+    flags, or without the jitter, it does not."""
     from rodo.validation.driver import run_sequence
 
     seq, _ = scenarios.get("blockage").simulate(0, 8.0)
     config = OdometryConfig.for_model("cv-cartesian")
     config = config.replace(uncertainty=dataclasses.replace(
-        config.uncertainty, velocity_correlation_time=0.4, drift_rate_sigma=(1e-4, 1e-4, 5e-4, 3e-5, 3e-5, 1e-5)))
+        config.uncertainty, velocity_correlation_time=0.4, drift_rate_sigma=(1e-4, 1e-4, 5e-4, 3e-5, 3e-5, 1e-5),
+        attitude_jitter_variance=2e-6, attitude_jitter_time=3.0))  # T 3 s: its excess lasts the 8 s
     states = run_sequence(seq, config).state_arrays()
     assert states["restarted"].dtype == bool and states["restarted"].sum() == 1
-    replay = rs.absolute_covariances(states, 0.4, states["drift_rate_sigma"])
+    jitter = states["attitude_jitter"]
+    replay = rs.absolute_covariances(states, 0.4, states["drift_rate_sigma"], jitter=jitter)
     np.testing.assert_allclose(replay, states["P_pose_absolute"], rtol=1e-9, atol=1e-15)
     unflagged = dict(states, restarted=np.zeros_like(states["restarted"]))
-    assert not np.allclose(rs.absolute_covariances(unflagged, 0.4, states["drift_rate_sigma"]),
+    assert not np.allclose(rs.absolute_covariances(unflagged, 0.4, states["drift_rate_sigma"], jitter=jitter),
                            states["P_pose_absolute"], rtol=1e-3)
+    without = rs.absolute_covariances(states, 0.4, states["drift_rate_sigma"])
+    assert np.all(states["P_pose_absolute"][-1, [3, 4], [3, 4]] > without[-1, [3, 4], [3, 4]])
 
 
 def test_relative_factor_states_are_a_run_at_that_factor():

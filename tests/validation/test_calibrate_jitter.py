@@ -1,6 +1,6 @@
-"""`rodo calibrate --attitude-jitter` (rodo.validation.calibrate_jitter): on runs whose pose errors follow the
-drift model plus a smooth roll and pitch jitter of known variance, the fit recovers that variance; on runs
-without one it finds none worth the name; the span measures then read the run's own jitter."""
+"""`rodo calibrate`'s jitter fit (rodo.validation.calibrate_jitter): on runs whose pose errors follow the drift
+model plus a smooth roll and pitch jitter of known variance, the fit recovers that variance, whatever the other
+axes do; on runs without one it finds none worth the name; the span measures then read the run's own jitter."""
 
 import numpy as np
 import pytest
@@ -22,14 +22,15 @@ def _path(rng, V: float) -> np.ndarray:
     return (U * np.sqrt(np.clip(w, 0.0, None))) @ rng.standard_normal((N, 2))
 
 
-def _run(seed: int, V: float):
+def _run(seed: int, V: float, scale=np.ones(6)):
     """(states, truth) of a drive whose pose error is the drift recursion's (tau 0, no drift rate,
     xi_k = Ad(R_k) xi_{k-1} + delta_k, delta_k ~ N(0, diag(SIGMA^2))) plus the jitter's roll and pitch, measured
     from the first scan (where the truth is aligned), the states carrying the one-scan covariance as P_relative
     (delta's and the jitter's change over one scan).
     Driven slowly (0.6-1 m/s): a pose's rotation error, carried over a span by the distance, moves the span's
     position, which the jitter leaves out (it is the registration's tilt, which does not move the position it
-    solves: docs/consistency.md); at 0.8 m per span that is 2 % of the position's variance here."""
+    solves: docs/consistency.md); at 0.8 m per span that is 2 % of the position's variance here. `scale`: the
+    per-scan errors' sigmas over the ones P_relative states (ones: as stated)."""
     rng = np.random.default_rng(np.random.SeedSequence([2026, 31, seed]))
     T_true = [np.eye(4)]
     for _ in range(N - 1):
@@ -41,7 +42,7 @@ def _run(seed: int, V: float):
     x = np.zeros(6)
     T_est = [T_true[0]]
     for k in range(1, N):
-        x = se3.adjoint(T_true[k] @ se3.inverse(T_true[k - 1])) @ x + rng.normal(size=6) * SIGMA
+        x = se3.adjoint(T_true[k] @ se3.inverse(T_true[k - 1])) @ x + rng.normal(size=6) * SIGMA * scale
         T_est.append(se3.exp(-(x + np.r_[0.0, 0.0, 0.0, j[k], 0.0])) @ T_true[k])
     t = DT * np.arange(N)
     Sigma = np.tile(np.diag(SIGMA**2), (N, 1, 1))
@@ -65,6 +66,26 @@ def test_the_fit_recovers_the_jitters_variance(seed):
     assert fit["mean_without"] > 1.3, fit
     assert fit["variance"] == pytest.approx(V, rel=0.3), fit
     assert fit["mean_with"] == pytest.approx(1.0, abs=1e-6) and fit["time"] == T_JITTER
+    assert fit["outcome"] == "fitted"
+
+
+def test_the_other_axes_do_not_move_the_fit():
+    """The same runs with the position and yaw errors three times what their covariance states: the 6-dof
+    relative pose over 1 s is far over-confident, but V, fitted to the roll and pitch alone, stays within 30 % of
+    the true one (fitted to all six axes it would absorb the position's over-confidence)."""
+    V = 4e-6
+    runs = [_run(4 + i, V, scale=np.array([3.0, 3.0, 3.0, 1.0, 1.0, 3.0])) for i in range(4)]
+    fit = cj.fit_attitude_jitter(runs, 1.0, 0.0, T_JITTER)
+    assert fit["variance"] == pytest.approx(V, rel=0.3), fit
+    on = [odometry_nees(rs.replayed(s, 0.0, None, jitter=(fit["variance"], T_JITTER)), t, tau=0.0) for s, t in runs]
+    assert np.nanmean(np.concatenate([m["relative_span"] for m in on])) / 6 > 2.0  # the position's, not fitted
+
+
+def test_a_jitter_out_of_reach_is_not_written(monkeypatch):
+    """Where even the top of V_RANGE leaves the roll and pitch over-confident, V is 0 and the outcome says why."""
+    monkeypatch.setattr(cj, "V_RANGE", (1e-12, 1e-8))
+    fit = cj.fit_attitude_jitter([_run(5, 4e-6)], 1.0, 0.0, T_JITTER)
+    assert fit["outcome"] == "out of reach" and fit["variance"] == 0.0 and fit["mean_at_top"] > 1.0
 
 
 def test_without_a_jitter_the_fit_finds_none_worth_the_name():
@@ -75,6 +96,11 @@ def test_without_a_jitter_the_fit_finds_none_worth_the_name():
     assert fit["variance"] < 4e-7, fit
     if fit["mean_without"] <= 1.0:
         assert fit["variance"] == 0.0 and fit["mean_with"] == fit["mean_without"]
+        assert fit["outcome"] == "consistent without"
+    # made consistent-or-cautious outright (every stated covariance doubled): V 0, without a search
+    cautious = [(dict(s, P_relative=2 * s["P_relative"]), t) for s, t in runs]
+    fit = cj.fit_attitude_jitter(cautious, 1.0, 0.0, T_JITTER)
+    assert fit["outcome"] == "consistent without" and fit["variance"] == 0.0 and fit["mean_without"] < 0.8
 
 
 def test_the_span_measures_read_the_runs_own_jitter():
@@ -96,9 +122,9 @@ def test_the_span_measures_read_the_runs_own_jitter():
     assert np.nanmean(off["relative_span"]) / 6 > 1.3
 
 
-def test_an_empty_or_consistent_input_keeps_the_jitter_off():
-    """No spans (runs too short for one): V 0 and the means NaN."""
+def test_runs_without_spans_keep_the_jitter_off():
+    """No spans (runs too short for one): V 0, the means NaN, the outcome saying so."""
     states, truth = _run(4, 0.0)
     short = {k: (v[:5] if np.ndim(v) and len(v) == N else v) for k, v in states.items()}
     fit = cj.fit_attitude_jitter([(short, {k: v[:5] for k, v in truth.items()})], 1.0, 0.0, T_JITTER)
-    assert fit["variance"] == 0.0 and np.isnan(fit["mean_without"])
+    assert fit["variance"] == 0.0 and np.isnan(fit["mean_without"]) and fit["outcome"] == "no spans"
