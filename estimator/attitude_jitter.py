@@ -34,8 +34,8 @@ It is the rotation's alone: carried into the position by the distance driven (as
 pose error) it made the vertical position over 1 s cautious (city 1.11 -> 0.29 per axis): the registration's
 tilt does not move the position it solves. Only the diagonal roll and pitch entries change, in the vehicle frame
 of the span's last pose; the rotation between a span's ends (at most a few degrees in roll and pitch over a
-second) is neglected. `rodo calibrate` learns V at a given T from the mean NEES of the relative pose over 1 s
-(`validation.calibrate_jitter`).
+second) is neglected. `rodo calibrate` learns V at a given T from the mean NEES of the roll and pitch of the
+relative pose over 1 s (`validation.calibrate_jitter`).
 
 Checked by: tests/estimator/test_attitude_jitter.py
 """
