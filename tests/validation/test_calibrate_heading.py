@@ -9,6 +9,7 @@ from rodo.estimator.heading_reversion import heading_reversion_matrix
 from rodo.estimator.lie import se3
 from rodo.validation import calibrate_consistency as cc
 from rodo.validation import replayed_states as rs
+from tests.validation.synthetic_drives import run_arrays, straight_drive
 
 DT, N = 0.1, 800
 SIGMA = np.array([3e-3, 3e-3, 3e-3, 2e-4, 2e-4, 1e-3])  # per scan: the yaw the largest rotation
@@ -19,11 +20,7 @@ def _run(seed: int, heading):
     xi_k = Ad(R_k) M(heading) xi_{k-1} + delta_k, delta_k ~ N(0, diag(SIGMA^2)) (M: the reversion, identity
     when heading is None), the states carrying that covariance as P_relative."""
     rng = np.random.default_rng(np.random.SeedSequence([2026, 30, seed]))
-    T_true = [np.eye(4)]
-    for _ in range(N - 1):
-        step = np.array([-rng.uniform(0.6, 1.0), 0.0, 0.0, 0.0, 0.0, rng.normal(0, 0.01)])
-        T_true.append(se3.exp(step) @ T_true[-1])
-    T_true = np.stack(T_true)
+    T_true = straight_drive(rng, N)
     x = np.zeros(19)
     T_est = [T_true[0]]
     M = np.eye(19) if heading is None else heading_reversion_matrix(DT, heading)
@@ -31,13 +28,9 @@ def _run(seed: int, heading):
         x = M @ x
         x[:6] = se3.adjoint(T_true[k] @ se3.inverse(T_true[k - 1])) @ x[:6] + rng.normal(size=6) * SIGMA
         T_est.append(se3.exp(-x[:6]) @ T_true[k])
-    t = DT * np.arange(N)
-    P = np.tile(np.eye(18) * 1e-12, (N, 1, 1))  # the first pose known (the errors start at zero)
     Sigma = np.tile(np.diag(SIGMA**2), (N, 1, 1))
     Sigma[0] = np.nan
-    states = {"t": t, "T_vehicle_world": np.stack(T_est), "varpi": np.zeros((N, 6)), "P": P, "P_relative": Sigma,
-              "P_revision": np.zeros((N, 6, 6)), "restarted": np.zeros(N, bool)}
-    truth = {"t": t, "T_vehicle_world": T_true, "varpi": np.zeros((N, 6))}
+    states, truth = run_arrays(DT * np.arange(N), T_est, T_true, Sigma)
     return rs.replayed(states, 0.0, None, heading), truth
 
 

@@ -10,6 +10,7 @@ from rodo.estimator.lie import se3
 from rodo.validation import calibrate_jitter as cj
 from rodo.validation import replayed_states as rs
 from rodo.validation.odometry_consistency import odometry_nees
+from tests.validation.synthetic_drives import run_arrays, straight_drive
 
 DT, N, T_JITTER = 0.1, 800, 1.0
 SIGMA = np.array([3e-3, 3e-3, 3e-3, 2e-4, 2e-4, 5e-4])  # per scan
@@ -32,11 +33,7 @@ def _run(seed: int, V: float, scale=np.ones(6)):
     solves: docs/consistency.md); at 0.8 m per span that is 2 % of the position's variance here. `scale`: the
     per-scan errors' sigmas over the ones P_relative states (ones: as stated)."""
     rng = np.random.default_rng(np.random.SeedSequence([2026, 31, seed]))
-    T_true = [np.eye(4)]
-    for _ in range(N - 1):
-        step = np.array([-rng.uniform(0.06, 0.1), 0.0, 0.0, 0.0, 0.0, rng.normal(0, 0.01)])
-        T_true.append(se3.exp(step) @ T_true[-1])
-    T_true = np.stack(T_true)
+    T_true = straight_drive(rng, N, step_range=(0.06, 0.1))
     j = _path(rng, V)
     j -= j[0]
     x = np.zeros(6)
@@ -44,14 +41,10 @@ def _run(seed: int, V: float, scale=np.ones(6)):
     for k in range(1, N):
         x = se3.adjoint(T_true[k] @ se3.inverse(T_true[k - 1])) @ x + rng.normal(size=6) * SIGMA * scale
         T_est.append(se3.exp(-(x + np.r_[0.0, 0.0, 0.0, j[k], 0.0])) @ T_true[k])
-    t = DT * np.arange(N)
     Sigma = np.tile(np.diag(SIGMA**2), (N, 1, 1))
     Sigma[:, 3:5, 3:5] += np.eye(2) * span_variance(DT, (V, T_JITTER))  # the one-scan change, as f would fit it
     Sigma[0] = np.nan
-    states = {"t": t, "T_vehicle_world": np.stack(T_est), "varpi": np.zeros((N, 6)),
-              "P": np.tile(np.eye(18) * 1e-12, (N, 1, 1)), "P_relative": Sigma, "P_revision": np.zeros((N, 6, 6)),
-              "restarted": np.zeros(N, bool)}
-    truth = {"t": t, "T_vehicle_world": T_true, "varpi": np.zeros((N, 6))}
+    states, truth = run_arrays(DT * np.arange(N), T_est, T_true, Sigma)
     return rs.replayed(states, 0.0, None), truth
 
 
