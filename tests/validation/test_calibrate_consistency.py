@@ -44,7 +44,9 @@ def _drive(rng, n):
 @settings(max_examples=10, deadline=None)
 def test_drift_rate_of_a_run_with_a_known_one(seed):
     """An estimate whose every scan errs by s_k beta + noise (e_k = ln(R_true R_est^-1)): the fit returns beta
-    within 4 standard errors, and a sigma at least |beta|."""
+    within 5 standard errors, and a sigma at least |beta|. (5, not 4: 6 components of 10 drawn runs each time,
+    and the random profile draws new ones every run; at 4 a seed, 513, came out at 4.2 in pitch: a false alarm
+    once in about 250 runs, against once in about 30,000 at 5.)"""
     rng = _rng(seed)
     n = 400
     T_true = _drive(rng, n)
@@ -57,7 +59,7 @@ def test_drift_rate_of_a_run_with_a_known_one(seed):
     t = 0.1 * np.arange(n)
     fit = cc.fit_drift_rate({"t": t, "T_vehicle_world": np.stack(T_est)}, {"t": t, "T_vehicle_world": T_true})
     err = np.abs(np.array(fit["beta"]) - beta)
-    assert np.all(err <= 4 * np.array(fit["se"])), (fit, beta)
+    assert np.all(err <= 5 * np.array(fit["se"])), (fit, beta)
     assert np.all(np.array(fit["sigma"]) >= np.abs(fit["beta"]))
     assert fit["distance"] == pytest.approx(np.sum(np.linalg.norm(
         (T_true[1:] @ se3.inverse(T_true[:-1]))[:, :3, 3], axis=1)))
