@@ -113,9 +113,10 @@ def test_velocity_inflation_changes_the_report_not_the_estimate():
 def test_the_doppler_nis_is_chi_square_when_the_prediction_is_right(seed, planar):
     """`DopplerFrontEnd.correct`'s NIS per dof (what `velocity_inflation_per_doppler` reads): with the true
     velocity drawn from the prediction's own N(varpi, P) and the scan's Doppler fit from N(v_s, fit.cov), over
-    2000 scans its mean is 1 within 4 standard errors of chi-square(dof) / dof, and 5 % of the scans lie above
-    chi-square's 95 % quantile (within 1.6 points, 3.3 sigma); a prediction 2 sigma off in every velocity
-    component raises it."""
+    2000 scans its mean is 1 within 5 standard errors of chi-square(dof) / dof, and 5 % of the scans lie above
+    chi-square's 95 % quantile (within 2.2 points, 4.5 sigma); a prediction 2 sigma off in every velocity
+    component raises it. (The bounds hold the false alarms of 10 random draws a run near 1 in 10,000 runs; at 4
+    and 3.3 sigma, as before, about 1 in 100.)"""
     from rodo.estimator.doppler import DopplerFit, sensor_velocity
     from rodo.estimator.state import State
 
@@ -137,7 +138,7 @@ def test_the_doppler_nis_is_chi_square_when_the_prediction_is_right(seed, planar
         v_off = v + (J @ (2 * np.sqrt(np.diag(P[6:12, 6:12]))))[:dof]
         off.append(odo.doppler.correct(x, P, DopplerFit(v_off, cov, np.zeros(10)))[1])
     nis = np.array(nis)
-    assert abs(nis.mean() - 1.0) < 4 * np.sqrt(2.0 / dof / len(nis)), nis.mean()
-    assert abs(np.mean(nis * dof > chi2.ppf(0.95, dof)) - 0.05) < 0.016
+    assert abs(nis.mean() - 1.0) < 5 * np.sqrt(2.0 / dof / len(nis)), nis.mean()
+    assert abs(np.mean(nis * dof > chi2.ppf(0.95, dof)) - 0.05) < 0.022
     assert np.mean(off) > 1.5 * nis.mean()
     assert np.isnan(odo.doppler.correct(x, P, None)[1])
