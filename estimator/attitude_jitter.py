@@ -72,7 +72,7 @@ def span_excess(t: np.ndarray, n: int, jitter) -> np.ndarray:
     t = np.asarray(t, dtype=float)
     if n == 1:  # exactly: the difference of the cumulative sums below would leave rounding
         return np.zeros(max(len(t) - 1, 0))
-    steps = np.r_[0.0, np.cumsum(span_variance(np.diff(t), jitter))]
+    steps = _composed(t, jitter)
     return np.maximum(span_variance(t[n:] - t[:-n], jitter) - (steps[n:] - steps[:-n]), 0.0)
 
 
@@ -80,8 +80,13 @@ def absolute_excess(t: np.ndarray, jitter) -> np.ndarray:
     """(N,) the jitter's excess for the absolute pose at every scan of a run with scan times t (N,): that of the
     span from its first scan (0 there)."""
     t = np.asarray(t, dtype=float)
-    steps = np.r_[0.0, np.cumsum(span_variance(np.diff(t), jitter))]
-    return np.maximum(span_variance(t - t[0], jitter) - steps, 0.0)
+    return np.maximum(span_variance(t - t[0], jitter) - _composed(t, jitter), 0.0)
+
+
+def _composed(t: np.ndarray, jitter) -> np.ndarray:
+    """(N,) the one-scan changes' variances summed from the first scan to each (0 at the first): what composing
+    the one-scan covariances counts of the jitter (`AbsoluteJitter` sums the same, scan by scan)."""
+    return np.r_[0.0, np.cumsum(span_variance(np.diff(t), jitter))]
 
 
 def with_roll_pitch_variance(P: np.ndarray, variance) -> np.ndarray:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rodo.estimator.attitude_jitter import AXES, span_excess, with_roll_pitch_variance
+from rodo.estimator.attitude_jitter import AXES, span_excess
 
 from .consistency import nees
 from .odometry_consistency import span_terms
@@ -30,12 +30,17 @@ V_RANGE = (1e-10, 1e-2)  # rad^2: sigma 10 urad to 0.1 rad
 BISECTIONS = 40  # halvings of ln(V_RANGE[1] / V_RANGE[0]) = 18.4: V to within 2e-11 relative
 
 
-def mean_nees_per_dof(terms: list, jitter) -> float:
-    """The mean NEES/dof of the roll and pitch (their 2-dof block) over the spans `terms` ([(e, C, t, n), ...],
-    `span_terms` of each run) with the jitter [V, T] added (`attitude_jitter.span_excess`); NaN without finite
-    values."""
-    v = np.concatenate([nees(e[:, AXES], with_roll_pitch_variance(C, span_excess(t, n, jitter))[:, AXES][:, :, AXES])
-                        for e, C, t, n in terms])
+def roll_pitch_terms(terms: list, time: float) -> list:
+    """[(e, C, x), ...]: of each run's spans (`span_terms`' (e, C, t, n)) the roll and pitch errors (M, 2), their
+    covariance block (M, 2, 2) and the jitter's excess per unit V at correlation time `time` (M,): the excess is
+    V times it (`attitude_jitter.span_excess`, linear in V), so the bisection needs no more than these."""
+    return [(e[:, AXES], C[:, AXES][:, :, AXES], span_excess(t, n, (1.0, time))) for e, C, t, n in terms]
+
+
+def mean_nees_per_dof(terms: list, V: float) -> float:
+    """The mean NEES/dof of the roll and pitch over the spans `terms` (`roll_pitch_terms`) with the jitter's
+    variance V added to their variances; NaN without finite values."""
+    v = np.concatenate([nees(e, C + (V * x)[:, None, None] * np.eye(len(AXES))) for e, C, x in terms])
     v = v[np.isfinite(v)]
     return float(v.mean() / len(AXES)) if v.size else float("nan")
 
@@ -47,21 +52,21 @@ def fit_attitude_jitter(runs: list, span: float, tau: float, time: float, drift_
     drift rate and the heading reversion [T_r, T_a] those fitted, None: the runs' own); returns {variance, time,
     mean_without, mean_with, outcome}, outcome one of "fitted", "consistent without" (V 0), "no spans" (V 0),
     "out of reach" (V 0: the mean stays above 1 at V_RANGE's top)."""
-    terms = [x for x in (span_terms(s, t, span, tau, drift_rate_sigma=drift_rate_sigma, heading=heading)
-                         for s, t in runs) if x is not None]
-    without = mean_nees_per_dof(terms, None) if terms else float("nan")
+    terms = roll_pitch_terms([x for x in (span_terms(s, t, span, tau, drift_rate_sigma=drift_rate_sigma,
+                                                       heading=heading) for s, t in runs) if x is not None], time)
+    without = mean_nees_per_dof(terms, 0.0) if terms else float("nan")
     report = {"variance": 0.0, "time": float(time), "mean_without": without, "mean_with": without}
     if not without > 1.0:
         return dict(report, outcome="consistent without" if terms and np.isfinite(without) else "no spans")
-    top = mean_nees_per_dof(terms, (V_RANGE[1], time))
+    top = mean_nees_per_dof(terms, V_RANGE[1])
     if top > 1.0:
         return dict(report, outcome="out of reach", mean_at_top=top)
     lo, hi = np.log(V_RANGE[0]), np.log(V_RANGE[1])
     for _ in range(BISECTIONS):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if mean_nees_per_dof(terms, (np.exp(mid), time)) > 1.0 else (lo, mid)
+        lo, hi = (mid, hi) if mean_nees_per_dof(terms, np.exp(mid)) > 1.0 else (lo, mid)
     V = float(np.exp(hi))
-    return dict(report, variance=V, mean_with=mean_nees_per_dof(terms, (V, time)), outcome="fitted")
+    return dict(report, variance=V, mean_with=mean_nees_per_dof(terms, V), outcome="fitted")
 
 
 def attitude_jitter_report(uncertainty, fit: bool, span: float, tau: float, drift_rate_sigma, heading,
