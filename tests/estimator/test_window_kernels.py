@@ -6,6 +6,7 @@ test_window.py."""
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from rodo.estimator import measurement_kernels as kernel
 from rodo.estimator import measurements
@@ -67,6 +68,46 @@ def test_kernel_matches_numpy_linearisation(model, rng):
         np.testing.assert_allclose(d2[sl], d2k, rtol=1e-10, atol=1e-15)
         total += 0.5 * np.sum(w[sl] * d2k)
     assert cost == pytest.approx(total, rel=1e-10, abs=1e-14)
+
+
+def _reference_terms(model, T, varpi, p, z, W, Tvs, w):
+    """H = sum w J^T W J, b = -sum w J^T W e and d2 of one state's pairs, from measurements.predict."""
+    pred = measurements.predict(model, T, varpi, p, Tvs)
+    e = measurements.residual(model, z, pred.z)
+    J = np.concatenate([pred.J_z_xi, pred.J_z_varpi], axis=2)
+    WJ = W @ J * w[:, None, None]
+    return np.einsum("mai,maj->ij", J, WJ), -np.einsum("mai,ma->i", WJ, e), np.einsum("ma,mab,mb->m", e, W, e)
+
+
+@pytest.mark.parametrize("model", measurements.MODELS)
+@given(seed=st.integers(0, 2**32 - 1), m=st.integers(kernel.BLOCK, 2 * kernel.BLOCK + 3))  # two or three blocks
+@settings(max_examples=10, deadline=None)
+def test_kernel_over_blocks_with_cauchy_weights_and_a_point_at_the_sensor(model, seed, m):
+    """Over two or three blocks of pairs (a few pairs: the test above): the Cauchy weights of the pairs whose weight
+    is negative are set from their d2, and H, b, d2 equal the reference with those weights. A map point at the
+    sensor adds no term to H and b, keeps its weight, and makes its d2 and the cost NaN."""
+    rng = np.random.default_rng(np.random.SeedSequence(seed))  # ~10 draws a pair: too many to draw through hypothesis
+    T, varpi, sets = _random_sets(rng, 1, m + 1, model)
+    p, z, W = (np.array(x) for x in sets[0])
+    at_sensor = int(rng.integers(0, m + 1))
+    p[at_sensor] = se3.transform_points(se3.inverse(T[0]) @ scene.T_VEHICLE_SENSOR, np.zeros((1, 3)))[0]
+    w = np.where(rng.uniform(size=m + 1) < 0.5, -1.0, rng.uniform(0.2, 1.0, m + 1))
+    w_before, d2 = w.copy(), np.empty(m + 1)
+    H, b = np.zeros((12, 12)), np.zeros(12)
+    code = kernel.POLAR if model == "polar" else kernel.CARTESIAN
+    c = 2.0
+    cost = kernel.state_pairs(code, T[0], varpi[0], 0, m + 1, p, z, W, scene.T_VEHICLE_SENSOR, w, d2, c, H, b)
+    keep = np.arange(m + 1) != at_sensor
+    H_ref, b_ref, d2_ref = _reference_terms(model, T[0], varpi[0], p[keep], z[keep], W[keep],
+                                            scene.T_VEHICLE_SENSOR, np.ones(m))
+    cauchy = 1.0 / (1.0 + d2_ref / c**2)
+    assert np.isnan(cost) and np.isnan(d2[at_sensor]) and w[at_sensor] == w_before[at_sensor]
+    np.testing.assert_allclose(d2[keep], d2_ref, rtol=1e-10, atol=1e-15)
+    np.testing.assert_allclose(w[keep], np.where(w_before[keep] < 0, cauchy, w_before[keep]), rtol=1e-10)
+    H_ref, b_ref, _ = _reference_terms(model, T[0], varpi[0], p[keep], z[keep], W[keep], scene.T_VEHICLE_SENSOR,
+                                       w[keep])
+    np.testing.assert_allclose(H, H_ref, rtol=1e-9, atol=1e-8)
+    np.testing.assert_allclose(b, b_ref, rtol=1e-9, atol=1e-8)
 
 
 @pytest.mark.parametrize("kind", ["ca", "cv"])
