@@ -1,5 +1,5 @@
-"""Compiled inner loops of the association (the per-scan hot path): the per-map-point preparation, the candidate
-search on a grid over the detections with the Mahalanobis distances of the candidates (the greedy one-to-one
+"""Compiled inner loops of the association (the per-scan hot path; the per-map-point preparation is
+`prepare_kernels.prepare`): the candidate search on a grid over the detections with the Mahalanobis distances of the candidates (the greedy one-to-one
 selection is in `matching_kernels`), and the re-association's scoring of those candidates at the solution with the
 chosen pairs' information there. `association.associate` is the public entry and documents the method;
 `scan_association.MapAssociation` is the odometry's.
@@ -15,20 +15,26 @@ import math
 import numpy as np
 
 from .jit import njit
-from .measurement_kernels import frames, point_model, polar_jacobian, residual_d2
+from .measurement_kernels import frames, point_model, residual_d2
 
 
 @njit(cache=True)
 def lambda_max_sym3(M):
     """Largest eigenvalue of a symmetric 3x3 matrix (trigonometric closed form, Smith 1961)."""
-    p1 = M[0, 1] * M[0, 1] + M[0, 2] * M[0, 2] + M[1, 2] * M[1, 2]
-    q = (M[0, 0] + M[1, 1] + M[2, 2]) / 3.0
-    p2 = (M[0, 0] - q) ** 2 + (M[1, 1] - q) ** 2 + (M[2, 2] - q) ** 2 + 2.0 * p1
+    return lambda_max_upper(M[0, 0], M[0, 1], M[0, 2], M[1, 1], M[1, 2], M[2, 2])
+
+
+@njit(cache=True, inline="always")
+def lambda_max_upper(m00, m01, m02, m11, m12, m22):
+    """`lambda_max_sym3` of the symmetric matrix with upper triangle m00, m01, m02, m11, m12, m22."""
+    p1 = m01 * m01 + m02 * m02 + m12 * m12
+    q = (m00 + m11 + m22) / 3.0
+    p2 = (m00 - q) ** 2 + (m11 - q) ** 2 + (m22 - q) ** 2 + 2.0 * p1
     if p2 <= 0.0:
         return q
     p = math.sqrt(p2 / 6.0)
-    b00, b11, b22 = (M[0, 0] - q) / p, (M[1, 1] - q) / p, (M[2, 2] - q) / p
-    b01, b02, b12 = M[0, 1] / p, M[0, 2] / p, M[1, 2] / p
+    b00, b11, b22 = (m00 - q) / p, (m11 - q) / p, (m22 - q) / p
+    b01, b02, b12 = m01 / p, m02 / p, m12 / p
     r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02))
     phi = math.acos(min(1.0, max(-1.0, r))) / 3.0
     return q + 2.0 * p * math.cos(phi)
@@ -101,110 +107,6 @@ def pair_covariance(Js, am, B, C, cov, map_var, R, Jp, Pc, JC, out):
             sm = R[i, j] + JC[i, 0] * Jp[j, 0] + JC[i, 1] * Jp[j, 1] + JC[i, 2] * Jp[j, 2]
             out[i, j] = sm
             out[j, i] = sm
-
-
-@njit(cache=True)
-def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate, z, p_s, S, S_inv, S_pair, radius):
-    """Everything the association needs per map point, in one pass (the same model as
-    `measurements.predict`, `association.innovation_covariance` and `association._search_radius`):
-
-    for the m map points p_world[rows], cov_world[rows] (rows (m,) indices into the map's arrays):
-    z (m, 4) predicted measurement, p_s (m, 3) sensor-frame position,
-    S = G P G^T + R + J_z_p (cov_world_j + map_var I) J_z_p^T and S_inv (m, 4, 4),
-    S_pair = R + J_z_p (cov_world_j + map_var I) J_z_p^T (m, 4, 4), whose inverse is the pair's information in
-    the solve (`invert_pairs`, for the associated points only),
-    radius (m,) the search radius that holds every detection with d2 <= gate.
-    Returns -1 when all is well, else the index of the first point at the sensor origin (range < 1e-9) or
-    with an S that is not positive definite (then m + index).
-
-    G = dz/d[xi, varpi] has zeros in the velocity columns of its position rows, so G P G^T is formed from the
-    pose block of P for all rows and the velocity blocks for row 3 only.
-
-    Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference
-    """
-    m = rows.shape[0]
-    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
-    G = np.zeros((4, 12))
-    Jp = np.zeros((4, 3))
-    A = np.empty((3, 6))
-    B = sensor_from_world(Cvs, C)  # dp_s/dp_world
-    GP = np.empty((4, 6))
-    SG = np.empty((4, 4))
-    h = np.empty(12)
-    JC = np.empty((4, 3))
-    Pc = np.empty((3, 3))
-    Ac = np.empty((3, 3))
-    M = np.empty((3, 3))
-    zp = np.empty(4)
-    Js = np.empty((3, 3))
-    am = np.empty((2, 3))
-    L, Li = np.empty((4, 4)), np.empty((4, 4))
-    for a in range(m):
-        row = rows[a]
-        r = point_model(polar, C, t, Cvs, rvs, nu, om, p_world[row], A, G, zp, Js, am, p_s[a])
-        if r == 0.0:
-            return a
-        for i in range(4):
-            z[a, i] = zp[i]
-        pair_covariance(Js, am, B, C, cov_world[row], map_var, R, Jp, Pc, JC, S_pair[a])
-        # G P G^T = Gp P_pp Gp^T, and for row 3 also Gp P_pv g_v + g_v P_vp Gp^T + g_v P_vv g_v (G = [Gp | e3 g_v])
-        for i in range(4):
-            for j in range(6):
-                s = 0.0
-                for k in range(6):
-                    s += G[i, k] * P[k, j]
-                GP[i, j] = s
-        for j in range(12):  # h = P[:, 6:] g_v, g_v = G[3, 6:] (the Doppler row's velocity part)
-            s = 0.0
-            for k in range(6):
-                s += P[j, 6 + k] * G[3, 6 + k]
-            h[j] = s
-        for i in range(4):
-            for j in range(i, 4):
-                s = 0.0
-                for k in range(6):
-                    s += GP[i, k] * G[j, k]
-                SG[i, j] = s
-        for i in range(4):  # + Gp_i P_pv g_v, in column 3
-            s = 0.0
-            for k in range(6):
-                s += G[i, k] * h[k]
-            SG[i, 3] += s
-        s, vv = 0.0, 0.0  # + g_v P_vp Gp_3^T + g_v P_vv g_v, at (3, 3)
-        for k in range(6):
-            s += h[k] * G[3, k]
-            vv += G[3, 6 + k] * h[6 + k]
-        SG[3, 3] += s + vv
-        for i in range(4):
-            for j in range(i, 4):
-                S[a, i, j] = S_pair[a, i, j] + SG[i, j]
-                S[a, j, i] = S_pair[a, i, j] + SG[i, j]
-        if not _inv_spd4(S[a], S_inv[a], L, Li):
-            return m + a
-        # search radius: the position block of S in Cartesian coordinates
-        if polar:
-            ps0, ps1, ps2 = p_s[a, 0], p_s[a, 1], p_s[a, 2]
-            rho = math.sqrt(ps0 * ps0 + ps1 * ps1)
-            # cos and sin of the elevation and the azimuth from the position (as point_model's z); straight
-            # above the sensor the azimuth is arbitrary and the elevation's cosine as small as point_model's
-            ce, se = max(rho, 1e-12 * r) / r, ps2 / r
-            ca, sa = (ps0 / rho, ps1 / rho) if rho > 0.0 else (1.0, 0.0)
-            polar_jacobian(r, ca, sa, ce, se, Ac)
-            for i in range(3):
-                for j in range(3):
-                    Pc[i, j] = Ac[i, 0] * S[a, 0, j] + Ac[i, 1] * S[a, 1, j] + Ac[i, 2] * S[a, 2, j]
-            for i in range(3):
-                for j in range(3):
-                    M[i, j] = Pc[i, 0] * Ac[j, 0] + Pc[i, 1] * Ac[j, 1] + Pc[i, 2] * Ac[j, 2]
-            k2 = max(1.0, (r + math.sqrt(gate * S[a, 0, 0])) / (r * ce))
-        else:
-            for i in range(3):
-                for j in range(3):
-                    M[i, j] = S[a, i, j]
-            k2 = 1.0
-        lam = lambda_max_sym3(M)
-        radius[a] = math.sqrt(gate * max(lam, 0.0) * k2) * (1.0 + 1e-9)
-    return -1
 
 
 @njit(cache=True)

@@ -30,12 +30,12 @@ def frames(T, varpi, Tvs):
 
 
 @njit(cache=True, inline="always")
-def polar_jacobian(r, ca, sa, ce, se, J):
-    """J (3, 3) = d[x, y, z]/d[r, az, el] at range r with the azimuth's and the elevation's cosines and sines
-    (`radar_geometry.polar_to_cartesian_jacobian`)."""
-    J[0, 0], J[1, 0], J[2, 0] = ce * ca, ce * sa, se
-    J[0, 1], J[1, 1], J[2, 1] = -r * ce * sa, r * ce * ca, 0.0
-    J[0, 2], J[1, 2], J[2, 2] = -r * se * ca, -r * se * sa, r * ce
+def polar_jacobian(r, ca, sa, ce, se):
+    """d[x, y, z]/d[r, az, el] (3, 3) at range r with the azimuth's and the elevation's cosines and sines
+    (`radar_geometry.polar_to_cartesian_jacobian`), row by row as a tuple of 9 floats."""
+    return (ce * ca, -r * ce * sa, -r * se * ca,
+            ce * sa, r * ce * ca, -r * se * sa,
+            se, 0.0, r * ce)
 
 
 @njit(cache=True, inline="always")
@@ -129,7 +129,7 @@ def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
     Returns the range r, or 0.0 for a point at the sensor origin (nothing but ps is written then).
 
     Checked by: tests/estimator/test_window_kernels.py::test_kernel_matches_numpy_linearisation (through
-        `association_kernels.prepare`: tests/estimator/test_scan_association.py)
+        `prepare_kernels.prepare`: tests/estimator/test_scan_association.py)
     """
     (ps0, ps1, ps2), r, vr, arot, bm, j3 = point_geometry(frame_values(C, t, Cvs, rvs, nu, om), p[0], p[1],
                                                           p[2])
@@ -330,7 +330,6 @@ def position_covariances(polar, sigmas, C, out):
 
     Checked by: tests/estimator/test_measurements.py::test_world_position_covariance_is_the_rotated_reference
     """
-    J = np.empty((3, 3))
     M = np.empty((3, 3))
     s2 = np.empty(3)
     for k in range(3):
@@ -338,10 +337,10 @@ def position_covariances(polar, sigmas, C, out):
     for i in range(polar.shape[0]):
         r, az, el = polar[i, 0], polar[i, 1], polar[i, 2]
         ca, sa, ce, se = math.cos(az), math.sin(az), math.cos(el), math.sin(el)
-        polar_jacobian(r, ca, sa, ce, se, J)
+        J = polar_jacobian(r, ca, sa, ce, se)
         for a in range(3):
             for k in range(3):
-                M[a, k] = C[a, 0] * J[0, k] + C[a, 1] * J[1, k] + C[a, 2] * J[2, k]
+                M[a, k] = C[a, 0] * J[k] + C[a, 1] * J[3 + k] + C[a, 2] * J[6 + k]
         for a in range(3):
             for b in range(a, 3):
                 v = M[a, 0] * s2[0] * M[b, 0] + M[a, 1] * s2[1] * M[b, 1] + M[a, 2] * s2[2] * M[b, 2]

@@ -2,7 +2,7 @@
 
 `MapAssociation.associate` windows the map points and the detections to the field of view, evaluates per map
 point the prediction, S = G P G^T + R + map term, its inverse and the search radius in one compiled pass
-(`association_kernels.prepare`; the NumPy reference is `measurements.predict` with
+(`prepare_kernels.prepare`; the NumPy reference is `measurements.predict` with
 `association.innovation_covariance` and `MeasurementModel.search_radius`) and matches as `association.match`
 does. `MapAssociation.reassociate` makes the association again at the solve's state from every candidate the
 first one scored (docs/estimator.md, step 5). A `ScanMeasurements` caches the scan's detection grid.
@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import association_kernels
+from . import association_kernels, prepare_kernels
 from . import association
 from .association import Association, Candidates
 from .lie import se3
@@ -127,10 +127,9 @@ class MapAssociation:
         zp, p_s = np.empty((m, 4)), np.empty((m, 3))
         S, S_inv, S_pair = np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4))
         radius = np.empty(m)
-        bad = association_kernels.prepare(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points,
-                                          local_map.covariances, mi, self.map_sigma**2,
-                                          np.ascontiguousarray(P[:12, :12]), self.R, self.T_vehicle_sensor,
-                                          self.gate, zp, p_s, S, S_inv, S_pair, radius)
+        bad = prepare_kernels.prepare(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points,
+                                      local_map.covariances, mi, self.map_sigma**2, np.ascontiguousarray(P[:12, :12]),
+                                      self.R, self.T_vehicle_sensor, self.gate, zp, p_s, S, S_inv, S_pair, radius)
         if bad >= 0:  # a map point at the sensor, or an innovation covariance that is not positive definite
             raise FloatingPointError(f"association: map point {mi[bad % m]} has "
                                      + ("range 0" if bad < m else "a non positive definite S"))

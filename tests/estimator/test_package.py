@@ -14,8 +14,8 @@ def test_every_exported_name_resolves_to_its_modules_object():
 
 
 def test_every_public_module_is_in_the_map():
-    kernels = {"motion_kernels", "measurement_kernels", "association_kernels", "doppler_kernels", "window_kernels",
-               "map_kernels", "matching_kernels", "uncertainty_kernels",
+    kernels = {"motion_kernels", "measurement_kernels", "association_kernels", "prepare_kernels", "doppler_kernels",
+               "window_kernels", "map_kernels", "matching_kernels", "uncertainty_kernels",
                "jit"}  # compiled
     modules = {m.name for m in pkgutil.iter_modules(estimator.__path__)
                if not m.name.startswith("_") and m.name not in kernels}

@@ -38,11 +38,11 @@ def _scene_association(model, seed=5):
 
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
 def test_prepared_association_equals_the_reference(model):
-    """The odometry's compiled association (`association_kernels.prepare`, the candidates on one grid per scan,
+    """The odometry's compiled association (`prepare_kernels.prepare`, the candidates on one grid per scan,
     their one-to-one choice) gives the pairs, distances and solve information of the readable reference:
     `measurements.predict`, `association.innovation_covariance` plus the map-point term, `association.associate`."""
-    from rodo.estimator import association_kernels as akernel
     from rodo.estimator import association
+    from rodo.estimator import prepare_kernels as pkernel
 
     odo, x, P, scan, W_pairs, got = _scene_association(model, 3)
     polar = scan.polar
@@ -72,14 +72,37 @@ def test_prepared_association_equals_the_reference(model):
     m = len(odo.map)
     out = [np.empty((m, 4)), np.empty((m, 3)), np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4)),
            np.empty(m)]
-    assert akernel.prepare(odo.measurement.is_polar, x.T_vehicle_world, x.varpi, odo.map.points,
-                           odo.map.covariances, np.arange(m), odo.map_sigma**2, P[:12, :12].copy(), assoc.R, odo.T_vehicle_sensor,
-                           assoc.gate, *out) == -1
+    assert pkernel.prepare(odo.measurement.is_polar, x.T_vehicle_world, x.varpi, odo.map.points,
+                           odo.map.covariances, np.arange(m), odo.map_sigma**2, P[:12, :12].copy(), assoc.R,
+                           odo.T_vehicle_sensor, assoc.gate, *out) == -1
     np.testing.assert_allclose(out[0], pred.z, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(out[2], S, rtol=1e-10, atol=1e-14)
     np.testing.assert_allclose(out[4], Smap, rtol=1e-12, atol=1e-14 * np.abs(Smap).max())
     radius = odo.measurement.search_radius(pred.z, S, assoc.gate)
     assert np.all(out[5] >= radius) and np.allclose(out[5], radius, rtol=1e-7)
+
+
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+@pytest.mark.parametrize("first", ["at the sensor", "not positive definite"])
+def test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definite(model, first):
+    """`prepare` returns the index (in rows) of the first map point at the sensor, or m + the index of the first
+    whose S is not positive definite, whichever comes first, also past its first block of points."""
+    from rodo.estimator import prepare_kernels as pkernel
+
+    odo, x, P, _, _, _ = _scene_association(model, 3)
+    m = len(odo.map)
+    assert m > pkernel.BLOCK + 40
+    points, covariances = odo.map.points.copy(), odo.map.covariances.copy()
+    at_sensor, indefinite = (pkernel.BLOCK + 5, pkernel.BLOCK + 30)[::1 if first == "at the sensor" else -1]
+    T_world_sensor = se3.inverse(x.T_vehicle_world) @ odo.T_vehicle_sensor
+    points[at_sensor] = T_world_sensor[:3, 3]
+    covariances[indefinite] = -1e6 * np.eye(3)  # S far from positive definite
+    out = [np.empty((m, 4)), np.empty((m, 3)), np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4)),
+           np.empty(m)]
+    got = pkernel.prepare(odo.measurement.is_polar, x.T_vehicle_world, x.varpi, points, covariances, np.arange(m),
+                          odo.map_sigma**2, P[:12, :12].copy(), odo.associator.R, odo.T_vehicle_sensor,
+                          odo.associator.gate, *out)
+    assert got == (at_sensor if first == "at the sensor" else m + indefinite)
 
 
 def test_association_window_is_the_same_for_map_points_and_detections():

@@ -1,0 +1,248 @@
+"""The association's per-map-point preparation, compiled (the per-scan hot path): each map point's prediction,
+innovation covariance S and its inverse, the pair's covariance without the state's part, and the search radius
+(`prepare`), for `scan_association.MapAssociation.associate`.
+
+Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference,
+    ::test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definite
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .association_kernels import lambda_max_upper, sensor_from_world
+from .jit import njit
+from .measurement_kernels import frame_values, frames, point_geometry, polar_jacobian, polar_rows
+
+BLOCK = 64  # map points per block of `prepare`: its scratch rows stay in the L1 cache
+
+
+@njit(cache=True, error_model="numpy")
+def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate, z, p_s, S, S_inv, S_pair, radius):
+    """Everything the association needs per map point (the same model as `measurements.predict`,
+    `association.innovation_covariance` and `association._search_radius`):
+
+    for the m map points p_world[rows], cov_world[rows] (rows (m,) indices into the map's arrays):
+    z (m, 4) predicted measurement, p_s (m, 3) sensor-frame position,
+    S = G P G^T + R + J_z_p (cov_world_j + map_var I) J_z_p^T and S_inv (m, 4, 4),
+    S_pair = R + J_z_p (cov_world_j + map_var I) J_z_p^T (m, 4, 4), whose inverse is the pair's information in
+    the solve (`invert_pairs`, for the associated points only),
+    radius (m,) the search radius that holds every detection with d2 <= gate.
+    Returns -1 when all is well, else the index of the first point at the sensor origin (range < 1e-9) or
+    with an S that is not positive definite (then m + index).
+
+    G = dz/d[xi, varpi] has zeros in the velocity columns of its position rows, so G P G^T is formed from the
+    pose block of P for all rows and the velocity blocks for row 3 only.
+
+    The points go in blocks of BLOCK, each pass over a block a loop over its points with their quantities in
+    rows, so that the passes without a transcendental function compile to SIMD code over the points. IEEE
+    arithmetic, each quantity summed in the order `point_model`, `pair_covariance` and `_inv_spd4` sum it: the
+    results are those of a point at a time, bit for bit.
+
+    Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference,
+        ::test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definite
+    """
+    m = rows.shape[0]
+    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
+    F = frame_values(C, t, Cvs, rvs, nu, om)
+    Bm = sensor_from_world(Cvs, C)  # dp_s/dp_world
+    Bc, Cc = Bm.copy(), C.copy()  # local: the passes read them in registers
+    Pl, Rl = np.ascontiguousarray(P).copy(), R.copy()
+    cv = F[2]
+    X = np.empty((12, BLOCK))  # p (3), cov (9)
+    G = np.empty((30, BLOCK))  # G[i, k] (i < 3, k < 6) in row 6 i + k; G[3, :] in rows 18-29
+    Y = np.empty((20, BLOCK))  # ps (3), r, vr, Js (9), am (6)
+    Q = np.empty((31, BLOCK))  # S_pair's upper triangle (10), S's (10), S_inv's (10), S positive definite
+    Z = np.empty((69, BLOCK))  # `_pair_and_innovation`'s rows
+    Lr = np.empty((20, BLOCK))  # `_inv_spd4_rows`'
+    for s in range(0, m, BLOCK):
+        n = min(BLOCK, m - s)
+        for i in range(n):
+            row = rows[s + i]
+            X[0, i], X[1, i], X[2, i] = p_world[row, 0], p_world[row, 1], p_world[row, 2]
+            for k in range(9):
+                X[3 + k, i] = cov_world[row, k // 3, k % 3]
+        for i in range(n):  # the geometry (`point_model`)
+            ps, r, vr, arot, bm, j3 = point_geometry(F, X[0, i], X[1, i], X[2, i])
+            for k in range(3):
+                G[6 * k, i], G[6 * k + 1, i], G[6 * k + 2, i] = cv[k], cv[3 + k], cv[6 + k]
+                G[6 * k + 3, i], G[6 * k + 4, i], G[6 * k + 5, i] = arot[3 * k], arot[3 * k + 1], arot[3 * k + 2]
+                Y[k, i] = ps[k]
+            for k in range(12):
+                G[18 + k, i] = j3[k]
+            for k in range(6):
+                Y[14 + k, i] = bm[k]
+            Y[3, i], Y[4, i] = r, vr
+            for k in range(9):
+                Y[5 + k, i] = 1.0 if k % 4 == 0 else 0.0  # Js = I (Cartesian)
+        if polar:
+            for i in range(n):
+                ps0, ps1, ps2, r = Y[0, i], Y[1, i], Y[2, i], Y[3, i]
+                s10, s11, s20, s21, s22 = polar_rows(ps0, ps1, ps2, r)
+                Y[5, i], Y[6, i], Y[7, i] = ps0 / r, ps1 / r, ps2 / r
+                Y[8, i], Y[9, i], Y[10, i] = s10, s11, 0.0
+                Y[11, i], Y[12, i], Y[13, i] = s20, s21, s22
+                for j in range(6):
+                    a0, a1, a2 = G[j, i], G[6 + j, i], G[12 + j, i]
+                    G[j, i] = G[24 + j, i]
+                    G[6 + j, i] = s10 * a0 + s11 * a1
+                    G[12 + j, i] = s20 * a0 + s21 * a1 + s22 * a2
+        _pair_and_innovation(Y, G, X, n, Bc, Cc, map_var, Rl, Pl, Z, Q)
+        for i in range(n):
+            _inv_spd4_rows(Q, 10, 20, 30, i, Lr)
+        _radius_blocks(polar, Y, Q, n, gate, Z)
+        for i in range(n):  # outputs, the search radius (scalar: its eigenvalue's trigonometry)
+            a = s + i
+            if Y[3, i] < 1e-9:
+                return a
+            if Q[30, i] == 0.0:
+                return m + a
+            r = Y[3, i]
+            for k in range(3):
+                p_s[a, k] = Y[k, i]
+            if polar:
+                z[a, 0] = r
+                z[a, 1] = math.atan2(Y[1, i], Y[0, i])
+                z[a, 2] = math.asin(min(1.0, max(-1.0, Y[2, i] / r)))
+            else:
+                z[a, 0], z[a, 1], z[a, 2] = Y[0, i], Y[1, i], Y[2, i]
+            z[a, 3] = Y[4, i]
+            q = 0
+            for u in range(4):
+                for v in range(u, 4):
+                    S_pair[a, u, v], S_pair[a, v, u] = Q[q, i], Q[q, i]
+                    S[a, u, v], S[a, v, u] = Q[10 + q, i], Q[10 + q, i]
+                    S_inv[a, u, v], S_inv[a, v, u] = Q[20 + q, i], Q[20 + q, i]
+                    q += 1
+            lam = lambda_max_upper(Z[0, i], Z[1, i], Z[2, i], Z[3, i], Z[4, i], Z[5, i])
+            radius[a] = math.sqrt(gate * max(lam, 0.0) * Z[6, i]) * (1.0 + 1e-9)
+    return -1
+
+
+@njit(cache=True, inline="always")
+def _pair_and_innovation(Y, G, X, n, B, C, map_var, R, P, Z, Q):
+    """Points 0:n of a `prepare` block: S_pair (`pair_covariance`) and S = S_pair + G P G^T, upper triangles
+    row by row into Q[0:10] and Q[10:20], each entry summed in the order of a point at a time. Z's rows hold
+    J_z_p (0-11), cov + map_var I (12-20), J_z_p times it (21-32), G P (33-56) and P[:, 6:] g_v (57-68),
+    g_v = G[3, 6:]. One loop over the points per step, each reading few arrays (so that the compiler's
+    checks that they do not overlap stay few enough for it to vectorise)."""
+    for i in range(n):
+        for j in range(3):
+            for u in range(3):
+                Z[3 * u + j, i] = Y[5 + 3 * u, i] * B[0, j] + Y[6 + 3 * u, i] * B[1, j] + Y[7 + 3 * u, i] * B[2, j]
+            Z[9 + j, i] = Y[14, i] * B[0, j] + Y[15, i] * B[1, j] + Y[16, i] * B[2, j] \
+                + Y[17, i] * C[0, j] + Y[18, i] * C[1, j] + Y[19, i] * C[2, j]
+    for i in range(n):
+        for u in range(3):
+            for j in range(3):
+                Z[12 + 3 * u + j, i] = X[3 + 3 * u + j, i] + map_var if u == j else X[3 + 3 * u + j, i]
+    for i in range(n):
+        for u in range(4):
+            for j in range(3):
+                Z[21 + 3 * u + j, i] = (Z[3 * u, i] * Z[12 + j, i] + Z[3 * u + 1, i] * Z[15 + j, i]
+                                        + Z[3 * u + 2, i] * Z[18 + j, i])
+    for i in range(n):
+        for u in range(4):
+            for j in range(6):
+                sm = 0.0
+                for k in range(6):
+                    sm += G[6 * u + k, i] * P[k, j]
+                Z[33 + 6 * u + j, i] = sm
+    for i in range(n):
+        for j in range(12):
+            sm = 0.0
+            for k in range(6):
+                sm += P[j, 6 + k] * G[24 + k, i]
+            Z[57 + j, i] = sm
+    for i in range(n):
+        q = 0
+        for u in range(4):
+            for v in range(u, 4):
+                sp = R[u, v] + Z[21 + 3 * u, i] * Z[3 * v, i] + Z[22 + 3 * u, i] * Z[3 * v + 1, i] \
+                    + Z[23 + 3 * u, i] * Z[3 * v + 2, i]
+                sg = 0.0
+                for k in range(6):
+                    sg += Z[33 + 6 * u + k, i] * G[6 * v + k, i]
+                if v == 3:  # + Gp_u P_pv g_v
+                    sm = 0.0
+                    for k in range(6):
+                        sm += G[6 * u + k, i] * Z[57 + k, i]
+                    sg += sm
+                if u == 3:  # + g_v P_vp Gp_3^T + g_v P_vv g_v
+                    sm, vv = 0.0, 0.0
+                    for k in range(6):
+                        sm += Z[57 + k, i] * G[18 + k, i]
+                        vv += G[24 + k, i] * Z[63 + k, i]
+                    sg += sm + vv
+                Q[q, i] = sp
+                Q[10 + q, i] = sp + sg
+                q += 1
+
+
+@njit(cache=True, inline="always")
+def _inv_spd4_rows(Q, src, dst, ok, i, Lr):
+    """`_inv_spd4` of the symmetric 4x4 matrix whose upper triangle is Q[src:src + 10, i] (row by row), into
+    Q[dst:dst + 10, i], in its order of operations; Q[ok, i] = 1.0 if it is positive definite, else 0.0 (and
+    the inverse is not meaningful). Lr's rows hold L's lower triangle (0-9) and L^-1's (10-19), as
+    Q[_UPPER[j, u]] holds entry (u, j), j <= u."""
+    good = True
+    for u in range(4):
+        for j in range(u + 1):
+            sm = Q[src + _UPPER[j, u], i]
+            for k in range(j):
+                sm -= Lr[_UPPER[k, u], i] * Lr[_UPPER[k, j], i]
+            if u == j:
+                good = good and sm > 0.0
+                Lr[_UPPER[u, u], i] = math.sqrt(sm)
+            else:
+                Lr[_UPPER[j, u], i] = sm / Lr[_UPPER[j, j], i]
+    for u in range(4):
+        Lr[10 + _UPPER[u, u], i] = 1.0 / Lr[_UPPER[u, u], i]
+        for j in range(u):
+            sm = 0.0
+            for k in range(j, u):
+                sm -= Lr[_UPPER[k, u], i] * Lr[10 + _UPPER[j, k], i]
+            Lr[10 + _UPPER[j, u], i] = sm / Lr[_UPPER[u, u], i]
+    for u in range(4):
+        for j in range(u, 4):
+            sm = 0.0
+            for k in range(j, 4):
+                sm += Lr[10 + _UPPER[u, k], i] * Lr[10 + _UPPER[j, k], i]
+            Q[dst + _UPPER[u, j], i] = sm
+    Q[ok, i] = 1.0 if good else 0.0
+
+
+_UPPER = np.array([[0, 1, 2, 3], [1, 4, 5, 6], [2, 5, 7, 8], [3, 6, 8, 9]], np.int64)  # (u, v) -> upper index
+
+
+@njit(cache=True, inline="always")
+def _radius_blocks(polar, Y, Q, n, gate, Z):
+    """The position block of S in Cartesian coordinates (upper triangle) and the factor k2 of points 0:n of a
+    `prepare` block, into Z[0:7] (Y: the block's ps and r, Q[10:20]: its S), for the search radius, which
+    holds every detection with d2 <= gate: sqrt(gate lambda_max k2). Z[7:16] holds the polar Jacobian."""
+    for i in range(n):
+        if polar:
+            ps0, ps1, ps2, r = Y[0, i], Y[1, i], Y[2, i], Y[3, i]
+            rho = math.sqrt(ps0 * ps0 + ps1 * ps1)
+            # cos and sin of the elevation and the azimuth from the position (as point_model's z); straight
+            # above the sensor the azimuth is arbitrary and the elevation's cosine as small as point_model's
+            ce, se = max(rho, 1e-12 * r) / r, ps2 / r
+            ca, sa = (ps0 / rho, ps1 / rho) if rho > 0.0 else (1.0, 0.0)
+            Ac = polar_jacobian(r, ca, sa, ce, se)
+            for k in range(9):
+                Z[7 + k, i] = Ac[k]
+            q = 0
+            for u in range(3):
+                pc0 = Z[7 + 3 * u, i] * Q[10, i] + Z[8 + 3 * u, i] * Q[11, i] + Z[9 + 3 * u, i] * Q[12, i]
+                pc1 = Z[7 + 3 * u, i] * Q[11, i] + Z[8 + 3 * u, i] * Q[14, i] + Z[9 + 3 * u, i] * Q[15, i]
+                pc2 = Z[7 + 3 * u, i] * Q[12, i] + Z[8 + 3 * u, i] * Q[15, i] + Z[9 + 3 * u, i] * Q[17, i]
+                for j in range(u, 3):
+                    Z[q, i] = pc0 * Z[7 + 3 * j, i] + pc1 * Z[8 + 3 * j, i] + pc2 * Z[9 + 3 * j, i]
+                    q += 1
+            Z[6, i] = max(1.0, (r + math.sqrt(gate * Q[10, i])) / (r * ce))
+        else:
+            Z[0, i], Z[1, i], Z[2, i] = Q[10, i], Q[11, i], Q[12, i]
+            Z[3, i], Z[4, i], Z[5, i] = Q[14, i], Q[15, i], Q[17, i]
+            Z[6, i] = 1.0
