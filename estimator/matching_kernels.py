@@ -1,8 +1,8 @@
-"""Compiled greedy one-to-one matching of the association (`association.associate`): the gated pairs ordered by
-their d2 (a radix sort of its bits, exact ties by map point, then detection), then taken while both are free.
+"""Compiled greedy one-to-one matching of the association (`association.choose`): the gated pairs, ordered by
+their d2 (NumPy's argsort, then the exact ties by map point, then detection), taken while both are free.
 
 Checked by: tests/estimator/test_association.py (greedy against an all-pairs loop,
-    ::test_pair_order_is_lexsort_with_ties, ::test_radix_argsort_is_the_stable_argsort)
+    ::test_pair_order_is_lexsort_with_ties, ::test_pair_order_of_any_floats_is_lexsort)
 """
 
 from __future__ import annotations
@@ -31,76 +31,32 @@ def greedy_one_to_one(order, j, i, m, n):
 
 
 @njit(cache=True)
-def choose(j, i, d2, gate, m, n):
-    """The candidate pairs (j, i, d2) with d2 <= gate (NaN never), ordered by `order_by_d2` and taken by
-    `greedy_one_to_one`: (j, i, d2) of the chosen, in the candidates' order (`association.choose`).
+def take(order, j, i, d2, m, n):
+    """The gated pairs (j, i, d2) in `order` (ascending d2, as any argsort of d2 gives it) with their exact ties
+    put in (j, i) order (`order_ties`), taken by `greedy_one_to_one`: (j, i, d2) of the chosen, in the pairs'
+    order (`association.choose`).
 
     Checked by: tests/estimator/test_association.py::test_matches_brute_force_and_is_one_to_one
     """
-    inside = np.flatnonzero(d2 <= gate)
-    jg, ig, dg = j[inside], i[inside], d2[inside]
-    chosen = greedy_one_to_one(order_by_d2(jg, ig, dg, n), jg, ig, m, n)
-    return jg[chosen], ig[chosen], dg[chosen]
+    chosen = greedy_one_to_one(order_ties(order, j, i, d2, n), j, i, m, n)
+    return j[chosen], i[chosen], d2[chosen]
 
 
 @njit(cache=True)
-def order_by_d2(j, i, d2, n):
-    """np.lexsort((i, j, d2)): ascending d2, ties by j, then i: a radix sort of d2 (`_radix_argsort`), then the
-    rare exact ties put in (j, i, index) order.
+def order_ties(order, j, i, d2, n):
+    """`order`, an argsort of d2 (stable or not), with each run of equal d2 put in (j, i, index) order: then
+    it is np.lexsort((i, j, d2)) (n: the detections' count, for the key j n + i).
 
     Checked by: tests/estimator/test_association.py::test_pair_order_is_lexsort_with_ties,
-        ::test_radix_argsort_is_the_stable_argsort
+        ::test_pair_order_of_any_floats_is_lexsort
     """
-    return _order_ties(_radix_argsort(d2), j, i, d2, n)
-
-
-_SIGN = np.int64(-2**63)  # the sign bit of an int64
-
-
-@njit(cache=True)
-def _radix_argsort(x):
-    """np.argsort(x, kind="stable") of floats without NaN, as a least-significant-digit radix sort of their bits in
-    six passes of 11 bits (a pass whose digit all keys share is skipped). A float's bits order as an unsigned
-    integer once a positive one's sign bit is set and a negative one's every bit flipped (-0.0 taken as 0.0,
-    which it equals). Half the time of NumPy's default argsort on the gated pairs' d2 of a city drive (50-65
-    against 95-110 us for 2,300 pairs).
-    """
-    n = len(x)
-    key = x.view(np.int64).copy()
-    for q in range(n):
-        key[q] = ~key[q] if key[q] < 0 and key[q] != _SIGN else key[q] | _SIGN  # -0.0 as 0.0
-    order = np.arange(n)
-    tkey, tord = np.empty(n, np.int64), np.empty(n, np.int64)
-    count = np.empty(2049, np.int64)
-    for shift in range(0, 66, 11):  # >> is arithmetic: the top digit's sign-extended bits keep it monotonic
-        count[:] = 0
-        for q in range(n):
-            count[((key[q] >> shift) & 2047) + 1] += 1
-        shared = False
-        for c in range(2048):
-            shared = shared or count[c + 1] == n
-            count[c + 1] += count[c]
-        if shared:
-            continue
-        for q in range(n):
-            d = (key[q] >> shift) & 2047
-            tkey[count[d]] = key[q]
-            tord[count[d]] = order[q]
-            count[d] += 1
-        key, tkey = tkey, key
-        order, tord = tord, order
-    return order
-
-
-@njit(cache=True)
-def _order_ties(order, j, i, d2, n):
     s = 0
     while s < len(order):
         e = s + 1
         while e < len(order) and d2[order[e]] == d2[order[s]]:
             e += 1
         if e - s > 1:
-            run = np.sort(order[s:e])  # ties of (j, i) too go by index (the sort of d2 is stable: a safeguard)
+            run = np.sort(order[s:e])  # ties of (j, i) too go by index, whatever the argsort
             key = np.empty(e - s, np.int64)
             for t in range(e - s):
                 key[t] = j[run[t]] * n + i[run[t]]

@@ -188,25 +188,27 @@ def test_empty_inputs_and_bad_input():
 
 @given(st.lists(st.tuples(st.integers(0, 6), st.integers(0, 6), st.integers(0, 3)), min_size=0, max_size=60))
 def test_pair_order_is_lexsort_with_ties(pairs):
-    """The compiled ordering of the greedy matching = np.lexsort((i, j, d2)): ascending d2, ties (frequent here:
-    d2 takes four values) by map index j, then detection index i."""
-    from rodo.estimator import matching_kernels as kernel
+    """The ordering of the greedy matching = np.lexsort((i, j, d2)): ascending d2, ties (frequent here: d2 takes
+    four values) by map index j, then detection index i."""
+    from rodo.estimator.association import order_by_d2
 
     j = np.array([p[0] for p in pairs], dtype=np.int64)
     i = np.array([p[1] for p in pairs], dtype=np.int64)
     d2 = np.array([float(p[2]) for p in pairs])
-    np.testing.assert_array_equal(kernel.order_by_d2(j, i, d2, 7), np.lexsort((i, j, d2)))
+    np.testing.assert_array_equal(order_by_d2(j, i, d2, 7), np.lexsort((i, j, d2)))
 
 
 @given(arrays(np.float64, st.integers(0, 300), elements=st.one_of(
     st.sampled_from([0.0, -0.0, 1.0, -1.0, 2.0**-1074, np.inf, -np.inf]), st.floats(-1e300, 1e300),
     st.floats(-20.0, 20.0), st.integers(-3, 3).map(float))))
-def test_radix_argsort_is_the_stable_argsort(x):
-    """The greedy matching's radix sort of d2 orders any floats without NaN as NumPy's stable argsort: negative
-    and positive, zeros of both signs (equal, so by index), subnormals, infinities, many ties."""
-    from rodo.estimator import matching_kernels as kernel
+def test_pair_order_of_any_floats_is_lexsort(x):
+    """The greedy matching's order of any floats without NaN is np.lexsort((i, j, d2)): negative and positive,
+    zeros of both signs (equal, so by j, then i), subnormals, infinities, many ties, pairs repeated."""
+    from rodo.estimator.association import order_by_d2
 
-    np.testing.assert_array_equal(kernel._radix_argsort(x), np.argsort(x, kind="stable"))
+    rng = np.random.default_rng(np.random.SeedSequence(len(x)))
+    j, i = rng.integers(0, 5, len(x)), rng.integers(0, 5, len(x))
+    np.testing.assert_array_equal(order_by_d2(j, i, x, 5), np.lexsort((i, j, x)))
 
 
 @given(points=cartesian_points(1, 60, 3.0), p=cartesian_points(1, 30, 3.0), k=st.integers(1, 8),
