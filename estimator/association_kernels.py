@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from .jit import njit
-from .measurement_kernels import frames, point_model, residual_d2
+from .measurement_kernels import frame_values, frames, point_model, point_prediction, residual_d2
 
 
 @njit(cache=True)
@@ -154,13 +154,13 @@ def rescore(polar, T, varpi, p_world, rows, Tvs, z_meas, S_inv, j, i, d2):
     Checked by: tests/estimator/test_scan_association.py::test_reassociation_rescores_the_candidates_at_the_new_state
     """
     C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
-    G, A, Js, am = np.zeros((4, 12)), np.empty((3, 6)), np.empty((3, 3)), np.empty((2, 3))
-    zp, ps, e = np.empty(4), np.empty(3), np.empty(4)
+    F = frame_values(C, t, Cvs, rvs, nu, om)
+    zp, e = np.empty(4), np.empty(4)
     last = -1
     for q in range(j.shape[0]):
         a = j[q]
         if a != last:  # the candidates come map point by map point: one prediction each
-            if point_model(polar, C, t, Cvs, rvs, nu, om, p_world[rows[a]], A, G, zp, Js, am, ps) == 0.0:
+            if point_prediction(polar, F, p_world[rows[a]], zp) == 0.0:
                 return a
             last = a
         d2[q] = residual_d2(polar, z_meas[i[q]], zp, S_inv[a], e)

@@ -117,6 +117,31 @@ def wrap_angle(x):
     return x - 2.0 * math.pi * math.floor((x + math.pi) / (2.0 * math.pi))
 
 
+@njit(cache=True, inline="always")
+def predicted_z(polar, ps0, ps1, ps2, r, vr, z):
+    """z (4,) = [r, az, el, v_r] (polar) or [x, y, z, v_r] (Cartesian) of a point at ps (sensor frame), range
+    r > 0, radial velocity vr."""
+    if polar:
+        z[0] = r
+        z[1] = math.atan2(ps1, ps0)
+        z[2] = math.asin(min(1.0, max(-1.0, ps2 / r)))
+    else:
+        z[0], z[1], z[2] = ps0, ps1, ps2
+    z[3] = vr
+
+
+@njit(cache=True, inline="always")
+def point_prediction(polar, F, p, z):
+    """z (4,) = the predicted measurement of map point p (3,) for `frame_values` F (`point_model`'s z, without
+    its Jacobians, which the compiler then leaves out); returns the range, or 0.0 for a point at the sensor
+    origin (z not written then)."""
+    (ps0, ps1, ps2), r, vr, _, _, _ = point_geometry(F, p[0], p[1], p[2])
+    if r < 1e-9:
+        return 0.0
+    predicted_z(polar, ps0, ps1, ps2, r, vr, z)
+    return r
+
+
 @njit(cache=True, fastmath=FASTMATH, inline="always")
 def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
     """The measurement model of one map point p (3,) for a state (C, t, nu, om) and extrinsics (Cvs, rvs),
@@ -148,9 +173,6 @@ def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
         Js[0, 0], Js[0, 1], Js[0, 2] = ps0 / r, ps1 / r, ps2 / r
         Js[1, 0], Js[1, 1], Js[1, 2] = s10, s11, 0.0
         Js[2, 0], Js[2, 1], Js[2, 2] = s20, s21, s22
-        z[0] = r
-        z[1] = math.atan2(ps1, ps0)
-        z[2] = math.asin(min(1.0, max(-1.0, ps2 / r)))
         for j in range(6):
             J[0, j] = j3[6 + j]  # d r/dxi = u^T A = dv_r/dvarpi
             J[1, j] = s10 * A[0, j] + s11 * A[1, j]
@@ -161,8 +183,7 @@ def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
                 Js[i, j] = 1.0 if i == j else 0.0
             for j in range(6):
                 J[i, j] = A[i, j]
-        z[0], z[1], z[2] = ps0, ps1, ps2
-    z[3] = vr
+    predicted_z(polar, ps0, ps1, ps2, r, vr, z)
     return r
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from .association_kernels import lambda_max_upper, sensor_from_world
 from .jit import njit
-from .measurement_kernels import frame_values, frames, point_geometry, polar_jacobian, polar_rows
+from .measurement_kernels import frame_values, frames, point_geometry, polar_jacobian, polar_rows, predicted_z
 
 BLOCK = 64  # map points per block of `prepare`: its scratch rows stay in the L1 cache
 
@@ -102,13 +102,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
             r = Y[3, i]
             for k in range(3):
                 p_s[a, k] = Y[k, i]
-            if polar:
-                z[a, 0] = r
-                z[a, 1] = math.atan2(Y[1, i], Y[0, i])
-                z[a, 2] = math.asin(min(1.0, max(-1.0, Y[2, i] / r)))
-            else:
-                z[a, 0], z[a, 1], z[a, 2] = Y[0, i], Y[1, i], Y[2, i]
-            z[a, 3] = Y[4, i]
+            predicted_z(polar, Y[0, i], Y[1, i], Y[2, i], r, Y[4, i], z[a])
             q = 0
             for u in range(4):
                 for v in range(u, 4):
