@@ -198,6 +198,7 @@ class DetectionGrid:
         points: (n, 3) positions.
         cell: the grid's cell size (m).
         x0, y0, nx, ny, start, order: the grid (cell c = ix * ny + iy holds order[start[c]:start[c + 1]]).
+        cell_points: points[order], the positions in the grid's order (a row of cells is one run of them).
     """
 
     points: np.ndarray
@@ -208,11 +209,13 @@ class DetectionGrid:
     ny: int
     start: np.ndarray
     order: np.ndarray
+    cell_points: np.ndarray
 
     @classmethod
     def of(cls, points: np.ndarray, cell: float = GRID_CELL) -> "DetectionGrid":
         points = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
-        return cls(points, float(cell), *_kernel.build_grid(points, float(cell)))
+        x0, y0, nx, ny, start, order = _kernel.build_grid(points, float(cell))
+        return cls(points, float(cell), x0, y0, nx, ny, start, order, points[order])
 
     @property
     def n(self) -> int:
@@ -244,7 +247,7 @@ def candidates(model: MeasurementModel, z_meas: np.ndarray, grid: DetectionGrid,
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
     k = min(max_candidates, n)
     j, i, d2 = np.empty(m * k, np.int64), np.empty(m * k, np.int64), np.empty(m * k)
-    count, _ = _kernel.grid_candidates(model.is_polar, grid.points, grid.x0, grid.y0, grid.cell, grid.nx, grid.ny,
+    count, _ = _kernel.grid_candidates(model.is_polar, grid.cell_points, grid.x0, grid.y0, grid.cell, grid.nx, grid.ny,
                                        grid.start, grid.order, p_sensor, radius, k, z_meas, z_pred, S_inv, np.inf, j,
                                        i, d2)
     return j[:count], i[:count], d2[:count]

@@ -1,8 +1,8 @@
 """Compiled inner loops of the association (the per-scan hot path; the per-map-point preparation is
-`prepare_kernels.prepare`): the candidate search on a grid over the detections with the Mahalanobis distances of the candidates (the greedy one-to-one
-selection is in `matching_kernels`), and the re-association's scoring of those candidates at the solution with the
-chosen pairs' information there. `association.associate` is the public entry and documents the method;
-`scan_association.MapAssociation` is the odometry's.
+`prepare_kernels.prepare`): the candidate search on a grid over the detections with the Mahalanobis distances of
+the candidates (the greedy one-to-one selection is in `matching_kernels`), and the re-association's scoring of
+those candidates at the solution with the chosen pairs' information there. `association.associate` is the
+public entry and documents the method; `scan_association.MapAssociation` is the odometry's.
 
 Checked by: tests/estimator/test_association.py (greedy against an all-pairs loop; gate statistics),
     tests/estimator/test_scan_association.py (the preparation and the re-association against the references)
@@ -201,37 +201,39 @@ def build_grid(points, cell):
 
 
 @njit(cache=True)
-def grid_candidates(polar, points, x0, y0, cell, nx, ny, start, order, p, radius, k, z_meas, z_pred, S_inv,
+def grid_candidates(polar, cell_points, x0, y0, cell, nx, ny, start, order, p, radius, k, z_meas, z_pred, S_inv,
                     gate, j_out, i_out, d2_out):
     """For each position p[a] (m, 3): the k nearest detections within radius[a] (Euclidean, sensor frame),
-    their d2 = e^T S_inv[a] e with e = z_meas[i] - z_pred[a] (azimuth wrapped), and the pairs with d2 <= gate written to j_out, i_out, d2_out
-    (capacity m * k). Returns (pairs written, candidates before gating).
+    their d2 = e^T S_inv[a] e with e = z_meas[i] - z_pred[a] (azimuth wrapped), and the pairs with d2 <= gate
+    written to j_out, i_out, d2_out (capacity m * k). Returns (pairs written, candidates before gating).
+    cell_points are the detections' positions in the grid's order (points[order]): a row of cells is one run
+    of them, read in sequence.
 
     Checked by: tests/estimator/test_association.py::test_grid_candidates_are_the_k_nearest_in_the_radius
     """
     m = len(p)
-    dist = np.empty(len(points))
-    idx = np.empty(len(points), np.int64)
+    dist = np.empty(len(cell_points))
+    idx = np.empty(len(cell_points), np.int64)
     e = np.empty(4)
     written, proposed = 0, 0
     for a in range(m):
         r = radius[a]
         r2 = r * r
-        ix0, ix1 = int(max(0.0, (p[a, 0] - r - x0) / cell)), int(min(nx - 1.0, (p[a, 0] + r - x0) / cell))
-        iy0, iy1 = int(max(0.0, (p[a, 1] - r - y0) / cell)), int(min(ny - 1.0, (p[a, 1] + r - y0) / cell))
+        p0, p1, p2 = p[a, 0], p[a, 1], p[a, 2]
+        ix0, ix1 = int(max(0.0, (p0 - r - x0) / cell)), int(min(nx - 1.0, (p0 + r - x0) / cell))
+        iy0, iy1 = int(max(0.0, (p1 - r - y0) / cell)), int(min(ny - 1.0, (p1 + r - y0) / cell))
         found = 0
-        for ix in range(ix0, ix1 + 1):
-            for iy in range(iy0, iy1 + 1):
-                c = ix * ny + iy
-                for q in range(start[c], start[c + 1]):
-                    i = order[q]
-                    dx, dy, dz = points[i, 0] - p[a, 0], points[i, 1] - p[a, 1], points[i, 2] - p[a, 2]
-                    d = dx * dx + dy * dy + dz * dz  # squared: the same order, no root per detection
-                    # written always, kept when inside: no branch to mispredict; in bounds because every
-                    # detection sits in one cell, so found < the detections examined <= len(points)
-                    dist[found] = d
-                    idx[found] = i
-                    found += d <= r2
+        if iy0 > iy1:  # no cell of the grid in p's square: no row to read (start[ix * ny + iy1 + 1] is not its row)
+            ix1 = ix0 - 1
+        for ix in range(ix0, ix1 + 1):  # cells iy0..iy1 of row ix: one run of cell_points, in the grid's order
+            for q in range(start[ix * ny + iy0], start[ix * ny + iy1 + 1]):
+                dx, dy, dz = cell_points[q, 0] - p0, cell_points[q, 1] - p1, cell_points[q, 2] - p2
+                d = dx * dx + dy * dy + dz * dz  # squared: the same order, no root per detection
+                # written always, kept when inside: no branch to mispredict; in bounds because every
+                # detection sits in one cell, so found < the detections examined <= len(cell_points)
+                dist[found] = d
+                idx[found] = order[q]
+                found += d <= r2
         if found > k:  # the k nearest, by selection (equidistant detections: the first found in the grid)
             for q in range(k):
                 best = q

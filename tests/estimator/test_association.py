@@ -223,7 +223,7 @@ def test_grid_candidates_are_the_k_nearest_in_the_radius(points, p, k, cell, dat
     grid = DetectionGrid.of(points, cell)
     cap = len(p) * k
     j, i, d2 = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap)
-    count, proposed = akernel.grid_candidates(False, grid.points, grid.x0, grid.y0, grid.cell, grid.nx, grid.ny,
+    count, proposed = akernel.grid_candidates(False, grid.cell_points, grid.x0, grid.y0, grid.cell, grid.nx, grid.ny,
                                               grid.start, grid.order, p, radius, k, z_meas, z_pred, S_inv,
                                               np.inf, j, i, d2)
     sq = np.sum((p[:, None, :] - points[None, :, :]) ** 2, axis=2)  # as the kernel sums them
