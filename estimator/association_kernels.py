@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from .jit import njit
-from .measurement_kernels import frame_values, frames, point_model, point_prediction, residual_d2
+from .measurement_kernels import frame_values, frames, point_prediction, residual_d2
 
 
 @njit(cache=True)
@@ -84,31 +84,6 @@ def sensor_from_world(Cvs, C):
     return B
 
 
-@njit(cache=True, inline="always")
-def pair_covariance(Js, am, B, C, cov, map_var, R, Jp, Pc, JC, out):
-    """out (4, 4) = R + J_z_p (cov + map_var I) J_z_p^T, a pair's covariance without the state's part (its
-    inverse is the pair's information in the solve), from `point_model`'s Js and am, B = C_vs^T C and the
-    pose's rotation C: dz/dp_world = [Js; a^T] B + [0; m^T C]. Jp (4, 3), Pc (3, 3) and JC (4, 3) are scratch
-    (Jp is left holding dz/dp_world)."""
-    for j in range(3):
-        for i in range(3):
-            Jp[i, j] = Js[i, 0] * B[0, j] + Js[i, 1] * B[1, j] + Js[i, 2] * B[2, j]
-        Jp[3, j] = am[0, 0] * B[0, j] + am[0, 1] * B[1, j] + am[0, 2] * B[2, j] \
-            + am[1, 0] * C[0, j] + am[1, 1] * C[1, j] + am[1, 2] * C[2, j]
-    for i in range(3):
-        for j in range(3):
-            Pc[i, j] = cov[i, j]
-        Pc[i, i] += map_var
-    for i in range(4):
-        for j in range(3):
-            JC[i, j] = Jp[i, 0] * Pc[0, j] + Jp[i, 1] * Pc[1, j] + Jp[i, 2] * Pc[2, j]
-    for i in range(4):
-        for j in range(i, 4):
-            sm = R[i, j] + JC[i, 0] * Jp[j, 0] + JC[i, 1] * Jp[j, 1] + JC[i, 2] * Jp[j, 2]
-            out[i, j] = sm
-            out[j, i] = sm
-
-
 @njit(cache=True)
 def invert_pairs(S_pair, rows, W):
     """W[q] = S_pair[rows[q]]^-1 (the information of each associated pair); returns -1, or the first q whose
@@ -121,34 +96,10 @@ def invert_pairs(S_pair, rows, W):
 
 
 @njit(cache=True)
-def pair_information(polar, T, varpi, p_world, cov_world, rows, map_var, R, Tvs, W):
-    """W[q] = (R + map term)^-1 of the map point p_world[rows[q]], cov_world[rows[q]] at the state (T, varpi):
-    each associated pair's information in the solve, as `prepare` and `invert_pairs` give it (bit for bit), for
-    the pairs of a re-association (`rescore`). Returns -1, or q for the first point at the sensor origin, or
-    len(rows) + q for the first whose R + map term is not positive definite.
-
-    Checked by: tests/estimator/test_scan_association.py::test_reassociation_rescores_the_candidates_at_the_new_state
-    """
-    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
-    B = sensor_from_world(Cvs, C)  # dp_s/dp_world
-    G, A, Js, am = np.zeros((4, 12)), np.empty((3, 6)), np.empty((3, 3)), np.empty((2, 3))
-    zp, ps = np.empty(4), np.empty(3)
-    Jp, Pc, JC, Sp = np.zeros((4, 3)), np.empty((3, 3)), np.empty((4, 3)), np.empty((4, 4))
-    L, Li = np.empty((4, 4)), np.empty((4, 4))
-    for q in range(rows.shape[0]):
-        if point_model(polar, C, t, Cvs, rvs, nu, om, p_world[rows[q]], A, G, zp, Js, am, ps) == 0.0:
-            return q
-        pair_covariance(Js, am, B, C, cov_world[rows[q]], map_var, R, Jp, Pc, JC, Sp)
-        if not _inv_spd4(Sp, W[q], L, Li):
-            return rows.shape[0] + q
-    return -1
-
-
-@njit(cache=True)
 def rescore(polar, T, varpi, p_world, rows, Tvs, z_meas, S_inv, j, i, d2):
     """An association's candidate pairs (map point p_world[rows[j[q]]], detection z_meas[i[q]]; j ascending)
     scored again at the state (T, varpi) with the S_inv they were gated with: d2[q] = e^T S_inv[j[q]] e, e the
-    detection minus the map point's prediction (`point_model`, the azimuth wrapped). Returns -1, or j[q] for the
+    detection minus the map point's prediction (`point_prediction`, the azimuth wrapped). Returns -1, or j[q] for the
     first map point at the sensor origin.
 
     Checked by: tests/estimator/test_scan_association.py::test_reassociation_rescores_the_candidates_at_the_new_state

@@ -24,7 +24,7 @@ POLAR, CARTESIAN = 0, 1
 
 @njit(cache=True, inline="always")
 def frames(T, varpi, Tvs):
-    """(C, t, C_vs, r_vs, nu, omega): the views `point_model` takes of a pose T (4, 4), its velocity varpi (6,)
+    """(C, t, C_vs, r_vs, nu, omega): the views `frame_values` takes of a pose T (4, 4), its velocity varpi (6,)
     and the radar's extrinsics Tvs (4, 4)."""
     return T[:3, :3], T[:3, 3], Tvs[:3, :3], Tvs[:3, 3], varpi[:3], varpi[3:]
 
@@ -51,7 +51,8 @@ def frame_values(C, t, Cvs, rvs, nu, om):
 @njit(cache=True, inline="always")
 def point_geometry(F, p0, p1, p2):
     """The scalars of one map point's model (p0, p1, p2) for a state (C, t, nu, om) and extrinsics (Cvs, rvs)
-    given as `frame_values` F, shared by `point_model` and `state_pairs`: (ps (3,), r, vr, arot (9,), am (6,),
+    given as `frame_values` F, shared by `state_pairs`, `point_prediction` and `prepare_kernels`: (ps (3,), r, vr,
+    arot (9,), am (6,),
     j3 (12,)) as tuples of floats.
 
     ps is the point in the sensor frame and r its range; vr its radial velocity. A = dp_s/dxi = C_vs^T
@@ -132,57 +133,12 @@ def predicted_z(polar, ps0, ps1, ps2, r, vr, z):
 
 @njit(cache=True, inline="always")
 def point_prediction(polar, F, p, z):
-    """z (4,) = the predicted measurement of map point p (3,) for `frame_values` F (`point_model`'s z, without
+    """z (4,) = the predicted measurement of map point p (3,) for `frame_values` F (`point_geometry`'s, without
     its Jacobians, which the compiler then leaves out); returns the range, or 0.0 for a point at the sensor
     origin (z not written then)."""
     (ps0, ps1, ps2), r, vr, _, _, _ = point_geometry(F, p[0], p[1], p[2])
     if r < 1e-9:
         return 0.0
-    predicted_z(polar, ps0, ps1, ps2, r, vr, z)
-    return r
-
-
-@njit(cache=True, fastmath=FASTMATH, inline="always")
-def point_model(polar, C, t, Cvs, rvs, nu, om, p, A, J, z, Js, am, ps):
-    """The measurement model of one map point p (3,) for a state (C, t, nu, om) and extrinsics (Cvs, rvs),
-    as arrays (`point_geometry`'s scalars), for the association's kernels:
-
-    z (4,) the predicted [r, az, el, v_r] (polar) or [x, y, z, v_r] (Cartesian); J (4, 12) = dz/d[xi, varpi]
-    (rows 0-2's velocity columns are not written: they stay the caller's zeros); Js (3, 3) = dz[:3]/dp_s;
-    am (2, 3) = (dv_r/dp_s, dv_r/dp_v through the point's velocity), from which the caller builds dz/dp;
-    A (3, 6) = dp_s/dxi; ps (3,) the point in the sensor frame.
-    Returns the range r, or 0.0 for a point at the sensor origin (nothing but ps is written then).
-
-    Checked by: tests/estimator/test_window_kernels.py::test_kernel_matches_numpy_linearisation (through
-        `prepare_kernels.prepare`: tests/estimator/test_scan_association.py)
-    """
-    (ps0, ps1, ps2), r, vr, arot, bm, j3 = point_geometry(frame_values(C, t, Cvs, rvs, nu, om), p[0], p[1],
-                                                          p[2])
-    ps[0], ps[1], ps[2] = ps0, ps1, ps2
-    if r < 1e-9:
-        return 0.0
-    for i in range(3):
-        A[i, 0], A[i, 1], A[i, 2] = Cvs[0, i], Cvs[1, i], Cvs[2, i]
-        A[i, 3], A[i, 4], A[i, 5] = arot[3 * i], arot[3 * i + 1], arot[3 * i + 2]
-    am[0, 0], am[0, 1], am[0, 2] = bm[0], bm[1], bm[2]
-    am[1, 0], am[1, 1], am[1, 2] = bm[3], bm[4], bm[5]
-    for j in range(12):
-        J[3, j] = j3[j]
-    if polar:
-        s10, s11, s20, s21, s22 = polar_rows(ps0, ps1, ps2, r)
-        Js[0, 0], Js[0, 1], Js[0, 2] = ps0 / r, ps1 / r, ps2 / r
-        Js[1, 0], Js[1, 1], Js[1, 2] = s10, s11, 0.0
-        Js[2, 0], Js[2, 1], Js[2, 2] = s20, s21, s22
-        for j in range(6):
-            J[0, j] = j3[6 + j]  # d r/dxi = u^T A = dv_r/dvarpi
-            J[1, j] = s10 * A[0, j] + s11 * A[1, j]
-            J[2, j] = s20 * A[0, j] + s21 * A[1, j] + s22 * A[2, j]
-    else:
-        for i in range(3):
-            for j in range(3):
-                Js[i, j] = 1.0 if i == j else 0.0
-            for j in range(6):
-                J[i, j] = A[i, j]
     predicted_z(polar, ps0, ps1, ps2, r, vr, z)
     return r
 

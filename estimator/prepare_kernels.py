@@ -1,9 +1,12 @@
 """The association's per-map-point preparation, compiled (the per-scan hot path): each map point's prediction,
 innovation covariance S and its inverse, the pair's covariance without the state's part, and the search radius
-(`prepare`), for `scan_association.MapAssociation.associate`.
+(`prepare`, for `scan_association.MapAssociation.associate`); the chosen pairs' information at the re-association's
+state (`pair_information`, for `MapAssociation.reassociate`). Both go in blocks of points held in rows, through
+the same passes.
 
 Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference,
-    ::test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definite
+    ::test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definite,
+    ::test_reassociation_rescores_the_candidates_at_the_new_state
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
 
     The points go in blocks of BLOCK, each pass over a block a loop over its points with their quantities in
     rows, so that the passes without a transcendental function compile to SIMD code over the points. IEEE
-    arithmetic, each quantity summed in the order `point_model`, `pair_covariance` and `_inv_spd4` sum it: the
+    arithmetic, each quantity summed in the order a point at a time sums it (`_inv_spd4`'s for S^-1): the
     results are those of a point at a time, bit for bit.
 
     Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference,
@@ -47,49 +50,16 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
     m = rows.shape[0]
     C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
     F = frame_values(C, t, Cvs, rvs, nu, om)
-    Bm = sensor_from_world(Cvs, C)  # dp_s/dp_world
-    Bc, Cc = Bm.copy(), C.copy()  # local: the passes read them in registers
-    Pl, Rl = np.ascontiguousarray(P).copy(), R.copy()
-    cv = F[2]
-    X = np.empty((12, BLOCK))  # p (3), cov (9)
-    G = np.empty((30, BLOCK))  # G[i, k] (i < 3, k < 6) in row 6 i + k; G[3, :] in rows 18-29
-    Y = np.empty((20, BLOCK))  # ps (3), r, vr, Js (9), am (6)
+    B = sensor_from_world(Cvs, C)  # dp_s/dp_world
+    C, P, R = C.copy(), np.ascontiguousarray(P).copy(), R.copy()  # local: the passes need not check for overlaps
+    X, G, Y = np.empty((12, BLOCK)), np.empty((30, BLOCK)), np.empty((20, BLOCK))  # `_block_geometry`'s rows
     Q = np.empty((31, BLOCK))  # S_pair's upper triangle (10), S's (10), S_inv's (10), S positive definite
-    Z = np.empty((69, BLOCK))  # `_pair_and_innovation`'s rows
-    Lr = np.empty((20, BLOCK))  # `_inv_spd4_rows`'
+    Z, Lr = np.empty((69, BLOCK)), np.empty((20, BLOCK))  # the passes' rows
     for s in range(0, m, BLOCK):
         n = min(BLOCK, m - s)
-        for i in range(n):
-            row = rows[s + i]
-            X[0, i], X[1, i], X[2, i] = p_world[row, 0], p_world[row, 1], p_world[row, 2]
-            for k in range(9):
-                X[3 + k, i] = cov_world[row, k // 3, k % 3]
-        for i in range(n):  # the geometry (`point_model`)
-            ps, r, vr, arot, bm, j3 = point_geometry(F, X[0, i], X[1, i], X[2, i])
-            for k in range(3):
-                G[6 * k, i], G[6 * k + 1, i], G[6 * k + 2, i] = cv[k], cv[3 + k], cv[6 + k]
-                G[6 * k + 3, i], G[6 * k + 4, i], G[6 * k + 5, i] = arot[3 * k], arot[3 * k + 1], arot[3 * k + 2]
-                Y[k, i] = ps[k]
-            for k in range(12):
-                G[18 + k, i] = j3[k]
-            for k in range(6):
-                Y[14 + k, i] = bm[k]
-            Y[3, i], Y[4, i] = r, vr
-            for k in range(9):
-                Y[5 + k, i] = 1.0 if k % 4 == 0 else 0.0  # Js = I (Cartesian)
-        if polar:
-            for i in range(n):
-                ps0, ps1, ps2, r = Y[0, i], Y[1, i], Y[2, i], Y[3, i]
-                s10, s11, s20, s21, s22 = polar_rows(ps0, ps1, ps2, r)
-                Y[5, i], Y[6, i], Y[7, i] = ps0 / r, ps1 / r, ps2 / r
-                Y[8, i], Y[9, i], Y[10, i] = s10, s11, 0.0
-                Y[11, i], Y[12, i], Y[13, i] = s20, s21, s22
-                for j in range(6):
-                    a0, a1, a2 = G[j, i], G[6 + j, i], G[12 + j, i]
-                    G[j, i] = G[24 + j, i]
-                    G[6 + j, i] = s10 * a0 + s11 * a1
-                    G[12 + j, i] = s20 * a0 + s21 * a1 + s22 * a2
-        _pair_and_innovation(Y, G, X, n, Bc, Cc, map_var, Rl, Pl, Z, Q)
+        _block_geometry(polar, F, p_world, cov_world, rows, s, n, X, G, Y)
+        _pair_rows(Y, X, n, B, C, map_var, R, Z, Q)
+        _innovation_rows(G, n, P, Z, Q)
         for i in range(n):
             _inv_spd4_rows(Q, 10, 20, 30, i, Lr)
         _radius_blocks(polar, Y, Q, n, gate, Z)
@@ -115,13 +85,85 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
     return -1
 
 
+@njit(cache=True, error_model="numpy")
+def pair_information(polar, T, varpi, p_world, cov_world, rows, map_var, R, Tvs, W):
+    """W[q] = (R + map term)^-1 of the map point p_world[rows[q]], cov_world[rows[q]] at the state (T, varpi):
+    each associated pair's information in the solve, as `prepare` and `invert_pairs` give it (bit for bit: the
+    same passes), for the pairs of a re-association (`association_kernels.rescore`). Returns -1, or q for the
+    first point at the sensor origin, or len(rows) + q for the first whose R + map term is not positive definite.
+
+    Checked by: tests/estimator/test_scan_association.py::test_reassociation_rescores_the_candidates_at_the_new_state
+    """
+    m = rows.shape[0]
+    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
+    F = frame_values(C, t, Cvs, rvs, nu, om)
+    B = sensor_from_world(Cvs, C)
+    C, R = C.copy(), R.copy()
+    X, G, Y = np.empty((12, BLOCK)), np.empty((30, BLOCK)), np.empty((20, BLOCK))
+    Q, Z, Lr = np.empty((21, BLOCK)), np.empty((33, BLOCK)), np.empty((20, BLOCK))
+    for s in range(0, m, BLOCK):
+        n = min(BLOCK, m - s)
+        _block_geometry(polar, F, p_world, cov_world, rows, s, n, X, G, Y)
+        _pair_rows(Y, X, n, B, C, map_var, R, Z, Q)
+        for i in range(n):
+            _inv_spd4_rows(Q, 0, 10, 20, i, Lr)
+        for i in range(n):
+            if Y[3, i] < 1e-9:
+                return s + i
+            if Q[20, i] == 0.0:
+                return m + s + i
+            q = 0
+            for u in range(4):
+                for v in range(u, 4):
+                    W[s + i, u, v], W[s + i, v, u] = Q[10 + q, i], Q[10 + q, i]
+                    q += 1
+    return -1
+
+
 @njit(cache=True, inline="always")
-def _pair_and_innovation(Y, G, X, n, B, C, map_var, R, P, Z, Q):
-    """Points 0:n of a `prepare` block: S_pair (`pair_covariance`) and S = S_pair + G P G^T, upper triangles
-    row by row into Q[0:10] and Q[10:20], each entry summed in the order of a point at a time. Z's rows hold
-    J_z_p (0-11), cov + map_var I (12-20), J_z_p times it (21-32), G P (33-56) and P[:, 6:] g_v (57-68),
-    g_v = G[3, 6:]. One loop over the points per step, each reading few arrays (so that the compiler's
-    checks that they do not overlap stay few enough for it to vectorise)."""
+def _block_geometry(polar, F, p_world, cov_world, rows, s, n, X, G, Y):
+    """Points rows[s:s + n] of a block: their positions and covariances gathered into X (p (3), cov (9)), and
+    `point_geometry`'s quantities in rows: G (G[i, k], i < 3, k < 6, in row 6 i + k; G[3, :] in rows 18-29) and
+    Y (ps (3), r, vr, Js (9), am (6)), F the state's `frame_values`."""
+    cv = F[2]
+    for i in range(n):
+        row = rows[s + i]
+        X[0, i], X[1, i], X[2, i] = p_world[row, 0], p_world[row, 1], p_world[row, 2]
+        for k in range(9):
+            X[3 + k, i] = cov_world[row, k // 3, k % 3]
+    for i in range(n):  # the geometry
+        ps, r, vr, arot, bm, j3 = point_geometry(F, X[0, i], X[1, i], X[2, i])
+        for k in range(3):
+            G[6 * k, i], G[6 * k + 1, i], G[6 * k + 2, i] = cv[k], cv[3 + k], cv[6 + k]
+            G[6 * k + 3, i], G[6 * k + 4, i], G[6 * k + 5, i] = arot[3 * k], arot[3 * k + 1], arot[3 * k + 2]
+            Y[k, i] = ps[k]
+        for k in range(12):
+            G[18 + k, i] = j3[k]
+        for k in range(6):
+            Y[14 + k, i] = bm[k]
+        Y[3, i], Y[4, i] = r, vr
+        for k in range(9):
+            Y[5 + k, i] = 1.0 if k % 4 == 0 else 0.0  # Js = I (Cartesian)
+    if polar:
+        for i in range(n):
+            ps0, ps1, ps2, r = Y[0, i], Y[1, i], Y[2, i], Y[3, i]
+            s10, s11, s20, s21, s22 = polar_rows(ps0, ps1, ps2, r)
+            Y[5, i], Y[6, i], Y[7, i] = ps0 / r, ps1 / r, ps2 / r
+            Y[8, i], Y[9, i], Y[10, i] = s10, s11, 0.0
+            Y[11, i], Y[12, i], Y[13, i] = s20, s21, s22
+            for j in range(6):
+                a0, a1, a2 = G[j, i], G[6 + j, i], G[12 + j, i]
+                G[j, i] = G[24 + j, i]
+                G[6 + j, i] = s10 * a0 + s11 * a1
+                G[12 + j, i] = s20 * a0 + s21 * a1 + s22 * a2
+
+
+@njit(cache=True, inline="always")
+def _pair_rows(Y, X, n, B, C, map_var, R, Z, Q):
+    """Points 0:n of a block: S_pair = R + J_z_p (cov + map_var I) J_z_p^T, J_z_p = [Js; a^T] B + [0; m^T C]
+    (B = C_vs^T C, C the pose's rotation), its upper triangle row by row into Q[0:10]. Z's rows hold J_z_p
+    (0-11), cov + map_var I (12-20) and J_z_p times it (21-32). One loop over the points per step, each reading
+    few arrays (so that the compiler's checks that they do not overlap stay few enough for it to vectorise)."""
     for i in range(n):
         for j in range(3):
             for u in range(3):
@@ -137,6 +179,20 @@ def _pair_and_innovation(Y, G, X, n, B, C, map_var, R, P, Z, Q):
             for j in range(3):
                 Z[21 + 3 * u + j, i] = (Z[3 * u, i] * Z[12 + j, i] + Z[3 * u + 1, i] * Z[15 + j, i]
                                         + Z[3 * u + 2, i] * Z[18 + j, i])
+    for i in range(n):
+        q = 0
+        for u in range(4):
+            for v in range(u, 4):
+                Q[q, i] = R[u, v] + Z[21 + 3 * u, i] * Z[3 * v, i] + Z[22 + 3 * u, i] * Z[3 * v + 1, i] \
+                    + Z[23 + 3 * u, i] * Z[3 * v + 2, i]
+                q += 1
+
+
+@njit(cache=True, inline="always")
+def _innovation_rows(G, n, P, Z, Q):
+    """Points 0:n of a block: S = S_pair + G P G^T (S_pair in Q[0:10]) into Q[10:20], upper triangles row by
+    row, each entry summed in the order of a point at a time (the pose block of P for every row of G, the
+    velocity blocks for its Doppler row). Z's rows hold G P (33-56) and P[:, 6:] g_v (57-68), g_v = G[3, 6:]."""
     for i in range(n):
         for u in range(4):
             for j in range(6):
@@ -154,8 +210,6 @@ def _pair_and_innovation(Y, G, X, n, B, C, map_var, R, P, Z, Q):
         q = 0
         for u in range(4):
             for v in range(u, 4):
-                sp = R[u, v] + Z[21 + 3 * u, i] * Z[3 * v, i] + Z[22 + 3 * u, i] * Z[3 * v + 1, i] \
-                    + Z[23 + 3 * u, i] * Z[3 * v + 2, i]
                 sg = 0.0
                 for k in range(6):
                     sg += Z[33 + 6 * u + k, i] * G[6 * v + k, i]
@@ -170,8 +224,7 @@ def _pair_and_innovation(Y, G, X, n, B, C, map_var, R, P, Z, Q):
                         sm += Z[57 + k, i] * G[18 + k, i]
                         vv += G[24 + k, i] * Z[63 + k, i]
                     sg += sm + vv
-                Q[q, i] = sp
-                Q[10 + q, i] = sp + sg
+                Q[10 + q, i] = Q[q, i] + sg
                 q += 1
 
 
@@ -220,8 +273,8 @@ def _radius_blocks(polar, Y, Q, n, gate, Z):
         if polar:
             ps0, ps1, ps2, r = Y[0, i], Y[1, i], Y[2, i], Y[3, i]
             rho = math.sqrt(ps0 * ps0 + ps1 * ps1)
-            # cos and sin of the elevation and the azimuth from the position (as point_model's z); straight
-            # above the sensor the azimuth is arbitrary and the elevation's cosine as small as point_model's
+            # cos and sin of the elevation and the azimuth from the position (as the predicted z); straight
+            # above the sensor the azimuth is arbitrary and the elevation's cosine as small as polar_rows'
             ce, se = max(rho, 1e-12 * r) / r, ps2 / r
             ca, sa = (ps0 / rho, ps1 / rho) if rho > 0.0 else (1.0, 0.0)
             Ac = polar_jacobian(r, ca, sa, ce, se)

@@ -179,9 +179,9 @@ class MapAssociation:
         j, i, d2 = association.choose(c.j, c.i, d2, self.gate, len(c.rows), len(di))
         rows = c.rows[j]
         W = np.empty((len(rows), 4, 4))
-        bad = association_kernels.pair_information(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points,
-                                                   local_map.covariances, rows, self.map_sigma**2, self.R,
-                                                   self.T_vehicle_sensor, W)
+        bad = prepare_kernels.pair_information(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points,
+                                               local_map.covariances, rows, self.map_sigma**2, self.R,
+                                               self.T_vehicle_sensor, W)
         if bad >= 0:
             raise FloatingPointError(f"association: map point {rows[bad % len(rows)]} has "
                                      + ("range 0" if bad < len(rows) else "a non positive definite R + map term"))

@@ -86,7 +86,8 @@ def test_prepared_association_equals_the_reference(model):
 @pytest.mark.parametrize("first", ["at the sensor", "not positive definite"])
 def test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definite(model, first):
     """`prepare` returns the index (in rows) of the first map point at the sensor, or m + the index of the first
-    whose S is not positive definite, whichever comes first, also past its first block of points."""
+    whose S is not positive definite, whichever comes first, also past its first block of points; so does
+    `pair_information` for R + map term."""
     from rodo.estimator import prepare_kernels as pkernel
 
     odo, x, P, _, _, _ = _scene_association(model, 3)
@@ -102,6 +103,10 @@ def test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definit
     got = pkernel.prepare(odo.measurement.is_polar, x.T_vehicle_world, x.varpi, points, covariances, np.arange(m),
                           odo.map_sigma**2, P[:12, :12].copy(), odo.associator.R, odo.T_vehicle_sensor,
                           odo.associator.gate, *out)
+    assert got == (at_sensor if first == "at the sensor" else m + indefinite)
+    W = np.empty((m, 4, 4))
+    got = pkernel.pair_information(odo.measurement.is_polar, x.T_vehicle_world, x.varpi, points, covariances,
+                                   np.arange(m), odo.map_sigma**2, odo.associator.R, odo.T_vehicle_sensor, W)
     assert got == (at_sensor if first == "at the sensor" else m + indefinite)
 
 
