@@ -40,40 +40,6 @@ def lambda_max_upper(m00, m01, m02, m11, m12, m22):
     return q + 2.0 * p * math.cos(phi)
 
 
-@njit(cache=True)
-def _inv_spd4(S, out, L, Li):
-    """out = S^-1 for a symmetric 4x4 matrix via Cholesky; False if S is not positive definite. L and Li are
-    (4, 4) scratch, zeroed here."""
-    L[:] = 0.0
-    for i in range(4):
-        for j in range(i + 1):
-            s = S[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            if i == j:
-                if not s > 0.0:
-                    return False
-                L[i, i] = math.sqrt(s)
-            else:
-                L[i, j] = s / L[j, j]
-    Li[:] = 0.0  # L^-1 (lower triangular)
-    for i in range(4):
-        Li[i, i] = 1.0 / L[i, i]
-        for j in range(i):
-            s = 0.0
-            for k in range(j, i):
-                s -= L[i, k] * Li[k, j]
-            Li[i, j] = s / L[i, i]
-    for i in range(4):
-        for j in range(i, 4):
-            s = 0.0
-            for k in range(j, 4):
-                s += Li[k, i] * Li[k, j]
-            out[i, j] = s
-            out[j, i] = s
-    return True
-
-
 @njit(cache=True, inline="always")
 def sensor_from_world(Cvs, C):
     """B (3, 3) = C_vs^T C: a map point's sensor-frame position's derivative by its world position."""
@@ -82,17 +48,6 @@ def sensor_from_world(Cvs, C):
         for j in range(3):
             B[i, j] = Cvs[0, i] * C[0, j] + Cvs[1, i] * C[1, j] + Cvs[2, i] * C[2, j]
     return B
-
-
-@njit(cache=True)
-def invert_pairs(S_pair, rows, W):
-    """W[q] = S_pair[rows[q]]^-1 (the information of each associated pair); returns -1, or the first q whose
-    S_pair is not positive definite."""
-    L, Li = np.empty((4, 4)), np.empty((4, 4))
-    for q in range(len(rows)):
-        if not _inv_spd4(S_pair[rows[q]], W[q], L, Li):
-            return q
-    return -1
 
 
 @njit(cache=True)

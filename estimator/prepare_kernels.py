@@ -23,15 +23,15 @@ BLOCK = 64  # map points per block of `prepare`: its scratch rows stay in the L1
 
 
 @njit(cache=True, error_model="numpy")
-def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate, z, p_s, S, S_inv, S_pair, radius):
+def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate, z, p_s, S, S_inv, W_pair, radius):
     """Everything the association needs per map point (the same model as `measurements.predict`,
     `association.innovation_covariance` and `association._search_radius`):
 
     for the m map points p_world[rows], cov_world[rows] (rows (m,) indices into the map's arrays):
     z (m, 4) predicted measurement, p_s (m, 3) sensor-frame position,
     S = G P G^T + R + J_z_p (cov_world_j + map_var I) J_z_p^T and S_inv (m, 4, 4),
-    S_pair = R + J_z_p (cov_world_j + map_var I) J_z_p^T (m, 4, 4), whose inverse is the pair's information in
-    the solve (`invert_pairs`, for the associated points only),
+    W_pair = S_pair^-1 (m, 4, 4), S_pair = R + J_z_p (cov_world_j + map_var I) J_z_p^T: the pair's information
+    in the solve, NaN where S_pair is not positive definite (an error only for a point that is paired),
     radius (m,) the search radius that holds every detection with d2 <= gate.
     Returns -1 when all is well, else the index of the first point at the sensor origin (range < 1e-9) or
     with an S that is not positive definite (then m + index).
@@ -41,7 +41,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
 
     The points go in blocks of BLOCK, each pass over a block a loop over its points with their quantities in
     rows, so that the passes without a transcendental function compile to SIMD code over the points. IEEE
-    arithmetic, each quantity summed in the order a point at a time sums it (`_inv_spd4`'s for S^-1): the
+    arithmetic, each quantity summed in the order a point at a time sums it: the
     results are those of a point at a time, bit for bit.
 
     Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference,
@@ -53,7 +53,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
     B = sensor_from_world(Cvs, C)  # dp_s/dp_world
     C, P, R = C.copy(), np.ascontiguousarray(P).copy(), R.copy()  # local: the passes need not check for overlaps
     X, G, Y = np.empty((12, BLOCK)), np.empty((30, BLOCK)), np.empty((20, BLOCK))  # `_block_geometry`'s rows
-    Q = np.empty((31, BLOCK))  # S_pair's upper triangle (10), S's (10), S_inv's (10), S positive definite
+    Q = np.empty((42, BLOCK))  # upper triangles of S_pair, S, S^-1 (10 each), S pos. def., S_pair^-1, S_pair's
     Z, Lr = np.empty((69, BLOCK)), np.empty((20, BLOCK))  # the passes' rows
     for s in range(0, m, BLOCK):
         n = min(BLOCK, m - s)
@@ -62,6 +62,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
         _innovation_rows(G, n, P, Z, Q)
         for i in range(n):
             _inv_spd4_rows(Q, 10, 20, 30, i, Lr)
+            _inv_spd4_rows(Q, 0, 31, 41, i, Lr)
         _radius_blocks(polar, Y, Q, n, gate, Z)
         for i in range(n):  # outputs, the search radius (scalar: its eigenvalue's trigonometry)
             a = s + i
@@ -76,7 +77,8 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
             q = 0
             for u in range(4):
                 for v in range(u, 4):
-                    S_pair[a, u, v], S_pair[a, v, u] = Q[q, i], Q[q, i]
+                    w = Q[31 + q, i] if Q[41, i] == 1.0 else np.nan
+                    W_pair[a, u, v], W_pair[a, v, u] = w, w
                     S[a, u, v], S[a, v, u] = Q[10 + q, i], Q[10 + q, i]
                     S_inv[a, u, v], S_inv[a, v, u] = Q[20 + q, i], Q[20 + q, i]
                     q += 1
@@ -88,7 +90,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
 @njit(cache=True, error_model="numpy")
 def pair_information(polar, T, varpi, p_world, cov_world, rows, map_var, R, Tvs, W):
     """W[q] = (R + map term)^-1 of the map point p_world[rows[q]], cov_world[rows[q]] at the state (T, varpi):
-    each associated pair's information in the solve, as `prepare` and `invert_pairs` give it (bit for bit: the
+    each associated pair's information in the solve, as `prepare` gives it (bit for bit: the
     same passes), for the pairs of a re-association (`association_kernels.rescore`). Returns -1, or q for the
     first point at the sensor origin, or len(rows) + q for the first whose R + map term is not positive definite.
 
@@ -230,9 +232,9 @@ def _innovation_rows(G, n, P, Z, Q):
 
 @njit(cache=True, inline="always")
 def _inv_spd4_rows(Q, src, dst, ok, i, Lr):
-    """`_inv_spd4` of the symmetric 4x4 matrix whose upper triangle is Q[src:src + 10, i] (row by row), into
-    Q[dst:dst + 10, i], in its order of operations; Q[ok, i] = 1.0 if it is positive definite, else 0.0 (and
-    the inverse is not meaningful). Lr's rows hold L's lower triangle (0-9) and L^-1's (10-19), as
+    """The inverse of the symmetric 4x4 matrix whose upper triangle is Q[src:src + 10, i] (row by row), into
+    Q[dst:dst + 10, i], by Cholesky: S = L L^T, then L^-1, then S^-1 = L^-T L^-1; Q[ok, i] = 1.0 if S is
+    positive definite, else 0.0 (and the inverse is not meaningful). Lr's rows hold L's lower triangle (0-9) and L^-1's (10-19), as
     Q[_UPPER[j, u]] holds entry (u, j), j <= u."""
     good = True
     for u in range(4):

@@ -125,11 +125,11 @@ class MapAssociation:
         mi = np.flatnonzero(m_in)
         m = len(mi)
         zp, p_s = np.empty((m, 4)), np.empty((m, 3))
-        S, S_inv, S_pair = np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4))
+        S, S_inv, W_pair = np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4))
         radius = np.empty(m)
         bad = prepare_kernels.prepare(self.model.is_polar, x.T_vehicle_world, x.varpi, local_map.points,
                                       local_map.covariances, mi, self.map_sigma**2, np.ascontiguousarray(P[:12, :12]),
-                                      self.R, self.T_vehicle_sensor, self.gate, zp, p_s, S, S_inv, S_pair, radius)
+                                      self.R, self.T_vehicle_sensor, self.gate, zp, p_s, S, S_inv, W_pair, radius)
         if bad >= 0:  # a map point at the sensor, or an innovation covariance that is not positive definite
             raise FloatingPointError(f"association: map point {mi[bad % m]} has "
                                      + ("range 0" if bad < m else "a non positive definite S"))
@@ -142,10 +142,10 @@ class MapAssociation:
         jc, ic, d2 = association.candidates(self.model, cache["z"], cache["grid"], zp, p_s, S_inv,
                                             np.minimum(radius, self.max_radius))
         j, i, d2 = association.choose(jc, ic, d2, self.gate, m, len(di))
-        W = np.empty((len(j), 4, 4))
-        bad = association_kernels.invert_pairs(S_pair, j, W)
-        if bad >= 0:
-            raise FloatingPointError(f"association: map point {mi[j[bad]]} has a non positive definite "
+        W = W_pair[j]
+        bad = np.flatnonzero(np.isnan(W[:, 0, 0]))
+        if len(bad):
+            raise FloatingPointError(f"association: map point {mi[j[bad[0]]]} has a non positive definite "
                                      "R + map term")
         candidates = Candidates(mi, S_inv, jc, ic, len(local_map), len(di))
         return W, Association(mi[j], di[i], d2, len(jc), candidates)

@@ -77,7 +77,8 @@ def test_prepared_association_equals_the_reference(model):
                            odo.T_vehicle_sensor, assoc.gate, *out) == -1
     np.testing.assert_allclose(out[0], pred.z, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(out[2], S, rtol=1e-10, atol=1e-14)
-    np.testing.assert_allclose(out[4], Smap, rtol=1e-12, atol=1e-14 * np.abs(Smap).max())
+    W_all = np.linalg.inv(Smap)
+    np.testing.assert_allclose(out[4], W_all, rtol=1e-8, atol=1e-8 * np.abs(W_all).max())
     radius = odo.measurement.search_radius(pred.z, S, assoc.gate)
     assert np.all(out[5] >= radius) and np.allclose(out[5], radius, rtol=1e-7)
 
@@ -108,6 +109,27 @@ def test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definit
     got = pkernel.pair_information(odo.measurement.is_polar, x.T_vehicle_world, x.varpi, points, covariances,
                                    np.arange(m), odo.map_sigma**2, odo.associator.R, odo.T_vehicle_sensor, W)
     assert got == (at_sensor if first == "at the sensor" else m + indefinite)
+
+
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+def test_preparation_marks_a_pair_covariance_not_positive_definite_with_nan(model):
+    """A map point whose R + map term is not positive definite (its S is, with a wide P) gets NaN for its pair
+    information (an error only if it is paired); every other point's is finite."""
+    from rodo.estimator import prepare_kernels as pkernel
+
+    odo, x, _, _, _, _ = _scene_association(model, 3)
+    m = len(odo.map)
+    covariances = odo.map.covariances.copy()
+    covariances[pkernel.BLOCK + 7] = -1.0 * np.eye(3)  # -1 m^2: R + J_z_p cov J_z_p^T indefinite
+    out = [np.empty((m, 4)), np.empty((m, 3)), np.empty((m, 4, 4)), np.empty((m, 4, 4)), np.empty((m, 4, 4)),
+           np.empty(m)]
+    got = pkernel.prepare(odo.measurement.is_polar, x.T_vehicle_world, x.varpi, odo.map.points, covariances,
+                          np.arange(m), odo.map_sigma**2, 1e6 * np.eye(12), odo.associator.R, odo.T_vehicle_sensor,
+                          odo.associator.gate, *out)
+    assert got == -1
+    nan = np.isnan(out[4]).any(axis=(1, 2))
+    np.testing.assert_array_equal(np.flatnonzero(nan), [pkernel.BLOCK + 7])
+    assert np.isnan(out[4][pkernel.BLOCK + 7]).all()
 
 
 def test_association_window_is_the_same_for_map_points_and_detections():
