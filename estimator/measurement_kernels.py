@@ -51,9 +51,8 @@ def frame_values(C, t, Cvs, rvs, nu, om):
 @njit(cache=True, inline="always")
 def point_geometry(F, p0, p1, p2):
     """The scalars of one map point's model (p0, p1, p2) for a state (C, t, nu, om) and extrinsics (Cvs, rvs)
-    given as `frame_values` F, shared by `state_pairs`, `point_prediction` and `prepare_kernels`: (ps (3,), r, vr,
-    arot (9,), am (6,),
-    j3 (12,)) as tuples of floats.
+    given as `frame_values` F, shared by `state_pairs`, `point_prediction` and `prepare_kernels`: (ps (3,), r,
+    vr, arot (9,), am (6,), j3 (12,)) as tuples of floats.
 
     ps is the point in the sensor frame and r its range; vr its radial velocity. A = dp_s/dxi = C_vs^T
     [I, -p_v^] has row i [column i of C_vs, p_v x column i of C_vs]: arot[3 i + j] = A[i, 3 + j]. am holds
