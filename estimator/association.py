@@ -133,12 +133,12 @@ def choose(j: np.ndarray, i: np.ndarray, d2: np.ndarray, gate: float, m: int, n:
     d2 = np.asarray(d2, dtype=float)
     inside = np.flatnonzero(d2 <= gate)  # NaN never
     j, i, d2 = j[inside], i[inside], d2[inside]
-    return matching_kernels.take(np.argsort(d2), j, i, d2, m, n)
+    return matching_kernels.take(order_by_d2(j, i, d2, n), j, i, d2, m, n)
 
 
 def order_by_d2(j: np.ndarray, i: np.ndarray, d2: np.ndarray, n: int) -> np.ndarray:
     """np.lexsort((i, j, d2)) of pairs (j, i) of n detections: ascending d2, ties by j, then i, as the greedy
-    matching walks them: NumPy's argsort of d2 (its SIMD sort where the machine has one; 2.4x faster than a
+    matching walks them: NumPy's argsort of d2 (its SIMD sort where the machine has one; 2.3x faster than a
     compiled radix sort on a city drive's 2,000 gated pairs, session 32), then the rare exact ties in order."""
     return matching_kernels.order_ties(np.argsort(d2), j, i, d2, n)
 

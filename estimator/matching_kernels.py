@@ -32,20 +32,20 @@ def greedy_one_to_one(order, j, i, m, n):
 
 @njit(cache=True)
 def take(order, j, i, d2, m, n):
-    """The gated pairs (j, i, d2) in `order` (ascending d2, as any argsort of d2 gives it) with their exact ties
-    put in (j, i) order (`order_ties`), taken by `greedy_one_to_one`: (j, i, d2) of the chosen, in the pairs'
-    order (`association.choose`).
+    """The gated pairs (j, i, d2) taken by `greedy_one_to_one` in `order` (`association.order_by_d2`): (j, i, d2)
+    of the chosen, in the pairs' order (`association.choose`).
 
     Checked by: tests/estimator/test_association.py::test_matches_brute_force_and_is_one_to_one
     """
-    chosen = greedy_one_to_one(order_ties(order, j, i, d2, n), j, i, m, n)
+    chosen = greedy_one_to_one(order, j, i, m, n)
     return j[chosen], i[chosen], d2[chosen]
 
 
 @njit(cache=True)
 def order_ties(order, j, i, d2, n):
     """`order`, an argsort of d2 (stable or not), with each run of equal d2 put in (j, i, index) order: then
-    it is np.lexsort((i, j, d2)) (n: the detections' count, for the key j n + i).
+    it is np.lexsort((i, j, d2)) (n: the detections' count, for the key j n + i). Rewritten in place, and
+    returned.
 
     Checked by: tests/estimator/test_association.py::test_pair_order_is_lexsort_with_ties,
         ::test_pair_order_of_any_floats_is_lexsort

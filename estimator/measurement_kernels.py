@@ -297,6 +297,7 @@ def state_pairs(model, T, varpi, lo, hi, p_world, z, W, Tvs, weights, d2_out, ro
             Hk[j, i] = Hk[i, j]
     return cost
 
+
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def position_covariances(polar, sigmas, C, out):
     """out[i] = (C J_i) diag(s_r^2, s_az^2, s_el^2) (C J_i)^T: detection i's polar noise propagated to its

@@ -1,11 +1,13 @@
 """The association's per-map-point preparation, compiled (the per-scan hot path): each map point's prediction,
-innovation covariance S and its inverse, the pair's covariance without the state's part, and the search radius
-(`prepare`, for `scan_association.MapAssociation.associate`); the chosen pairs' information at the re-association's
-state (`pair_information`, for `MapAssociation.reassociate`). Both go in blocks of points held in rows, through
-the same passes.
+innovation covariance S and its inverse, the pair's information (R + map term)^-1 (the inverse of the pair's
+covariance without the state's part) and the search radius (`prepare`, for
+`scan_association.MapAssociation.associate`); the chosen pairs' information at the re-association's state
+(`pair_information`, for `MapAssociation.reassociate`). Both go in blocks of points held in rows, through the same
+passes.
 
 Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference,
     ::test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definite,
+    ::test_preparation_marks_a_pair_covariance_not_positive_definite_with_nan,
     ::test_reassociation_rescores_the_candidates_at_the_new_state
 """
 
@@ -41,11 +43,12 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
 
     The points go in blocks of BLOCK, each pass over a block a loop over its points with their quantities in
     rows, so that the passes without a transcendental function compile to SIMD code over the points. IEEE
-    arithmetic, each quantity summed in the order a point at a time sums it: the
-    results are those of a point at a time, bit for bit.
+    arithmetic, each quantity summed in the order a point at a time sums it: the results are those of a point
+    at a time, bit for bit.
 
     Checked by: tests/estimator/test_scan_association.py::test_prepared_association_equals_the_reference,
-        ::test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definite
+        ::test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definite,
+        ::test_preparation_marks_a_pair_covariance_not_positive_definite_with_nan
     """
     m = rows.shape[0]
     C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
@@ -53,7 +56,7 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
     B = sensor_from_world(Cvs, C)  # dp_s/dp_world
     C, P, R = C.copy(), np.ascontiguousarray(P).copy(), R.copy()  # local: the passes need not check for overlaps
     X, G, Y = np.empty((12, BLOCK)), np.empty((30, BLOCK)), np.empty((20, BLOCK))  # `_block_geometry`'s rows
-    Q = np.empty((42, BLOCK))  # upper triangles of S_pair, S, S^-1 (10 each), S pos. def., S_pair^-1, S_pair's
+    Q = np.empty((42, BLOCK))  # upper triangles of S_pair, S, S^-1 (10 each), S pos. def., S_pair^-1, S_pair p.d.
     Z, Lr = np.empty((69, BLOCK)), np.empty((20, BLOCK))  # the passes' rows
     for s in range(0, m, BLOCK):
         n = min(BLOCK, m - s)
@@ -90,11 +93,12 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
 @njit(cache=True, error_model="numpy")
 def pair_information(polar, T, varpi, p_world, cov_world, rows, map_var, R, Tvs, W):
     """W[q] = (R + map term)^-1 of the map point p_world[rows[q]], cov_world[rows[q]] at the state (T, varpi):
-    each associated pair's information in the solve, as `prepare` gives it (bit for bit: the
-    same passes), for the pairs of a re-association (`association_kernels.rescore`). Returns -1, or q for the
-    first point at the sensor origin, or len(rows) + q for the first whose R + map term is not positive definite.
+    each associated pair's information in the solve, as `prepare` gives it (bit for bit: the same passes), for
+    the pairs of a re-association (`association_kernels.rescore`). Returns -1, or q for the first point at the
+    sensor origin, or len(rows) + q for the first whose R + map term is not positive definite.
 
-    Checked by: tests/estimator/test_scan_association.py::test_reassociation_rescores_the_candidates_at_the_new_state
+    Checked by: tests/estimator/test_scan_association.py::test_reassociation_rescores_the_candidates_at_the_new_state,
+        ::test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definite
     """
     m = rows.shape[0]
     C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
@@ -230,12 +234,15 @@ def _innovation_rows(G, n, P, Z, Q):
                 q += 1
 
 
+_UPPER = np.array([[0, 1, 2, 3], [1, 4, 5, 6], [2, 5, 7, 8], [3, 6, 8, 9]], np.int64)  # (u, v) -> upper index
+
+
 @njit(cache=True, inline="always")
 def _inv_spd4_rows(Q, src, dst, ok, i, Lr):
     """The inverse of the symmetric 4x4 matrix whose upper triangle is Q[src:src + 10, i] (row by row), into
     Q[dst:dst + 10, i], by Cholesky: S = L L^T, then L^-1, then S^-1 = L^-T L^-1; Q[ok, i] = 1.0 if S is
-    positive definite, else 0.0 (and the inverse is not meaningful). Lr's rows hold L's lower triangle (0-9) and L^-1's (10-19), as
-    Q[_UPPER[j, u]] holds entry (u, j), j <= u."""
+    positive definite, else 0.0 (and the inverse is not meaningful). Lr's rows hold L's lower triangle (0-9)
+    and L^-1's (10-19), entry (u, j), j <= u, in row _UPPER[j, u] (and 10 + it)."""
     good = True
     for u in range(4):
         for j in range(u + 1):
@@ -261,9 +268,6 @@ def _inv_spd4_rows(Q, src, dst, ok, i, Lr):
                 sm += Lr[10 + _UPPER[u, k], i] * Lr[10 + _UPPER[j, k], i]
             Q[dst + _UPPER[u, j], i] = sm
     Q[ok, i] = 1.0 if good else 0.0
-
-
-_UPPER = np.array([[0, 1, 2, 3], [1, 4, 5, 6], [2, 5, 7, 8], [3, 6, 8, 9]], np.int64)  # (u, v) -> upper index
 
 
 @njit(cache=True, inline="always")

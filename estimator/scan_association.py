@@ -1,8 +1,9 @@
 """Association of the local map with one scan, as the odometry runs it (paper eq. 86-88).
 
 `MapAssociation.associate` windows the map points and the detections to the field of view, evaluates per map
-point the prediction, S = G P G^T + R + map term, its inverse and the search radius in one compiled pass
-(`prepare_kernels.prepare`; the NumPy reference is `measurements.predict` with
+point the prediction, S = G P G^T + R + map term, its inverse, the pair information (R + map term)^-1 and the
+search radius in one compiled pass over blocks of points (`prepare_kernels.prepare`; the NumPy reference is
+`measurements.predict` with
 `association.innovation_covariance` and `MeasurementModel.search_radius`) and matches as `association.match`
 does. `MapAssociation.reassociate` makes the association again at the solve's state from every candidate the
 first one scored (docs/estimator.md, step 5). A `ScanMeasurements` caches the scan's detection grid.

@@ -78,7 +78,9 @@ def test_prepared_association_equals_the_reference(model):
     np.testing.assert_allclose(out[0], pred.z, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(out[2], S, rtol=1e-10, atol=1e-14)
     W_all = np.linalg.inv(Smap)
-    np.testing.assert_allclose(out[4], W_all, rtol=1e-8, atol=1e-8 * np.abs(W_all).max())
+    scale = np.sqrt(np.abs(np.einsum("mii->mi", W_all)))  # each entry against its rows' and columns' scales
+    np.testing.assert_allclose(out[4] / (scale[:, :, None] * scale[:, None, :]),
+                               W_all / (scale[:, :, None] * scale[:, None, :]), rtol=0, atol=1e-9)
     radius = odo.measurement.search_radius(pred.z, S, assoc.gate)
     assert np.all(out[5] >= radius) and np.allclose(out[5], radius, rtol=1e-7)
 
@@ -130,6 +132,22 @@ def test_preparation_marks_a_pair_covariance_not_positive_definite_with_nan(mode
     nan = np.isnan(out[4]).any(axis=(1, 2))
     np.testing.assert_array_equal(np.flatnonzero(nan), [pkernel.BLOCK + 7])
     assert np.isnan(out[4][pkernel.BLOCK + 7]).all()
+
+
+@pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
+def test_association_refuses_a_paired_point_whose_pair_covariance_is_not_positive_definite(model):
+    """`MapAssociation.associate` raises a clear error, naming the map point, when a point it pairs has an
+    R + map term that is not positive definite (its S positive definite, with a wide P)."""
+    import copy
+
+    odo, x, P, scan, _, pairs = _scene_association(model, 3)
+    bad = int(pairs.map_idx[0])
+    local_map = copy.deepcopy(odo.map)  # the scene is cached: a copy to spoil
+    local_map._cov[bad] = -1.0 * np.eye(3)  # its public view is read-only
+    P_wide = P.copy()
+    P_wide[:12, :12] += 100.0 * np.eye(12)
+    with pytest.raises(FloatingPointError, match=f"map point {bad} has a non positive definite R \\+ map term"):
+        odo.associator.associate(x, P_wide, local_map, copy.deepcopy(scan))
 
 
 def test_association_window_is_the_same_for_map_points_and_detections():

@@ -80,27 +80,33 @@ def _reference_terms(model, T, varpi, p, z, W, Tvs, w):
 
 
 @pytest.mark.parametrize("model", measurements.MODELS)
-@given(seed=st.integers(0, 2**32 - 1), m=st.integers(kernel.BLOCK, 2 * kernel.BLOCK + 3))  # two or three blocks
+@given(seed=st.integers(0, 2**32 - 1), m=st.integers(kernel.BLOCK, 2 * kernel.BLOCK + 3),  # two or three blocks
+       lo=st.integers(0, 5), c=st.sampled_from([0.0, 2.0]))
 @settings(max_examples=10, deadline=None)
-def test_kernel_over_blocks_with_cauchy_weights_and_a_point_at_the_sensor(model, seed, m):
-    """Over two or three blocks of pairs (a few pairs: the test above): the Cauchy weights of the pairs whose weight
-    is negative are set from their d2, and H, b, d2 equal the reference with those weights. A map point at the
+def test_kernel_over_blocks_with_cauchy_weights_and_a_point_at_the_sensor(model, seed, m, lo, c):
+    """Over two or three blocks of pairs lo:hi inside a longer pack (a few pairs: the test above): the Cauchy
+    weights of the pairs whose weight is negative are set from their d2 (1 when robust_c is 0), and H, b, d2
+    equal the reference with those weights; the pack's other pairs are left as they were. A map point at the
     sensor adds no term to H and b, keeps its weight, and makes its d2 and the cost NaN."""
     rng = np.random.default_rng(np.random.SeedSequence(seed))  # ~10 draws a pair: too many to draw through hypothesis
-    T, varpi, sets = _random_sets(rng, 1, m + 1, model)
+    n = lo + m + 1 + 3  # 3 pairs after hi
+    T, varpi, sets = _random_sets(rng, 1, n, model)
     p, z, W = (np.array(x) for x in sets[0])
-    at_sensor = int(rng.integers(0, m + 1))
+    hi = lo + m + 1
+    at_sensor = int(rng.integers(lo, hi))
     p[at_sensor] = se3.transform_points(se3.inverse(T[0]) @ scene.T_VEHICLE_SENSOR, np.zeros((1, 3)))[0]
-    w = np.where(rng.uniform(size=m + 1) < 0.5, -1.0, rng.uniform(0.2, 1.0, m + 1))
-    w_before, d2 = w.copy(), np.empty(m + 1)
+    w = np.where(rng.uniform(size=n) < 0.5, -1.0, rng.uniform(0.2, 1.0, n))
+    w_before, d2 = w.copy(), np.full(n, 7.0)
     H, b = np.zeros((12, 12)), np.zeros(12)
     code = kernel.POLAR if model == "polar" else kernel.CARTESIAN
-    c = 2.0
-    cost = kernel.state_pairs(code, T[0], varpi[0], 0, m + 1, p, z, W, scene.T_VEHICLE_SENSOR, w, d2, c, H, b)
-    keep = np.arange(m + 1) != at_sensor
+    cost = kernel.state_pairs(code, T[0], varpi[0], lo, hi, p, z, W, scene.T_VEHICLE_SENSOR, w, d2, c, H, b)
+    outside = np.r_[0:lo, hi:n]
+    np.testing.assert_array_equal(w[outside], w_before[outside])
+    np.testing.assert_array_equal(d2[outside], 7.0)
+    keep = np.setdiff1d(np.arange(lo, hi), [at_sensor])
     H_ref, b_ref, d2_ref = _reference_terms(model, T[0], varpi[0], p[keep], z[keep], W[keep],
                                             scene.T_VEHICLE_SENSOR, np.ones(m))
-    cauchy = 1.0 / (1.0 + d2_ref / c**2)
+    cauchy = 1.0 / (1.0 + d2_ref / c**2) if c > 0 else np.ones(m)
     assert np.isnan(cost) and np.isnan(d2[at_sensor]) and w[at_sensor] == w_before[at_sensor]
     np.testing.assert_allclose(d2[keep], d2_ref, rtol=1e-10, atol=1e-15)
     np.testing.assert_allclose(w[keep], np.where(w_before[keep] < 0, cauchy, w_before[keep]), rtol=1e-10)
