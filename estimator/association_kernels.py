@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from .jit import njit
-from .measurement_kernels import frame_values, frames, point_prediction, residual_d2
+from .measurement_kernels import frame_values, point_prediction, residual_d2
 
 
 @njit(cache=True)
@@ -59,8 +59,7 @@ def rescore(polar, T, varpi, p_world, rows, Tvs, z_meas, S_inv, j, i, d2):
 
     Checked by: tests/estimator/test_scan_association.py::test_reassociation_rescores_the_candidates_at_the_new_state
     """
-    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
-    F = frame_values(C, t, Cvs, rvs, nu, om)
+    F = frame_values(T, varpi, Tvs)
     zp, e = np.empty(4), np.empty(4)
     last = -1
     for q in range(j.shape[0]):
@@ -128,9 +127,9 @@ def grid_candidates(polar, cell_points, x0, y0, cell, nx, ny, start, order, p, r
         p0, p1, p2 = p[a, 0], p[a, 1], p[a, 2]
         ix0, ix1 = int(max(0.0, (p0 - r - x0) / cell)), int(min(nx - 1.0, (p0 + r - x0) / cell))
         iy0, iy1 = int(max(0.0, (p1 - r - y0) / cell)), int(min(ny - 1.0, (p1 + r - y0) / cell))
-        found = 0
         if iy0 > iy1:  # no cell of the grid in p's square: no row to read (start[ix * ny + iy1 + 1] is not its row)
-            ix1 = ix0 - 1
+            continue
+        found = 0
         for ix in range(ix0, ix1 + 1):  # cells iy0..iy1 of row ix: one run of cell_points, in the grid's order
             for q in range(start[ix * ny + iy0], start[ix * ny + iy1 + 1]):
                 dx, dy, dz = cell_points[q, 0] - p0, cell_points[q, 1] - p1, cell_points[q, 2] - p2

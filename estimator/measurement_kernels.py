@@ -24,7 +24,7 @@ POLAR, CARTESIAN = 0, 1
 
 @njit(cache=True, inline="always")
 def frames(T, varpi, Tvs):
-    """(C, t, C_vs, r_vs, nu, omega): the views `frame_values` takes of a pose T (4, 4), its velocity varpi (6,)
+    """(C, t, C_vs, r_vs, nu, omega): the views of a pose T (4, 4), its velocity varpi (6,)
     and the radar's extrinsics Tvs (4, 4)."""
     return T[:3, :3], T[:3, 3], Tvs[:3, :3], Tvs[:3, 3], varpi[:3], varpi[3:]
 
@@ -39,10 +39,11 @@ def polar_jacobian(r, ca, sa, ce, se):
 
 
 @njit(cache=True, inline="always")
-def frame_values(C, t, Cvs, rvs, nu, om):
+def frame_values(T, varpi, Tvs):
     """`frames`' views as tuples of floats, C and Cvs row by row, for `point_geometry`: values a kernel's loop
     holds in registers (read from arrays, they would be read again after every store the loop makes, which
     might alias them)."""
+    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
     return ((C[0, 0], C[0, 1], C[0, 2], C[1, 0], C[1, 1], C[1, 2], C[2, 0], C[2, 1], C[2, 2]), (t[0], t[1], t[2]),
             (Cvs[0, 0], Cvs[0, 1], Cvs[0, 2], Cvs[1, 0], Cvs[1, 1], Cvs[1, 2], Cvs[2, 0], Cvs[2, 1], Cvs[2, 2]),
             (rvs[0], rvs[1], rvs[2]), (nu[0], nu[1], nu[2]), (om[0], om[1], om[2]))
@@ -118,13 +119,18 @@ def wrap_angle(x):
 
 
 @njit(cache=True, inline="always")
+def polar_angles(ps0, ps1, ps2, r):
+    """(azimuth, elevation) of a point at ps (sensor frame), range r > 0."""
+    return math.atan2(ps1, ps0), math.asin(min(1.0, max(-1.0, ps2 / r)))
+
+
+@njit(cache=True, inline="always")
 def predicted_z(polar, ps0, ps1, ps2, r, vr, z):
     """z (4,) = [r, az, el, v_r] (polar) or [x, y, z, v_r] (Cartesian) of a point at ps (sensor frame), range
     r > 0, radial velocity vr."""
     if polar:
         z[0] = r
-        z[1] = math.atan2(ps1, ps0)
-        z[2] = math.asin(min(1.0, max(-1.0, ps2 / r)))
+        z[1], z[2] = polar_angles(ps0, ps1, ps2, r)
     else:
         z[0], z[1], z[2] = ps0, ps1, ps2
     z[3] = vr
@@ -164,6 +170,44 @@ def residual_d2(polar, z, zp, M, e):
     return d2
 
 
+@njit(cache=True, inline="always")
+def geometry_rows(polar, F, X, n, J, Y, point_jacobian):
+    """`point_geometry` of the points X[0:3, :n] (positions in rows, a block of `state_pairs` or of
+    `prepare_kernels`) for `frame_values` F, in rows: J (30, n), dz/d[xi, varpi] (entry (r, j) of the pose columns
+    in row 6 r + j, the Doppler row's velocity columns in rows 24-29); Y (20, n): ps (rows 0-2), r (3), vr (4)
+    and, with point_jacobian (a literal, so the compiler keeps only one side of its tests), Js = dz[:3]/dp_s
+    (5-13, row by row) and am (14-19), `point_geometry`'s. Each step one loop over the points (SIMD code); r
+    below 1e-9 (a point at the sensor) leaves J finite, its values meaningless."""
+    cv = F[2]
+    for i in range(n):  # rows 0-2 of J the Cartesian model's (A), the polar model's below
+        ps, r, vr, arot, bm, j3 = point_geometry(F, X[0, i], X[1, i], X[2, i])
+        for k in range(3):
+            J[6 * k, i], J[6 * k + 1, i], J[6 * k + 2, i] = cv[k], cv[3 + k], cv[6 + k]
+            J[6 * k + 3, i], J[6 * k + 4, i], J[6 * k + 5, i] = arot[3 * k], arot[3 * k + 1], arot[3 * k + 2]
+            Y[k, i] = ps[k]
+        for k in range(12):
+            J[18 + k, i] = j3[k]
+        Y[3, i], Y[4, i] = r, vr
+        if point_jacobian:
+            for k in range(6):
+                Y[14 + k, i] = bm[k]
+            for k in range(9):
+                Y[5 + k, i] = 1.0 if k % 4 == 0 else 0.0  # Js = I (Cartesian; the polar model's below)
+    if polar:
+        for i in range(n):
+            ps0, ps1, ps2, r = Y[0, i], Y[1, i], Y[2, i], max(Y[3, i], 1e-9)
+            s10, s11, s20, s21, s22 = polar_rows(ps0, ps1, ps2, r)
+            if point_jacobian:
+                Y[5, i], Y[6, i], Y[7, i] = ps0 / r, ps1 / r, ps2 / r
+                Y[8, i], Y[9, i], Y[10, i] = s10, s11, 0.0
+                Y[11, i], Y[12, i], Y[13, i] = s20, s21, s22
+            for j in range(6):
+                a0, a1, a2 = J[j, i], J[6 + j, i], J[12 + j, i]
+                J[j, i] = J[24 + j, i]  # d r/dxi = u^T A = dv_r/dvarpi
+                J[6 + j, i] = s10 * a0 + s11 * a1
+                J[12 + j, i] = s20 * a0 + s21 * a1 + s22 * a2
+
+
 BLOCK = 64  # pairs per block of `state_pairs`: its scratch rows stay in the L1 cache
 
 
@@ -190,13 +234,11 @@ def state_pairs(model, T, varpi, lo, hi, p_world, z, W, Tvs, weights, d2_out, ro
         ::test_kernel_over_blocks_with_cauchy_weights_and_a_point_at_the_sensor
     """
     polar = model == POLAR
-    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
-    F = frame_values(C, t, Cvs, rvs, nu, om)
-    cv = F[2]
+    F = frame_values(T, varpi, Tvs)
     X = np.empty((17, BLOCK))  # inputs: p (3), z (4), W's upper triangle (10)
-    J = np.empty((30, BLOCK))  # J[r, j] (pose columns) in row 6 r + j; the Doppler row's velocity columns 24-29
+    J, Y = np.empty((30, BLOCK)), np.empty((20, BLOCK))  # `geometry_rows`' (J[r, j] in row 6 r + j, ...)
     WJ = np.empty((24, BLOCK))  # w W J, pose columns, as J
-    E = np.empty((10, BLOCK))  # e (4), ps (3), r, w, w W_33
+    E = np.empty((6, BLOCK))  # e (4), w, w W_33
     Fe = np.empty((4, BLOCK))  # w W e
     H = np.zeros((12, 12))
     b = np.zeros(12)
@@ -211,31 +253,17 @@ def state_pairs(model, T, varpi, lo, hi, p_world, z, W, Tvs, weights, d2_out, ro
             X[7, i], X[8, i], X[9, i], X[10, i] = W[a, 0, 0], W[a, 0, 1], W[a, 0, 2], W[a, 0, 3]
             X[11, i], X[12, i], X[13, i] = W[a, 1, 1], W[a, 1, 2], W[a, 1, 3]
             X[14, i], X[15, i], X[16, i] = W[a, 2, 2], W[a, 2, 3], W[a, 3, 3]
-        for i in range(m):  # the geometry; rows 0-2 of J the Cartesian model's (A), the polar's below
-            ps, r, vr, arot, _, j3 = point_geometry(F, X[0, i], X[1, i], X[2, i])
-            for k in range(3):
-                J[6 * k, i], J[6 * k + 1, i], J[6 * k + 2, i] = cv[k], cv[3 + k], cv[6 + k]
-                J[6 * k + 3, i], J[6 * k + 4, i], J[6 * k + 5, i] = arot[3 * k], arot[3 * k + 1], arot[3 * k + 2]
-                E[k, i] = X[3 + k, i] - ps[k]
-                E[4 + k, i] = ps[k]
-            for j in range(12):
-                J[18 + j, i] = j3[j]
-            E[3, i] = X[6, i] - vr
-            E[7, i] = r
+        geometry_rows(polar, F, X, m, J, Y, False)
+        for i in range(m):  # the residuals: z - the prediction (the angles below for the polar model)
+            E[0, i] = X[3, i] - (Y[3, i] if polar else Y[0, i])
+            E[1, i] = X[4, i] - Y[1, i]
+            E[2, i] = X[5, i] - Y[2, i]
+            E[3, i] = X[6, i] - Y[4, i]
         if polar:
             for i in range(m):
-                ps0, ps1, ps2, r = E[4, i], E[5, i], E[6, i], max(E[7, i], 1e-9)
-                s10, s11, s20, s21, s22 = polar_rows(ps0, ps1, ps2, r)
-                for j in range(6):
-                    a0, a1, a2 = J[j, i], J[6 + j, i], J[12 + j, i]
-                    J[j, i] = J[24 + j, i]  # d r/dxi = u^T A = dv_r/dvarpi
-                    J[6 + j, i] = s10 * a0 + s11 * a1
-                    J[12 + j, i] = s20 * a0 + s21 * a1 + s22 * a2
-                E[0, i] = X[3, i] - E[7, i]
-            for i in range(m):
-                ps0, ps1, ps2, r = E[4, i], E[5, i], E[6, i], E[7, i]
-                E[1, i] = wrap_angle(X[4, i] - math.atan2(ps1, ps0))
-                E[2, i] = X[5, i] - math.asin(min(1.0, max(-1.0, ps2 / r)))
+                az, el = polar_angles(Y[0, i], Y[1, i], Y[2, i], Y[3, i])
+                E[1, i] = wrap_angle(X[4, i] - az)
+                E[2, i] = X[5, i] - el
         for i in range(m):  # d2, the weights, the cost
             a = s + i
             e0, e1, e2, e3 = E[0, i], E[1, i], E[2, i], E[3, i]
@@ -244,7 +272,7 @@ def state_pairs(model, T, varpi, lo, hi, p_world, z, W, Tvs, weights, d2_out, ro
             f2 = X[9, i] * e0 + X[12, i] * e1 + X[14, i] * e2 + X[15, i] * e3
             f3 = X[10, i] * e0 + X[13, i] * e1 + X[15, i] * e2 + X[16, i] * e3
             d2 = e0 * f0 + e1 * f1 + e2 * f2 + e3 * f3
-            at_sensor = E[7, i] < 1e-9
+            at_sensor = Y[3, i] < 1e-9
             wa = weights[a]
             if wa < 0.0 and not at_sensor:
                 wa = 1.0 / (1.0 + d2 / rc2) if robust_c > 0.0 else 1.0
@@ -255,10 +283,10 @@ def state_pairs(model, T, varpi, lo, hi, p_world, z, W, Tvs, weights, d2_out, ro
             if at_sensor:  # no term (its e is NaN)
                 f0, f1, f2, f3 = 0.0, 0.0, 0.0, 0.0
             Fe[0, i], Fe[1, i], Fe[2, i], Fe[3, i] = wgt * f0, wgt * f1, wgt * f2, wgt * f3
-            E[8, i] = wgt
-            E[9, i] = wgt * X[16, i]
+            E[4, i] = wgt
+            E[5, i] = wgt * X[16, i]
         for i in range(m):  # w W J, pose columns
-            wgt = E[8, i]
+            wgt = E[4, i]
             for j in range(6):
                 x0, x1, x2, x3 = J[j, i], J[6 + j, i], J[12 + j, i], J[18 + j, i]
                 WJ[j, i] = wgt * (X[7, i] * x0 + X[8, i] * x1 + X[9, i] * x2 + X[10, i] * x3)
@@ -283,7 +311,7 @@ def state_pairs(model, T, varpi, lo, hi, p_world, z, W, Tvs, weights, d2_out, ro
                 H[j, l] += acc
                 acc = 0.0
                 for i in range(m):
-                    acc += E[9, i] * J[24 + j, i] * J[24 + l, i]
+                    acc += E[5, i] * J[24 + j, i] * J[24 + l, i]
                 H[6 + j, 6 + l] += acc
             for l in range(6):
                 acc = 0.0

@@ -19,7 +19,7 @@ import numpy as np
 
 from .association_kernels import lambda_max_upper, sensor_from_world
 from .jit import njit
-from .measurement_kernels import frame_values, frames, point_geometry, polar_jacobian, polar_rows, predicted_z
+from .measurement_kernels import frame_values, frames, geometry_rows, polar_jacobian, predicted_z
 
 BLOCK = 64  # map points per block of `prepare`: its scratch rows stay in the L1 cache
 
@@ -51,8 +51,8 @@ def prepare(polar, T, varpi, p_world, cov_world, rows, map_var, P, R, Tvs, gate,
         ::test_preparation_marks_a_pair_covariance_not_positive_definite_with_nan
     """
     m = rows.shape[0]
-    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
-    F = frame_values(C, t, Cvs, rvs, nu, om)
+    C, _, Cvs, _, _, _ = frames(T, varpi, Tvs)
+    F = frame_values(T, varpi, Tvs)
     B = sensor_from_world(Cvs, C)  # dp_s/dp_world
     C, P, R = C.copy(), np.ascontiguousarray(P).copy(), R.copy()  # local: the passes need not check for overlaps
     X, G, Y = np.empty((12, BLOCK)), np.empty((30, BLOCK)), np.empty((20, BLOCK))  # `_block_geometry`'s rows
@@ -101,8 +101,8 @@ def pair_information(polar, T, varpi, p_world, cov_world, rows, map_var, R, Tvs,
         ::test_preparation_reports_a_point_at_the_sensor_and_an_s_not_positive_definite
     """
     m = rows.shape[0]
-    C, t, Cvs, rvs, nu, om = frames(T, varpi, Tvs)
-    F = frame_values(C, t, Cvs, rvs, nu, om)
+    C, _, Cvs, _, _, _ = frames(T, varpi, Tvs)
+    F = frame_values(T, varpi, Tvs)
     B = sensor_from_world(Cvs, C)
     C, R = C.copy(), R.copy()
     X, G, Y = np.empty((12, BLOCK)), np.empty((30, BLOCK)), np.empty((20, BLOCK))
@@ -129,39 +129,13 @@ def pair_information(polar, T, varpi, p_world, cov_world, rows, map_var, R, Tvs,
 @njit(cache=True, inline="always")
 def _block_geometry(polar, F, p_world, cov_world, rows, s, n, X, G, Y):
     """Points rows[s:s + n] of a block: their positions and covariances gathered into X (p (3), cov (9)), and
-    `point_geometry`'s quantities in rows: G (G[i, k], i < 3, k < 6, in row 6 i + k; G[3, :] in rows 18-29) and
-    Y (ps (3), r, vr, Js (9), am (6)), F the state's `frame_values`."""
-    cv = F[2]
+    `geometry_rows` of them into G and Y (with the point Jacobian), F the state's `frame_values`."""
     for i in range(n):
         row = rows[s + i]
         X[0, i], X[1, i], X[2, i] = p_world[row, 0], p_world[row, 1], p_world[row, 2]
         for k in range(9):
             X[3 + k, i] = cov_world[row, k // 3, k % 3]
-    for i in range(n):  # the geometry
-        ps, r, vr, arot, bm, j3 = point_geometry(F, X[0, i], X[1, i], X[2, i])
-        for k in range(3):
-            G[6 * k, i], G[6 * k + 1, i], G[6 * k + 2, i] = cv[k], cv[3 + k], cv[6 + k]
-            G[6 * k + 3, i], G[6 * k + 4, i], G[6 * k + 5, i] = arot[3 * k], arot[3 * k + 1], arot[3 * k + 2]
-            Y[k, i] = ps[k]
-        for k in range(12):
-            G[18 + k, i] = j3[k]
-        for k in range(6):
-            Y[14 + k, i] = bm[k]
-        Y[3, i], Y[4, i] = r, vr
-        for k in range(9):
-            Y[5 + k, i] = 1.0 if k % 4 == 0 else 0.0  # Js = I (Cartesian)
-    if polar:
-        for i in range(n):
-            ps0, ps1, ps2, r = Y[0, i], Y[1, i], Y[2, i], Y[3, i]
-            s10, s11, s20, s21, s22 = polar_rows(ps0, ps1, ps2, r)
-            Y[5, i], Y[6, i], Y[7, i] = ps0 / r, ps1 / r, ps2 / r
-            Y[8, i], Y[9, i], Y[10, i] = s10, s11, 0.0
-            Y[11, i], Y[12, i], Y[13, i] = s20, s21, s22
-            for j in range(6):
-                a0, a1, a2 = G[j, i], G[6 + j, i], G[12 + j, i]
-                G[j, i] = G[24 + j, i]
-                G[6 + j, i] = s10 * a0 + s11 * a1
-                G[12 + j, i] = s20 * a0 + s21 * a1 + s22 * a2
+    geometry_rows(polar, F, X, n, G, Y, True)
 
 
 @njit(cache=True, inline="always")
