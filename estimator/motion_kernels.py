@@ -87,70 +87,75 @@ def accumulate(H, b, e, J1, J2, W):
     """Adds the motion terms of consecutive states k, k+1 to the window's normal equations: with
     J = [J1_k, J2_k] (d x 2d), H[kd:(k+2)d, kd:(k+2)d] += J^T W_k J, b[...] += J^T W_k e_k; returns
     sum_k 1/2 e_k^T W_k e_k. J2 has the structure `residuals` gives it, diag(J2[:6, :6], I): only its pose block
-    is read. The products run row by row (a row of the result accumulates rows of the right factor, so the
-    innermost loops are contiguous and vectorise); each entry still sums its terms in the order of the
-    matrix product.
+    is read.
+
+    J is sparse: below its pose rows, J1 = -F_k holds the identity and the dt blocks of the rates (a CA column
+    has at most 8 nonzeros of 18, `_nonzeros`), so each column's nonzeros are listed once per interval and
+    both products, J^T W and J^T (W J), run over them alone, a row of the result at a time over contiguous
+    rows of the right factor (the innermost loops vectorise): 22 -> 12 us for a CA window of five states, 10.5 ->
+    6 for CV. A skipped term is an exact zero, so no sum loses anything but its order of evaluation.
 
     Checked by: tests/estimator/test_window_kernels.py::test_motion_terms_in_the_normal_equations
     """
     n, d = e.shape[0], e.shape[1]
-    JW = np.empty((2 * d, d))
+    JW = np.empty((2 * d, d))  # J^T W_k
+    WJ = np.empty((d, 2 * d))  # its transpose, W_k J
     We = np.empty(d)
-    row = np.empty(d)
+    rows, vals, count = np.empty((2 * d, d), np.int64), np.empty((2 * d, d)), np.empty(2 * d, np.int64)
+    row = np.empty(2 * d)
     cost = 0.0
     for k in range(n):
-        Wk, J1k, J2k = W[k], J1[k], J2[k]
+        Wk = W[k]
         for i in range(d):
             s = 0.0
             for l in range(d):
                 s += Wk[i, l] * e[k, l]
             We[i] = s
             cost += 0.5 * e[k, i] * s
-        # JW = J^T W: J1 dense, J2 = diag(J2[:6, :6], I)
-        JW[:] = 0.0
-        for r in range(d):
-            for l in range(d):
-                a = J1k[l, r]
-                for c in range(d):
-                    JW[r, c] += a * Wk[l, c]
-            if r < 6:
-                for l in range(6):
-                    a = J2k[l, r]
-                    for c in range(d):
-                        JW[d + r, c] += a * Wk[l, c]
-            else:
-                for c in range(d):
-                    JW[d + r, c] = Wk[r, c]
+        _nonzeros(J1[k], J2[k], rows, vals, count)
         o = k * d
         for r in range(2 * d):
-            if r < d:
-                s = 0.0
-                for l in range(d):
-                    s += J1k[l, r] * We[l]
-            elif r < d + 6:
-                s = 0.0
-                for l in range(6):
-                    s += J2k[l, r - d] * We[l]
-            else:
-                s = We[r - d]
-            b[o + r] += s
-            row[:] = 0.0
-            for l in range(d):
-                a = JW[r, l]
+            s = 0.0
+            JW[r] = 0.0
+            for m in range(count[r]):
+                l, a = rows[r, m], vals[r, m]
+                s += a * We[l]
                 for c in range(d):
-                    row[c] += a * J1k[l, c]
+                    JW[r, c] += a * Wk[l, c]
+            b[o + r] += s
+        for r in range(2 * d):
             for c in range(d):
+                WJ[c, r] = JW[r, c]
+        for r in range(2 * d):
+            row[:] = 0.0
+            for m in range(count[r]):
+                l, a = rows[r, m], vals[r, m]
+                for c in range(2 * d):
+                    row[c] += a * WJ[l, c]
+            for c in range(2 * d):
                 H[o + r, o + c] += row[c]
-            row[:6] = 0.0
-            for l in range(6):
-                a = JW[r, l]
-                for c in range(6):
-                    row[c] += a * J2k[l, c]
-            for c in range(6):
-                H[o + r, o + d + c] += row[c]
-            for c in range(6, d):
-                H[o + r, o + d + c] += JW[r, c]
     return cost
+
+
+@njit(cache=True, error_model="numpy")
+def _nonzeros(J1, J2, rows, vals, count):
+    """The nonzeros of each column r of J = [J1, diag(J2[:6, :6], I)] (d x 2d): rows[r, :count[r]] and
+    vals[r, :count[r]], in the order of their rows."""
+    d = J1.shape[0]
+    for r in range(2 * d):
+        m = 0
+        if r < d + 6:
+            for l in range(d if r < d else 6):
+                a = J1[l, r] if r < d else J2[l, r - d]
+                if a != 0.0:
+                    rows[r, m] = l
+                    vals[r, m] = a
+                    m += 1
+        else:
+            rows[r, 0] = r - d
+            vals[r, 0] = 1.0
+            m = 1
+        count[r] = m
 
 
 @njit(cache=True, error_model="numpy")

@@ -176,8 +176,11 @@ def test_window_update_equals_state_oplus(kind):
 
 
 @pytest.mark.parametrize("kind", ["ca", "cv"])
-def test_motion_terms_in_the_normal_equations(kind):
-    """The compiled accumulation of the motion terms = J^T W J, J^T W e, 1/2 e^T W e summed in NumPy."""
+@pytest.mark.parametrize("jacobians", ["residuals", "dense", "holes"])
+def test_motion_terms_in_the_normal_equations(kind, jacobians):
+    """The compiled accumulation of the motion terms = J^T W J, J^T W e, 1/2 e^T W e summed in NumPy: with the
+    Jacobians the residuals give (J1 sparse below its pose rows), with J1 and J2's pose block dense, and with
+    exact zeros scattered through them (the kernel skips zeros; it must skip nothing else)."""
     from rodo.estimator import motion_kernels
 
     rng = np.random.default_rng(6)
@@ -186,6 +189,13 @@ def test_motion_terms_in_the_normal_equations(kind):
     states = [State(0.08 * k, se3.exp(rng.normal(size=6)), rng.normal(size=6),
                     rng.normal(size=6) if kind == "ca" else None) for k in range(4)]
     E, J1, J2 = motion.residuals(states)
+    if jacobians != "residuals":
+        J1 = rng.normal(size=J1.shape)
+        J2[:, :6, :6] = rng.normal(size=(3, 6, 6))
+    if jacobians == "holes":
+        J1[rng.random(J1.shape) < 0.3] = 0.0
+        J2[:, :6, :6][rng.random((3, 6, 6)) < 0.3] = 0.0
+        J1[1, :, 4] = 0.0  # a column without nonzeros
     W = np.stack([(lambda A: A @ A.T + np.eye(d))(rng.normal(size=(d, d))) for _ in range(3)])
     H, b = np.zeros((4 * d, 4 * d)), np.zeros(4 * d)
     cost = motion_kernels.accumulate(H, b, E, J1, J2, W)
