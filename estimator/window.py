@@ -16,6 +16,7 @@ Checked by: tests/estimator/test_window.py
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +60,7 @@ class SlidingWindow:
         self.prior_grad: np.ndarray | None = None  # linear term g: cost 1/2 e^T Lam e + g^T e, e = x0 (-) mean
         self._packs: dict = {}  # measurement sets concatenated for the kernel, per tuple of sets (cached)
         self._rates: dict = {}  # the rate terms as the kernel takes them, per (n, first_only, terms) (cached)
+        self._rate_copy: np.ndarray | None = None  # the window's copy of the rate term set last
         # False: an older state's measurement terms are linearised once per solve (the first linearisation after
         # a re-weighting), then taken from their quadratic model (`_normal_equations`); the newest state's always
         self.relinearize_older = relinearize_older
@@ -98,8 +100,14 @@ class SlidingWindow:
     def set_rate_prior(self, k: int, info: np.ndarray | None) -> None:
         """A zero-mean term on state k's rates: cost 1/2 t^T info t with t = [varpi; varpi_dot] (a standstill seen by
         the Doppler: a wheeled vehicle at rest neither moves nor turns; or a moving road vehicle's roll and pitch
-        rates), or None to remove it. The window keeps a copy (its kernel arrays are kept per term, `_rate_terms`)."""
-        self.rate_prior[k] = None if info is None else np.array(info, dtype=float)
+        rates), or None to remove it. The window keeps a copy, one for a term equal to the last one set (its kernel
+        arrays are kept per term, `_rate_terms`, so a term set again every scan is one term)."""
+        if info is not None:  # the same term as the last one set: the same copy, so `_rate_terms` keeps its arrays
+            kept = self._rate_copy
+            if kept is None or kept.shape != np.shape(info) or not np.array_equal(kept, info):
+                kept = self._rate_copy = np.array(info, dtype=float)
+            info = kept
+        self.rate_prior[k] = info
         self._H = None
 
     def set_measurements(self, k: int, mset: MeasurementSet | None) -> None:
@@ -190,11 +198,11 @@ class SlidingWindow:
         if kept is not None and all(a is b for a, b in zip(kept[0], self.rate_prior[:n])):
             return kept[1], kept[2]
         d = self.motion.dim
-        rate_on = np.array([info is not None and (k == 0 or not first_only)
-                            for k, info in enumerate(self.rate_prior[:n])], dtype=bool)
-        rate_info = np.zeros((n, d - 6, d - 6))
-        for k in np.flatnonzero(rate_on):
-            rate_info[k] = self.rate_prior[k]
+        rate_on, rate_info = np.zeros(n, dtype=bool), np.zeros((n, d - 6, d - 6))
+        for k, info in enumerate(self.rate_prior[:1 if first_only else n]):
+            if info is not None:
+                rate_on[k] = True
+                rate_info[k] = info
         if len(self._rates) > 8:
             self._rates.clear()
         self._rates[key] = (list(self.rate_prior[:n]), rate_on, rate_info)  # the terms held alive: ids stay theirs
@@ -274,11 +282,12 @@ class SlidingWindow:
         for it in range(1, iterations + 1):
             delta, factor = solve_spd(H, -b, factor=True)
             self._factor = (H, factor)
-            if not np.isfinite(delta).all():
+            size = float(np.max(np.abs(delta)))  # NaN when delta holds one
+            if not math.isfinite(size):
                 break
             T_all, tail, _ = self._stacked()
             old, old_stack = self.states, self._stack
-            if step == 1.0 and (np.max(np.abs(delta)) < tol or -(delta @ b) < sigma_tol**2):
+            if step == 1.0 and (size < tol or -(delta @ b) < sigma_tol**2):
                 self._set_states(*_oplus_all(old, T_all, tail, delta.reshape(len(old), d)))
                 break
             self._set_states(*_oplus_all(old, T_all, tail, step * delta.reshape(len(old), d)))
@@ -287,7 +296,7 @@ class SlidingWindow:
             H2, b2, cost2 = self.linearize(lagged=True)
             if np.isfinite(cost2) and cost2 <= cost * (1 + 1e-12) + 1e-12:
                 H, b, cost = H2, b2, cost2
-                if np.max(np.abs(step * delta)) < tol:
+                if step * size < tol:  # step a power of two: the largest element of step * delta, exactly
                     break
                 step = 1.0
             else:

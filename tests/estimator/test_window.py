@@ -194,6 +194,42 @@ def test_rate_prior_is_a_zero_mean_gaussian_term(kind, roll, pitch, sigma):
     np.testing.assert_allclose(np.diag(P)[9:11], 1.0 / (s0**-2 + sigma**-2), rtol=1e-9)
 
 
+@pytest.mark.parametrize("kind", ["ca", "cv"])
+def test_rate_terms_are_read_as_they_were_set(kind):
+    """`set_rate_prior` keeps its own copy, one for a term equal to the last one set (so a term set every scan
+    keeps the window's kernel arrays): a term the caller changes afterwards, an equal term set on the next
+    state, another term set on one state and a term removed are each read as set: each state's rate block of H
+    is that of the window without terms plus its term, and every linearisation equals that of a fresh window
+    given the terms once."""
+    d = motion_prior(kind, (1, .05, .05, .01, .01, .05)).dim
+    info = np.diag(np.arange(1.0, d - 5)) * 1e6
+    terms = {}
+    bare = _window_with_scene(kind)[0].linearize()[0]
+
+    def check(k, term):
+        terms[k] = None if term is None else term.copy()
+        win.set_rate_prior(k, term)
+        fresh, _ = _window_with_scene(kind)
+        for k_, term_ in terms.items():
+            fresh.set_rate_prior(k_, term_)
+        H = win.linearize()[0]
+        for k_ in range(len(win.states)):
+            rates = slice(k_ * d + 6, (k_ + 1) * d)
+            want = 0.0 if terms.get(k_) is None else terms[k_]
+            np.testing.assert_allclose(H[rates, rates] - bare[rates, rates], want, rtol=1e-9, atol=1e-3)
+        for got, want in zip(win.linearize(), fresh.linearize()):
+            assert np.array_equal(got, want)
+
+    win, _ = _window_with_scene(kind)
+    check(0, info)
+    info *= 3  # the caller's array changes: the window's term does not
+    check(1, info / 3)  # equal to the last one set
+    check(2, info)
+    check(3, info / 3)
+    check(1, None)
+    check(0, 2 * info)
+
+
 def test_replaced_measurement_sets_are_never_read_stale():
     """The window caches its measurement sets packed for the kernel. A set replaced by a new one (which CPython
     often allocates at the freed set's address, so the same id()) must be packed anew: every linearisation
