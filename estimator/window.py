@@ -7,8 +7,9 @@ map-point uncertainty, eq. 83), with an optional Cauchy loss applied by iterativ
 terms on the rates the odometry knows more about than the motion prior does (`set_rate_prior`: all of them at
 rest, roll and pitch rates of a moving road vehicle).
 Every term is linearised as e + J d with d the left perturbation of the states; the normal equations are
-solved densely (the window is small). When the window is full the oldest state is marginalised with the Schur
-complement into a prior on the next one, kept as (Lam, g) at its linearisation point: cost 1/2 e^T Lam e + g^T e.
+solved densely (the window is small), the Gauss-Newton loop in one compiled call. When the window is full the
+oldest state is marginalised with the Schur complement into a prior on the next one, kept as (Lam, g) at its
+linearisation point: cost 1/2 e^T Lam e + g^T e.
 
 Checked by: tests/estimator/test_window.py
 """
@@ -185,8 +186,7 @@ class SlidingWindow:
         self._H = None
 
     def linearize(self, lagged: bool = False):
-        """Normal equations (H, b) with H d = -b, and the cost, at the current estimate (lagged: the older
-        states' measurement terms from their last linearisation's quadratic model, see `relinearize_older`)."""
+        """Normal equations (H, b) with H d = -b, and the cost, at the current estimate (lagged: `_arguments`)."""
         return self._normal_equations(len(self.states), lagged)
 
     def _rate_terms(self, n: int, first_only: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -208,8 +208,9 @@ class SlidingWindow:
         self._rates[key] = (list(self.rate_prior[:n]), rate_on, rate_info)  # the terms held alive: ids stay theirs
         return rate_on, rate_info
 
-    def _normal_equations(self, n: int, lagged: bool, first_only: bool = False):
-        """(H, b, cost) of the window's first n states in one compiled call (`window_kernels.normal_equations`):
+    def _arguments(self, n: int, lagged: bool, first_only: bool = False):
+        """`window_kernels.normal_equations`' arguments (up to c0) for the window's first n states, and what
+        `_linearized` takes after it. The normal equations:
         the prior on the oldest, the motion terms between them, and the measurement and rate terms of all n, or
         with first_only of the oldest alone (the marginalisation's). An older state's measurement terms lag (come
         from the quadratic model of their last linearisation, cost c0 + b0^T d + 1/2 d^T H0 d and gradient
@@ -247,14 +248,20 @@ class SlidingWindow:
                 _, _, T0_inverse[q], varpi0[q], H0[q], b0[q], c0[q] = self._terms[id(sets[q])]
         fresh_sets = [sets[q] for q in fresh]
         offsets, p, z, W, Tvs, w = self._pack(fresh_sets) if fresh else _NO_PACK
+        args = (*self.motion.kernel_args, T_all, tail, t, self._prior_inverse[1], self.prior_mean.vector_tail(),
+                self.prior_info, self.prior_grad, motion_info, rate_info, rate_on, self.measurement_model.kernel_code,
+                ks, slot, offsets, p, z, W, Tvs, w, float(self.robust_c), np.empty(len(z)), T0_inverse, varpi0, H0,
+                b0, c0)
+        return args, (fresh_sets, fresh, ks, w, offsets, T0_inverse, varpi0)
+
+    def _normal_equations(self, n: int, lagged: bool, first_only: bool = False):
+        """(H, b, cost) of the window's first n states in one compiled call (`_arguments`)."""
+        args, kept = self._arguments(n, lagged, first_only)
+        d, K = self.motion.dim, len(kept[2])
         H, b = np.zeros((n * d, n * d)), np.zeros(n * d)
         Hm, bm, cm = np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K)
-        cost = window_kernels.normal_equations(*self.motion.kernel_args, T_all, tail, t, self._prior_inverse[1],
-                                               self.prior_mean.vector_tail(), self.prior_info, self.prior_grad,
-                                               motion_info, rate_info, rate_on, self.measurement_model.kernel_code,
-                                               ks, slot, offsets, p, z, W, Tvs, w, float(self.robust_c),
-                                               np.empty(len(z)), T0_inverse, varpi0, H0, b0, c0, H, b, Hm, bm, cm)
-        self._linearized(fresh_sets, fresh, ks, w, offsets, T0_inverse, varpi0, Hm, bm, cm)  # views: fresh arrays
+        cost = window_kernels.normal_equations(*args, H, b, Hm, bm, cm)
+        self._linearized(*kept, Hm, bm, cm)  # views: fresh arrays
         return H, b, float(cost)
 
     # --- solving ----------------------------------------------------------------------------------------
@@ -273,11 +280,36 @@ class SlidingWindow:
         False; with it True every solve re-weights and re-linearises all. Returns {'iterations', 'cost', 'step'}
         (the cost at the last linearisation); the normal equations of the last linearisation (at the returned
         estimate, or one step before it) are kept for `newest_covariance`.
+
+        The loop runs in one compiled call (`window_kernels.gauss_newton`); where an H is not numerically positive
+        definite, the loop in Python (`_optimize`) does it all again, its solve with a jitter (`spd.solve_spd`).
         """
-        d = self.motion.dim
         if reweight or self.relinearize_older:
             self.reset_robust_weights()
-        H, b, cost = self.linearize(lagged=not reweight)
+        try:
+            return self._gauss_newton(iterations, tol, sigma_tol, check_last, lagged=not reweight)
+        except np.linalg.LinAlgError:
+            return self._optimize(iterations, tol, sigma_tol, check_last, lagged=not reweight)
+
+    def _gauss_newton(self, iterations: int, tol: float, sigma_tol: float, check_last: bool, lagged: bool) -> dict:
+        """`optimize`'s loop compiled; nothing in the window changes when it raises."""
+        n, d = len(self.states), self.motion.dim
+        args, kept = self._arguments(n, lagged)
+        K = len(kept[2])
+        T, tail, H, b, L = (np.empty((n, 4, 4)), np.empty((n, d - 6)), np.empty((n * d, n * d)), np.empty(n * d),
+                            np.empty((n * d, n * d)))
+        Hm, bm, cm, out = np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K), np.empty(4)
+        window_kernels.gauss_newton(*args, self.relinearize_older, iterations, tol, sigma_tol, check_last, T, tail, H,
+                                    b, L, Hm, bm, cm, out)
+        self._linearized(*kept, Hm, bm, cm)
+        self._set_states([State(x.t, T[k], tail[k, :6], None if x.varpi_dot is None else tail[k, 6:12])
+                          for k, x in enumerate(self.states)], T, tail)
+        self._H, self._factor = H, ((H, L) if out[3] else None)
+        return {"iterations": int(out[0]), "cost": float(out[1]), "step": float(out[2])}
+
+    def _optimize(self, iterations: int, tol: float, sigma_tol: float, check_last: bool, lagged: bool) -> dict:
+        """`optimize`'s loop in Python, the reference of the compiled one, with the jitter of `spd.solve_spd`."""
+        H, b, cost = self.linearize(lagged=lagged)
         step, it = 1.0, 0
         for it in range(1, iterations + 1):
             delta, factor = solve_spd(H, -b, factor=True)
@@ -288,9 +320,9 @@ class SlidingWindow:
             T_all, tail, _ = self._stacked()
             old, old_stack = self.states, self._stack
             if step == 1.0 and (size < tol or -(delta @ b) < sigma_tol**2):
-                self._set_states(*_oplus_all(old, T_all, tail, delta.reshape(len(old), d)))
+                self._set_states(*_oplus_all(old, T_all, tail, delta.reshape(len(old), -1)))
                 break
-            self._set_states(*_oplus_all(old, T_all, tail, step * delta.reshape(len(old), d)))
+            self._set_states(*_oplus_all(old, T_all, tail, step * delta.reshape(len(old), -1)))
             if it == iterations and not check_last:
                 break
             H2, b2, cost2 = self.linearize(lagged=True)

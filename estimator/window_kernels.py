@@ -25,7 +25,7 @@ import numpy as np
 from .jit import njit
 from .lie.kernels import matmul_into, se3_log_and_jac_inv
 from .measurement_kernels import state_pairs
-from .motion_kernels import accumulate, add_blocks, residuals
+from .motion_kernels import accumulate, add_blocks, exp_times, residuals
 from .priors.kernels import ca_batch, cv_batch, predict_batch
 
 
@@ -170,3 +170,108 @@ def normal_equations(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail
     cost += measured
     cost += add_blocks(H, b, d, rate_info, rate_on, tail, ks, Hm, bm)
     return cost
+
+
+@njit(cache=True, error_model="numpy")
+def gauss_newton(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, info, grad, motion_info, rate_info,
+                 rate_on, model, ks, slot, offsets, p, z, W, Tvs, weights, robust_c, d2, T0_inverse, varpi0, H0, b0,
+                 c0, relinearize, iterations, tol, sigma_tol, check_last, T_out, tail_out, H, b, L, Hm, bm, cm, result):
+    """`SlidingWindow.optimize`'s Gauss-Newton loop in one call, from the window's states T, tail (n, ...) and the
+    first linearisation's arguments (those of `normal_equations` up to c0).
+
+    The first linearisation's measurement blocks go to Hm, bm, cm (and T0_inverse, varpi0 for the states it
+    linearised afresh), for the window's lag bookkeeping. Each later one takes the older states' measurement terms
+    from the first's quadratic models (unless `relinearize`), the newest state's afresh from the same pack. Each
+    step solves H d = -b by Cholesky (`np.linalg.cholesky`, LAPACK's potrf; it raises LinAlgError when H is not
+    positive definite, and the caller falls back to the Python loop with its jitter) and the two triangular
+    systems. Out: the states T_out, tail_out; H, b of the last accepted linearisation; L the factor of the last
+    step's H; result = [iterations, cost, step, 1 if L is H's factor else 0].
+
+    Checked by: tests/estimator/test_window.py::test_compiled_gauss_newton_equals_the_python_loop
+    """
+    n, d = T.shape[0], tail.shape[1] + 6
+    K = len(ks)
+    H[:] = 0.0
+    b[:] = 0.0
+    cost = normal_equations(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, info, grad, motion_info,
+                            rate_info, rate_on, model, ks, slot, offsets, p, z, W, Tvs, weights, robust_c, d2,
+                            T0_inverse, varpi0, H0, b0, c0, H, b, Hm, bm, cm)
+    later = slot.copy()  # the later linearisations' plan: the older states' terms lag, the newest's afresh
+    T0l, v0l, H0l, b0l, c0l = T0_inverse.copy(), varpi0.copy(), H0.copy(), b0.copy(), c0.copy()
+    for q in range(K):
+        if slot[q] >= 0:
+            H0l[q] = Hm[q]
+            b0l[q] = bm[q]
+            c0l[q] = cm[q]
+            if not relinearize and ks[q] != n - 1:
+                later[q] = -1
+    Hm2, bm2, cm2 = np.empty_like(Hm), np.empty_like(bm), np.empty_like(cm)
+    H2, b2, delta, xi = np.empty_like(H), np.empty_like(b), np.empty_like(b), np.empty((n, 6))
+    T_try, tail_try = np.empty_like(T), np.empty_like(tail)
+    T_out[:] = T
+    tail_out[:] = tail
+    step, it, factored = 1.0, 0, False
+    for it in range(1, iterations + 1):
+        L[:] = np.linalg.cholesky(H)
+        factored = True
+        size = _cholesky_solve(L, b, delta)
+        if not np.isfinite(size):
+            break
+        s = 0.0
+        for i in range(len(b)):
+            s -= delta[i] * b[i]
+        full = step == 1.0 and (size < tol or s < sigma_tol * sigma_tol)
+        scale = 1.0 if full else step
+        for k in range(n):
+            for i in range(6):
+                xi[k, i] = scale * delta[k * d + i]
+            for i in range(d - 6):
+                tail_try[k, i] = tail_out[k, i] + scale * delta[k * d + 6 + i]
+        exp_times(xi, T_out, T_try)
+        if full or (it == iterations and not check_last):
+            T_out[:] = T_try
+            tail_out[:] = tail_try
+            break
+        H2[:] = 0.0
+        b2[:] = 0.0
+        cost2 = normal_equations(ca, order, noise, Qc, T_try, tail_try, t, mean_T_inverse, mean_tail, info, grad,
+                                 motion_info, rate_info, rate_on, model, ks, later, offsets, p, z, W, Tvs, weights,
+                                 robust_c, d2, T0l, v0l, H0l, b0l, c0l, H2, b2, Hm2, bm2, cm2)
+        if np.isfinite(cost2) and cost2 <= cost * (1 + 1e-12) + 1e-12:
+            H[:] = H2
+            b[:] = b2
+            cost = cost2
+            T_out[:] = T_try
+            tail_out[:] = tail_try
+            factored = False
+            if step * size < tol:
+                break
+            step = 1.0
+        else:
+            step *= 0.5
+            if step < 1e-3:
+                break
+    result[0], result[1], result[2], result[3] = it, cost, step, 1.0 if factored else 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _cholesky_solve(L, b, x):
+    """x = -(L L^T)^-1 b (L lower triangular); returns max |x_i| (NaN if x holds one)."""
+    N = len(b)
+    for i in range(N):
+        s = -b[i]
+        for j in range(i):
+            s -= L[i, j] * x[j]
+        x[i] = s / L[i, i]
+    for i in range(N - 1, -1, -1):
+        x[i] /= L[i, i]
+        v = x[i]
+        for j in range(i):
+            x[j] -= L[i, j] * v
+    size = 0.0
+    for i in range(N):
+        a = abs(x[i])
+        if a != a:
+            return a
+        size = max(size, a)
+    return size

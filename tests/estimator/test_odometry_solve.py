@@ -55,14 +55,16 @@ def test_older_states_keep_their_terms_across_scans_unless_reweighted(monkeypatc
     from rodo.estimator import window_kernels
 
     calls = []
-    normal_equations = window_kernels.normal_equations
 
-    def spy(*args):
-        n, ks, slot = len(args[6]), args[15], args[16]
-        calls.append((n, sorted(int(n - 1 - k) for k in ks[slot >= 0])))  # ages of the fresh states (0: newest)
-        return normal_equations(*args)
+    def spy(kernel):  # the first linearisation of a solve (`gauss_newton`) or the marginalisation's
+        def call(*args):
+            n, ks, slot = len(args[6]), args[15], args[16]
+            calls.append((n, sorted(int(n - 1 - k) for k in ks[slot >= 0])))  # ages of the fresh states (0: newest)
+            return kernel(*args)
+        return call
 
-    monkeypatch.setattr(window_kernels, "normal_equations", spy)
+    for name in ("normal_equations", "gauss_newton"):
+        monkeypatch.setattr(window_kernels, name, spy(getattr(window_kernels, name)))
     rng = np.random.default_rng(3)
     t, T, varpi, vd = scene.trajectory(16)
     L = scene.landmarks(rng)

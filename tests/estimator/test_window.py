@@ -44,11 +44,19 @@ def _window_with_scene(kind="ca", n=4, noisy=True, robust_c=3.0):
     return win, (t, T, varpi, vd)
 
 
-def test_unchecked_last_step_is_one_gauss_newton_step():
-    """optimize(1, check_last=False), the refinement after a re-association: exactly one linearisation, the
-    states move by its Gauss-Newton step, and from the solution with a tenth of the newest scan's pairs
-    changed that one step lands next to the converged solution of the new pairs (what the odometry relies on;
-    without the robust loss, whose weights are set where a solve starts)."""
+def _not_positive_definite(*args):
+    raise np.linalg.LinAlgError("Matrix is not positive definite.")
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_unchecked_last_step_is_one_gauss_newton_step(compiled, monkeypatch):
+    """optimize(1, check_last=False), the refinement after a re-association: exactly one linearisation (in the
+    Python loop, `optimize`'s fallback where the compiled one finds H not positive definite), the states move by
+    its Gauss-Newton step, and from the solution with a tenth of the newest scan's pairs changed that one step
+    lands next to the converged solution of the new pairs (what the odometry relies on; without the robust loss,
+    whose weights are set where a solve starts)."""
+    from rodo.estimator import window_kernels
+
     win, _ = _window_with_scene(robust_c=0.0)
     full = win.meas[-1]
     keep = np.random.default_rng(4).random(len(full)) < 0.9
@@ -62,14 +70,73 @@ def test_unchecked_last_step_is_one_gauss_newton_step():
     calls = []
     linearize = win.linearize
     win.linearize = lambda lagged=False: calls.append(1) or linearize(lagged)
-    win.optimize(1, 1e-12, check_last=False)
-    assert len(calls) == 1
+    if not compiled:
+        monkeypatch.setattr(window_kernels, "gauss_newton", _not_positive_definite)
+    assert win.optimize(1, 1e-12, check_last=False)["iterations"] == 1
+    assert len(calls) == (0 if compiled else 1)
     one_step = [x.copy() for x in win.states]
     win.linearize = linearize
+    monkeypatch.undo()
     win.optimize(10, 1e-12)
     for x, x0, d, xs in zip(one_step, start, step, win.states):
         np.testing.assert_allclose(x.ominus(x0), d, rtol=1e-5, atol=1e-7)  # dposv vs numpy solve
         assert np.abs(x.ominus(xs)).max() < 2e-3 * np.abs(step).max()  # measured: 4e-5 left of a 0.09 step
+
+
+CASES = {  # optimize's arguments; "refine": then new pairs for the newest, one unchecked step with the rest lagged
+    "solve": dict(iterations=5), "refine": dict(iterations=5), "relinearize": dict(iterations=5),
+    "unchecked": dict(iterations=1, check_last=False), "sigma": dict(iterations=5, sigma_tol=0.05),
+    "far": dict(iterations=6),  # started far off: steps halved, the last one too
+    "exhausted": dict(iterations=2),  # ends on an accepted linearisation: its H has no factor yet
+}
+
+
+@pytest.mark.parametrize("kind", ["ca", "cv"])
+@pytest.mark.parametrize("case", list(CASES))
+def test_compiled_gauss_newton_equals_the_python_loop(kind, case, monkeypatch):
+    """`optimize`'s compiled loop (`window_kernels.gauss_newton`) = its Python loop (`_optimize`, the fallback
+    where H is not positive definite): the same iterations, step, robust weights and lagged terms' sets; the
+    states, cost, kept information and newest covariances to rounding (its Cholesky factor and triangular solves
+    are not LAPACK dposv's), over a first solve, a refinement of changed pairs with the older states' terms
+    lagged, every state re-linearised at each step, one unchecked step, a tolerance in sigmas, halved steps and
+    iterations run out."""
+    from rodo.estimator import window_kernels
+
+    def run(compiled):
+        win, _ = _window_with_scene(kind, robust_c=3.0)
+        win.relinearize_older = case == "relinearize"
+        if case == "far":
+            v = np.random.default_rng({"ca": 13, "cv": 3}[kind]).normal(size=(len(win.states), win.motion.dim)) * 1.5
+            win.states = [x.oplus(vk) for x, vk in zip(win.states, v)]
+        if not compiled:
+            monkeypatch.setattr(window_kernels, "gauss_newton", _not_positive_definite)
+        infos = [win.optimize(**CASES[case])]
+        if case == "refine":
+            m = win.meas[-1]
+            keep = np.random.default_rng(4).random(len(m)) < 0.9
+            win.set_measurements(len(win.states) - 1, MeasurementSet(m.p_world[keep], m.z[keep], m.W[keep]))
+            infos.append(win.optimize(1, check_last=False, reweight=False))
+        monkeypatch.undo()
+        return win, infos
+
+    (got, got_infos), (want, want_infos) = run(True), run(False)
+    rounding = 1e-5 if case == "far" else 1e-9  # far off and unconverged, rounding grows from step to step
+    for a, b in zip(got_infos, want_infos):
+        assert (a["iterations"], a["step"]) == (b["iterations"], b["step"])
+        assert a["cost"] == pytest.approx(b["cost"], rel=rounding)
+    assert case != "far" or want_infos[0]["step"] < 1.0
+    for x, y in zip(got.states, want.states):
+        assert np.abs(x.ominus(y)).max() < rounding, np.abs(x.ominus(y)).max()
+    for m, n in zip(got.meas, want.meas):  # set where the states agree to rounding
+        np.testing.assert_allclose(m.weights, n.weights, rtol=1e-9)
+    for m, n in zip(got.meas, want.meas):  # the sets whose terms lag, and their quadratic models
+        assert (id(m) in got._terms) == (id(n) in want._terms)
+        for a, b in zip(got._terms.get(id(m), ())[2:], want._terms.get(id(n), ())[2:]):
+            np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * np.abs(b).max())
+    scale = np.abs(want._H).max()
+    np.testing.assert_allclose(got._H, want._H, rtol=0, atol=0.01 * rounding * scale)
+    for P, Q in zip(got.newest_covariances(), want.newest_covariances()):
+        np.testing.assert_allclose(P, Q, rtol=100 * rounding, atol=0.001 * rounding * np.abs(Q).max())
 
 
 def test_gauss_newton_reaches_the_truth_on_noise_free_measurements():
