@@ -93,7 +93,8 @@ def accumulate(H, b, e, J1, J2, W):
     has at most 8 nonzeros of 18, `_nonzeros`), so each column's nonzeros are listed once per interval and
     both products, J^T W and J^T (W J), run over them alone, a row of the result at a time over contiguous
     rows of the right factor (the innermost loops vectorise): 22 -> 12 us for a CA window of five states, 10.5 ->
-    6 for CV. A skipped term is an exact zero, so no sum loses anything but its order of evaluation.
+    6 for CV. A skipped term is an exact zero times a finite W or e, so no sum loses anything but its order of
+    evaluation. W_k must be symmetric (Q_k^-1, `spd.inv_spd`): a row of W stands for its column.
 
     Checked by: tests/estimator/test_window_kernels.py::test_motion_terms_in_the_normal_equations
     """

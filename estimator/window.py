@@ -63,7 +63,7 @@ class SlidingWindow:
         self._rates: dict = {}  # the rate terms as the kernel takes them, per (n, first_only, terms) (cached)
         self._rate_copy: np.ndarray | None = None  # the window's copy of the rate term set last
         # False: an older state's measurement terms are linearised once per solve (the first linearisation after
-        # a re-weighting), then taken from their quadratic model (`_normal_equations`); the newest state's always
+        # a re-weighting), then taken from their quadratic model (`_arguments`); the newest state's always
         self.relinearize_older = relinearize_older
         self._terms: dict = {}  # id(set) -> (set, its weights, T^-1, varpi, H, b, cost) at its last linearisation
         self._H: np.ndarray | None = None
@@ -163,7 +163,7 @@ class SlidingWindow:
     def _linearized(self, sets, rows, ks, w, offsets, T0_inverse, varpi0, H, b, costs) -> None:
         """After a linearisation that took `sets` afresh, in a pack with weights w: a fresh set's weights are a view
         of the pack's; with `relinearize_older` False the older states' blocks (row rows[s] of the per-state
-        arrays, state ks[rows[s]]) are kept to lag (`_normal_equations`)."""
+        arrays, state ks[rows[s]]) are kept to lag (`_arguments`)."""
         for s, m in enumerate(sets):
             if m.weights is None:
                 m.weights = w[offsets[s]:offsets[s + 1]]
@@ -292,15 +292,15 @@ class SlidingWindow:
             return self._optimize(iterations, tol, sigma_tol, check_last, lagged=not reweight)
 
     def _gauss_newton(self, iterations: int, tol: float, sigma_tol: float, check_last: bool, lagged: bool) -> dict:
-        """`optimize`'s loop compiled; nothing in the window changes when it raises."""
+        """`optimize`'s loop compiled; if it raises, the window is as it was (`_pack` resets the weights it set)."""
         n, d = len(self.states), self.motion.dim
         args, kept = self._arguments(n, lagged)
         K = len(kept[2])
         T, tail, H, b, L = (np.empty((n, 4, 4)), np.empty((n, d - 6)), np.empty((n * d, n * d)), np.empty(n * d),
                             np.empty((n * d, n * d)))
         Hm, bm, cm, out = np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K), np.empty(4)
-        window_kernels.gauss_newton(*args, self.relinearize_older, iterations, tol, sigma_tol, check_last, T, tail, H,
-                                    b, L, Hm, bm, cm, out)
+        window_kernels.gauss_newton(*args, bool(self.relinearize_older), int(iterations), float(tol), float(sigma_tol),
+                                    bool(check_last), T, tail, H, b, L, Hm, bm, cm, out)
         self._linearized(*kept, Hm, bm, cm)
         self._set_states([State(x.t, T[k], tail[k, :6], None if x.varpi_dot is None else tail[k, 6:12])
                           for k, x in enumerate(self.states)], T, tail)

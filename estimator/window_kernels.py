@@ -1,10 +1,11 @@
-"""The sliding window's normal equations in one compiled call (`SlidingWindow.linearize`, the solver's hot path).
+"""The sliding window's normal equations in one compiled call (`SlidingWindow.linearize`, the solver's hot path),
+and the Gauss-Newton loop around them (`gauss_newton`, `SlidingWindow.optimize`).
 
 Per linearisation the window adds, in this order: the prior on its oldest state (e = x0 (-) mean, cost
 1/2 e^T Lam e + g^T e, de/dx0 = diag(J(e_xi)^-1, I)), the motion-prior terms between consecutive states (the
 priors' batched means and F_k, `motion_kernels.residuals` and `accumulate`), the measurement terms of every state
 with associated pairs (`measurement_kernels.state_pairs`, or the quadratic model of the set's last linearisation
-where the window lags it: `SlidingWindow._normal_equations`), and the rate terms with the measurement blocks
+where the window lags it: `SlidingWindow._arguments`), and the rate terms with the measurement blocks
 (`motion_kernels.add_blocks`). Assembled in Python, the same took about a millisecond of array calls per CA/P
 scan on city (three linearisations) around the pair kernel's 0.8 ms. The references it is checked against: the
 priors' `residual` (through `MotionPrior.residuals`), `measurements.predict` and `lie.se3`.
@@ -15,7 +16,8 @@ rounding (the flags let the compiler reorder sums; the mechanism was not isolate
 an edit or an install was not bit for bit the runs after it. Without them the two agree bit for bit (20 s of five
 scenarios x two models, each run after a fresh compilation and after a load from the cache).
 
-Checked by: tests/estimator/test_window.py::test_compiled_normal_equations_equal_the_python_assembly
+Checked by: tests/estimator/test_window.py::test_compiled_normal_equations_equal_the_python_assembly,
+    ::test_compiled_gauss_newton_equals_the_python_loop
 """
 
 from __future__ import annotations
@@ -181,7 +183,9 @@ def gauss_newton(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, in
 
     The first linearisation's measurement blocks go to Hm, bm, cm (and T0_inverse, varpi0 for the states it
     linearised afresh), for the window's lag bookkeeping. Each later one takes the older states' measurement terms
-    from the first's quadratic models (unless `relinearize`), the newest state's afresh from the same pack. Each
+    from the quadratic models of their last linearisation (the first, or the window's kept one where the first
+    lagged them; all afresh with `relinearize`), the newest state's afresh from the same pack, its weights as the
+    first left them (a copy when the older states lag: the Python loop packs the newest set alone then). Each
     step solves H d = -b by Cholesky (`np.linalg.cholesky`, LAPACK's potrf; it raises LinAlgError when H is not
     positive definite, and the caller falls back to the Python loop with its jitter) and the two triangular
     systems. Out: the states T_out, tail_out; H, b of the last accepted linearisation; L the factor of the last
@@ -205,6 +209,7 @@ def gauss_newton(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, in
             c0l[q] = cm[q]
             if not relinearize and ks[q] != n - 1:
                 later[q] = -1
+    w_later = weights if relinearize else np.empty_like(weights)
     Hm2, bm2, cm2 = np.empty_like(Hm), np.empty_like(bm), np.empty_like(cm)
     H2, b2, delta, xi = np.empty_like(H), np.empty_like(b), np.empty_like(b), np.empty((n, 6))
     T_try, tail_try = np.empty_like(T), np.empty_like(tail)
@@ -234,8 +239,10 @@ def gauss_newton(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, in
             break
         H2[:] = 0.0
         b2[:] = 0.0
+        if not relinearize:
+            w_later[:] = weights
         cost2 = normal_equations(ca, order, noise, Qc, T_try, tail_try, t, mean_T_inverse, mean_tail, info, grad,
-                                 motion_info, rate_info, rate_on, model, ks, later, offsets, p, z, W, Tvs, weights,
+                                 motion_info, rate_info, rate_on, model, ks, later, offsets, p, z, W, Tvs, w_later,
                                  robust_c, d2, T0l, v0l, H0l, b0l, c0l, H2, b2, Hm2, bm2, cm2)
         if np.isfinite(cost2) and cost2 <= cost * (1 + 1e-12) + 1e-12:
             H[:] = H2

@@ -83,11 +83,13 @@ def test_unchecked_last_step_is_one_gauss_newton_step(compiled, monkeypatch):
         assert np.abs(x.ominus(xs)).max() < 2e-3 * np.abs(step).max()  # measured: 4e-5 left of a 0.09 step
 
 
-CASES = {  # optimize's arguments; "refine": then new pairs for the newest, one unchecked step with the rest lagged
-    "solve": dict(iterations=5), "refine": dict(iterations=5), "relinearize": dict(iterations=5),
-    "unchecked": dict(iterations=1, check_last=False), "sigma": dict(iterations=5, sigma_tol=0.05),
+CASES = {  # optimize's arguments; "refine", "lagged": then new pairs for the newest and a second solve, the rest lagged
+    "solve": dict(iterations=5), "refine": dict(iterations=5), "lagged": dict(iterations=5),
+    "relinearize": dict(iterations=5), "unchecked": dict(iterations=1, check_last=False),
+    "sigma": dict(iterations=5, sigma_tol=0.2),  # stops on the step's length in sigmas, a step before "solve"
     "far": dict(iterations=6),  # started far off: steps halved, the last one too
     "exhausted": dict(iterations=2),  # ends on an accepted linearisation: its H has no factor yet
+    "newest without pairs": dict(iterations=5), "one state": dict(iterations=5),
 }
 
 
@@ -97,25 +99,30 @@ def test_compiled_gauss_newton_equals_the_python_loop(kind, case, monkeypatch):
     """`optimize`'s compiled loop (`window_kernels.gauss_newton`) = its Python loop (`_optimize`, the fallback
     where H is not positive definite): the same iterations, step, robust weights and lagged terms' sets; the
     states, cost, kept information and newest covariances to rounding (its Cholesky factor and triangular solves
-    are not LAPACK dposv's), over a first solve, a refinement of changed pairs with the older states' terms
-    lagged, every state re-linearised at each step, one unchecked step, a tolerance in sigmas, halved steps and
-    iterations run out."""
+    are not LAPACK dposv's), over a first solve, a refinement of changed pairs (one unchecked step, or a checked
+    solve) with the older states' terms lagged, every state re-linearised at each step, one unchecked step, a
+    tolerance in sigmas, halved steps, iterations run out, a newest state without pairs and a window of one."""
     from rodo.estimator import window_kernels
 
     def run(compiled):
-        win, _ = _window_with_scene(kind, robust_c=3.0)
+        win, _ = _window_with_scene(kind, n=1 if case == "one state" else 4, robust_c=3.0)
         win.relinearize_older = case == "relinearize"
         if case == "far":
             v = np.random.default_rng({"ca": 13, "cv": 3}[kind]).normal(size=(len(win.states), win.motion.dim)) * 1.5
             win.states = [x.oplus(vk) for x, vk in zip(win.states, v)]
-        if not compiled:
+        if case == "newest without pairs":
+            win.set_measurements(len(win.states) - 1, None)
+        if compiled:  # and never the fallback
+            monkeypatch.setattr(win, "_optimize", lambda *args, **kwargs: pytest.fail("the Python loop ran"))
+        else:
             monkeypatch.setattr(window_kernels, "gauss_newton", _not_positive_definite)
         infos = [win.optimize(**CASES[case])]
-        if case == "refine":
+        if case in ("refine", "lagged"):
             m = win.meas[-1]
             keep = np.random.default_rng(4).random(len(m)) < 0.9
             win.set_measurements(len(win.states) - 1, MeasurementSet(m.p_world[keep], m.z[keep], m.W[keep]))
-            infos.append(win.optimize(1, check_last=False, reweight=False))
+            infos.append(win.optimize(1, check_last=False, reweight=False) if case == "refine"
+                         else win.optimize(5, 1e-9, reweight=False))
         monkeypatch.undo()
         return win, infos
 
@@ -125,18 +132,24 @@ def test_compiled_gauss_newton_equals_the_python_loop(kind, case, monkeypatch):
         assert (a["iterations"], a["step"]) == (b["iterations"], b["step"])
         assert a["cost"] == pytest.approx(b["cost"], rel=rounding)
     assert case != "far" or want_infos[0]["step"] < 1.0
+    assert case != "sigma" or want_infos[0]["iterations"] == 2
+    assert case != "lagged" or want_infos[1]["iterations"] > 1  # a linearisation with lagged terms from the start
     for x, y in zip(got.states, want.states):
         assert np.abs(x.ominus(y)).max() < rounding, np.abs(x.ominus(y)).max()
     for m, n in zip(got.meas, want.meas):  # set where the states agree to rounding
-        np.testing.assert_allclose(m.weights, n.weights, rtol=1e-9)
+        assert (m is None) == (n is None)
+        if m is not None:
+            np.testing.assert_allclose(m.weights, n.weights, rtol=1e-9)
     for m, n in zip(got.meas, want.meas):  # the sets whose terms lag, and their quadratic models
         assert (id(m) in got._terms) == (id(n) in want._terms)
         for a, b in zip(got._terms.get(id(m), ())[2:], want._terms.get(id(n), ())[2:]):
             np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * np.abs(b).max())
     scale = np.abs(want._H).max()
     np.testing.assert_allclose(got._H, want._H, rtol=0, atol=0.01 * rounding * scale)
-    for P, Q in zip(got.newest_covariances(), want.newest_covariances()):
-        np.testing.assert_allclose(P, Q, rtol=100 * rounding, atol=0.001 * rounding * np.abs(Q).max())
+    for P, Q in zip(got.newest_covariances(), want.newest_covariances()):  # Q None: a window of one
+        assert (P is None) == (Q is None)
+        if Q is not None:
+            np.testing.assert_allclose(P, Q, rtol=100 * rounding, atol=0.001 * rounding * np.abs(Q).max())
 
 
 def test_an_information_not_positive_definite_falls_back_to_the_jittered_loop():
@@ -314,7 +327,8 @@ def test_rate_terms_are_read_as_they_were_set(kind):
     win, _ = _window_with_scene(kind)
     check(0, info)
     info *= 3  # the caller's array changes: the window's term does not
-    check(1, info / 3)  # equal to the last one set
+    check(1, info / 3)  # equal to the last one set: the same copy
+    assert win.rate_prior[1] is win.rate_prior[0]
     check(2, info)
     check(3, info / 3)
     check(1, None)
