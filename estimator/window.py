@@ -69,8 +69,8 @@ class SlidingWindow:
         self._H: np.ndarray | None = None
         self._factor: tuple[np.ndarray, np.ndarray] | None = None  # (H, its Cholesky factor) of the last step
         self._motion_info: np.ndarray | None = None  # motion_info stacked for the kernel (cached)
-        self._stack = None  # (states, T, tail, t): the states as arrays (`state.stacked`), for those states
-        self._prior_inverse: tuple | None = None  # (prior_mean, its T^-1), kept while prior_mean is that object
+        self._stack = None  # (ids, T, tail, t, states): the states as arrays (`state.stacked`), for those states
+        self._prior_inverse: tuple | None = None  # (prior_mean, its T^-1, its tail), while prior_mean is that object
 
     # --- building -------------------------------------------------------------------------------------
     def initialize(self, x0: State, P0: np.ndarray) -> None:
@@ -122,14 +122,14 @@ class SlidingWindow:
     def _stacked(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The window's states as arrays (`state.stacked`), kept while the states are the same objects (an
         update sets them with its own arrays, `_set_states`)."""
-        c = self._stack
-        if c is None or len(c[0]) != len(self.states) or any(a is not b for a, b in zip(c[0], self.states)):
-            self._stack = c = (list(self.states), *stacked(self.states))
+        c = self._stack  # c[4] holds the states alive, so equal ids are the same objects
+        if c is None or c[0] != tuple(map(id, self.states)):
+            self._stack = c = (tuple(map(id, self.states)), *stacked(self.states), list(self.states))
         return c[1], c[2], c[3]
 
     def _set_states(self, states: list[State], T: np.ndarray, tail: np.ndarray) -> None:
         self.states = states
-        self._stack = (list(states), T, tail, np.array([x.t for x in states]))
+        self._stack = (tuple(map(id, states)), T, tail, np.array([x.t for x in states]), list(states))
 
     # --- linearisation ----------------------------------------------------------------------------------
     def _lag_ready(self, m: MeasurementSet) -> bool:
@@ -141,7 +141,7 @@ class SlidingWindow:
         weights -1 where a set has none (the kernel sets its Cauchy weights), else the set's."""
         # the sets change only when scans come and go; compared by identity with the packed sets held alive
         # (an id() of a freed set can be reused by the next one: a stale pack once read past the new set's end)
-        key = tuple(id(m) for m in sets)
+        key = tuple(map(id, sets))
         packed = self._packs.get(key)
         if packed is None or any(a is not b for a, b in zip(packed[0], sets)):
             if len(self._packs) > 4:
@@ -193,9 +193,9 @@ class SlidingWindow:
         """(rate_on (n,), rate_info (n, d - 6, d - 6)) of the first n states for the kernel: each state's rate
         term, only the oldest's with first_only. Kept while the window holds the same rate terms (compared by
         identity: `set_rate_prior` stores its own copy of a term, which nothing changes in place)."""
-        key = (n, first_only, *(id(r) for r in self.rate_prior[:n]))
-        kept = self._rates.get(key)
-        if kept is not None and all(a is b for a, b in zip(kept[0], self.rate_prior[:n])):
+        key = (n, first_only, *map(id, self.rate_prior[:n]))
+        kept = self._rates.get(key)  # kept[0] holds the terms alive, so equal ids are the same objects
+        if kept is not None:
             return kept[1], kept[2]
         d = self.motion.dim
         rate_on, rate_info = np.zeros(n, dtype=bool), np.zeros((n, d - 6, d - 6))
@@ -226,15 +226,15 @@ class SlidingWindow:
         if n < len(self.states):
             T_all, tail, t = T_all[:n], tail[:n], t[:n]
         if self._prior_inverse is None or self._prior_inverse[0] is not self.prior_mean:
-            self._prior_inverse = (self.prior_mean, se3.inverse(self.prior_mean.T_vehicle_world))
+            mean = self.prior_mean
+            self._prior_inverse = (mean, se3.inverse(mean.T_vehicle_world), mean.vector_tail())
         if len(self.states) > 1 and (self._motion_info is None or len(self._motion_info) != len(self.states) - 1):
             self._motion_info = np.array(self.motion_info, dtype=float)  # np.stack's result, faster
         motion_info = self._motion_info[:n - 1] if n > 1 else np.zeros((0, d, d))
         rate_on, rate_info = self._rate_terms(n, first_only)
         ks_list = [k for k, m in enumerate(self.meas[:1 if first_only else n]) if m is not None]
         sets = [self.meas[k] for k in ks_list]
-        K = len(ks_list)
-        ks = np.array(ks_list, np.int64)
+        ks, K = np.array(ks_list, np.int64), len(ks_list)
         lag = [lagged and k != newest and self._lag_ready(m) for k, m in zip(ks_list, sets)]
         fresh = [q for q in range(K) if not lag[q]]
         slot_list = [-1] * K  # a fresh state's slot in the pack; -1: its terms lag
@@ -248,7 +248,7 @@ class SlidingWindow:
                 _, _, T0_inverse[q], varpi0[q], H0[q], b0[q], c0[q] = self._terms[id(sets[q])]
         fresh_sets = [sets[q] for q in fresh]
         offsets, p, z, W, Tvs, w = self._pack(fresh_sets) if fresh else _NO_PACK
-        args = (*self.motion.kernel_args, T_all, tail, t, self._prior_inverse[1], self.prior_mean.vector_tail(),
+        args = (*self.motion.kernel_args, T_all, tail, t, self._prior_inverse[1], self._prior_inverse[2],
                 self.prior_info, self.prior_grad, motion_info, rate_info, rate_on, self.measurement_model.kernel_code,
                 ks, slot, offsets, p, z, W, Tvs, w, float(self.robust_c), np.empty(len(z)), T0_inverse, varpi0, H0,
                 b0, c0)
