@@ -21,6 +21,7 @@ A map of the package (each module's public names are re-exported here):
     surface.py          surface-shaped covariances of new map points (the optional surface model)
     ground.py           the road returns kept out of the pairs and the map (the optional ground band)
     window.py           SlidingWindow: Gauss-Newton over prior, motion and measurement terms, marginalisation
+    window_sets.py      MeasurementSet: a scan's pairs in the window; SetPacks: the sets packed for its kernels
     spd.py              the window's dense SPD solves, the trailing block of an inverse (its covariances)
     uncertainty.py      the pose covariance that grows as drift does (relative, absolute, over a span)
     heading_reversion.py  the yaw error's reversion to an anchor in that drift (optional)
@@ -73,7 +74,8 @@ _EXPORTS = {
     "attitude_jitter": ("absolute_excess", "span_excess", "span_variance"),
     "uncertainty": ("DriftCovariance", "predicted_relative_covariance", "relative_pose_covariance",
                     "revision_covariance", "scan_relative_covariances", "span_covariance"),
-    "window": ("MeasurementSet", "SlidingWindow"),
+    "window": ("SlidingWindow",),
+    "window_sets": ("MeasurementSet", "SetPacks"),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 __all__ = sorted(_WHERE)

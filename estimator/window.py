@@ -16,9 +16,7 @@ Checked by: tests/estimator/test_window.py
 
 from __future__ import annotations
 
-import itertools
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,20 +26,7 @@ from .measurement_models import MeasurementModel
 from .motion import MotionPrior
 from .spd import inv_spd, solve_spd, trailing_inverse
 from .state import State, stacked
-
-
-@dataclass
-class MeasurementSet:
-    """Associated pairs of one scan: map points, detections (model space) and their information matrices."""
-
-    p_world: np.ndarray  # (m, 3)
-    z: np.ndarray  # (m, 4) in the model's space
-    W: np.ndarray  # (m, 4, 4) information (inverse covariance)
-    T_vehicle_sensor: np.ndarray | None = None  # (4, 4) the radar that measured z; None: the window's
-    weights: np.ndarray | None = None  # (m,) robust weights, set by SlidingWindow.optimize
-
-    def __len__(self) -> int:
-        return len(self.z)
+from .window_sets import MeasurementSet, SetPacks
 
 
 class SlidingWindow:
@@ -59,7 +44,7 @@ class SlidingWindow:
         self.prior_mean: State | None = None  # linearisation point of the prior on the oldest state
         self.prior_info: np.ndarray | None = None
         self.prior_grad: np.ndarray | None = None  # linear term g: cost 1/2 e^T Lam e + g^T e, e = x0 (-) mean
-        self._packs: dict = {}  # measurement sets concatenated for the kernel, per tuple of sets (cached)
+        self._packs = SetPacks()  # the measurement sets concatenated for the kernel (cached)
         self._rates: dict = {}  # the rate terms as the kernel takes them, per (n, first_only, terms) (cached)
         self._rate_copy: np.ndarray | None = None  # the window's copy of the rate term set last
         # False: an older state's measurement terms are linearised once per solve (the first linearisation after
@@ -135,30 +120,6 @@ class SlidingWindow:
     def _lag_ready(self, m: MeasurementSet) -> bool:
         kept = self._terms.get(id(m))
         return not self.relinearize_older and kept is not None and kept[0] is m and kept[1] is m.weights
-
-    def _pack(self, sets: list[MeasurementSet]):
-        """The sets concatenated for the kernels, (offsets, p, z, W, Tvs, weights), cached per tuple of sets; the
-        weights -1 where a set has none (the kernel sets its Cauchy weights), else the set's."""
-        # the sets change only when scans come and go; compared by identity with the packed sets held alive
-        # (an id() of a freed set can be reused by the next one: a stale pack once read past the new set's end)
-        key = tuple(map(id, sets))
-        packed = self._packs.get(key)
-        if packed is None or any(a is not b for a, b in zip(packed[0], sets)):
-            if len(self._packs) > 4:
-                self._packs.clear()
-            offsets = np.array([0, *itertools.accumulate(len(m) for m in sets)], np.int64)
-            Tvs = np.array([self.T_vehicle_sensor if m.T_vehicle_sensor is None else m.T_vehicle_sensor
-                            for m in sets], dtype=float)  # np.stack's result, faster for a few sets
-            w = np.empty(offsets[-1])  # filled below
-            self._packs[key] = packed = (sets, offsets, _joined([m.p_world for m in sets]),
-                                         _joined([m.z for m in sets]), _joined([m.W for m in sets]), Tvs, w)
-        _, offsets, p, z, W, Tvs, w = packed
-        for q, m in enumerate(sets):  # a fresh set's weights to be set; weights set in another pack copied in
-            if m.weights is None:
-                w[offsets[q]:offsets[q + 1]] = -1.0
-            elif m.weights.base is not w:
-                w[offsets[q]:offsets[q + 1]] = m.weights
-        return offsets, p, z, W, Tvs, w
 
     def _linearized(self, sets, rows, ks, w, offsets, T0_inverse, varpi0, H, b, costs) -> None:
         """After a linearisation that took `sets` afresh, in a pack with weights w: a fresh set's weights are a view
@@ -247,7 +208,7 @@ class SlidingWindow:
             if lag[q]:
                 _, _, T0_inverse[q], varpi0[q], H0[q], b0[q], c0[q] = self._terms[id(sets[q])]
         fresh_sets = [sets[q] for q in fresh]
-        offsets, p, z, W, Tvs, w = self._pack(fresh_sets) if fresh else _NO_PACK
+        offsets, p, z, W, Tvs, w = self._packs.pack(fresh_sets, self.T_vehicle_sensor)
         args = (*self.motion.kernel_args, T_all, tail, t, self._prior_inverse[1], self._prior_inverse[2],
                 self.prior_info, self.prior_grad, motion_info, rate_info, rate_on, self.measurement_model.kernel_code,
                 ks, slot, offsets, p, z, W, Tvs, w, float(self.robust_c), np.empty(len(z)), T0_inverse, varpi0, H0,
@@ -292,7 +253,7 @@ class SlidingWindow:
             return self._optimize(iterations, tol, sigma_tol, check_last, lagged=not reweight)
 
     def _gauss_newton(self, iterations: int, tol: float, sigma_tol: float, check_last: bool, lagged: bool) -> dict:
-        """`optimize`'s loop compiled; if it raises, the window is as it was (`_pack` resets the weights it set)."""
+        """`optimize`'s loop compiled; if it raises, the window is as it was (`SetPacks.pack` resets the weights it set)."""
         n, d = len(self.states), self.motion.dim
         args, kept = self._arguments(n, lagged)
         K = len(kept[2])
@@ -389,12 +350,3 @@ def _oplus_all(states: list[State], T_all: np.ndarray, tail: np.ndarray, d: np.n
     out = [State(x.t, T[k], tail[k, :6], None if x.varpi_dot is None else tail[k, 6:12])
            for k, x in enumerate(states)]
     return out, T, tail
-
-
-_NO_PACK = (np.zeros(1, np.int64), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 4, 4)), np.zeros((0, 4, 4)),
-            np.zeros(0))  # `_pack` of no sets
-
-
-def _joined(arrays: list[np.ndarray]) -> np.ndarray:
-    """The arrays concatenated along their first axis for the kernel; one array as it is (C-contiguous floats)."""
-    return np.ascontiguousarray(arrays[0], dtype=float) if len(arrays) == 1 else np.concatenate(arrays)
