@@ -267,7 +267,8 @@ class RadarOdometry:
             timings["associate"] += elapsed
             timings["reassociate"] = timings.get("reassociate", 0.0) + elapsed
             # from the last solution: the problem changed by a few pairs, and the step after the first is ~1e-5
-            self.window.optimize(solver.refine_iterations, solver.step_tolerance, check_last=False, reweight=False)
+            self.window.optimize(solver.refine_iterations, solver.step_tolerance, check_last=False, reweight=False,
+                                 marginal=len(self.window.states) > cfg.window)  # its Schur complement, for below
         P_emitted, (self.P, P_pair) = self.P, self.window.newest_covariances()  # marginalising does not change them
         P_relative = self._relative_covariance(P_pair, P_emitted)
         while len(self.window.states) > cfg.window:

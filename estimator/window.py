@@ -52,6 +52,7 @@ class SlidingWindow:
         self.relinearize_older = relinearize_older
         self._terms: dict = {}  # id(set) -> (set, its weights, T^-1, varpi, H, b, cost) at its last linearisation
         self._H: np.ndarray | None = None
+        self._marginal: tuple | None = None  # (what it was taken at, Lam, g): the last solve's Schur complement
         self._factor: tuple[np.ndarray, np.ndarray] | None = None  # (H, its Cholesky factor) of the last step
         self._motion_info: np.ndarray | None = None  # motion_info stacked for the kernel (cached)
         self._stack = None  # (ids, T, tail, t, states): the states as arrays (`state.stacked`), for those states
@@ -227,7 +228,7 @@ class SlidingWindow:
 
     # --- solving ----------------------------------------------------------------------------------------
     def optimize(self, iterations: int = 5, tol: float = 1e-6, sigma_tol: float = 0.0,
-                 check_last: bool = True, reweight: bool = True) -> dict:
+                 check_last: bool = True, reweight: bool = True, marginal: bool = False) -> dict:
         """Gauss-Newton; a step that increases the cost is halved (one linearisation per iteration).
 
         A full step whose largest element is below tol, or whose length in the information metric,
@@ -244,32 +245,39 @@ class SlidingWindow:
 
         The loop runs in one compiled call (`window_kernels.gauss_newton`); where an H is not numerically positive
         definite, the loop in Python (`_optimize`) does it all again, its solve with a jitter (`spd.solve_spd`).
+        marginal: the compiled call also takes the oldest state's Schur complement at the solution, which
+        `marginalize_oldest` then uses if nothing has changed since (the odometry's last solve of a scan).
         """
         if reweight or self.relinearize_older:
             self.reset_robust_weights()
         try:
-            return self._gauss_newton(iterations, tol, sigma_tol, check_last, lagged=not reweight)
+            return self._gauss_newton(iterations, tol, sigma_tol, check_last, not reweight, marginal)
         except np.linalg.LinAlgError:
             return self._optimize(iterations, tol, sigma_tol, check_last, lagged=not reweight)
 
-    def _gauss_newton(self, iterations: int, tol: float, sigma_tol: float, check_last: bool, lagged: bool) -> dict:
-        """`optimize`'s loop compiled; if it raises, the window is as it was (`SetPacks.pack` resets the weights it set)."""
+    def _gauss_newton(self, iterations: int, tol: float, sigma_tol: float, check_last: bool, lagged: bool,
+                      marginal: bool = False) -> dict:
+        """`optimize`'s loop compiled; if it raises, the window is as it was (`SetPacks.pack` resets the weights
+        it set)."""
         n, d = len(self.states), self.motion.dim
         args, kept = self._arguments(n, lagged)
         K = len(kept[2])
         T, tail, H, b, L = (np.empty((n, 4, 4)), np.empty((n, d - 6)), np.empty((n * d, n * d)), np.empty(n * d),
                             np.empty((n * d, n * d)))
-        Hm, bm, cm, out = np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K), np.empty(4)
+        Hm, bm, cm, out, Lam, g = (np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K), np.empty(4),
+                                   np.empty((d, d)), np.empty(d))
         window_kernels.gauss_newton(*args, bool(self.relinearize_older), int(iterations), float(tol), float(sigma_tol),
-                                    bool(check_last), T, tail, H, b, L, Hm, bm, cm, out)
+                                    bool(check_last), T, tail, H, b, L, Hm, bm, cm, out, bool(marginal), Lam, g)
         self._linearized(*kept, Hm, bm, cm)
         self._set_states([State(x.t, T[k], tail[k, :6], None if x.varpi_dot is None else tail[k, 6:12])
                           for k, x in enumerate(self.states)], T, tail)
         self._H, self._factor = H, ((H, L) if out[3] else None)
+        self._marginal = (self._marginal_key(), Lam, g) if marginal and n > 1 else None
         return {"iterations": int(out[0]), "cost": float(out[1]), "step": float(out[2])}
 
     def _optimize(self, iterations: int, tol: float, sigma_tol: float, check_last: bool, lagged: bool) -> dict:
         """`optimize`'s loop in Python, the reference of the compiled one, with the jitter of `spd.solve_spd`."""
+        self._marginal = None
         H, b, cost = self.linearize(lagged=lagged)
         step, it = 1.0, 0
         for it in range(1, iterations + 1):
@@ -316,6 +324,11 @@ class SlidingWindow:
         X = trailing_inverse(H, k, None if kept is None else kept[1])
         return X[-d:, -d:].copy(), (X if k == 2 * d else None)
 
+    def _marginal_key(self) -> tuple:
+        """What the oldest state's Schur complement depends on besides the window's mutators (which all unset _H):
+        the solve's H, the two oldest states, the prior and the lag setting (compared by identity)."""
+        return (self._H, *self.states[:2], self.prior_mean, self.prior_info, self.prior_grad, self.relinearize_older)
+
     def marginalize_oldest(self, memory: float = 0.0) -> None:
         """Schur complement of the oldest state into a Gaussian prior on the next one; with memory > 0 (s) its
         information and linear term are multiplied by keep = exp(-dt / memory), dt the marginalised interval
@@ -323,11 +336,16 @@ class SlidingWindow:
         d = self.motion.dim
         x0, x1 = self.states[0], self.states[1]
         keep = float(np.exp((x0.t - x1.t) / memory)) if memory > 0 else 1.0
-        H, b, _ = self._normal_equations(2, lagged=True, first_only=True)
-        H00, H01, H11 = H[:d, :d], H[:d, d:], H[d:, d:]
-        X = solve_spd(H00, np.column_stack((H01, b[:d])))
-        Lam = H11 - H01.T @ X[:, :d]
-        g = b[d:] - H01.T @ X[:, d]
+        kept = self._marginal
+        if kept is not None and all(a is b for a, b in zip(kept[0], self._marginal_key())):  # the last solve's
+            Lam, g = self._marginal[1], self._marginal[2]
+        else:
+            H, b, _ = self._normal_equations(2, lagged=True, first_only=True)
+            H00, H01, H11 = H[:d, :d], H[:d, d:], H[d:, d:]
+            X = solve_spd(H00, np.column_stack((H01, b[:d])))
+            Lam = H11 - H01.T @ X[:, :d]
+            g = b[d:] - H01.T @ X[:, d]
+        self._marginal = None
         # the new prior on x1: 1/2 e^T Lam e + g^T e with e = x1 (-) x1_now, exactly the Schur complement here
         self.prior_mean = x1.copy()
         self.prior_info = 0.5 * keep * (Lam + Lam.T)  # keep = 1: bit for bit the Schur complement

@@ -177,7 +177,8 @@ def normal_equations(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail
 @njit(cache=True, error_model="numpy")
 def gauss_newton(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, info, grad, motion_info, rate_info,
                  rate_on, model, ks, slot, offsets, p, z, W, Tvs, weights, robust_c, d2, T0_inverse, varpi0, H0, b0,
-                 c0, relinearize, iterations, tol, sigma_tol, check_last, T_out, tail_out, H, b, L, Hm, bm, cm, result):
+                 c0, relinearize, iterations, tol, sigma_tol, check_last, T_out, tail_out, H, b, L, Hm, bm, cm, result,
+                 marginal, Lam, g):
     """`SlidingWindow.optimize`'s Gauss-Newton loop in one call, from the window's states T, tail (n, ...) and the
     first linearisation's arguments (those of `normal_equations` up to c0).
 
@@ -189,7 +190,8 @@ def gauss_newton(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, in
     step solves H d = -b by Cholesky (`np.linalg.cholesky`, LAPACK's potrf; it raises LinAlgError when H is not
     positive definite, and the caller falls back to the Python loop with its jitter) and the two triangular
     systems. Out: the states T_out, tail_out; H, b of the last accepted linearisation; L the factor of the last
-    step's H; result = [iterations, cost, step, 1 if L is H's factor else 0].
+    step's H; result = [iterations, cost, step, 1 if L is H's factor else 0]; with `marginal` (and n > 1) the
+    Schur complement of the oldest state at the states out (`_marginal`), Lam and g.
 
     Checked by: tests/estimator/test_window.py::test_compiled_gauss_newton_equals_the_python_loop
     """
@@ -259,6 +261,49 @@ def gauss_newton(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, in
             if step < 1e-3:
                 break
     result[0], result[1], result[2], result[3] = it, cost, step, 1.0 if factored else 0.0
+    if marginal and n > 1:
+        if not relinearize:
+            w_later[:] = weights
+        on = np.zeros(2, np.bool_)
+        on[0] = rate_on[0]
+        first = 1 if K > 0 and ks[0] == 0 else 0
+        _marginal(ca, order, noise, Qc, T_out[:2], tail_out[:2], t[:2], mean_T_inverse, mean_tail, info, grad,
+                  motion_info[:1], rate_info[:2], on, model, ks[:first], later[:first], offsets, p, z, W, Tvs,
+                  w_later, robust_c, d2, T0l[:first], v0l[:first], H0l[:first], b0l[:first], c0l[:first], Lam, g)
+
+
+@njit(cache=True, error_model="numpy")
+def _marginal(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, info, grad, motion_info, rate_info,
+              rate_on, model, ks, slot, offsets, p, z, W, Tvs, weights, robust_c, d2, T0_inverse, varpi0, H0, b0, c0,
+              Lam, g):
+    """The Schur complement of the oldest of two states (`SlidingWindow.marginalize_oldest`): their normal
+    equations with the oldest state's terms only (the arguments of `normal_equations` for them), then
+    Lam = H11 - H10 H00^-1 H01 and g = b1 - H10 H00^-1 b0 (H00 by Cholesky; LinAlgError if not positive
+    definite)."""
+    d = tail.shape[1] + 6
+    H, b = np.zeros((2 * d, 2 * d)), np.zeros(2 * d)
+    K = len(ks)
+    normal_equations(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, info, grad, motion_info, rate_info,
+                     rate_on, model, ks, slot, offsets, p, z, W, Tvs, weights, robust_c, d2, T0_inverse, varpi0, H0,
+                     b0, c0, H, b, np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K))
+    L0 = np.linalg.cholesky(H[:d, :d].copy())
+    X, col = np.empty((d, d + 1)), np.empty(d)
+    for j in range(d + 1):  # X = H00^-1 [H01, b0], a column at a time (`_cholesky_solve` returns -H^-1 rhs)
+        for i in range(d):
+            col[i] = -(H[i, d + j] if j < d else b[i])
+        x = np.empty(d)
+        _cholesky_solve(L0, col, x)
+        X[:, j] = x
+    for i in range(d):
+        s = 0.0
+        for k in range(d):
+            s += H[k, d + i] * X[k, d]
+        g[i] = b[d + i] - s
+        for j in range(d):
+            s = 0.0
+            for k in range(d):
+                s += H[k, d + i] * X[k, j]
+            Lam[i, j] = H[d + i, d + j] - s
 
 
 @njit(cache=True, error_model="numpy")

@@ -181,6 +181,41 @@ def test_an_information_not_positive_definite_falls_back_to_the_jittered_loop(pa
         assert np.array_equal(got.meas[0].weights, want.meas[0].weights)
 
 
+@pytest.mark.parametrize("kind", ["ca", "cv"])
+@pytest.mark.parametrize("case", ["lagged", "relinearize", "oldest without pairs", "forgetting", "changed"])
+def test_the_solve_s_schur_complement_is_the_marginalisation_s(kind, case):
+    """`optimize(marginal=True)` takes the oldest state's Schur complement in the compiled call, at the solution;
+    `marginalize_oldest` then uses it, and the prior it leaves equals the one it takes itself (the Python path,
+    LAPACK's dposv) to rounding: with the older states' terms lagged or re-linearised, the oldest without pairs,
+    a rate term on it, and a prior that forgets. Changed after the solve (new pairs for the oldest), the window
+    takes the complement afresh: the kept one is not read."""
+    def window():
+        win, _ = _window_with_scene(kind, robust_c=3.0)
+        win.relinearize_older = case == "relinearize"
+        win.set_rate_prior(0, np.diag(np.arange(1.0, win.motion.dim - 5)) * 1e4)
+        if case == "oldest without pairs":
+            win.set_measurements(0, None)
+        return win
+
+    got, want = window(), window()
+    got.optimize(5, marginal=True)
+    want.optimize(5)
+    assert got._marginal is not None and want._marginal is None
+    scale = np.abs(want._H).max()  # the complement cancels terms of this size: its rounding is relative to it
+    if case == "changed":
+        for win in (got, want):
+            m = win.meas[0]
+            win.set_measurements(0, MeasurementSet(m.p_world[::2], m.z[::2], m.W[::2]))
+            win.reset_robust_weights()
+            win.linearize()  # the weights of the new set; the old one's were the solve's
+    memory = 0.5 if case == "forgetting" else 0.0
+    got.marginalize_oldest(memory)
+    want.marginalize_oldest(memory)
+    np.testing.assert_allclose(got.prior_info, want.prior_info, rtol=1e-9, atol=1e-14 * scale)
+    np.testing.assert_allclose(got.prior_grad, want.prior_grad, rtol=1e-9, atol=1e-14 * scale)
+    assert got._marginal is None
+
+
 def test_gauss_newton_reaches_the_truth_on_noise_free_measurements():
     """Prior mean at the truth, exact measurements, states started 0.1 away: GN lands on the truth."""
     win, (t, T, varpi, vd) = _window_with_scene(noisy=False)
