@@ -125,7 +125,9 @@ class SlidingWindow:
     def _linearized(self, sets, rows, ks, w, offsets, T0_inverse, varpi0, H, b, costs) -> None:
         """After a linearisation that took `sets` afresh, in a pack with weights w: a fresh set's weights are a view
         of the pack's; with `relinearize_older` False the older states' blocks (row rows[s] of the per-state
-        arrays, state ks[rows[s]]) are kept to lag (`_arguments`)."""
+        arrays, state ks[rows[s]]) are kept to lag (`_arguments`). A kept Schur complement is dropped: its oldest
+        state's terms may have been taken afresh."""
+        self._marginal = None
         for s, m in enumerate(sets):
             if m.weights is None:
                 m.weights = w[offsets[s]:offsets[s + 1]]
@@ -325,8 +327,9 @@ class SlidingWindow:
         return X[-d:, -d:].copy(), (X if k == 2 * d else None)
 
     def _marginal_key(self) -> tuple:
-        """What the oldest state's Schur complement depends on besides the window's mutators (which all unset _H):
-        the solve's H, the two oldest states, the prior and the lag setting (compared by identity)."""
+        """What the oldest state's Schur complement depends on besides the window's mutators (which all unset _H)
+        and its linearisations (which drop it, `_linearized`): the solve's H, the two oldest states, the prior and
+        the lag setting (compared by identity)."""
         return (self._H, *self.states[:2], self.prior_mean, self.prior_info, self.prior_grad, self.relinearize_older)
 
     def marginalize_oldest(self, memory: float = 0.0) -> None:

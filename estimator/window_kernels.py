@@ -17,7 +17,7 @@ an edit or an install was not bit for bit the runs after it. Without them the tw
 scenarios x two models, each run after a fresh compilation and after a load from the cache).
 
 Checked by: tests/estimator/test_window.py::test_compiled_normal_equations_equal_the_python_assembly,
-    ::test_compiled_gauss_newton_equals_the_python_loop
+    ::test_compiled_gauss_newton_equals_the_python_loop, ::test_the_solve_s_schur_complement_is_the_marginalisation_s
 """
 
 from __future__ import annotations
@@ -191,9 +191,11 @@ def gauss_newton(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, in
     positive definite, and the caller falls back to the Python loop with its jitter) and the two triangular
     systems. Out: the states T_out, tail_out; H, b of the last accepted linearisation; L the factor of the last
     step's H; result = [iterations, cost, step, 1 if L is H's factor else 0]; with `marginal` (and n > 1) the
-    Schur complement of the oldest state at the states out (`_marginal`), Lam and g.
+    Schur complement of the oldest state at the states out (`_marginal`), Lam and g (its Cholesky raising too,
+    so that the caller redoes the whole solve in Python).
 
-    Checked by: tests/estimator/test_window.py::test_compiled_gauss_newton_equals_the_python_loop
+    Checked by: tests/estimator/test_window.py::test_compiled_gauss_newton_equals_the_python_loop,
+        ::test_the_solve_s_schur_complement_is_the_marginalisation_s
     """
     n, d = T.shape[0], tail.shape[1] + 6
     K = len(ks)
@@ -261,9 +263,7 @@ def gauss_newton(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, in
             if step < 1e-3:
                 break
     result[0], result[1], result[2], result[3] = it, cost, step, 1.0 if factored else 0.0
-    if marginal and n > 1:
-        if not relinearize:
-            w_later[:] = weights
+    if marginal and n > 1:  # the oldest state's terms: lagged (so no weights read), or afresh with the pack's
         on = np.zeros(2, np.bool_)
         on[0] = rate_on[0]
         first = 1 if K > 0 and ks[0] == 0 else 0
@@ -279,7 +279,10 @@ def _marginal(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, info,
     """The Schur complement of the oldest of two states (`SlidingWindow.marginalize_oldest`): their normal
     equations with the oldest state's terms only (the arguments of `normal_equations` for them), then
     Lam = H11 - H10 H00^-1 H01 and g = b1 - H10 H00^-1 b0 (H00 by Cholesky; LinAlgError if not positive
-    definite)."""
+    definite).
+
+    Checked by: tests/estimator/test_window.py::test_the_solve_s_schur_complement_is_the_marginalisation_s
+    """
     d = tail.shape[1] + 6
     H, b = np.zeros((2 * d, 2 * d)), np.zeros(2 * d)
     K = len(ks)

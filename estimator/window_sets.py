@@ -38,11 +38,11 @@ class SetPacks:
         none); the weights -1 where a set has none (the kernel sets its Cauchy weights), else the set's."""
         if not sets:
             return _NO_PACK
-        # compared by identity with the packed sets held alive (an id() of a freed set can be reused by the next
-        # one: a stale pack once read past the new set's end)
+        # by id() against entries that hold their sets alive, so equal ids are the same sets (an id() of a freed
+        # set can be reused by the next one: a stale pack once read past the new set's end)
         key = tuple(map(id, sets))
         packed = self._packs.get(key)
-        if packed is None or any(a is not b for a, b in zip(packed[0], sets)):
+        if packed is None:
             if len(self._packs) > 4:
                 self._packs.clear()
             offsets = np.array([0, *itertools.accumulate(len(m) for m in sets)], np.int64)

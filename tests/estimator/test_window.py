@@ -157,8 +157,8 @@ def test_an_information_not_positive_definite_falls_back_to_the_jittered_loop(pa
     """A window whose information is only semidefinite (one state; without pairs and with a rank-deficient prior,
     or with pairs and nothing on the acceleration): the compiled loop's factorisation raises inside the kernel
     (with pairs, after its first linearisation set their robust weights in the cached pack), the window is as it
-    was, and `optimize` then gives what the Python loop gives with its jitter: the same result, states and
-    weights, without an error."""
+    was, and `optimize` (from a moved state, where weights left in the pack would be wrong) then gives what the
+    Python loop gives with its jitter: the same result, states and weights, without an error."""
     def window():
         win, _ = _window_with_scene("ca" if pairs else "cv", n=1)
         if pairs:
@@ -174,6 +174,9 @@ def test_an_information_not_positive_definite_falls_back_to_the_jittered_loop(pa
     with pytest.raises(np.linalg.LinAlgError):
         got._gauss_newton(3, 1e-6, 0.0, True, lagged=False)
     assert got.newest is start and (got.meas[0] is None or got.meas[0].weights is None)
+    moved = start.oplus(np.full(len(start.vector_tail()) + 6, 0.05))  # where weights left from the start are wrong
+    for win in (got, want):
+        win.replace_newest(moved)
     assert got.optimize(3) == want._optimize(3, 1e-6, 0.0, True, lagged=False)
     assert np.array_equal(got.newest.T_vehicle_world, want.newest.T_vehicle_world)
     assert np.array_equal(got.newest.vector_tail(), want.newest.vector_tail())
@@ -182,17 +185,20 @@ def test_an_information_not_positive_definite_falls_back_to_the_jittered_loop(pa
 
 
 @pytest.mark.parametrize("kind", ["ca", "cv"])
-@pytest.mark.parametrize("case", ["lagged", "relinearize", "oldest without pairs", "forgetting", "changed"])
+@pytest.mark.parametrize("case", ["lagged", "relinearize", "oldest without pairs", "forgetting", "changed",
+                                  "linearised again"])
 def test_the_solve_s_schur_complement_is_the_marginalisation_s(kind, case):
     """`optimize(marginal=True)` takes the oldest state's Schur complement in the compiled call, at the solution;
     `marginalize_oldest` then uses it, and the prior it leaves equals the one it takes itself (the Python path,
     LAPACK's dposv) to rounding: with the older states' terms lagged or re-linearised, the oldest without pairs,
-    a rate term on it, and a prior that forgets. Changed after the solve (new pairs for the oldest), the window
-    takes the complement afresh: the kept one is not read."""
+    a rate term on it (and another on the next state, outside it), and a prior that forgets. Changed after the
+    solve (new pairs for the oldest; or only linearised again, its terms afresh where the solve lagged them), the
+    window takes the complement afresh: the kept one is not read."""
     def window():
         win, _ = _window_with_scene(kind, robust_c=3.0)
         win.relinearize_older = case == "relinearize"
         win.set_rate_prior(0, np.diag(np.arange(1.0, win.motion.dim - 5)) * 1e4)
+        win.set_rate_prior(1, np.eye(win.motion.dim - 6) * 3e4)  # not the oldest's: outside its complement
         if case == "oldest without pairs":
             win.set_measurements(0, None)
         return win
@@ -208,8 +214,15 @@ def test_the_solve_s_schur_complement_is_the_marginalisation_s(kind, case):
             win.set_measurements(0, MeasurementSet(m.p_world[::2], m.z[::2], m.W[::2]))
             win.reset_robust_weights()
             win.linearize()  # the weights of the new set; the old one's were the solve's
+    if case == "linearised again":  # the oldest's terms taken afresh where the solve lagged them
+        for win in (got, want):
+            win.linearize()
     memory = 0.5 if case == "forgetting" else 0.0
+    linearisations = []
+    normal_equations = got._normal_equations
+    got._normal_equations = lambda *args, **kwargs: linearisations.append(1) or normal_equations(*args, **kwargs)
     got.marginalize_oldest(memory)
+    assert len(linearisations) == (case in ("changed", "linearised again"))  # else the kept one is read
     want.marginalize_oldest(memory)
     np.testing.assert_allclose(got.prior_info, want.prior_info, rtol=1e-9, atol=1e-14 * scale)
     np.testing.assert_allclose(got.prior_grad, want.prior_grad, rtol=1e-9, atol=1e-14 * scale)
