@@ -108,9 +108,9 @@ class SlidingWindow:
     def _stacked(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The window's states as arrays (`state.stacked`), kept while the states are the same objects (an
         update sets them with its own arrays, `_set_states`)."""
-        c = self._stack  # c[4] holds the states alive, so equal ids are the same objects
-        if c is None or c[0] != tuple(map(id, self.states)):
-            self._stack = c = (tuple(map(id, self.states)), *stacked(self.states), list(self.states))
+        c, ids = self._stack, tuple(map(id, self.states))  # c[4] holds c's states alive: equal ids, the same states
+        if c is None or c[0] != ids:
+            self._stack = c = (ids, *stacked(self.states), list(self.states))
         return c[1], c[2], c[3]
 
     def _set_states(self, states: list[State], T: np.ndarray, tail: np.ndarray) -> None:
@@ -271,15 +271,13 @@ class SlidingWindow:
         window_kernels.gauss_newton(*args, bool(self.relinearize_older), int(iterations), float(tol), float(sigma_tol),
                                     bool(check_last), T, tail, H, b, L, Hm, bm, cm, out, bool(marginal), Lam, g)
         self._linearized(*kept, Hm, bm, cm)
-        self._set_states([State(x.t, T[k], tail[k, :6], None if x.varpi_dot is None else tail[k, 6:12])
-                          for k, x in enumerate(self.states)], T, tail)
+        self._set_states(_states_at(self.states, T, tail), T, tail)
         self._H, self._factor = H, ((H, L) if out[3] else None)
         self._marginal = (self._marginal_key(), Lam, g) if marginal and n > 1 else None
         return {"iterations": int(out[0]), "cost": float(out[1]), "step": float(out[2])}
 
     def _optimize(self, iterations: int, tol: float, sigma_tol: float, check_last: bool, lagged: bool) -> dict:
         """`optimize`'s loop in Python, the reference of the compiled one, with the jitter of `spd.solve_spd`."""
-        self._marginal = None
         H, b, cost = self.linearize(lagged=lagged)
         step, it = 1.0, 0
         for it in range(1, iterations + 1):
@@ -341,7 +339,7 @@ class SlidingWindow:
         keep = float(np.exp((x0.t - x1.t) / memory)) if memory > 0 else 1.0
         kept = self._marginal
         if kept is not None and all(a is b for a, b in zip(kept[0], self._marginal_key())):  # the last solve's
-            Lam, g = self._marginal[1], self._marginal[2]
+            Lam, g = kept[1], kept[2]
         else:
             H, b, _ = self._normal_equations(2, lagged=True, first_only=True)
             H00, H01, H11 = H[:d, :d], H[:d, d:], H[d:, d:]
@@ -368,6 +366,9 @@ def _oplus_all(states: list[State], T_all: np.ndarray, tail: np.ndarray, d: np.n
     T = np.empty((len(states), 4, 4))
     motion_kernels.exp_times(np.ascontiguousarray(d[:, :6]), T_all, T)
     tail = tail + d[:, 6:]
-    out = [State(x.t, T[k], tail[k, :6], None if x.varpi_dot is None else tail[k, 6:12])
-           for k, x in enumerate(states)]
-    return out, T, tail
+    return _states_at(states, T, tail), T, tail
+
+
+def _states_at(states: list[State], T: np.ndarray, tail: np.ndarray) -> list[State]:
+    """The states at T (n, 4, 4) and tail (n, d - 6) with the times of `states`; their arrays are views."""
+    return [State(x.t, T[k], tail[k, :6], None if x.varpi_dot is None else tail[k, 6:12]) for k, x in enumerate(states)]

@@ -290,11 +290,10 @@ def _marginal(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, info,
                      rate_on, model, ks, slot, offsets, p, z, W, Tvs, weights, robust_c, d2, T0_inverse, varpi0, H0,
                      b0, c0, H, b, np.empty((K, 12, 12)), np.empty((K, 12)), np.empty(K))
     L0 = np.linalg.cholesky(H[:d, :d].copy())
-    X, col = np.empty((d, d + 1)), np.empty(d)
+    X, col, x = np.empty((d, d + 1)), np.empty(d), np.empty(d)
     for j in range(d + 1):  # X = H00^-1 [H01, b0], a column at a time (`_cholesky_solve` returns -H^-1 rhs)
         for i in range(d):
             col[i] = -(H[i, d + j] if j < d else b[i])
-        x = np.empty(d)
         _cholesky_solve(L0, col, x)
         X[:, j] = x
     for i in range(d):
