@@ -11,7 +11,7 @@ solved densely (the window is small), the Gauss-Newton loop in one compiled call
 oldest state is marginalised with the Schur complement into a prior on the next one, kept as (Lam, g) at its
 linearisation point: cost 1/2 e^T Lam e + g^T e.
 
-Checked by: tests/estimator/test_window.py
+Checked by: tests/estimator/test_window.py, tests/estimator/test_window_solve.py
 """
 
 from __future__ import annotations

@@ -17,7 +17,8 @@ an edit or an install was not bit for bit the runs after it. Without them the tw
 scenarios x two models, each run after a fresh compilation and after a load from the cache).
 
 Checked by: tests/estimator/test_window.py::test_compiled_normal_equations_equal_the_python_assembly,
-    ::test_compiled_gauss_newton_equals_the_python_loop, ::test_the_solve_s_schur_complement_is_the_marginalisation_s
+    tests/estimator/test_window_solve.py::test_compiled_gauss_newton_equals_the_python_loop,
+    ::test_the_solve_s_schur_complement_is_the_marginalisation_s
 """
 
 from __future__ import annotations
@@ -194,7 +195,7 @@ def gauss_newton(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, in
     Schur complement of the oldest state at the states out (`_marginal`), Lam and g (its Cholesky raising too,
     so that the caller redoes the whole solve in Python).
 
-    Checked by: tests/estimator/test_window.py::test_compiled_gauss_newton_equals_the_python_loop,
+    Checked by: tests/estimator/test_window_solve.py::test_compiled_gauss_newton_equals_the_python_loop,
         ::test_the_solve_s_schur_complement_is_the_marginalisation_s
     """
     n, d = T.shape[0], tail.shape[1] + 6
@@ -281,7 +282,7 @@ def _marginal(ca, order, noise, Qc, T, tail, t, mean_T_inverse, mean_tail, info,
     Lam = H11 - H10 H00^-1 H01 and g = b1 - H10 H00^-1 b0 (H00 by Cholesky; LinAlgError if not positive
     definite).
 
-    Checked by: tests/estimator/test_window.py::test_the_solve_s_schur_complement_is_the_marginalisation_s
+    Checked by: tests/estimator/test_window_solve.py::test_the_solve_s_schur_complement_is_the_marginalisation_s
     """
     d = tail.shape[1] + 6
     H, b = np.zeros((2 * d, 2 * d)), np.zeros(2 * d)
