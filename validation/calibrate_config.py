@@ -8,7 +8,8 @@
   then, unless told not to, the uncertainty parameters at that noise (`calibrate_consistency`: the pairs'
   effective count kappa, the drift rate, the velocity correlation time).
 - `calibrate_without_truth(seq, config)`: EM (`calibrate.em_qc`) over the estimator's posteriors, for the
-  Qc of the config's own prior; R is left as configured (the odometry does not expose per-pair residuals).
+  Qc of the config's own prior; R as configured, or (`sensor_noise`) learned first from the static detections
+  of consecutive scans and the estimated poses (`calibrate_sensor_em`).
 - `config_toml(config, header)`: the complete config as TOML that `OdometryConfig.from_toml` reads back.
 
 Checked by: tests/validation/test_calibrate.py::test_config_toml_round_trips,
@@ -28,6 +29,7 @@ from rodo.sim.sequence import Sequence, Trajectory
 from . import calibrate as cal
 from . import calibrate_consistency as cc
 from . import calibrate_sensor as cs
+from . import calibrate_sensor_em as csem
 from .driver import run_sequence
 
 
@@ -124,13 +126,38 @@ def estimator_track(seq: Sequence, config: OdometryConfig) -> cal.StateTrack:
                           np.stack([e.P for e in est]), ~reinit)
 
 
+def with_learned_sensor_noise(seq: Sequence, config: OdometryConfig) -> tuple[OdometryConfig, dict]:
+    """The measurement noise learned without ground truth (`calibrate_sensor_em.measurement_noise`, from one
+    estimator run at `config`) written into the config's per-channel factors on sensor.toml's sigmas and its
+    Cartesian sigma; returns (config, report). A channel the data cannot show (the elevation of a planar radar)
+    keeps the config's factor."""
+    noise = config.noise
+    sensor = seq.sensor.noise.as_array()
+    effective = np.asarray(noise.sensor_sigma_scales, dtype=float) * noise.sensor_sigma_scale  # on sensor.toml's
+    result = run_sequence(seq, config, record_detail=True)
+    fit = csem.measurement_noise(result.estimates, seq.sensor.T_vehicle_sensor, sensor * effective)
+    learned = np.array([fit["sigmas"][c] for c in cs.CHANNELS])
+    scales = np.where(fit["learned"], learned / sensor, effective)
+    config = config.replace(noise=dataclasses.replace(noise, sensor_sigma_scale=1.0,
+                                                      sensor_sigma_scales=tuple(float(x) for x in scales),
+                                                      cartesian_sigma=fit["cartesian_sigma"]))
+    report = dict(fit, sensor_toml_sigmas=dict(zip(cs.CHANNELS, sensor.tolist())),
+                  configured_sigmas=dict(zip(cs.CHANNELS, (sensor * effective).tolist())),
+                  sensor_sigma_scales=scales.tolist())
+    return config, report
+
+
 def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: int = 5, tolerance: float = 0.05,
                             duration: float | None = None, floor: float = cal.DEFAULT_FLOOR,
-                            progress=None, learn=None) -> tuple[OdometryConfig, dict]:
+                            progress=None, learn=None, sensor_noise: bool = False) -> tuple[OdometryConfig, dict]:
     """EM for the Qc of the config's prior; returns (config, report). `progress(EmIteration)` is called after
-    each iteration; `learn` (6,) bool: the components to learn (default all; `calibrate.em_qc`)."""
+    each iteration; `learn` (6,) bool: the components to learn (default all; `calibrate.em_qc`). With
+    `sensor_noise` the measurement noise is learned first (`with_learned_sensor_noise`) and EM runs at it."""
     seq = truncate(seq, duration)
     field = f"qc_{config.prior}"
+    measurement = None
+    if sensor_noise:
+        config, measurement = with_learned_sensor_noise(seq, config)
 
     def run(qc):
         return estimator_track(seq, config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)})))
@@ -144,6 +171,8 @@ def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: i
               "converged": history[-1].change < tolerance, "tolerance": tolerance,
               "iterations": [{"qc_in": h.qc_in.tolist(), "qc_out": h.qc_out.tolist(), "loglik": h.loglik,
                               "change": h.change, "intervals": h.intervals} for h in history]}
+    if measurement is not None:
+        report["measurement"] = measurement
     return config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)})), report
 
 

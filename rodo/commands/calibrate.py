@@ -35,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="CONFIG.toml", help="the config to write")
     p.add_argument("--config", metavar="FILE", help="base TOML config (its other settings are kept)")
     p.add_argument("--no-truth", action="store_true", help="ignore truth.npz; EM without ground truth")
+    p.add_argument("--sensor-noise", action="store_true",
+                   help="with --no-truth: learn the measurement noise too, from the static detections seen in "
+                        "consecutive scans (assumes persistent scatterers; docs/calibration.md)")
     p.add_argument("--no-consistency", action="store_true",
                    help="with truth: skip the uncertainty section (kappa, drift rate, tau; a few estimator runs)")
     p.add_argument("--velocity-axes", action="store_true",
@@ -68,6 +71,9 @@ def _check_args(args) -> Path:
     if not (np.isfinite(args.floor) and QC_MIN <= args.floor < QC_MAX):
         raise InputError(f"--floor: must be from {QC_MIN:g} (the config's lower bound) to below the fit's upper "
                          f"bound {QC_MAX:g}, got {args.floor}")
+    if args.sensor_noise and not args.no_truth:
+        raise InputError("--sensor-noise: learns the measurement noise without ground truth (with --no-truth); "
+                         "with truth.npz it is learned from the truth anyway")
     for flag, given in (("--velocity-axes", args.velocity_axes), ("--heading-reversion", args.heading_reversion),
                         ("--attitude-jitter", args.attitude_jitter)):
         for other, off in (("--no-truth", args.no_truth), ("--no-consistency", args.no_consistency)):
@@ -120,6 +126,9 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                   f"posteriors, {len(it)} iteration(s), last "
                   f"relative change {it[-1]['change']:.3g} ({'converged' if report['converged'] else 'NOT converged'}"
                   f" at {report['tolerance']:g}).",
+                  "noise.sensor_sigma_scales, noise.cartesian_sigma: learned first from the static detections of "
+                  "consecutive scans (docs/calibration.md); everything else as in the base config."
+                  if "measurement" in report else
                   "Everything else (including the measurement noise) as in the base config."]
     return lines + ["The learned values and likelihoods are in the .json and .md files beside this one.", ""]
 
@@ -151,7 +160,21 @@ def _markdown(report: dict) -> str:
                   "| --- | --- | --- | --- | --- |"]
         for i, h in enumerate(report["iterations"], 1):
             lines.append(f"| {i} | {vec(h['qc_in'])} | {vec(h['qc_out'])} | {h['change']:.3g} | {h['loglik']:.6g} |")
+        if "measurement" in report:
+            lines += [""] + _sensor_noise_markdown(report["measurement"])
     return "\n".join(lines) + "\n"
+
+
+def _sensor_noise_markdown(m: dict) -> list[str]:
+    """The measurement noise learned without ground truth: per channel learned, configured and sensor.toml."""
+    lines = ["## Measurement noise without ground truth", "",
+             f"{m['pairs']} pairs of static detections in consecutive scans, the radial velocity from "
+             f"{m['doppler_detections']} static detections in {m['doppler_scans']} scans.", "",
+             "| channel | learned sigma | the base config's | sensor.toml | learned |", "| --- | --- | --- | --- | --- |"]
+    for (name, sigma), on in zip(m["sigmas"].items(), m["learned"]):
+        lines.append(f"| {name} | {sigma:.4g} | {m['configured_sigmas'][name]:.4g} | "
+                     f"{m['sensor_toml_sigmas'][name]:.4g} | {'yes' if on else 'no (planar data): kept'} |")
+    return lines + ["", f"cartesian_sigma = {m['cartesian_sigma']:.4g} m"]
 
 
 def _consistency_markdown(c: dict) -> list[str]:
@@ -223,7 +246,8 @@ def main(args) -> int:
         def say(h):
             print(f"EM iteration: qc {np.array2string(h.qc_out, precision=4)}, change {h.change:.3g}")
         config, report = calibrate_without_truth(seq, config, args.iterations, args.tolerance, args.duration,
-                                                 args.floor, progress=say, learn=learn)
+                                                 args.floor, progress=say, learn=learn,
+                                                 sensor_noise=args.sensor_noise)
     else:
         for d in args.sequence:
             if not (Path(d) / TRUTH_NPZ).is_file():

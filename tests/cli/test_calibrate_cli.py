@@ -174,6 +174,24 @@ def test_calibrate_without_truth_runs_em(seq, tmp_path, capsys):
     assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
 
 
+@pytest.mark.slow
+def test_calibrate_without_truth_learns_the_sensor_noise_when_asked(seq, tmp_path, capsys):
+    """--no-truth --sensor-noise: the config carries the learned per-channel factors and Cartesian sigma, the
+    header and the markdown report say so; `rodo run` accepts it. Without --no-truth the flag is refused."""
+    out = tmp_path / "em_r.toml"
+    assert main(["calibrate", str(seq), "--no-truth", "--sensor-noise", "--iterations", "1", "--out", str(out)]) == 0
+    config = OdometryConfig.from_toml(out)
+    m = json.loads(out.with_suffix(".json").read_text())["measurement"]
+    assert list(config.noise.sensor_sigma_scales) == m["sensor_sigma_scales"]
+    assert config.noise.cartesian_sigma == m["cartesian_sigma"] and config.noise.sensor_sigma_scale == 1.0
+    assert m["learned"] == [True] * 4 and m["pairs"] > 0
+    assert "learned first from the static detections" in out.read_text()
+    assert "## Measurement noise without ground truth" in out.with_suffix(".md").read_text()
+    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    fails(capsys, ["calibrate", str(seq), "--sensor-noise", "--out", tmp_path / "x.toml"], "--sensor-noise",
+          "--no-truth")
+
+
 def test_calibrate_bad_input(seq, tmp_path, capsys):
     out = tmp_path / "c.toml"
     fails(capsys, ["calibrate", tmp_path / "nope", "--out", out], "nope", "not a sequence directory")
