@@ -129,8 +129,8 @@ def estimator_track(seq: Sequence, config: OdometryConfig) -> cal.StateTrack:
 def with_learned_sensor_noise(seq: Sequence, config: OdometryConfig) -> tuple[OdometryConfig, dict]:
     """The measurement noise learned without ground truth (`calibrate_sensor_em.measurement_noise`, from one
     estimator run at `config`) written into the config's per-channel factors on sensor.toml's sigmas and its
-    Cartesian sigma; returns (config, report). A channel the data cannot show (the elevation of a planar radar)
-    keeps the config's factor."""
+    Cartesian sigma; returns (config, report). What the data cannot show (the elevation of a planar radar, and
+    with it the Cartesian sigma) keeps the config's value."""
     noise = config.noise
     sensor = seq.sensor.noise.as_array()
     effective = np.asarray(noise.sensor_sigma_scales, dtype=float) * noise.sensor_sigma_scale  # on sensor.toml's
@@ -138,9 +138,10 @@ def with_learned_sensor_noise(seq: Sequence, config: OdometryConfig) -> tuple[Od
     fit = csem.measurement_noise(result.estimates, seq.sensor.T_vehicle_sensor, sensor * effective)
     learned = np.array([fit["sigmas"][c] for c in cs.CHANNELS])
     scales = np.where(fit["learned"], learned / sensor, effective)
+    cart = noise.cartesian_sigma if fit["cartesian_sigma"] is None else fit["cartesian_sigma"]
     config = config.replace(noise=dataclasses.replace(noise, sensor_sigma_scale=1.0,
                                                       sensor_sigma_scales=tuple(float(x) for x in scales),
-                                                      cartesian_sigma=fit["cartesian_sigma"]))
+                                                      cartesian_sigma=cart))
     report = dict(fit, sensor_toml_sigmas=dict(zip(cs.CHANNELS, sensor.tolist())),
                   configured_sigmas=dict(zip(cs.CHANNELS, (sensor * effective).tolist())),
                   sensor_sigma_scales=scales.tolist())

@@ -195,7 +195,8 @@ def position_sigmas(d: np.ndarray, G: np.ndarray, pose: np.ndarray, s0: np.ndarr
 
 def measurement_noise(estimates, T_vehicle_sensor: np.ndarray, s0) -> dict:
     """R from one run with detail (`run_sequence(..., record_detail=True)`'s estimates): per channel sigma,
-    the pairs and scans used; s0 the starting sigmas (4,) (the config's). Raises InputError when the run holds
+    the Cartesian sigma of the CV/C model (None for planar data: the unknown elevation would dominate it), the
+    pairs and scans used; s0 the starting sigmas (4,) (the config's). Raises InputError when the run holds
     too little (no detail, too few static detections or pairs)."""
     if not estimates or any(e.detail is None for e in estimates):
         raise InputError("measurement noise: the run holds no association detail (record_detail)")
@@ -211,14 +212,15 @@ def measurement_noise(estimates, T_vehicle_sensor: np.ndarray, s0) -> dict:
         terms.append(pair_terms(static[k - 1], static[k], T_rel, T_vehicle_sensor, P_rel))
     if not terms or sum(len(t[0]) for t in terms) < 10:
         raise InputError("measurement noise: fewer than 10 scan-to-scan pairs of static detections")
-    d, G, pose, r = (np.concatenate(x) for x in zip(*terms))
+    d, G, pose, _ = (np.concatenate(x) for x in zip(*terms))
     s0 = np.asarray(s0, dtype=float)
     start = 4.0 * s0[:3] ** 2  # from above: a generous first gate
     if planar:
         start[2] = s0[2] ** 2  # not learned: the configured elevation sigma is kept
     fit = position_sigmas(d, G, pose, start, planar)
     sig = np.sqrt(fit["variances"])
-    cart = float(np.sqrt(np.mean(sig[0] ** 2 + r**2 * (sig[1] ** 2 + sig[2] ** 2)) / 3.0))
+    r_static = np.concatenate([p[:, 0] for p in static])  # the Cartesian sigma over every static detection
+    cart = None if planar else float(np.sqrt(np.mean(sig[0] ** 2 + r_static**2 * (sig[1] ** 2 + sig[2] ** 2)) / 3.0))
     doppler = doppler_sigma(static, planar, fit["variances"][1:3] * np.array([1.0, 0.0 if planar else 1.0]))
     sigmas = np.append(sig, doppler["sigma"])
     return {"sigmas": dict(zip(CHANNELS, sigmas.tolist())), "learned": [True, True, not planar, True],

@@ -174,7 +174,9 @@ def _sensor_noise_markdown(m: dict) -> list[str]:
     for (name, sigma), on in zip(m["sigmas"].items(), m["learned"]):
         lines.append(f"| {name} | {sigma:.4g} | {m['configured_sigmas'][name]:.4g} | "
                      f"{m['sensor_toml_sigmas'][name]:.4g} | {'yes' if on else 'no (planar data): kept'} |")
-    return lines + ["", f"cartesian_sigma = {m['cartesian_sigma']:.4g} m"]
+    cart = m["cartesian_sigma"]
+    return lines + ["", f"cartesian_sigma = {cart:.4g} m" if cart is not None else
+                    "cartesian_sigma: kept (planar data: the elevation's share is unknown)"]
 
 
 def _consistency_markdown(c: dict) -> list[str]:
