@@ -18,9 +18,12 @@ docs/calibration.md), from one estimator run's poses and the detections it kept 
   `PAIR_GATE` quantile of their fitted covariance and the variances corrected for that truncation, iterated to a
   fixed point.
 
-What it assumes: static scatterers that persist from scan to scan (point scatterers, edges). Where the world is
-surfaces sampled afresh every scan, isolated pairs are rarer and partly two different points of a surface, which
-reads as more noise (docs/calibration.md gives the figures on `city`).
+What it assumes: static scatterers that persist from scan to scan (point scatterers, edges), and noise
+independent from scan to scan. Scans at standstill (the sensor slower than `MOVING_SPEED`) are left out: a real
+radar seeing the same scene from the same place often repeats its detections (the TI demo of `../shared/realdata`
+to the bit), and a quantised Doppler reads exactly 0 there. Where the world is surfaces sampled afresh every scan,
+isolated pairs are partly two different points of a surface, which reads as more noise (docs/calibration.md gives
+the figures).
 
 Checked by: tests/validation/test_calibrate_sensor_em.py
 """
@@ -28,7 +31,7 @@ Checked by: tests/validation/test_calibrate_sensor_em.py
 from __future__ import annotations
 
 import numpy as np
-from scipy import spatial, stats
+from scipy import optimize, spatial, stats
 
 from rodo.estimator.ego_velocity import is_planar
 from rodo.estimator.errors import InputError
@@ -42,6 +45,7 @@ DOPPLER_GATE = 3.0  # sigma
 PAIR_GATE = 0.999  # chi-square quantile of a pair's 3-dof difference
 ISOLATION = 2.0  # the second-nearest neighbour at least this many times farther than the nearest
 MIN_STATIC = 10  # a scan's static detections for its Doppler fit
+MOVING_SPEED = 0.05  # m/s at the sensor: below it (at standstill) a scan is left out
 ITERATIONS = 20  # at most, for each fixed point
 TOLERANCE = 1e-4  # relative change of the variances that ends a fixed point
 
@@ -183,9 +187,9 @@ def position_sigmas(d: np.ndarray, G: np.ndarray, pose: np.ndarray, s0: np.ndarr
         y = d[keep][:, rows] ** 2 - pose[keep][:, rows]
         expected = np.maximum(a @ s[rows], 1e-300)
         w = 1.0 / expected  # sqrt of 1 / Var(y) ~ 1 / (2 E[y]^2)
-        sol, *_ = np.linalg.lstsq((a * w[..., None]).reshape(-1, dof), (y * w).reshape(-1), rcond=None)
+        sol, _ = optimize.nnls((a * w[..., None]).reshape(-1, dof), (y * w).reshape(-1))
         new = s.copy()
-        new[rows] = np.maximum(sol, 1e-12 * np.max(np.abs(sol))) / shrink
+        new[rows] = np.maximum(sol, 1e-12 * max(float(np.max(sol)), 1e-300)) / shrink
         done = np.all(np.abs(new - s) <= TOLERANCE * s)
         s = new
         if done:
@@ -203,9 +207,12 @@ def measurement_noise(estimates, T_vehicle_sensor: np.ndarray, s0) -> dict:
     static = [e.detail.polar[e.detail.static] for e in estimates]
     all_el = np.concatenate([p[:, 2] for p in static]) if static else np.zeros(0)
     planar = is_planar(all_el)
+    lever = float(np.linalg.norm(T_vehicle_sensor[:3, 3]))
+    moving = [bool(np.linalg.norm(e.varpi[:3]) + lever * np.linalg.norm(e.varpi[3:]) >= MOVING_SPEED)
+              for e in estimates]
     terms = []
     for k in range(1, len(estimates)):
-        if estimates[k].restarted:
+        if estimates[k].restarted or not (moving[k - 1] or moving[k]):
             continue
         T_rel = estimates[k].T_vehicle_world @ se3.inverse(estimates[k - 1].T_vehicle_world)
         P_rel = estimates[k].P_relative
@@ -221,7 +228,8 @@ def measurement_noise(estimates, T_vehicle_sensor: np.ndarray, s0) -> dict:
     sig = np.sqrt(fit["variances"])
     r_static = np.concatenate([p[:, 0] for p in static])  # the Cartesian sigma over every static detection
     cart = None if planar else float(np.sqrt(np.mean(sig[0] ** 2 + r_static**2 * (sig[1] ** 2 + sig[2] ** 2)) / 3.0))
-    doppler = doppler_sigma(static, planar, fit["variances"][1:3] * np.array([1.0, 0.0 if planar else 1.0]))
+    doppler = doppler_sigma([p for p, m in zip(static, moving) if m], planar,
+                            fit["variances"][1:3] * np.array([1.0, 0.0 if planar else 1.0]))
     sigmas = np.append(sig, doppler["sigma"])
     return {"sigmas": dict(zip(CHANNELS, sigmas.tolist())), "learned": [True, True, not planar, True],
             "pairs": fit["pairs"], "doppler_scans": doppler["scans"], "doppler_detections": doppler["detections"],

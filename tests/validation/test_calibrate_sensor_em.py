@@ -174,3 +174,19 @@ def test_a_planar_radar_keeps_the_configured_elevation(tmp_path):
     assert config.noise.sensor_sigma_scales[2] == 1.7
     assert report["measurement"]["cartesian_sigma"] is None and config.noise.cartesian_sigma == base.noise.cartesian_sigma
     assert report["measurement"]["sigmas"]["elevation"] == pytest.approx(1.7 * read_sequence(d).sensor.noise.elevation)
+
+
+@pytest.mark.slow
+def test_the_ti_demo_radial_velocity_noise_is_its_quantisation(realdata_dir):
+    """The TI demo (../shared/realdata, no ground truth) reports its Doppler in steps of 0.12492 m/s
+    (docs/realdata.md): a uniform quantisation error of step / sqrt(12) = 0.036 m/s, which dominates its noise.
+    The learned sigma_vr is within 25 % of it, from the moving scans only: at standstill (scans 0-139 and 342-411)
+    the demo repeats its detections bit for bit and its Doppler reads exactly 0, which would learn nothing."""
+    from rodo.sim.convert import ti_mmwave
+
+    seq = ti_mmwave.convert(realdata_dir / "rio_ti_mmwave_demo").sequence
+    config, report = calibrate_without_truth(seq, OdometryConfig.for_model("ca-polar"), iterations=1,
+                                             sensor_noise=True)
+    m = report["measurement"]
+    assert m["sigmas"]["radial_velocity"] == pytest.approx(0.12492 / np.sqrt(12), rel=0.25)
+    assert 150 <= m["doppler_scans"] <= 270 and m["pairs"] >= 100  # the moving part, 412 scans in all
