@@ -2,11 +2,12 @@
 docs/calibration.md), from one estimator run's poses and the detections it kept as static.
 
 - **Radial velocity.** A static target at unit direction u gives v_r = -u . v_s. Per scan, the least-squares
-  sensor velocity of the detections the estimator's Doppler test kept as static, their residuals gated at
-  `DOPPLER_GATE` sigma (movers the test let through); sigma_vr^2 = sum res^2 / sum (n_k - dof) over the scans,
-  divided by the gate's truncation factor, iterated to its fixed point. A scan's own fit absorbs an error
-  common to its radial velocities, so this is the independent sigma (as `calibrate_sensor.common_doppler_error`
-  gives it with truth).
+  sensor velocity of the detections the estimator's Doppler test kept as static (robustly: the movers the test
+  let through are gated out). Its residuals have variance (1 - h_i)(sigma_vr^2 + a_i), h_i the leverage and a_i
+  the share of the angles' noise, which moves u (`doppler_sigma`); sigma_vr^2 is their maximum likelihood over
+  the scans, gated at `DOPPLER_GATE` sigma and corrected for it. A scan's own fit absorbs an error common to its
+  radial velocities, so this is the independent sigma (as `calibrate_sensor.common_doppler_error` gives it with
+  truth). The angles' sigmas come from the pairs below, which are fitted first.
 - **Range, azimuth, elevation.** The same scatterer seen in two consecutive scans. Scan k-1's static detections
   are moved into scan k's sensor frame with the estimated relative pose and paired with scan k's static
   detections as mutual nearest neighbours that are isolated (the second-nearest neighbour at least
@@ -56,7 +57,7 @@ def _truncated_variance_factor(gate: float) -> float:
 
 
 def _doppler_scan(polar: np.ndarray, dof: int):
-    """(U (n, dof), y, du/d(az, el) (n, 3, 2), a robust first inlier mask) of one scan's static detections:
+    """(U (n, dof), y, du/d(az, el) (n, dof, 2), a robust first inlier mask) of one scan's static detections:
     y = -v_r = U v_s. The mask: least squares, then three times the residuals within 3 x 1.4826 x their median
     absolute deviation and the fit again (the movers the estimator's Doppler test let through)."""
     az, el = polar[:, 1], polar[:, 2]

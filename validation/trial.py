@@ -42,6 +42,7 @@ class ScenarioTrial:
     configs: tuple[tuple[str, str], ...] = ()  # (label, TOML text): that label runs this config
     faults: tuple[str, ...] = ()  # `--fault NAME=VALUE` strings (sim.faults.parse_faults), default none
     profile: str | None = None  # sensor profile (sim.profiles), default the scenario's
+    qc: tuple[float, ...] | None = None  # the prior-consistent scenarios' Qc, default the scenario's
 
     def config(self, label: str):
         """The OdometryConfig of a model label: its TOML from `configs`, else the named model's defaults."""
@@ -64,8 +65,9 @@ class ScenarioTrial:
 
         faults = parse_faults(self.faults)
         t0 = time.perf_counter()
+        params = {} if self.qc is None else {"qc": list(self.qc)}
         seq, truth = scenarios.get(self.scenario).simulate(trial.seed, self.duration, faults=faults,
-                                                            sensor_profile=self.profile)
+                                                            sensor_profile=self.profile, **params)
         gt = Trajectory(truth["t"], np.linalg.inv(truth["T_vehicle_world"]))
         simulate_s = time.perf_counter() - t0
         outcomes = []

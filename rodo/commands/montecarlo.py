@@ -1,4 +1,4 @@
-"""`rodo montecarlo SCENARIO --runs N --models ca-polar,cv-cartesian [--fault NAME=VALUE] [--profile NAME] [--jobs J]
+"""`rodo montecarlo SCENARIO --runs N --models ca-polar,cv-cartesian [--qc Q] [--fault NAME=VALUE] [--profile NAME] [--jobs J]
 [--dask ADDRESS|local [--dashboard [ADDR]]] [--duration S] [--seed S] --out DIR [--resume]`:
 a Monte Carlo campaign (validation/campaign.py, docs/evaluation.md)."""
 
@@ -17,6 +17,8 @@ from rodo.validation.campaign_dir import campaign_lock
 from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign, summarize_campaign, write_summary
 from rodo.validation.trial import ScenarioTrial
 
+from .simulate import parse_qc
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("montecarlo", help="Monte Carlo campaign: seeded trials of a scenario, several models",
@@ -28,6 +30,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--models", default="ca-polar,cv-cartesian",
                    help="comma-separated models (%(default)s), or LABEL=CONFIG.toml to run a config under a label "
                         "(e.g. ca-learned=ca.toml from rodo calibrate)")
+    p.add_argument("--qc", metavar="X,Y,Z,RX,RY,RZ", default=None,
+                   help="the prior-consistent scenarios' Qc (prior_ca, prior_cv, prior_*_points), as in `rodo "
+                        "simulate --qc`: every trial's motion drawn from the prior's SDE with it (saved in "
+                        "campaign.json)")
     add_fault_option(p)
     add_profile_option(p)
     add_campaign_options(p)
@@ -250,7 +256,8 @@ def run_montecarlo(args) -> int:
     check_campaign_options(args)
     from rodo import scenarios
 
-    scenarios.get(args.scenario)  # unknown names fail here, listing the known ones
+    scenario = scenarios.get(args.scenario)  # unknown names fail here, listing the known ones
+    params = parse_qc(args.qc, scenario)
     models = parse_models(args.models)
     configs = parse_configs(args.models)
     faults = check_faults(args.fault)
@@ -261,7 +268,9 @@ def run_montecarlo(args) -> int:
     if configs:
         meta["configs"] = dict(configs)
     meta.update(option_meta(faults, profile))
-    trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs, faults=faults, profile=profile)
+    meta.update(params)  # "qc" only when given: older campaign.json files still resume
+    trial_fn = ScenarioTrial(args.scenario, args.duration, configs=configs, faults=faults, profile=profile,
+                             qc=tuple(params["qc"]) if params else None)
     with campaign_lock(args.out):  # held over the run and the summary: a second writer is refused
         total = remaining(trials, args.out) if args.resume else len(trials) * len(models)
         with Progress(total, f"montecarlo {args.scenario}", unit="run") as bar, \

@@ -357,3 +357,34 @@ def test_campaign_runs_a_config_under_a_label(tmp_path, capsys):
     bad = tmp_path / "missing.toml"
     assert main(argv[:5] + [f"x={bad}"] + argv[6:], commands=[montecarlo]) == 2
     assert "missing.toml" in capsys.readouterr().err
+
+
+def test_campaign_draws_the_prior_consistent_motion_at_the_given_qc(tmp_path, capsys):
+    """--qc: every trial of a prior-consistent scenario is the simulation of that scenario at the trial's seed
+    with that Qc (the trial's sequence equals `simulate(seed, qc=...)`'s, not the default Qc's); the Qc is saved
+    in campaign.json, a resume with another is refused, and a scenario without a Qc parameter refuses --qc."""
+    from rodo import scenarios
+    from rodo.cli import main
+    from rodo.commands import montecarlo
+    from rodo.validation.trial import ScenarioTrial
+
+    qc = (5e-3, 1e-3, 5e-4, 1e-5, 1e-5, 1e-4)
+    out = tmp_path / "mc"
+    argv = ["montecarlo", "prior_ca_points", "--qc", ",".join(map(str, qc)), "--runs", "1", "--models",
+            "ca-polar", "--jobs", "1", "--duration", "1.0", "--seed", "4", "--out", str(out)]
+    assert main(argv, commands=[montecarlo]) == 0
+    assert json.loads((out / "campaign.json").read_text())["qc"] == list(qc)
+    trial = make_trials(4, 1, ("ca-polar",))[0]
+    mine = ScenarioTrial("prior_ca_points", 1.0, qc=qc)(trial)[0]
+    row = read_results(out / "results.csv")[0]
+    assert float(row["ate_rmse_m"]) == pytest.approx(mine.metrics["ate_rmse_m"], rel=1e-12)
+    _, truth = scenarios.get("prior_ca_points").simulate(trial.seed, 1.0, qc=list(qc))
+    _, default = scenarios.get("prior_ca_points").simulate(trial.seed, 1.0)
+    np.testing.assert_array_equal(truth["prior_qc"], qc)
+    assert not np.array_equal(truth["varpi"], default["varpi"])
+    capsys.readouterr()
+    assert main(argv[:3] + ["1e-3,1e-3,5e-4,1e-5,1e-5,1e-4"] + argv[4:] + ["--resume"], commands=[montecarlo]) == 2
+    assert "qc" in capsys.readouterr().err
+    assert main(["montecarlo", "city", "--qc", ",".join(map(str, qc)), "--runs", "1", "--out", str(tmp_path / "c")],
+                commands=[montecarlo]) == 2
+    assert "--qc" in capsys.readouterr().err
