@@ -148,7 +148,7 @@ def with_learned_sensor_noise(seq: Sequence, config: OdometryConfig) -> tuple[Od
     return config, report
 
 
-def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: int = 5, tolerance: float = 0.05,
+def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: int = 30, tolerance: float = 0.05,
                             duration: float | None = None, floor: float = cal.DEFAULT_FLOOR,
                             progress=None, learn=None, sensor_noise: bool = False) -> tuple[OdometryConfig, dict]:
     """EM for the Qc of the config's prior; returns (config, report). `progress(EmIteration)` is called after
@@ -169,9 +169,10 @@ def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: i
     learned = [c for c, on in zip(cal.COMPONENTS, np.ones(6, bool) if learn is None else learn) if on]
     report = {"mode": "EM without ground truth", "prior": config.prior, "field": field, "floor": floor,
               "learned_components": learned,
-              "converged": history[-1].change < tolerance, "tolerance": tolerance,
+              "converged": history[-1].remaining < tolerance, "tolerance": tolerance,
               "iterations": [{"qc_in": h.qc_in.tolist(), "qc_out": h.qc_out.tolist(), "loglik": h.loglik,
-                              "change": h.change, "intervals": h.intervals} for h in history]}
+                              "change": h.change, "remaining": h.remaining, "intervals": h.intervals}
+                             for h in history]}
     if measurement is not None:
         report["measurement"] = measurement
     return config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)})), report

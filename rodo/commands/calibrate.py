@@ -50,8 +50,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with truth: learn the roll and pitch jitter's variance (uncertainty.attitude_jitter_variance, "
                         "at the config's attitude_jitter_time; docs/calibration.md): on by default with truth; "
                         "--no-attitude-jitter keeps the config's")
-    p.add_argument("--iterations", type=int, default=5, help="EM iterations at most (%(default)s)")
-    p.add_argument("--tolerance", type=float, default=0.05, help="EM stops below this relative change of Qc "
+    p.add_argument("--iterations", type=int, default=30, help="EM iterations at most (%(default)s; one estimator "
+                                                              "run each)")
+    p.add_argument("--tolerance", type=float, default=0.05, help="EM stops when the fixed point its steps "
+                                                                 "extrapolate to is within this (relative) of Qc "
                                                                  "(%(default)s)")
     p.add_argument("--duration", type=float, default=None, help="use the first S seconds only")
     p.add_argument("--learn", default=",".join(COMPONENTS), metavar="x,y,...",
@@ -124,7 +126,8 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
         it = report["iterations"]
         lines += [f"noise.{report['field']} ({', '.join(report['learned_components'])}): EM over the estimator's "
                   f"posteriors, {len(it)} iteration(s), last "
-                  f"relative change {it[-1]['change']:.3g} ({'converged' if report['converged'] else 'NOT converged'}"
+                  f"relative change {it[-1]['change']:.3g}, {it[-1]['remaining']:.3g} left to the fixed point the "
+                  f"steps extrapolate to ({'converged' if report['converged'] else 'NOT converged'}"
                   f" at {report['tolerance']:g}).",
                   "noise.sensor_sigma_scales, noise.cartesian_sigma: learned first from the static detections of "
                   "consecutive scans (docs/calibration.md); everything else as in the base config."
@@ -156,10 +159,11 @@ def _markdown(report: dict) -> str:
         if "consistency" in report:
             lines += [""] + _consistency_markdown(report["consistency"])
     else:
-        lines += ["| iteration | Qc in | Qc out | change | expected log-likelihood |",
-                  "| --- | --- | --- | --- | --- |"]
+        lines += ["| iteration | Qc in | Qc out | change | left (extrapolated) | expected log-likelihood |",
+                  "| --- | --- | --- | --- | --- | --- |"]
         for i, h in enumerate(report["iterations"], 1):
-            lines.append(f"| {i} | {vec(h['qc_in'])} | {vec(h['qc_out'])} | {h['change']:.3g} | {h['loglik']:.6g} |")
+            lines.append(f"| {i} | {vec(h['qc_in'])} | {vec(h['qc_out'])} | {h['change']:.3g} | "
+                         f"{h['remaining']:.3g} | {h['loglik']:.6g} |")
         if "measurement" in report:
             lines += [""] + _sensor_noise_markdown(report["measurement"])
     return "\n".join(lines) + "\n"
@@ -246,7 +250,8 @@ def main(args) -> int:
                          "solutions on them")
     if args.no_truth:
         def say(h):
-            print(f"EM iteration: qc {np.array2string(h.qc_out, precision=4)}, change {h.change:.3g}")
+            print(f"EM iteration: qc {np.array2string(h.qc_out, precision=4)}, change {h.change:.3g}, "
+                  f"left {h.remaining:.3g}")
         config, report = calibrate_without_truth(seq, config, args.iterations, args.tolerance, args.duration,
                                                  args.floor, progress=say, learn=learn,
                                                  sensor_noise=args.sensor_noise)

@@ -371,3 +371,16 @@ def test_common_doppler_error_recovered_from_truth():
     config, report = calibrate_with_truth(*faulted, OdometryConfig.for_model("ca-polar"), consistency=False)
     assert config.noise.doppler_common_sigma == report["measurement"]["doppler_common"]["sigma_c"] == got["sigma_c"]
     assert config.noise.sensor_sigma_scales[3] == pytest.approx(1.0, rel=0.05)  # the common part taken out
+
+
+@given(start=st.floats(-3.0, 3.0), rate=st.floats(0.05, 0.98), n=st.integers(1, 8))
+def test_remaining_distance_of_a_geometric_sequence(start, rate, n):
+    """log q_n = log q* + c r^n: from two consecutive steps the distance left to q* is exact (relative, as
+    exp(|log q_n - log q*|) - 1); a step that grows has none (inf), the first step counts as it is."""
+    c = np.array([start, 0.5 * start, 0.0, -start, 0.1, 0.0])
+    x = [c * rate**k for k in (n - 1, n, n + 1)]  # log q - log q* at three iterations
+    previous, step = x[1] - x[0], x[2] - x[1]
+    left = cal.remaining_distance(step, previous)
+    assert left == pytest.approx(float(np.max(np.expm1(np.abs(x[2])))), rel=1e-6, abs=1e-12)
+    assert cal.remaining_distance(2 * previous, previous) == (np.inf if np.any(previous) else 0.0)
+    assert cal.remaining_distance(step, None) == pytest.approx(float(np.max(np.expm1(np.abs(step)))))
