@@ -174,7 +174,8 @@ def _sensor_noise_markdown(m: dict) -> list[str]:
     lines = ["## Measurement noise without ground truth", "",
              f"{m['pairs']} pairs of static detections in consecutive scans, the radial velocity from "
              f"{m['doppler_detections']} static detections in {m['doppler_scans']} scans.", "",
-             "| channel | learned sigma | the base config's | sensor.toml | learned |", "| --- | --- | --- | --- | --- |"]
+             "| channel | learned sigma | the base config's | sensor.toml | learned |",
+             "| --- | --- | --- | --- | --- |"]
     for (name, sigma), on in zip(m["sigmas"].items(), m["learned"]):
         lines.append(f"| {name} | {sigma:.4g} | {m['configured_sigmas'][name]:.4g} | "
                      f"{m['sensor_toml_sigmas'][name]:.4g} | {'yes' if on else 'no (planar data): kept'} |")

@@ -1,5 +1,5 @@
-"""`rodo montecarlo SCENARIO --runs N --models ca-polar,cv-cartesian [--qc Q] [--fault NAME=VALUE] [--profile NAME] [--jobs J]
-[--dask ADDRESS|local [--dashboard [ADDR]]] [--duration S] [--seed S] --out DIR [--resume]`:
+"""`rodo montecarlo SCENARIO --runs N --models ca-polar,cv-cartesian [--qc Q] [--fault NAME=VALUE] [--profile NAME]
+[--jobs J] [--dask ADDRESS|local [--dashboard [ADDR]]] [--duration S] [--seed S] --out DIR [--resume]`:
 a Monte Carlo campaign (validation/campaign.py, docs/evaluation.md)."""
 
 from __future__ import annotations

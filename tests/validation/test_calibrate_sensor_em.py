@@ -172,7 +172,8 @@ def test_a_planar_radar_keeps_the_configured_elevation(tmp_path):
     config, report = calibrate_without_truth(read_sequence(d), base, iterations=1, sensor_noise=True)
     assert report["measurement"]["learned"] == [True, True, False, True] and report["measurement"]["planar"]
     assert config.noise.sensor_sigma_scales[2] == 1.7
-    assert report["measurement"]["cartesian_sigma"] is None and config.noise.cartesian_sigma == base.noise.cartesian_sigma
+    assert report["measurement"]["cartesian_sigma"] is None
+    assert config.noise.cartesian_sigma == base.noise.cartesian_sigma
     assert report["measurement"]["sigmas"]["elevation"] == pytest.approx(1.7 * read_sequence(d).sensor.noise.elevation)
 
 
