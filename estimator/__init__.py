@@ -26,6 +26,7 @@ A map of the package (each module's public names are re-exported here):
     uncertainty.py      the pose covariance that grows as drift does (relative, absolute, over a span)
     heading_reversion.py  the yaw error's reversion to an anchor in that drift (optional)
     attitude_jitter.py  a smooth roll and pitch error beside that drift (optional)
+    velocity_inflation.py  the reported velocity variance's factor (speed, Doppler innovation, body rates)
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
     sensor.py           Sensor: one radar of the odometry (extrinsics, noise, association, Doppler front end)
     scan.py             ScanEstimate, ScanDetail: what a scan returns
@@ -74,6 +75,8 @@ _EXPORTS = {
     "attitude_jitter": ("absolute_excess", "span_excess", "span_variance"),
     "uncertainty": ("DriftCovariance", "predicted_relative_covariance", "relative_pose_covariance",
                     "revision_covariance", "scan_relative_covariances", "span_covariance"),
+    "velocity_inflation": ("doppler_term", "velocity_factor", "velocity_inflated", "velocity_inflation_array",
+                           "velocity_inflation_terms"),
     "window": ("SlidingWindow",),
     "window_sets": ("MeasurementSet", "SetPacks"),
 }

@@ -198,6 +198,9 @@ class UncertaintyConfig:
         where the motion leaves the prior's model (a turn's onset, a start) the scan's Doppler disagrees with
         the prediction, and the velocity's error is larger than the window's covariance (docs/consistency.md,
         "... and at a manoeuvre"). Not in the solve or the gates.
+    velocity_inflation_per_rate: + these x |omega_x|, |omega_y|, |omega_z| (the scan's estimated body rates, rad/s)
+        on that factor: the window's velocity is over-confident where the body rolls, pitches or turns
+        (docs/consistency.md, "... and with the rates"). Not in the solve or the gates.
     velocity_axis_inflation: factors per axis [vx, vy, vz, wx, wy, wz] (body frame) on that reported variance, for
         the shape of the window's velocity covariance (docs/consistency.md, "... and per axis"); `rodo calibrate
         --velocity-axes` learns them. Not in the solve, the gates or the drift recursion.
@@ -225,6 +228,7 @@ class UncertaintyConfig:
     velocity_inflation: float = 1.0
     velocity_inflation_per_speed: float = 0.0
     velocity_inflation_per_doppler: float = 0.0
+    velocity_inflation_per_rate: tuple[float, ...] = (0.0, 0.0, 0.0)  # s/rad
     velocity_axis_inflation: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     heading_reversion_time: float = 0.0  # s
     heading_anchor_time: float = 100.0  # s

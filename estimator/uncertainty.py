@@ -61,6 +61,7 @@ from .heading_reversion import (ANCHOR, YAW, anchored_at_yaw, heading_of, headin
                                heading_reversion_matrix, reversion_coefficients, state_size)
 from .lie import se3
 from .uncertainty_kernels import drift_step, relative_covariances
+from .velocity_inflation import velocity_inflated
 
 NO_REVERSION = np.zeros(4)  # drift_step's coefficients without the heading's reversion (unused there)
 
@@ -120,52 +121,6 @@ def scan_relative_covariances(P_pair: np.ndarray, P_emitted: np.ndarray | None, 
     relative_covariances(P_pair, P_pair if P_emitted is None else np.ascontiguousarray(P_emitted, dtype=float),
                          _pose(T_prev), _pose(T_new), int(dim), bool(solved), rel, rev)
     return rel, rev
-
-
-def velocity_inflated(P: np.ndarray, varpi: np.ndarray, inflation: float, per_speed: float, per_doppler: float = 0.0,
-                      doppler_nis=None, per_axis=None) -> np.ndarray:
-    """P with the velocity's variance scaled by c = inflation + per_speed |nu| + per_doppler ln(1 + nis)
-    (`velocity_factor`; nu = varpi[:3], the speed in m/s; nis the scan's Doppler innovation NIS per dof) and per
-    axis by per_axis (6,) ([vx, vy, vz, wx, wy, wz]; None: ones): velocity element i's variance times c g_i, its
-    covariances with element j times sqrt(c g_i c g_j) or sqrt(c g_i), the rest unchanged (D P D with D diagonal,
-    so it stays a covariance). One (d, d) with varpi (6,) and a float nis, or a stack (N, d, d) with (N, 6) and
-    (N,). At c = 1 (inflation 1, per_speed 0, per_doppler 0) and g = 1, P itself, bit for bit; at g = 1 bit for
-    bit the factor c alone.
-
-    Why (docs/consistency.md, "The velocity's error grows with the speed" and "... and at a manoeuvre"): the
-    window's velocity covariance hardly depends on the speed (the same pairs and Doppler rows at any speed),
-    its error does (surfaces resampled from farther apart between scans); and where the motion leaves the
-    prior's model (a turn's onset, a start), the window's velocity is wrong by more than its covariance says,
-    which the scan's Doppler shows against the prediction before any solve. `rodo calibrate` learns the three
-    from the velocity errors of a drive with ground truth
-    (`validation.calibrate_consistency.fit_velocity_inflation`). The drift recursion keeps the window's velocity
-    covariance: its tau and drift rate are calibrated with that one.
-    """
-    axes = np.ones(6) if per_axis is None else np.asarray(per_axis, dtype=float).reshape(6)
-    if inflation == 1.0 and per_speed == 0.0 and per_doppler == 0.0 and np.all(axes == 1.0):
-        return P
-    P = np.asarray(P, dtype=float)
-    c = velocity_factor(varpi, inflation, per_speed, per_doppler, doppler_nis)
-    d = np.ones(P.shape[:-1])
-    d[..., 6:12] = np.sqrt(c)[..., None] * np.sqrt(axes)
-    return P * d[..., :, None] * d[..., None, :]
-
-
-def velocity_factor(varpi, inflation: float, per_speed: float, per_doppler: float = 0.0, doppler_nis=None):
-    """c = inflation + per_speed |nu| + per_doppler ln(1 + nis) of one varpi (6,) (a float) or of a stack
-    (N, 6) ((N,)); nis the Doppler innovation NIS per dof (NaN, a scan without a Doppler fit: no term; None:
-    none at all). Bit for bit the two-term factor when per_doppler is 0."""
-    c = inflation + per_speed * np.linalg.norm(np.asarray(varpi, dtype=float)[..., :3], axis=-1)
-    if per_doppler == 0.0 or doppler_nis is None:
-        return c
-    return c + per_doppler * doppler_term(doppler_nis)
-
-
-def doppler_term(doppler_nis):
-    """ln(1 + nis) of the Doppler innovation NIS per dof (a float or an array), 0 where it is NaN (a scan without
-    a prediction or a Doppler fit): the quantity `velocity_factor`'s per_doppler multiplies."""
-    nis = np.asarray(doppler_nis, dtype=float)
-    return np.log1p(np.where(np.isfinite(nis), np.maximum(nis, 0.0), 0.0))
 
 
 def _initial(P_pose: np.ndarray, P_varpi: np.ndarray, tau: float, drift_rate_sigma, heading=None) -> np.ndarray:
@@ -340,7 +295,8 @@ class ReportedCovariances:
         est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
         est.doppler_nis = doppler_nis
         est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed,
-                                  cfg.velocity_inflation_per_doppler, est.doppler_nis, self.axes)
+                                  cfg.velocity_inflation_per_doppler, est.doppler_nis, self.axes,
+                                  cfg.velocity_inflation_per_rate)
         return est
 
 

@@ -43,6 +43,7 @@ UNITS = {
     "uncertainty.drift_rate_sigma": "m/m, rad/m", "uncertainty.prior_memory": "s",
     "uncertainty.velocity_inflation": "factor", "uncertainty.velocity_inflation_per_speed": "s/m",
     "uncertainty.velocity_inflation_per_doppler": "factor per ln(1 + NIS)",
+    "uncertainty.velocity_inflation_per_rate": "s/rad",
     "uncertainty.velocity_axis_inflation": "factors",
     "uncertainty.heading_reversion_time": "s", "uncertainty.heading_anchor_time": "s",
     "uncertainty.attitude_jitter_variance": "rad^2", "uncertainty.attitude_jitter_time": "s",

@@ -34,6 +34,7 @@ from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
 from rodo.estimator.scan import ScanEstimate
 from rodo.estimator.uncertainty import heading_of
+from rodo.estimator.velocity_inflation import velocity_inflation_array
 from rodo.sim.sequence import Sequence, Trajectory, atomic_write_bytes, write_tum
 
 
@@ -134,9 +135,7 @@ class RunResult:
             restarted=c["restarted"].astype(bool),
             velocity_correlation_time=np.float64(self.config.uncertainty.velocity_correlation_time),
             drift_rate_sigma=np.asarray(self.config.uncertainty.drift_rate_sigma, dtype=float),
-            velocity_inflation=np.array([self.config.uncertainty.velocity_inflation,
-                                         self.config.uncertainty.velocity_inflation_per_speed,
-                                         self.config.uncertainty.velocity_inflation_per_doppler]),
+            velocity_inflation=velocity_inflation_array(self.config.uncertainty),
             velocity_axis_inflation=np.asarray(self.config.uncertainty.velocity_axis_inflation, dtype=float),
             heading_reversion=heading_of(self.config.uncertainty),
             attitude_jitter=attitude_jitter_of(self.config.uncertainty),

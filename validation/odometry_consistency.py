@@ -25,7 +25,7 @@ import numpy as np
 from rodo.estimator.attitude_jitter import span_excess, with_roll_pitch_variance
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
-from rodo.estimator.uncertainty import velocity_factor
+from rodo.estimator.velocity_inflation import velocity_factor, velocity_inflation_terms
 
 from .alignment import truth_in_estimator_frame
 from .association import DEFAULT_TOLERANCE, associate
@@ -49,8 +49,9 @@ def _relative_errors(T_true: np.ndarray, T_est: np.ndarray, n: int) -> np.ndarra
 def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflation=None,
                                doppler_nis=None, axis_inflation=None) -> np.ndarray:
     """(N, 6, 6) the velocity covariances a run's drift recursion used: the window's, i.e. the reported ones
-    (states.npz P) divided by the run's velocity factor (`estimator.uncertainty.velocity_factor`; states.npz
-    velocity_inflation = [a, b] or [a, b, d] with the per-scan doppler_nis, none in runs before them) and by its
+    (states.npz P) divided by the run's velocity factor (`estimator.velocity_inflation.velocity_factor`; states.npz
+    velocity_inflation = [a, b], [a, b, d] with the per-scan doppler_nis, or [a, b, d, r_x, r_y, r_z] with the
+    rate terms; none in runs before them) and by its
     per-axis factors (states.npz velocity_axis_inflation g: element (i, j) by sqrt(g_i g_j); none in runs
     before them)."""
     P_varpi = np.asarray(P, dtype=float)[:, 6:12, 6:12]
@@ -59,11 +60,11 @@ def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflat
         P_varpi = P_varpi / (h[:, None] * h[None, :])
     if velocity_inflation is None:
         return P_varpi
-    a, b, d = np.r_[np.asarray(velocity_inflation, dtype=float), 0.0][:3]  # [a, b] is [a, b, 0]
+    a, b, d, rates = velocity_inflation_terms(velocity_inflation)
     if d != 0.0 and doppler_nis is None:
         raise InputError(f"states: velocity_inflation has a Doppler term (d = {d:g}) but no doppler_nis array")
-    c = velocity_factor(varpi, a, b, d, doppler_nis)
-    return P_varpi / c[:, None, None] if (a, b, d) != (1.0, 0.0, 0.0) else P_varpi
+    c = velocity_factor(varpi, a, b, d, doppler_nis, rates)
+    return P_varpi / c[:, None, None] if (a, b, d) != (1.0, 0.0, 0.0) or rates.any() else P_varpi
 
 
 def _span_terms(m: dict, n: int, tau: float, drift_rate_sigma, heading):

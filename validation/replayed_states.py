@@ -16,7 +16,7 @@ import numpy as np
 
 from rodo.estimator.attitude_jitter import absolute_excess, attitude_jitter_array, with_roll_pitch_variance
 from rodo.estimator.heading_reversion import heading_reversion_array
-from rodo.estimator.uncertainty import velocity_inflated
+from rodo.estimator.velocity_inflation import velocity_inflated
 
 from .odometry_consistency import drift_velocity_covariances
 from .span_covariances import drift_replay
@@ -39,14 +39,15 @@ def relative_inflated_states(states: dict, factor: float) -> dict:
 
 
 def velocity_inflated_states(states: dict, inflation: float, per_speed: float, per_doppler: float = 0.0,
-                             per_axis=None) -> dict:
+                             per_axis=None, per_rate=None) -> dict:
     """The states a run at these velocity factors would have written (from a run without them: the estimate does
     not depend on them): the reported velocity covariance scaled, the factors recorded."""
     axes = np.ones(6) if per_axis is None else np.asarray(per_axis, dtype=float)
+    rates = np.zeros(3) if per_rate is None else np.asarray(per_rate, dtype=float)
     P = velocity_inflated(np.asarray(states["P"], dtype=float), states["varpi"], inflation, per_speed, per_doppler,
-                          states.get("doppler_nis"), axes)
-    return dict(states, P=P, velocity_inflation=np.array([inflation, per_speed, per_doppler]),
-                velocity_axis_inflation=axes)
+                          states.get("doppler_nis"), axes, rates)
+    terms = [inflation, per_speed, per_doppler] + (list(rates) if rates.any() else [])
+    return dict(states, P=P, velocity_inflation=np.array(terms, dtype=float), velocity_axis_inflation=axes)
 
 
 def replayed(states: dict, tau: float, drift_rate_sigma, heading=None, jitter=None) -> dict:

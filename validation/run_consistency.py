@@ -77,3 +77,13 @@ def ellipsoid_coverage(p_world_est, p_world_true, T_vehicle_world, P_pose, n_sig
     return {"d2": d2, "inside": inside, "running_fraction": running,
             "fraction": float(np.mean(inside[fin])) if fin.any() else float("nan"),
             "claimed": float(chi2.cdf(n_sigma**2, 3))}
+
+
+def runs_of(states, truth) -> list[tuple[dict, dict]]:
+    """[(states, truth), ...]: one run (two dicts) or several (two lists of the same length)."""
+    if isinstance(states, dict):
+        return [(states, truth)]
+    states, truth = list(states), list(truth)
+    if len(states) != len(truth) or not states:
+        raise ValueError(f"runs: {len(states)} states for {len(truth)} truths")
+    return list(zip(states, truth))

@@ -117,7 +117,8 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
             v = c["velocity_inflation"]
             lines.append(f"uncertainty: measurement_inflation {c['measurement_inflation']:.3g}, velocity_inflation "
                          f"{v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + {v['per_doppler']:.3g} x "
-                         "ln(1 + Doppler NIS)" + (" and per axis" if set(v.get("per_axis", [1.0])) != {1.0} else "")
+                         "ln(1 + Doppler NIS)" + _rate_words(v)
+                         + (" and per axis" if set(v.get("per_axis", [1.0])) != {1.0} else "")
                          + ", drift_rate_sigma and "
                          f"velocity_correlation_time {c['velocity_correlation_time']:g} s"
                          + _heading_words(c) + _jitter_words(c) + " fitted so that the "
@@ -199,7 +200,7 @@ def _consistency_markdown(c: dict) -> list[str]:
     lines += ["", f"relative pose covariance factor (uncertainty.inflation) {rel['inflation']:.3g} (median "
               f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; {rel['outcome']})",
               f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
-              f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS), per axis vx, vy, vz, wx, wy, wz x "
+              f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS){_rate_words(v)}, per axis vx, vy, vz, wx, wy, wz x "
               f"[{', '.join(f'{g:.3g}' for g in v.get('per_axis', [1.0] * 6))}] (maximum "
               f"likelihood over {v['scans']} scans: mean velocity NEES/dof {v['nees_per_dof'][0]:.3g} -> "
               f"{v['nees_per_dof'][1]:.3g})",
@@ -225,6 +226,12 @@ def _heading_words(c: dict) -> str:
     h = c.get("heading_reversion", {"time": 0.0})
     return (f", heading_reversion_time {h['time']:g} s and heading_anchor_time {h['anchor_time']:g} s"
             if h["time"] > 0 else "")
+
+
+def _rate_words(v: dict) -> str:
+    """' + [r_x, r_y, r_z] s/rad x |body rates|' of a velocity factor with rate terms, '' otherwise."""
+    r = v.get("per_rate", [0.0] * 3)
+    return f" + [{', '.join(f'{x:.3g}' for x in r)}] s/rad x |body rates|" if any(r) else ""
 
 
 def _jitter_words(c: dict) -> str:

@@ -2,6 +2,8 @@
 solve (measurement_inflation), the reported velocity's variance (velocity_inflation and its speed, Doppler and
 per-axis terms) and the Doppler innovation NIS it reads, which is chi-square when the prediction is right."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -11,7 +13,7 @@ from scipy.stats import chi2
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
-from rodo.estimator.uncertainty import velocity_inflated
+from rodo.estimator.velocity_inflation import velocity_inflated
 from tests.estimator import scene
 
 
@@ -142,3 +144,38 @@ def test_the_doppler_nis_is_chi_square_when_the_prediction_is_right(seed, planar
     assert abs(np.mean(nis * dof > chi2.ppf(0.95, dof)) - 0.05) < 0.022
     assert np.mean(off) > 1.5 * nis.mean()
     assert np.isnan(odo.doppler.correct(x, P, None)[1])
+
+
+@given(rates=st.tuples(*[st.floats(0.0, 50.0)] * 3), seed=st.integers(0, 2**16))
+def test_velocity_factor_with_rates(rates, seed):
+    """The rate terms add r . |omega| to the factor, for one varpi and for a stack alike; with r = 0 the factor
+    is the one without them, bit for bit."""
+    from rodo.estimator.velocity_inflation import velocity_factor
+
+    rng = np.random.default_rng(np.random.SeedSequence([35, seed]))
+    varpi = rng.normal(size=(20, 6))
+    nis = rng.chisquare(3, 20) / 3
+    base = velocity_factor(varpi, 0.8, 0.05, 0.3, nis)
+    with_rates = velocity_factor(varpi, 0.8, 0.05, 0.3, nis, rates)
+    np.testing.assert_allclose(with_rates, base + np.abs(varpi[:, 3:]) @ np.array(rates), rtol=1e-12)
+    assert velocity_factor(varpi[3], 0.8, 0.05, 0.3, nis[3], rates) == pytest.approx(with_rates[3], rel=1e-12)
+    np.testing.assert_array_equal(velocity_factor(varpi, 0.8, 0.05, 0.3, nis, (0.0, 0.0, 0.0)), base)
+
+
+def test_velocity_inflation_array_round_trips():
+    """states.npz velocity_inflation: [a, b, d] without rate terms (as runs before them wrote it), six numbers with
+    them; read back to the same terms, [a, b] as d = 0; any other length refused."""
+    from rodo.estimator.config import OdometryConfig
+    from rodo.estimator.velocity_inflation import velocity_inflation_array, velocity_inflation_terms
+
+    u = OdometryConfig().uncertainty
+    plain = velocity_inflation_array(u)
+    assert plain.shape == (3,)
+    rated = dataclasses.replace(u, velocity_inflation=0.7, velocity_inflation_per_rate=(1.0, 2.0, 0.0))
+    six = velocity_inflation_array(rated)
+    assert six.tolist() == [0.7, 0.0, 0.0, 1.0, 2.0, 0.0]
+    a, b, d, r = velocity_inflation_terms(six)
+    assert (a, b, d) == (0.7, 0.0, 0.0) and r.tolist() == [1.0, 2.0, 0.0]
+    assert velocity_inflation_terms([1.2, 0.1])[:3] == (1.2, 0.1, 0.0)
+    with pytest.raises(ValueError, match="2, 3 or 6"):
+        velocity_inflation_terms([1.0, 0.0, 0.0, 1.0])
