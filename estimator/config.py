@@ -193,7 +193,7 @@ class UncertaintyConfig:
         with the distance, not its square root. Not in the solve.
     velocity_inflation, velocity_inflation_per_speed: the reported velocity variance is the window's times
         velocity_inflation + velocity_inflation_per_speed x speed (m/s): its error grows with the speed, the
-        window's covariance hardly does (`uncertainty.velocity_inflated`). Not in the solve or the gates.
+        window's covariance hardly does (`velocity_inflation.velocity_inflated`). Not in the solve or the gates.
     velocity_inflation_per_doppler: + this x ln(1 + the scan's Doppler innovation NIS per dof) on that factor:
         where the motion leaves the prior's model (a turn's onset, a start) the scan's Doppler disagrees with
         the prediction, and the velocity's error is larger than the window's covariance (docs/consistency.md,

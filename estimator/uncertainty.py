@@ -39,7 +39,7 @@ registration ran over the outage, so neither the velocity error nor the drift ra
 again at zero as at a run's first scan (the fresh window's velocity covariance is the initial prior's, and the
 next scan is registered against the fresh map).
 The velocity covariance the recursion uses is the window's; the reported one has its variance scaled with the
-speed where calibrated (`velocity_inflated`).
+speed where calibrated (`velocity_inflation.velocity_inflated`).
 
 Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_known_joint_gaussian,
     ::test_drift_covariance_matches_monte_carlo_of_the_model, ::test_span_covariance_equals_the_recursion,

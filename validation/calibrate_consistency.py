@@ -20,12 +20,13 @@ tells the truth (docs/consistency.md):
   error grows with the distance, not its square root). Its one realisation on the sequence is the least-squares
   fit beta = sum_k e_k / sum_k s_k of the one-scan relative errors e_k over the distances s_k; the sigma
   per axis is sqrt(beta^2 + se^2), se its standard error (a prior for the unknown drift of another run).
-- `uncertainty.velocity_inflation` a, `velocity_inflation_per_speed` b and `velocity_inflation_per_doppler` d
-  (and, when asked, `velocity_axis_inflation` g per axis): the velocity's error grows with the speed, and where
-  the scan's Doppler disagrees with the prediction; the window's velocity covariance hardly does either, so the
-  reported one is (a + b |nu| + d ln(1 + nis)) times it (`estimator.uncertainty.velocity_inflated`). Maximum
-  likelihood of the velocity errors of the last run (no run is needed); a mean fit, as the N-run bounds of a
-  campaign test means. The drift terms below keep the window's velocity covariance.
+- `uncertainty.velocity_inflation` a, `velocity_inflation_per_speed` b, `velocity_inflation_per_doppler` d and
+  `velocity_inflation_per_rate` r (and, when asked, `velocity_axis_inflation` g per axis): the velocity's error
+  grows with the speed, where the scan's Doppler disagrees with the prediction and with the estimated roll and
+  pitch rates; the window's velocity covariance hardly does, so the reported one is (a + b |nu| + d ln(1 + nis)
+  + r . |omega|) times it (`estimator.velocity_inflation.velocity_inflated`; the fit: `calibrate_velocity`).
+  Maximum likelihood of the velocity errors of the last run (no run is needed); a mean fit, as the N-run bounds
+  of a campaign test means. The drift terms below keep the window's velocity covariance.
 - `uncertainty.velocity_correlation_time` tau: how long the velocity error stays correlated, which decides how
   the per-scan covariances compose into the drift (the relative pose over a span and the absolute pose). It
   does not change the estimate: chosen on a grid, without running again, so that the relative pose over `span`
