@@ -109,8 +109,9 @@ def test_position_sigmas_recover_the_variances_of_their_model(sig, seed):
 def test_doppler_sigma_recovers_the_radial_velocity_noise_under_angle_noise(sigma_vr, angles, speed, seed):
     """Static detections of a moving sensor (30 scans of 150), radial velocities from the true directions plus
     sigma_vr, the reported angles noisy (angles x 2.6 and 5.2 mrad: their share of the residual grows with the
-    speed, up to four times sigma_vr here), 5 % movers: sigma_vr within 12 % (the spread over draws is 1 % without
-    angle noise, 3.5 % at the share's top; docs/calibration.md gives it at highway speed)."""
+    speed, up to four times sigma_vr here), 5 % movers: sigma_vr within 15 % (the spread over draws is 1 % without
+    angle noise, 3.5 % at the share's top, the largest of 30 draws there 8.5 %; docs/calibration.md gives it at
+    highway speed)."""
     rng = _rng(4, seed)
     s_ang = angles * np.array([2.6e-3, 5.2e-3])
     scans = []
@@ -127,7 +128,7 @@ def test_doppler_sigma_recovers_the_radial_velocity_noise_under_angle_noise(sigm
         meas[movers, 3] += rng.choice([-1, 1], movers.sum()) * rng.uniform(1.0, 5.0, movers.sum())
         scans.append(meas)
     fit = em.doppler_sigma(scans, planar=False, angle_variances=s_ang**2)
-    assert fit["sigma"] == pytest.approx(sigma_vr, rel=0.12)
+    assert fit["sigma"] == pytest.approx(sigma_vr, rel=0.15)
     assert fit["scans"] == 30
 
 
