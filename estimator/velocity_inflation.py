@@ -19,21 +19,21 @@ def velocity_inflated(P: np.ndarray, varpi: np.ndarray, inflation: float, per_sp
                       doppler_nis=None, per_axis=None, per_rate=None) -> np.ndarray:
     """P with the velocity's variance scaled by c = inflation + per_speed |nu| + per_doppler ln(1 + nis) + per_rate .
     |omega| (`velocity_factor`; nu = varpi[:3], the speed in m/s; nis the scan's Doppler innovation NIS per dof;
-    |omega| the absolute body rates varpi[3:], rad/s) and per
-    axis by per_axis (6,) ([vx, vy, vz, wx, wy, wz]; None: ones): velocity element i's variance times c g_i, its
+    |omega| the absolute body rates varpi[3:], rad/s) and per axis by per_axis (6,) ([vx, vy, vz, wx, wy, wz];
+    None: ones): velocity element i's variance times c g_i, its
     covariances with element j times sqrt(c g_i c g_j) or sqrt(c g_i), the rest unchanged (D P D with D diagonal,
     so it stays a covariance). One (d, d) with varpi (6,) and a float nis, or a stack (N, d, d) with (N, 6) and
-    (N,). At c = 1 (inflation 1, per_speed 0, per_doppler 0) and g = 1, P itself, bit for bit; at g = 1 bit for
-    bit the factor c alone.
+    (N,). At c = 1 (inflation 1, per_speed, per_doppler and per_rate 0) and g = 1, P itself, bit for bit; at g = 1
+    bit for bit the factor c alone.
 
     Why (docs/consistency.md, "The velocity's error grows with the speed" and "... and at a manoeuvre"): the
     window's velocity covariance hardly depends on the speed (the same pairs and Doppler rows at any speed),
     its error does (surfaces resampled from farther apart between scans); and where the motion leaves the
     prior's model (a turn's onset, a start), the window's velocity is wrong by more than its covariance says,
-    which the scan's Doppler shows against the prediction before any solve. `rodo calibrate` learns the three
-    from the velocity errors of a drive with ground truth
-    (`validation.calibrate_consistency.fit_velocity_inflation`). The drift recursion keeps the window's velocity
-    covariance: its tau and drift rate are calibrated with that one.
+    which the scan's Doppler shows against the prediction before any solve; and where the window's roll and pitch
+    rates are not near zero ("... and with the rates"). `rodo calibrate` learns the terms from the velocity errors
+    of a drive with ground truth (`validation.calibrate_velocity.fit_velocity_inflation`). The drift recursion
+    keeps the window's velocity covariance: its tau and drift rate are calibrated with that one.
     """
     axes = np.ones(6) if per_axis is None else np.asarray(per_axis, dtype=float).reshape(6)
     rates = np.zeros(3) if per_rate is None else np.asarray(per_rate, dtype=float).reshape(3)
@@ -71,13 +71,11 @@ def doppler_term(doppler_nis):
     return np.log1p(np.where(np.isfinite(nis), np.maximum(nis, 0.0), 0.0))
 
 
-def velocity_inflation_array(uncertainty) -> np.ndarray:
-    """states.npz `velocity_inflation` of a config's uncertainty section: [a, b, d], and the three rate terms
-    after them only where one is not 0 (so runs without them read as before)."""
-    terms = [uncertainty.velocity_inflation, uncertainty.velocity_inflation_per_speed,
-             uncertainty.velocity_inflation_per_doppler]
-    rates = [float(x) for x in uncertainty.velocity_inflation_per_rate]
-    return np.array(terms + rates if any(rates) else terms, dtype=float)
+def velocity_inflation_array(inflation: float, per_speed: float, per_doppler: float, per_rate=None) -> np.ndarray:
+    """states.npz `velocity_inflation` of these terms: [a, b, d], and the three rate terms after them only where
+    one is not 0 (so runs without them read as before)."""
+    rates = [] if per_rate is None else [float(x) for x in per_rate]
+    return np.array([inflation, per_speed, per_doppler] + (rates if any(rates) else []), dtype=float)
 
 
 def velocity_inflation_terms(array) -> tuple[float, float, float, np.ndarray]:

@@ -121,9 +121,8 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
           velocity=(1.0, 0.0, 0.0, (1.0,) * 6, (0.0,) * 3), relative=None, heading=None,
           jitter=None) -> OdometryConfig:
     """The config with these uncertainty values; the velocity factors (a, b, d, per-axis g, per-rate r) default to
-    none: the
-    fit's runs report the window's own velocity covariance; the relative pose factor (`relative`), the heading's
-    reversion ([T_r, T_a]) and the roll and pitch jitter ([V, T]) to the config's."""
+    none: the fit's runs report the window's own velocity covariance; the relative pose factor (`relative`), the
+    heading's reversion ([T_r, T_a]) and the roll and pitch jitter ([V, T]) to the config's."""
     drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
     relative = config.uncertainty.inflation if relative is None else relative
     unc = dataclasses.replace(config.uncertainty, measurement_inflation=float(kappa),

@@ -40,7 +40,8 @@ from rodo.estimator.lie import se3, so3
 from rodo.estimator.radar_geometry import cartesian_to_polar_jacobian, polar_to_cartesian, polar_to_cartesian_jacobian
 from rodo.estimator.radar_geometry import wrap_angle
 
-from .calibrate_sensor import CHANNELS
+from .calibrate_sensor import CHANNELS, cartesian_sigma
+from .consistency import gated_mean
 
 DOPPLER_GATE = 3.0  # sigma
 PAIR_GATE = 0.999  # chi-square quantile of a pair's 3-dof difference
@@ -51,20 +52,18 @@ ITERATIONS = 20  # at most, for each fixed point
 TOLERANCE = 1e-4  # relative change of the variances that ends a fixed point
 
 
-def _truncated_variance_factor(gate: float) -> float:
-    """Var of a standard normal truncated to |x| <= gate."""
-    return float(1.0 - 2.0 * gate * stats.norm.pdf(gate) / (2.0 * stats.norm.cdf(gate) - 1.0))
+def _gated_share(dof: int, gate_probability: float) -> float:
+    """E[d d^T | d inside its gate] over the covariance of d, for a Gaussian d of `dof` dimensions gated at its
+    chi-square `gate_probability` quantile (`consistency.gated_mean` per dof)."""
+    return gated_mean(dof, gate_probability) / dof
 
 
 def _doppler_scan(polar: np.ndarray, dof: int):
     """(U (n, dof), y, du/d(az, el) (n, dof, 2), a robust first inlier mask) of one scan's static detections:
     y = -v_r = U v_s. The mask: least squares, then three times the residuals within 3 x 1.4826 x their median
     absolute deviation and the fit again (the movers the estimator's Doppler test let through)."""
-    az, el = polar[:, 1], polar[:, 2]
-    ce, se, ca, sa = np.cos(el), np.sin(el), np.cos(az), np.sin(az)
-    U = np.stack([ce * ca, ce * sa, se], axis=1)[:, :dof]
-    du = np.stack([np.stack([-ce * sa, ce * ca, np.zeros_like(az)], axis=1),
-                   np.stack([-se * ca, -se * sa, ce], axis=1)], axis=2)[:, :dof]
+    unit = np.column_stack([np.ones(len(polar)), polar[:, 1:3]])  # the directions: range 1
+    U, du = polar_to_cartesian(unit)[:, :dof], polar_to_cartesian_jacobian(unit)[:, :dof, 1:3]
     y = -polar[:, 3]
     keep = np.ones(len(y), bool)
     for _ in range(3):
@@ -93,7 +92,7 @@ def doppler_sigma(scans, planar: bool, angle_variances) -> dict:
         raise InputError(f"radial velocity noise: no scan with >= {MIN_STATIC} static detections")
     a_var = np.asarray(angle_variances, dtype=float)
     keeps = [f[3] for f in fits]
-    var, shrink = None, _truncated_variance_factor(DOPPLER_GATE)
+    var, shrink = None, _gated_share(1, 2.0 * stats.norm.cdf(DOPPLER_GATE) - 1.0)
     for _ in range(ITERATIONS):
         sq, angle, weight, used, n_used = 0.0, 0.0, 0.0, 0, 0
         for i, (U, y, du, _) in enumerate(fits):
@@ -151,16 +150,17 @@ def pair_terms(prev: np.ndarray, cur: np.ndarray, T_rel: np.ndarray, T_vehicle_s
     G = ds_dp @ M[:3, :3] @ polar_to_cartesian_jacobian(prev[ip])
     pose = np.zeros_like(d)
     if P_relative is not None and np.all(np.isfinite(P_relative)):
-        J = pose_jacobian(moved, T_vehicle_sensor)
+        J = pose_jacobian(moved, T_vehicle_sensor, ds_dp)
         pose = np.einsum("mca,ab,mcb->mc", J, P_relative, J)
     return d, G, pose, cur[ic, 0]
 
 
-def pose_jacobian(p_sensor: np.ndarray, T_vehicle_sensor: np.ndarray) -> np.ndarray:
+def pose_jacobian(p_sensor: np.ndarray, T_vehicle_sensor: np.ndarray, ds_dp: np.ndarray | None = None) -> np.ndarray:
     """d s / d delta (m, 3, 6) of the polar coordinates s of points p_sensor (m, 3) in scan k's sensor frame
     under a left perturbation exp(delta^) of the relative vehicle pose T_k T_{k-1}^-1 (delta = [rho; phi]): the
-    vehicle-frame point p_v moves by rho + phi x p_v."""
-    _, ds_dp = cartesian_to_polar_jacobian(p_sensor)
+    vehicle-frame point p_v moves by rho + phi x p_v. `ds_dp`: ds/dp at p_sensor when the caller has it."""
+    if ds_dp is None:
+        ds_dp = cartesian_to_polar_jacobian(p_sensor)[1]
     p_vehicle = p_sensor @ T_vehicle_sensor[:3, :3].T + T_vehicle_sensor[:3, 3]
     dpv = np.concatenate([np.broadcast_to(np.eye(3), (len(p_sensor), 3, 3)), -so3.hat(p_vehicle)], axis=2)
     return ds_dp @ T_vehicle_sensor[:3, :3].T @ dpv
@@ -172,8 +172,7 @@ def position_sigmas(d: np.ndarray, G: np.ndarray, pose: np.ndarray, s0: np.ndarr
     not learned (its variance stays s0[2] and its row is left out)."""
     rows = [0, 1] if planar else [0, 1, 2]
     dof = len(rows)
-    gate = stats.chi2.ppf(PAIR_GATE, dof)
-    shrink = stats.chi2.cdf(gate, dof + 2) / PAIR_GATE  # E[d d^T | gated] = shrink x the covariance
+    gate, shrink = stats.chi2.ppf(PAIR_GATE, dof), _gated_share(dof, PAIR_GATE)
     s = np.asarray(s0, dtype=float).copy()
     A = np.eye(3)[None, :, :] + G**2  # (m, c, c'): E[d_c^2] = A[c] . s + pose_c
     keep = np.ones(len(d), bool)
@@ -228,7 +227,7 @@ def measurement_noise(estimates, T_vehicle_sensor: np.ndarray, s0) -> dict:
     fit = position_sigmas(d, G, pose, start, planar)
     sig = np.sqrt(fit["variances"])
     r_static = np.concatenate([p[:, 0] for p in static])  # the Cartesian sigma over every static detection
-    cart = None if planar else float(np.sqrt(np.mean(sig[0] ** 2 + r_static**2 * (sig[1] ** 2 + sig[2] ** 2)) / 3.0))
+    cart = None if planar else cartesian_sigma(np.broadcast_to(np.r_[sig, 0.0], (len(r_static), 4)), r_static)
     doppler = doppler_sigma([p for p, m in zip(static, moving) if m], planar,
                             fit["variances"][1:3] * np.array([1.0, 0.0 if planar else 1.0]))
     sigmas = np.append(sig, doppler["sigma"])

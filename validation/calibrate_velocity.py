@@ -2,7 +2,7 @@
 uncertainty section; `estimator.velocity_inflation`): c = a + b |nu| + d ln(1 + nis) + r . |omega| and the per-axis
 factors g, by maximum likelihood of the velocity errors.
 
-Checked by: tests/validation/test_calibrate_consistency.py::test_velocity_inflation_recovers_a_known_factor
+Checked by: tests/validation/test_calibrate_velocity.py::test_velocity_inflation_recovers_a_known_factor
 """
 
 from __future__ import annotations
@@ -50,13 +50,12 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
 
     The per-axis factors correct the shape of the window's velocity covariance, which c alone cannot: on the
     verdict's drives its vertical velocity was over-confident 2-4 times, its lateral velocity and roll and yaw
-    rates cautious 2-10 times. They make each axis consistent on other drives, but the verdict's campaigns had
-    fewer scans inside their bounds with them, so they are learned only when asked (`rodo calibrate
-    --velocity-axes`; docs/consistency.md, "... and per axis"). The rate terms follow where in a drive the
-    window's velocity is over-confident (its rolls and pitches, session 35: docs/consistency.md, "... and with
-    the rates").
+    rates cautious 2-10 times. Learned only when asked (`rodo calibrate --velocity-axes`): without the rate terms
+    the verdict's campaigns had fewer scans inside their bounds with them, with them more in every cell (one
+    measurement; docs/consistency.md, "... and per axis" and "... and with the rates"). The rate terms follow
+    where in a drive the window's velocity is over-confident (where its roll and pitch rates are not near zero).
 
-    Checked by: tests/validation/test_calibrate_consistency.py::test_velocity_inflation_recovers_a_known_factor,
+    Checked by: tests/validation/test_calibrate_velocity.py::test_velocity_inflation_recovers_a_known_factor,
         ::test_velocity_axis_inflation_recovers_known_factors
     """
     M, X = _velocity_terms(states, truth, tolerance)

@@ -114,7 +114,7 @@ class RunResult:
 
     def state_arrays(self) -> dict:
         """The per-scan arrays of states.npz (docs: README "Reading the results", docs/consistency.md)."""
-        c = self.columns
+        c, u = self.columns, self.config.uncertainty
         d = c["P"].shape[-1]
         return dict(
             t=c["t"],
@@ -133,12 +133,14 @@ class RunResult:
             map_reuse=c["map_reuse"],
             doppler_nis=c["doppler_nis"],
             restarted=c["restarted"].astype(bool),
-            velocity_correlation_time=np.float64(self.config.uncertainty.velocity_correlation_time),
-            drift_rate_sigma=np.asarray(self.config.uncertainty.drift_rate_sigma, dtype=float),
-            velocity_inflation=velocity_inflation_array(self.config.uncertainty),
-            velocity_axis_inflation=np.asarray(self.config.uncertainty.velocity_axis_inflation, dtype=float),
-            heading_reversion=heading_of(self.config.uncertainty),
-            attitude_jitter=attitude_jitter_of(self.config.uncertainty),
+            velocity_correlation_time=np.float64(u.velocity_correlation_time),
+            drift_rate_sigma=np.asarray(u.drift_rate_sigma, dtype=float),
+            velocity_inflation=velocity_inflation_array(
+                u.velocity_inflation, u.velocity_inflation_per_speed, u.velocity_inflation_per_doppler,
+                u.velocity_inflation_per_rate),
+            velocity_axis_inflation=np.asarray(u.velocity_axis_inflation, dtype=float),
+            heading_reversion=heading_of(u),
+            attitude_jitter=attitude_jitter_of(u),
         )
 
     def trajectory(self) -> Trajectory:

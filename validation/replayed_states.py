@@ -16,7 +16,7 @@ import numpy as np
 
 from rodo.estimator.attitude_jitter import absolute_excess, attitude_jitter_array, with_roll_pitch_variance
 from rodo.estimator.heading_reversion import heading_reversion_array
-from rodo.estimator.velocity_inflation import velocity_inflated
+from rodo.estimator.velocity_inflation import velocity_inflated, velocity_inflation_array
 
 from .odometry_consistency import drift_velocity_covariances
 from .span_covariances import drift_replay
@@ -46,8 +46,8 @@ def velocity_inflated_states(states: dict, inflation: float, per_speed: float, p
     rates = np.zeros(3) if per_rate is None else np.asarray(per_rate, dtype=float)
     P = velocity_inflated(np.asarray(states["P"], dtype=float), states["varpi"], inflation, per_speed, per_doppler,
                           states.get("doppler_nis"), axes, rates)
-    terms = [inflation, per_speed, per_doppler] + (list(rates) if rates.any() else [])
-    return dict(states, P=P, velocity_inflation=np.array(terms, dtype=float), velocity_axis_inflation=axes)
+    return dict(states, P=P, velocity_inflation=velocity_inflation_array(inflation, per_speed, per_doppler, rates),
+                velocity_axis_inflation=axes)
 
 
 def replayed(states: dict, tau: float, drift_rate_sigma, heading=None, jitter=None) -> dict:

@@ -169,10 +169,10 @@ def test_velocity_inflation_array_round_trips():
     from rodo.estimator.velocity_inflation import velocity_inflation_array, velocity_inflation_terms
 
     u = OdometryConfig().uncertainty
-    plain = velocity_inflation_array(u)
+    plain = velocity_inflation_array(u.velocity_inflation, u.velocity_inflation_per_speed,
+                                     u.velocity_inflation_per_doppler, u.velocity_inflation_per_rate)
     assert plain.shape == (3,)
-    rated = dataclasses.replace(u, velocity_inflation=0.7, velocity_inflation_per_rate=(1.0, 2.0, 0.0))
-    six = velocity_inflation_array(rated)
+    six = velocity_inflation_array(0.7, 0.0, 0.0, (1.0, 2.0, 0.0))
     assert six.tolist() == [0.7, 0.0, 0.0, 1.0, 2.0, 0.0]
     a, b, d, r = velocity_inflation_terms(six)
     assert (a, b, d) == (0.7, 0.0, 0.0) and r.tolist() == [1.0, 2.0, 0.0]
