@@ -186,6 +186,9 @@ class UncertaintyConfig:
     inflation: factor (> 0) on each scan's relative pose covariance, before it is composed over a span and into
         the absolute pose (reported covariances only); `rodo calibrate` fits it where kappa cannot make the
         one-scan relative pose consistent.
+    inflation_per_rate: + these x |omega_x|, |omega_y|, |omega_z| (the scan's estimated body rates, rad/s) on that
+        factor: as the velocity, the registration's relative pose is over-confident where the body rolls or
+        pitches (docs/consistency.md, "The one-scan relative pose with the rates"). Reported covariances only.
     measurement_inflation: factor (>= 1) on every associated pair's covariance in the solve (not the gates): a
         scan's pairs share map errors and carry less information than counted as independent; 1: the paper's.
     drift_rate_sigma: sigma of the registration's systematic error per metre driven, unknown but constant
@@ -222,6 +225,7 @@ class UncertaintyConfig:
 
     velocity_correlation_time: float = 0.25  # s
     inflation: float = 1.0
+    inflation_per_rate: tuple[float, ...] = (0.0, 0.0, 0.0)  # s/rad
     measurement_inflation: float = 1.0
     drift_rate_sigma: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     prior_memory: float = 0.0  # s

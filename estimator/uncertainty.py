@@ -61,7 +61,7 @@ from .heading_reversion import (ANCHOR, YAW, anchored_at_yaw, heading_of, headin
                                heading_reversion_matrix, reversion_coefficients, state_size)
 from .lie import se3
 from .uncertainty_kernels import drift_step, relative_covariances
-from .velocity_inflation import velocity_inflated
+from .velocity_inflation import velocity_factor, velocity_inflated
 
 NO_REVERSION = np.zeros(4)  # drift_step's coefficients without the heading's reversion (unused there)
 
@@ -247,7 +247,8 @@ class DriftCovariance:
 
 class ReportedCovariances:
     """What the odometry reports beside the window's covariance, scan by scan: each scan's relative pose
-    covariance and its revision (times `[uncertainty] inflation`), the absolute pose covariance through the drift
+    covariance and its revision (times `[uncertainty] inflation` + `inflation_per_rate` . |omega|, the scan's estimated
+    body rates), the absolute pose covariance through the drift
     recursion (`DriftCovariance`: from the run's first scan, across re-initialisations with their dead-reckoned
     step, unscaled) with the roll and pitch jitter's excess since that scan (`attitude_jitter`), the velocity's
     variance scaled (`velocity_inflated`).
@@ -287,7 +288,8 @@ class ReportedCovariances:
             est.restarted = True
             P_absolute = self.drift.restart(last.T_vehicle_world, est.T_vehicle_world, P_relative)
         else:
-            P_relative, P_revision = (cfg.inflation * P for P in P_relative)
+            f = velocity_factor(est.varpi, cfg.inflation, 0.0, 0.0, None, cfg.inflation_per_rate)
+            P_relative, P_revision = (f * P for P in P_relative)
             P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, est.t - last.t, P_relative,
                                            est.P[6:12, 6:12])
         P_absolute = with_roll_pitch_variance(P_absolute, self.jitter.at(est.t))

@@ -54,8 +54,6 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
-from scipy.stats import chi2
 
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
@@ -65,10 +63,11 @@ from rodo.sim.sequence import Sequence
 from .alignment import truth_in_estimator_frame
 from .association import DEFAULT_TOLERANCE, associate
 from .calibrate_jitter import attitude_jitter_report
+from .calibrate_relative import fit_relative_inflation, median_ratio, relative_factor_states
 from .calibrate_velocity import fit_velocity_inflation
 from .driver import run_sequence
-from .odometry_consistency import DOF, odometry_nees
-from .replayed_states import relative_inflated_states, replayed, velocity_inflated_states
+from .odometry_consistency import odometry_nees
+from .replayed_states import replayed, velocity_inflated_states
 from .run_consistency import run_states, runs_of
 
 # s, the grid of velocity correlation times: steps of about sqrt(2) from 0.01 s (a coarser grid, 0, 0.02, 0.05, 0.1,
@@ -84,16 +83,6 @@ OVERCONFIDENCE_WEIGHT = 2.0  # how much more an over-confident ln ratio (> 0) co
 KAPPA_RANGE = (1.0, 100.0)
 FIXED_POINT_MEASURES = ("velocity", "relative_scan")
 REPORTED = ("velocity", "relative_scan", "relative_span", "pose")
-MEDIAN_CHI2 = float(chi2.median(DOF))
-
-
-def median_ratio(values) -> float:
-    """median(NEES) / median of chi2(6): 1 when consistent, > 1 over-confident, NaN without finite values."""
-    v = np.asarray(values, dtype=float)
-    v = v[np.isfinite(v)]
-    return float(np.median(v) / MEDIAN_CHI2) if v.size else float("nan")
-
-
 def _each(fn, states, *args):
     """fn(states, *args) of one run's states, or the list of it over several runs' states."""
     return fn(states, *args) if isinstance(states, dict) else [fn(s, *args) for s in states]
@@ -121,66 +110,24 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
           velocity=(1.0, 0.0, 0.0, (1.0,) * 6, (0.0,) * 3), relative=None, heading=None,
           jitter=None) -> OdometryConfig:
     """The config with these uncertainty values; the velocity factors (a, b, d, per-axis g, per-rate r) default to
-    none: the fit's runs report the window's own velocity covariance; the relative pose factor (`relative`), the
+    none: the fit's runs report the window's own velocity covariance; the relative pose factor (`relative`, (f,
+    per-rate r)), the
     heading's reversion ([T_r, T_a]) and the roll and pitch jitter ([V, T]) to the config's."""
     drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
-    relative = config.uncertainty.inflation if relative is None else relative
+    relative = (config.uncertainty.inflation, config.uncertainty.inflation_per_rate) if relative is None else relative
     unc = dataclasses.replace(config.uncertainty, measurement_inflation=float(kappa),
                               velocity_correlation_time=float(tau), drift_rate_sigma=tuple(float(x) for x in drift),
                               velocity_inflation=float(velocity[0]), velocity_inflation_per_speed=float(velocity[1]),
                               velocity_inflation_per_doppler=float(velocity[2]),
                               velocity_axis_inflation=tuple(float(x) for x in velocity[3]),
                               velocity_inflation_per_rate=tuple(float(x) for x in velocity[4]),
-                              inflation=float(relative))
+                              inflation=float(relative[0]), inflation_per_rate=tuple(float(x) for x in relative[1]))
     if heading is not None:
         unc = dataclasses.replace(unc, heading_reversion_time=float(heading[0]),
                                   heading_anchor_time=float(heading[1]) if heading[0] > 0 else unc.heading_anchor_time)
     if jitter is not None:
         unc = dataclasses.replace(unc, attitude_jitter_variance=float(jitter[0]), attitude_jitter_time=float(jitter[1]))
     return config.replace(uncertainty=unc)
-
-
-def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: float, ratio_tolerance: float,
-                           drift_rate_sigma=None) -> dict:
-    """The factor on the one-scan relative pose covariance for a run (or runs, pooled) that had `inflation`: the
-    factor at which the median ratio of the one-scan relative pose is 1 (the scan's composed covariance,
-    `span_covariances`: the factor scales the window's relative covariance and its revision term, not the
-    velocity error's and this drift rate's shares), or `inflation` itself when that ratio is within
-    ratio_tolerance of 1 already (|ln r| < ln(1 + ratio_tolerance), as the kappa fixed point stops) or when no
-    factor within 2^30 of it reaches 1 (those shares alone too cautious, or no finite ratio). Returns
-    {"inflation": the factor, "median_ratio": [r at `inflation`, r at the factor], "outcome": "fitted", "within
-    tolerance" or "out of reach"}. The one-scan measure is the same at every tau > 0 (at tau 0 it loses the
-    velocity term, so a tau of 0 chosen after f leaves it over-confident: hills CA/P with prior_memory 0.5 s,
-    1.28 where f made it 1).
-
-    Checked by: tests/validation/test_calibrate_consistency.py::test_relative_factor_makes_the_one_scan_pose_consistent,
-        ::test_relative_factor_out_of_reach_is_left_as_it_was
-    """
-    def ratio(f):
-        scaled = _each(relative_inflated_states, states, f / inflation)
-        return median_ratio(_pooled(scaled, truth, "relative_scan", drift_rate_sigma=drift_rate_sigma))
-
-    def unchanged(outcome):
-        return {"inflation": float(inflation), "median_ratio": [r, r], "outcome": outcome}
-
-    r = ratio(inflation)
-    if not np.isfinite(r):
-        return unchanged("out of reach")
-    if abs(np.log(r)) < np.log1p(ratio_tolerance):
-        return unchanged("within tolerance")
-    # the ratio falls as the factor grows: from the factor it ran with, step by 2 towards 1 until it is crossed
-    step = 2.0 if r > 1.0 else 0.5
-    near, far = inflation, inflation * step
-    for _ in range(30):
-        r_far = ratio(far)
-        if not np.isfinite(r_far):
-            break
-        if (r_far > 1.0) != (r > 1.0):
-            lo, hi = sorted((near, far))
-            f = float(np.exp(brentq(lambda u: np.log(ratio(np.exp(u))), np.log(lo), np.log(hi), xtol=1e-4)))
-            return {"inflation": f, "median_ratio": [r, ratio(f)], "outcome": "fitted"}
-        near, far = far, far * step
-    return unchanged("out of reach")
 
 
 def fit_drift_rate(states: dict | list, truth: dict | list, tolerance: float = DEFAULT_TOLERANCE) -> dict:
@@ -300,8 +247,9 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     """
     kappa, states, steps = _fixed_point(seq, truth, config, iterations, tolerance, span, progress)
     drift = fit_drift_rate(states, truth)
-    relative = fit_relative_inflation(states, truth, config.uncertainty.inflation, tolerance, drift["sigma"])
-    states = _each(relative_inflated_states, states, relative["inflation"] / config.uncertainty.inflation)
+    ran = (config.uncertainty.inflation, config.uncertainty.inflation_per_rate)
+    relative = fit_relative_inflation(states, truth, ran[0], tolerance, drift["sigma"], ran[1], rates=True)
+    states = _each(relative_factor_states, states, ran, (relative["inflation"], relative["per_rate"]))
     velocity = fit_velocity_inflation(states, truth, per_axis=velocity_axes)
     factors = (velocity["inflation"], velocity["per_speed"], velocity["per_doppler"], tuple(velocity["per_axis"]),
                tuple(velocity["per_rate"]))
@@ -316,7 +264,8 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     jitter = attitude_jitter_report(config.uncertainty, attitude_jitter, span, tau, drift["sigma"], heading,
                                     runs_of(states, truth))
     jitter_pair = (jitter["variance"], jitter["time"])
-    fitted = _with(config, kappa, tau, drift["sigma"], factors, relative["inflation"], heading, jitter_pair)
+    fitted = _with(config, kappa, tau, drift["sigma"], factors, (relative["inflation"], relative["per_rate"]), heading,
+                   jitter_pair)
     final = _ratios(_each(lambda s: replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"], heading,
                                              jitter_pair), states), truth, span, tau, drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))

@@ -115,7 +115,9 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
         if "consistency" in report:
             c = report["consistency"]
             v = c["velocity_inflation"]
-            lines.append(f"uncertainty: measurement_inflation {c['measurement_inflation']:.3g}, velocity_inflation "
+            rel = c["relative_inflation"]
+            lines.append(f"uncertainty: measurement_inflation {c['measurement_inflation']:.3g}, inflation "
+                         f"{rel['inflation']:.3g}{_rate_words(rel)}, velocity_inflation "
                          f"{v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + {v['per_doppler']:.3g} x "
                          "ln(1 + Doppler NIS)" + _rate_words(v)
                          + (" and per axis" if set(v.get("per_axis", [1.0])) != {1.0} else "")
@@ -197,8 +199,9 @@ def _consistency_markdown(c: dict) -> list[str]:
     d, v, rel = c["drift_rate"], c["velocity_inflation"], c["relative_inflation"]
     vec = ", ".join(f"{x:.3g}" for x in d["sigma"])
     before, after = rel["median_ratio"]
-    lines += ["", f"relative pose covariance factor (uncertainty.inflation) {rel['inflation']:.3g} (median "
-              f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; {rel['outcome']})",
+    lines += ["", f"relative pose covariance factor (uncertainty.inflation, inflation_per_rate) {rel['inflation']:.3g}"
+              f"{_rate_words(rel)} (median ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; "
+              f"{rel['outcome']})",
               f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
               f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS){_rate_words(v)}, per axis vx, vy, vz, wx, wy, wz x "
               f"[{', '.join(f'{g:.3g}' for g in v.get('per_axis', [1.0] * 6))}] (maximum "
@@ -229,7 +232,8 @@ def _heading_words(c: dict) -> str:
 
 
 def _rate_words(v: dict) -> str:
-    """' + [r_x, r_y, r_z] s/rad x |body rates|' of a velocity factor with rate terms, '' otherwise."""
+    """' + [r_x, r_y, r_z] s/rad x |body rates|' of a velocity or relative pose factor with rate terms, ''
+    otherwise."""
     r = v.get("per_rate", [0.0] * 3)
     return f" + [{', '.join(f'{x:.3g}' for x in r)}] s/rad x |body rates|" if any(r) else ""
 
