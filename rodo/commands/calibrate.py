@@ -18,6 +18,7 @@ from rodo.sim.sequence import read_sequence
 from rodo.sim.simulate import TRUTH_NPZ, load_truth
 from rodo.validation.calibrate import COMPONENTS, DEFAULT_FLOOR, QC_MAX, QC_MIN
 from rodo.validation.calibrate_config import calibrate_with_truth, calibrate_without_truth, config_toml
+from rodo.validation.calibrate_consistency import DRIFT_SIGNIFICANCE
 
 from .run import load_config
 
@@ -207,7 +208,10 @@ def _consistency_markdown(c: dict) -> list[str]:
               f"[{', '.join(f'{g:.3g}' for g in v.get('per_axis', [1.0] * 6))}] (maximum "
               f"likelihood over {v['scans']} scans: mean velocity NEES/dof {v['nees_per_dof'][0]:.3g} -> "
               f"{v['nees_per_dof'][1]:.3g})",
-              f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m",
+              f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m"
+              + (f" (beta / its standard error over {d['block']:g} s blocks "
+                 f"[{', '.join(f'{x:.2g}' for x in d['z'])}]: components below {DRIFT_SIGNIFICANCE:g} not carried)"
+                 if "z" in d else ""),
               "tau grid (median ratio of the relative pose over the span / of the absolute pose): "
               + ", ".join(f"{t} s: {r['relative_span']:.3g} / {r['pose']:.3g}" for t, r in c["tau_grid"].items())]
     if c.get("heading_reversion", {}).get("grid"):

@@ -60,7 +60,12 @@ def test_drift_rate_of_a_run_with_a_known_one(seed):
     fit = cc.fit_drift_rate({"t": t, "T_vehicle_world": np.stack(T_est)}, {"t": t, "T_vehicle_world": T_true})
     err = np.abs(np.array(fit["beta"]) - beta)
     assert np.all(err <= 5 * np.array(fit["se"])), (fit, beta)
-    assert np.all(np.array(fit["sigma"]) >= np.abs(fit["beta"]))
+    z = np.array(fit["z"])
+    np.testing.assert_allclose(z, np.array(fit["beta"]) / np.array(fit["se_block"]), rtol=1e-12)
+    carried = np.abs(z) >= cc.DRIFT_SIGNIFICANCE
+    np.testing.assert_allclose(np.array(fit["sigma"])[carried], np.hypot(fit["beta"], fit["se_block"])[carried])
+    assert np.all(np.array(fit["sigma"])[~carried] == 0.0)
+    assert np.all(np.array(fit["se_block"]) >= np.array(fit["se"]))
     assert fit["distance"] == pytest.approx(np.sum(np.linalg.norm(
         (T_true[1:] @ se3.inverse(T_true[:-1]))[:, :3, 3], axis=1)))
 
@@ -149,6 +154,38 @@ def test_absolute_covariances_replay_a_run_across_its_restart():
                            states["P_pose_absolute"], rtol=1e-3)
     without = rs.absolute_covariances(states, 0.4, states["drift_rate_sigma"])
     assert np.all(states["P_pose_absolute"][-1, [3, 4], [3, 4]] > without[-1, [3, 4], [3, 4]])
+
+
+def _drift_errors(rng, n, block_sigma, scan_sigma, per_block):
+    """A run with no drift rate whose one-scan errors share an offset over each `per_block` consecutive scans."""
+    T_true = _drive(rng, n)
+    offsets = rng.normal(size=(n // per_block + 1, 6)) * block_sigma
+    T_est = [T_true[0]]
+    for k in range(1, n):
+        R = T_true[k] @ se3.inverse(T_true[k - 1])
+        e = offsets[(k - 1) // per_block] + rng.normal(size=6) * scan_sigma
+        T_est.append(se3.exp(-e) @ R @ T_est[-1])
+    t = 0.1 * np.arange(n)
+    return {"t": t, "T_vehicle_world": np.stack(T_est)}, {"t": t, "T_vehicle_world": T_true}
+
+
+def test_drift_rate_gate_counts_correlated_errors():
+    """No drift rate, one-scan errors correlated over 2 s (a common offset per 20 scans as large as each scan's
+    own error): beta / se (scans as independent) spreads about 3.2 times a standard normal's and calls a drift in
+    most runs, beta / se_block about as a standard normal (t with 29 degrees of freedom: sd 1.04), and the gate
+    carries a component in about 0.5 % of them. 40 runs x 6 components: the sd within 20 % (over 4 of its
+    standard errors), the carried ones at most 5 of 240 (expected 1.2)."""
+    z_scan, z_block, carried = [], [], 0
+    for i in range(40):
+        states, truth = _drift_errors(_rng(7001, i), 601, np.array([2e-3] * 3 + [2e-4] * 3),
+                                      np.array([2e-3] * 3 + [2e-4] * 3), 20)
+        fit = cc.fit_drift_rate(states, truth)
+        z_scan.append(np.array(fit["beta"]) / np.array(fit["se"]))
+        z_block.append(np.array(fit["z"]))
+        carried += int(np.count_nonzero(fit["sigma"]))
+    assert np.std(z_scan) > 2.2
+    assert np.std(z_block) == pytest.approx(1.04, rel=0.2)
+    assert carried <= 5
 
 
 def test_relative_factor_states_are_a_run_at_that_factor():
