@@ -140,11 +140,11 @@ def fit_drift_rate(states: dict | list, truth: dict | list, tolerance: float = D
     standard error se (6,) from the scatter of e_k - s_k beta (scans as independent), and se_block from the
     scatter of those residuals summed over `block` seconds of consecutive scans (at least se): the one-scan
     errors are correlated over a few scans to two seconds (docs/consistency.md, "What is not yet right"), which
-    the independent se understates up to 2.9 times on the verdict's drives. sigma = sqrt(beta^2 + se_block^2) where |beta| is at least
-    `significance` times se_block, else 0: a drift the drive cannot tell from none is not carried into the
-    reported covariance (it held the absolute pose cautious where there is none: docs/consistency.md, "A drift
-    rate only where the drive shows one"). Returns beta, se, se_block, z (beta / se_block), sigma, distance (m),
-    block (s).
+    the independent se understates up to 2.9 times on the verdict's drives. sigma = sqrt(beta^2 + se_block^2)
+    where |beta| is at least `significance` times se_block, else 0: a drift the drive cannot tell from none is
+    not carried into the reported covariance (it held the absolute pose cautious where there is none:
+    docs/consistency.md, "A drift rate only where the drive shows one"). Returns beta, se, se_block, z (beta /
+    se_block), sigma, distance (m), block (s).
 
     Checked by: tests/validation/test_calibrate_consistency.py::test_drift_rate_of_a_run_with_a_known_one,
         ::test_drift_rate_gate_counts_correlated_errors
