@@ -205,8 +205,8 @@ class UncertaintyConfig:
         on that factor: the window's velocity is over-confident where the body rolls, pitches or turns
         (docs/consistency.md, "... and with the rates"). Not in the solve or the gates.
     velocity_axis_inflation: factors per axis [vx, vy, vz, wx, wy, wz] (body frame) on that reported variance, for
-        the shape of the window's velocity covariance (docs/consistency.md, "... and per axis"); `rodo calibrate
-        --velocity-axes` learns them. Not in the solve, the gates or the drift recursion.
+        the shape of the window's velocity covariance (docs/consistency.md, "... and per axis"); `rodo calibrate`
+        learns them (`--no-velocity-axes` leaves them at 1). Not in the solve, the gates or the drift recursion.
     heading_reversion_time: the time constant (s) with which the drift recursion's yaw error reverts to an anchor
         (`estimator.heading_reversion`; docs/consistency.md, "The heading reverts"); `rodo calibrate
         --heading-reversion` learns it. Reported covariances only. 0: off.

@@ -64,7 +64,7 @@ def _qc_report(fit: cal.QcFit) -> dict:
 
 def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: OdometryConfig,
                          duration: float | None = None, floor: float = cal.DEFAULT_FLOOR, consistency: bool = True,
-                         progress=None, velocity_axes: bool = False,
+                         progress=None, velocity_axes: bool = True,
                          heading_reversion: bool = False, attitude_jitter: bool = True) -> tuple[OdometryConfig, dict]:
     """Learn qc_ca, qc_cv, the per-channel sensor sigma factors, the Cartesian sigma and the scans' common Doppler
     error (`calibrate_sensor.common_doppler_error`; 0 unless significant) from ground truth, then

@@ -256,7 +256,7 @@ def _fixed_point(seq, truth, config: OdometryConfig, iterations: int, tolerance:
 
 def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryConfig, iterations: int = 4,
                     tolerance: float = 0.1, span: float = 1.0, progress=None,
-                    velocity_axes: bool = False, heading_reversion: bool = False,
+                    velocity_axes: bool = True, heading_reversion: bool = False,
                     attitude_jitter: bool = True) -> tuple[OdometryConfig, dict]:
     """Fit kappa (fixed point), then the relative pose's and the velocity's variance factors (per axis too with
     `velocity_axes`, `fit_velocity_inflation`), the drift rate and tau (on the last run's states, without running

@@ -41,9 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "consecutive scans (assumes persistent scatterers; docs/calibration.md)")
     p.add_argument("--no-consistency", action="store_true",
                    help="with truth: skip the uncertainty section (kappa, drift rate, tau; a few estimator runs)")
-    p.add_argument("--velocity-axes", action="store_true",
+    p.add_argument("--velocity-axes", action=argparse.BooleanOptionalAction, default=None,
                    help="with truth: learn the velocity variance per axis too (uncertainty.velocity_axis_inflation; "
-                        "docs/calibration.md)")
+                        "docs/calibration.md): on by default with truth; --no-velocity-axes leaves them at 1")
     p.add_argument("--heading-reversion", action="store_true",
                    help="with truth: learn the yaw error's reversion too (uncertainty.heading_reversion_time and "
                         "heading_anchor_time; docs/calibration.md)")
@@ -282,7 +282,7 @@ def main(args) -> int:
         truths = [load_truth(d) for d in args.sequence]
         config, report = calibrate_with_truth(seqs, truths, config, args.duration, args.floor,
                                               consistency=not args.no_consistency, progress=step,
-                                              velocity_axes=args.velocity_axes,
+                                              velocity_axes=args.velocity_axes is not False,
                                               heading_reversion=args.heading_reversion,
                                               attitude_jitter=attitude_jitter)
     write_text_atomic(out, config_toml(config, _header(report, " ".join(args.sequence), config.model)))

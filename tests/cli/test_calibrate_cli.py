@@ -39,7 +39,7 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
     assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["model"] == "cv-polar" and summary["config"] == config.to_dict()
-    assert config.uncertainty.velocity_axis_inflation == (1.0,) * 6  # per axis only when asked
+    assert np.prod(config.uncertainty.velocity_axis_inflation) == pytest.approx(1.0, rel=1e-9)  # per axis by default
     assert config.uncertainty.heading_reversion_time == 0.0  # and the heading's reversion
     assert report["consistency"]["heading_reversion"]["fitted"] is False
     assert report["consistency"]["attitude_jitter"]["fitted"] is True  # the attitude jitter by default
@@ -47,11 +47,12 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
 
 
 @pytest.mark.slow
-def test_calibrate_learns_the_velocity_per_axis_when_asked(seq, tmp_path, capsys):
-    """--velocity-axes: the config carries the fitted per-axis factors (product 1), the report and its markdown
-    name them, and `rodo run` accepts the config."""
+def test_calibrate_learns_the_velocity_per_axis_by_default(seq, tmp_path, capsys):
+    """With truth the config carries the fitted per-axis velocity factors (product 1; --velocity-axes is the
+    default), the report and its markdown name them, and `rodo run` accepts the config. --no-velocity-axes
+    (below, with --no-attitude-jitter) leaves them at 1."""
     out = tmp_path / "axes.toml"
-    assert main(["calibrate", str(seq), "--velocity-axes", "--out", str(out)]) == 0
+    assert main(["calibrate", str(seq), "--out", str(out)]) == 0
     g = OdometryConfig.from_toml(out).uncertainty.velocity_axis_inflation
     report = json.loads(out.with_suffix(".json").read_text())
     assert list(g) == report["consistency"]["velocity_inflation"]["per_axis"]
@@ -114,8 +115,10 @@ def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, 
     base = tmp_path / "base.toml"
     base.write_text("[uncertainty]\nattitude_jitter_variance = 3e-6\nattitude_jitter_time = 0.5\n")
     kept = tmp_path / "kept.toml"
-    assert main(["calibrate", str(seq), "--config", str(base), "--no-attitude-jitter", "--out", str(kept)]) == 0
+    assert main(["calibrate", str(seq), "--config", str(base), "--no-attitude-jitter", "--no-velocity-axes",
+                 "--out", str(kept)]) == 0
     unc = OdometryConfig.from_toml(kept).uncertainty
+    assert unc.velocity_axis_inflation == (1.0,) * 6
     assert (unc.attitude_jitter_variance, unc.attitude_jitter_time) == (3e-6, 0.5)
     j = json.loads(kept.with_suffix(".json").read_text())["consistency"]["attitude_jitter"]
     assert j == {"variance": 3e-6, "time": 0.5, "fitted": False}
