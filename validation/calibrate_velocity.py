@@ -50,9 +50,9 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
 
     The per-axis factors correct the shape of the window's velocity covariance, which c alone cannot: on the
     verdict's drives its vertical velocity was over-confident 2-4 times, its lateral velocity and roll and yaw
-    rates cautious 2-10 times. Learned only when asked (`rodo calibrate --velocity-axes`): without the rate terms
-    the verdict's campaigns had fewer scans inside their bounds with them, with them more in every cell (one
-    measurement; docs/consistency.md, "... and per axis" and "... and with the rates"). The rate terms follow
+    rates cautious 2-10 times. `rodo calibrate` learns them by default (`--no-velocity-axes`: not): without the
+    rate terms the verdict's campaigns had fewer scans inside their bounds with them, with them more or as many in
+    every cell (docs/consistency.md, "... and per axis" and "... and with the rates"). The rate terms follow
     where in a drive the window's velocity is over-confident (where its roll and pitch rates are not near zero).
 
     Checked by: tests/validation/test_calibrate_velocity.py::test_velocity_inflation_recovers_a_known_factor,
