@@ -189,6 +189,8 @@ class UncertaintyConfig:
     inflation_per_rate: + these x |omega_x|, |omega_y|, |omega_z| (the scan's estimated body rates, rad/s) on that
         factor: as the velocity, the registration's relative pose is over-confident where the body rolls or
         pitches (docs/consistency.md, "The one-scan relative pose with the rates"). Reported covariances only.
+    inflation_per_doppler: + this x ln(1 + the scan's Doppler innovation NIS per dof) on that factor, as the
+        velocity's (docs/consistency.md, "The one-scan relative pose with the rates"). Reported covariances only.
     measurement_inflation: factor (>= 1) on every associated pair's covariance in the solve (not the gates): a
         scan's pairs share map errors and carry less information than counted as independent; 1: the paper's.
     drift_rate_sigma: sigma of the registration's systematic error per metre driven, unknown but constant
@@ -226,6 +228,7 @@ class UncertaintyConfig:
     velocity_correlation_time: float = 0.25  # s
     inflation: float = 1.0
     inflation_per_rate: tuple[float, ...] = (0.0, 0.0, 0.0)  # s/rad
+    inflation_per_doppler: float = 0.0
     measurement_inflation: float = 1.0
     drift_rate_sigma: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     prior_memory: float = 0.0  # s

@@ -247,11 +247,11 @@ class DriftCovariance:
 
 class ReportedCovariances:
     """What the odometry reports beside the window's covariance, scan by scan: each scan's relative pose
-    covariance and its revision (times `[uncertainty] inflation` + `inflation_per_rate` . |omega|, the scan's estimated
-    body rates), the absolute pose covariance through the drift
-    recursion (`DriftCovariance`: from the run's first scan, across re-initialisations with their dead-reckoned
-    step, unscaled) with the roll and pitch jitter's excess since that scan (`attitude_jitter`), the velocity's
-    variance scaled (`velocity_inflated`).
+    covariance and its revision (times `[uncertainty] inflation` + `inflation_per_rate` . |omega| +
+    `inflation_per_doppler` ln(1 + the Doppler NIS), omega the scan's estimated body rates), the absolute pose
+    covariance through the drift recursion (`DriftCovariance`: from the run's first scan, across
+    re-initialisations with their dead-reckoned step, unscaled) with the roll and pitch jitter's excess since that
+    scan (`attitude_jitter`), the velocity's variance scaled (`velocity_inflated`).
 
     Attributes:
         config: the odometry's `UncertaintyConfig`.
@@ -267,6 +267,7 @@ class ReportedCovariances:
     def __init__(self, config):
         self.config = config
         self.axes = np.asarray(config.velocity_axis_inflation, dtype=float)  # converted once, not per scan
+        self.relative_terms = any(config.inflation_per_rate) or config.inflation_per_doppler != 0.0
         self.jitter = AbsoluteJitter(attitude_jitter_of(config))
         self.drift: DriftCovariance | None = None
         self.last = None
@@ -288,7 +289,8 @@ class ReportedCovariances:
             est.restarted = True
             P_absolute = self.drift.restart(last.T_vehicle_world, est.T_vehicle_world, P_relative)
         else:
-            f = velocity_factor(est.varpi, cfg.inflation, 0.0, 0.0, None, cfg.inflation_per_rate)
+            f = (velocity_factor(est.varpi, cfg.inflation, 0.0, cfg.inflation_per_doppler, doppler_nis,
+                                 cfg.inflation_per_rate) if self.relative_terms else cfg.inflation)
             P_relative, P_revision = (f * P for P in P_relative)
             P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, est.t - last.t, P_relative,
                                            est.P[6:12, 6:12])

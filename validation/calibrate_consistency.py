@@ -113,17 +113,19 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
           jitter=None) -> OdometryConfig:
     """The config with these uncertainty values; the velocity factors (a, b, d, per-axis g, per-rate r) default to
     none: the fit's runs report the window's own velocity covariance; the relative pose factor (`relative`, (f,
-    per-rate r)), the
+    per-rate r, per-Doppler d)), the
     heading's reversion ([T_r, T_a]) and the roll and pitch jitter ([V, T]) to the config's."""
     drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
-    relative = (config.uncertainty.inflation, config.uncertainty.inflation_per_rate) if relative is None else relative
+    u = config.uncertainty
+    relative = (u.inflation, u.inflation_per_rate, u.inflation_per_doppler) if relative is None else relative
     unc = dataclasses.replace(config.uncertainty, measurement_inflation=float(kappa),
                               velocity_correlation_time=float(tau), drift_rate_sigma=tuple(float(x) for x in drift),
                               velocity_inflation=float(velocity[0]), velocity_inflation_per_speed=float(velocity[1]),
                               velocity_inflation_per_doppler=float(velocity[2]),
                               velocity_axis_inflation=tuple(float(x) for x in velocity[3]),
                               velocity_inflation_per_rate=tuple(float(x) for x in velocity[4]),
-                              inflation=float(relative[0]), inflation_per_rate=tuple(float(x) for x in relative[1]))
+                              inflation=float(relative[0]), inflation_per_rate=tuple(float(x) for x in relative[1]),
+                              inflation_per_doppler=float(relative[2]))
     if heading is not None:
         unc = dataclasses.replace(unc, heading_reversion_time=float(heading[0]),
                                   heading_anchor_time=float(heading[1]) if heading[0] > 0 else unc.heading_anchor_time)
@@ -273,9 +275,11 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     """
     kappa, states, steps = _fixed_point(seq, truth, config, iterations, tolerance, span, progress)
     drift = fit_drift_rate(states, truth)
-    ran = (config.uncertainty.inflation, config.uncertainty.inflation_per_rate)
-    relative = fit_relative_inflation(states, truth, ran[0], tolerance, drift["sigma"], ran[1], rates=True)
-    states = _each(relative_factor_states, states, ran, (relative["inflation"], relative["per_rate"]))
+    u = config.uncertainty
+    ran = (u.inflation, u.inflation_per_rate, u.inflation_per_doppler)
+    relative = fit_relative_inflation(states, truth, ran[0], tolerance, drift["sigma"], ran[1], True, ran[2])
+    new = (relative["inflation"], relative["per_rate"], relative["per_doppler"])
+    states = _each(relative_factor_states, states, ran, new)
     velocity = fit_velocity_inflation(states, truth, per_axis=velocity_axes)
     factors = (velocity["inflation"], velocity["per_speed"], velocity["per_doppler"], tuple(velocity["per_axis"]),
                tuple(velocity["per_rate"]))
@@ -290,8 +294,7 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     jitter = attitude_jitter_report(config.uncertainty, attitude_jitter, span, tau, drift["sigma"], heading,
                                     runs_of(states, truth))
     jitter_pair = (jitter["variance"], jitter["time"])
-    fitted = _with(config, kappa, tau, drift["sigma"], factors, (relative["inflation"], relative["per_rate"]), heading,
-                   jitter_pair)
+    fitted = _with(config, kappa, tau, drift["sigma"], factors, new, heading, jitter_pair)
     final = _ratios(_each(lambda s: replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"], heading,
                                              jitter_pair), states), truth, span, tau, drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))

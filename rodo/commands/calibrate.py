@@ -118,7 +118,7 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
             v = c["velocity_inflation"]
             rel = c["relative_inflation"]
             lines.append(f"uncertainty: measurement_inflation {c['measurement_inflation']:.3g}, inflation "
-                         f"{rel['inflation']:.3g}{_rate_words(rel)}, velocity_inflation "
+                         f"{_relative_words(rel)}, velocity_inflation "
                          f"{v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + {v['per_doppler']:.3g} x "
                          "ln(1 + Doppler NIS)" + _rate_words(v)
                          + (" and per axis" if set(v.get("per_axis", [1.0])) != {1.0} else "")
@@ -200,8 +200,8 @@ def _consistency_markdown(c: dict) -> list[str]:
     d, v, rel = c["drift_rate"], c["velocity_inflation"], c["relative_inflation"]
     vec = ", ".join(f"{x:.3g}" for x in d["sigma"])
     before, after = rel["median_ratio"]
-    lines += ["", f"relative pose covariance factor (uncertainty.inflation, inflation_per_rate) {rel['inflation']:.3g}"
-              f"{_rate_words(rel)} (median ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; "
+    lines += ["", f"relative pose covariance factor (uncertainty.inflation, inflation_per_doppler, inflation_per_rate) "
+              f"{_relative_words(rel)} (median ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; "
               f"{rel['outcome']})",
               f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
               f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS){_rate_words(v)}, per axis vx, vy, vz, wx, wy, wz x "
@@ -240,6 +240,13 @@ def _rate_words(v: dict) -> str:
     otherwise."""
     r = v.get("per_rate", [0.0] * 3)
     return f" + [{', '.join(f'{x:.3g}' for x in r)}] s/rad x |body rates|" if any(r) else ""
+
+
+def _relative_words(rel: dict) -> str:
+    """'f + d x ln(1 + Doppler NIS) + [r_x, r_y, r_z] s/rad x |body rates|' of the relative pose factor (the terms
+    that are not 0)."""
+    d = rel.get("per_doppler", 0.0)
+    return f"{rel['inflation']:.3g}" + (f" + {d:.3g} x ln(1 + Doppler NIS)" if d else "") + _rate_words(rel)
 
 
 def _jitter_words(c: dict) -> str:
