@@ -77,13 +77,15 @@ def relative_terms(states, truth, inflation: float, per_rate=None, drift_rate_si
 
 
 def _nees(c, e, A, V) -> np.ndarray:
+    """(K,) e_k^T (c_k A_k + V_k)^-1 e_k."""
     C = c[:, None, None] * A + V
     return np.einsum("ki,ki->k", e, np.linalg.solve(C, e[..., None])[..., 0])
 
 
 def _max_likelihood(e, A, V, W, f0: float) -> np.ndarray:
-    """(f, r_x, r_y, r_z) maximising the Gaussian likelihood of the errors e_k ~ N(0, c_k A_k + V_k), c_k = f +
-    r . W_k, f > 0, r >= 0 (L-BFGS-B with the analytic gradient, each term scaled to its mean regressor)."""
+    """(f, then one coefficient per column of W: r_x, r_y, r_z and d) maximising the Gaussian likelihood of the
+    errors e_k ~ N(0, c_k A_k + V_k), c_k = f + r . W_k, f > 0, r >= 0 (L-BFGS-B with the analytic gradient, each
+    term scaled to its mean regressor)."""
     X = np.column_stack([np.ones(len(e)), W])
     scale = np.where(X.mean(axis=0) > 0, X.mean(axis=0), 1.0)
     Xs = X / scale
@@ -177,5 +179,5 @@ def relative_factor_states(states: dict, old, new) -> dict:
     (`replayed_states.relative_inflated_states` with each scan's ratio of the two factors)."""
     varpi = np.asarray(states["varpi"], dtype=float)
     nis = states.get("doppler_nis")
-    return relative_inflated_states(states, relative_factor(varpi, *new[:2], new[2], nis)
-                                    / relative_factor(varpi, *old[:2], old[2], nis))
+    return relative_inflated_states(states, relative_factor(varpi, new[0], new[1], new[2], nis)
+                                    / relative_factor(varpi, old[0], old[1], old[2], nis))
