@@ -41,8 +41,8 @@ from rodo.sim.sequence import atomic_write_bytes
 
 from .campaign_dir import campaign_lock, check_and_save_meta
 from .campaign_consistency import campaign_consistency, consistency_lines
-from .campaign_files import (CONSISTENCY_FIELDS, FIELDS, METRICS, append_rows, cell, load_trial_arrays, npz_path,
-                             read_results, rewrite_results, save_arrays, writes_arrays)
+from .campaign_files import (CONSISTENCY_FIELDS, COVERAGE_FIELDS, FIELDS, METRICS, append_rows, cell,
+                             load_trial_arrays, npz_path, read_results, rewrite_results, save_arrays, writes_arrays)
 from .campaign_compare import compare_models, comparison_lines
 from .consistency import average_nees, chi2_bounds, fraction_within
 from .metrics import jsonable
@@ -291,7 +291,7 @@ def _collect(out: Path, tr: Trial, fut) -> list[dict]:
 
 SUMMARY_METRICS = ("kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m", "rpe_trans_pct", "drift_z_m",
                    "max_abs_z_m", "max_abs_roll_deg", "max_abs_pitch_deg", "drift_yaw_deg", "nees_mean", "nis_mean",
-                   "nu_rmse_mps", "ms_per_scan", "wall_s") + CONSISTENCY_FIELDS
+                   "nu_rmse_mps", "ms_per_scan", "wall_s") + CONSISTENCY_FIELDS + COVERAGE_FIELDS
 
 
 def _describe(x: np.ndarray) -> dict:

@@ -27,7 +27,10 @@ FIELDS_V1 = ("trial", "seed", "model", "status", "kitti_t_err_pct", "kitti_r_err
 # mean NEES / dof over a run's scans of each `validation.odometry_consistency` measure (docs/evaluation.md)
 CONSISTENCY_FIELDS = ("nees_velocity_per_dof", "nees_acceleration_per_dof", "nees_relative_scan_per_dof",
                       "nees_relative_span_per_dof", "nees_pose_per_dof", "nees_pose_window_per_dof")
-FIELDS = FIELDS_V1[:-1] + CONSISTENCY_FIELDS + ("error",)
+FIELDS_V2 = FIELDS_V1[:-1] + CONSISTENCY_FIELDS + ("error",)  # before the ellipsoid coverage (session 36)
+# the % of a run's scans whose true position is inside the 3-sigma ellipsoid of its absolute pose covariance
+COVERAGE_FIELDS = ("ellipsoid_3sigma_pct",)
+FIELDS = FIELDS_V2[:-1] + COVERAGE_FIELDS + ("error",)
 METRICS = FIELDS[4:-1]
 
 
@@ -54,8 +57,8 @@ def cell(v):
 
 
 def read_results(path: str | Path) -> list[dict]:
-    """Rows of results.csv as dicts of strings (every key of FIELDS; a file with the older header FIELDS_V1 gets
-    "" in the consistency columns); a torn last row (crash while writing) is dropped."""
+    """Rows of results.csv as dicts of strings (every key of FIELDS; a file with an older header, FIELDS_V1 or
+    FIELDS_V2, gets "" in the columns it lacks); a torn last row (crash while writing) is dropped."""
     path = Path(path)
     if not path.exists():
         return []
@@ -64,7 +67,7 @@ def read_results(path: str | Path) -> list[dict]:
     if not rows:
         return []
     header = tuple(rows[0])
-    if header not in (FIELDS, FIELDS_V1):
+    if header not in (FIELDS, FIELDS_V2, FIELDS_V1):
         raise InputError(f"{path}: line 1: unexpected header (expected {','.join(FIELDS)})")
     body = rows[1:] if text.endswith("\n") else rows[1:-1]  # a final row without its newline is torn: drop it
     out, first = [], {}

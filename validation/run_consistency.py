@@ -5,7 +5,8 @@ what the Rerun recording draws (docs/evaluation.md, "Consistency in campaigns"; 
 - `scan_measures`: `odometry_nees` laid out per estimate (NaN where a scan has no truth);
 - `ellipsoid_coverage`: whether the true position lies inside the n-sigma ellipsoid of the world position
   covariance (`covariance.position_covariance_world` of `P_pose_absolute`), and the running fraction of scans
-  where it does, against the fraction the ellipsoid claims, chi2.cdf(n^2, 3) (97.1 % for 3 sigma).
+  where it does, against the fraction the ellipsoid claims, chi2.cdf(n^2, 3) (97.1 % for 3 sigma);
+- `truth_coverage`: that of a run's states against its truth.npz (a campaign trial's `ellipsoid_3sigma_pct`).
 
 Checked by: tests/validation/test_campaign_consistency.py::test_run_consistency_per_scan_and_ellipsoid_coverage,
     tests/viz/test_recording.py::test_recording_has_every_consistency_measure
@@ -16,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from .association import DEFAULT_TOLERANCE, match_index
+from .alignment import truth_in_estimator_frame
+from .association import DEFAULT_TOLERANCE, associate, match_index
 from .consistency import nees
 from .covariance import position_covariance_world
 from .odometry_consistency import MEASURES, odometry_nees
@@ -87,3 +89,20 @@ def runs_of(states, truth) -> list[tuple[dict, dict]]:
     if len(states) != len(truth) or not states:
         raise ValueError(f"runs: {len(states)} states for {len(truth)} truths")
     return list(zip(states, truth))
+
+
+def truth_coverage(states: dict, truth: dict, n_sigma: float = 3.0, tolerance: float = DEFAULT_TOLERANCE) -> dict:
+    """`ellipsoid_coverage` of a run's states (`P_pose_absolute`) against its truth at the scans that have one, the
+    true poses in the estimator's world as `odometry_nees` aligns them (the first matched true pose on the first
+    matched estimate). A run without P_pose_absolute or without matched scans: fraction NaN.
+
+    Checked by: tests/validation/test_campaign_consistency.py::test_campaign_trials_report_the_ellipsoid_coverage
+    """
+    ia, ib = associate(states["t"], truth["t"], tolerance)
+    if "P_pose_absolute" not in states or not len(ia):
+        return {"fraction": float("nan"), "claimed": float(chi2.cdf(n_sigma**2, 3))}
+    T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
+    T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
+    position = lambda T: -np.einsum("nji,nj->ni", T[:, :3, :3], T[:, :3, 3])  # noqa: E731 (world position)
+    return ellipsoid_coverage(position(T_est), position(T_true), T_est,
+                              np.nan_to_num(np.asarray(states["P_pose_absolute"], dtype=float)[ia]), n_sigma)

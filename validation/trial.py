@@ -21,9 +21,10 @@ from .consistency import nees_sequence, nis_summary
 from .kitti import LENGTHS, kitti_errors
 from .metrics import ate, drift, path_distances, rpe, velocity_errors
 from .odometry_consistency import DOF, MEASURES, summarise
-from .run_consistency import run_states, scan_measures
+from .run_consistency import run_states, scan_measures, truth_coverage
 
 SPAN = 1.0  # s, the span of the relative_span measure
+ELLIPSOID_SIGMA = 3.0  # the ellipsoid of ellipsoid_3sigma_pct (the Rerun recording's: docs/visualisation.md)
 
 
 @dataclass(frozen=True)
@@ -139,7 +140,9 @@ def evaluate_result(model: str, result, gt, truth: dict, lengths, step: int, wal
 def consistency_of(states: dict, truth: dict, t: np.ndarray) -> tuple[dict, dict]:
     """The odometry consistency measures of one run (`odometry_consistency.odometry_nees`, relative_span over
     SPAN seconds) for a campaign: the results.csv columns `nees_<measure>_per_dof` (mean NEES / 6 over the
-    run's scans, "" where undefined) and the trial npz arrays `nees_<measure>` (per scan, on the times t of
+    run's scans, "" where undefined), `ellipsoid_3sigma_pct` (the % of its scans whose true position is inside
+    the 3-sigma ellipsoid of the absolute pose covariance, `run_consistency.truth_coverage`; 97.1 % claimed) and
+    the trial npz arrays `nees_<measure>` (per scan, on the times t of
     `nees`), `nees_measure_dof` and `nees_span`.
 
     Checked by: tests/validation/test_campaign_consistency.py::test_run_consistency_per_scan_and_ellipsoid_coverage
@@ -148,6 +151,8 @@ def consistency_of(states: dict, truth: dict, t: np.ndarray) -> tuple[dict, dict
     keep = np.isin(m["t"], t)
     s = summarise({k: m[k][keep] for k in MEASURES})
     metrics = {f"nees_{k}_per_dof": "" if s[k]["mean_per_dof"] is None else s[k]["mean_per_dof"] for k in MEASURES}
+    inside = truth_coverage(states, truth, ELLIPSOID_SIGMA)["fraction"]
+    metrics["ellipsoid_3sigma_pct"] = 100.0 * inside if np.isfinite(inside) else ""
     arrays = {f"nees_{k}": m[k][keep] for k in MEASURES}
     arrays.update({"nees_measure_dof": DOF, "nees_span": m["span"]})
     return metrics, arrays

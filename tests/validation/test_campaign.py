@@ -312,19 +312,24 @@ def test_tiny_real_campaign_through_the_cli(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------ odometry consistency in campaigns
-def test_results_with_the_older_header_are_read_and_resumed(tmp_path):
-    """A results.csv written before the consistency columns: read with "" there; resume rewrites the header."""
-    from rodo.validation.campaign_files import FIELDS_V1
+@pytest.mark.parametrize("version", ["FIELDS_V1", "FIELDS_V2"])
+def test_results_with_the_older_header_are_read_and_resumed(tmp_path, version):
+    """A results.csv written before the consistency columns (V1) or before the ellipsoid coverage (V2): read with
+    "" in the columns it lacks; resume rewrites the header."""
+    from rodo.validation import campaign_files
 
+    header = getattr(campaign_files, version)
     with ProcessPoolExecutor(1) as ex:
         run_campaign(FakeTrial(), [Trial(0, 5, MODELS)], ex, tmp_path)
     rows = read_results(tmp_path / "results.csv")
     with open(tmp_path / "results.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=FIELDS_V1, extrasaction="ignore")
+        w = csv.DictWriter(fh, fieldnames=header, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows[:1])
     old = read_results(tmp_path / "results.csv")
-    assert old[0]["nees_pose_per_dof"] == "" and old[0]["kitti_t_err_pct"] == rows[0]["kitti_t_err_pct"]
+    missing = set(campaign_files.FIELDS) - set(header)
+    assert missing and all(old[0][k] == "" for k in missing)
+    assert old[0]["kitti_t_err_pct"] == rows[0]["kitti_t_err_pct"]
     with ProcessPoolExecutor(1) as ex:
         rep = run_campaign(FakeTrial(), [Trial(0, 5, MODELS)], ex, tmp_path, resume=True)
     assert rep.skipped == 1 and rep.ran == 1

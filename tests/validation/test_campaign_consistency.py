@@ -113,7 +113,7 @@ def test_run_consistency_per_scan_and_ellipsoid_coverage():
     assert len(m["pose"]) == len(states["t"]) and np.isnan(m["velocity"][5])
     np.testing.assert_array_equal(np.delete(m["velocity"], 5), ref["velocity"])
     metrics, arrays = consistency_of(states, truth, states["t"])
-    assert set(metrics) == {f"nees_{k}_per_dof" for k in MEASURES}
+    assert set(metrics) == {f"nees_{k}_per_dof" for k in MEASURES} | {"ellipsoid_3sigma_pct"}
     assert metrics["nees_pose_per_dof"] == pytest.approx(np.nanmean(arrays["nees_pose"]) / 6)
     assert arrays["nees_measure_dof"] == 6 and arrays["nees_span"] == 1.0
     rng = np.random.default_rng(2)
@@ -209,3 +209,41 @@ def test_spread_is_undefined_without_two_runs_or_a_positive_mean():
     assert spread_between_runs([np.full(3, np.nan), np.ones(3)]) is None
     assert spread_between_runs([np.zeros(4), np.zeros(4)]) is None
     assert measure_summary([np.ones(4)])[0]["fraction_within_per_scan_factor"] is None
+
+
+def test_campaign_trials_report_the_ellipsoid_coverage():
+    """truth_coverage: true positions drawn about the estimates from the absolute pose covariance (translation
+    only, the first pose exact, so the alignment is the identity) lie inside the 3-sigma ellipsoid chi2.cdf(9, 3)
+    of the time (3000 scans: within 1.5 points, 5 binomial standard deviations), twice that covariance's error
+    less often; a campaign trial's ellipsoid_3sigma_pct is that percentage."""
+    from scipy.stats import chi2
+
+    from rodo.estimator.lie import se3
+    from rodo.validation.run_consistency import truth_coverage
+    from rodo.validation.trial import consistency_of
+    from tests.validation.test_odometry_consistency import _run
+
+    rng = np.random.default_rng(np.random.SeedSequence([2026, 36, 3]))
+    n = 3000
+    T_est = se3.exp(rng.normal(size=(n, 6)))
+    L = rng.normal(size=(n, 3, 3)) * 0.1
+    P = np.zeros((n, 6, 6))
+    P[:, :3, :3] = L @ np.swapaxes(L, 1, 2) + 1e-3 * np.eye(3)
+    P[:, 3:, 3:] = 1e-6 * np.eye(3)
+
+    def truth_with(scale):
+        xi = np.zeros((n, 6))
+        xi[:, :3] = scale * np.einsum("nij,nj->ni", np.linalg.cholesky(P[:, :3, :3]), rng.normal(size=(n, 3)))
+        xi[0] = 0.0
+        return {"t": np.arange(n) * 0.1, "T_vehicle_world": se3.exp(xi) @ T_est}
+
+    states = {"t": np.arange(n) * 0.1, "T_vehicle_world": T_est, "P_pose_absolute": P}
+    honest, doubled = truth_coverage(states, truth_with(1.0)), truth_coverage(states, truth_with(2.0))
+    assert honest["claimed"] == pytest.approx(chi2.cdf(9.0, 3))
+    assert honest["fraction"] == pytest.approx(honest["claimed"], abs=0.015)
+    assert doubled["fraction"] == pytest.approx(chi2.cdf(9.0 / 4.0, 3), abs=0.03)
+    assert np.isnan(truth_coverage({k: v for k, v in states.items() if k != "P_pose_absolute"},
+                                   truth_with(1.0))["fraction"])
+    run, run_truth = _run(np.random.default_rng(1))
+    metrics, _ = consistency_of(run, run_truth, run["t"])
+    assert metrics["ellipsoid_3sigma_pct"] == pytest.approx(100 * truth_coverage(run, run_truth)["fraction"])
