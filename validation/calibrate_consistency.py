@@ -60,13 +60,12 @@ from rodo.estimator.lie import se3
 from rodo.estimator.uncertainty import heading_of
 from rodo.sim.sequence import Sequence
 
-from .alignment import truth_in_estimator_frame
-from .association import DEFAULT_TOLERANCE, associate
+from .association import DEFAULT_TOLERANCE
 from .calibrate_jitter import attitude_jitter_report
 from .calibrate_relative import fit_relative_inflation, median_ratio, relative_factor_states
 from .calibrate_velocity import fit_velocity_inflation
 from .driver import run_sequence
-from .odometry_consistency import odometry_nees
+from .odometry_consistency import matched_poses, odometry_nees
 from .replayed_states import replayed, velocity_inflated_states
 from .run_consistency import run_states, runs_of
 
@@ -153,9 +152,7 @@ def fit_drift_rate(states: dict | list, truth: dict | list, tolerance: float = D
     """
     e, s, blocks, first = [np.zeros((0, 6))], [np.zeros(0)], [np.zeros(0, int)], 0
     for st, tr in runs_of(states, truth):
-        ia, ib = associate(st["t"], tr["t"], tolerance)
-        T_est = np.asarray(st["T_vehicle_world"], dtype=float)[ia]
-        T_true = truth_in_estimator_frame(np.asarray(tr["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
+        ia, _, T_est, T_true = matched_poses(st, tr, tolerance)
         R_true = T_true[1:] @ se3.inverse(T_true[:-1])
         keep = ~np.asarray(st.get("restarted", np.zeros(len(st["t"]), bool)), dtype=bool)[ia][1:]
         e.append(se3.log(R_true @ se3.inverse(T_est[1:] @ se3.inverse(T_est[:-1])))[keep])

@@ -59,17 +59,19 @@ def relative_terms(states, truth, inflation: float, per_rate=None, drift_rate_si
         if terms is None:
             continue
         e, C, t, _ = terms
-        rest = {k: v for k, v in st.items() if k != "P_revision"}
-        rest["P_relative"] = np.zeros_like(np.asarray(st["P_relative"], dtype=float))
-        V = span_terms(rest, tr, span=0.0, tau=tau, drift_rate_sigma=drift_rate_sigma)[1]
         idx = np.searchsorted(np.asarray(st["t"], dtype=float), t[1:])  # the matched scans, in the run's rows
+        # over one scan the window's relative covariance and the revision enter the composition as they are
+        # (`span_covariances`: added once, untransformed), so the rest of it is what the factor does not scale
+        scaled = np.asarray(st["P_relative"], dtype=float)[idx]
+        if "P_revision" in st:
+            scaled = scaled + np.asarray(st["P_revision"], dtype=float)[idx]
         varpi = np.asarray(st["varpi"], dtype=float)[idx]
         nis = np.asarray(st["doppler_nis"], dtype=float)[idx] if "doppler_nis" in st else np.full(len(idx), np.nan)
         c = np.broadcast_to(relative_factor(varpi, inflation, per_rate, per_doppler, nis), (len(idx),))
         keep = ~np.asarray(st.get("restarted", np.zeros(len(st["t"]), bool)), dtype=bool)[idx]
-        keep &= np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(C), axis=(1, 2)) & (c > 0)
+        keep &= np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(C) & np.isfinite(scaled), axis=(1, 2)) & (c > 0)
         W = np.column_stack([np.abs(varpi[:, 3:6]), doppler_term(nis)])
-        for acc, v in zip(out, (e, (C - V) / c[:, None, None], V, W)):
+        for acc, v in zip(out, (e, scaled / c[:, None, None], C - scaled, W)):
             acc.append(v[keep])
     if not out[0]:
         return np.zeros((0, 6)), np.zeros((0, 6, 6)), np.zeros((0, 6, 6)), np.zeros((0, 4))

@@ -160,6 +160,16 @@ def span_terms(states: dict, truth: dict, span: float = 1.0, tau: float = 0.25,
     return _span_terms(m, span_scans(m["t"], span), tau, m["drift_rate_sigma"], m["heading"])
 
 
+def matched_poses(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE):
+    """(ia, ib, T_est, T_true): a run's scans matched to the truth (`association.associate`'s indices), the
+    estimated state poses there and the true ones in the estimator's world, the first matched true pose on the
+    first matched estimate (what every measure compares)."""
+    ia, ib = associate(states["t"], truth["t"], tolerance)
+    T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
+    T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float)[ib])
+    return ia, ib, T_est, (T_true @ T_est[0] if len(ia) else T_true)
+
+
 def _matched(states: dict, truth: dict, tolerance: float, tau: float, drift_rate_sigma, heading) -> dict:
     """A run's scans matched to the truth (`odometry_nees`'s arguments): t, T_est, T_true (in the estimator's
     world), P, sub (the per-scan states arrays at the matched scans), ib (the truth's indices), the drift rate and
@@ -171,10 +181,8 @@ def _matched(states: dict, truth: dict, tolerance: float, tau: float, drift_rate
         heading = states.get("heading_reversion")
     per_scan = {k for k, v in states.items()
                 if k not in RUN_CONSTANTS and np.ndim(v) >= 1 and len(v) == len(states["t"])}
-    ia, ib = associate(states["t"], truth["t"], tolerance)
+    ia, ib, T_est, T_true = matched_poses(states, truth, tolerance)
     t = np.asarray(states["t"], dtype=float)[ia]
-    T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
-    T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
     sub = {k: np.asarray(states[k])[ia] for k in per_scan}
     if "restarted" in sub:  # a restart at a scan without truth: the kept scan after it takes the restart's step
         n_restarts = np.cumsum(np.asarray(states["restarted"], dtype=bool))[ia]

@@ -17,11 +17,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from .alignment import truth_in_estimator_frame
-from .association import DEFAULT_TOLERANCE, associate, match_index
+from rodo.estimator.lie import se3
+
+from .association import DEFAULT_TOLERANCE, match_index
 from .consistency import nees
 from .covariance import position_covariance_world
-from .odometry_consistency import MEASURES, odometry_nees
+from .odometry_consistency import MEASURES, matched_poses, odometry_nees
 
 DEFAULT_TAU = 0.25  # s, the estimator's default velocity_correlation_time (older runs did not record theirs)
 
@@ -98,11 +99,8 @@ def truth_coverage(states: dict, truth: dict, n_sigma: float = 3.0, tolerance: f
 
     Checked by: tests/validation/test_campaign_consistency.py::test_campaign_trials_report_the_ellipsoid_coverage
     """
-    ia, ib = associate(states["t"], truth["t"], tolerance)
+    ia, _, T_est, T_true = matched_poses(states, truth, tolerance)
     if "P_pose_absolute" not in states or not len(ia):
         return {"fraction": float("nan"), "claimed": float(chi2.cdf(n_sigma**2, 3))}
-    T_est = np.asarray(states["T_vehicle_world"], dtype=float)[ia]
-    T_true = truth_in_estimator_frame(np.asarray(truth["T_vehicle_world"], dtype=float)[ib]) @ T_est[0]
-    position = lambda T: -np.einsum("nji,nj->ni", T[:, :3, :3], T[:, :3, 3])  # noqa: E731 (world position)
-    return ellipsoid_coverage(position(T_est), position(T_true), T_est,
+    return ellipsoid_coverage(se3.inverse(T_est)[:, :3, 3], se3.inverse(T_true)[:, :3, 3], T_est,
                               np.nan_to_num(np.asarray(states["P_pose_absolute"], dtype=float)[ia]), n_sigma)
