@@ -27,6 +27,7 @@ A map of the package (each module's public names are re-exported here):
     heading_reversion.py  the yaw error's reversion to an anchor in that drift (optional)
     attitude_jitter.py  a smooth roll and pitch error beside that drift (optional)
     velocity_inflation.py  the reported velocity variance's factor (speed, Doppler innovation, body rates)
+    pull.py             the scan's pull on its solved pose, and the one-scan relative pose's factor
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
     sensor.py           Sensor: one radar of the odometry (extrinsics, noise, association, Doppler front end)
     scan.py             ScanEstimate, ScanDetail: what a scan returns
@@ -75,6 +76,7 @@ _EXPORTS = {
     "attitude_jitter": ("absolute_excess", "span_excess", "span_variance"),
     "uncertainty": ("DriftCovariance", "predicted_relative_covariance", "relative_pose_covariance",
                     "revision_covariance", "scan_relative_covariances", "span_covariance"),
+    "pull": ("pose_pull", "pull_term", "relative_factor"),
     "velocity_inflation": ("doppler_term", "velocity_factor", "velocity_inflated", "velocity_inflation_array",
                            "velocity_inflation_terms"),
     "window": ("SlidingWindow",),

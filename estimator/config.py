@@ -191,6 +191,9 @@ class UncertaintyConfig:
         pitches (docs/consistency.md, "The one-scan relative pose with the rates"). Reported covariances only.
     inflation_per_doppler: + this x ln(1 + the scan's Doppler innovation NIS per dof) on that factor, as the
         velocity's (docs/consistency.md, "The one-scan relative pose with the rates"). Reported covariances only.
+    inflation_per_pull: + this x the scan's pull on its solved pose per dof (`estimator.pull`) on that factor:
+        where the scan and its map disagree as a rigid body the registration's error is larger than its
+        covariance says (docs/consistency.md, "The scan's pull"). Reported covariances only.
     measurement_inflation: factor (>= 1) on every associated pair's covariance in the solve (not the gates): a
         scan's pairs share map errors and carry less information than counted as independent; 1: the paper's.
     drift_rate_sigma: sigma of the registration's systematic error per metre driven, unknown but constant
@@ -229,6 +232,7 @@ class UncertaintyConfig:
     inflation: float = 1.0
     inflation_per_rate: tuple[float, ...] = (0.0, 0.0, 0.0)  # s/rad
     inflation_per_doppler: float = 0.0
+    inflation_per_pull: float = 0.0
     measurement_inflation: float = 1.0
     drift_rate_sigma: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     prior_memory: float = 0.0  # s

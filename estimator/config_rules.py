@@ -117,6 +117,7 @@ RULES: dict[str, Rule] = {
     "uncertainty.velocity_inflation_per_rate": Rule(0.0, size=3),
     "uncertainty.inflation_per_rate": Rule(0.0, size=3),
     "uncertainty.inflation_per_doppler": NONNEGATIVE,
+    "uncertainty.inflation_per_pull": NONNEGATIVE,
     "uncertainty.velocity_axis_inflation": Rule(0.0, lo_closed=False, size=6),
     "uncertainty.heading_reversion_time": NONNEGATIVE,
     "uncertainty.heading_anchor_time": POSITIVE,

@@ -36,6 +36,7 @@ from .lie import se3
 from .local_map import LocalMap
 from .measurement_models import measurement_model
 from .motion import motion_prior_for
+from .pull import MIN_PAIRS, pose_pull
 from .radar_geometry import check_fov
 from .scan import ScanDetail, ScanEstimate
 from .scan_association import MapAssociation, ScanMeasurements
@@ -162,6 +163,7 @@ class RadarOdometry:
         tic = time.perf_counter()
         reuse = float(np.mean(self.map.hits[pairs.map_idx])) if len(pairs.map_idx) else float("nan")
         W_pairs, pairs, P_relative = self._solve(scan, W_pairs, pairs, timings)
+        pull = self._pull(scan, pairs)
         timings["solve"] = time.perf_counter() - tic - timings.pop("reassociate", 0.0)
         detail = ScanDetail(polar, static, np.flatnonzero(used)[pairs.det_idx], pairs.map_idx.copy(),
                             self.map.points.copy(), np.flatnonzero(in_range)) if self.record_detail else None
@@ -169,7 +171,7 @@ class RadarOdometry:
         self._update_map(scan, pairs)
         timings["map"] = time.perf_counter() - tic
         est = self._estimate(t, polar, static, pairs, timings, events, detail, still is not None)
-        return self.report.annotate(est, P_relative, reuse, self.doppler_nis)
+        return self.report.annotate(est, P_relative, reuse, self.doppler_nis, pull)
 
     # --- stages -----------------------------------------------------------------------------------------
     def _accept(self, t, polar) -> tuple[float, np.ndarray, np.ndarray]:
@@ -284,6 +286,20 @@ class RadarOdometry:
         prev, new = self.window.states[-2].T_vehicle_world, self.window.states[-1].T_vehicle_world
         solved = getattr(self.report.last, "t", None) == self.window.states[-2].t  # emitted as solved
         return scan_relative_covariances(P_pair, P_emitted, prev, new, self.motion.dim, solved)
+
+    def _pull(self, scan: ScanMeasurements, pairs) -> float:
+        """The scan's pull on its solved pose (`pose_pull`), before the map moves its points."""
+        det, idx = pairs.det_idx, pairs.map_idx
+        if len(idx) < MIN_PAIRS:
+            return float("nan")
+        T = se3.inverse(self.window.newest.T_vehicle_world) @ self.T_vehicle_sensor
+        variance = 0.0 if self.surface_model else self.map_sigma**2
+        isotropic = self.measurement.isotropic_position_variance(self.config.noise.cartesian_sigma)
+        if isotropic is None:
+            C = self._point_covariances(scan.polar[det], T[:3, :3]) + self.map.covariances[idx]
+        else:  # the same as adding it (a Cartesian sigma), without rotating n matrices
+            C, variance = self.map.covariances[idx], variance + isotropic
+        return pose_pull(T, scan.points[det], self.map.points[idx], C, variance)
 
     def _update_map(self, scan: ScanMeasurements, pairs) -> None:
         """Refresh (or fuse) the associated map points, add the unassociated static detections, prune. The map

@@ -86,6 +86,8 @@ class ScanEstimate:
         map_reuse: mean number of scans the associated map points have been associated in (NaN: none).
         doppler_nis: the scan's Doppler velocity against the prediction, NIS per dof (`DopplerFrontEnd.correct`;
             NaN without a prediction or a Doppler fit).
+        pose_pull: the scan's pull on its solved pose, per dof (`rodo.estimator.pull`; NaN with fewer than
+            six pairs): how far its pairs alone would move the pose, in their own information.
         restarted: the odometry re-initialised at this scan (after an outage, or on the consensus switch):
             P_relative is the dead-reckoned step from the last estimate (`uncertainty.restart_matrices`).
     """
@@ -108,6 +110,7 @@ class ScanEstimate:
     P_pose_absolute: np.ndarray | None = None
     map_reuse: float = float("nan")
     doppler_nis: float = float("nan")
+    pose_pull: float = float("nan")
     restarted: bool = False
 
     @property

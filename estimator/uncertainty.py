@@ -60,8 +60,9 @@ from .attitude_jitter import AbsoluteJitter, attitude_jitter_of, with_roll_pitch
 from .heading_reversion import (ANCHOR, YAW, anchored_at_yaw, heading_of, heading_reversion_array,
                                heading_reversion_matrix, reversion_coefficients, state_size)
 from .lie import se3
+from .pull import relative_factor
 from .uncertainty_kernels import drift_step, relative_covariances
-from .velocity_inflation import velocity_factor, velocity_inflated
+from .velocity_inflation import velocity_inflated
 
 NO_REVERSION = np.zeros(4)  # drift_step's coefficients without the heading's reversion (unused there)
 
@@ -248,7 +249,8 @@ class DriftCovariance:
 class ReportedCovariances:
     """What the odometry reports beside the window's covariance, scan by scan: each scan's relative pose
     covariance and its revision (times `[uncertainty] inflation` + `inflation_per_rate` . |omega| +
-    `inflation_per_doppler` ln(1 + the Doppler NIS), omega the scan's estimated body rates), the absolute pose
+    `inflation_per_doppler` ln(1 + the Doppler NIS) + `inflation_per_pull` pull, omega the scan's estimated body
+    rates, pull its pull on the solved pose, `pose_pull`), the absolute pose
     covariance through the drift recursion (`DriftCovariance`: from the run's first scan, across
     re-initialisations with their dead-reckoned step, unscaled) with the roll and pitch jitter's excess since that
     scan (`attitude_jitter`), the velocity's variance scaled (`velocity_inflated`).
@@ -267,17 +269,18 @@ class ReportedCovariances:
     def __init__(self, config):
         self.config = config
         self.axes = np.asarray(config.velocity_axis_inflation, dtype=float)  # converted once, not per scan
-        self.relative_terms = any(config.inflation_per_rate) or config.inflation_per_doppler != 0.0
+        self.relative_terms = (any(config.inflation_per_rate) or config.inflation_per_doppler != 0.0
+                               or config.inflation_per_pull != 0.0)
         self.jitter = AbsoluteJitter(attitude_jitter_of(config))
         self.drift: DriftCovariance | None = None
         self.last = None
         self.restart_relative: np.ndarray | None = None
 
-    def annotate(self, est, P_relative, reuse: float, doppler_nis: float):
-        """The estimate (`ScanEstimate`) with P_relative, P_revision, P_pose_absolute, map_reuse, doppler_nis and
-        restarted set and its velocity variance scaled. P_relative: (relative, revision) of the window's two newest
-        states (`scan_relative_covariances`), or the re-initialisation's (restart_relative, zeros), or None at the
-        first scan."""
+    def annotate(self, est, P_relative, reuse: float, doppler_nis: float, pull: float = float("nan")):
+        """The estimate (`ScanEstimate`) with P_relative, P_revision, P_pose_absolute, map_reuse, doppler_nis,
+        pose_pull and restarted set and its velocity variance scaled. P_relative: (relative, revision) of the
+        window's two newest states (`scan_relative_covariances`), or the re-initialisation's (restart_relative,
+        zeros), or None at the first scan."""
         cfg, last = self.config, self.last  # the drift composes smoothed, unrevised pairs
         if P_relative is None or self.drift is None:
             self.drift = DriftCovariance.at_first_scan(est.P[:6, :6], cfg.velocity_correlation_time,
@@ -289,15 +292,15 @@ class ReportedCovariances:
             est.restarted = True
             P_absolute = self.drift.restart(last.T_vehicle_world, est.T_vehicle_world, P_relative)
         else:
-            f = (velocity_factor(est.varpi, cfg.inflation, 0.0, cfg.inflation_per_doppler, doppler_nis,
-                                 cfg.inflation_per_rate) if self.relative_terms else cfg.inflation)
+            f = (relative_factor(est.varpi, cfg.inflation, cfg.inflation_per_rate, cfg.inflation_per_doppler,
+                                 doppler_nis, cfg.inflation_per_pull, pull) if self.relative_terms else cfg.inflation)
             P_relative, P_revision = (f * P for P in P_relative)
             P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, est.t - last.t, P_relative,
                                            est.P[6:12, 6:12])
         P_absolute = with_roll_pitch_variance(P_absolute, self.jitter.at(est.t))
         self.last, self.restart_relative = est, None
         est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
-        est.doppler_nis = doppler_nis
+        est.doppler_nis, est.pose_pull = doppler_nis, pull
         est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed,
                                   cfg.velocity_inflation_per_doppler, est.doppler_nis, self.axes,
                                   cfg.velocity_inflation_per_rate)

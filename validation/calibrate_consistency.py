@@ -112,11 +112,12 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
           jitter=None) -> OdometryConfig:
     """The config with these uncertainty values; the velocity factors (a, b, d, per-axis g, per-rate r) default to
     none: the fit's runs report the window's own velocity covariance; the relative pose factor (`relative`, (f,
-    per-rate r, per-Doppler d)), the
-    heading's reversion ([T_r, T_a]) and the roll and pitch jitter ([V, T]) to the config's."""
+    per-rate r, per-Doppler d, per-pull p)), the heading's reversion ([T_r, T_a]) and the roll and pitch jitter
+    ([V, T]) to the config's."""
     drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
     u = config.uncertainty
-    relative = (u.inflation, u.inflation_per_rate, u.inflation_per_doppler) if relative is None else relative
+    relative = (u.inflation, u.inflation_per_rate, u.inflation_per_doppler, u.inflation_per_pull) \
+        if relative is None else relative
     unc = dataclasses.replace(config.uncertainty, measurement_inflation=float(kappa),
                               velocity_correlation_time=float(tau), drift_rate_sigma=tuple(float(x) for x in drift),
                               velocity_inflation=float(velocity[0]), velocity_inflation_per_speed=float(velocity[1]),
@@ -124,7 +125,7 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
                               velocity_axis_inflation=tuple(float(x) for x in velocity[3]),
                               velocity_inflation_per_rate=tuple(float(x) for x in velocity[4]),
                               inflation=float(relative[0]), inflation_per_rate=tuple(float(x) for x in relative[1]),
-                              inflation_per_doppler=float(relative[2]))
+                              inflation_per_doppler=float(relative[2]), inflation_per_pull=float(relative[3]))
     if heading is not None:
         unc = dataclasses.replace(unc, heading_reversion_time=float(heading[0]),
                                   heading_anchor_time=float(heading[1]) if heading[0] > 0 else unc.heading_anchor_time)
@@ -273,9 +274,9 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     kappa, states, steps = _fixed_point(seq, truth, config, iterations, tolerance, span, progress)
     drift = fit_drift_rate(states, truth)
     u = config.uncertainty
-    ran = (u.inflation, u.inflation_per_rate, u.inflation_per_doppler)
-    relative = fit_relative_inflation(states, truth, ran[0], tolerance, drift["sigma"], ran[1], True, ran[2])
-    new = (relative["inflation"], relative["per_rate"], relative["per_doppler"])
+    ran = (u.inflation, u.inflation_per_rate, u.inflation_per_doppler, u.inflation_per_pull)
+    relative = fit_relative_inflation(states, truth, ran[0], tolerance, drift["sigma"], ran[1], True, ran[2], ran[3])
+    new = (relative["inflation"], relative["per_rate"], relative["per_doppler"], relative["per_pull"])
     states = _each(relative_factor_states, states, ran, new)
     velocity = fit_velocity_inflation(states, truth, per_axis=velocity_axes)
     factors = (velocity["inflation"], velocity["per_speed"], velocity["per_doppler"], tuple(velocity["per_axis"]),

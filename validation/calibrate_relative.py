@@ -1,14 +1,15 @@
 """The one-scan relative pose covariance's factor learned from a drive with ground truth (`rodo calibrate`, its
-uncertainty section): c = f + r . |omega| + d ln(1 + nis) (`[uncertainty] inflation` f, `inflation_per_rate` r,
-s/rad on the scan's absolute estimated body rates, and `inflation_per_doppler` d on its Doppler innovation NIS per
-dof, as the velocity's factor) on the window's relative pose covariance and its revision term
+uncertainty section): c = f + r . |omega| + d ln(1 + nis) + p pull (`[uncertainty] inflation` f,
+`inflation_per_rate` r, s/rad on the scan's absolute estimated body rates, `inflation_per_doppler` d on its Doppler
+innovation NIS per dof, as the velocity's factor, and `inflation_per_pull` p on its pull on the solved pose,
+`estimator.pull`) on the window's relative pose covariance and its revision term
 (`estimator.uncertainty.ReportedCovariances`). The one-scan relative pose's composed covariance is then
 c A + V, A the part the factor scales, V the velocity error's and the drift rate's shares, which it does not.
 
 - Without the rates, f makes the median ratio of the one-scan relative pose 1 (robust to the few scans where an
   association fails outright); fitted only where that ratio is off by more than the tolerance.
-- With them, the shape (f : r : d) is the maximum likelihood of the one-scan errors, then f and r are scaled
-  together so that the median ratio is 1: the mean fit alone follows the heavy tails, and its level did not
+- With them, the shape (f : r : d : p) is the maximum likelihood of the one-scan errors, then all of them are
+  scaled together so that the median ratio is 1: the mean fit alone follows the heavy tails, and its level did not
   carry over to the campaigns' drives (docs/consistency.md, "The one-scan relative pose with the rates").
 
 Every fit works on the decomposition (e, A, V) of the run it is given, so no run is needed; restarted scans (a
@@ -25,7 +26,8 @@ import numpy as np
 from scipy.optimize import brentq, minimize
 from scipy.stats import chi2
 
-from rodo.estimator.velocity_inflation import doppler_term, velocity_factor
+from rodo.estimator.pull import pull_term, relative_factor
+from rodo.estimator.velocity_inflation import doppler_term
 
 from .odometry_consistency import DOF, span_terms
 from .replayed_states import relative_inflated_states
@@ -41,17 +43,20 @@ def median_ratio(values) -> float:
     return float(np.median(v) / MEDIAN_CHI2) if v.size else float("nan")
 
 
-def relative_factor(varpi, inflation: float, per_rate=None, per_doppler: float = 0.0, doppler_nis=None):
-    """The factor f + r . |omega| + d ln(1 + nis) of each scan's relative pose covariance
-    (`estimator.velocity_factor`'s form)."""
-    return velocity_factor(varpi, inflation, 0.0, per_doppler, doppler_nis, per_rate)
+def _run_factor(states: dict, factor) -> np.ndarray:
+    """Each scan's factor (f, r, d[, p]) (`relative_factor`) in a run's states."""
+    p = float(factor[3]) if len(factor) > 3 else 0.0
+    return relative_factor(np.asarray(states["varpi"], dtype=float), factor[0], factor[1], factor[2],
+                           states.get("doppler_nis"), p, states.get("pose_pull"))
 
 
-def relative_terms(states, truth, inflation: float, per_rate=None, drift_rate_sigma=None, per_doppler: float = 0.0):
-    """(e (K, 6), A (K, 6, 6), V (K, 6, 6), W (K, 4)) of the one-scan relative poses of a run (or runs, pooled)
-    that had the factor f = `inflation`, r = `per_rate`, d = `per_doppler`: errors, the factor's part per unit
-    factor, the unscaled rest and the factor's regressors, the scan's absolute estimated body rates and ln(1 +
-    its Doppler NIS) (0 without one); only scans with finite values, not restarted."""
+def relative_terms(states, truth, inflation: float, per_rate=None, drift_rate_sigma=None, per_doppler: float = 0.0,
+                   per_pull: float = 0.0):
+    """(e (K, 6), A (K, 6, 6), V (K, 6, 6), W (K, 5)) of the one-scan relative poses of a run (or runs, pooled)
+    that had the factor f = `inflation`, r = `per_rate`, d = `per_doppler`, p = `per_pull`: errors, the factor's
+    part per unit factor, the unscaled rest and the factor's regressors, the scan's absolute estimated body rates,
+    ln(1 + its Doppler NIS) (0 without one) and its pull (0 without one: states written before it); only scans
+    with finite values, not restarted."""
     out = [[], [], [], []]
     for st, tr in runs_of(states, truth):
         tau = float(st.get("velocity_correlation_time", DEFAULT_TAU))
@@ -67,14 +72,16 @@ def relative_terms(states, truth, inflation: float, per_rate=None, drift_rate_si
             scaled = scaled + np.asarray(st["P_revision"], dtype=float)[idx]
         varpi = np.asarray(st["varpi"], dtype=float)[idx]
         nis = np.asarray(st["doppler_nis"], dtype=float)[idx] if "doppler_nis" in st else np.full(len(idx), np.nan)
-        c = np.broadcast_to(relative_factor(varpi, inflation, per_rate, per_doppler, nis), (len(idx),))
+        pull = np.asarray(st["pose_pull"], dtype=float)[idx] if "pose_pull" in st else np.full(len(idx), np.nan)
+        c = relative_factor(varpi, inflation, per_rate, per_doppler, nis, per_pull, pull)
+        c = np.broadcast_to(c, (len(idx),))
         keep = ~np.asarray(st.get("restarted", np.zeros(len(st["t"]), bool)), dtype=bool)[idx]
         keep &= np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(C) & np.isfinite(scaled), axis=(1, 2)) & (c > 0)
-        W = np.column_stack([np.abs(varpi[:, 3:6]), doppler_term(nis)])
+        W = np.column_stack([np.abs(varpi[:, 3:6]), doppler_term(nis), pull_term(pull)])
         for acc, v in zip(out, (e, scaled / c[:, None, None], C - scaled, W)):
             acc.append(v[keep])
     if not out[0]:
-        return np.zeros((0, 6)), np.zeros((0, 6, 6)), np.zeros((0, 6, 6)), np.zeros((0, 4))
+        return np.zeros((0, 6)), np.zeros((0, 6, 6)), np.zeros((0, 6, 6)), np.zeros((0, 5))
     return tuple(np.concatenate(v) for v in out)
 
 
@@ -85,7 +92,7 @@ def _nees(c, e, A, V) -> np.ndarray:
 
 
 def _max_likelihood(e, A, V, W, f0: float) -> np.ndarray:
-    """(f, then one coefficient per column of W: r_x, r_y, r_z and d) maximising the Gaussian likelihood of the
+    """(f, then one coefficient per column of W: r_x, r_y, r_z, d and p) maximising the Gaussian likelihood of the
     errors e_k ~ N(0, c_k A_k + V_k), c_k = f + r . W_k, f > 0, r >= 0 (L-BFGS-B with the analytic gradient, each
     term scaled to its mean regressor)."""
     X = np.column_stack([np.ones(len(e)), W])
@@ -131,38 +138,41 @@ def _median_scale(c, e, A, V) -> float | None:
 
 
 def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: float, ratio_tolerance: float,
-                           drift_rate_sigma=None, per_rate=None, rates: bool = False, per_doppler: float = 0.0) -> dict:
+                           drift_rate_sigma=None, per_rate=None, rates: bool = False, per_doppler: float = 0.0,
+                           per_pull: float = 0.0) -> dict:
     """The one-scan relative pose covariance's factor for a run (or runs, pooled) that had f = `inflation`, r =
-    `per_rate` (None: 0) and d = `per_doppler`: with `rates`, the shape (f : r : d) by maximum likelihood and the
-    level by the median ratio (module docstring); without, f (with the run's r and d) scaled to the median ratio
-    1, or kept when that ratio is within ratio_tolerance of 1 already (|ln r| < ln(1 + ratio_tolerance), as the
-    kappa fixed point stops), as it is when the fitted r and d all come out 0. Kept too when no factor within
-    2^30 reaches a ratio of 1. The one-scan measure is the same at every tau > 0 (at tau 0 it loses the velocity
-    term, so a tau of 0 chosen after f leaves it over-confident: hills CA/P with prior_memory 0.5 s, 1.28 where f
-    made it 1).
+    `per_rate` (None: 0), d = `per_doppler` and p = `per_pull`: with `rates`, the shape (f : r : d : p) by maximum
+    likelihood and the level by the median ratio (module docstring); without, f (with the run's r, d and p) scaled
+    to the median ratio 1, or kept when that ratio is within ratio_tolerance of 1 already (|ln r| < ln(1 +
+    ratio_tolerance), as the kappa fixed point stops), as it is when the fitted r, d and p all come out 0. Kept
+    too when no factor within 2^30 reaches a ratio of 1. The one-scan measure is the same at every tau > 0 (at
+    tau 0 it loses the velocity term, so a tau of 0 chosen after f leaves it over-confident: hills CA/P with
+    prior_memory 0.5 s, 1.28 where f made it 1).
 
-    Returns {"inflation": f, "per_rate": [r_x, r_y, r_z], "per_doppler": d, "median_ratio": [before, after],
-    "outcome": "fitted", "within tolerance" or "out of reach"}.
+    Returns {"inflation": f, "per_rate": [r_x, r_y, r_z], "per_doppler": d, "per_pull": p, "median_ratio":
+    [before, after], "outcome": "fitted", "within tolerance" or "out of reach"}.
     """
-    e, A, V, W = relative_terms(states, truth, inflation, per_rate, drift_rate_sigma, per_doppler)
-    return fit_factor(e, A, V, W, inflation, per_rate, ratio_tolerance, rates, per_doppler)
+    e, A, V, W = relative_terms(states, truth, inflation, per_rate, drift_rate_sigma, per_doppler, per_pull)
+    return fit_factor(e, A, V, W, inflation, per_rate, ratio_tolerance, rates, per_doppler, per_pull)
 
 
 def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: float = 0.0, rates: bool = False,
-               per_doppler: float = 0.0) -> dict:
-    """`fit_relative_inflation` on the one-scan terms (`relative_terms`: W (K, 4), or (K, 3) without the Doppler
-    term) of runs that had f = `inflation`, r = `per_rate` and d = `per_doppler`.
+               per_doppler: float = 0.0, per_pull: float = 0.0) -> dict:
+    """`fit_relative_inflation` on the one-scan terms (`relative_terms`: W (K, 5); (K, 4) without the pull, (K, 3)
+    without the Doppler term either) of runs that had f = `inflation`, r = `per_rate`, d = `per_doppler` and p =
+    `per_pull`.
 
     Checked by: tests/validation/test_calibrate_relative.py::test_the_fit_recovers_a_known_rate_factor
     """
-    r0 = np.r_[np.zeros(3) if per_rate is None else np.asarray(per_rate, dtype=float), per_doppler][:W.shape[1]]
+    rates0 = np.zeros(3) if per_rate is None else np.asarray(per_rate, dtype=float)
+    r0 = np.r_[rates0, per_doppler, per_pull][:W.shape[1]]
     c0 = inflation + W @ r0
     before = median_ratio(_nees(c0, e, A, V)) if len(e) else float("nan")
 
     def result(f, r, outcome, after):
-        r = np.r_[r, 0.0] if len(r) == 3 else r
+        r = np.r_[r, np.zeros(5 - len(r))]
         return {"inflation": float(f), "per_rate": [float(x) for x in r[:3]], "per_doppler": float(r[3]),
-                "median_ratio": [before, after], "outcome": outcome}
+                "per_pull": float(r[4]), "median_ratio": [before, after], "outcome": outcome}
 
     if not np.isfinite(before):
         return result(inflation, r0, "out of reach", before)
@@ -177,9 +187,6 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
 
 
 def relative_factor_states(states: dict, old, new) -> dict:
-    """The states a run that had the factor old = (f, r, d) would have written at new = (f, r, d)
+    """The states a run that had the factor old = (f, r, d[, p]) would have written at new = (f, r, d[, p])
     (`replayed_states.relative_inflated_states` with each scan's ratio of the two factors)."""
-    varpi = np.asarray(states["varpi"], dtype=float)
-    nis = states.get("doppler_nis")
-    return relative_inflated_states(states, relative_factor(varpi, new[0], new[1], new[2], nis)
-                                    / relative_factor(varpi, old[0], old[1], old[2], nis))
+    return relative_inflated_states(states, _run_factor(states, new) / _run_factor(states, old))

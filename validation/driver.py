@@ -64,7 +64,7 @@ class ScanColumns:
                "n_associated": est.n_associated, "nis": float(est.nis),
                "P_relative": _or_filled(est.P_relative, np.nan), "P_revision": _or_filled(est.P_revision, 0.0),
                "P_pose_absolute": _or_filled(est.P_pose_absolute, np.nan), "map_reuse": est.map_reuse,
-               "doppler_nis": est.doppler_nis, "restarted": est.restarted,
+               "doppler_nis": est.doppler_nis, "pose_pull": est.pose_pull, "restarted": est.restarted,
                **{f"s_{key}": est.timings.get(key, 0.0) for key in STAGES}}
         if self.n == self._capacity:
             self._capacity *= 2
@@ -132,6 +132,7 @@ class RunResult:
             P_pose_absolute=c["P_pose_absolute"],
             map_reuse=c["map_reuse"],
             doppler_nis=c["doppler_nis"],
+            pose_pull=c["pose_pull"],
             restarted=c["restarted"].astype(bool),
             velocity_correlation_time=np.float64(u.velocity_correlation_time),
             drift_rate_sigma=np.asarray(u.drift_rate_sigma, dtype=float),

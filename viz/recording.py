@@ -177,6 +177,10 @@ def _log_series(rec, rr, result, truth: _Truth, frames, times) -> set[str]:
     # model is wrong (a start, a turn's onset), which `velocity_inflation_per_doppler` turns into velocity variance
     send("metrics/nis", "metrics/nis/doppler", np.array([e.doppler_nis for e in est], dtype=float),
          ["Doppler velocity against the prediction, NIS per dof"], [(220, 120, 0)])
+    # the scan's pull on its solved pose (`pose_pull`): high where scan and map disagree as a rigid body, which
+    # `inflation_per_pull` turns into relative pose variance
+    send("metrics/nis", "metrics/nis/pull", np.array([e.pose_pull for e in est], dtype=float),
+         ["the scan's pull on its solved pose, per dof"], [(150, 60, 200)])
     counts = np.array([[e.n_detections, e.n_static, e.n_associated] for e in est], dtype=float)
     send("metrics/counts", "metrics/counts", counts, ["detections", "static (Doppler)", "associated"])
     stages = ("predict", "associate", "solve", "map")

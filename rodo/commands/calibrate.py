@@ -200,8 +200,9 @@ def _consistency_markdown(c: dict) -> list[str]:
     d, v, rel = c["drift_rate"], c["velocity_inflation"], c["relative_inflation"]
     vec = ", ".join(f"{x:.3g}" for x in d["sigma"])
     before, after = rel["median_ratio"]
-    lines += ["", f"relative pose covariance factor (uncertainty.inflation, inflation_per_doppler, inflation_per_rate) "
-              f"{_relative_words(rel)} (median ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; "
+    lines += ["", "relative pose covariance factor (uncertainty.inflation, inflation_per_doppler, "
+              f"inflation_per_pull, inflation_per_rate) {_relative_words(rel)} (median ratio of the one-scan "
+              f"relative pose {before:.3g} -> {after:.3g}; "
               f"{rel['outcome']})",
               f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
               f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS){_rate_words(v)}, per axis vx, vy, vz, wx, wy, wz x "
@@ -243,10 +244,11 @@ def _rate_words(v: dict) -> str:
 
 
 def _relative_words(rel: dict) -> str:
-    """'f + d x ln(1 + Doppler NIS) + [r_x, r_y, r_z] s/rad x |body rates|' of the relative pose factor (the terms
-    that are not 0)."""
-    d = rel.get("per_doppler", 0.0)
-    return f"{rel['inflation']:.3g}" + (f" + {d:.3g} x ln(1 + Doppler NIS)" if d else "") + _rate_words(rel)
+    """'f + d x ln(1 + Doppler NIS) + p x pull + [r_x, r_y, r_z] s/rad x |body rates|' of the relative pose factor
+    (the terms that are not 0)."""
+    d, p = rel.get("per_doppler", 0.0), rel.get("per_pull", 0.0)
+    return (f"{rel['inflation']:.3g}" + (f" + {d:.3g} x ln(1 + Doppler NIS)" if d else "")
+            + (f" + {p:.3g} x pull" if p else "") + _rate_words(rel))
 
 
 def _jitter_words(c: dict) -> str:

@@ -301,7 +301,7 @@ def test_relative_factor_out_of_reach_is_left_as_it_was(city_run):
     states, truth = city_run
     fit = cc.fit_relative_inflation(states, truth, 0.7, 0.1, np.full(6, 1.0))
     assert fit["median_ratio"][0] < 0.5
-    assert fit == {"inflation": 0.7, "per_rate": [0.0] * 3, "per_doppler": 0.0,
+    assert fit == {"inflation": 0.7, "per_rate": [0.0] * 3, "per_doppler": 0.0, "per_pull": 0.0,
                    "median_ratio": [fit["median_ratio"][0]] * 2,
                    "outcome": "out of reach"}
 

@@ -1,4 +1,4 @@
-"""The one-scan relative pose covariance's factor f + r . |omega| + d ln(1 + nis)
+"""The one-scan relative pose covariance's factor f + r . |omega| + d ln(1 + nis) + p pull
 (rodo.validation.calibrate_relative, `rodo calibrate`'s uncertainty section): the fit recovers a factor the errors
 were drawn with, a run at one factor is the replay of a run at another, and the one-scan terms the fit works on
 give the measure's own NEES."""
@@ -28,25 +28,27 @@ def _spd(rng, n, scale):
 
 @settings(max_examples=6, deadline=None)
 @given(f=st.floats(0.1, 2.0), r=st.tuples(*[st.floats(0.0, 60.0)] * 3), d=st.floats(0.0, 1.0),
-       seed=st.integers(0, 2**32 - 1))
-def test_the_fit_recovers_a_known_rate_factor(f, r, d, seed):
-    """Errors drawn from N(0, c_k A_k + V_k), c_k = f + r . W_k + d D_k (W the absolute rates, up to 0.03
-    rad/s; D = ln(1 + nis), up to 1; V a third of A's size): the maximum likelihood shape and the median level
-    recover f, r and d (each within 20 % of the factor's typical size, 3000 scans: the worst of 60 draws was 7 %),
-    and the median ratio after is 1."""
+       p=st.floats(0.0, 0.5), seed=st.integers(0, 2**32 - 1))
+def test_the_fit_recovers_a_known_rate_factor(f, r, d, p, seed):
+    """Errors drawn from N(0, c_k A_k + V_k), c_k = f + r . W_k + d D_k + p P_k (W the absolute rates, up to 0.03
+    rad/s; D = ln(1 + nis), up to 1; P the pull, chi-square with 6 dof per dof; V a third of A's size): the
+    maximum likelihood shape and the median level recover f, r, d and p (each within 20 % of the factor's typical
+    size, 3000 scans: the worst of 60 draws was 7 % before the pull), and the median ratio after is 1."""
     rng = _rng(seed)
     k = 3000
     A, V = _spd(rng, k, 1.0), _spd(rng, k, 0.3)
-    W = np.column_stack([rng.uniform(0.0, 0.03, size=(k, 3)), rng.uniform(0.0, 1.0, size=k)])
-    c = f + W @ np.r_[r, d]
+    W = np.column_stack([rng.uniform(0.0, 0.03, size=(k, 3)), rng.uniform(0.0, 1.0, size=k),
+                         rng.chisquare(6, size=k) / 6])
+    c = f + W @ np.r_[r, d, p]
     L = np.linalg.cholesky(c[:, None, None] * A + V)
     e = (L @ rng.normal(size=(k, 6, 1)))[..., 0]
     fit = cr.fit_factor(e, A, V, W, 1.0, rates=True)
-    typical = f + 0.015 * sum(r) + 0.5 * d
+    typical = f + 0.015 * sum(r) + 0.5 * d + p
     assert fit["outcome"] == "fitted"
     assert fit["inflation"] == pytest.approx(f, abs=0.2 * typical), fit
     np.testing.assert_allclose(fit["per_rate"], r, atol=0.2 * typical / 0.015)
     assert fit["per_doppler"] == pytest.approx(d, abs=0.2 * typical / 0.5)
+    assert fit["per_pull"] == pytest.approx(p, abs=0.2 * typical)
     assert fit["median_ratio"][1] == pytest.approx(1.0, abs=2e-3)
 
 
@@ -70,33 +72,39 @@ def test_without_rates_the_fit_is_a_median_level():
 
 @pytest.fixture(scope="module")
 def blockage_runs():
-    """blockage (a re-initialisation at its 5-7 s blackout), CV/C at f 1 and at f 0.4 with rate and Doppler terms."""
+    """blockage (a re-initialisation at its 5-7 s blackout), CV/C at f 1 and at f 0.4 with rate, Doppler and pull
+    terms."""
     from rodo.validation.driver import run_sequence
 
     seq, truth = scenarios.get("blockage").simulate(0, 8.0)
     runs = {}
-    for key, (f, r, d) in {"plain": (1.0, (0.0, 0.0, 0.0), 0.0), "rates": (0.4, (80.0, 120.0, 5.0), 0.3)}.items():
+    factors = {"plain": (1.0, (0.0,) * 3, 0.0, 0.0), "rates": (0.4, (80.0, 120.0, 5.0), 0.3, 0.2)}
+    for key, (f, r, d, p) in factors.items():
         config = OdometryConfig.for_model("cv-cartesian")
         config = config.replace(uncertainty=dataclasses.replace(
             config.uncertainty, velocity_correlation_time=0.4, inflation=f, inflation_per_rate=r,
-            inflation_per_doppler=d,
+            inflation_per_doppler=d, inflation_per_pull=p,
             drift_rate_sigma=(1e-4, 1e-4, 5e-4, 3e-5, 3e-5, 1e-5)))
         runs[key] = run_sequence(seq, config).state_arrays()
     return runs, truth
 
 
 def test_a_run_at_a_rate_factor_is_the_replay_of_a_run_without(blockage_runs):
-    """The rate and Doppler terms change the report, not the estimate; the run at (0.4, r, d) writes what
-    `relative_factor_states` makes of the run at (1, 0, 0): every relative covariance scaled by its scan's factor
+    """The rate, Doppler and pull terms change the report, not the estimate; the run at (0.4, r, d, p) writes what
+    `relative_factor_states` makes of the run at (1, 0, 0, 0): every relative covariance scaled by its scan's factor
     but the re-initialisation's dead-reckoned one, and the same absolute covariances replayed."""
     runs, _ = blockage_runs
     plain, rated = runs["plain"], runs["rates"]
     np.testing.assert_array_equal(plain["T_vehicle_world"], rated["T_vehicle_world"])
     np.testing.assert_array_equal(plain["varpi"], rated["varpi"])
-    factor = cr.relative_factor(plain["varpi"], 0.4, (80.0, 120.0, 5.0), 0.3, plain["doppler_nis"])
+    np.testing.assert_array_equal(plain["pose_pull"], rated["pose_pull"])
+    factor = cr.relative_factor(plain["varpi"], 0.4, (80.0, 120.0, 5.0), 0.3, plain["doppler_nis"], 0.2,
+                                plain["pose_pull"])
     assert np.ptp(factor[1:]) > 0.05 * np.median(factor)  # the rates and the Doppler term move it
     assert np.ptp(factor[1:] - cr.relative_factor(plain["varpi"], 0.4, (80.0, 120.0, 5.0))[1:]) > 0.01
-    emulated = cr.relative_factor_states(plain, (1.0, (0.0,) * 3, 0.0), (0.4, (80.0, 120.0, 5.0), 0.3))
+    without_pull = cr.relative_factor(plain["varpi"], 0.4, (80.0, 120.0, 5.0), 0.3, plain["doppler_nis"])
+    assert np.ptp(factor[1:] - without_pull[1:]) > 0.01  # and the pull
+    emulated = cr.relative_factor_states(plain, (1.0, (0.0,) * 3, 0.0, 0.0), (0.4, (80.0, 120.0, 5.0), 0.3, 0.2))
     for key in ("P_relative", "P_revision"):
         np.testing.assert_allclose(emulated[key][1:], rated[key][1:], rtol=1e-12, atol=1e-18)
     r = int(np.flatnonzero(plain["restarted"])[0])
@@ -110,16 +118,17 @@ def test_the_one_scan_terms_give_the_measures_nees(blockage_runs):
     pose NEES scan by scan (the restart left out); and the fitted factor, replayed, has the median ratio 1."""
     runs, truth = blockage_runs
     states = runs["rates"]
-    e, A, V, W = cr.relative_terms(states, truth, 0.4, (80.0, 120.0, 5.0), per_doppler=0.3)
-    c = 0.4 + W @ np.array([80.0, 120.0, 5.0, 0.3])
+    e, A, V, W = cr.relative_terms(states, truth, 0.4, (80.0, 120.0, 5.0), per_doppler=0.3, per_pull=0.2)
+    c = 0.4 + W @ np.array([80.0, 120.0, 5.0, 0.3, 0.2])
     own = np.einsum("ki,ki->k", e, np.linalg.solve(c[:, None, None] * A + V, e[..., None])[..., 0])
     m = odometry_nees(states, truth, tau=0.4)["relative_scan"]
     m = m[np.isfinite(m)]
     assert len(own) == len(m) - 1  # the restart's step
     assert np.sum(np.isin(np.round(own, 9), np.round(m, 9))) == len(own)
-    fit = cr.fit_relative_inflation(states, truth, 0.4, 0.1, per_rate=(80.0, 120.0, 5.0), rates=True, per_doppler=0.3)
-    replayed = cr.relative_factor_states(states, (0.4, (80.0, 120.0, 5.0), 0.3),
-                                         (fit["inflation"], fit["per_rate"], fit["per_doppler"]))
+    fit = cr.fit_relative_inflation(states, truth, 0.4, 0.1, per_rate=(80.0, 120.0, 5.0), rates=True, per_doppler=0.3,
+                                    per_pull=0.2)
+    replayed = cr.relative_factor_states(states, (0.4, (80.0, 120.0, 5.0), 0.3, 0.2),
+                                         (fit["inflation"], fit["per_rate"], fit["per_doppler"], fit["per_pull"]))
     after = odometry_nees(replayed, truth, tau=0.4)["relative_scan"]  # every scan has truth: row k is scan k
     after[np.asarray(states["restarted"], dtype=bool)] = np.nan  # not the fit's
     assert cr.median_ratio(after) == pytest.approx(1.0, abs=5e-3)

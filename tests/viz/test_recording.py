@@ -96,7 +96,8 @@ def test_recording_has_every_entity_and_a_blueprint(recorded):
                    "/world/estimate/covariance", "/world/truth/vehicle", "/metrics/error/translation",
                    "/metrics/drift", "/metrics/nees/pose", "/metrics/nees/velocity", "/metrics/nees/pose_window",
                    "/metrics/nees/relative_scan", "/metrics/ellipsoid/fraction", "/metrics/nis", "/metrics/nis/doppler",
-                   "/metrics/counts", "/metrics/timing", "/velocity/nu_x", "/acceleration/omega_dot_z", "/events"):
+                   "/metrics/nis/pull", "/metrics/counts", "/metrics/timing", "/velocity/nu_x",
+                   "/acceleration/omega_dot_z", "/events"):
         assert entity in paths, entity
     assert any(s.kind == "blueprint" for s in RrdReader(path).blueprints())
 
@@ -170,6 +171,10 @@ def test_recording_nees_and_nis_match_an_independent_computation(run, recorded):
     want = np.array([e.doppler_nis for e in result.estimates])
     assert np.isnan(want[0]) and len(doppler) == np.isfinite(want).sum() >= n - 1  # none at the first scan
     np.testing.assert_allclose(doppler, want[np.isfinite(want)])
+    pull = np.array(_column(chunks, "/metrics/nis/pull", "Scalars:scalars")).ravel()
+    want = np.array([e.pose_pull for e in result.estimates])
+    assert np.isfinite(want).sum() >= n - 1 and np.all(want[np.isfinite(want)] >= 0.0)
+    np.testing.assert_allclose(pull, want[np.isfinite(want)])
 
 
 def test_recording_has_every_consistency_measure(run, recorded):
