@@ -46,18 +46,23 @@ def pose_pull(T_world_sensor: np.ndarray, points_sensor: np.ndarray, map_points:
     return pull_quadratic(*arrays, float(variance)) / 6.0
 
 
+NEUTRAL_PULL = 1.0  # per dof: chi-square's mean, for a scan whose pull cannot be measured
+
+
 def pull_term(pull):
-    """The pull per dof (a float or an array) as a factor's regressor: 0 where it is NaN (too few pairs)."""
+    """The pull per dof (a float or an array) as a factor's regressor; NEUTRAL_PULL where it is NaN (too few
+    pairs to measure it): such a scan counts as a consistent one, never as one the pairs hold exactly, which with
+    f near 0 (docs/consistency.md, "The scan's pull") would leave its relative pose a vanishing covariance."""
     pull = np.asarray(pull, dtype=float)
-    return np.where(np.isfinite(pull), np.maximum(pull, 0.0), 0.0)
+    return np.where(np.isfinite(pull), np.maximum(pull, 0.0), NEUTRAL_PULL)
 
 
 def relative_factor(varpi, inflation: float, per_rate=None, per_doppler: float = 0.0, doppler_nis=None,
                     per_pull: float = 0.0, pull=None):
     """The one-scan relative pose covariance's factor f + r . |omega| + d ln(1 + nis) + p pull of one scan (a
     float) or of a stack (N, 6) of varpi ((N,)): `[uncertainty] inflation`, `inflation_per_rate`,
-    `inflation_per_doppler` and `inflation_per_pull` (pull None: no term). Bit for bit the factor without the
-    pull when per_pull is 0.
+    `inflation_per_doppler` and `inflation_per_pull` (pull None: no term; a NaN pull counts as NEUTRAL_PULL).
+    Bit for bit the factor without the pull when per_pull is 0.
 
     Checked by: tests/estimator/test_pull.py::test_the_relative_factor_adds_the_pull
     """

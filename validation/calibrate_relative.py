@@ -55,8 +55,8 @@ def relative_terms(states, truth, inflation: float, per_rate=None, drift_rate_si
     """(e (K, 6), A (K, 6, 6), V (K, 6, 6), W (K, 5)) of the one-scan relative poses of a run (or runs, pooled)
     that had the factor f = `inflation`, r = `per_rate`, d = `per_doppler`, p = `per_pull`: errors, the factor's
     part per unit factor, the unscaled rest and the factor's regressors, the scan's absolute estimated body rates,
-    ln(1 + its Doppler NIS) (0 without one) and its pull (0 without one: states written before it); only scans
-    with finite values, not restarted."""
+    ln(1 + its Doppler NIS) (0 without one) and its pull (`pull_term`; 0 in states written before it, so p is not
+    learned from them); only scans with finite values, not restarted."""
     out = [[], [], [], []]
     for st, tr in runs_of(states, truth):
         tau = float(st.get("velocity_correlation_time", DEFAULT_TAU))
@@ -72,12 +72,13 @@ def relative_terms(states, truth, inflation: float, per_rate=None, drift_rate_si
             scaled = scaled + np.asarray(st["P_revision"], dtype=float)[idx]
         varpi = np.asarray(st["varpi"], dtype=float)[idx]
         nis = np.asarray(st["doppler_nis"], dtype=float)[idx] if "doppler_nis" in st else np.full(len(idx), np.nan)
-        pull = np.asarray(st["pose_pull"], dtype=float)[idx] if "pose_pull" in st else np.full(len(idx), np.nan)
+        pull = np.asarray(st["pose_pull"], dtype=float)[idx] if "pose_pull" in st else None
         c = relative_factor(varpi, inflation, per_rate, per_doppler, nis, per_pull, pull)
         c = np.broadcast_to(c, (len(idx),))
         keep = ~np.asarray(st.get("restarted", np.zeros(len(st["t"]), bool)), dtype=bool)[idx]
         keep &= np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(C) & np.isfinite(scaled), axis=(1, 2)) & (c > 0)
-        W = np.column_stack([np.abs(varpi[:, 3:6]), doppler_term(nis), pull_term(pull)])
+        W = np.column_stack([np.abs(varpi[:, 3:6]), doppler_term(nis),
+                             np.zeros(len(idx)) if pull is None else pull_term(pull)])
         for acc, v in zip(out, (e, scaled / c[:, None, None], C - scaled, W)):
             acc.append(v[keep])
     if not out[0]:

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from scipy.stats import chi2, kstest
 
 from rodo.estimator.lie import se3
-from rodo.estimator.pull import MIN_PAIRS, pose_pull, pull_term, relative_factor
+from rodo.estimator.pull import MIN_PAIRS, NEUTRAL_PULL, pose_pull, pull_term, relative_factor
 from rodo.estimator.velocity_inflation import velocity_factor
 
 
@@ -107,7 +107,7 @@ def test_too_few_pairs_or_pairs_in_a_line_have_no_pull():
 
 def test_the_relative_factor_adds_the_pull():
     """f + r . |omega| + d ln(1 + nis) + p pull: bit for bit the factor without the pull at p 0 or without pulls;
-    a NaN pull (too few pairs) adds nothing."""
+    a NaN pull (too few pairs) counts as the neutral 1 per dof, so a factor with f near 0 does not vanish there."""
     rng = _rng(2)
     varpi = rng.normal(size=(50, 6))
     nis, pull = rng.uniform(0.0, 3.0, 50), rng.uniform(0.0, 4.0, 50)
@@ -116,8 +116,11 @@ def test_the_relative_factor_adds_the_pull():
     np.testing.assert_array_equal(relative_factor(varpi, 0.3, (10.0, 20.0, 0.0), 0.2, nis), base)
     np.testing.assert_array_equal(relative_factor(varpi, 0.3, (10.0, 20.0, 0.0), 0.2, nis, 0.0, pull), base)
     with_pull = relative_factor(varpi, 0.3, (10.0, 20.0, 0.0), 0.2, nis, 0.5, pull)
-    np.testing.assert_allclose(with_pull, base + 0.5 * np.nan_to_num(pull), rtol=1e-15)
-    np.testing.assert_array_equal(pull_term(pull)[:5], 0.0)
+    np.testing.assert_allclose(with_pull, base + 0.5 * np.where(np.isnan(pull), NEUTRAL_PULL, pull), rtol=1e-15)
+    np.testing.assert_array_equal(pull_term(pull)[:5], NEUTRAL_PULL)
+    assert NEUTRAL_PULL == pytest.approx(chi2(6).mean() / 6)
+    tiny = relative_factor(np.zeros((1, 6)), 1e-6, (10.0, 20.0, 0.0), 0.2, [np.nan], 0.3, [np.nan])
+    assert tiny[0] == pytest.approx(0.3 + 1e-6)
 
 
 def test_an_isotropic_model_adds_its_variance_on_the_diagonal():
