@@ -65,11 +65,6 @@ class MeasurementModel(ABC):
         """(n, 3, 3) `position_covariance_sensor` rotated into the world, C P C^T (C: world from sensor)."""
         return C @ self.position_covariance_sensor(polar, sigmas, cartesian_sigma) @ C.T
 
-    def isotropic_position_variance(self, cartesian_sigma: float) -> float | None:
-        """The detections' position variance (m^2) where it is the same along every axis whatever the detection
-        (`world_position_covariance` is then that times I in any frame), None otherwise."""
-        return None
-
     @abstractmethod
     def map_sigma(self, noise) -> float:
         """The map-point sigma (m) this model uses, from a `NoiseConfig`."""
@@ -166,8 +161,9 @@ class CartesianModel(MeasurementModel):
     def position_covariance_sensor(self, polar, sigmas, cartesian_sigma):
         return np.broadcast_to(cartesian_sigma**2 * np.eye(3), (len(polar), 3, 3))
 
-    def isotropic_position_variance(self, cartesian_sigma):
-        return float(cartesian_sigma) ** 2
+    def world_position_covariance(self, polar, sigmas, cartesian_sigma, C):
+        # C (c^2 I) C^T is c^2 I in any frame: no n rotations (exactly, where they left rounding off the diagonal)
+        return np.tile(cartesian_sigma**2 * np.eye(3), (len(polar), 1, 1))
 
     def map_sigma(self, noise):
         return noise.map_sigma_cartesian

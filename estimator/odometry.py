@@ -163,12 +163,13 @@ class RadarOdometry:
         tic = time.perf_counter()
         reuse = float(np.mean(self.map.hits[pairs.map_idx])) if len(pairs.map_idx) else float("nan")
         W_pairs, pairs, P_relative = self._solve(scan, W_pairs, pairs, timings)
-        pull = self._pull(scan, pairs)
+        T_world_sensor = se3.inverse(self.window.newest.T_vehicle_world) @ self.T_vehicle_sensor
+        pull = self._pull(scan, pairs, T_world_sensor)
         timings["solve"] = time.perf_counter() - tic - timings.pop("reassociate", 0.0)
         detail = ScanDetail(polar, static, np.flatnonzero(used)[pairs.det_idx], pairs.map_idx.copy(),
                             self.map.points.copy(), np.flatnonzero(in_range)) if self.record_detail else None
         tic = time.perf_counter()
-        self._update_map(scan, pairs)
+        self._update_map(scan, pairs, T_world_sensor)
         timings["map"] = time.perf_counter() - tic
         est = self._estimate(t, polar, static, pairs, timings, events, detail, still is not None)
         return self.report.annotate(est, P_relative, reuse, self.doppler_nis, pull)
@@ -287,30 +288,25 @@ class RadarOdometry:
         solved = getattr(self.report.last, "t", None) == self.window.states[-2].t  # emitted as solved
         return scan_relative_covariances(P_pair, P_emitted, prev, new, self.motion.dim, solved)
 
-    def _pull(self, scan: ScanMeasurements, pairs) -> float:
+    def _pull(self, scan: ScanMeasurements, pairs, T_world_sensor: np.ndarray) -> float:
         """The scan's pull on its solved pose (`pose_pull`), before the map moves its points."""
         det, idx = pairs.det_idx, pairs.map_idx
         if len(idx) < MIN_PAIRS:
             return float("nan")
-        T = se3.inverse(self.window.newest.T_vehicle_world) @ self.T_vehicle_sensor
-        variance = 0.0 if self.surface_model else self.map_sigma**2
-        isotropic = self.measurement.isotropic_position_variance(self.config.noise.cartesian_sigma)
-        if isotropic is None:
-            C = self._point_covariances(scan.polar[det], T[:3, :3]) + self.map.covariances[idx]
-        else:  # the same as adding it (a Cartesian sigma), without rotating n matrices
-            C, variance = self.map.covariances[idx], variance + isotropic
-        return pose_pull(T, scan.points[det], self.map.points[idx], C, variance)
+        C = self._point_covariances(scan.polar[det], T_world_sensor[:3, :3]) + self.map.covariances[idx]
+        return pose_pull(T_world_sensor, scan.points[det], self.map.points[idx], C,
+                         0.0 if self.surface_model else self.map_sigma**2)
 
-    def _update_map(self, scan: ScanMeasurements, pairs) -> None:
-        """Refresh (or fuse) the associated map points, add the unassociated static detections, prune. The map
-        ages with scans that have static detections, so a blockage does not expire the map it needs after."""
+    def _update_map(self, scan: ScanMeasurements, pairs, T_world_sensor: np.ndarray) -> None:
+        """Refresh (or fuse) the associated map points, add the unassociated static detections, prune (the scan
+        placed with T_world_sensor, the newest state's). The map ages with scans that have static detections, so
+        a blockage does not expire the map it needs after."""
         cfg = self.config
         xk = self.window.newest
         if len(scan.points):
             self.map_clock += 1
         if len(pairs.map_idx):
             self.last_with_data = xk.copy()
-        T_world_sensor = se3.inverse(xk.T_vehicle_world) @ self.T_vehicle_sensor
         if len(pairs.map_idx) and cfg.map.fuse:
             # the detection is a new sample of the surface near the point: its own noise plus the sampling spread
             det = pairs.det_idx

@@ -24,8 +24,8 @@ Modules:
 - `calibrate`, `calibrate_sensor`, `calibrate_config`: noise learned from data (`rodo calibrate`,
   docs/calibration.md), `calibrate_sensor_em` the measurement noise without ground truth; `calibrate_consistency`:
   the uncertainty parameters (kappa, the factors, drift rate, tau) fitted against the truth, `calibrate_velocity`
-  the velocity factor, `calibrate_relative` the one-scan relative pose's, `calibrate_jitter` the roll and pitch jitter's variance last; `replayed_states`: a run's
-  states at other uncertainty settings, without running again.
+  the velocity factor, `calibrate_relative` the one-scan relative pose's, `calibrate_jitter` the roll and pitch
+  jitter's variance last; `replayed_states`: a run's states at other uncertainty settings, without running again.
 
 Documentation: docs/evaluation.md (metrics, campaigns), docs/visualisation.md (figures).
 """

@@ -210,4 +210,4 @@ def test_world_position_covariance_is_the_rotated_reference(seed, n):
     np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12 * max(np.abs(want).max(initial=0.0), 1e-300))
     np.testing.assert_array_equal(got, np.swapaxes(got, 1, 2))
     np.testing.assert_allclose(CartesianModel().world_position_covariance(polar, sig, 0.3, C),
-                               np.broadcast_to(0.09 * C @ C.T, (n, 3, 3)), rtol=1e-12)
+                               np.broadcast_to(0.09 * C @ C.T, (n, 3, 3)), rtol=1e-12, atol=1e-16)

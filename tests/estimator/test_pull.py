@@ -123,9 +123,10 @@ def test_the_relative_factor_adds_the_pull():
     assert tiny[0] == pytest.approx(0.3 + 1e-6)
 
 
-def test_an_isotropic_model_adds_its_variance_on_the_diagonal():
-    """The Cartesian model's detections have sigma^2 I in any frame (what the odometry passes to `pose_pull` as a
-    variance instead of n rotated matrices); the polar model's depend on the detection (None)."""
+def test_a_shared_variance_is_the_same_as_adding_it_and_the_cartesian_one_needs_no_rotation():
+    """`pose_pull`'s variance (the map's sigma squared) is the same as adding it to every pair's covariance; the
+    Cartesian model's detections have sigma^2 I in any frame, exactly, and equal to its rotated reference C (sigma^2
+    I) C^T, while the polar model's differ from detection to detection."""
     from rodo.estimator.measurement_models import measurement_model
 
     rng = _rng(3)
@@ -133,12 +134,11 @@ def test_an_isotropic_model_adds_its_variance_on_the_diagonal():
                              rng.normal(size=30)])
     R = se3.exp(np.r_[np.zeros(3), rng.normal(size=3)])[:3, :3]
     sigmas = np.array([0.1, 0.01, 0.02, 0.1])
-    cartesian = measurement_model("cartesian")
-    v = cartesian.isotropic_position_variance(0.3)
-    assert v == pytest.approx(0.09)
-    np.testing.assert_allclose(cartesian.world_position_covariance(polar, sigmas, 0.3, R),
-                               np.broadcast_to(v * np.eye(3), (30, 3, 3)), atol=1e-15)
-    assert measurement_model("polar").isotropic_position_variance(0.3) is None
+    cartesian = measurement_model("cartesian").world_position_covariance(polar, sigmas, 0.3, R)
+    np.testing.assert_array_equal(cartesian, np.broadcast_to(0.09 * np.eye(3), (30, 3, 3)))
+    np.testing.assert_allclose(cartesian, np.broadcast_to(R @ (0.09 * np.eye(3)) @ R.T, (30, 3, 3)), atol=1e-15)
+    polar_cov = measurement_model("polar").world_position_covariance(polar, sigmas, 0.3, R)
+    assert np.ptp(np.linalg.eigvalsh(polar_cov)[:, -1]) > 0.1 * np.median(np.linalg.eigvalsh(polar_cov)[:, -1])
     m, C, T = _scene(rng, 30)
     p = _in_sensor(T, m + _draw(rng, C))
-    assert pose_pull(T, p, m, C, v) == pytest.approx(pose_pull(T, p, m, C + v * np.eye(3)), rel=1e-12)
+    assert pose_pull(T, p, m, C, 0.09) == pytest.approx(pose_pull(T, p, m, C + 0.09 * np.eye(3)), rel=1e-12)
