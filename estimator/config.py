@@ -75,8 +75,8 @@ class AssociationConfig:
     doppler_sigma_floor: float = 0.05  # m/s, floor of the Doppler static/moving test
     reassociate: int = 1  # re-associate after the first solve this many times (each scores the first association's
     # candidates again at the solution: docs/estimator.md, step 5)
-    ransac_above_sigma: float = 0.5  # m/s: the RANSAC Doppler fallback is used only when the predicted sensor
-    # velocity is this uncertain (or explains fewer than 8 detections)
+    ransac_above_sigma: float = 0.5  # m/s: a predicted sensor velocity this uncertain (a start) takes the widest
+    # Doppler consensus inside its gate, or a free RANSAC fit when the gate holds under 20 % (or 8) of the scan
     doppler_jerk_margin: float = 0.5  # m/s: a confident prediction's Doppler fit may move this far beyond its
     # 3-sigma (hard braking, hand-held sensors: jerk the prior does not expect)
     consensus_switch_after: float = 0.5  # s: another Doppler consensus covering consensus_switch_ratio times
