@@ -215,7 +215,6 @@ def test_an_oncoming_car_filling_the_view_is_not_taken():
     assert "doppler-few-static" in events and "doppler-ransac-fallback" not in events
 
 
-
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
 def test_movers_inside_the_starts_wide_gate_are_not_taken_for_the_world(model):
     """At a (re)start the prediction is uncertain (the initial yaw-rate sigma through the 3.5 m lever arm: 0.7 m/s
@@ -228,18 +227,19 @@ def test_movers_inside_the_starts_wide_gate_are_not_taken_for_the_world(model):
     t, T, varpi, vd = scene.trajectory(20, speed=2.0, accel=-1.5, yaw_rate=0.0, yaw_acc=0.0, pitch_acc=0.0)
     L = scene.landmarks(rng)
     odo = RadarOdometry(OdometryConfig.for_model(model), scene.T_VEHICLE_SENSOR, scene.SIGMAS, 120.0)
-    R_sv = scene.T_VEHICLE_SENSOR[:3, :3]
+    R_vs = scene.T_VEHICLE_SENSOR[:3, :3]
     for k in range(len(t)):
         world = scene.measure(T[k], varpi[k], vd[k], L, rng)
         n = len(world)
         m = int(0.6 * n)
         group = np.c_[rng.uniform(1.5, 3.5, m), rng.uniform(2.4, 2.8, m), rng.uniform(-0.8, 0.6, m)]  # sensor frame
         r = np.linalg.norm(group, axis=1)
-        v_sensor = R_sv.T @ -varpi[k][:3]  # the sensor's velocity (varpi is the world's, seen from the vehicle)
+        v_sensor = R_vs.T @ -varpi[k][:3]  # the sensor's velocity (varpi is the world's, seen from the vehicle)
         v_rel = np.array([-2.0, 0.0, 0.0]) - v_sensor  # the car's velocity relative to the sensor
         group_polar = np.c_[r, np.arctan2(group[:, 1], group[:, 0]), np.arcsin(group[:, 2] / r), group @ v_rel / r]
         est = odo.process(t[k], np.r_[world, group_polar + rng.normal(size=group_polar.shape) * scene.SIGMAS])
         assert np.abs(est.varpi[:3] - varpi[k][:3]).max() < 0.1, (k, est.varpi[:3], varpi[k][:3], est.events)
+
 
 def test_a_compact_object_outnumbering_the_world_is_not_taken():
     """A co-moving truck with four times the world's detections (the lead truck on `highway`): the world
