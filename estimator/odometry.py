@@ -36,7 +36,7 @@ from .lie import se3
 from .local_map import LocalMap
 from .measurement_models import measurement_model
 from .motion import motion_prior_for
-from .pull import MIN_PAIRS, pose_pull
+from .pull import pose_pull
 from .radar_geometry import check_fov
 from .scan import ScanDetail, ScanEstimate
 from .scan_association import MapAssociation, ScanMeasurements
@@ -291,8 +291,6 @@ class RadarOdometry:
     def _pull(self, scan: ScanMeasurements, pairs, T_world_sensor: np.ndarray) -> float:
         """The scan's pull on its solved pose (`pose_pull`), before the map moves its points."""
         det, idx = pairs.det_idx, pairs.map_idx
-        if len(idx) < MIN_PAIRS:
-            return float("nan")
         C = self._point_covariances(scan.polar[det], T_world_sensor[:3, :3]) + self.map.covariances[idx]
         return pose_pull(T_world_sensor, scan.points[det], self.map.points[idx], C,
                          0.0 if self.surface_model else self.map_sigma**2)

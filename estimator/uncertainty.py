@@ -276,7 +276,7 @@ class ReportedCovariances:
         self.last = None
         self.restart_relative: np.ndarray | None = None
 
-    def annotate(self, est, P_relative, reuse: float, doppler_nis: float, pull: float = float("nan")):
+    def annotate(self, est, P_relative, reuse: float, doppler_nis: float, pull: float):
         """The estimate (`ScanEstimate`) with P_relative, P_revision, P_pose_absolute, map_reuse, doppler_nis,
         pose_pull and restarted set and its velocity variance scaled. P_relative: (relative, revision) of the
         window's two newest states (`scan_relative_covariances`), or the re-initialisation's (restart_relative,
