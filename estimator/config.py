@@ -196,6 +196,17 @@ class UncertaintyConfig:
         covariance says (docs/consistency.md, "The scan's pull"). Reported covariances only.
     measurement_inflation: factor (>= 1) on every associated pair's covariance in the solve (not the gates): a
         scan's pairs share map errors and carry less information than counted as independent; 1: the paper's.
+    velocity_error_share: the share g (> 0) of the window's velocity covariance that the drift recursion takes as
+        its velocity error's variance (one scan's relative pose gains g dt^2 P_varpi from it; the spans and the
+        absolute pose compose it): the registration pins a scan's pose to the map whatever the window's velocity
+        error, so less of that error reaches the relative pose than dead reckoning would carry (at rest on a fresh
+        map most: docs/consistency.md, "The velocity error's share"). `rodo calibrate` learns it with the one-scan
+        factor. Reported covariances only; 1: the whole velocity covariance.
+    registration_correlation: the share alpha (0-1) of each scan's relative pose covariance that the drift
+        recursion carries correlated over tau, with the velocity error (alpha Sigma_rel / dt^2 added to its
+        variance), the rest composed as independent: the registration's errors are correlated over a few scans to
+        a second (docs/consistency.md, "The velocity error's share"). `rodo calibrate` chooses it with tau.
+        Reported covariances only; 0: independent registrations.
     drift_rate_sigma: sigma of the registration's systematic error per metre driven, unknown but constant
         over a run ([x, y, z] m/m, [roll, pitch, yaw] rad/m, vehicle frame): the absolute pose's error grows
         with the distance, not its square root. Not in the solve.
@@ -233,6 +244,8 @@ class UncertaintyConfig:
     inflation_per_rate: tuple[float, ...] = (0.0, 0.0, 0.0)  # s/rad
     inflation_per_doppler: float = 0.0
     inflation_per_pull: float = 0.0
+    velocity_error_share: float = 1.0
+    registration_correlation: float = 0.0
     measurement_inflation: float = 1.0
     drift_rate_sigma: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     prior_memory: float = 0.0  # s

@@ -118,6 +118,8 @@ RULES: dict[str, Rule] = {
     "uncertainty.inflation_per_rate": Rule(0.0, size=3),
     "uncertainty.inflation_per_doppler": NONNEGATIVE,
     "uncertainty.inflation_per_pull": NONNEGATIVE,
+    "uncertainty.velocity_error_share": POSITIVE,
+    "uncertainty.registration_correlation": Rule(0.0, 1.0),
     "uncertainty.velocity_axis_inflation": Rule(0.0, lo_closed=False, size=6),
     "uncertainty.heading_reversion_time": NONNEGATIVE,
     "uncertainty.heading_anchor_time": POSITIVE,

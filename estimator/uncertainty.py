@@ -38,7 +38,11 @@ Across a re-initialisation (`restart_matrices`) the step is the dead-reckoned re
 registration ran over the outage, so neither the velocity error nor the drift rate adds to it, and b starts
 again at zero as at a run's first scan (the fresh window's velocity covariance is the initial prior's, and the
 next scan is registered against the fresh map).
-The velocity covariance the recursion uses is the window's; the reported one has its variance scaled with the
+The velocity covariance the recursion uses is the window's times `[uncertainty] velocity_error_share` g (1 by
+default; the registration pins each pose to the map, so less of the window's velocity error reaches the relative
+pose than dead reckoning would carry), plus `registration_correlation` alpha (0 by default) of the scan's relative
+pose covariance over dt^2, which then composes the rest, (1 - alpha) Sigma_rel,k, as independent: the registration's
+errors are correlated over a few scans (`recursion_inputs`); the reported one has its variance scaled with the
 speed where calibrated (`velocity_inflation.velocity_inflated`).
 
 Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_known_joint_gaussian,
@@ -295,8 +299,9 @@ class ReportedCovariances:
             f = (relative_factor(est.varpi, cfg.inflation, cfg.inflation_per_rate, cfg.inflation_per_doppler,
                                  doppler_nis, cfg.inflation_per_pull, pull) if self.relative_terms else cfg.inflation)
             P_relative, P_revision = (f * P for P in P_relative)
-            P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, est.t - last.t, P_relative,
-                                           est.P[6:12, 6:12])
+            dt = est.t - last.t
+            P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, dt, *recursion_inputs(
+                P_relative, est.P[6:12, 6:12], dt, cfg.registration_correlation, cfg.velocity_error_share))
         P_absolute = with_roll_pitch_variance(P_absolute, self.jitter.at(est.t))
         self.last, self.restart_relative = est, None
         est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
@@ -305,6 +310,23 @@ class ReportedCovariances:
                                   cfg.velocity_inflation_per_doppler, est.doppler_nis, self.axes,
                                   cfg.velocity_inflation_per_rate)
         return est
+
+
+def recursion_inputs(P_relative, P_varpi, dt, correlation: float = 0.0, share: float = 1.0):
+    """(Sigma_rel, the velocity error's variance) the drift recursion composes for a registered scan (one, or a
+    stack with dt (N,)): (1 - alpha) P_relative and g P_varpi + alpha P_relative / dt^2, alpha = `[uncertainty]
+    registration_correlation` (the share of the registration's covariance carried correlated over tau, with the
+    velocity error), g = `velocity_error_share`; (P_relative, P_varpi) themselves, bit for bit, at alpha 0 and g 1.
+    One scan then still composes P_relative + g dt^2 P_varpi (the correlated part's one-scan share is alpha
+    P_relative, smoothed over tau where it varies); a span adds the correlation.
+
+    Checked by: tests/estimator/test_uncertainty.py::test_a_correlated_registration_keeps_one_scan_and_grows_a_span
+    """
+    if correlation == 0.0 and share == 1.0:
+        return P_relative, P_varpi
+    P_relative = np.asarray(P_relative, dtype=float)
+    dt = np.asarray(dt, dtype=float)[..., None, None]
+    return (1.0 - correlation) * P_relative, share * np.asarray(P_varpi, dtype=float) + correlation * P_relative / dt**2
 
 
 def fresh_starts(restarts, n: int) -> np.ndarray:

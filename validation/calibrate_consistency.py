@@ -16,6 +16,9 @@ tells the truth (docs/consistency.md):
   velocity and the relative pose disagree kappa settles between them. f makes the last run's median ratio of
   the one-scan relative pose 1 (the velocity error's and the drift rate's shares as they are), fitted only when
   that ratio is off by more than the fixed point's tolerance. The spans and the absolute pose compose it.
+- `uncertainty.velocity_error_share` g: how much of the window's velocity covariance the drift recursion takes as
+  its velocity error's variance; learned with f and its terms, by the same likelihood, and scaled with them by
+  the median ratio (docs/consistency.md, "The velocity error's share").
 - `uncertainty.drift_rate_sigma`: the registration's systematic error per metre driven (the absolute pose's
   error grows with the distance, not its square root). Its one realisation on the sequence is the least-squares
   fit beta = sum_k e_k / sum_k s_k of the one-scan relative errors e_k over the distances s_k; the sigma
@@ -33,6 +36,9 @@ tells the truth (docs/consistency.md):
   seconds and the absolute pose are as consistent as one tau can make them: the least sum of |ln ratio|, a
   ratio above 1 (over-confident) counted OVERCONFIDENCE_WEIGHT times (between two about equally consistent taus
   the cautious one is the safe choice: docs/calibration.md, step 5).
+- `uncertainty.registration_correlation` alpha: how much of each scan's relative pose covariance the recursion
+  carries correlated over tau, with the velocity error (the registration's errors are correlated over a few scans
+  to a second); chosen with tau, the pair of the least cost over CORRELATIONS (`fit_correlation`).
 - `uncertainty.heading_reversion_time` T_r and `heading_anchor_time` T_a (`estimator.heading_reversion`), when
   asked: the yaw error reverts to an anchor where the far scene holds the heading. Chosen after tau on the grid
   HEADINGS (off among them) with the same cost, then tau chosen again with them (`fit_heading`). Not by default:
@@ -78,6 +84,9 @@ HEADINGS = ((0.0, 0.0),) + tuple((r, a) for r in (1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 
                                  for a in (20.0, 50.0, 100.0, 200.0))
 REVERSIONS_PER_DRIVE = 10.0  # fit_heading tries T_r up to the shortest drive's duration over this
 DEFAULT_TAU = 0.25  # s, kept when no tau of the grid gives finite ratios
+# the registration's correlation alpha tried with tau: independent, half, all carried with the velocity error (a
+# coarser grid than tau's: offline, the quarters moved the campaigns' 1 s and absolute pose by <= 0.06 per dof)
+CORRELATIONS = (0.0, 0.5, 1.0)
 OVERCONFIDENCE_WEIGHT = 2.0  # how much more an over-confident ln ratio (> 0) counts than a cautious one in fit_tau
 KAPPA_RANGE = (1.0, 100.0)
 DRIFT_BLOCK = 2.0  # s, the blocks of fit_drift_rate's standard error (the one-scan errors' correlation: 1-2 s)
@@ -109,11 +118,11 @@ class ConsistencyStep:
 
 def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=None,
           velocity=(1.0, 0.0, 0.0, (1.0,) * 6, (0.0,) * 3), relative=None, heading=None,
-          jitter=None) -> OdometryConfig:
+          jitter=None, share=None) -> OdometryConfig:
     """The config with these uncertainty values; the velocity factors (a, b, d, per-axis g, per-rate r) default to
     none: the fit's runs report the window's own velocity covariance; the relative pose factor (`relative`, (f,
-    per-rate r, per-Doppler d, per-pull p)), the heading's reversion ([T_r, T_a]) and the roll and pitch jitter
-    ([V, T]) to the config's."""
+    per-rate r, per-Doppler d, per-pull p)), the heading's reversion ([T_r, T_a]), the roll and pitch jitter
+    ([V, T]) and (the velocity error's share, the registration's correlation) to the config's."""
     drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
     u = config.uncertainty
     relative = (u.inflation, u.inflation_per_rate, u.inflation_per_doppler, u.inflation_per_pull) \
@@ -131,6 +140,8 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
                                   heading_anchor_time=float(heading[1]) if heading[0] > 0 else unc.heading_anchor_time)
     if jitter is not None:
         unc = dataclasses.replace(unc, attitude_jitter_variance=float(jitter[0]), attitude_jitter_time=float(jitter[1]))
+    if share is not None:
+        unc = dataclasses.replace(unc, velocity_error_share=float(share[0]), registration_correlation=float(share[1]))
     return config.replace(uncertainty=unc)
 
 
@@ -205,6 +216,22 @@ def fit_tau(states: dict | list, truth: dict | list, span: float = 1.0, taus=TAU
     return _grid_fit(states, truth, span, drift_rate_sigma, {float(tau): (tau, heading) for tau in taus}, default)
 
 
+def fit_correlation(states: dict | list, truth: dict | list, span: float, drift_rate_sigma=None, heading=None,
+                    correlations=CORRELATIONS) -> tuple[float, float, dict, dict]:
+    """The registration's correlation alpha (`[uncertainty] registration_correlation`) of the grid, with its tau
+    (`fit_tau` at each alpha): the pair of the least `tau_cost`. Returns (alpha, tau, that tau's grid of ratios,
+    {"value": alpha, "grid": {alpha: {"tau", "cost"}}})."""
+    best, grid = None, {}
+    for alpha in correlations:
+        at = _each(lambda s: dict(s, registration_correlation=float(alpha)), states)
+        tau, ratios = fit_tau(at, truth, span, drift_rate_sigma=drift_rate_sigma, heading=heading)
+        cost = tau_cost(ratios[tau]) if np.all(np.isfinite(ratios.get(tau, np.nan))) else float("inf")
+        grid[f"{alpha:g}"] = {"tau": tau, "cost": cost}
+        if best is None or cost < best[0]:
+            best = (cost, float(alpha), tau, ratios)
+    return best[1], best[2], best[3], {"value": best[1], "grid": grid}
+
+
 def fit_heading(states: dict | list, truth: dict | list, span: float, tau: float, drift_rate_sigma=None,
                 headings=HEADINGS) -> tuple[tuple, dict]:
     """The heading reversion [T_r, T_a] of the grid (off, (0, 0), among it) that makes the relative pose over
@@ -275,15 +302,18 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     drift = fit_drift_rate(states, truth)
     u = config.uncertainty
     ran = (u.inflation, u.inflation_per_rate, u.inflation_per_doppler, u.inflation_per_pull)
-    relative = fit_relative_inflation(states, truth, ran[0], tolerance, drift["sigma"], ran[1], True, ran[2], ran[3])
+    relative = fit_relative_inflation(states, truth, ran[0], tolerance, drift["sigma"], ran[1], True, ran[2], ran[3],
+                                      share=True)
     new = (relative["inflation"], relative["per_rate"], relative["per_doppler"], relative["per_pull"])
-    states = _each(relative_factor_states, states, ran, new)
+    share = relative["velocity_error_share"]
+    states = _each(lambda s: dict(relative_factor_states(s, ran, new), velocity_error_share=share), states)
     velocity = fit_velocity_inflation(states, truth, per_axis=velocity_axes)
     factors = (velocity["inflation"], velocity["per_speed"], velocity["per_doppler"], tuple(velocity["per_axis"]),
                tuple(velocity["per_rate"]))
     heading = tuple(float(x) for x in heading_of(config.uncertainty))  # kept, unless asked to fit it
-    tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"],
-                              heading=None if heading_reversion else heading)
+    correlation, tau, tau_ratios, correlations = fit_correlation(states, truth, span, drift["sigma"],
+                                                                 None if heading_reversion else heading)
+    states = _each(lambda s: dict(s, registration_correlation=correlation), states)
     tau_alone, heading_ratios = tau, {}
     if heading_reversion:
         heading, heading_ratios = fit_heading(states, truth, span, tau, drift["sigma"])
@@ -292,14 +322,15 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     jitter = attitude_jitter_report(config.uncertainty, attitude_jitter, span, tau, drift["sigma"], heading,
                                     runs_of(states, truth))
     jitter_pair = (jitter["variance"], jitter["time"])
-    fitted = _with(config, kappa, tau, drift["sigma"], factors, new, heading, jitter_pair)
+    fitted = _with(config, kappa, tau, drift["sigma"], factors, new, heading, jitter_pair, (share, correlation))
     final = _ratios(_each(lambda s: replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"], heading,
                                              jitter_pair), states), truth, span, tau, drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))
     if progress is not None:
         progress(steps[-1])
     report = {"measurement_inflation": kappa, "relative_inflation": relative, "velocity_inflation": velocity,
-              "velocity_correlation_time": tau, "drift_rate": drift, "span": span,
+              "velocity_correlation_time": tau, "registration_correlation": correlations, "drift_rate": drift,
+              "span": span,
               "tolerance": tolerance, "at_lower_bound": kappa == KAPPA_RANGE[0],
               "steps": [s.as_dict() for s in steps],
               "tau_grid": {f"{t:g}": {"relative_span": r[0], "pose": r[1]} for t, r in tau_ratios.items()},

@@ -4,7 +4,8 @@ uncertainty section): c = f + r . |omega| + d ln(1 + nis) + p pull (`[uncertaint
 innovation NIS per dof, as the velocity's factor, and `inflation_per_pull` p on its pull on the solved pose,
 `estimator.pull`) on the window's relative pose covariance and its revision term
 (`estimator.uncertainty.ReportedCovariances`). The one-scan relative pose's composed covariance is then
-c A + V, A the part the factor scales, V the velocity error's and the drift rate's shares, which it does not.
+c A + V, A the part the factor scales, V the velocity error's and the drift rate's shares, which it does not (but
+`rodo calibrate` learns a factor g on the velocity error's share with it: `[uncertainty] velocity_error_share`).
 
 - Without the rates, f makes the median ratio of the one-scan relative pose 1 (robust to the few scans where an
   association fails outright); fitted only where that ratio is off by more than the tolerance.
@@ -34,6 +35,9 @@ from .replayed_states import relative_inflated_states
 from .run_consistency import DEFAULT_TAU, runs_of
 
 MEDIAN_CHI2 = float(chi2.median(DOF))
+# the velocity error's share g of the maximum likelihood: at most the window's whole velocity covariance (the level,
+# set after it by the median ratio, scales it with the factor)
+SHARE_RANGE = (1e-3, 1.0)
 
 
 def median_ratio(values) -> float:
@@ -57,13 +61,26 @@ def relative_terms(states, truth, inflation: float, per_rate=None, drift_rate_si
     part per unit factor, the unscaled rest and the factor's regressors, the scan's absolute estimated body rates,
     ln(1 + its Doppler NIS) (0 without one) and its pull (`pull_term`; 0 in states written before it, so p is not
     learned from them); only scans with finite values, not restarted."""
-    out = [[], [], [], []]
+    e, A, V_velocity, V_rest, W = relative_terms_split(states, truth, inflation, per_rate, drift_rate_sigma,
+                                                        per_doppler, per_pull)
+    return e, A, V_velocity + V_rest, W
+
+
+def relative_terms_split(states, truth, inflation: float, per_rate=None, drift_rate_sigma=None,
+                         per_doppler: float = 0.0, per_pull: float = 0.0):
+    """(e, A, V_velocity, V_rest, W): `relative_terms` with its unscaled rest V split into the velocity error's
+    share (at the runs' own `velocity_error_share` g; the composed covariance is linear in it) and the rest (the
+    drift rate's, the registration's correlated share at the runs' `registration_correlation` and, with the
+    heading's reversion on, the anchor's deviation)."""
+    out = [[], [], [], [], []]
     for st, tr in runs_of(states, truth):
         tau = float(st.get("velocity_correlation_time", DEFAULT_TAU))
         terms = span_terms(st, tr, span=0.0, tau=tau, drift_rate_sigma=drift_rate_sigma)
         if terms is None:
             continue
         e, C, t, _ = terms
+        C_rest = span_terms(dict(st, velocity_error_share=0.0), tr, span=0.0, tau=tau,
+                            drift_rate_sigma=drift_rate_sigma)[1]
         idx = np.searchsorted(np.asarray(st["t"], dtype=float), t[1:])  # the matched scans, in the run's rows
         # over one scan the window's relative covariance and the revision enter the composition as they are
         # (`span_covariances`: added once, untransformed), so the rest of it is what the factor does not scale
@@ -79,10 +96,10 @@ def relative_terms(states, truth, inflation: float, per_rate=None, drift_rate_si
         keep &= np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(C) & np.isfinite(scaled), axis=(1, 2)) & (c > 0)
         W = np.column_stack([np.abs(varpi[:, 3:6]), doppler_term(nis),
                              np.zeros(len(idx)) if pull is None else pull_term(pull)])
-        for acc, v in zip(out, (e, scaled / c[:, None, None], C - scaled, W)):
+        for acc, v in zip(out, (e, scaled / c[:, None, None], C - C_rest, C_rest - scaled, W)):
             acc.append(v[keep])
     if not out[0]:
-        return np.zeros((0, 6)), np.zeros((0, 6, 6)), np.zeros((0, 6, 6)), np.zeros((0, 5))
+        return np.zeros((0, 6)), np.zeros((0, 6, 6)), np.zeros((0, 6, 6)), np.zeros((0, 6, 6)), np.zeros((0, 5))
     return tuple(np.concatenate(v) for v in out)
 
 
@@ -92,26 +109,31 @@ def _nees(c, e, A, V) -> np.ndarray:
     return np.einsum("ki,ki->k", e, np.linalg.solve(C, e[..., None])[..., 0])
 
 
-def _max_likelihood(e, A, V, W, f0: float) -> np.ndarray:
+def _max_likelihood(e, A, V, W, f0: float, V_velocity=None, h_range=SHARE_RANGE) -> np.ndarray:
     """(f, then one coefficient per column of W: r_x, r_y, r_z, d and p) maximising the Gaussian likelihood of the
     errors e_k ~ N(0, c_k A_k + V_k), c_k = f + r . W_k, f > 0, r >= 0 (L-BFGS-B with the analytic gradient, each
-    term scaled to its mean regressor)."""
+    term scaled to its mean regressor); with `V_velocity`, e_k ~ N(0, c_k A_k + h V_velocity,k + V_k) and h, within
+    `h_range`, last."""
     X = np.column_stack([np.ones(len(e)), W])
     scale = np.where(X.mean(axis=0) > 0, X.mean(axis=0), 1.0)
     Xs = X / scale
+    share = V_velocity is not None
 
     def nll(p):
-        c = Xs @ p
-        C = c[:, None, None] * A + V
+        c = Xs @ p[:X.shape[1]]
+        C = c[:, None, None] * A + V + (p[-1] * V_velocity if share else 0.0)
         Ci_e = np.linalg.solve(C, e[..., None])[..., 0]
-        Ci_A = np.linalg.solve(C, A)
         value = np.sum(np.linalg.slogdet(C)[1] + np.einsum("ki,ki->k", e, Ci_e))
-        g = np.trace(Ci_A, axis1=1, axis2=2) - np.einsum("ki,kij,kj->k", Ci_e, A, Ci_e)
-        return float(value), g @ Xs
 
-    bounds = [(1e-6 * f0, None)] + [(0.0, None)] * W.shape[1]
-    p = minimize(nll, np.r_[f0, np.zeros(W.shape[1])], jac=True, method="L-BFGS-B", bounds=bounds).x
-    return p / scale
+        def gradient(B):  # d nll / d (a factor on B), per scan
+            return np.trace(np.linalg.solve(C, B), axis1=1, axis2=2) - np.einsum("ki,kij,kj->k", Ci_e, B, Ci_e)
+        g = gradient(A) @ Xs
+        return float(value), (np.r_[g, gradient(V_velocity).sum()] if share else g)
+
+    bounds = [(1e-6 * f0, None)] + [(0.0, None)] * W.shape[1] + ([tuple(h_range)] if share else [])
+    p = minimize(nll, np.r_[f0, np.zeros(W.shape[1]), [1.0] if share else []], jac=True, method="L-BFGS-B",
+                 bounds=bounds).x
+    return np.r_[p[:X.shape[1]] / scale, p[X.shape[1]:]]
 
 
 def _median_scale(c, e, A, V) -> float | None:
@@ -140,7 +162,7 @@ def _median_scale(c, e, A, V) -> float | None:
 
 def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: float, ratio_tolerance: float,
                            drift_rate_sigma=None, per_rate=None, rates: bool = False, per_doppler: float = 0.0,
-                           per_pull: float = 0.0) -> dict:
+                           per_pull: float = 0.0, share: bool = False) -> dict:
     """The one-scan relative pose covariance's factor for a run (or runs, pooled) that had f = `inflation`, r =
     `per_rate` (None: 0), d = `per_doppler` and p = `per_pull`: with `rates`, the shape (f : r : d : p) by maximum
     likelihood and the level by the median ratio (module docstring); without, f (with the run's r, d and p) scaled
@@ -150,41 +172,60 @@ def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: f
     tau 0 it loses the velocity term, so a tau of 0 chosen after f leaves it over-confident: hills CA/P with
     prior_memory 0.5 s, 1.28 where f made it 1).
 
-    Returns {"inflation": f, "per_rate": [r_x, r_y, r_z], "per_doppler": d, "per_pull": p, "median_ratio":
-    [before, after], "outcome": "fitted", "within tolerance" or "out of reach"}.
+    With `share` (and `rates`) the velocity error's share g (`[uncertainty] velocity_error_share`) is learned with
+    the shape, and the level scales it with the factor.
+
+    Returns {"inflation": f, "per_rate": [r_x, r_y, r_z], "per_doppler": d, "per_pull": p, "velocity_error_share":
+    g (the runs' own unless learned), "median_ratio": [before, after], "outcome": "fitted", "within tolerance" or
+    "out of reach"}.
     """
-    e, A, V, W = relative_terms(states, truth, inflation, per_rate, drift_rate_sigma, per_doppler, per_pull)
-    return fit_factor(e, A, V, W, inflation, per_rate, ratio_tolerance, rates, per_doppler, per_pull)
+    e, A, V_velocity, V_rest, W = relative_terms_split(states, truth, inflation, per_rate, drift_rate_sigma,
+                                                        per_doppler, per_pull)
+    g = float((states if isinstance(states, dict) else states[0]).get("velocity_error_share", 1.0))
+    if not share:
+        return dict(fit_factor(e, A, V_velocity + V_rest, W, inflation, per_rate, ratio_tolerance, rates,
+                               per_doppler, per_pull), velocity_error_share=g)
+    return fit_factor(e, A, V_rest, W, inflation, per_rate, ratio_tolerance, rates, per_doppler, per_pull,
+                      V_velocity=V_velocity, share=g)
 
 
 def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: float = 0.0, rates: bool = False,
-               per_doppler: float = 0.0, per_pull: float = 0.0) -> dict:
+               per_doppler: float = 0.0, per_pull: float = 0.0, V_velocity=None, share: float = 1.0) -> dict:
     """`fit_relative_inflation` on the one-scan terms (`relative_terms`: W (K, 5); (K, 4) without the pull, (K, 3)
     without the Doppler term either) of runs that had f = `inflation`, r = `per_rate`, d = `per_doppler` and p =
-    `per_pull`.
+    `per_pull`; with `V_velocity` (`relative_terms_split`, of runs at the velocity error's share `share`; V then
+    the rest), that share too, its shape within SHARE_RANGE ("velocity_error_share" in the result).
 
-    Checked by: tests/validation/test_calibrate_relative.py::test_the_fit_recovers_a_known_rate_factor
+    Checked by: tests/validation/test_calibrate_relative.py::test_the_fit_recovers_a_known_rate_factor,
+        ::test_the_fit_recovers_a_known_velocity_error_share
     """
     rates0 = np.zeros(3) if per_rate is None else np.asarray(per_rate, dtype=float)
     r0 = np.r_[rates0, per_doppler, per_pull][:W.shape[1]]
     c0 = inflation + W @ r0
-    before = median_ratio(_nees(c0, e, A, V)) if len(e) else float("nan")
+    V_all = V if V_velocity is None else V + V_velocity
+    before = median_ratio(_nees(c0, e, A, V_all)) if len(e) else float("nan")
 
-    def result(f, r, outcome, after):
+    def result(f, r, outcome, after, h=1.0):
         r = np.r_[r, np.zeros(5 - len(r))]
-        return {"inflation": float(f), "per_rate": [float(x) for x in r[:3]], "per_doppler": float(r[3]),
-                "per_pull": float(r[4]), "median_ratio": [before, after], "outcome": outcome}
+        out = {"inflation": float(f), "per_rate": [float(x) for x in r[:3]], "per_doppler": float(r[3]),
+               "per_pull": float(r[4]), "median_ratio": [before, after], "outcome": outcome}
+        return out if V_velocity is None else dict(out, velocity_error_share=float(h * share))
 
     if not np.isfinite(before):
         return result(inflation, r0, "out of reach", before)
-    p = _max_likelihood(e, A, V, W, inflation) if rates else np.r_[inflation, r0]
-    if (not rates or not np.any(p[1:] > 0.0)) and abs(np.log(before)) < np.log1p(ratio_tolerance):
+    if rates:
+        p = _max_likelihood(e, A, V, W, inflation, V_velocity, np.divide(SHARE_RANGE, share))
+    else:
+        p = np.r_[inflation, r0, [1.0] if V_velocity is not None else []]
+    p, h = (p[:-1], p[-1]) if V_velocity is not None else (p, 1.0)
+    if (not rates or not np.any(p[1:] > 0.0)) and h == 1.0 and abs(np.log(before)) < np.log1p(ratio_tolerance):
         return result(inflation, r0, "within tolerance", before)
     c = p[0] + W @ p[1:]
-    s = _median_scale(c, e, A, V)
+    scaled = c[:, None, None] * A + (0.0 if V_velocity is None else h * V_velocity)  # what the level scales
+    s = _median_scale(np.ones(len(e)), e, scaled, V)
     if s is None:
         return result(inflation, r0, "out of reach", before)
-    return result(s * p[0], s * p[1:], "fitted", median_ratio(_nees(s * c, e, A, V)))
+    return result(s * p[0], s * p[1:], "fitted", median_ratio(_nees(np.full(len(e), s), e, scaled, V)), s * h)
 
 
 def relative_factor_states(states: dict, old, new) -> dict:

@@ -135,6 +135,8 @@ class RunResult:
             pose_pull=c["pose_pull"],
             restarted=c["restarted"].astype(bool),
             velocity_correlation_time=np.float64(u.velocity_correlation_time),
+            velocity_error_share=np.float64(u.velocity_error_share),
+            registration_correlation=np.float64(u.registration_correlation),
             drift_rate_sigma=np.asarray(u.drift_rate_sigma, dtype=float),
             velocity_inflation=velocity_inflation_array(
                 u.velocity_inflation, u.velocity_inflation_per_speed, u.velocity_inflation_per_doppler,

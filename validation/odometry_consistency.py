@@ -25,6 +25,7 @@ import numpy as np
 from rodo.estimator.attitude_jitter import span_excess, with_roll_pitch_variance
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
+from rodo.estimator.uncertainty import recursion_inputs
 from rodo.estimator.velocity_inflation import velocity_factor, velocity_inflation_terms
 
 from .alignment import truth_in_estimator_frame
@@ -34,7 +35,7 @@ from .span_covariances import heading_deviations, span_covariances
 
 # not per scan
 RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation", "heading_reversion",
-                 "attitude_jitter")
+                 "attitude_jitter", "velocity_error_share", "registration_correlation")
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
 
@@ -65,6 +66,28 @@ def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflat
         raise InputError(f"states: velocity_inflation has a Doppler term (d = {d:g}) but no doppler_nis array")
     c = velocity_factor(varpi, a, b, d, doppler_nis, rates)
     return P_varpi / c[:, None, None] if (a, b, d) != (1.0, 0.0, 0.0) or rates.any() else P_varpi
+
+
+def recursion_inputs_of_run(states: dict, Sigma_rel: np.ndarray, P_window: np.ndarray, rows=None,
+                            restarted=None) -> tuple[np.ndarray, np.ndarray]:
+    """(Sigma_rel, P_varpi) (N, 6, 6) a run's drift recursion composed at its scans `rows` (None: all):
+    `estimator.uncertainty.recursion_inputs` of their relative pose covariances Sigma_rel and window velocity
+    covariances P_window at the run's `registration_correlation` alpha and `velocity_error_share` g (states.npz;
+    0 and 1 in runs before them), dt the interval since the scan before each in the run. The velocity covariances
+    of every scan are g times the window's; alpha moves covariance only at registered scans (not a run's first
+    scan, not a re-initialisation's dead-reckoned step: `restarted` (N,), None: states' own)."""
+    alpha = float(states.get("registration_correlation", 0.0))
+    g = float(states.get("velocity_error_share", 1.0))
+    if alpha == 0.0:
+        return Sigma_rel, (P_window if g == 1.0 else g * P_window)
+    rows = np.arange(len(states["t"])) if rows is None else rows
+    dt = np.diff(np.asarray(states["t"], dtype=float), prepend=np.nan)[rows]
+    if restarted is None:
+        restarted = np.asarray(states.get("restarted", np.zeros(len(states["t"]), bool)), dtype=bool)[rows]
+    ok = np.isfinite(dt) & ~np.asarray(restarted, dtype=bool) & np.all(np.isfinite(Sigma_rel), axis=(1, 2))
+    S, P = np.array(Sigma_rel, dtype=float), g * np.asarray(P_window, dtype=float)
+    S[ok], P[ok] = recursion_inputs(Sigma_rel[ok], P_window[ok], dt[ok], alpha, g)
+    return S, P
 
 
 def _span_terms(m: dict, n: int, tau: float, drift_rate_sigma, heading):
@@ -174,7 +197,8 @@ def _matched(states: dict, truth: dict, tolerance: float, tau: float, drift_rate
     """A run's scans matched to the truth (`odometry_nees`'s arguments): t, T_est, T_true (in the estimator's
     world), P, sub (the per-scan states arrays at the matched scans), ib (the truth's indices), the drift rate and
     heading reversion in use (the run's own where None), and drift_inputs, what the run's drift recursion
-    composed, for every span measure ((Sigma_rel, P_varpi, restarts, deviations); None without P_relative)."""
+    composed, for every span measure ((Sigma_rel, P_varpi, restarts, deviations), `recursion_inputs_of_run`; None
+    without P_relative)."""
     if drift_rate_sigma is None and "drift_rate_sigma" in states:
         drift_rate_sigma = np.asarray(states["drift_rate_sigma"], dtype=float)
     if heading is None:
@@ -189,10 +213,11 @@ def _matched(states: dict, truth: dict, tolerance: float, tau: float, drift_rate
         sub["restarted"] = np.diff(n_restarts, prepend=0) > 0
     drift_inputs = None
     if "P_relative" in sub:
-        Sigma_rel = np.asarray(sub["P_relative"], dtype=float)
-        P_varpi = drift_velocity_covariances(sub["P"], sub["varpi"], states.get("velocity_inflation"),
-                                             sub.get("doppler_nis"), states.get("velocity_axis_inflation"))
         restarts = sub.get("restarted")
+        P_window = drift_velocity_covariances(sub["P"], sub["varpi"], states.get("velocity_inflation"),
+                                              sub.get("doppler_nis"), states.get("velocity_axis_inflation"))
+        Sigma_rel, P_varpi = recursion_inputs_of_run(states, np.asarray(sub["P_relative"], dtype=float), P_window,
+                                                     ia, restarts)
         deviations = heading_deviations(T_est, t, Sigma_rel, P_varpi, tau, drift_rate_sigma, restarts, heading)
         drift_inputs = Sigma_rel, P_varpi, restarts, deviations
     return {"t": t, "T_est": T_est, "T_true": T_true, "P": np.asarray(states["P"], dtype=float)[ia], "sub": sub,

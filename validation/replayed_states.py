@@ -18,7 +18,7 @@ from rodo.estimator.attitude_jitter import absolute_excess, attitude_jitter_arra
 from rodo.estimator.heading_reversion import heading_reversion_array
 from rodo.estimator.velocity_inflation import velocity_inflated, velocity_inflation_array
 
-from .odometry_consistency import drift_velocity_covariances
+from .odometry_consistency import drift_velocity_covariances, recursion_inputs_of_run
 from .span_covariances import drift_replay
 
 
@@ -62,18 +62,18 @@ def replayed(states: dict, tau: float, drift_rate_sigma, heading=None, jitter=No
 def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None, heading=None, jitter=None) -> np.ndarray:
     """(N, 6, 6) the absolute pose covariances a run would have reported with this tau, drift rate, heading
     reversion ([T_r, T_a]; None: off) and roll and pitch jitter ([V, T]; None: off): its recursion replayed over its
-    stored relative and velocity covariances, across its re-initialisations where states.npz flags them,
-    `restarted` (`span_covariances.drift_replay`), the jitter's excess since its first scan added
-    (`attitude_jitter.absolute_excess`); row 0: the first pose's.
+    stored relative and velocity covariances (`recursion_inputs_of_run`), across its re-initialisations
+    where states.npz flags them, `restarted` (`span_covariances.drift_replay`), the jitter's excess since its first
+    scan added (`attitude_jitter.absolute_excess`); row 0: the first pose's.
 
     Checked by: tests/validation/test_calibrate_consistency.py::test_absolute_covariances_replay_the_run,
         ::test_absolute_covariances_replay_a_run_across_its_restart
     """
     P = np.asarray(states["P"], dtype=float)
-    P_varpi = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"),
-                                         states.get("doppler_nis"), states.get("velocity_axis_inflation"))
+    P_window = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"),
+                                          states.get("doppler_nis"), states.get("velocity_axis_inflation"))
+    Sigma_rel, P_varpi = recursion_inputs_of_run(states, np.asarray(states["P_relative"], dtype=float), P_window)
     steps = drift_replay(np.asarray(states["T_vehicle_world"], dtype=float), np.asarray(states["t"], dtype=float),
-                         np.asarray(states["P_relative"], dtype=float), P_varpi, P[0, :6, :6], tau, drift_rate_sigma,
-                         states.get("restarted"), heading)
+                         Sigma_rel, P_varpi, P[0, :6, :6], tau, drift_rate_sigma, states.get("restarted"), heading)
     P_absolute = np.stack([P[0, :6, :6]] + [drift.C[:6, :6] for drift in steps])
     return with_roll_pitch_variance(P_absolute, absolute_excess(states["t"], attitude_jitter_array(jitter)))

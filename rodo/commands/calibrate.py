@@ -124,6 +124,7 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                          + (" and per axis" if set(v.get("per_axis", [1.0])) != {1.0} else "")
                          + ", drift_rate_sigma and "
                          f"velocity_correlation_time {c['velocity_correlation_time']:g} s"
+                         + _correlation_words(c)
                          + _heading_words(c) + _jitter_words(c) + " fitted so that the "
                          "estimator's NEES against the truth is consistent (docs/calibration.md).")
     else:
@@ -201,8 +202,8 @@ def _consistency_markdown(c: dict) -> list[str]:
     vec = ", ".join(f"{x:.3g}" for x in d["sigma"])
     before, after = rel["median_ratio"]
     lines += ["", "relative pose covariance factor (uncertainty.inflation, inflation_per_doppler, "
-              f"inflation_per_pull, inflation_per_rate) {_relative_words(rel)} (median ratio of the one-scan "
-              f"relative pose {before:.3g} -> {after:.3g}; "
+              f"inflation_per_pull, inflation_per_rate; velocity_error_share) {_relative_words(rel)} (median "
+              f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; "
               f"{rel['outcome']})",
               f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
               f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS){_rate_words(v)}, per axis vx, vy, vz, wx, wy, wz x "
@@ -215,6 +216,9 @@ def _consistency_markdown(c: dict) -> list[str]:
                  if "z" in d else ""),
               "tau grid (median ratio of the relative pose over the span / of the absolute pose): "
               + ", ".join(f"{t} s: {r['relative_span']:.3g} / {r['pose']:.3g}" for t, r in c["tau_grid"].items())]
+    if c.get("registration_correlation", {}).get("grid"):
+        lines.append("registration_correlation grid (alpha: its tau, the cost): " + ", ".join(
+            f"{a}: {r['tau']:g} s, {r['cost']:.3g}" for a, r in c["registration_correlation"]["grid"].items()))
     if c.get("heading_reversion", {}).get("grid"):
         h = c["heading_reversion"]
         chosen = f"{h['time']:g} / {h['anchor_time']:g} s" if h["time"] > 0 else "off"
@@ -244,11 +248,19 @@ def _rate_words(v: dict) -> str:
 
 
 def _relative_words(rel: dict) -> str:
-    """'f + d x ln(1 + Doppler NIS) + p x pull + [r_x, r_y, r_z] s/rad x |body rates|' of the relative pose factor
-    (the terms that are not 0)."""
+    """'f + d x ln(1 + Doppler NIS) + p x pull + [r_x, r_y, r_z] s/rad x |body rates| with velocity_error_share g'
+    of the relative pose factor (the terms that are not 0, the share where it is not 1)."""
     d, p = rel.get("per_doppler", 0.0), rel.get("per_pull", 0.0)
+    g = rel.get("velocity_error_share", 1.0)
     return (f"{rel['inflation']:.3g}" + (f" + {d:.3g} x ln(1 + Doppler NIS)" if d else "")
-            + (f" + {p:.3g} x pull" if p else "") + _rate_words(rel))
+            + (f" + {p:.3g} x pull" if p else "") + _rate_words(rel)
+            + (f" with velocity_error_share {g:.3g}" if g != 1.0 else ""))
+
+
+def _correlation_words(c: dict) -> str:
+    """' with registration_correlation alpha' of a consistency report (none in reports before it)."""
+    alpha = c.get("registration_correlation", {}).get("value")
+    return "" if alpha is None else f" with registration_correlation {alpha:g}"
 
 
 def _jitter_words(c: dict) -> str:

@@ -10,7 +10,8 @@ from scipy.stats import chi2
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
-from rodo.estimator.uncertainty import DriftCovariance, relative_pose_covariance, revision_covariance, span_covariance
+from rodo.estimator.uncertainty import (DriftCovariance, recursion_inputs, relative_pose_covariance, revision_covariance,
+                                       span_covariance)
 from tests.estimator import scene
 from tests.strategies import twists
 
@@ -209,6 +210,31 @@ def test_span_covariance_equals_the_recursion():
                  else after.update(T[k - 1], T[k], t[k] - t[k - 1], Sigma_rel[k], P_varpi[k]))
         np.testing.assert_allclose(span_covariance(T, t, Sigma_rel, P_varpi, 7, 11, 0.5, drift_rate_sigma, restarts),
                                    P, rtol=1e-12, atol=1e-18)
+
+
+@settings(max_examples=10, deadline=None)
+@given(alpha=st.floats(0.0, 1.0), g=st.floats(0.05, 1.0), tau=st.floats(0.05, 2.0), n=st.integers(2, 20),
+       seed=st.integers(0, 2**32 - 1))
+def test_a_correlated_registration_keeps_one_scan_and_grows_a_span(alpha, g, tau, n, seed):
+    """`recursion_inputs` at the registration's correlation alpha and the velocity error's share g, for a vehicle
+    at rest (every Ad the identity) with constant Sigma_rel and P_varpi: one scan composes Sigma_rel + g dt^2
+    P_varpi whatever alpha, and a span of n scans the AR(1) sum n (1 - alpha) Sigma_rel + dt^2 P' (n + 2 sum_k
+    (n - k) phi^k), P' = g P_varpi + alpha Sigma_rel / dt^2, phi = exp(-dt / tau); at alpha 0 and g 1 the inputs
+    themselves, bit for bit."""
+    rng = np.random.default_rng(np.random.SeedSequence([39, seed]))
+    dt, m = 0.077, n + 3
+    t = dt * np.arange(m)
+    T = np.stack([np.eye(4)] * m)
+    Sigma, P = _random_cov(rng, 1e-3), _random_cov(rng, 1e-2)
+    S_k, P_k = recursion_inputs(np.stack([Sigma] * m), np.stack([P] * m), np.full(m, dt), alpha, g)
+    one = span_covariance(T, t, S_k, P_k, 1, 2, tau)
+    np.testing.assert_allclose(one, Sigma + g * dt**2 * P, rtol=1e-9, atol=1e-15)
+    phi = np.exp(-dt / tau)
+    P_prime = g * P + alpha * Sigma / dt**2
+    expected = n * (1 - alpha) * Sigma + dt**2 * P_prime * (n + 2 * sum((n - k) * phi**k for k in range(1, n)))
+    np.testing.assert_allclose(span_covariance(T, t, S_k, P_k, 1, 1 + n, tau), expected, rtol=1e-9, atol=1e-15)
+    same = recursion_inputs(Sigma, P, dt, 0.0, 1.0)
+    assert same[0] is Sigma and same[1] is P
 
 
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])

@@ -237,6 +237,24 @@ def test_fit_tau_takes_the_grid_point_nearest_consistency(city_run):
     assert spans[0] > spans[-1]
 
 
+def test_fit_correlation_takes_the_pair_of_least_cost(city_run):
+    """The registration's correlation alpha is chosen with its tau: the pair of the least cost over the grid it
+    reports, each alpha's tau `fit_tau`'s at that alpha; alpha 0 alone is `fit_tau`; carrying the registration
+    correlated over 1 s scans grows the relative pose over the span (smaller ratios at the same tau)."""
+    states, truth = city_run
+    drift = states["drift_rate_sigma"]
+    alpha, tau, ratios, report = cc.fit_correlation(states, truth, 1.0, drift)
+    assert set(report["grid"]) == {f"{a:g}" for a in cc.CORRELATIONS} and report["value"] == alpha
+    costs = {a: r["cost"] for a, r in report["grid"].items()}
+    assert costs[f"{alpha:g}"] == min(costs.values()) and report["grid"][f"{alpha:g}"]["tau"] == tau
+    assert cc.tau_cost(ratios[tau]) == pytest.approx(costs[f"{alpha:g}"])
+    assert cc.fit_correlation(states, truth, 1.0, drift, correlations=(0.0,))[1:3] == cc.fit_tau(
+        states, truth, drift_rate_sigma=drift)
+    at = {a: cc.fit_tau(dict(states, registration_correlation=a), truth, drift_rate_sigma=drift)[1]
+          for a in (0.0, 1.0)}
+    assert at[1.0][0.5][0] < at[0.0][0.5][0]
+
+
 def test_velocity_factors_change_the_velocity_measure_only(city_run):
     """States as a run with velocity factors writes them (`velocity_inflated_states`): the velocity NEES divided
     by a + b |nu| of each scan; the relative and absolute pose measures, whose drift recursion keeps the window's
@@ -303,7 +321,7 @@ def test_relative_factor_out_of_reach_is_left_as_it_was(city_run):
     assert fit["median_ratio"][0] < 0.5
     assert fit == {"inflation": 0.7, "per_rate": [0.0] * 3, "per_doppler": 0.0, "per_pull": 0.0,
                    "median_ratio": [fit["median_ratio"][0]] * 2,
-                   "outcome": "out of reach"}
+                   "outcome": "out of reach", "velocity_error_share": 1.0}
 
 
 def _halves(states: dict) -> list[dict]:
