@@ -200,13 +200,13 @@ class UncertaintyConfig:
         its velocity error's variance (one scan's relative pose gains g dt^2 P_varpi from it; the spans and the
         absolute pose compose it): the registration pins a scan's pose to the map whatever the window's velocity
         error, so less of that error reaches the relative pose than dead reckoning would carry (at rest on a fresh
-        map most: docs/consistency.md, "The velocity error's share"). `rodo calibrate` learns it with the one-scan
-        factor. Reported covariances only; 1: the whole velocity covariance.
+        map most: docs/consistency.md, "The velocity error's share and the registration's correlation"). `rodo
+        calibrate` learns it with the one-scan factor. Reported covariances only; 1: the whole velocity covariance.
     registration_correlation: the share alpha (0-1) of each scan's relative pose covariance that the drift
         recursion carries correlated over tau, with the velocity error (alpha Sigma_rel / dt^2 added to its
         variance), the rest composed as independent: the registration's errors are correlated over a few scans to
-        a second (docs/consistency.md, "The velocity error's share"). `rodo calibrate` chooses it with tau.
-        Reported covariances only; 0: independent registrations.
+        a second (the same section). `rodo calibrate` chooses it with tau. Reported covariances only; 0:
+        independent registrations.
     drift_rate_sigma: sigma of the registration's systematic error per metre driven, unknown but constant
         over a run ([x, y, z] m/m, [roll, pitch, yaw] rad/m, vehicle frame): the absolute pose's error grows
         with the distance, not its square root. Not in the solve.

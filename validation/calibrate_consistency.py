@@ -18,7 +18,7 @@ tells the truth (docs/consistency.md):
   that ratio is off by more than the fixed point's tolerance. The spans and the absolute pose compose it.
 - `uncertainty.velocity_error_share` g: how much of the window's velocity covariance the drift recursion takes as
   its velocity error's variance; learned with f and its terms, by the same likelihood, and scaled with them by
-  the median ratio (docs/consistency.md, "The velocity error's share").
+  the median ratio (docs/consistency.md, "The velocity error's share and the registration's correlation").
 - `uncertainty.drift_rate_sigma`: the registration's systematic error per metre driven (the absolute pose's
   error grows with the distance, not its square root). Its one realisation on the sequence is the least-squares
   fit beta = sum_k e_k / sum_k s_k of the one-scan relative errors e_k over the distances s_k; the sigma
