@@ -10,9 +10,9 @@ from rodo.estimator.errors import InputError
 
 from . import extras
 from .commands import (calibrate, config, convert, demo, ego_velocity, evaluate, export, figures, montecarlo, prior,
-                       realism, run, simulate, table1, view)
+                       realism, run, simulate, table1, verdict, view)
 
-COMMANDS = [demo, simulate, run, evaluate, montecarlo, table1, convert, ego_velocity, prior, figures, view,
+COMMANDS = [demo, simulate, run, evaluate, montecarlo, table1, verdict, convert, ego_velocity, prior, figures, view,
             calibrate, export, config, realism]  # modules with register(subparsers); see rodo/commands/
 
 

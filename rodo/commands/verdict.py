@@ -1,0 +1,169 @@
+"""`rodo verdict [--scenarios city,hills,stop_and_go,highway] [--runs 20] [--duration 30] [--seed 7]
+[--calibration-seed 100] [--calibration-duration 180] [--floor 1e-4] [--jobs J] --out DIR [--resume]`:
+the consistency verdict of CA/P against CV/C, each at its learned noise (validation/verdict.py).
+
+Per scenario S, the recipe of docs/consistency.md ("The verdict with everything learned") as one command:
+
+    rodo simulate S --seed 100 --duration 180 --out DIR/calibration/S      # a drive the campaign never sees
+    rodo calibrate DIR/calibration/S --model ca-polar --floor 1e-4 --out DIR/calibration/S_ca.toml
+    rodo calibrate DIR/calibration/S --model cv-cartesian --floor 1e-4 --out DIR/calibration/S_cv.toml
+    rodo montecarlo S --runs 20 --duration 30 --seed 7 --models ca-learned=...S_ca.toml,cv-learned=...S_cv.toml
+        --out DIR/S
+
+then DIR/verdict.md and verdict.json. Each step's output goes to DIR/logs/; the simulations and calibrations run
+--jobs at a time. With --resume a finished step is skipped (a sequence with all its files, a config with its
+report) and the campaigns resume; DIR/campaign.json holds the parameters, and a resume with other ones is refused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+from rodo.estimator.errors import InputError
+
+from .table1 import parse_scenarios
+
+SEQUENCE_FILES = ("radar.csv", "sensor.toml", "groundtruth.txt", "truth.npz")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from rodo.validation.verdict import SCENARIOS
+
+    p = sub.add_parser("verdict", help="the consistency verdict: calibrate both models on a drive of their own, "
+                                       "then campaigns of both at the learned noise (docs/consistency.md)",
+                       description="Per scenario: simulate a calibration drive, learn each model's noise and "
+                                   "uncertainty terms on it (rodo calibrate), run a campaign of both models "
+                                   "(rodo montecarlo), then write DIR/verdict.md and verdict.json: accuracy, "
+                                   "the share of scans inside the bounds per cell, the mean NEES of every "
+                                   "measure and the ellipsoids' coverage.")
+    p.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated scenarios (%(default)s)")
+    p.add_argument("--runs", type=int, default=20, help="trials per scenario (default 20)")
+    p.add_argument("--duration", type=float, default=30.0, help="seconds of each trial (default 30)")
+    p.add_argument("--seed", type=int, default=7, help="the campaigns' seed (default 7)")
+    p.add_argument("--calibration-seed", type=int, default=100, help="the calibration drives' seed (default 100)")
+    p.add_argument("--calibration-duration", type=float, default=180.0,
+                   help="seconds of each calibration drive (default 180)")
+    p.add_argument("--floor", type=float, default=1e-4, help="rodo calibrate's --floor (default 1e-4)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
+    p.add_argument("--out", required=True, metavar="DIR", help="the verdict's directory")
+    p.add_argument("--resume", action="store_true", help="continue the verdict in DIR (skip finished steps)")
+    p.set_defaults(func=main)
+
+
+def _check(args) -> list[str]:
+    from rodo.scenarios.registry import MAX_DURATION
+
+    names = parse_scenarios(args.scenarios)
+    if args.runs < 2:
+        raise InputError(f"--runs: at least 2 (the intervals and the spread need two), got {args.runs}")
+    if args.jobs < 1:
+        raise InputError(f"--jobs: must be >= 1, got {args.jobs}")
+    for flag, v in (("--duration", args.duration), ("--calibration-duration", args.calibration_duration)):
+        if not 0 < v <= MAX_DURATION:  # NaN too
+            raise InputError(f"{flag}: must be > 0 and at most {MAX_DURATION:g} s, got {v}")
+    return names
+
+
+def _steps(args, names: list[str]) -> tuple[list, list, list]:
+    """(simulations, calibrations, campaigns): (label, argv, done) of every step."""
+    from rodo.validation.verdict import MODELS, config_path
+
+    out, sims, cals, camps = Path(args.out), [], [], []
+    for s in names:
+        seq = out / "calibration" / s
+        sims.append((f"simulate {s}", ["simulate", s, "--seed", str(args.calibration_seed), "--duration",
+                                       str(args.calibration_duration), "--out", str(seq)],
+                     all((seq / f).is_file() for f in SEQUENCE_FILES)))
+        labels = []
+        for name, (label, model, _) in MODELS.items():
+            cfg = config_path(out, s, name)
+            cals.append((f"calibrate {s} {name}", ["calibrate", str(seq), "--model", model, "--floor",
+                                                   str(args.floor), "--out", str(cfg)],
+                         cfg.is_file() and cfg.with_suffix(".md").is_file()))
+            labels.append(f"{label}={cfg}")
+        camps.append((f"montecarlo {s}", ["montecarlo", s, "--runs", str(args.runs), "--duration", str(args.duration),
+                                          "--seed", str(args.seed), "--jobs", str(args.jobs), "--models",
+                                          ",".join(labels), "--out", str(out / s)]
+                      + (["--resume"] if (out / s / "results.csv").exists() else []), False))
+    return sims, cals, camps
+
+
+def run_step(argv: list[str], log: str | None) -> int:
+    """`rodo argv` with its output in `log` (a worker's task), or on the terminal (log None: the campaigns,
+    which show their progress); its exit code."""
+    from rodo import cli
+
+    if log is None:
+        return cli.main(argv)
+    with open(log, "w", encoding="utf-8") as f, contextlib.redirect_stdout(f), contextlib.redirect_stderr(f):
+        return cli.main(argv)
+
+
+def _last_line(log: Path) -> str:
+    lines = [ln for ln in log.read_text(encoding="utf-8", errors="replace").splitlines() if ln.strip()]
+    return lines[-1] if lines else "(no output)"
+
+
+def _run(steps: list, logs: Path | None, jobs: int) -> None:
+    """Run the steps not done, `jobs` at a time (in-process for one), their output in logs/ (or on the terminal,
+    logs None); InputError naming the first that failed."""
+    todo = [(label, argv) for label, argv, done in steps if not done]
+    for label, _, done in steps:
+        if done:
+            print(f"    {label}: done before, kept")
+    if not todo:
+        return
+    paths = [None if logs is None else str(logs / (label.replace(" ", "_").replace("/", "") + ".log"))
+             for label, _ in todo]
+    start = time.monotonic()
+    if jobs == 1 or len(todo) == 1:
+        codes = []
+        for (label, argv), log in zip(todo, paths):
+            print(f"    {label}" + (f" (log: {log})" if log else ""), flush=True)
+            codes.append(run_step(argv, log))
+            if codes[-1] != 0:
+                break
+    else:
+        for (label, _), log in zip(todo, paths):
+            print(f"    {label} (log: {log})", flush=True)
+        with ProcessPoolExecutor(max_workers=min(jobs, len(todo))) as pool:
+            codes = list(pool.map(run_step, [argv for _, argv in todo], paths))
+    for (label, _), log, code in zip(todo, paths, codes):
+        if code != 0:
+            said = f"{_last_line(Path(log))} (log: {log})" if log else "its message is above"
+            raise InputError(f"{label} failed (exit {code}): {said}; fix it and run again with --resume")
+    print(f"    {len(todo)} done in {time.monotonic() - start:.0f} s", flush=True)
+
+
+def main(args) -> int:
+    from rodo.validation.campaign_dir import campaign_lock, check_and_save_meta
+    from rodo.validation.verdict import build_verdict, write_verdict
+
+    names = _check(args)
+    out = Path(args.out)
+    meta = {"scenarios": ",".join(names), "runs": args.runs, "duration": args.duration, "seed": args.seed,
+            "calibration_seed": args.calibration_seed, "calibration_duration": args.calibration_duration,
+            "floor": args.floor}
+    with campaign_lock(out):
+        if not args.resume and (out / "campaign.json").exists():
+            raise InputError(f"--out: {out / 'campaign.json'} exists (a verdict in progress or done); pass --resume "
+                             "to continue it, or choose another directory")
+        check_and_save_meta(out, meta, args.resume)
+        logs = out / "logs"
+        logs.mkdir(exist_ok=True)
+        sims, cals, camps = _steps(args, names)
+        for title, steps, where, jobs in (("calibration drives", sims, logs, args.jobs),
+                                          ("calibrations", cals, logs, args.jobs), ("campaigns", camps, None, 1)):
+            print(f"==> {title}", flush=True)
+            _run(steps, where, jobs)
+        text = write_verdict(out, build_verdict(out, names), meta)
+    sys.stdout.write(text)
+    print(f"wrote {out / 'verdict.md'}, {out / 'verdict.json'} (the campaigns in {out}/<scenario>/, the learned "
+          f"configs in {out / 'calibration'}/)")
+    return 0

@@ -1,0 +1,118 @@
+"""`rodo verdict`: the criteria on hand-made rows, and one tiny real verdict through the CLI (calibration drive,
+both calibrations, the campaign, the table) that resumes without redoing a step and refuses other parameters."""
+
+import json
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from rodo import scenarios
+from rodo.cli import main
+from rodo.validation.campaign_files import read_results
+from rodo.validation.verdict import CELLS, SHARE_TARGET, SPAN_LIMIT, SPANS, judge
+from tests.cli.helpers import fails
+
+shares = st.one_of(st.none(), st.floats(0.0, 1.0))
+means = st.one_of(st.none(), st.floats(0.0, 10.0))
+
+
+def _row(scenario, values):
+    """A verdict row whose models' measures have the given (share, mean) per measure, CA/P then CV/C."""
+    it = iter(values)
+    models = {}
+    for name in ("CA/P", "CV/C"):
+        c = {m: {"fraction_scans_within": next(it), "mean_per_dof": None} for m in CELLS}
+        c.update({m: {"fraction_scans_within": None, "mean_per_dof": next(it)} for m in SPANS})
+        models[name] = {"consistency": c}
+    return {"scenario": scenario, "models": models}
+
+
+@given(st.lists(st.tuples(shares, shares, means, means, shares, shares, means, means), min_size=1, max_size=4))
+def test_judge_counts_a_cell_at_the_target_and_a_span_within_the_limit(spec):
+    rows = [_row(f"s{i}", v) for i, v in enumerate(spec)]
+    crit = judge(rows)
+    cell_values = [v for vs in spec for v in (vs[0], vs[1], vs[4], vs[5])]
+    span_values = [v for vs in spec for v in (vs[2], vs[3], vs[6], vs[7])]
+    assert [c["share"] for c in crit["cells"]] == cell_values
+    assert crit["cells_met"] == sum(v is not None and v >= SHARE_TARGET for v in cell_values)
+    assert crit["spans_met"] == sum(v is not None and v <= SPAN_LIMIT for v in span_values)
+
+
+def test_judge_at_the_boundaries():
+    crit = judge([_row("a", [0.90, 0.8999, 2.0, 2.0001, None, 1.0, None, 0.0])])
+    assert [c["met"] for c in crit["cells"]] == [True, False, False, True]
+    assert [s["met"] for s in crit["spans"]] == [True, False, False, True]
+
+
+ARGS = ["--scenarios", "stop_and_go", "--runs", "2", "--duration", "3", "--calibration-duration", "5",
+        "--seed", "3"]
+
+
+@pytest.fixture(scope="module")
+def verdict_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("verdict") / "v"
+    assert main(["verdict", *ARGS, "--jobs", "2", "--out", str(out)]) == 0
+    return out
+
+
+@pytest.mark.slow
+def test_a_verdict_reports_its_campaign_at_the_configs_it_learned(verdict_dir):
+    verdict = json.loads((verdict_dir / "verdict.json").read_text())
+    summary = json.loads((verdict_dir / "stop_and_go" / "summary.json").read_text())
+    campaign = json.loads((verdict_dir / "stop_and_go" / "campaign.json").read_text())
+    row = verdict["rows"][0]
+    for name, label, file in (("CA/P", "ca-learned", "ca"), ("CV/C", "cv-learned", "cv")):
+        config = verdict_dir / "calibration" / f"stop_and_go_{file}.toml"
+        assert campaign["configs"][label] == config.read_text()  # the campaign ran the learned config
+        for measure, c in row["models"][name]["consistency"].items():
+            assert c["fraction_scans_within"] == summary["models"][label]["consistency"][measure][
+                "fraction_scans_within"]
+        assert row["models"][name]["ok"] == 2
+    crit = verdict["criteria"]
+    assert len(crit["cells"]) == 4 and crit["cells_met"] == sum(c["share"] >= 0.9 for c in crit["cells"])
+    text = (verdict_dir / "verdict.md").read_text()
+    assert f"{crit['cells_met']} of 4 cells" in text and "| stop_and_go | CA/P |" in text
+    assert verdict["parameters"]["calibration_duration"] == 5.0
+
+
+@pytest.mark.slow
+def test_a_verdict_resumes_without_redoing_a_step_and_refuses_other_parameters(verdict_dir, capsys):
+    config = verdict_dir / "calibration" / "stop_and_go_ca.toml"
+    before = (config.stat().st_mtime_ns, (verdict_dir / "calibration" / "stop_and_go" / "truth.npz").stat().st_mtime_ns,
+              read_results(verdict_dir / "stop_and_go" / "results.csv"))
+    capsys.readouterr()
+    assert main(["verdict", *ARGS, "--jobs", "1", "--out", str(verdict_dir), "--resume"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("done before, kept") == 3 and "skipped 4 already done" in out
+    after = (config.stat().st_mtime_ns, (verdict_dir / "calibration" / "stop_and_go" / "truth.npz").stat().st_mtime_ns,
+             read_results(verdict_dir / "stop_and_go" / "results.csv"))
+    assert after == before
+    fails(capsys, ["verdict", *ARGS, "--out", verdict_dir], "campaign.json", "--resume")
+    other = [a if a != "5" else "6" for a in ARGS]
+    fails(capsys, ["verdict", *other, "--out", verdict_dir, "--resume"], "calibration_duration")
+
+
+@pytest.mark.slow
+def test_a_failed_step_is_named_with_its_log(tmp_path, capsys):
+    out = tmp_path / "v"
+    seq = out / "calibration" / "stop_and_go"
+    scenarios.simulate_to("stop_and_go", 1, seq, duration=1.0)
+    lines = (seq / "radar.csv").read_text().splitlines()
+    lines[3] = "not,a,detection"
+    (seq / "radar.csv").write_text("\n".join(lines) + "\n")
+    err = fails(capsys, ["verdict", *ARGS, "--jobs", "1", "--out", out, "--resume"],
+                "calibrate stop_and_go CA/P failed (exit 2)", "radar.csv", "log:")
+    assert "radar.csv, line 4" in err
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--scenarios", "nowhere"], "--scenarios"),
+    (["--runs", "1"], "--runs"),
+    (["--duration", "nan"], "--duration"),
+    (["--calibration-duration", "0"], "--calibration-duration"),
+    (["--jobs", "0"], "--jobs"),
+])
+def test_bad_options_are_refused_before_any_work(tmp_path, capsys, argv, needle):
+    fails(capsys, ["verdict", *argv, "--out", tmp_path / "v"], needle)
+    assert not (tmp_path / "v").exists()

@@ -1,0 +1,166 @@
+"""The consistency verdict: CA/P against CV/C, each at the noise `rodo calibrate` learned for it, judged by issue
+15's acceptance criteria (docs/consistency.md, "The verdict with everything learned").
+
+`rodo verdict` (rodo/commands/verdict.py) produces, per scenario S, a calibration drive, the two learned configs
+and a campaign of both; this module reads them back and builds the verdict:
+
+- accuracy: the KITTI translational error (%) per model, mean with its 95 % Student-t interval over the trials,
+  and the paired difference CA/P - CV/C over the trials both have (`campaign_compare`);
+- consistency: per model and measure (`odometry_consistency.MEASURES`) the campaign summary's mean NEES per dof
+  and share of scans whose N-run average lies inside its 95 % bounds;
+- the criteria: a "cell" (a model's velocity or one-scan relative pose on a scenario) meets the scan-by-scan
+  criterion when at least `SHARE_TARGET` of its scans are inside; the relative pose over the span and the
+  absolute pose meet theirs when their mean NEES per dof is at most `SPAN_LIMIT`;
+- the 3-sigma ellipsoids: the mean over the runs of the % of scans whose true position lies inside;
+- what was learned: the uncertainty terms of each config that set its reported covariances.
+
+Checked by: tests/validation/test_verdict.py
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from rodo.estimator.errors import InputError
+from rodo.sim.sequence import atomic_write_bytes
+
+from .campaign_compare import mean_interval, paired
+from .campaign_files import read_results
+from .metrics import jsonable
+
+MODELS = {"CA/P": ("ca-learned", "ca-polar", "ca"), "CV/C": ("cv-learned", "cv-cartesian", "cv")}  # label, model, file
+SCENARIOS = ("city", "hills", "stop_and_go", "highway")
+CELLS = ("velocity", "relative_scan")  # judged scan by scan
+SPANS = ("relative_span", "pose")  # judged by their mean
+SHARE_TARGET = 0.90
+SPAN_LIMIT = 2.0
+LEARNED = ("velocity_correlation_time", "velocity_error_share", "registration_correlation", "inflation",
+           "inflation_per_pull", "velocity_inflation")
+
+
+def config_path(out_dir, scenario: str, name: str) -> Path:
+    """DIR/calibration/<scenario>_<ca|cv>.toml, the learned config of model `name` ("CA/P" or "CV/C")."""
+    return Path(out_dir) / "calibration" / f"{scenario}_{MODELS[name][2]}.toml"
+
+
+def _learned(path: Path) -> dict:
+    from rodo.estimator.config import OdometryConfig
+
+    u = OdometryConfig.from_toml(path).uncertainty
+    return {k: getattr(u, k) for k in LEARNED}
+
+
+def scenario_verdict(out_dir, scenario: str) -> dict:
+    """The verdict's row of one scenario from DIR/<scenario>/summary.json, results.csv and the two configs."""
+    camp = Path(out_dir) / scenario
+    path = camp / "summary.json"
+    if not path.is_file():
+        raise InputError(f"{path}: not found (the campaign of {scenario} has not finished); run `rodo verdict` "
+                         "again with --resume")
+    summary = json.loads(path.read_text())
+    rows = read_results(camp / "results.csv")
+    row = {"scenario": scenario, "models": {}}
+    for name, (label, _, _) in MODELS.items():
+        entry = summary["models"].get(label)
+        if entry is None:
+            raise InputError(f"{path}: no model {label!r} (a campaign of another command?)")
+        ok = [float(r["kitti_t_err_pct"]) for r in rows if r["model"] == label and r["status"] == "ok"
+              and r["kitti_t_err_pct"] not in ("", "None")]
+        mean, lo, hi = mean_interval(np.array(ok, dtype=float))
+        coverage = entry["metrics"].get("ellipsoid_3sigma_pct", {}).get("mean")
+        row["models"][name] = {
+            "runs": entry["runs"], "ok": entry["ok"], "kitti_t_err_pct": {"mean": mean, "lower": lo, "upper": hi,
+                                                                         "n": int(np.isfinite(ok).sum())},
+            "consistency": {m: {"mean_per_dof": c["mean_per_dof"], "fraction_scans_within": c["fraction_scans_within"]}
+                            for m, c in entry["consistency"].items() if c["runs"]},
+            "ellipsoid_3sigma_pct": coverage, "learned": _learned(config_path(out_dir, scenario, name))}
+    row["paired_kitti_t_err_pct"] = paired(rows, "kitti_t_err_pct", MODELS["CA/P"][0], MODELS["CV/C"][0])
+    return row
+
+
+def judge(rows: list[dict]) -> dict:
+    """The criteria over the scenarios' rows: every cell with its share and whether it meets SHARE_TARGET, every
+    span measure with its mean and whether it meets SPAN_LIMIT, and the counts."""
+    cells, spans = [], []
+    for row in rows:
+        for name, m in row["models"].items():
+            for measure in CELLS:
+                share = m["consistency"].get(measure, {}).get("fraction_scans_within")
+                cells.append({"scenario": row["scenario"], "model": name, "measure": measure, "share": share,
+                              "met": share is not None and share >= SHARE_TARGET})
+            for measure in SPANS:
+                mean = m["consistency"].get(measure, {}).get("mean_per_dof")
+                spans.append({"scenario": row["scenario"], "model": name, "measure": measure, "mean_per_dof": mean,
+                              "met": mean is not None and mean <= SPAN_LIMIT})
+    return {"share_target": SHARE_TARGET, "span_limit": SPAN_LIMIT, "cells": cells, "spans": spans,
+            "cells_met": sum(c["met"] for c in cells), "spans_met": sum(s["met"] for s in spans)}
+
+
+def build_verdict(out_dir, scenarios) -> dict:
+    rows = [scenario_verdict(out_dir, s) for s in scenarios]
+    return {"rows": rows, "criteria": judge(rows)}
+
+
+def _num(v, fmt: str = ".2f") -> str:
+    return "-" if v is None or not np.isfinite(v) else format(v, fmt)
+
+
+def _pct(v) -> str:
+    return "-" if v is None else f"{100 * v:.1f} %"
+
+
+def render_markdown(verdict: dict, meta: dict | None = None) -> str:
+    """verdict.md: accuracy, the criteria's cells, the spans and ellipsoids, and what was learned."""
+    rows, crit = verdict["rows"], verdict["criteria"]
+    lines = ["# The consistency verdict: CA/P against CV/C, each at its learned noise", "",
+             "## Accuracy (KITTI t. err %, mean [95 %]; paired difference over the same trials)", "",
+             "| scenario | CA/P | CV/C | CA/P - CV/C | CA/P lower in |", "| --- | ---: | ---: | --- | ---: |"]
+    for r in rows:
+        a, c, d = r["models"]["CA/P"]["kitti_t_err_pct"], r["models"]["CV/C"]["kitti_t_err_pct"], \
+            r["paired_kitti_t_err_pct"]
+        lines.append(f"| {r['scenario']} | {_num(a['mean'])} [{_num(a['lower'])}, {_num(a['upper'])}] | "
+                     f"{_num(c['mean'])} [{_num(c['lower'])}, {_num(c['upper'])}] | {_num(d['mean_difference'])} "
+                     f"[{_num(d['lower'])}, {_num(d['upper'])}] | {d['a_lower']}/{d['trials']} |")
+    lines += ["", f"## Scan by scan: the share of scans whose N-run average NEES is inside its 95 % bounds "
+                  f"(target {100 * crit['share_target']:.0f} %): {crit['cells_met']} of {len(crit['cells'])} cells",
+              "", "| scenario | CA/P velocity | CA/P one scan | CV/C velocity | CV/C one scan |",
+              "| --- | ---: | ---: | ---: | ---: |"]
+    for r in rows:
+        shares = [c for c in crit["cells"] if c["scenario"] == r["scenario"]]
+        lines.append(f"| {r['scenario']} | " + " | ".join(
+            ("**" if not c["met"] else "") + _pct(c["share"]) + ("**" if not c["met"] else "") for c in shares) + " |")
+    lines += ["", "Short of the target in bold.", "",
+              f"## On average: mean NEES per dof (the relative pose over the span and the absolute pose: at most "
+              f"{crit['span_limit']:g}; {crit['spans_met']} of {len(crit['spans'])} met), and the 3-sigma "
+              "ellipsoids (% of scans whose true position is inside, 97.1 % claimed)", "",
+              "| scenario | model | velocity | acceleration | one scan | span | absolute pose | ellipsoid |",
+              "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for r in rows:
+        for name, m in r["models"].items():
+            c = m["consistency"]
+            means = [_num(c.get(k, {}).get("mean_per_dof")) for k in
+                     ("velocity", "acceleration", "relative_scan", "relative_span", "pose")]
+            lines.append(f"| {r['scenario']} | {name} | " + " | ".join(means) + f" | "
+                         f"{_num(m['ellipsoid_3sigma_pct'], '.1f')} |")
+    lines += ["", "## What was learned (the `[uncertainty]` terms; the whole configs in calibration/)", "",
+              "| scenario | model | " + " | ".join(LEARNED) + " |", "| --- | --- |" + " ---: |" * len(LEARNED)]
+    for r in rows:
+        for name, m in r["models"].items():
+            lines.append(f"| {r['scenario']} | {name} | " + " | ".join(_num(m["learned"][k], ".3g") for k in LEARNED)
+                         + " |")
+    if meta:
+        lines += ["", "Parameters: " + ", ".join(f"{k}={v}" for k, v in sorted(meta.items()))]
+    return "\n".join(lines) + "\n"
+
+
+def write_verdict(out_dir, verdict: dict, meta: dict) -> str:
+    """Write DIR/verdict.md and DIR/verdict.json; returns the markdown."""
+    out = Path(out_dir)
+    text = render_markdown(verdict, meta)
+    atomic_write_bytes(out / "verdict.md", text.encode())
+    atomic_write_bytes(out / "verdict.json", (json.dumps(jsonable({**verdict, "parameters": meta}), indent=1)
+                                              + "\n").encode())
+    return text
