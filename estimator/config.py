@@ -202,6 +202,10 @@ class UncertaintyConfig:
         error, so less of that error reaches the relative pose than dead reckoning would carry (at rest on a fresh
         map most: docs/consistency.md, "The velocity error's share and the registration's correlation"). `rodo
         calibrate` learns it with the one-scan factor. Reported covariances only; 1: the whole velocity covariance.
+    velocity_error_share_per_speed: + this x the speed |nu| (s/m, >= 0) on that share, g + g_v |nu|: at rest on a
+        static scene the one scan's error is smaller than at speed, where the surfaces the registration sees are
+        resampled (docs/consistency.md, "The velocity error's share with the speed"). `rodo calibrate` learns it
+        with the share. Reported covariances only; 0: a share independent of the speed.
     registration_correlation: the share alpha (0-1) of each scan's relative pose covariance that the drift
         recursion carries correlated over tau, with the velocity error (alpha Sigma_rel / dt^2 added to its
         variance), the rest composed as independent: the registration's errors are correlated over a few scans to
@@ -245,6 +249,7 @@ class UncertaintyConfig:
     inflation_per_doppler: float = 0.0
     inflation_per_pull: float = 0.0
     velocity_error_share: float = 1.0
+    velocity_error_share_per_speed: float = 0.0  # s/m
     registration_correlation: float = 0.0
     measurement_inflation: float = 1.0
     drift_rate_sigma: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)

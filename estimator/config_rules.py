@@ -119,6 +119,7 @@ RULES: dict[str, Rule] = {
     "uncertainty.inflation_per_doppler": NONNEGATIVE,
     "uncertainty.inflation_per_pull": NONNEGATIVE,
     "uncertainty.velocity_error_share": POSITIVE,
+    "uncertainty.velocity_error_share_per_speed": NONNEGATIVE,
     "uncertainty.registration_correlation": Rule(0.0, 1.0),
     "uncertainty.velocity_axis_inflation": Rule(0.0, lo_closed=False, size=6),
     "uncertainty.heading_reversion_time": NONNEGATIVE,

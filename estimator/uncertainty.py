@@ -40,7 +40,8 @@ again at zero as at a run's first scan (the fresh window's velocity covariance i
 next scan is registered against the fresh map).
 The velocity covariance the recursion uses is the window's times `[uncertainty] velocity_error_share` g (1 by
 default; the registration pins each pose to the map, so less of the window's velocity error reaches the relative
-pose than dead reckoning would carry), plus `registration_correlation` alpha (0 by default) of the scan's relative
+pose than dead reckoning would carry; + `velocity_error_share_per_speed` times the speed, 0 by default: less at
+rest than at speed), plus `registration_correlation` alpha (0 by default) of the scan's relative
 pose covariance over dt^2, which then composes the rest, (1 - alpha) Sigma_rel,k, as independent: the registration's
 errors are correlated over a few scans (`recursion_inputs`); the reported one has its variance scaled with the
 speed where calibrated (`velocity_inflation.velocity_inflated`).
@@ -301,7 +302,8 @@ class ReportedCovariances:
             P_relative, P_revision = (f * P for P in P_relative)
             dt = est.t - last.t
             P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, dt, *recursion_inputs(
-                P_relative, est.P[6:12, 6:12], dt, cfg.registration_correlation, cfg.velocity_error_share))
+                P_relative, est.P[6:12, 6:12], dt, cfg.registration_correlation, cfg.velocity_error_share,
+                cfg.velocity_error_share_per_speed, float(np.linalg.norm(est.varpi[:3]))))
         P_absolute = with_roll_pitch_variance(P_absolute, self.jitter.at(est.t))
         self.last, self.restart_relative = est, None
         est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
@@ -312,21 +314,25 @@ class ReportedCovariances:
         return est
 
 
-def recursion_inputs(P_relative, P_varpi, dt, correlation: float = 0.0, share: float = 1.0):
+def recursion_inputs(P_relative, P_varpi, dt, correlation: float = 0.0, share: float = 1.0,
+                     share_per_speed: float = 0.0, speed=None):
     """(Sigma_rel, the velocity error's variance) the drift recursion composes for a registered scan (one, or a
     stack with dt (N,)): (1 - alpha) P_relative and g P_varpi + alpha P_relative / dt^2, alpha = `[uncertainty]
     registration_correlation` (the share of the registration's covariance carried correlated over tau, with the
-    velocity error), g = `velocity_error_share`; (P_relative, P_varpi) themselves, bit for bit, at alpha 0 and g 1.
+    velocity error), g = `velocity_error_share` + `velocity_error_share_per_speed` x `speed` (the scan's |nu|, m/s;
+    (N,) with a stack); (P_relative, P_varpi) themselves, bit for bit, at alpha 0, g 1 and no speed term.
     One scan then still composes P_relative + g dt^2 P_varpi (the correlated part's one-scan share is alpha
     P_relative, smoothed over tau where it varies); a span adds the correlation.
 
-    Checked by: tests/estimator/test_uncertainty.py::test_a_correlated_registration_keeps_one_scan_and_grows_a_span
+    Checked by: tests/estimator/test_uncertainty.py::test_a_correlated_registration_keeps_one_scan_and_grows_a_span,
+        ::test_the_velocity_error_share_grows_with_the_speed
     """
-    if correlation == 0.0 and share == 1.0:
+    if correlation == 0.0 and share == 1.0 and share_per_speed == 0.0:
         return P_relative, P_varpi
     P_relative = np.asarray(P_relative, dtype=float)
     dt = np.asarray(dt, dtype=float)[..., None, None]
-    return (1.0 - correlation) * P_relative, share * np.asarray(P_varpi, dtype=float) + correlation * P_relative / dt**2
+    g = share if share_per_speed == 0.0 else share + share_per_speed * np.asarray(speed, dtype=float)[..., None, None]
+    return (1.0 - correlation) * P_relative, g * np.asarray(P_varpi, dtype=float) + correlation * P_relative / dt**2
 
 
 def fresh_starts(restarts, n: int) -> np.ndarray:

@@ -47,7 +47,7 @@ UNITS = {
     "uncertainty.inflation_per_rate": "s/rad",
     "uncertainty.inflation_per_doppler": "factor per ln(1 + NIS)",
     "uncertainty.inflation_per_pull": "factor per unit pull per dof",
-    "uncertainty.velocity_error_share": "factor",
+    "uncertainty.velocity_error_share": "factor", "uncertainty.velocity_error_share_per_speed": "s/m",
     "uncertainty.registration_correlation": "fraction",
     "uncertainty.velocity_axis_inflation": "factors",
     "uncertainty.heading_reversion_time": "s", "uncertainty.heading_anchor_time": "s",

@@ -18,7 +18,9 @@ tells the truth (docs/consistency.md):
   that ratio is off by more than the fixed point's tolerance. The spans and the absolute pose compose it.
 - `uncertainty.velocity_error_share` g: how much of the window's velocity covariance the drift recursion takes as
   its velocity error's variance; learned with f and its terms, by the same likelihood, and scaled with them by
-  the median ratio (docs/consistency.md, "The velocity error's share and the registration's correlation").
+  the median ratio (docs/consistency.md, "The velocity error's share and the registration's correlation"), with
+  its growth with the speed, `velocity_error_share_per_speed` g_v (g + g_v |nu|; "The velocity error's share with
+  the speed").
 - `uncertainty.drift_rate_sigma`: the registration's systematic error per metre driven (the absolute pose's
   error grows with the distance, not its square root). Its one realisation on the sequence is the least-squares
   fit beta = sum_k e_k / sum_k s_k of the one-scan relative errors e_k over the distances s_k; the sigma
@@ -122,7 +124,8 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
     """The config with these uncertainty values; the velocity factors (a, b, d, per-axis g, per-rate r) default to
     none: the fit's runs report the window's own velocity covariance; the relative pose factor (`relative`, (f,
     per-rate r, per-Doppler d, per-pull p)), the heading's reversion ([T_r, T_a]), the roll and pitch jitter
-    ([V, T]) and (the velocity error's share, the registration's correlation) to the config's."""
+    ([V, T]) and (the velocity error's share, its growth with the speed, the registration's correlation) to the
+    config's."""
     drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
     u = config.uncertainty
     relative = (u.inflation, u.inflation_per_rate, u.inflation_per_doppler, u.inflation_per_pull) \
@@ -141,7 +144,8 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
     if jitter is not None:
         unc = dataclasses.replace(unc, attitude_jitter_variance=float(jitter[0]), attitude_jitter_time=float(jitter[1]))
     if share is not None:
-        unc = dataclasses.replace(unc, velocity_error_share=float(share[0]), registration_correlation=float(share[1]))
+        unc = dataclasses.replace(unc, velocity_error_share=float(share[0]),
+                                  velocity_error_share_per_speed=float(share[1]), registration_correlation=float(share[2]))
     return config.replace(uncertainty=unc)
 
 
@@ -305,8 +309,9 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     relative = fit_relative_inflation(states, truth, ran[0], tolerance, drift["sigma"], ran[1], True, ran[2], ran[3],
                                       share=True)
     new = (relative["inflation"], relative["per_rate"], relative["per_doppler"], relative["per_pull"])
-    share = relative["velocity_error_share"]
-    states = _each(lambda s: dict(relative_factor_states(s, ran, new), velocity_error_share=share), states)
+    share = (relative["velocity_error_share"], relative["velocity_error_share_per_speed"])
+    states = _each(lambda s: dict(relative_factor_states(s, ran, new), velocity_error_share=share[0],
+                                  velocity_error_share_per_speed=share[1]), states)
     velocity = fit_velocity_inflation(states, truth, per_axis=velocity_axes)
     factors = (velocity["inflation"], velocity["per_speed"], velocity["per_doppler"], tuple(velocity["per_axis"]),
                tuple(velocity["per_rate"]))
@@ -322,7 +327,7 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     jitter = attitude_jitter_report(config.uncertainty, attitude_jitter, span, tau, drift["sigma"], heading,
                                     runs_of(states, truth))
     jitter_pair = (jitter["variance"], jitter["time"])
-    fitted = _with(config, kappa, tau, drift["sigma"], factors, new, heading, jitter_pair, (share, correlation))
+    fitted = _with(config, kappa, tau, drift["sigma"], factors, new, heading, jitter_pair, (*share, correlation))
     final = _ratios(_each(lambda s: replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"], heading,
                                              jitter_pair), states), truth, span, tau, drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))

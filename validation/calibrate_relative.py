@@ -67,20 +67,21 @@ def relative_terms(states, truth, inflation: float, per_rate=None, drift_rate_si
 
 
 def relative_terms_split(states, truth, inflation: float, per_rate=None, drift_rate_sigma=None,
-                         per_doppler: float = 0.0, per_pull: float = 0.0):
+                         per_doppler: float = 0.0, per_pull: float = 0.0, with_speed: bool = False):
     """(e, A, V_velocity, V_rest, W): `relative_terms` with its unscaled rest V split into the velocity error's
-    share (at the runs' own `velocity_error_share` g; the composed covariance is linear in it) and the rest (the
-    drift rate's, the registration's correlated share at the runs' `registration_correlation` and, with the
-    heading's reversion on, the anchor's deviation)."""
-    out = [[], [], [], [], []]
+    share (at the runs' own `velocity_error_share` g and `velocity_error_share_per_speed`; the composed covariance
+    is linear in g) and the rest (the drift rate's, the registration's correlated share at the runs'
+    `registration_correlation` and, with the heading's reversion on, the anchor's deviation); `with_speed`: and the
+    scans' speeds |nu| (K,) last."""
+    out = [[], [], [], [], [], []]
     for st, tr in runs_of(states, truth):
         tau = float(st.get("velocity_correlation_time", DEFAULT_TAU))
         terms = span_terms(st, tr, span=0.0, tau=tau, drift_rate_sigma=drift_rate_sigma)
         if terms is None:
             continue
         e, C, t, _ = terms
-        C_rest = span_terms(dict(st, velocity_error_share=0.0), tr, span=0.0, tau=tau,
-                            drift_rate_sigma=drift_rate_sigma)[1]
+        C_rest = span_terms(dict(st, velocity_error_share=0.0, velocity_error_share_per_speed=0.0), tr, span=0.0,
+                            tau=tau, drift_rate_sigma=drift_rate_sigma)[1]
         idx = np.searchsorted(np.asarray(st["t"], dtype=float), t[1:])  # the matched scans, in the run's rows
         # over one scan the window's relative covariance and the revision enter the composition as they are
         # (`span_covariances`: added once, untransformed), so the rest of it is what the factor does not scale
@@ -96,11 +97,12 @@ def relative_terms_split(states, truth, inflation: float, per_rate=None, drift_r
         keep &= np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(C) & np.isfinite(scaled), axis=(1, 2)) & (c > 0)
         W = np.column_stack([np.abs(varpi[:, 3:6]), doppler_term(nis),
                              np.zeros(len(idx)) if pull is None else pull_term(pull)])
-        for acc, v in zip(out, (e, scaled / c[:, None, None], C - C_rest, C_rest - scaled, W)):
+        speed = np.linalg.norm(varpi[:, :3], axis=1)
+        for acc, v in zip(out, (e, scaled / c[:, None, None], C - C_rest, C_rest - scaled, W, speed)):
             acc.append(v[keep])
     if not out[0]:
-        return np.zeros((0, 6)), np.zeros((0, 6, 6)), np.zeros((0, 6, 6)), np.zeros((0, 6, 6)), np.zeros((0, 5))
-    return tuple(np.concatenate(v) for v in out)
+        out = [[np.zeros((0,) + shape)] for shape in ((6,), (6, 6), (6, 6), (6, 6), (5,), ())]
+    return tuple(np.concatenate(v) for v in out[:6 if with_speed else 5])
 
 
 def _nees(c, e, A, V) -> np.ndarray:
@@ -109,31 +111,36 @@ def _nees(c, e, A, V) -> np.ndarray:
     return np.einsum("ki,ki->k", e, np.linalg.solve(C, e[..., None])[..., 0])
 
 
-def _max_likelihood(e, A, V, W, f0: float, V_velocity=None, h_range=SHARE_RANGE) -> np.ndarray:
+def _max_likelihood(e, A, V, W, f0: float, V_velocity=None, h_range=SHARE_RANGE, Y=None) -> np.ndarray:
     """(f, then one coefficient per column of W: r_x, r_y, r_z, d and p) maximising the Gaussian likelihood of the
     errors e_k ~ N(0, c_k A_k + V_k), c_k = f + r . W_k, f > 0, r >= 0 (L-BFGS-B with the analytic gradient, each
-    term scaled to its mean regressor); with `V_velocity`, e_k ~ N(0, c_k A_k + h V_velocity,k + V_k) and h, within
-    `h_range`, last."""
+    term scaled to its mean regressor); with `V_velocity`, e_k ~ N(0, c_k A_k + h_k V_velocity,k + V_k), h_k = h .
+    Y_k (Y (K, m), None: ones, h the one share), h_0 within `h_range` and the others >= 0, last."""
     X = np.column_stack([np.ones(len(e)), W])
-    scale = np.where(X.mean(axis=0) > 0, X.mean(axis=0), 1.0)
-    Xs = X / scale
     share = V_velocity is not None
+    Y = np.ones((len(e), 1)) if Y is None else np.asarray(Y, dtype=float)
+    scale = np.where(X.mean(axis=0) > 0, X.mean(axis=0), 1.0)
+    y_scale = np.r_[1.0, np.where(Y[:, 1:].mean(axis=0) > 0, Y[:, 1:].mean(axis=0), 1.0)]
+    Xs, Ys = X / scale, Y / y_scale
 
     def nll(p):
         c = Xs @ p[:X.shape[1]]
-        C = c[:, None, None] * A + V + (p[-1] * V_velocity if share else 0.0)
+        C = c[:, None, None] * A + V + ((Ys @ p[X.shape[1]:])[:, None, None] * V_velocity if share else 0.0)
         Ci_e = np.linalg.solve(C, e[..., None])[..., 0]
         value = np.sum(np.linalg.slogdet(C)[1] + np.einsum("ki,ki->k", e, Ci_e))
 
         def gradient(B):  # d nll / d (a factor on B), per scan
             return np.trace(np.linalg.solve(C, B), axis1=1, axis2=2) - np.einsum("ki,kij,kj->k", Ci_e, B, Ci_e)
         g = gradient(A) @ Xs
-        return float(value), (np.r_[g, gradient(V_velocity).sum()] if share else g)
+        return float(value), (np.r_[g, gradient(V_velocity) @ Ys] if share else g)
 
-    bounds = [(1e-6 * f0, None)] + [(0.0, None)] * W.shape[1] + ([tuple(h_range)] if share else [])
-    p = minimize(nll, np.r_[f0, np.zeros(W.shape[1]), [1.0] if share else []], jac=True, method="L-BFGS-B",
-                 bounds=bounds).x
-    return np.r_[p[:X.shape[1]] / scale, p[X.shape[1]:]]
+    bounds = [(1e-6 * f0, None)] + [(0.0, None)] * W.shape[1]
+    start = np.r_[f0, np.zeros(W.shape[1])]
+    if share:
+        bounds += [tuple(h_range)] + [(0.0, None)] * (Y.shape[1] - 1)
+        start = np.r_[start, 1.0, np.zeros(Y.shape[1] - 1)]
+    p = minimize(nll, start, jac=True, method="L-BFGS-B", bounds=bounds).x
+    return np.r_[p[:X.shape[1]] / scale, p[X.shape[1]:] / (y_scale if share else 1.0)]
 
 
 def _median_scale(c, e, A, V) -> float | None:
@@ -179,49 +186,62 @@ def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: f
     g (the runs' own unless learned), "median_ratio": [before, after], "outcome": "fitted", "within tolerance" or
     "out of reach"}.
     """
-    e, A, V_velocity, V_rest, W = relative_terms_split(states, truth, inflation, per_rate, drift_rate_sigma,
-                                                        per_doppler, per_pull)
-    g = float((states if isinstance(states, dict) else states[0]).get("velocity_error_share", 1.0))
+    e, A, V_velocity, V_rest, W, speed = relative_terms_split(states, truth, inflation, per_rate, drift_rate_sigma,
+                                                               per_doppler, per_pull, with_speed=True)
+    first = states if isinstance(states, dict) else states[0]
+    g = float(first.get("velocity_error_share", 1.0))
+    g_v = float(first.get("velocity_error_share_per_speed", 0.0))
     if not share:
         return dict(fit_factor(e, A, V_velocity + V_rest, W, inflation, per_rate, ratio_tolerance, rates,
-                               per_doppler, per_pull), velocity_error_share=g)
+                               per_doppler, per_pull), velocity_error_share=g, velocity_error_share_per_speed=g_v)
+    if g_v != 0.0:  # per unit share (exact for one scan where the share varies slowly over tau)
+        V_velocity, g = V_velocity / (g + g_v * speed)[:, None, None], 1.0
     return fit_factor(e, A, V_rest, W, inflation, per_rate, ratio_tolerance, rates, per_doppler, per_pull,
-                      V_velocity=V_velocity, share=g)
+                      V_velocity=V_velocity, share=g, speed=speed)
 
 
 def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: float = 0.0, rates: bool = False,
-               per_doppler: float = 0.0, per_pull: float = 0.0, V_velocity=None, share: float = 1.0) -> dict:
+               per_doppler: float = 0.0, per_pull: float = 0.0, V_velocity=None, share: float = 1.0,
+               speed=None) -> dict:
     """`fit_relative_inflation` on the one-scan terms (`relative_terms`: W (K, 5); (K, 4) without the pull, (K, 3)
     without the Doppler term either) of runs that had f = `inflation`, r = `per_rate`, d = `per_doppler` and p =
     `per_pull`; with `V_velocity` (`relative_terms_split`, of runs at the velocity error's share `share`; V then
-    the rest), that share too, its shape within SHARE_RANGE ("velocity_error_share" in the result).
+    the rest), that share too, its shape within SHARE_RANGE ("velocity_error_share" in the result), and with the
+    scans' `speed` (K,) its growth with the speed, g + g_v |nu| ("velocity_error_share_per_speed"; 0 without).
 
     Checked by: tests/validation/test_calibrate_relative.py::test_the_fit_recovers_a_known_rate_factor,
-        ::test_the_fit_recovers_a_known_velocity_error_share
+        ::test_the_fit_recovers_a_known_velocity_error_share, ::test_the_fit_recovers_a_share_growing_with_the_speed
     """
     rates0 = np.zeros(3) if per_rate is None else np.asarray(per_rate, dtype=float)
     r0 = np.r_[rates0, per_doppler, per_pull][:W.shape[1]]
     c0 = inflation + W @ r0
     V_all = V if V_velocity is None else V + V_velocity
     before = median_ratio(_nees(c0, e, A, V_all)) if len(e) else float("nan")
+    Y = None if speed is None or V_velocity is None else np.column_stack([np.ones(len(e)), speed])
 
-    def result(f, r, outcome, after, h=1.0):
+    def result(f, r, outcome, after, h=(1.0, 0.0)):
         r = np.r_[r, np.zeros(5 - len(r))]
         out = {"inflation": float(f), "per_rate": [float(x) for x in r[:3]], "per_doppler": float(r[3]),
                "per_pull": float(r[4]), "median_ratio": [before, after], "outcome": outcome}
-        return out if V_velocity is None else dict(out, velocity_error_share=float(h * share))
+        if V_velocity is None:
+            return out
+        return dict(out, velocity_error_share=float(h[0] * share), velocity_error_share_per_speed=float(h[1] * share))
 
     if not np.isfinite(before):
         return result(inflation, r0, "out of reach", before)
+    n_h = 0 if V_velocity is None else (1 if Y is None else 2)
     if rates:
-        p = _max_likelihood(e, A, V, W, inflation, V_velocity, np.divide(SHARE_RANGE, share))
+        p = _max_likelihood(e, A, V, W, inflation, V_velocity, np.divide(SHARE_RANGE, share), Y)
     else:
-        p = np.r_[inflation, r0, [1.0] if V_velocity is not None else []]
-    p, h = (p[:-1], p[-1]) if V_velocity is not None else (p, 1.0)
-    if (not rates or not np.any(p[1:] > 0.0)) and h == 1.0 and abs(np.log(before)) < np.log1p(ratio_tolerance):
+        p = np.r_[inflation, r0, [1.0, 0.0][:n_h]]
+    p, h = (p[:len(p) - n_h], np.r_[p[len(p) - n_h:], 0.0][:2]) if n_h else (p, np.array([1.0, 0.0]))
+    if (not rates or not np.any(p[1:] > 0.0)) and tuple(h) == (1.0, 0.0) \
+            and abs(np.log(before)) < np.log1p(ratio_tolerance):
         return result(inflation, r0, "within tolerance", before)
     c = p[0] + W @ p[1:]
-    scaled = c[:, None, None] * A + (0.0 if V_velocity is None else h * V_velocity)  # what the level scales
+    h_k = h[0] + (0.0 if speed is None else h[1] * np.asarray(speed, dtype=float))
+    scaled = c[:, None, None] * A + (0.0 if V_velocity is None else np.broadcast_to(h_k, (len(e),))[:, None, None]
+                                     * V_velocity)  # what the level scales
     s = _median_scale(np.ones(len(e)), e, scaled, V)
     if s is None:
         return result(inflation, r0, "out of reach", before)

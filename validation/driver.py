@@ -136,6 +136,7 @@ class RunResult:
             restarted=c["restarted"].astype(bool),
             velocity_correlation_time=np.float64(u.velocity_correlation_time),
             velocity_error_share=np.float64(u.velocity_error_share),
+            velocity_error_share_per_speed=np.float64(u.velocity_error_share_per_speed),
             registration_correlation=np.float64(u.registration_correlation),
             drift_rate_sigma=np.asarray(u.drift_rate_sigma, dtype=float),
             velocity_inflation=velocity_inflation_array(

@@ -35,7 +35,7 @@ from .span_covariances import heading_deviations, span_covariances
 
 # not per scan
 RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation", "heading_reversion",
-                 "attitude_jitter", "velocity_error_share", "registration_correlation")
+                 "attitude_jitter", "velocity_error_share", "velocity_error_share_per_speed", "registration_correlation")
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
 
@@ -72,21 +72,26 @@ def recursion_inputs_of_run(states: dict, Sigma_rel: np.ndarray, P_window: np.nd
                             restarted=None) -> tuple[np.ndarray, np.ndarray]:
     """(Sigma_rel, P_varpi) (N, 6, 6) a run's drift recursion composed at its scans `rows` (None: all):
     `estimator.uncertainty.recursion_inputs` of their relative pose covariances Sigma_rel and window velocity
-    covariances P_window at the run's `registration_correlation` alpha and `velocity_error_share` g (states.npz;
-    0 and 1 in runs before them), dt the interval since the scan before each in the run. The velocity covariances
-    of every scan are g times the window's; alpha moves covariance only at registered scans (not a run's first
-    scan, not a re-initialisation's dead-reckoned step: `restarted` (N,), None: states' own)."""
+    covariances P_window at the run's `registration_correlation` alpha, `velocity_error_share` g and
+    `velocity_error_share_per_speed` g_v (states.npz; 0, 1 and 0 in runs before them), dt the interval since the
+    scan before each in the run. The velocity covariances of every scan are g + g_v |nu| times the window's; alpha
+    moves covariance only at registered scans (not a run's first scan, not a re-initialisation's dead-reckoned step:
+    `restarted` (N,), None: states' own)."""
     alpha = float(states.get("registration_correlation", 0.0))
     g = float(states.get("velocity_error_share", 1.0))
-    if alpha == 0.0:
-        return Sigma_rel, (P_window if g == 1.0 else g * P_window)
+    g_v = float(states.get("velocity_error_share_per_speed", 0.0))
     rows = np.arange(len(states["t"])) if rows is None else rows
+    speed = np.linalg.norm(np.asarray(states["varpi"], dtype=float)[rows, :3], axis=1) if g_v != 0.0 else None
+    share = g if speed is None else (g + g_v * speed)[:, None, None]
+    if alpha == 0.0:
+        return Sigma_rel, (P_window if g == 1.0 and speed is None else share * np.asarray(P_window, dtype=float))
     dt = np.diff(np.asarray(states["t"], dtype=float), prepend=np.nan)[rows]
     if restarted is None:
         restarted = np.asarray(states.get("restarted", np.zeros(len(states["t"]), bool)), dtype=bool)[rows]
     ok = np.isfinite(dt) & ~np.asarray(restarted, dtype=bool) & np.all(np.isfinite(Sigma_rel), axis=(1, 2))
-    S, P = np.array(Sigma_rel, dtype=float), g * np.asarray(P_window, dtype=float)
-    S[ok], P[ok] = recursion_inputs(Sigma_rel[ok], P_window[ok], dt[ok], alpha, g)
+    S, P = np.array(Sigma_rel, dtype=float), share * np.asarray(P_window, dtype=float)
+    S[ok], P[ok] = recursion_inputs(Sigma_rel[ok], P_window[ok], dt[ok], alpha, g, g_v,
+                                    None if speed is None else speed[ok])
     return S, P
 
 

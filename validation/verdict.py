@@ -37,8 +37,8 @@ CELLS = ("velocity", "relative_scan")  # judged scan by scan
 SPANS = ("relative_span", "pose")  # judged by their mean
 SHARE_TARGET = 0.90
 SPAN_LIMIT = 2.0
-LEARNED = ("velocity_correlation_time", "velocity_error_share", "registration_correlation", "inflation",
-           "inflation_per_pull", "velocity_inflation")
+LEARNED = ("velocity_correlation_time", "velocity_error_share", "velocity_error_share_per_speed",
+           "registration_correlation", "inflation", "inflation_per_pull", "velocity_inflation")
 
 
 def config_path(out_dir, scenario: str, name: str) -> Path:

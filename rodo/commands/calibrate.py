@@ -248,13 +248,14 @@ def _rate_words(v: dict) -> str:
 
 
 def _relative_words(rel: dict) -> str:
-    """'f + d x ln(1 + Doppler NIS) + p x pull + [r_x, r_y, r_z] s/rad x |body rates| with velocity_error_share g'
-    of the relative pose factor (the terms that are not 0, the share where it is not 1)."""
+    """'f + d x ln(1 + Doppler NIS) + p x pull + [r_x, r_y, r_z] s/rad x |body rates| with velocity_error_share g
+    + g_v s/m x speed' of the relative pose factor (the terms that are not 0, the share where it is not 1)."""
     d, p = rel.get("per_doppler", 0.0), rel.get("per_pull", 0.0)
-    g = rel.get("velocity_error_share", 1.0)
+    g, g_v = rel.get("velocity_error_share", 1.0), rel.get("velocity_error_share_per_speed", 0.0)
     return (f"{rel['inflation']:.3g}" + (f" + {d:.3g} x ln(1 + Doppler NIS)" if d else "")
             + (f" + {p:.3g} x pull" if p else "") + _rate_words(rel)
-            + (f" with velocity_error_share {g:.3g}" if g != 1.0 else ""))
+            + (f" with velocity_error_share {g:.3g}" if g != 1.0 or g_v else "")
+            + (f" + {g_v:.3g} s/m x speed" if g_v else ""))
 
 
 def _correlation_words(c: dict) -> str:

@@ -19,7 +19,8 @@ COVERED = {"run", "simulate", "evaluate", "montecarlo", "ego-velocity", "prior-m
            "calibrate",  # calibrate: tests/cli/test_calibrate_cli.py::test_calibrate_bad_input
            "export",  # export: tests/sim/test_export.py::test_export_bad_inputs
            "config",  # config: tests/cli/test_config_cli.py::test_config_bad_input
-           "realism"}  # realism: tests/cli/test_realism_cli.py::test_realism_bad_input_exits_2
+           "realism",  # realism: tests/cli/test_realism_cli.py::test_realism_bad_input_exits_2
+           "verdict"}  # verdict: tests/validation/test_verdict.py::test_bad_options_are_refused_before_any_work
 NO_INPUT = {"scenarios", "profiles"}
 
 

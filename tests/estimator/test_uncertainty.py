@@ -237,6 +237,37 @@ def test_a_correlated_registration_keeps_one_scan_and_grows_a_span(alpha, g, tau
     assert same[0] is Sigma and same[1] is P
 
 
+@settings(max_examples=10, deadline=None)
+@given(alpha=st.floats(0.0, 1.0), g=st.floats(0.01, 1.0), g_v=st.floats(0.0, 0.2), n=st.integers(2, 12),
+       seed=st.integers(0, 2**32 - 1))
+def test_the_velocity_error_share_grows_with_the_speed(alpha, g, g_v, n, seed):
+    """`recursion_inputs` with the share's growth g_v per m/s: each scan's velocity error variance is (g + g_v
+    v_k) P_varpi,k (+ alpha Sigma_rel / dt^2), so one scan composes Sigma_rel + (g + g_v v_k) dt^2 P_varpi at its
+    own speed, a scan at rest g dt^2 P_varpi; a stack is the scans one by one; g_v 0 is the share alone, bit for
+    bit."""
+    rng = np.random.default_rng(np.random.SeedSequence([40, seed]))
+    dt, m = 0.077, n + 3
+    t = dt * np.arange(m)
+    T = np.stack([np.eye(4)] * m)
+    Sigma, P = _random_cov(rng, 1e-3), _random_cov(rng, 1e-2)
+    speed = rng.uniform(0.0, 20.0, size=m)
+    speed[2] = 0.0
+    S_k, P_k = recursion_inputs(np.stack([Sigma] * m), np.stack([P] * m), np.full(m, dt), alpha, g, g_v, speed)
+    for k in range(m):
+        one = recursion_inputs(Sigma, P, dt, alpha, g, g_v, speed[k])
+        np.testing.assert_array_equal(S_k[k], one[0])
+        np.testing.assert_array_equal(P_k[k], one[1])
+        np.testing.assert_allclose(one[1], (g + g_v * speed[k]) * P + alpha * Sigma / dt**2, rtol=1e-12)
+    tau = 1e-9  # no memory: one scan's velocity error is its own
+    for k in (2, m - 1):
+        np.testing.assert_allclose(span_covariance(T, t, S_k, P_k, k - 1, k, tau),
+                                   (1 - alpha) * Sigma + dt**2 * P_k[k], rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(P_k[2], g * P + alpha * Sigma / dt**2, rtol=1e-12)  # at rest
+    alone = recursion_inputs(np.stack([Sigma] * m), np.stack([P] * m), np.full(m, dt), alpha, g)
+    zero = recursion_inputs(np.stack([Sigma] * m), np.stack([P] * m), np.full(m, dt), alpha, g, 0.0, speed)
+    np.testing.assert_array_equal(alone[1], zero[1])
+
+
 @pytest.mark.parametrize("model", ["ca-polar", "cv-cartesian"])
 def test_absolute_covariance_grows_while_the_windows_stays_flat(model):
     """Odometry end to end: the window's pose covariance is relative to the map and stays flat; the absolute

@@ -74,6 +74,29 @@ def test_the_fit_recovers_a_known_velocity_error_share(f, r, g, seed):
         assert fit["median_ratio"][1] == pytest.approx(1.0, abs=2e-3)
 
 
+@settings(max_examples=6, deadline=None)
+@given(f=st.floats(0.1, 2.0), g=st.floats(0.05, 0.8), g_v=st.floats(0.0, 0.15), seed=st.integers(0, 2**32 - 1))
+def test_the_fit_recovers_a_share_growing_with_the_speed(f, g, g_v, seed):
+    """Errors drawn from N(0, f A_k + (g + g_v v_k) V_velocity,k + V_k), the speed v_k from 0 to 10 m/s (a fifth of
+    the scans at rest): the maximum likelihood learns g and g_v with the factor (within 15 % of the share's size at
+    5 m/s, 3000 scans), and the median ratio after is 1; without the speeds the fit has a share alone."""
+    rng = _rng(seed, 2)
+    k = 3000
+    A, V_velocity, V = _spd(rng, k, 1.0), _spd(rng, k, 1.0), _spd(rng, k, 0.1)
+    W = np.zeros((k, 3))
+    speed = np.where(rng.uniform(size=k) < 0.2, 0.0, rng.uniform(0.0, 10.0, size=k))
+    L = np.linalg.cholesky(f * A + (g + g_v * speed)[:, None, None] * V_velocity + V)
+    e = (L @ rng.normal(size=(k, 6, 1)))[..., 0]
+    fit = cr.fit_factor(e, A, V, W, 1.0, rates=True, V_velocity=V_velocity, speed=speed)
+    size = g + 5.0 * g_v
+    assert fit["outcome"] == "fitted"
+    assert fit["velocity_error_share"] == pytest.approx(g, abs=0.15 * size), (fit, g, g_v)
+    assert fit["velocity_error_share_per_speed"] == pytest.approx(g_v, abs=0.15 * size / 5.0), (fit, g, g_v)
+    assert fit["median_ratio"][1] == pytest.approx(1.0, abs=2e-3)
+    alone = cr.fit_factor(e, A, V, W, 1.0, rates=True, V_velocity=V_velocity)
+    assert alone["velocity_error_share_per_speed"] == 0.0
+
+
 def test_without_rates_the_fit_is_a_median_level():
     """Without the rates the fit scales f (and the run's r with it) to the median ratio 1, or keeps them within
     the tolerance; an unscaled share alone too cautious is out of reach."""
@@ -95,19 +118,21 @@ def test_without_rates_the_fit_is_a_median_level():
 @pytest.fixture(scope="module")
 def blockage_runs():
     """blockage (a re-initialisation at its 5-7 s blackout), CV/C at f 1, at f 0.4 with rate, Doppler and pull
-    terms, at f 1 with a velocity error's share of 0.3, and with that share and a registration's correlation of
-    0.6."""
+    terms, at f 1 with a velocity error's share of 0.3, with that share and a registration's correlation of 0.6,
+    and with a share of 0.2 + 0.05 s/m x speed and that correlation."""
     from rodo.validation.driver import run_sequence
 
     seq, truth = scenarios.get("blockage").simulate(0, 8.0)
     runs = {}
     factors = {"plain": (1.0, (0.0,) * 3, 0.0, 0.0, 1.0, 0.0), "rates": (0.4, (80.0, 120.0, 5.0), 0.3, 0.2, 1.0, 0.0),
-               "share": (1.0, (0.0,) * 3, 0.0, 0.0, 0.3, 0.0), "correlated": (1.0, (0.0,) * 3, 0.0, 0.0, 0.3, 0.6)}
+               "share": (1.0, (0.0,) * 3, 0.0, 0.0, 0.3, 0.0), "correlated": (1.0, (0.0,) * 3, 0.0, 0.0, 0.3, 0.6),
+               "speed": (1.0, (0.0,) * 3, 0.0, 0.0, 0.2, 0.6)}
     for key, (f, r, d, p, g, alpha) in factors.items():
         config = OdometryConfig.for_model("cv-cartesian")
         config = config.replace(uncertainty=dataclasses.replace(
             config.uncertainty, velocity_correlation_time=0.4, inflation=f, inflation_per_rate=r,
             inflation_per_doppler=d, inflation_per_pull=p, velocity_error_share=g, registration_correlation=alpha,
+            velocity_error_share_per_speed=0.05 if key == "speed" else 0.0,
             drift_rate_sigma=(1e-4, 1e-4, 5e-4, 3e-5, 3e-5, 1e-5)))
         runs[key] = run_sequence(seq, config).state_arrays()
     return runs, truth
@@ -186,6 +211,21 @@ def test_a_run_at_a_velocity_error_share_is_the_replay_of_a_run_without(blockage
                                                        plain["drift_rate_sigma"]),
                                correlated["P_pose_absolute"], rtol=1e-9, atol=1e-15)
     assert not np.allclose(shared["P_pose_absolute"][-1], correlated["P_pose_absolute"][-1], rtol=0.05)
+    speed = runs["speed"]  # and the share's growth with the speed
+    assert float(speed["velocity_error_share_per_speed"]) == 0.05
+    np.testing.assert_array_equal(plain["P_relative"], speed["P_relative"])
+    np.testing.assert_allclose(rs.absolute_covariances(dict(plain, velocity_error_share=0.2,
+                                                            velocity_error_share_per_speed=0.05,
+                                                            registration_correlation=0.6), 0.4,
+                                                       plain["drift_rate_sigma"]),
+                               speed["P_pose_absolute"], rtol=1e-9, atol=1e-15)
+    assert not np.allclose(correlated["P_pose_absolute"][-1], speed["P_pose_absolute"][-1], rtol=0.05)
+    _, _, Vv4, Vr4, _ = cr.relative_terms_split(correlated, truth, 1.0)
+    _, _, Vv5, Vr5, _, v = cr.relative_terms_split(speed, truth, 1.0, with_speed=True)
+    np.testing.assert_allclose(Vr5, Vr4, rtol=1e-9, atol=1e-18)  # the rest has no share of the velocity error
+    assert np.all(v > 2.0) and np.ptp(v) > 0.3  # 3.0-3.4 m/s
+    ratio = np.trace(Vv5, axis1=1, axis2=2) / np.trace(Vv4, axis1=1, axis2=2)  # (0.2 + 0.05 v) / 0.3, over tau
+    np.testing.assert_allclose(ratio, (0.2 + 0.05 * v) / 0.3, rtol=0.1)
     fit = cr.fit_relative_inflation(shared, truth, 1.0, 0.1, rates=True, share=True)
     again = cr.fit_relative_inflation(plain, truth, 1.0, 0.1, rates=True, share=True)
     assert fit["velocity_error_share"] == pytest.approx(again["velocity_error_share"], rel=1e-2)  # optimiser tol.

@@ -116,3 +116,10 @@ def test_a_failed_step_is_named_with_its_log(tmp_path, capsys):
 def test_bad_options_are_refused_before_any_work(tmp_path, capsys, argv, needle):
     fails(capsys, ["verdict", *argv, "--out", tmp_path / "v"], needle)
     assert not (tmp_path / "v").exists()
+
+
+def test_an_output_that_is_a_file_is_refused(tmp_path, capsys):
+    out = tmp_path / "a_file"
+    out.write_text("not a directory\n")
+    fails(capsys, ["verdict", "--out", out], "--out", "not a directory")
+    assert out.read_text() == "not a directory\n"
