@@ -67,6 +67,10 @@ def _check(args) -> list[str]:
     for flag, v in (("--duration", args.duration), ("--calibration-duration", args.calibration_duration)):
         if not 0 < v <= MAX_DURATION:  # NaN too
             raise InputError(f"{flag}: must be > 0 and at most {MAX_DURATION:g} s, got {v}")
+    from rodo.validation.calibrate import QC_MAX, QC_MIN
+
+    if not QC_MIN <= args.floor < QC_MAX:  # as rodo calibrate checks it, before the drives are simulated
+        raise InputError(f"--floor: must be from {QC_MIN:g} to below {QC_MAX:g}, got {args.floor}")
     return names
 
 

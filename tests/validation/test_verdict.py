@@ -112,6 +112,8 @@ def test_a_failed_step_is_named_with_its_log(tmp_path, capsys):
     (["--duration", "nan"], "--duration"),
     (["--calibration-duration", "0"], "--calibration-duration"),
     (["--jobs", "0"], "--jobs"),
+    (["--floor", "nan"], "--floor"),
+    (["--floor", "1e9"], "--floor"),
 ])
 def test_bad_options_are_refused_before_any_work(tmp_path, capsys, argv, needle):
     fails(capsys, ["verdict", *argv, "--out", tmp_path / "v"], needle)
