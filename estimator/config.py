@@ -205,7 +205,7 @@ class UncertaintyConfig:
     velocity_error_share_per_speed: + this x the speed |nu| (s/m, >= 0) on that share, g + g_v |nu|: at rest on a
         static scene the one scan's error is smaller than at speed, where the surfaces the registration sees are
         resampled (docs/consistency.md, "The velocity error's share with the speed"). `rodo calibrate` learns it
-        with the share. Reported covariances only; 0: a share independent of the speed.
+        with the share from a drive that stops. Reported covariances only; 0: a share independent of the speed.
     registration_correlation: the share alpha (0-1) of each scan's relative pose covariance that the drift
         recursion carries correlated over tau, with the velocity error (alpha Sigma_rel / dt^2 added to its
         variance), the rest composed as independent: the registration's errors are correlated over a few scans to

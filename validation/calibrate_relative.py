@@ -38,6 +38,9 @@ MEDIAN_CHI2 = float(chi2.median(DOF))
 # the velocity error's share g of the maximum likelihood: at most the window's whole velocity covariance (the level,
 # set after it by the median ratio, scales it with the factor)
 SHARE_RANGE = (1e-3, 1.0)
+# the share's growth with the speed is learned only from a drive that stops: at least REST_FRACTION of its scans
+# below REST_SPEED (m/s); a drive always at speed cannot tell g + g_v |nu| from a constant share (hills: 12-30 m/s)
+REST_SPEED, REST_FRACTION = 0.5, 0.01
 
 
 def median_ratio(values) -> float:
@@ -180,7 +183,8 @@ def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: f
     prior_memory 0.5 s, 1.28 where f made it 1).
 
     With `share` (and `rates`) the velocity error's share g (`[uncertainty] velocity_error_share`) is learned with
-    the shape, and the level scales it with the factor.
+    the shape, and the level scales it with the factor; so is its growth with the speed g_v where the drive stops
+    (REST_FRACTION of its scans below REST_SPEED; "rest_fraction" in the result), else 0.
 
     Returns {"inflation": f, "per_rate": [r_x, r_y, r_z], "per_doppler": d, "per_pull": p, "velocity_error_share":
     g (the runs' own unless learned), "median_ratio": [before, after], "outcome": "fitted", "within tolerance" or
@@ -196,8 +200,10 @@ def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: f
                                per_doppler, per_pull), velocity_error_share=g, velocity_error_share_per_speed=g_v)
     if g_v != 0.0:  # per unit share (exact for one scan where the share varies slowly over tau)
         V_velocity, g = V_velocity / (g + g_v * speed)[:, None, None], 1.0
-    return fit_factor(e, A, V_rest, W, inflation, per_rate, ratio_tolerance, rates, per_doppler, per_pull,
-                      V_velocity=V_velocity, share=g, speed=speed)
+    rest = float(np.mean(speed < REST_SPEED)) if len(speed) else 0.0
+    fit = fit_factor(e, A, V_rest, W, inflation, per_rate, ratio_tolerance, rates, per_doppler, per_pull,
+                     V_velocity=V_velocity, share=g, speed=speed if rest >= REST_FRACTION else None)
+    return dict(fit, rest_fraction=rest)
 
 
 def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: float = 0.0, rates: bool = False,

@@ -19,6 +19,7 @@ from rodo.sim.simulate import TRUTH_NPZ, load_truth
 from rodo.validation.calibrate import COMPONENTS, DEFAULT_FLOOR, QC_MAX, QC_MIN
 from rodo.validation.calibrate_config import calibrate_with_truth, calibrate_without_truth, config_toml
 from rodo.validation.calibrate_consistency import DRIFT_SIGNIFICANCE
+from rodo.validation.calibrate_relative import REST_FRACTION
 
 from .run import load_config
 
@@ -255,7 +256,9 @@ def _relative_words(rel: dict) -> str:
     return (f"{rel['inflation']:.3g}" + (f" + {d:.3g} x ln(1 + Doppler NIS)" if d else "")
             + (f" + {p:.3g} x pull" if p else "") + _rate_words(rel)
             + (f" with velocity_error_share {g:.3g}" if g != 1.0 or g_v else "")
-            + (f" + {g_v:.3g} s/m x speed" if g_v else ""))
+            + (f" + {g_v:.3g} s/m x speed" if g_v else "")
+            + (" (no speed term: the drive does not stop)" if "rest_fraction" in rel and not g_v
+               and rel["rest_fraction"] < REST_FRACTION else ""))
 
 
 def _correlation_words(c: dict) -> str:

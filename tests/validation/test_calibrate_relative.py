@@ -227,5 +227,26 @@ def test_a_run_at_a_velocity_error_share_is_the_replay_of_a_run_without(blockage
     ratio = np.trace(Vv5, axis1=1, axis2=2) / np.trace(Vv4, axis1=1, axis2=2)  # (0.2 + 0.05 v) / 0.3, over tau
     np.testing.assert_allclose(ratio, (0.2 + 0.05 * v) / 0.3, rtol=0.1)
     fit = cr.fit_relative_inflation(shared, truth, 1.0, 0.1, rates=True, share=True)
+    assert fit["rest_fraction"] == 0.0 and fit["velocity_error_share_per_speed"] == 0.0  # never at rest: no g_v
     again = cr.fit_relative_inflation(plain, truth, 1.0, 0.1, rates=True, share=True)
     assert fit["velocity_error_share"] == pytest.approx(again["velocity_error_share"], rel=1e-2)  # optimiser tol.
+
+
+def test_the_share_grows_with_the_speed_only_where_the_drive_stops(blockage_runs, monkeypatch):
+    """The speed term is learned from a drive with REST_FRACTION of its scans below REST_SPEED (`fit_factor` with
+    the speeds), and left at 0 otherwise: blockage's drive (3.0-3.4 m/s) counts as stopping below 5 m/s."""
+    runs, truth = blockage_runs
+    states = runs["plain"]
+    e, A, V_velocity, V_rest, W, speed = cr.relative_terms_split(states, truth, 1.0, with_speed=True)
+    monkeypatch.setattr(cr, "REST_SPEED", 5.0)
+    fit = cr.fit_relative_inflation(states, truth, 1.0, 0.1, rates=True, share=True)
+    direct = cr.fit_factor(e, A, V_rest, W, 1.0, rates=True, V_velocity=V_velocity, speed=speed)
+    assert fit["rest_fraction"] == 1.0
+    assert fit["velocity_error_share_per_speed"] == direct["velocity_error_share_per_speed"]
+    assert fit["velocity_error_share"] == direct["velocity_error_share"]
+    monkeypatch.setattr(cr, "REST_FRACTION", 1.01)  # no drive stops that long
+    gated = cr.fit_relative_inflation(states, truth, 1.0, 0.1, rates=True, share=True)
+    alone = cr.fit_factor(e, A, V_rest, W, 1.0, rates=True, V_velocity=V_velocity)
+    assert gated["velocity_error_share_per_speed"] == 0.0
+    assert gated["velocity_error_share"] == alone["velocity_error_share"]
+
