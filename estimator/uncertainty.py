@@ -301,9 +301,10 @@ class ReportedCovariances:
                                  doppler_nis, cfg.inflation_per_pull, pull) if self.relative_terms else cfg.inflation)
             P_relative, P_revision = (f * P for P in P_relative)
             dt = est.t - last.t
+            speed = float(np.linalg.norm(est.varpi[:3])) if cfg.velocity_error_share_per_speed else None
             P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, dt, *recursion_inputs(
                 P_relative, est.P[6:12, 6:12], dt, cfg.registration_correlation, cfg.velocity_error_share,
-                cfg.velocity_error_share_per_speed, float(np.linalg.norm(est.varpi[:3]))))
+                cfg.velocity_error_share_per_speed, speed))
         P_absolute = with_roll_pitch_variance(P_absolute, self.jitter.at(est.t))
         self.last, self.restart_relative = est, None
         est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse

@@ -240,14 +240,16 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
         p = _max_likelihood(e, A, V, W, inflation, V_velocity, np.divide(SHARE_RANGE, share), Y)
     else:
         p = np.r_[inflation, r0, [1.0, 0.0][:n_h]]
-    p, h = (p[:len(p) - n_h], np.r_[p[len(p) - n_h:], 0.0][:2]) if n_h else (p, np.array([1.0, 0.0]))
+    k = len(p) - n_h
+    p, h = p[:k], np.r_[p[k:], (1.0, 0.0)[n_h:]]  # the share's (g, g_v) as fitted, (1, 0) where not
     if (not rates or not np.any(p[1:] > 0.0)) and tuple(h) == (1.0, 0.0) \
             and abs(np.log(before)) < np.log1p(ratio_tolerance):
         return result(inflation, r0, "within tolerance", before)
     c = p[0] + W @ p[1:]
-    h_k = h[0] + (0.0 if speed is None else h[1] * np.asarray(speed, dtype=float))
-    scaled = c[:, None, None] * A + (0.0 if V_velocity is None else np.broadcast_to(h_k, (len(e),))[:, None, None]
-                                     * V_velocity)  # what the level scales
+    scaled = c[:, None, None] * A  # what the level scales
+    if V_velocity is not None:
+        h_k = h[0] + (0.0 if speed is None else h[1] * np.asarray(speed, dtype=float))
+        scaled = scaled + np.broadcast_to(h_k, (len(e),))[:, None, None] * V_velocity
     s = _median_scale(np.ones(len(e)), e, scaled, V)
     if s is None:
         return result(inflation, r0, "out of reach", before)

@@ -29,8 +29,6 @@ from rodo.estimator.errors import InputError
 
 from .table1 import parse_scenarios
 
-SEQUENCE_FILES = ("radar.csv", "sensor.toml", "groundtruth.txt", "truth.npz")
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     from rodo.validation.verdict import SCENARIOS
@@ -76,14 +74,17 @@ def _check(args) -> list[str]:
 
 def _steps(args, names: list[str]) -> tuple[list, list, list]:
     """(simulations, calibrations, campaigns): (label, argv, done) of every step."""
+    from rodo.sim.sequence import GROUNDTRUTH_TXT, RADAR_CSV, SENSOR_TOML
+    from rodo.sim.simulate import TRUTH_NPZ
     from rodo.validation.verdict import MODELS, config_path
 
+    files = (RADAR_CSV, SENSOR_TOML, GROUNDTRUTH_TXT, TRUTH_NPZ)  # a simulated sequence, all written
     out, sims, cals, camps = Path(args.out), [], [], []
     for s in names:
         seq = out / "calibration" / s
         sims.append((f"simulate {s}", ["simulate", s, "--seed", str(args.calibration_seed), "--duration",
                                        str(args.calibration_duration), "--out", str(seq)],
-                     all((seq / f).is_file() for f in SEQUENCE_FILES)))
+                     all((seq / f).is_file() for f in files)))
         labels = []
         for name, (label, model, _) in MODELS.items():
             cfg = config_path(out, s, name)
