@@ -27,6 +27,7 @@ A map of the package (each module's public names are re-exported here):
     heading_reversion.py  the yaw error's reversion to an anchor in that drift (optional)
     attitude_jitter.py  a smooth roll and pitch error beside that drift (optional)
     velocity_inflation.py  the reported velocity variance's factor (speed, Doppler innovation, body rates)
+    velocity_lag.py     the velocity's lag behind a manoeuvre, a bias the reported velocity covariance adds
     pull.py             the scan's pull on its solved pose, and the one-scan relative pose's factor
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
     sensor.py           Sensor: one radar of the odometry (extrinsics, noise, association, Doppler front end)
@@ -79,6 +80,7 @@ _EXPORTS = {
     "pull": ("pose_pull", "pull_term", "relative_factor"),
     "velocity_inflation": ("doppler_term", "velocity_factor", "velocity_inflated", "velocity_inflation_array",
                            "velocity_inflation_terms"),
+    "velocity_lag": ("VelocityLag", "lag_accelerations", "lag_matrix", "with_lag"),
     "window": ("SlidingWindow",),
     "window_sets": ("MeasurementSet", "SetPacks"),
 }

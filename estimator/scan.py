@@ -88,6 +88,8 @@ class ScanEstimate:
             NaN without a prediction or a Doppler fit).
         pose_pull: the scan's pull on its solved pose, per dof (`rodo.estimator.pull`; NaN with fewer than
             six pairs): how far its pairs alone would move the pose, in their own information.
+        velocity_lag: (6,) the velocity's bias behind a manoeuvre b = L a (`rodo.estimator.velocity_lag`), whose
+            b b^T P's velocity block holds; zeros without `uncertainty.velocity_lag_*`.
         restarted: the odometry re-initialised at this scan (after an outage, or on the consensus switch):
             P_relative is the dead-reckoned step from the last estimate (`uncertainty.restart_matrices`).
     """
@@ -112,6 +114,7 @@ class ScanEstimate:
     doppler_nis: float = float("nan")
     pose_pull: float = float("nan")
     restarted: bool = False
+    velocity_lag: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
     @property
     def T_world_vehicle(self) -> np.ndarray:

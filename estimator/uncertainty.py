@@ -68,6 +68,7 @@ from .lie import se3
 from .pull import relative_factor
 from .uncertainty_kernels import drift_step, relative_covariances
 from .velocity_inflation import velocity_inflated
+from .velocity_lag import VelocityLag
 
 NO_REVERSION = np.zeros(4)  # drift_step's coefficients without the heading's reversion (unused there)
 
@@ -258,7 +259,7 @@ class ReportedCovariances:
     rates, pull its pull on the solved pose, `pose_pull`), the absolute pose
     covariance through the drift recursion (`DriftCovariance`: from the run's first scan, across
     re-initialisations with their dead-reckoned step, unscaled) with the roll and pitch jitter's excess since that
-    scan (`attitude_jitter`), the velocity's variance scaled (`velocity_inflated`).
+    scan (`attitude_jitter`), the velocity's variance scaled (`velocity_inflated`), its lag added (`VelocityLag`).
 
     Attributes:
         config: the odometry's `UncertaintyConfig`.
@@ -277,6 +278,7 @@ class ReportedCovariances:
         self.relative_terms = (any(config.inflation_per_rate) or config.inflation_per_doppler != 0.0
                                or config.inflation_per_pull != 0.0)
         self.jitter = AbsoluteJitter(attitude_jitter_of(config))
+        self.lag = VelocityLag(config)
         self.drift: DriftCovariance | None = None
         self.last = None
         self.restart_relative: np.ndarray | None = None
@@ -292,8 +294,9 @@ class ReportedCovariances:
                                                        cfg.drift_rate_sigma, heading_of(cfg))
             P_relative, P_revision, P_absolute = np.full((6, 6), np.nan), np.zeros((6, 6)), est.P[:6, :6].copy()
             self.jitter.start(est.t)
+            step = None  # the lag's acceleration starts again, as at a re-initialisation
         elif self.restart_relative is not None:  # dead-reckoned across a re-initialisation, not registered:
-            P_relative, P_revision = P_relative  # so not scaled by `inflation` either
+            P_relative, P_revision, step = *P_relative, None  # so not scaled by `inflation` either
             est.restarted = True
             P_absolute = self.drift.restart(last.T_vehicle_world, est.T_vehicle_world, P_relative)
         else:
@@ -301,6 +304,7 @@ class ReportedCovariances:
                                  doppler_nis, cfg.inflation_per_pull, pull) if self.relative_terms else cfg.inflation)
             P_relative, P_revision = (f * P for P in P_relative)
             dt = est.t - last.t
+            step = (last.varpi, dt)
             speed = float(np.linalg.norm(est.varpi[:3])) if cfg.velocity_error_share_per_speed else None
             P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, dt, *recursion_inputs(
                 P_relative, est.P[6:12, 6:12], dt, cfg.registration_correlation, cfg.velocity_error_share,
@@ -312,7 +316,7 @@ class ReportedCovariances:
         est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed,
                                   cfg.velocity_inflation_per_doppler, est.doppler_nis, self.axes,
                                   cfg.velocity_inflation_per_rate)
-        return est
+        return self.lag.annotate(est, step)
 
 
 def recursion_inputs(P_relative, P_varpi, dt, correlation: float = 0.0, share: float = 1.0,

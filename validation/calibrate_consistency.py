@@ -31,7 +31,10 @@ tells the truth (docs/consistency.md):
   pitch rates; the window's velocity covariance hardly does, so the reported one is (a + b |nu| + d ln(1 + nis)
   + r . |omega|) times it (`estimator.velocity_inflation.velocity_inflated`; the fit: `calibrate_velocity`).
   Maximum likelihood of the velocity errors of the last run (no run is needed); a mean fit, as the N-run bounds
-  of a campaign test means. The drift terms below keep the window's velocity covariance.
+  of a campaign test means. Before them, by default, the velocity's lag behind a manoeuvre,
+  `velocity_lag_per_acceleration` and `velocity_lag_per_yaw_acceleration` (`estimator.velocity_lag`: least
+  squares of the velocity errors on the smoothed forward and yaw acceleration; the reported covariance adds the
+  bias's b b^T). The drift terms below keep the window's velocity covariance.
 - `uncertainty.velocity_correlation_time` tau: how long the velocity error stays correlated, which decides how
   the per-scan covariances compose into the drift (the relative pose over a span and the absolute pose). It
   does not change the estimate: chosen on a grid, without running again, so that the relative pose over `span`
@@ -119,10 +122,11 @@ class ConsistencyStep:
 
 
 def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=None,
-          velocity=(1.0, 0.0, 0.0, (1.0,) * 6, (0.0,) * 3), relative=None, heading=None,
+          velocity=(1.0, 0.0, 0.0, (1.0,) * 6, (0.0,) * 3, ((0.0,) * 6,) * 2), relative=None, heading=None,
           jitter=None, share=None) -> OdometryConfig:
-    """The config with these uncertainty values; the velocity factors (a, b, d, per-axis g, per-rate r) default to
-    none: the fit's runs report the window's own velocity covariance; the relative pose factor (`relative`, (f,
+    """The config with these uncertainty values; the velocity factors (a, b, d, per-axis g, per-rate r, the lag's
+    (per-acceleration, per-yaw-acceleration)) default to none: the fit's runs report the window's own velocity
+    covariance; the relative pose factor (`relative`, (f,
     per-rate r, per-Doppler d, per-pull p)), the heading's reversion ([T_r, T_a]), the roll and pitch jitter
     ([V, T]) and (the velocity error's share, its growth with the speed, the registration's correlation) to the
     config's."""
@@ -143,6 +147,8 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
                                   heading_anchor_time=float(heading[1]) if heading[0] > 0 else unc.heading_anchor_time)
     if jitter is not None:
         unc = dataclasses.replace(unc, attitude_jitter_variance=float(jitter[0]), attitude_jitter_time=float(jitter[1]))
+    unc = dataclasses.replace(unc, velocity_lag_per_acceleration=tuple(float(x) for x in velocity[5][0]),
+                              velocity_lag_per_yaw_acceleration=tuple(float(x) for x in velocity[5][1]))
     if share is not None:
         unc = dataclasses.replace(unc, velocity_error_share=float(share[0]),
                                   velocity_error_share_per_speed=float(share[1]), registration_correlation=float(share[2]))
@@ -288,10 +294,10 @@ def _fixed_point(seq, truth, config: OdometryConfig, iterations: int, tolerance:
 def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryConfig, iterations: int = 4,
                     tolerance: float = 0.1, span: float = 1.0, progress=None,
                     velocity_axes: bool = True, heading_reversion: bool = False,
-                    attitude_jitter: bool = True) -> tuple[OdometryConfig, dict]:
+                    attitude_jitter: bool = True, velocity_lag: bool = True) -> tuple[OdometryConfig, dict]:
     """Fit kappa (fixed point), then the relative pose's and the velocity's variance factors (per axis too with
-    `velocity_axes`, `fit_velocity_inflation`), the drift rate and tau (on the last run's states, without running
-    again; at the config's heading reversion, or, with `heading_reversion`, the reversion too: `fit_heading`; with
+    `velocity_axes`, with `velocity_lag` its lag behind a manoeuvre: `fit_velocity_inflation`), the drift rate and
+    tau (on the last run's states, without running again; at the config's heading reversion, or, with `heading_reversion`, the reversion too: `fit_heading`; with
     `attitude_jitter` the roll and pitch jitter's variance last, without it the config's kept) on a simulated
     sequence, or on several (lists of sequences and their truths, pooled: module docstring); returns (config,
     report).
@@ -312,9 +318,7 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     share = (relative["velocity_error_share"], relative["velocity_error_share_per_speed"])
     states = _each(lambda s: dict(relative_factor_states(s, ran, new), velocity_error_share=share[0],
                                   velocity_error_share_per_speed=share[1]), states)
-    velocity = fit_velocity_inflation(states, truth, per_axis=velocity_axes)
-    factors = (velocity["inflation"], velocity["per_speed"], velocity["per_doppler"], tuple(velocity["per_axis"]),
-               tuple(velocity["per_rate"]))
+    velocity, factors = _velocity_fit(states, truth, velocity_axes, velocity_lag, u.velocity_lag_time)
     heading = tuple(float(x) for x in heading_of(config.uncertainty))  # kept, unless asked to fit it
     correlation, tau, tau_ratios, correlations = fit_correlation(states, truth, span, drift["sigma"],
                                                                  None if heading_reversion else heading)
@@ -328,15 +332,14 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
                                     runs_of(states, truth))
     jitter_pair = (jitter["variance"], jitter["time"])
     fitted = _with(config, kappa, tau, drift["sigma"], factors, new, heading, jitter_pair, (*share, correlation))
-    final = _ratios(_each(lambda s: replayed(velocity_inflated_states(s, *factors), tau, drift["sigma"], heading,
-                                             jitter_pair), states), truth, span, tau, drift["sigma"])
+    final = _ratios(_each(lambda s: replayed(_at_velocity(s, factors, u.velocity_lag_time), tau, drift["sigma"],
+                                             heading, jitter_pair), states), truth, span, tau, drift["sigma"])
     steps.append(ConsistencyStep(kappa, tau, final))
     if progress is not None:
         progress(steps[-1])
     report = {"measurement_inflation": kappa, "relative_inflation": relative, "velocity_inflation": velocity,
               "velocity_correlation_time": tau, "registration_correlation": correlations, "drift_rate": drift,
-              "span": span,
-              "tolerance": tolerance, "at_lower_bound": kappa == KAPPA_RANGE[0],
+              "span": span, "tolerance": tolerance, "at_lower_bound": kappa == KAPPA_RANGE[0],
               "steps": [s.as_dict() for s in steps],
               "tau_grid": {f"{t:g}": {"relative_span": r[0], "pose": r[1]} for t, r in tau_ratios.items()},
               "heading_reversion": {"time": heading[0], "anchor_time": heading[1], "fitted": heading_reversion,
@@ -345,3 +348,16 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
                                              for (r, a), x in heading_ratios.items()}},
               "attitude_jitter": jitter}
     return fitted, report
+
+
+def _velocity_fit(states, truth, axes: bool, lag: bool, lag_time: float) -> tuple[dict, tuple]:
+    """(`fit_velocity_inflation`'s report, the factors as `_with` takes them: (a, b, d, g, r, (the lag's
+    per-acceleration, per-yaw-acceleration)))."""
+    v = fit_velocity_inflation(states, truth, per_axis=axes, lag=lag, lag_time=lag_time)
+    return v, (v["inflation"], v["per_speed"], v["per_doppler"], tuple(v["per_axis"]), tuple(v["per_rate"]),
+               (tuple(v["lag_per_acceleration"]), tuple(v["lag_per_yaw_acceleration"])))
+
+
+def _at_velocity(states: dict, factors: tuple, lag_time: float) -> dict:
+    """The states at `_velocity_fit`'s factors (`velocity_inflated_states`, the lag L (6, 2) of its columns)."""
+    return velocity_inflated_states(states, *factors[:5], np.array(factors[5], dtype=float).T, lag_time)

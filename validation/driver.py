@@ -65,6 +65,7 @@ class ScanColumns:
                "P_relative": _or_filled(est.P_relative, np.nan), "P_revision": _or_filled(est.P_revision, 0.0),
                "P_pose_absolute": _or_filled(est.P_pose_absolute, np.nan), "map_reuse": est.map_reuse,
                "doppler_nis": est.doppler_nis, "pose_pull": est.pose_pull, "restarted": est.restarted,
+               "velocity_lag": est.velocity_lag,
                **{f"s_{key}": est.timings.get(key, 0.0) for key in STAGES}}
         if self.n == self._capacity:
             self._capacity *= 2
@@ -134,6 +135,7 @@ class RunResult:
             doppler_nis=c["doppler_nis"],
             pose_pull=c["pose_pull"],
             restarted=c["restarted"].astype(bool),
+            velocity_lag=c["velocity_lag"],
             velocity_correlation_time=np.float64(u.velocity_correlation_time),
             velocity_error_share=np.float64(u.velocity_error_share),
             velocity_error_share_per_speed=np.float64(u.velocity_error_share_per_speed),

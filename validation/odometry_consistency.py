@@ -48,14 +48,17 @@ def _relative_errors(T_true: np.ndarray, T_est: np.ndarray, n: int) -> np.ndarra
 
 
 def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflation=None,
-                               doppler_nis=None, axis_inflation=None) -> np.ndarray:
+                               doppler_nis=None, axis_inflation=None, lag=None) -> np.ndarray:
     """(N, 6, 6) the velocity covariances a run's drift recursion used: the window's, i.e. the reported ones
     (states.npz P) divided by the run's velocity factor (`estimator.velocity_inflation.velocity_factor`; states.npz
     velocity_inflation = [a, b], [a, b, d] with the per-scan doppler_nis, or [a, b, d, r_x, r_y, r_z] with the
     rate terms; none in runs before them) and by its
     per-axis factors (states.npz velocity_axis_inflation g: element (i, j) by sqrt(g_i g_j); none in runs
-    before them)."""
+    before them), after the lag's b b^T is taken off (states.npz velocity_lag b (N, 6), `estimator.velocity_lag`;
+    none in runs before it)."""
     P_varpi = np.asarray(P, dtype=float)[:, 6:12, 6:12]
+    if lag is not None and np.any(lag):
+        P_varpi = P_varpi - np.asarray(lag, dtype=float)[:, :, None] * np.asarray(lag, dtype=float)[:, None, :]
     if axis_inflation is not None and np.any(np.asarray(axis_inflation) != 1.0):
         h = np.sqrt(np.asarray(axis_inflation, dtype=float).reshape(6))
         P_varpi = P_varpi / (h[:, None] * h[None, :])
@@ -220,7 +223,8 @@ def _matched(states: dict, truth: dict, tolerance: float, tau: float, drift_rate
     if "P_relative" in sub:
         restarts = sub.get("restarted")
         P_window = drift_velocity_covariances(sub["P"], sub["varpi"], states.get("velocity_inflation"),
-                                              sub.get("doppler_nis"), states.get("velocity_axis_inflation"))
+                                              sub.get("doppler_nis"), states.get("velocity_axis_inflation"),
+                                              sub.get("velocity_lag"))
         Sigma_rel, P_varpi = recursion_inputs_of_run(states, np.asarray(sub["P_relative"], dtype=float), P_window,
                                                      ia, restarts)
         deviations = heading_deviations(T_est, t, Sigma_rel, P_varpi, tau, drift_rate_sigma, restarts, heading)

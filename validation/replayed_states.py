@@ -16,7 +16,9 @@ import numpy as np
 
 from rodo.estimator.attitude_jitter import absolute_excess, attitude_jitter_array, with_roll_pitch_variance
 from rodo.estimator.heading_reversion import heading_reversion_array
+from rodo.estimator.uncertainty import fresh_starts
 from rodo.estimator.velocity_inflation import velocity_inflated, velocity_inflation_array
+from rodo.estimator.velocity_lag import lag_accelerations, with_lag
 
 from .odometry_consistency import drift_velocity_covariances, recursion_inputs_of_run
 from .span_covariances import drift_replay
@@ -39,15 +41,24 @@ def relative_inflated_states(states: dict, factor: float) -> dict:
 
 
 def velocity_inflated_states(states: dict, inflation: float, per_speed: float, per_doppler: float = 0.0,
-                             per_axis=None, per_rate=None) -> dict:
-    """The states a run at these velocity factors would have written (from a run without them: the estimate does
-    not depend on them): the reported velocity covariance scaled, the factors recorded."""
+                             per_axis=None, per_rate=None, lag=None, lag_time: float = 0.3) -> dict:
+    """The states a run at these velocity factors and this lag (L (6, 2), `estimator.velocity_lag`, smoothed over
+    `lag_time`; None: none) would have written (from a run without them: the estimate does not depend on them):
+    the reported velocity covariance scaled and the lag's b b^T added, the factors and each scan's b recorded.
+
+    Checked by: tests/estimator/test_velocity_lag.py::test_the_run_adds_the_lag_the_states_replay
+    """
     axes = np.ones(6) if per_axis is None else np.asarray(per_axis, dtype=float)
     rates = np.zeros(3) if per_rate is None else np.asarray(per_rate, dtype=float)
     P = velocity_inflated(np.asarray(states["P"], dtype=float), states["varpi"], inflation, per_speed, per_doppler,
                           states.get("doppler_nis"), axes, rates)
-    return dict(states, P=P, velocity_inflation=velocity_inflation_array(inflation, per_speed, per_doppler, rates),
-                velocity_axis_inflation=axes)
+    out = dict(states, P=P, velocity_inflation=velocity_inflation_array(inflation, per_speed, per_doppler, rates),
+               velocity_axis_inflation=axes)
+    if lag is not None and np.any(lag):
+        fresh = fresh_starts(states.get("restarted"), len(P))
+        out["velocity_lag"] = lag_accelerations(states["varpi"], states["t"], fresh, lag_time) @ np.asarray(lag).T
+        out["P"] = with_lag(P, out["velocity_lag"])
+    return out
 
 
 def replayed(states: dict, tau: float, drift_rate_sigma, heading=None, jitter=None) -> dict:
@@ -71,7 +82,8 @@ def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None, headin
     """
     P = np.asarray(states["P"], dtype=float)
     P_window = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"),
-                                          states.get("doppler_nis"), states.get("velocity_axis_inflation"))
+                                          states.get("doppler_nis"), states.get("velocity_axis_inflation"),
+                                          states.get("velocity_lag"))
     Sigma_rel, P_varpi = recursion_inputs_of_run(states, np.asarray(states["P_relative"], dtype=float), P_window)
     steps = drift_replay(np.asarray(states["T_vehicle_world"], dtype=float), np.asarray(states["t"], dtype=float),
                          Sigma_rel, P_varpi, P[0, :6, :6], tau, drift_rate_sigma, states.get("restarted"), heading)

@@ -45,6 +45,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--velocity-axes", action=argparse.BooleanOptionalAction, default=None,
                    help="with truth: learn the velocity variance per axis too (uncertainty.velocity_axis_inflation; "
                         "docs/calibration.md): on by default with truth; --no-velocity-axes leaves them at 1")
+    p.add_argument("--velocity-lag", action=argparse.BooleanOptionalAction, default=None,
+                   help="with truth: learn the velocity's lag behind a manoeuvre (uncertainty.velocity_lag_*; "
+                        "docs/calibration.md): on by default with truth; --no-velocity-lag leaves it at 0")
     p.add_argument("--heading-reversion", action="store_true",
                    help="with truth: learn the yaw error's reversion too (uncertainty.heading_reversion_time and "
                         "heading_anchor_time; docs/calibration.md)")
@@ -78,7 +81,8 @@ def _check_args(args) -> Path:
     if args.sensor_noise and not args.no_truth:
         raise InputError("--sensor-noise: learns the measurement noise without ground truth (with --no-truth); "
                          "with truth.npz it is learned from the truth anyway")
-    for flag, given in (("--velocity-axes", args.velocity_axes), ("--heading-reversion", args.heading_reversion),
+    for flag, given in (("--velocity-axes", args.velocity_axes), ("--velocity-lag", args.velocity_lag),
+                        ("--heading-reversion", args.heading_reversion),
                         ("--attitude-jitter", args.attitude_jitter)):
         for other, off in (("--no-truth", args.no_truth), ("--no-consistency", args.no_consistency)):
             if given and off:
@@ -122,7 +126,7 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                          f"{_relative_words(rel)}, velocity_inflation "
                          f"{v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + {v['per_doppler']:.3g} x "
                          "ln(1 + Doppler NIS)" + _rate_words(v)
-                         + (" and per axis" if set(v.get("per_axis", [1.0])) != {1.0} else "")
+                         + (" and per axis" if set(v.get("per_axis", [1.0])) != {1.0} else "") + _lag_words(v)
                          + ", drift_rate_sigma and "
                          f"velocity_correlation_time {c['velocity_correlation_time']:g} s"
                          + _correlation_words(c)
@@ -208,7 +212,7 @@ def _consistency_markdown(c: dict) -> list[str]:
               f"{rel['outcome']})",
               f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
               f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS){_rate_words(v)}, per axis vx, vy, vz, wx, wy, wz x "
-              f"[{', '.join(f'{g:.3g}' for g in v.get('per_axis', [1.0] * 6))}] (maximum "
+              f"[{', '.join(f'{g:.3g}' for g in v.get('per_axis', [1.0] * 6))}]{_lag_words(v)} (maximum "
               f"likelihood over {v['scans']} scans: mean velocity NEES/dof {v['nees_per_dof'][0]:.3g} -> "
               f"{v['nees_per_dof'][1]:.3g})",
               f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m"
@@ -239,6 +243,15 @@ def _heading_words(c: dict) -> str:
     h = c.get("heading_reversion", {"time": 0.0})
     return (f", heading_reversion_time {h['time']:g} s and heading_anchor_time {h['anchor_time']:g} s"
             if h["time"] > 0 else "")
+
+
+def _lag_words(v: dict) -> str:
+    """' with its lag behind a manoeuvre [...] per forward and [...] per yaw acceleration' of a velocity factor
+    with a lag (`estimator.velocity_lag`), '' otherwise."""
+    a, y = v.get("lag_per_acceleration", [0.0] * 6), v.get("lag_per_yaw_acceleration", [0.0] * 6)
+    vec = lambda x: "[" + ", ".join(f"{e:.3g}" for e in x) + "]"  # noqa: E731
+    return (f" with its lag behind a manoeuvre (velocity_lag) {vec(a)} s per forward and {vec(y)} per yaw "
+            "acceleration" if any(a) or any(y) else "")
 
 
 def _rate_words(v: dict) -> str:
@@ -308,6 +321,7 @@ def main(args) -> int:
         config, report = calibrate_with_truth(seqs, truths, config, args.duration, args.floor,
                                               consistency=not args.no_consistency, progress=step,
                                               velocity_axes=args.velocity_axes is not False,
+                                              velocity_lag=args.velocity_lag is not False,
                                               heading_reversion=args.heading_reversion,
                                               attitude_jitter=attitude_jitter)
     write_text_atomic(out, config_toml(config, _header(report, " ".join(args.sequence), config.model)))

@@ -49,8 +49,9 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
 @pytest.mark.slow
 def test_calibrate_learns_the_velocity_per_axis_by_default(seq, tmp_path, capsys):
     """With truth the config carries the fitted per-axis velocity factors (product 1; --velocity-axes is the
-    default), the report and its markdown name them, and `rodo run` accepts the config. --no-velocity-axes
-    (below, with --no-attitude-jitter) leaves them at 1."""
+    default) and the velocity's lag behind a manoeuvre (--velocity-lag, the default), the report and its markdown
+    name them, and `rodo run` accepts the config and reports the lag's bias per scan. --no-velocity-axes and
+    --no-velocity-lag (below, with --no-attitude-jitter) leave them at 1 and 0."""
     out = tmp_path / "axes.toml"
     assert main(["calibrate", str(seq), "--out", str(out)]) == 0
     g = OdometryConfig.from_toml(out).uncertainty.velocity_axis_inflation
@@ -58,7 +59,13 @@ def test_calibrate_learns_the_velocity_per_axis_by_default(seq, tmp_path, capsys
     assert list(g) == report["consistency"]["velocity_inflation"]["per_axis"]
     assert np.prod(g) == pytest.approx(1.0, rel=1e-9) and max(g) / min(g) > 1.1
     assert "per axis vx, vy, vz, wx, wy, wz" in out.with_suffix(".md").read_text()
+    unc, velocity = OdometryConfig.from_toml(out).uncertainty, report["consistency"]["velocity_inflation"]
+    assert list(unc.velocity_lag_per_acceleration) == velocity["lag_per_acceleration"]
+    assert list(unc.velocity_lag_per_yaw_acceleration) == velocity["lag_per_yaw_acceleration"]
+    assert any(velocity["lag_per_yaw_acceleration"])  # least squares: never exactly 0 on a real drive
+    assert "lag behind a manoeuvre" in out.with_suffix(".md").read_text()
     assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    assert np.abs(np.load(tmp_path / "run" / "states.npz")["velocity_lag"]).max() > 0
 
 
 @pytest.mark.slow
@@ -116,16 +123,17 @@ def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, 
     base.write_text("[uncertainty]\nattitude_jitter_variance = 3e-6\nattitude_jitter_time = 0.5\n")
     kept = tmp_path / "kept.toml"
     assert main(["calibrate", str(seq), "--config", str(base), "--no-attitude-jitter", "--no-velocity-axes",
-                 "--out", str(kept)]) == 0
+                 "--no-velocity-lag", "--out", str(kept)]) == 0
     unc = OdometryConfig.from_toml(kept).uncertainty
     assert unc.velocity_axis_inflation == (1.0,) * 6
+    assert unc.velocity_lag_per_acceleration == unc.velocity_lag_per_yaw_acceleration == (0.0,) * 6
     assert (unc.attitude_jitter_variance, unc.attitude_jitter_time) == (3e-6, 0.5)
     j = json.loads(kept.with_suffix(".json").read_text())["consistency"]["attitude_jitter"]
     assert j == {"variance": 3e-6, "time": 0.5, "fitted": False}
     assert "attitude_jitter_variance" not in "".join(line for line in kept.read_text().splitlines() if line[:1] == "#")
 
 
-@pytest.mark.parametrize("flag", ["--velocity-axes", "--heading-reversion", "--attitude-jitter"])
+@pytest.mark.parametrize("flag", ["--velocity-axes", "--velocity-lag", "--heading-reversion", "--attitude-jitter"])
 @pytest.mark.parametrize("other", ["--no-truth", "--no-consistency"])
 def test_an_uncertainty_flag_without_the_uncertainty_section_is_refused(seq, tmp_path, capsys, flag, other):
     """Asking to learn a term of the uncertainty section while leaving that section out exits 2 naming both."""
