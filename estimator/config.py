@@ -231,7 +231,8 @@ class UncertaintyConfig:
         per unit of the estimated forward acceleration (s, rad/m) and of the yaw acceleration (s m/rad, s): a prior
         that does not model the manoeuvre lags behind it by a bias b = L a, which the reported velocity covariance
         adds as b b^T (`estimator.velocity_lag`; docs/consistency.md, "The velocity's lag behind a manoeuvre");
-        `rodo calibrate` learns them. Not in the solve, the gates or the drift recursion. Zeros: off.
+        `rodo calibrate` learns them for the constant-velocity prior. Not in the solve, the gates or the drift
+        recursion. Zeros: off.
     velocity_lag_time: the time constant (s, >= 0) with which that acceleration, the change of the emitted
         forward velocity and yaw rate over dt, is smoothed; 0: the raw change.
     heading_reversion_time: the time constant (s) with which the drift recursion's yaw error reverts to an anchor

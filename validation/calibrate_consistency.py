@@ -34,7 +34,10 @@ tells the truth (docs/consistency.md):
   of a campaign test means. Before them, by default, the velocity's lag behind a manoeuvre,
   `velocity_lag_per_acceleration` and `velocity_lag_per_yaw_acceleration` (`estimator.velocity_lag`: least
   squares of the velocity errors on the smoothed forward and yaw acceleration; the reported covariance adds the
-  bias's b b^T). The drift terms below keep the window's velocity covariance.
+  bias's b b^T), for the constant-velocity prior only (LAG_PRIORS): a prior with the acceleration in its state
+  does not lag so, and there the velocity errors' correlation with the estimated acceleration is the window's own
+  (learned on a CA drive where the prior is exact, it made the velocity cautious: docs/consistency.md). The drift
+  terms below keep the window's velocity covariance.
 - `uncertainty.velocity_correlation_time` tau: how long the velocity error stays correlated, which decides how
   the per-scan covariances compose into the drift (the relative pose over a span and the absolute pose). It
   does not change the estimate: chosen on a grid, without running again, so that the relative pose over `span`
@@ -101,6 +104,8 @@ REPORTED = ("velocity", "relative_scan", "relative_span", "pose")
 def _each(fn, states, *args):
     """fn(states, *args) of one run's states, or the list of it over several runs' states."""
     return fn(states, *args) if isinstance(states, dict) else [fn(s, *args) for s in states]
+
+LAG_PRIORS = ("cv",)  # the motion priors whose velocity's lag behind a manoeuvre is learned by default
 
 
 def _pooled(states, truth, name: str, **kwargs) -> np.ndarray:
@@ -294,10 +299,11 @@ def _fixed_point(seq, truth, config: OdometryConfig, iterations: int, tolerance:
 def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryConfig, iterations: int = 4,
                     tolerance: float = 0.1, span: float = 1.0, progress=None,
                     velocity_axes: bool = True, heading_reversion: bool = False,
-                    attitude_jitter: bool = True, velocity_lag: bool = True) -> tuple[OdometryConfig, dict]:
+                    attitude_jitter: bool = True, velocity_lag: bool | None = None) -> tuple[OdometryConfig, dict]:
     """Fit kappa (fixed point), then the relative pose's and the velocity's variance factors (per axis too with
-    `velocity_axes`, with `velocity_lag` its lag behind a manoeuvre: `fit_velocity_inflation`), the drift rate and
-    tau (on the last run's states, without running again; at the config's heading reversion, or, with `heading_reversion`, the reversion too: `fit_heading`; with
+    `velocity_axes`, with `velocity_lag` its lag behind a manoeuvre, None: for the constant-velocity prior only
+    (LAG_PRIORS): `fit_velocity_inflation`), the drift rate and tau (on the last run's states, without running
+    again; at the config's heading reversion, or, with `heading_reversion`, the reversion too: `fit_heading`; with
     `attitude_jitter` the roll and pitch jitter's variance last, without it the config's kept) on a simulated
     sequence, or on several (lists of sequences and their truths, pooled: module docstring); returns (config,
     report).
@@ -318,7 +324,8 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     share = (relative["velocity_error_share"], relative["velocity_error_share_per_speed"])
     states = _each(lambda s: dict(relative_factor_states(s, ran, new), velocity_error_share=share[0],
                                   velocity_error_share_per_speed=share[1]), states)
-    velocity, factors = _velocity_fit(states, truth, velocity_axes, velocity_lag, u.velocity_lag_time)
+    lag = config.prior in LAG_PRIORS if velocity_lag is None else velocity_lag
+    velocity, factors = _velocity_fit(states, truth, velocity_axes, lag, u.velocity_lag_time)
     heading = tuple(float(x) for x in heading_of(config.uncertainty))  # kept, unless asked to fit it
     correlation, tau, tau_ratios, correlations = fit_correlation(states, truth, span, drift["sigma"],
                                                                  None if heading_reversion else heading)

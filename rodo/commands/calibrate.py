@@ -47,7 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "docs/calibration.md): on by default with truth; --no-velocity-axes leaves them at 1")
     p.add_argument("--velocity-lag", action=argparse.BooleanOptionalAction, default=None,
                    help="with truth: learn the velocity's lag behind a manoeuvre (uncertainty.velocity_lag_*; "
-                        "docs/calibration.md): on by default with truth; --no-velocity-lag leaves it at 0")
+                        "docs/calibration.md): by default with truth for the constant-velocity models; "
+                        "--no-velocity-lag leaves it at 0, --velocity-lag learns it for every model")
     p.add_argument("--heading-reversion", action="store_true",
                    help="with truth: learn the yaw error's reversion too (uncertainty.heading_reversion_time and "
                         "heading_anchor_time; docs/calibration.md)")
@@ -321,7 +322,7 @@ def main(args) -> int:
         config, report = calibrate_with_truth(seqs, truths, config, args.duration, args.floor,
                                               consistency=not args.no_consistency, progress=step,
                                               velocity_axes=args.velocity_axes is not False,
-                                              velocity_lag=args.velocity_lag is not False,
+                                              velocity_lag=args.velocity_lag,
                                               heading_reversion=args.heading_reversion,
                                               attitude_jitter=attitude_jitter)
     write_text_atomic(out, config_toml(config, _header(report, " ".join(args.sequence), config.model)))

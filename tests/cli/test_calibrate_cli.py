@@ -35,8 +35,14 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
     np.testing.assert_allclose(config.noise.sensor_sigma_scales, 1.0, rtol=0.10)  # sensor.toml is the truth
     assert report["measurement"]["channels"]["range"]["sigma"] == pytest.approx(0.02, rel=0.10)
     assert "| range |" in out.with_suffix(".md").read_text()
+    velocity = report["consistency"]["velocity_inflation"]  # the lag, by default for a constant-velocity model
+    assert list(config.uncertainty.velocity_lag_per_acceleration) == velocity["lag_per_acceleration"]
+    assert list(config.uncertainty.velocity_lag_per_yaw_acceleration) == velocity["lag_per_yaw_acceleration"]
+    assert any(velocity["lag_per_yaw_acceleration"])  # least squares: never exactly 0 on a real drive
+    assert "lag behind a manoeuvre" in out.with_suffix(".md").read_text()
     capsys.readouterr()
     assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    assert np.abs(np.load(tmp_path / "run" / "states.npz")["velocity_lag"]).max() > 0
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["model"] == "cv-polar" and summary["config"] == config.to_dict()
     assert np.prod(config.uncertainty.velocity_axis_inflation) == pytest.approx(1.0, rel=1e-9)  # per axis by default
@@ -49,9 +55,9 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
 @pytest.mark.slow
 def test_calibrate_learns_the_velocity_per_axis_by_default(seq, tmp_path, capsys):
     """With truth the config carries the fitted per-axis velocity factors (product 1; --velocity-axes is the
-    default) and the velocity's lag behind a manoeuvre (--velocity-lag, the default), the report and its markdown
-    name them, and `rodo run` accepts the config and reports the lag's bias per scan. --no-velocity-axes and
-    --no-velocity-lag (below, with --no-attitude-jitter) leave them at 1 and 0."""
+    default; the velocity's lag is not learned for this constant-acceleration model by default), the report and
+    its markdown name them, and `rodo run` accepts the config. --no-velocity-axes and --no-velocity-lag (below,
+    with --no-attitude-jitter, for a constant-velocity model) leave them at 1 and 0."""
     out = tmp_path / "axes.toml"
     assert main(["calibrate", str(seq), "--out", str(out)]) == 0
     g = OdometryConfig.from_toml(out).uncertainty.velocity_axis_inflation
@@ -59,13 +65,10 @@ def test_calibrate_learns_the_velocity_per_axis_by_default(seq, tmp_path, capsys
     assert list(g) == report["consistency"]["velocity_inflation"]["per_axis"]
     assert np.prod(g) == pytest.approx(1.0, rel=1e-9) and max(g) / min(g) > 1.1
     assert "per axis vx, vy, vz, wx, wy, wz" in out.with_suffix(".md").read_text()
-    unc, velocity = OdometryConfig.from_toml(out).uncertainty, report["consistency"]["velocity_inflation"]
-    assert list(unc.velocity_lag_per_acceleration) == velocity["lag_per_acceleration"]
-    assert list(unc.velocity_lag_per_yaw_acceleration) == velocity["lag_per_yaw_acceleration"]
-    assert any(velocity["lag_per_yaw_acceleration"])  # least squares: never exactly 0 on a real drive
-    assert "lag behind a manoeuvre" in out.with_suffix(".md").read_text()
+    unc = OdometryConfig.from_toml(out).uncertainty  # not learned for the constant-acceleration prior by default
+    assert unc.velocity_lag_per_acceleration == unc.velocity_lag_per_yaw_acceleration == (0.0,) * 6
+    assert "lag behind a manoeuvre" not in out.with_suffix(".md").read_text()
     assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
-    assert np.abs(np.load(tmp_path / "run" / "states.npz")["velocity_lag"]).max() > 0
 
 
 @pytest.mark.slow
@@ -122,8 +125,8 @@ def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, 
     base = tmp_path / "base.toml"
     base.write_text("[uncertainty]\nattitude_jitter_variance = 3e-6\nattitude_jitter_time = 0.5\n")
     kept = tmp_path / "kept.toml"
-    assert main(["calibrate", str(seq), "--config", str(base), "--no-attitude-jitter", "--no-velocity-axes",
-                 "--no-velocity-lag", "--out", str(kept)]) == 0
+    assert main(["calibrate", str(seq), "--config", str(base), "--model", "cv-polar", "--no-attitude-jitter",
+                 "--no-velocity-axes", "--no-velocity-lag", "--out", str(kept)]) == 0
     unc = OdometryConfig.from_toml(kept).uncertainty
     assert unc.velocity_axis_inflation == (1.0,) * 6
     assert unc.velocity_lag_per_acceleration == unc.velocity_lag_per_yaw_acceleration == (0.0,) * 6
