@@ -17,8 +17,8 @@ b_k = L a_k with L (6, 2) = [per_acceleration, per_yaw_acceleration] (the veloci
 the reported velocity covariance gains b_k b_k^T: the velocity's mean squared error, its bias included. Nothing
 in the solve, the gates or the drift recursion changes. `rodo calibrate` learns L by least squares of the
 velocity errors of a drive with its truth on a_k (`validation.calibrate_velocity`), by default for the
-constant-velocity prior only (a constant-acceleration prior carries the acceleration in its state); states.npz stores each scan's
-b_k (`velocity_lag`) so that the window's covariance can be recovered from the reported one.
+constant-velocity prior only (a constant-acceleration prior carries the acceleration in its state); states.npz
+stores each scan's b_k (`velocity_lag`) so that the window's covariance can be recovered from the reported one.
 
 Checked by: tests/estimator/test_velocity_lag.py
 """
