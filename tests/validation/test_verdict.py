@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 from rodo import scenarios
 from rodo.cli import main
+from rodo.estimator.config import OdometryConfig
 from rodo.validation.campaign_files import read_results
 from rodo.validation.verdict import CELLS, SHARE_TARGET, SPAN_LIMIT, SPANS, judge
 from tests.cli.helpers import fails
@@ -69,6 +70,9 @@ def test_a_verdict_reports_its_campaign_at_the_configs_it_learned(verdict_dir):
             assert c["fraction_scans_within"] == summary["models"][label]["consistency"][measure][
                 "fraction_scans_within"]
         assert row["models"][name]["ok"] == 2
+        lag = OdometryConfig.from_toml(config).uncertainty.velocity_lag_per_yaw_acceleration[5]
+        assert row["models"][name]["learned"]["yaw_rate_lag"] == lag  # learned for the CV model only
+        assert (lag == 0.0) == (name == "CA/P")
     crit = verdict["criteria"]
     assert len(crit["cells"]) == 4 and crit["cells_met"] == sum(c["share"] >= 0.9 for c in crit["cells"])
     text = (verdict_dir / "verdict.md").read_text()
