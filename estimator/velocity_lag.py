@@ -5,8 +5,8 @@ A motion prior that does not model the vehicle's manoeuvre lags behind it: under
 sustained forward or yaw acceleration leaves the window's velocity behind the truth by about a lag time times the
 acceleration (a tracker's steady-state lag to a ramp), and its covariance, which the measurements and the prior
 alone shape, does not know. On the city drives CV/C's velocity error followed the estimated yaw acceleration with
-correlation 0.8 (the lateral velocity's too, with the opposite sign), its yaw rate inside the bounds 3-9 times less
-often where the true yaw acceleration exceeded 0.1 rad/s^2 (docs/consistency.md, "The velocity's lag behind a
+correlation 0.8 (the lateral velocity's too, with the opposite sign), and its yaw rate's E[e^2 / P] was 7-9 where the
+true yaw acceleration exceeded 0.1 rad/s^2, 0.5 elsewhere (docs/consistency.md, "The velocity's lag behind a
 manoeuvre"). The acceleration is read causally from the emitted velocities: the change of the forward velocity
 and of the yaw rate since the previous scan over dt, smoothed with time constant T (`velocity_lag_time`),
 
