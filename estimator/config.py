@@ -228,13 +228,14 @@ class UncertaintyConfig:
         the shape of the window's velocity covariance (docs/consistency.md, "... and per axis"); `rodo calibrate`
         learns them (`--no-velocity-axes` leaves them at 1). Not in the solve, the gates or the drift recursion.
     velocity_lag_per_acceleration, velocity_lag_per_yaw_acceleration: the velocity error [vx, vy, vz, wx, wy, wz]
-        per unit of the estimated forward acceleration (s, rad/m) and of the yaw acceleration (s m/rad, s): a prior
+        per unit of the estimated forward acceleration (s, rad s/m) and of the yaw acceleration (s m/rad, s): a prior
         that does not model the manoeuvre lags behind it by a bias b = L a, which the reported velocity covariance
         adds as b b^T (`estimator.velocity_lag`; docs/consistency.md, "The velocity's lag behind a manoeuvre");
         `rodo calibrate` learns them for the constant-velocity prior. Not in the solve, the gates or the drift
         recursion. Zeros: off.
-    velocity_lag_time: the time constant (s, >= 0) with which that acceleration, the change of the emitted
-        forward velocity and yaw rate over dt, is smoothed; 0: the raw change.
+    velocity_lag_time: the time constant (s, > 0) with which that acceleration, the change of the emitted
+        forward velocity and yaw rate over dt, is smoothed (the raw change over dt would be unbounded for scans
+        close in time, as a rig's radars are).
     heading_reversion_time: the time constant (s) with which the drift recursion's yaw error reverts to an anchor
         (`estimator.heading_reversion`; docs/consistency.md, "The heading reverts"); `rodo calibrate
         --heading-reversion` learns it. Reported covariances only. 0: off.
@@ -267,7 +268,7 @@ class UncertaintyConfig:
     velocity_inflation_per_doppler: float = 0.0
     velocity_inflation_per_rate: tuple[float, ...] = (0.0, 0.0, 0.0)  # s/rad
     velocity_axis_inflation: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
-    velocity_lag_per_acceleration: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # s; rad/m
+    velocity_lag_per_acceleration: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # s; rad s/m
     velocity_lag_per_yaw_acceleration: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # s m/rad; s
     velocity_lag_time: float = 0.3  # s
     heading_reversion_time: float = 0.0  # s

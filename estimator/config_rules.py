@@ -124,7 +124,7 @@ RULES: dict[str, Rule] = {
     "uncertainty.velocity_axis_inflation": Rule(0.0, lo_closed=False, size=6),
     "uncertainty.velocity_lag_per_acceleration": Rule(size=6),
     "uncertainty.velocity_lag_per_yaw_acceleration": Rule(size=6),
-    "uncertainty.velocity_lag_time": NONNEGATIVE,
+    "uncertainty.velocity_lag_time": POSITIVE,
     "uncertainty.heading_reversion_time": NONNEGATIVE,
     "uncertainty.heading_anchor_time": POSITIVE,
     "uncertainty.attitude_jitter_variance": NONNEGATIVE,

@@ -64,7 +64,7 @@ def lag_matrix(config) -> np.ndarray:
 def lag_step(previous: np.ndarray, varpi_previous: np.ndarray, varpi: np.ndarray, dt: float,
              smoothing: float) -> np.ndarray:
     """a_k (2,) from a_{k-1}, the previous and this scan's velocities (6,) and the interval dt (s) between them
-    (module docstring); T = `smoothing` (s), 0: the raw change."""
+    (module docstring); T = `smoothing` (s), 0: the raw change (the config asks for T > 0)."""
     axes = list(LAG_AXES)
     raw = (np.asarray(varpi, dtype=float)[axes] - np.asarray(varpi_previous, dtype=float)[axes]) / dt
     phi = np.exp(-dt / smoothing) if smoothing > 0.0 else 0.0

@@ -50,7 +50,7 @@ UNITS = {
     "uncertainty.velocity_error_share": "factor", "uncertainty.velocity_error_share_per_speed": "s/m",
     "uncertainty.registration_correlation": "fraction",
     "uncertainty.velocity_axis_inflation": "factors",
-    "uncertainty.velocity_lag_per_acceleration": "s (rad/m for the rates)",
+    "uncertainty.velocity_lag_per_acceleration": "s (rad s/m for the rates)",
     "uncertainty.velocity_lag_per_yaw_acceleration": "s m/rad (s for the rates)", "uncertainty.velocity_lag_time": "s",
     "uncertainty.heading_reversion_time": "s", "uncertainty.heading_anchor_time": "s",
     "uncertainty.attitude_jitter_variance": "rad^2", "uncertainty.attitude_jitter_time": "s",

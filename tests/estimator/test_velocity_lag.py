@@ -98,3 +98,17 @@ def test_the_run_adds_the_lag_the_states_replay():
     np.testing.assert_allclose(replay["velocity_lag"], lagged["velocity_lag"], rtol=1e-12, atol=1e-15)
     window = drift_velocity_covariances(lagged["P"], lagged["varpi"], lag=lagged["velocity_lag"])
     np.testing.assert_allclose(window, plain["P"][:, 6:12, 6:12], rtol=1e-9, atol=1e-15)
+
+
+def test_a_lag_without_smoothing_or_with_a_bad_lag_is_refused():
+    """velocity_lag_time must be positive (the raw change over dt is unbounded for scans close in time), and the
+    lag vectors need six finite numbers: each refused naming the key."""
+    import pytest
+
+    from rodo.estimator.config import UncertaintyConfig
+    from rodo.estimator.errors import InputError
+
+    for bad in ({"velocity_lag_time": 0.0}, {"velocity_lag_per_acceleration": (0.0,) * 5},
+                {"velocity_lag_per_yaw_acceleration": (0.0,) * 5 + (float("nan"),)}):
+        with pytest.raises(InputError, match=next(iter(bad))):
+            OdometryConfig.for_model("cv-cartesian").replace(uncertainty=UncertaintyConfig(**bad))
