@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-LAG_AXES = (0, 5)  # varpi's forward velocity and yaw rate: the vehicle's two controls
+LAG_AXES = np.array([0, 5])  # varpi's forward velocity and yaw rate: the vehicle's two controls
 
 
 class VelocityLag:
@@ -65,8 +65,7 @@ def lag_step(previous: np.ndarray, varpi_previous: np.ndarray, varpi: np.ndarray
              smoothing: float) -> np.ndarray:
     """a_k (2,) from a_{k-1}, the previous and this scan's velocities (6,) and the interval dt (s) between them
     (module docstring); T = `smoothing` (s), 0: the raw change (the config asks for T > 0)."""
-    axes = list(LAG_AXES)
-    raw = (np.asarray(varpi, dtype=float)[axes] - np.asarray(varpi_previous, dtype=float)[axes]) / dt
+    raw = (np.asarray(varpi, dtype=float)[LAG_AXES] - np.asarray(varpi_previous, dtype=float)[LAG_AXES]) / dt
     phi = np.exp(-dt / smoothing) if smoothing > 0.0 else 0.0
     return phi * previous + (1.0 - phi) * raw
 

@@ -21,11 +21,11 @@ from .odometry_consistency import DOF, drift_velocity_covariances
 from .run_consistency import runs_of
 
 
-def _velocity_terms(states, truth, tolerance: float, smoothing: float) -> dict:
+def _velocity_terms(states, truth, tolerance: float, smoothing: float | None) -> dict:
     """Per scan of every run with finite values: e (K, 6) the velocity errors, Pi (K, 6, 6) the inverse window's
     velocity covariances (`drift_velocity_covariances`), the factor's regressors X (K, 6) = [1, |nu|, ln(1 + nis),
     |omega_x|, |omega_y|, |omega_z|] and the lag's smoothed accelerations A (K, 2) (`lag_accelerations` at
-    `smoothing`, across each run from its first scan and its re-initialisations)."""
+    `smoothing`, across each run from its first scan and its re-initialisations; zeros with smoothing None)."""
     out = {"e": [], "Pi": [], "X": [], "A": []}
     for st, tr in runs_of(states, truth):
         ia, ib = associate(st["t"], tr["t"], tolerance)
@@ -39,7 +39,8 @@ def _velocity_terms(states, truth, tolerance: float, smoothing: float) -> dict:
         out["X"].append(np.column_stack([np.ones(len(ia)), np.linalg.norm(w[:, :3], axis=1), doppler,
                                          np.abs(w[:, 3:6])]))
         fresh = fresh_starts(st.get("restarted"), len(varpi))
-        out["A"].append(lag_accelerations(varpi, st["t"], fresh, smoothing)[ia])
+        out["A"].append(np.zeros((len(ia), 2)) if smoothing is None
+                        else lag_accelerations(varpi, st["t"], fresh, smoothing)[ia])
     out = {k: np.concatenate(v) for k, v in out.items()}
     finite = np.all(np.isfinite(out["Pi"]), axis=(1, 2)) & np.all(np.isfinite(out["e"]), axis=1)
     return {k: v[finite] for k, v in out.items()}
@@ -93,7 +94,7 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
     Checked by: tests/validation/test_calibrate_velocity.py::test_velocity_inflation_recovers_a_known_factor,
         ::test_velocity_axis_inflation_recovers_known_factors
     """
-    terms = _velocity_terms(states, truth, tolerance, lag_time)
+    terms = _velocity_terms(states, truth, tolerance, lag_time if lag else None)
     e, Pi, X = terms["e"], terms["Pi"], terms["X"]
     M_ee = e[:, :, None] * e[:, None, :] * Pi
     q0 = M_ee.sum(axis=(1, 2))
@@ -101,7 +102,7 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
     none = {"inflation": 1.0, "per_speed": 0.0, "per_doppler": 0.0, "per_rate": [0.0] * 3, "per_axis": [1.0] * 6}
     if len(q0) < 2 or not np.mean(q0) > 0:  # too few scans, or no error at all (a noise-free drive)
         return {**none, **_lag_report(L, lag_time), "scans": int(len(q0)), "nees_per_dof": [np.nan, np.nan]}
-    if lag and np.any(terms["A"]):
+    if np.any(terms["A"]):
         L = np.linalg.lstsq(terms["A"], e, rcond=None)[0].T
     b = terms["A"] @ L.T
     M_eb = 0.5 * (e[:, :, None] * b[:, None, :] + b[:, :, None] * e[:, None, :]) * Pi

@@ -27,6 +27,7 @@ from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.estimator.uncertainty import recursion_inputs
 from rodo.estimator.velocity_inflation import velocity_factor, velocity_inflation_terms
+from rodo.estimator.velocity_lag import with_lag
 
 from .alignment import truth_in_estimator_frame
 from .association import DEFAULT_TOLERANCE, associate
@@ -56,9 +57,8 @@ def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflat
     per-axis factors (states.npz velocity_axis_inflation g: element (i, j) by sqrt(g_i g_j); none in runs
     before them), after the lag's b b^T is taken off (states.npz velocity_lag b (N, 6), `estimator.velocity_lag`;
     none in runs before it)."""
-    P_varpi = np.asarray(P, dtype=float)[:, 6:12, 6:12]
-    if lag is not None and np.any(lag):
-        P_varpi = P_varpi - np.asarray(lag, dtype=float)[:, :, None] * np.asarray(lag, dtype=float)[:, None, :]
+    P = np.asarray(P, dtype=float)
+    P_varpi = (P if lag is None else with_lag(P, lag, -1.0))[:, 6:12, 6:12]
     if axis_inflation is not None and np.any(np.asarray(axis_inflation) != 1.0):
         h = np.sqrt(np.asarray(axis_inflation, dtype=float).reshape(6))
         P_varpi = P_varpi / (h[:, None] * h[None, :])

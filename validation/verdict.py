@@ -39,8 +39,6 @@ SHARE_TARGET = 0.90
 SPAN_LIMIT = 2.0
 LEARNED = ("velocity_correlation_time", "velocity_error_share", "velocity_error_share_per_speed",
            "registration_correlation", "inflation", "inflation_per_pull", "velocity_inflation", "yaw_rate_lag")
-# the yaw rate's lag behind a manoeuvre: velocity_lag_per_yaw_acceleration's yaw-rate element (s)
-DERIVED = {"yaw_rate_lag": lambda u: u.velocity_lag_per_yaw_acceleration[5]}
 
 
 def config_path(out_dir, scenario: str, name: str) -> Path:
@@ -52,7 +50,9 @@ def _learned(path: Path) -> dict:
     from rodo.estimator.config import OdometryConfig
 
     u = OdometryConfig.from_toml(path).uncertainty
-    return {k: DERIVED[k](u) if k in DERIVED else getattr(u, k) for k in LEARNED}
+    learned = {k: getattr(u, k) for k in LEARNED[:-1]}
+    learned["yaw_rate_lag"] = u.velocity_lag_per_yaw_acceleration[5]  # CV/C's lag behind a turn (s)
+    return learned
 
 
 def scenario_verdict(out_dir, scenario: str) -> dict:

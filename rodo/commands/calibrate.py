@@ -250,9 +250,10 @@ def _lag_words(v: dict) -> str:
     """' with its lag behind a manoeuvre [...] per forward and [...] per yaw acceleration' of a velocity factor
     with a lag (`estimator.velocity_lag`), '' otherwise."""
     a, y = v.get("lag_per_acceleration", [0.0] * 6), v.get("lag_per_yaw_acceleration", [0.0] * 6)
-    vec = lambda x: "[" + ", ".join(f"{e:.3g}" for e in x) + "]"  # noqa: E731
-    return (f" with its lag behind a manoeuvre (velocity_lag) {vec(a)} s per forward and {vec(y)} per yaw "
-            "acceleration" if any(a) or any(y) else "")
+    if not (any(a) or any(y)):
+        return ""
+    a, y = (", ".join(f"{e:.3g}" for e in x) for x in (a, y))
+    return f" with its lag behind a manoeuvre (velocity_lag) [{a}] s per forward and [{y}] per yaw acceleration"
 
 
 def _rate_words(v: dict) -> str:
