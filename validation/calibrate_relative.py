@@ -11,7 +11,8 @@ c A + V, A the part the factor scales, V the velocity error's and the drift rate
   association fails outright); fitted only where that ratio is off by more than the tolerance.
 - With them, the shape (f : r : d : p) is the maximum likelihood of the one-scan errors, then all of them are
   scaled together so that the median ratio is 1: the mean fit alone follows the heavy tails, and its level did not
-  carry over to the campaigns' drives (docs/consistency.md, "The one-scan relative pose with the rates").
+  carry over to the campaigns' drives (docs/consistency.md, "The one-scan relative pose with the rates"). The
+  shape's fit and the level leave out the scans at which the estimator failed outright (`gross_failures`).
 
 Every fit works on the decomposition (e, A, V) of the run it is given, so no run is needed; restarted scans (a
 dead-reckoned step, not scaled) are left out.
@@ -30,6 +31,7 @@ from scipy.stats import chi2
 from rodo.estimator.pull import pull_term, relative_factor
 from rodo.estimator.velocity_inflation import doppler_term
 
+from .gross_failures import fit_without_gross_failures
 from .odometry_consistency import DOF, span_terms
 from .replayed_states import relative_inflated_states
 from .run_consistency import DEFAULT_TAU, runs_of
@@ -188,7 +190,8 @@ def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: f
 
     Returns {"inflation": f, "per_rate": [r_x, r_y, r_z], "per_doppler": d, "per_pull": p, "velocity_error_share":
     g (the runs' own unless learned), "median_ratio": [before, after], "outcome": "fitted", "within tolerance" or
-    "out of reach"}.
+    "out of reach", "gross_failures": how many scans the shape's fit and the level left out (`gross_failures`: NEES
+    under the fit beyond chi-square's 1e-6 tail, an outright failure of the estimator)}.
     """
     e, A, V_velocity, V_rest, W, speed = relative_terms_split(states, truth, inflation, per_rate, drift_rate_sigma,
                                                                per_doppler, per_pull, with_speed=True)
@@ -216,7 +219,8 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
     scans' `speed` (K,) its growth with the speed, g + g_v |nu| ("velocity_error_share_per_speed"; 0 without).
 
     Checked by: tests/validation/test_calibrate_relative.py::test_the_fit_recovers_a_known_rate_factor,
-        ::test_the_fit_recovers_a_known_velocity_error_share, ::test_the_fit_recovers_a_share_growing_with_the_speed
+        ::test_the_fit_recovers_a_known_velocity_error_share, ::test_the_fit_recovers_a_share_growing_with_the_speed,
+        ::test_a_gross_failure_is_left_out_of_the_one_scan_fit
     """
     rates0 = np.zeros(3) if per_rate is None else np.asarray(per_rate, dtype=float)
     r0 = np.r_[rates0, per_doppler, per_pull][:W.shape[1]]
@@ -225,10 +229,13 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
     before = median_ratio(_nees(c0, e, A, V_all)) if len(e) else float("nan")
     Y = None if speed is None or V_velocity is None else np.column_stack([np.ones(len(e)), speed])
 
+    failed = np.zeros(len(e), bool)  # the gross failures left out of the fit (`gross_failures`)
+
     def result(f, r, outcome, after, h=(1.0, 0.0)):
         r = np.r_[r, np.zeros(5 - len(r))]
         out = {"inflation": float(f), "per_rate": [float(x) for x in r[:3]], "per_doppler": float(r[3]),
-               "per_pull": float(r[4]), "median_ratio": [before, after], "outcome": outcome}
+               "per_pull": float(r[4]), "median_ratio": [before, after], "outcome": outcome,
+               "gross_failures": int(failed.sum())}
         if V_velocity is None:
             return out
         return dict(out, velocity_error_share=float(h[0] * share), velocity_error_share_per_speed=float(h[1] * share))
@@ -237,23 +244,37 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
         return result(inflation, r0, "out of reach", before)
     n_h = 0 if V_velocity is None else (1 if Y is None else 2)
     if rates:
-        p = _max_likelihood(e, A, V, W, inflation, V_velocity, np.divide(SHARE_RANGE, share), Y)
+        p, failed = fit_without_gross_failures(
+            lambda keep: _max_likelihood(e[keep], A[keep], V[keep], W[keep], inflation,
+                                         None if V_velocity is None else V_velocity[keep],
+                                         np.divide(SHARE_RANGE, share), None if Y is None else Y[keep]),
+            lambda p: _nees(np.ones(len(e)), e, _scaled(p, n_h, A, W, V_velocity, speed), V), len(e), DOF)
     else:
         p = np.r_[inflation, r0, [1.0, 0.0][:n_h]]
     k = len(p) - n_h
-    p, h = p[:k], np.r_[p[k:], (1.0, 0.0)[n_h:]]  # the share's (g, g_v) as fitted, (1, 0) where not
-    if (not rates or not np.any(p[1:] > 0.0)) and tuple(h) == (1.0, 0.0) \
+    h = np.r_[p[k:], (1.0, 0.0)[n_h:]]  # the share's (g, g_v) as fitted, (1, 0) where not
+    if (not rates or not np.any(p[1:k] > 0.0)) and tuple(h) == (1.0, 0.0) \
             and abs(np.log(before)) < np.log1p(ratio_tolerance):
         return result(inflation, r0, "within tolerance", before)
-    c = p[0] + W @ p[1:]
-    scaled = c[:, None, None] * A  # what the level scales
-    if V_velocity is not None:
-        h_k = h[0] + (0.0 if speed is None else h[1] * np.asarray(speed, dtype=float))
-        scaled = scaled + np.broadcast_to(h_k, (len(e),))[:, None, None] * V_velocity
-    s = _median_scale(np.ones(len(e)), e, scaled, V)
+    kept = ~failed
+    scaled = _scaled(p, n_h, A, W, V_velocity, speed)[kept]  # what the level scales
+    s = _median_scale(np.ones(int(kept.sum())), e[kept], scaled, V[kept])
     if s is None:
         return result(inflation, r0, "out of reach", before)
-    return result(s * p[0], s * p[1:], "fitted", median_ratio(_nees(np.full(len(e), s), e, scaled, V)), s * h)
+    after = median_ratio(_nees(np.full(len(scaled), s), e[kept], scaled, V[kept]))
+    return result(s * p[0], s * p[1:k], "fitted", after, s * h)
+
+
+def _scaled(p, n_h: int, A, W, V_velocity=None, speed=None) -> np.ndarray:
+    """(K, 6, 6) the part of the one-scan covariance the level scales, at the fitted (f, r, d, p[, g[, g_v]]) `p`
+    (`n_h` of the share's terms last): c_k A_k, plus (g + g_v |nu_k|) V_velocity,k with the share."""
+    k = len(p) - n_h
+    scaled = (p[0] + W @ p[1:k])[:, None, None] * A
+    if V_velocity is None:
+        return scaled
+    h = np.r_[p[k:], (1.0, 0.0)[n_h:]]
+    h_k = h[0] + (0.0 if speed is None else h[1] * np.asarray(speed, dtype=float))
+    return scaled + np.broadcast_to(h_k, (len(A),))[:, None, None] * V_velocity
 
 
 def relative_factor_states(states: dict, old, new) -> dict:

@@ -1,10 +1,11 @@
 """The reported velocity covariance's factor learned from a drive with ground truth (`rodo calibrate`, its
 uncertainty section; `estimator.velocity_inflation`): c = a + b |nu| + d ln(1 + nis) + r . |omega| and the per-axis
 factors g, by maximum likelihood of the velocity errors; and, when asked, the velocity's lag behind a manoeuvre L
-(`estimator.velocity_lag`) before them, by least squares.
+(`estimator.velocity_lag`) before them, by least squares; both without the scans the estimator failed outright
+(`gross_failures`).
 
 Checked by: tests/validation/test_calibrate_velocity.py::test_velocity_inflation_recovers_a_known_factor,
-    ::test_the_lag_and_the_factor_are_recovered_together
+    ::test_the_lag_and_the_factor_are_recovered_together, ::test_a_gross_failure_is_left_out_of_the_velocity_fit
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from rodo.estimator.velocity_inflation import doppler_term
 from rodo.estimator.velocity_lag import lag_accelerations
 
 from .association import DEFAULT_TOLERANCE, associate
+from .gross_failures import fit_without_gross_failures
 from .odometry_consistency import DOF, drift_velocity_covariances
 from .run_consistency import runs_of
 
@@ -24,10 +26,11 @@ from .run_consistency import runs_of
 def _velocity_terms(states, truth, tolerance: float, smoothing: float | None) -> dict:
     """Per scan of every run with finite values: e (K, 6) the velocity errors, Pi (K, 6, 6) the inverse window's
     velocity covariances (`drift_velocity_covariances`), the factor's regressors X (K, 6) = [1, |nu|, ln(1 + nis),
-    |omega_x|, |omega_y|, |omega_z|] and the lag's smoothed accelerations A (K, 2) (`lag_accelerations` at
-    `smoothing`, across each run from its first scan and its re-initialisations; zeros with smoothing None)."""
-    out = {"e": [], "Pi": [], "X": [], "A": []}
-    for st, tr in runs_of(states, truth):
+    |omega_x|, |omega_y|, |omega_z|], the lag's smoothed accelerations A (K, 2) (`lag_accelerations` at
+    `smoothing`, across each run from its first scan and its re-initialisations; zeros with smoothing None), and
+    where each scan is: run (K,) its run's index, t (K,) its time since that run's first scan (s)."""
+    out = {"e": [], "Pi": [], "X": [], "A": [], "run": [], "t": []}
+    for i, (st, tr) in enumerate(runs_of(states, truth)):
         ia, ib = associate(st["t"], tr["t"], tolerance)
         varpi = np.asarray(st["varpi"], dtype=float)
         out["e"].append(np.asarray(tr["varpi"], dtype=float)[ib] - varpi[ia])
@@ -41,6 +44,9 @@ def _velocity_terms(states, truth, tolerance: float, smoothing: float | None) ->
         fresh = fresh_starts(st.get("restarted"), len(varpi))
         out["A"].append(np.zeros((len(ia), 2)) if smoothing is None
                         else lag_accelerations(varpi, st["t"], fresh, smoothing)[ia])
+        t = np.asarray(st["t"], dtype=float)
+        out["run"].append(np.full(len(ia), i))
+        out["t"].append(t[ia] - t[0])
     out = {k: np.concatenate(v) for k, v in out.items()}
     finite = np.all(np.isfinite(out["Pi"]), axis=(1, 2)) & np.all(np.isfinite(out["e"]), axis=1)
     return {k: v[finite] for k, v in out.items()}
@@ -76,7 +82,10 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
     start too: it holds the low speeds; left out, the factor came out over-confident at the start of every
     campaign drive); a > 0, b, d, r >= 0. Returns {"inflation": a, "per_speed": b, "per_doppler": d, "per_rate":
     r, "per_axis": g, "lag_per_acceleration", "lag_per_yaw_acceleration": L's columns (6,) each, "lag_time" T,
-    "scans", "nees_per_dof": the mean velocity NEES/dof before and after}.
+    "scans": those fitted, "nees_per_dof": their mean velocity NEES/dof before and after, "gross_failures": the
+    scans left out ({"scans": how many, "runs", "t": where; `gross_failures`: the fits run again without the
+    scans whose NEES under the fit is beyond chi-square's 1e-6 tail, an estimator's outright failure, which no
+    Gaussian factor describes and which would otherwise set it)}.
 
     With `lag`, the velocity's lag behind a manoeuvre first (`estimator.velocity_lag`): L (6, 2) by least squares of
     e_k on a_k, the run's forward and yaw acceleration smoothed over `lag_time` T (the errors' mean given a_k; the
@@ -92,34 +101,56 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
     where in a drive the window's velocity is over-confident (where its roll and pitch rates are not near zero).
 
     Checked by: tests/validation/test_calibrate_velocity.py::test_velocity_inflation_recovers_a_known_factor,
-        ::test_velocity_axis_inflation_recovers_known_factors
+        ::test_velocity_axis_inflation_recovers_known_factors,
+        ::test_a_gross_failure_is_left_out_of_the_velocity_fit
     """
     terms = _velocity_terms(states, truth, tolerance, lag_time if lag else None)
-    e, Pi, X = terms["e"], terms["Pi"], terms["X"]
-    M_ee = e[:, :, None] * e[:, None, :] * Pi
-    q0 = M_ee.sum(axis=(1, 2))
-    L = np.zeros((6, 2))
+    e, Pi = terms["e"], terms["Pi"]
+    q0 = np.einsum("ki,kij,kj->k", e, Pi, e)
     none = {"inflation": 1.0, "per_speed": 0.0, "per_doppler": 0.0, "per_rate": [0.0] * 3, "per_axis": [1.0] * 6}
     if len(q0) < 2 or not np.mean(q0) > 0:  # too few scans, or no error at all (a noise-free drive)
-        return {**none, **_lag_report(L, lag_time), "scans": int(len(q0)), "nees_per_dof": [np.nan, np.nan]}
-    if np.any(terms["A"]):
-        L = np.linalg.lstsq(terms["A"], e, rcond=None)[0].T
-    b = terms["A"] @ L.T
+        return {**none, **_lag_report(np.zeros((6, 2)), lag_time), "scans": int(len(q0)),
+                "nees_per_dof": [np.nan, np.nan], "gross_failures": _failures_report(terms, np.zeros(len(q0), bool))}
+    (p, g, L), failed = fit_without_gross_failures(
+        lambda keep: _fit(terms, keep, per_axis, per_rate), lambda fit: _scan_nees(terms, *fit), len(e), DOF)
+    kept = ~failed
+    after = float(np.mean(_scan_nees(terms, p, g, L)[kept])) / DOF
+    return {"inflation": float(p[0]), "per_speed": float(p[1]), "per_doppler": float(p[2]),
+            "per_rate": [float(x) for x in p[3:6]], "per_axis": [float(x) for x in g], **_lag_report(L, lag_time),
+            "scans": int(kept.sum()), "nees_per_dof": [float(np.mean(q0[kept])) / DOF, after],
+            "gross_failures": _failures_report(terms, failed)}
+
+
+def _fit(terms: dict, keep: np.ndarray, per_axis: bool, per_rate: bool) -> tuple:
+    """(p (6,), g (6,), L (6, 2)) of `fit_velocity_inflation` on the scans `keep` (K,) of `_velocity_terms`: L by
+    least squares (zeros without the lag's accelerations), then p and g by maximum likelihood."""
+    e, Pi, X, A = (terms[k][keep] for k in ("e", "Pi", "X", "A"))
+    L = np.linalg.lstsq(A, e, rcond=None)[0].T if np.any(A) else np.zeros((6, 2))
+    b = A @ L.T
+    M_ee = e[:, :, None] * e[:, None, :] * Pi
     M_eb = 0.5 * (e[:, :, None] * b[:, None, :] + b[:, :, None] * e[:, None, :]) * Pi
     M_bb = b[:, :, None] * b[:, None, :] * Pi
-    a0 = float(np.mean(q0)) / DOF
+    a0 = float(np.mean(M_ee.sum(axis=(1, 2)))) / DOF
     rate_bound = (0.0, None) if per_rate else (0.0, 0.0)
     res = minimize(_nll, np.r_[a0, np.zeros(5), np.zeros(5)], args=(X, M_ee, M_eb, M_bb), jac=True,
                    method="L-BFGS-B", bounds=[(1e-6 * a0, None), (0.0, None), (0.0, None)] + [rate_bound] * 3
                    + [(-12.0, 12.0) if per_axis else (0, 0)] * 5,
                    options={"ftol": 1e-15, "gtol": 1e-10, "maxiter": 2000})
-    p, g = res.x[:6], np.exp(np.r_[res.x[6:], -np.sum(res.x[6:])])
-    K = np.linalg.inv(Pi) * np.sqrt(g[:, None] * g[None, :])
-    Sigma = (X @ p)[:, None, None] * K + b[:, :, None] * b[:, None, :]
-    after = float(np.mean(np.einsum("ki,kij,kj->k", e, np.linalg.inv(Sigma), e))) / DOF
-    return {"inflation": float(p[0]), "per_speed": float(p[1]), "per_doppler": float(p[2]),
-            "per_rate": [float(x) for x in p[3:6]], "per_axis": [float(x) for x in g], **_lag_report(L, lag_time),
-            "scans": int(len(q0)), "nees_per_dof": [a0, after]}
+    return res.x[:6], np.exp(np.r_[res.x[6:], -np.sum(res.x[6:])]), L
+
+
+def _scan_nees(terms: dict, p: np.ndarray, g: np.ndarray, L: np.ndarray) -> np.ndarray:
+    """(K,) every scan's velocity NEES at the fitted covariance c D P D + b b^T."""
+    e, Pi, X, A = terms["e"], terms["Pi"], terms["X"], terms["A"]
+    b = A @ L.T
+    Sigma = (X @ p)[:, None, None] * np.linalg.inv(Pi) * np.sqrt(g[:, None] * g[None, :]) + b[:, :, None] * b[:, None, :]
+    return np.einsum("ki,ki->k", e, np.linalg.solve(Sigma, e[..., None])[..., 0])
+
+
+def _failures_report(terms: dict, failed: np.ndarray) -> dict:
+    """The scans left out as gross failures: how many, and where (run index, seconds since its first scan)."""
+    return {"scans": int(failed.sum()), "runs": [int(r) for r in terms["run"][failed]],
+            "t": [round(float(t), 3) for t in terms["t"][failed]]}
 
 
 def _lag_report(L: np.ndarray, lag_time: float) -> dict:

@@ -12,7 +12,8 @@ and a campaign of both; this module reads them back and builds the verdict:
   criterion when at least `SHARE_TARGET` of its scans are inside; the relative pose over the span and the
   absolute pose meet theirs when their mean NEES per dof is at most `SPAN_LIMIT`;
 - the 3-sigma ellipsoids: the mean over the runs of the % of scans whose true position lies inside;
-- what was learned: the uncertainty terms of each config that set its reported covariances.
+- what was learned: the uncertainty terms of each config that set its reported covariances, and the scans
+  its calibration left out as gross failures (`gross_failures`).
 
 Checked by: tests/validation/test_verdict.py
 """
@@ -38,7 +39,8 @@ SPANS = ("relative_span", "pose")  # judged by their mean
 SHARE_TARGET = 0.90
 SPAN_LIMIT = 2.0
 LEARNED = ("velocity_correlation_time", "velocity_error_share", "velocity_error_share_per_speed",
-           "registration_correlation", "inflation", "inflation_per_pull", "velocity_inflation", "yaw_rate_lag")
+           "registration_correlation", "inflation", "inflation_per_pull", "velocity_inflation", "yaw_rate_lag",
+           "gross_failures")
 
 
 def config_path(out_dir, scenario: str, name: str) -> Path:
@@ -50,9 +52,20 @@ def _learned(path: Path) -> dict:
     from rodo.estimator.config import OdometryConfig
 
     u = OdometryConfig.from_toml(path).uncertainty
-    learned = {k: getattr(u, k) for k in LEARNED[:-1]}
+    learned = {k: getattr(u, k) for k in LEARNED[:-2]}
     learned["yaw_rate_lag"] = u.velocity_lag_per_yaw_acceleration[5]  # CV/C's lag behind a turn (s)
+    learned["gross_failures"] = _gross_failures(path.with_suffix(".json"))
     return learned
+
+
+def _gross_failures(report: Path) -> list[int] | None:
+    """[velocity, one scan]: the scans the calibration's velocity and one-scan fits left out as gross failures
+    (`gross_failures`; its report CONFIG.json), None where the report has no such count (written before them)."""
+    try:
+        c = json.loads(report.read_text(encoding="utf-8"))["consistency"]
+        return [int(c["velocity_inflation"]["gross_failures"]["scans"]), int(c["relative_inflation"]["gross_failures"])]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def scenario_verdict(out_dir, scenario: str) -> dict:
@@ -147,12 +160,15 @@ def render_markdown(verdict: dict, meta: dict | None = None) -> str:
                      ("velocity", "acceleration", "relative_scan", "relative_span", "pose")]
             lines.append(f"| {r['scenario']} | {name} | " + " | ".join(means) + f" | "
                          f"{_num(m['ellipsoid_3sigma_pct'], '.1f')} |")
-    lines += ["", "## What was learned (the `[uncertainty]` terms; the whole configs in calibration/)", "",
+    lines += ["", "## What was learned (the `[uncertainty]` terms; the whole configs in calibration/; gross_failures: "
+                  "the calibration drive's scans its velocity + one-scan fits left out)", "",
               "| scenario | model | " + " | ".join(LEARNED) + " |", "| --- | --- |" + " ---: |" * len(LEARNED)]
     for r in rows:
         for name, m in r["models"].items():
-            lines.append(f"| {r['scenario']} | {name} | " + " | ".join(_num(m["learned"][k], ".3g") for k in LEARNED)
-                         + " |")
+            learned = m["learned"]
+            failures = learned.get("gross_failures")
+            lines.append(f"| {r['scenario']} | {name} | " + " | ".join(_num(learned[k], ".3g") for k in LEARNED[:-1])
+                         + f" | {'-' if failures is None else ' + '.join(map(str, failures))} |")
     if meta:
         lines += ["", "Parameters: " + ", ".join(f"{k}={v}" for k, v in sorted(meta.items()))]
     return "\n".join(lines) + "\n"

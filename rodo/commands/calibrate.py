@@ -23,6 +23,8 @@ from rodo.validation.calibrate_relative import REST_FRACTION
 
 from .run import load_config
 
+MAX_NAMED = 8  # gross failures named in the report by run and time (all of them in the .json)
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibrate", help="learn Qc (and R) from a sequence; write a config for rodo run --config",
@@ -195,6 +197,21 @@ def _sensor_noise_markdown(m: dict) -> list[str]:
                     "cartesian_sigma: kept (planar data: the elevation's share is unknown)"]
 
 
+def _failure_words(failures) -> str:
+    """'; N scans left out as gross failures[: run r at t s, ...]' (validation.gross_failures), '' for none; failures:
+    a count, or {"scans", "runs", "t"}."""
+    if not failures:
+        return ""
+    if isinstance(failures, int):
+        return f"; {failures} scans left out as gross failures (NEES beyond chi-square's 1e-6 tail)"
+    if not failures["scans"]:
+        return ""
+    where = ", ".join(f"run {r} at {t:.2f} s" for r, t in zip(failures["runs"][:MAX_NAMED], failures["t"][:MAX_NAMED]))
+    more = f" and {failures['scans'] - MAX_NAMED} more" if failures["scans"] > MAX_NAMED else ""
+    return (f"; {failures['scans']} scans left out as gross failures (NEES beyond chi-square's 1e-6 tail): "
+            f"{where}{more}")
+
+
 def _consistency_markdown(c: dict) -> list[str]:
     """The uncertainty fit's table: per estimator run, kappa, tau and the median NEES ratios."""
     names = ("velocity", "relative_scan", "relative_span", "pose")
@@ -210,12 +227,12 @@ def _consistency_markdown(c: dict) -> list[str]:
     lines += ["", "relative pose covariance factor (uncertainty.inflation, inflation_per_doppler, "
               f"inflation_per_pull, inflation_per_rate; velocity_error_share) {_relative_words(rel)} (median "
               f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; "
-              f"{rel['outcome']})",
+              f"{rel['outcome']}{_failure_words(rel.get('gross_failures', 0))})",
               f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
               f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS){_rate_words(v)}, per axis vx, vy, vz, wx, wy, wz x "
               f"[{', '.join(f'{g:.3g}' for g in v.get('per_axis', [1.0] * 6))}]{_lag_words(v)} (maximum "
               f"likelihood over {v['scans']} scans: mean velocity NEES/dof {v['nees_per_dof'][0]:.3g} -> "
-              f"{v['nees_per_dof'][1]:.3g})",
+              f"{v['nees_per_dof'][1]:.3g}{_failure_words(v.get('gross_failures'))})",
               f"drift_rate_sigma = [{vec}] (x, y, z m/m; roll, pitch, yaw rad/m) over {d['distance']:.0f} m"
               + (f" (beta / its standard error over {d['block']:g} s blocks "
                  f"[{', '.join(f'{x:.2g}' for x in d['z'])}]: components below {DRIFT_SIGNIFICANCE:g} not carried)"

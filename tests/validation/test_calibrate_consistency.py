@@ -321,7 +321,7 @@ def test_relative_factor_out_of_reach_is_left_as_it_was(city_run):
     assert fit["median_ratio"][0] < 0.5
     assert fit == {"inflation": 0.7, "per_rate": [0.0] * 3, "per_doppler": 0.0, "per_pull": 0.0,
                    "median_ratio": [fit["median_ratio"][0]] * 2,
-                   "outcome": "out of reach", "velocity_error_share": 1.0,
+                   "outcome": "out of reach", "gross_failures": 0, "velocity_error_share": 1.0,
                    "velocity_error_share_per_speed": 0.0}
 
 

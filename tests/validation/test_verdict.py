@@ -73,6 +73,9 @@ def test_a_verdict_reports_its_campaign_at_the_configs_it_learned(verdict_dir):
         lag = OdometryConfig.from_toml(config).uncertainty.velocity_lag_per_yaw_acceleration[5]
         assert row["models"][name]["learned"]["yaw_rate_lag"] == lag  # learned for the CV model only
         assert (lag == 0.0) == (name == "CA/P")
+        report = json.loads(config.with_suffix(".json").read_text())["consistency"]  # the scans left out, as reported
+        assert row["models"][name]["learned"]["gross_failures"] == [
+            report["velocity_inflation"]["gross_failures"]["scans"], report["relative_inflation"]["gross_failures"]]
     crit = verdict["criteria"]
     assert len(crit["cells"]) == 4 and crit["cells_met"] == sum(c["share"] >= 0.9 for c in crit["cells"])
     text = (verdict_dir / "verdict.md").read_text()

@@ -1,0 +1,49 @@
+"""Gross failures left out of the calibration's likelihood fits (rodo.validation.gross_failures): the scans beyond
+chi-square's 1e-6 tail under the fit, at most 1 % of them, refitted until the set repeats."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.stats import chi2
+
+from rodo.validation import gross_failures as gf
+
+
+def _rng(*key):
+    return np.random.default_rng(np.random.SeedSequence([2026, 42, *key]))
+
+
+def test_the_failures_are_the_scans_beyond_the_tail_and_at_most_the_cap():
+    limit = chi2.isf(gf.OUTLIER_PROBABILITY, 6)
+    nees = np.r_[np.full(500, 6.0), limit * 0.999, limit * 1.001, np.nan, 1e6]
+    np.testing.assert_array_equal(np.flatnonzero(gf.gross_failures(nees, 6)), [501, 503])
+    # a model wrong everywhere is not a few failures: at most 1 % of the scans, the largest first
+    wrong = np.r_[np.full(995, 1e3), 1e4, 2e4, 3e4, 4e4, 5e4]
+    failed = gf.gross_failures(wrong, 6)
+    assert failed.sum() == 10 and failed[-5:].all()
+    assert not gf.gross_failures(np.full(99, 1e9), 6).any()  # fewer than 100 scans: none may go
+
+
+@settings(max_examples=10, deadline=None)
+@given(n_bad=st.integers(0, 30), scale=st.floats(0.01, 100.0), seed=st.integers(0, 2**32 - 1))
+def test_a_fit_without_its_gross_failures_is_the_fit_of_the_clean_scans(n_bad, scale, seed):
+    """Errors e_k ~ N(0, s I6) on 3000 scans, n_bad of them (up to the 1 % cap) replaced by errors 100 times as
+    large (an estimator's outright failure): the maximum likelihood s refitted without the failures is the clean
+    scans' own within 5 %, the scans left out are exactly the replaced ones, and the plain fit is off by more
+    than the failures' share (with them every scan's NEES would be judged against a covariance 1.3 to 4 times
+    too large)."""
+    rng = _rng(seed)
+    n = 3000
+    e = rng.normal(0.0, np.sqrt(scale), (n, 6))
+    bad = rng.choice(n, n_bad, replace=False)
+    e[bad] *= 100.0
+
+    def fit(keep):
+        return float(np.mean(e[keep] ** 2))
+
+    s, failed = gf.fit_without_gross_failures(fit, lambda s: np.sum(e**2, axis=1) / s, n, 6)
+    np.testing.assert_array_equal(np.flatnonzero(failed), np.sort(bad))
+    assert s == pytest.approx(scale, rel=0.05)
+    if n_bad:
+        assert fit(np.ones(n, bool)) > 1.3 * scale
