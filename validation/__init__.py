@@ -25,7 +25,8 @@ Modules:
   docs/calibration.md), `calibrate_sensor_em` the measurement noise without ground truth; `calibrate_consistency`:
   the uncertainty parameters (kappa, the factors, drift rate, tau) fitted against the truth, `calibrate_velocity`
   the velocity factor, `calibrate_relative` the one-scan relative pose's, `calibrate_jitter` the roll and pitch
-  jitter's variance last; `replayed_states`: a run's states at other uncertainty settings, without running again.
+  jitter's variance last, `gross_failures` the scans those fits leave out; `replayed_states`: a run's states at
+  other uncertainty settings, without running again.
 
 Documentation: docs/evaluation.md (metrics, campaigns), docs/visualisation.md (figures).
 """
