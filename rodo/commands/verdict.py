@@ -1,5 +1,6 @@
 """`rodo verdict [--scenarios city,hills,stop_and_go,highway] [--runs 20] [--duration 30] [--seed 7]
-[--calibration-seed 100] [--calibration-duration 180] [--floor 1e-4] [--jobs J] --out DIR [--resume]`:
+[--calibration-seed 100] [--calibration-duration 180] [--calibration-drives 1] [--floor 1e-4] [--jobs J] --out DIR
+[--resume]`:
 the consistency verdict of CA/P against CV/C, each at its learned noise (validation/verdict.py).
 
 Per scenario S, the recipe of docs/consistency.md ("The verdict with everything learned") as one command:
@@ -10,7 +11,10 @@ Per scenario S, the recipe of docs/consistency.md ("The verdict with everything 
     rodo montecarlo S --runs 20 --duration 30 --seed 7 --models ca-learned=...S_ca.toml,cv-learned=...S_cv.toml
         --out DIR/S
 
-then DIR/verdict.md and verdict.json. Each step's output goes to DIR/logs/; the simulations and calibrations run
+then DIR/verdict.md and verdict.json. With --calibration-drives N, N drives per scenario (seeds 100, 101, ...; the
+first in DIR/calibration/S, the others in S-1, S-2, ...), pooled by each calibration: the verdict's cells depend
+on the calibration drive as much as on the campaign's seed (docs/consistency.md, "The calibration drive's draw").
+Each step's output goes to DIR/logs/; the simulations and calibrations run
 --jobs at a time. With --resume a finished step is skipped (a sequence with all its files, a config with its
 report) and the campaigns resume; DIR/campaign.json holds the parameters, and a resume with other ones is refused.
 """
@@ -28,6 +32,8 @@ from pathlib import Path
 from rodo.estimator.errors import InputError
 
 from .table1 import parse_scenarios
+
+MAX_CALIBRATION_DRIVES = 20
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -47,6 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--calibration-seed", type=int, default=100, help="the calibration drives' seed (default 100)")
     p.add_argument("--calibration-duration", type=float, default=180.0,
                    help="seconds of each calibration drive (default 180)")
+    p.add_argument("--calibration-drives", type=int, default=1,
+                   help="calibration drives per scenario, seeds --calibration-seed, +1, ..., pooled by rodo "
+                        "calibrate (default 1)")
     p.add_argument("--floor", type=float, default=1e-4, help="rodo calibrate's --floor (default 1e-4)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
     p.add_argument("--out", required=True, metavar="DIR", help="the verdict's directory")
@@ -62,6 +71,8 @@ def _check(args) -> list[str]:
         raise InputError(f"--runs: at least 2 (the intervals and the spread need two), got {args.runs}")
     if args.jobs < 1:
         raise InputError(f"--jobs: must be >= 1, got {args.jobs}")
+    if not 1 <= args.calibration_drives <= MAX_CALIBRATION_DRIVES:
+        raise InputError(f"--calibration-drives: from 1 to {MAX_CALIBRATION_DRIVES}, got {args.calibration_drives}")
     for flag, v in (("--duration", args.duration), ("--calibration-duration", args.calibration_duration)):
         if not 0 < v <= MAX_DURATION:  # NaN too
             raise InputError(f"{flag}: must be > 0 and at most {MAX_DURATION:g} s, got {v}")
@@ -70,6 +81,12 @@ def _check(args) -> list[str]:
     if not QC_MIN <= args.floor < QC_MAX:  # as rodo calibrate checks it, before the drives are simulated
         raise InputError(f"--floor: must be from {QC_MIN:g} to below {QC_MAX:g}, got {args.floor}")
     return names
+
+
+def calibration_drives(out: Path, scenario: str, n: int) -> list[Path]:
+    """The calibration drives' directories of a scenario: DIR/calibration/<scenario>, then <scenario>-1, ...
+    (drive i simulated at --calibration-seed + i)."""
+    return [out / "calibration" / (scenario if i == 0 else f"{scenario}-{i}") for i in range(n)]
 
 
 def _steps(args, names: list[str]) -> tuple[list, list, list]:
@@ -81,14 +98,15 @@ def _steps(args, names: list[str]) -> tuple[list, list, list]:
     files = (RADAR_CSV, SENSOR_TOML, GROUNDTRUTH_TXT, TRUTH_NPZ)  # a simulated sequence, all written
     out, sims, cals, camps = Path(args.out), [], [], []
     for s in names:
-        seq = out / "calibration" / s
-        sims.append((f"simulate {s}", ["simulate", s, "--seed", str(args.calibration_seed), "--duration",
-                                       str(args.calibration_duration), "--out", str(seq)],
-                     all((seq / f).is_file() for f in files)))
+        seqs = calibration_drives(out, s, args.calibration_drives)
+        for i, seq in enumerate(seqs):
+            sims.append((f"simulate {seq.name}", ["simulate", s, "--seed", str(args.calibration_seed + i),
+                                                  "--duration", str(args.calibration_duration), "--out", str(seq)],
+                         all((seq / f).is_file() for f in files)))
         labels = []
         for name, (label, model, _) in MODELS.items():
             cfg = config_path(out, s, name)
-            cals.append((f"calibrate {s} {name}", ["calibrate", str(seq), "--model", model, "--floor",
+            cals.append((f"calibrate {s} {name}", ["calibrate", *map(str, seqs), "--model", model, "--floor",
                                                    str(args.floor), "--out", str(cfg)],
                          cfg.is_file() and cfg.with_suffix(".md").is_file()))
             labels.append(f"{label}={cfg}")
@@ -154,6 +172,7 @@ def main(args) -> int:
     out = Path(args.out)
     meta = {"scenarios": ",".join(names), "runs": args.runs, "duration": args.duration, "seed": args.seed,
             "calibration_seed": args.calibration_seed, "calibration_duration": args.calibration_duration,
+            **({"calibration_drives": args.calibration_drives} if args.calibration_drives != 1 else {}),
             "floor": args.floor}
     with campaign_lock(out):
         if not args.resume and (out / "campaign.json").exists():

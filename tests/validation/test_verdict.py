@@ -3,6 +3,7 @@ both calibrations, the campaign, the table) that resumes without redoing a step 
 
 import json
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -113,8 +114,31 @@ def test_a_failed_step_is_named_with_its_log(tmp_path, capsys):
     assert "radar.csv, line 4" in err
 
 
+@pytest.mark.slow
+def test_several_calibration_drives_are_simulated_at_their_seeds_and_pooled(tmp_path, capsys):
+    """--calibration-drives 2: the second drive at the next seed (a simulation of its own, bit for bit), both
+    calibrations pooling the two (their reports count the sequences and the scans of both), and the count a
+    parameter of the verdict that a resume without it refuses."""
+    out = tmp_path / "v"
+    argv = ["verdict", *ARGS, "--calibration-seed", "40"]
+    assert main([*argv, "--calibration-drives", "2", "--jobs", "2", "--out", str(out)]) == 0
+    first, second = out / "calibration" / "stop_and_go", out / "calibration" / "stop_and_go-1"
+    again = tmp_path / "again"
+    scenarios.simulate_to("stop_and_go", 41, again, duration=5.0)
+    assert (second / "radar.csv").read_bytes() == (again / "radar.csv").read_bytes()
+    assert (first / "radar.csv").read_bytes() != (second / "radar.csv").read_bytes()
+    scans = sum(len(np.load(d / "truth.npz")["t"]) for d in (first, second))
+    for file in ("ca", "cv"):
+        report = json.loads((out / "calibration" / f"stop_and_go_{file}.json").read_text())
+        assert (report["sequences"], report["scans"]) == (2, scans)
+    assert json.loads((out / "campaign.json").read_text())["calibration_drives"] == 2
+    fails(capsys, [*argv, "--out", out, "--resume"], "calibration_drives")
+
+
 @pytest.mark.parametrize("argv, needle", [
     (["--scenarios", "nowhere"], "--scenarios"),
+    (["--calibration-drives", "0"], "--calibration-drives"),
+    (["--calibration-drives", "21"], "--calibration-drives"),
     (["--runs", "1"], "--runs"),
     (["--duration", "nan"], "--duration"),
     (["--calibration-duration", "0"], "--calibration-duration"),
