@@ -37,7 +37,8 @@ tells the truth (docs/consistency.md):
   bias's b b^T), for the constant-velocity prior only (LAG_PRIORS): a prior with the acceleration in its state
   does not lag so, and there the velocity errors' correlation with the estimated acceleration is the window's own
   (learned on a CA drive where the prior is exact, it made the velocity cautious: docs/consistency.md). The drift
-  terms below keep the window's velocity covariance.
+  terms below keep the window's velocity covariance. This fit and the one-scan factor's leave out the scans at
+  which the estimator failed outright (`gross_failures`), which no Gaussian factor describes.
 - `uncertainty.velocity_correlation_time` tau: how long the velocity error stays correlated, which decides how
   the per-scan covariances compose into the drift (the relative pose over a span and the absolute pose). It
   does not change the estimate: chosen on a grid, without running again, so that the relative pose over `span`

@@ -191,7 +191,7 @@ def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: f
     Returns {"inflation": f, "per_rate": [r_x, r_y, r_z], "per_doppler": d, "per_pull": p, "velocity_error_share":
     g (the runs' own unless learned), "median_ratio": [before, after], "outcome": "fitted", "within tolerance" or
     "out of reach", "gross_failures": how many scans the shape's fit and the level left out (`gross_failures`: NEES
-    under the fit beyond chi-square's 1e-6 tail, an outright failure of the estimator)}.
+    per dof under the fit above 100, an outright failure of the estimator)}.
     """
     e, A, V_velocity, V_rest, W, speed = relative_terms_split(states, truth, inflation, per_rate, drift_rate_sigma,
                                                                per_doppler, per_pull, with_speed=True)

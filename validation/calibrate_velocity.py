@@ -84,8 +84,8 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
     r, "per_axis": g, "lag_per_acceleration", "lag_per_yaw_acceleration": L's columns (6,) each, "lag_time" T,
     "scans": those fitted, "nees_per_dof": their mean velocity NEES/dof before and after, "gross_failures": the
     scans left out ({"scans": how many, "runs", "t": where; `gross_failures`: the fits run again without the
-    scans whose NEES under the fit is beyond chi-square's 1e-6 tail, an estimator's outright failure, which no
-    Gaussian factor describes and which would otherwise set it)}.
+    scans whose NEES per dof under the fit exceeds 100, an estimator's outright failure, which no Gaussian factor
+    describes and which would otherwise set it)}.
 
     With `lag`, the velocity's lag behind a manoeuvre first (`estimator.velocity_lag`): L (6, 2) by least squares of
     e_k on a_k, the run's forward and yaw acceleration smoothed over `lag_time` T (the errors' mean given a_k; the
@@ -143,7 +143,8 @@ def _scan_nees(terms: dict, p: np.ndarray, g: np.ndarray, L: np.ndarray) -> np.n
     """(K,) every scan's velocity NEES at the fitted covariance c D P D + b b^T."""
     e, Pi, X, A = terms["e"], terms["Pi"], terms["X"], terms["A"]
     b = A @ L.T
-    Sigma = (X @ p)[:, None, None] * np.linalg.inv(Pi) * np.sqrt(g[:, None] * g[None, :]) + b[:, :, None] * b[:, None, :]
+    K = np.linalg.inv(Pi) * np.sqrt(g[:, None] * g[None, :])
+    Sigma = (X @ p)[:, None, None] * K + b[:, :, None] * b[:, None, :]
     return np.einsum("ki,ki->k", e, np.linalg.solve(Sigma, e[..., None])[..., 0])
 
 

@@ -203,12 +203,12 @@ def _failure_words(failures) -> str:
     if not failures:
         return ""
     if isinstance(failures, int):
-        return f"; {failures} scans left out as gross failures (NEES beyond chi-square's 1e-6 tail)"
+        return f"; {failures} scans left out as gross failures (NEES above 100 per dof)"
     if not failures["scans"]:
         return ""
     where = ", ".join(f"run {r} at {t:.2f} s" for r, t in zip(failures["runs"][:MAX_NAMED], failures["t"][:MAX_NAMED]))
     more = f" and {failures['scans'] - MAX_NAMED} more" if failures["scans"] > MAX_NAMED else ""
-    return (f"; {failures['scans']} scans left out as gross failures (NEES beyond chi-square's 1e-6 tail): "
+    return (f"; {failures['scans']} scans left out as gross failures (NEES above 100 per dof): "
             f"{where}{more}")
 
 

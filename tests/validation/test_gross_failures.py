@@ -1,5 +1,5 @@
-"""Gross failures left out of the calibration's likelihood fits (rodo.validation.gross_failures): the scans beyond
-chi-square's 1e-6 tail under the fit, at most 1 % of them, refitted until the set repeats."""
+"""Gross failures left out of the calibration's likelihood fits (rodo.validation.gross_failures): the scans whose
+NEES per dof under the fit exceeds 100, at most 1 % of them, refitted until the set repeats."""
 
 import numpy as np
 import pytest
@@ -14,15 +14,20 @@ def _rng(*key):
     return np.random.default_rng(np.random.SeedSequence([2026, 42, *key]))
 
 
-def test_the_failures_are_the_scans_beyond_the_tail_and_at_most_the_cap():
-    limit = chi2.isf(gf.OUTLIER_PROBABILITY, 6)
-    nees = np.r_[np.full(500, 6.0), limit * 0.999, limit * 1.001, np.nan, 1e6]
+def test_the_failures_are_100_per_dof_at_the_median_scans_level_and_at_most_the_cap():
+    typical = chi2.median(6)  # the median scan of a consistent fit
+    limit = gf.GROSS_NEES_PER_DOF * 6
+    nees = np.r_[np.full(500, typical), limit * 0.999, limit * 1.001, np.nan, 1e6]
     np.testing.assert_array_equal(np.flatnonzero(gf.gross_failures(nees, 6)), [501, 503])
-    # a model wrong everywhere is not a few failures: at most 1 % of the scans, the largest first
-    wrong = np.r_[np.full(995, 1e3), 1e4, 2e4, 3e4, 4e4, 5e4]
-    failed = gf.gross_failures(wrong, 6)
-    assert failed.sum() == 10 and failed[-5:].all()
-    assert not gf.gross_failures(np.full(99, 1e9), 6).any()  # fewer than 100 scans: none may go
+    for scale in (1e-3, 7.0, 1e4):  # at any level of the fit: the failures are judged against its median scan
+        np.testing.assert_array_equal(np.flatnonzero(gf.gross_failures(scale * nees, 6)), [501, 503])
+    assert not gf.gross_failures(np.full(1000, 1e3), 6).any()  # wrong by the same factor everywhere: no failure
+    # more than 1 % beyond it is not a few failures: at most 1 % of the scans go, the largest first
+    many = np.r_[np.full(950, typical), 1e6 + np.arange(50.0)]
+    failed = gf.gross_failures(many, 6)
+    assert failed.sum() == 10 and failed[-10:].all()
+    assert not gf.gross_failures(np.r_[np.full(98, typical), 1e9], 6).any()  # under 100 scans: none may go
+    assert not gf.gross_failures(np.full(5, np.nan), 6).any()
 
 
 @settings(max_examples=10, deadline=None)
