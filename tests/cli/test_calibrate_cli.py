@@ -244,3 +244,17 @@ def test_calibrate_bad_input(seq, tmp_path, capsys):
     (moved / "sensor.toml").write_text(toml.replace("max_range", "max_range = 60.0\n# was max_range", 1))
     fails(capsys, ["calibrate", seq, moved, "--out", out], "moved", "sensor.toml", "another sensor")
     assert not out.exists()
+
+
+def test_the_report_names_the_gross_failures_it_left_out():
+    """CONFIG.md's words for the scans the factor fits left out (validation.gross_failures): none, a count (the
+    one-scan fit), or each scan by run and time (the velocity fit), the first MAX_NAMED of them."""
+    from rodo.commands.calibrate import MAX_NAMED, _failure_words
+
+    assert _failure_words(0) == "" and _failure_words({"scans": 0, "runs": [], "t": []}) == ""
+    assert _failure_words(3) == "; 3 scans left out as gross failures (NEES above 100 per dof)"
+    n = MAX_NAMED + 2
+    words = _failure_words({"scans": n, "runs": [4] * n, "t": [25.5 + 0.25 * i for i in range(n)]})
+    assert words.startswith(f"; {n} scans left out as gross failures (NEES above 100 per dof): run 4 at 25.50 s, "
+                            "run 4 at 25.75 s, ")
+    assert words.count("run 4 at") == MAX_NAMED and words.endswith(" and 2 more")
