@@ -191,7 +191,8 @@ def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: f
     Returns {"inflation": f, "per_rate": [r_x, r_y, r_z], "per_doppler": d, "per_pull": p, "velocity_error_share":
     g (the runs' own unless learned), "median_ratio": [before, after], "outcome": "fitted", "within tolerance" or
     "out of reach", "gross_failures": how many scans the shape's fit and the level left out (`gross_failures`: NEES
-    per dof under the fit above 100, an outright failure of the estimator)}.
+    above 100 per dof at the median scan's level under the fit, an outright failure of the estimator; 0 where the
+    fit is not used); the median ratio before is over every scan, after over the scans kept}.
     """
     e, A, V_velocity, V_rest, W, speed = relative_terms_split(states, truth, inflation, per_rate, drift_rate_sigma,
                                                                per_doppler, per_pull, with_speed=True)
@@ -255,11 +256,13 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
     h = np.r_[p[k:], (1.0, 0.0)[n_h:]]  # the share's (g, g_v) as fitted, (1, 0) where not
     if (not rates or not np.any(p[1:k] > 0.0)) and tuple(h) == (1.0, 0.0) \
             and abs(np.log(before)) < np.log1p(ratio_tolerance):
+        failed = np.zeros(len(e), bool)  # the fit is not used: nothing was left out of what is reported
         return result(inflation, r0, "within tolerance", before)
     kept = ~failed
     scaled = _scaled(p, n_h, A, W, V_velocity, speed)[kept]  # what the level scales
     s = _median_scale(np.ones(int(kept.sum())), e[kept], scaled, V[kept])
     if s is None:
+        failed = np.zeros(len(e), bool)
         return result(inflation, r0, "out of reach", before)
     after = median_ratio(_nees(np.full(len(scaled), s), e[kept], scaled, V[kept]))
     return result(s * p[0], s * p[1:k], "fitted", after, s * h)

@@ -84,8 +84,8 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
     r, "per_axis": g, "lag_per_acceleration", "lag_per_yaw_acceleration": L's columns (6,) each, "lag_time" T,
     "scans": those fitted, "nees_per_dof": their mean velocity NEES/dof before and after, "gross_failures": the
     scans left out ({"scans": how many, "runs", "t": where; `gross_failures`: the fits run again without the
-    scans whose NEES per dof under the fit exceeds 100, an estimator's outright failure, which no Gaussian factor
-    describes and which would otherwise set it)}.
+    scans whose NEES under the fit exceeds 100 per dof at the median scan's level, an outright failure, which no
+    Gaussian factor describes and which would otherwise set it)}.
 
     With `lag`, the velocity's lag behind a manoeuvre first (`estimator.velocity_lag`): L (6, 2) by least squares of
     e_k on a_k, the run's forward and yaw acceleration smoothed over `lag_time` T (the errors' mean given a_k; the

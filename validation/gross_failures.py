@@ -43,6 +43,8 @@ def gross_failures(nees: np.ndarray, dof: int) -> np.ndarray:
     if not finite.size:
         return np.zeros(len(nees), bool)
     level = float(np.median(finite)) / float(chi2.median(dof))
+    if not level > 0.0:  # a median scan without error: no level to judge the others by
+        return np.zeros(len(nees), bool)
     beyond = np.flatnonzero(np.nan_to_num(nees, nan=0.0) > GROSS_NEES_PER_DOF * dof * level)
     cap = int(np.floor(MAX_OUTLIER_FRACTION * len(nees)))
     out = np.zeros(len(nees), bool)

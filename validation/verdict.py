@@ -52,10 +52,9 @@ def _learned(path: Path) -> dict:
     from rodo.estimator.config import OdometryConfig
 
     u = OdometryConfig.from_toml(path).uncertainty
-    learned = {k: getattr(u, k) for k in LEARNED[:-2]}
-    learned["yaw_rate_lag"] = u.velocity_lag_per_yaw_acceleration[5]  # CV/C's lag behind a turn (s)
-    learned["gross_failures"] = _gross_failures(path.with_suffix(".json"))
-    return learned
+    derived = {"yaw_rate_lag": u.velocity_lag_per_yaw_acceleration[5],  # CV/C's lag behind a turn (s)
+               "gross_failures": _gross_failures(path.with_suffix(".json"))}
+    return {k: derived[k] if k in derived else getattr(u, k) for k in LEARNED}
 
 
 def _gross_failures(report: Path) -> list[int] | None:
@@ -123,6 +122,11 @@ def _num(v, fmt: str = ".2f") -> str:
     return "-" if v is None or not np.isfinite(v) else format(v, fmt)
 
 
+def _learned_cell(v) -> str:
+    """A learned term (a number, "-" when absent) or the gross failures [velocity, one scan] as "v + r"."""
+    return " + ".join(map(str, v)) if isinstance(v, list) else _num(v, ".3g")
+
+
 def _pct(v) -> str:
     return "-" if v is None else f"{100 * v:.1f} %"
 
@@ -161,14 +165,12 @@ def render_markdown(verdict: dict, meta: dict | None = None) -> str:
             lines.append(f"| {r['scenario']} | {name} | " + " | ".join(means) + f" | "
                          f"{_num(m['ellipsoid_3sigma_pct'], '.1f')} |")
     lines += ["", "## What was learned (the `[uncertainty]` terms; the whole configs in calibration/; gross_failures: "
-                  "the calibration drive's scans its velocity + one-scan fits left out)", "",
+                  "the calibration drives' scans its velocity + one-scan fits left out)", "",
               "| scenario | model | " + " | ".join(LEARNED) + " |", "| --- | --- |" + " ---: |" * len(LEARNED)]
     for r in rows:
         for name, m in r["models"].items():
-            learned = m["learned"]
-            failures = learned.get("gross_failures")
-            lines.append(f"| {r['scenario']} | {name} | " + " | ".join(_num(learned[k], ".3g") for k in LEARNED[:-1])
-                         + f" | {'-' if failures is None else ' + '.join(map(str, failures))} |")
+            cells = " | ".join(_learned_cell(m["learned"].get(k)) for k in LEARNED)
+            lines.append(f"| {r['scenario']} | {name} | {cells} |")
     if meta:
         lines += ["", "Parameters: " + ", ".join(f"{k}={v}" for k, v in sorted(meta.items()))]
     return "\n".join(lines) + "\n"

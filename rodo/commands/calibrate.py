@@ -202,14 +202,15 @@ def _failure_words(failures) -> str:
     a count, or {"scans", "runs", "t"}."""
     if not failures:
         return ""
-    if isinstance(failures, int):
-        return f"; {failures} scans left out as gross failures (NEES above 100 per dof)"
-    if not failures["scans"]:
+    n = failures if isinstance(failures, int) else failures["scans"]
+    if not n:
         return ""
+    words = (f"; {n} scan{'s' if n != 1 else ''} left out as gross failures (NEES above 100 per dof at the median "
+             "scan's level)")
+    if isinstance(failures, int):
+        return words
     where = ", ".join(f"run {r} at {t:.2f} s" for r, t in zip(failures["runs"][:MAX_NAMED], failures["t"][:MAX_NAMED]))
-    more = f" and {failures['scans'] - MAX_NAMED} more" if failures["scans"] > MAX_NAMED else ""
-    return (f"; {failures['scans']} scans left out as gross failures (NEES above 100 per dof): "
-            f"{where}{more}")
+    return f"{words}: {where}{f' and {n - MAX_NAMED} more' if n > MAX_NAMED else ''} (runs: the SEQ_DIRs from 0)"
 
 
 def _consistency_markdown(c: dict) -> list[str]:

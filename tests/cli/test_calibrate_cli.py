@@ -252,9 +252,11 @@ def test_the_report_names_the_gross_failures_it_left_out():
     from rodo.commands.calibrate import MAX_NAMED, _failure_words
 
     assert _failure_words(0) == "" and _failure_words({"scans": 0, "runs": [], "t": []}) == ""
-    assert _failure_words(3) == "; 3 scans left out as gross failures (NEES above 100 per dof)"
+    assert _failure_words(3) == ("; 3 scans left out as gross failures (NEES above 100 per dof at the median scan's "
+                                 "level)")
+    assert _failure_words(1).startswith("; 1 scan left out")
     n = MAX_NAMED + 2
     words = _failure_words({"scans": n, "runs": [4] * n, "t": [25.5 + 0.25 * i for i in range(n)]})
-    assert words.startswith(f"; {n} scans left out as gross failures (NEES above 100 per dof): run 4 at 25.50 s, "
-                            "run 4 at 25.75 s, ")
-    assert words.count("run 4 at") == MAX_NAMED and words.endswith(" and 2 more")
+    assert words.startswith(f"; {n} scans left out as gross failures (NEES above 100 per dof at the median scan's "
+                            "level): run 4 at 25.50 s, run 4 at 25.75 s, ")
+    assert words.count("run 4 at") == MAX_NAMED and words.endswith(" and 2 more (runs: the SEQ_DIRs from 0)")

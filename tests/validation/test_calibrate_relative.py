@@ -251,7 +251,6 @@ def test_the_share_grows_with_the_speed_only_where_the_drive_stops(blockage_runs
     assert gated["velocity_error_share"] == alone["velocity_error_share"]
 
 
-
 @settings(max_examples=5, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
 def test_a_gross_failure_is_left_out_of_the_one_scan_fit(seed):
@@ -274,4 +273,4 @@ def test_a_gross_failure_is_left_out_of_the_one_scan_fit(seed):
     for x in (0.0, 1.0, 20.0):
         assert fit["inflation"] + fit["per_doppler"] * np.log1p(x) == pytest.approx(0.5 + 0.4 * np.log1p(x), rel=0.15)
     plain = cr._max_likelihood(e, A, V, W, 1.0)
-    assert plain[4] / plain[0] > 3 * 0.4 / 0.5, plain
+    assert plain[4] > 3 * 0.4, plain

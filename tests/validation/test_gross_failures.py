@@ -28,6 +28,7 @@ def test_the_failures_are_100_per_dof_at_the_median_scans_level_and_at_most_the_
     assert failed.sum() == 10 and failed[-10:].all()
     assert not gf.gross_failures(np.r_[np.full(98, typical), 1e9], 6).any()  # under 100 scans: none may go
     assert not gf.gross_failures(np.full(5, np.nan), 6).any()
+    assert not gf.gross_failures(np.r_[np.zeros(150), np.full(50, 1e-12), 1.0], 6).any()  # no level: none
 
 
 @settings(max_examples=10, deadline=None)
@@ -50,5 +51,5 @@ def test_a_fit_without_its_gross_failures_is_the_fit_of_the_clean_scans(n_bad, s
     s, failed = gf.fit_without_gross_failures(fit, lambda s: np.sum(e**2, axis=1) / s, n, 6)
     np.testing.assert_array_equal(np.flatnonzero(failed), np.sort(bad))
     assert s == pytest.approx(scale, rel=0.05)
-    if n_bad:
+    if n_bad >= 2:  # (one bad scan's chi-square draw may be small: 0.3 % odds of a plain fit under 1.3 s)
         assert fit(np.ones(n, bool)) > 1.3 * scale
