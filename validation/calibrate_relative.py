@@ -230,13 +230,11 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
     before = median_ratio(_nees(c0, e, A, V_all)) if len(e) else float("nan")
     Y = None if speed is None or V_velocity is None else np.column_stack([np.ones(len(e)), speed])
 
-    failed = np.zeros(len(e), bool)  # the gross failures left out of the fit (`gross_failures`)
-
-    def result(f, r, outcome, after, h=(1.0, 0.0)):
+    def result(f, r, outcome, after, h=(1.0, 0.0), failures: int = 0):
         r = np.r_[r, np.zeros(5 - len(r))]
         out = {"inflation": float(f), "per_rate": [float(x) for x in r[:3]], "per_doppler": float(r[3]),
                "per_pull": float(r[4]), "median_ratio": [before, after], "outcome": outcome,
-               "gross_failures": int(failed.sum())}
+               "gross_failures": failures}
         if V_velocity is None:
             return out
         return dict(out, velocity_error_share=float(h[0] * share), velocity_error_share_per_speed=float(h[1] * share))
@@ -244,6 +242,7 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
     if not np.isfinite(before):
         return result(inflation, r0, "out of reach", before)
     n_h = 0 if V_velocity is None else (1 if Y is None else 2)
+    failed = np.zeros(len(e), bool)  # the gross failures left out of the shape's fit (`gross_failures`)
     if rates:
         p, failed = fit_without_gross_failures(
             lambda keep: _max_likelihood(e[keep], A[keep], V[keep], W[keep], inflation,
@@ -256,16 +255,14 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
     h = np.r_[p[k:], (1.0, 0.0)[n_h:]]  # the share's (g, g_v) as fitted, (1, 0) where not
     if (not rates or not np.any(p[1:k] > 0.0)) and tuple(h) == (1.0, 0.0) \
             and abs(np.log(before)) < np.log1p(ratio_tolerance):
-        failed = np.zeros(len(e), bool)  # the fit is not used: nothing was left out of what is reported
-        return result(inflation, r0, "within tolerance", before)
+        return result(inflation, r0, "within tolerance", before)  # the fit not used: nothing left out
     kept = ~failed
     scaled = _scaled(p, n_h, A, W, V_velocity, speed)[kept]  # what the level scales
     s = _median_scale(np.ones(int(kept.sum())), e[kept], scaled, V[kept])
     if s is None:
-        failed = np.zeros(len(e), bool)
         return result(inflation, r0, "out of reach", before)
     after = median_ratio(_nees(np.full(len(scaled), s), e[kept], scaled, V[kept]))
-    return result(s * p[0], s * p[1:k], "fitted", after, s * h)
+    return result(s * p[0], s * p[1:k], "fitted", after, s * h, int(failed.sum()))
 
 
 def _scaled(p, n_h: int, A, W, V_velocity=None, speed=None) -> np.ndarray:

@@ -24,18 +24,19 @@ from .run_consistency import runs_of
 
 
 def _velocity_terms(states, truth, tolerance: float, smoothing: float | None) -> dict:
-    """Per scan of every run with finite values: e (K, 6) the velocity errors, Pi (K, 6, 6) the inverse window's
-    velocity covariances (`drift_velocity_covariances`), the factor's regressors X (K, 6) = [1, |nu|, ln(1 + nis),
+    """Per scan of every run with finite values: e (K, 6) the velocity errors, P (K, 6, 6) the window's velocity
+    covariances (`drift_velocity_covariances`) and Pi their inverses, the factor's regressors X (K, 6) = [1, |nu|, ln(1 + nis),
     |omega_x|, |omega_y|, |omega_z|], the lag's smoothed accelerations A (K, 2) (`lag_accelerations` at
     `smoothing`, across each run from its first scan and its re-initialisations; zeros with smoothing None), and
     where each scan is: run (K,) its run's index, t (K,) its time since that run's first scan (s)."""
-    out = {"e": [], "Pi": [], "X": [], "A": [], "run": [], "t": []}
+    out = {"e": [], "P": [], "Pi": [], "X": [], "A": [], "run": [], "t": []}
     for i, (st, tr) in enumerate(runs_of(states, truth)):
         ia, ib = associate(st["t"], tr["t"], tolerance)
         varpi = np.asarray(st["varpi"], dtype=float)
         out["e"].append(np.asarray(tr["varpi"], dtype=float)[ib] - varpi[ia])
         P = drift_velocity_covariances(st["P"], varpi, st.get("velocity_inflation"), st.get("doppler_nis"),
                                        st.get("velocity_axis_inflation"), st.get("velocity_lag"))[ia]
+        out["P"].append(P)
         out["Pi"].append(np.linalg.inv(P))
         w = varpi[ia]
         doppler = doppler_term(np.asarray(st["doppler_nis"])[ia]) if "doppler_nis" in st else np.zeros(len(ia))
@@ -141,9 +142,9 @@ def _fit(terms: dict, keep: np.ndarray, per_axis: bool, per_rate: bool) -> tuple
 
 def _scan_nees(terms: dict, p: np.ndarray, g: np.ndarray, L: np.ndarray) -> np.ndarray:
     """(K,) every scan's velocity NEES at the fitted covariance c D P D + b b^T."""
-    e, Pi, X, A = terms["e"], terms["Pi"], terms["X"], terms["A"]
+    e, X, A = terms["e"], terms["X"], terms["A"]
     b = A @ L.T
-    K = np.linalg.inv(Pi) * np.sqrt(g[:, None] * g[None, :])
+    K = terms["P"] * np.sqrt(g[:, None] * g[None, :])
     Sigma = (X @ p)[:, None, None] * K + b[:, :, None] * b[:, None, :]
     return np.einsum("ki,ki->k", e, np.linalg.solve(Sigma, e[..., None])[..., 0])
 

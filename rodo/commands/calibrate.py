@@ -200,9 +200,7 @@ def _sensor_noise_markdown(m: dict) -> list[str]:
 def _failure_words(failures) -> str:
     """'; N scans left out as gross failures[: run r at t s, ...]' (validation.gross_failures), '' for none; failures:
     a count, or {"scans", "runs", "t"}."""
-    if not failures:
-        return ""
-    n = failures if isinstance(failures, int) else failures["scans"]
+    n = failures if isinstance(failures, int) or not failures else failures["scans"]
     if not n:
         return ""
     words = (f"; {n} scan{'s' if n != 1 else ''} left out as gross failures (NEES above 100 per dof at the median "
