@@ -41,12 +41,14 @@ def _oncoming(rng, profile, duration, every: float, lane: float, first: float = 
 
 
 def _city_world(rng, profile, duration):
-    world = w.build_world(rng, _route(profile), w.CITY)
+    world = w.build_world(rng, _route(profile), w.CITY_TRAFFIC)
     movers = _oncoming(rng, profile, duration, 12.0, 3.5)
     n = len(movers)
-    movers += [w.overtaking_vehicle(profile, MOVER_ID + n + i, t, speed_ratio=1.4)
+    # passing in the lane to the right (a street with two lanes the ego's way): the lane to the left is the
+    # oncoming traffic's, where an overtaking car met it head on (version 2)
+    movers += [w.overtaking_vehicle(profile, MOVER_ID + n + i, t, lane=-3.5, speed_ratio=1.4)
                for i, t in enumerate(np.arange(20.0, duration, 45.0))]
-    return world.with_movers(movers)
+    return world.with_traffic(movers)
 
 
 def _highway_world(rng, profile, duration):
@@ -54,17 +56,17 @@ def _highway_world(rng, profile, duration):
     movers = [w.lead_vehicle(profile, MOVER_ID, 2.0, 0.0, duration, size=w.TRUCK_SIZE)]
     movers += [w.overtaking_vehicle(profile, MOVER_ID + 1 + i, t, lane=3.7, speed_ratio=rng.uniform(1.15, 1.3))
                for i, t in enumerate(np.arange(8.0, duration, 15.0))]
-    return world.with_movers(movers)
+    return world.with_traffic(movers)
 
 
 def _hills_world(rng, profile, duration):
     world = w.build_world(rng, _route(profile), w.RURAL)
-    return world.with_movers(_oncoming(rng, profile, duration, 20.0, 3.5))
+    return world.with_traffic(_oncoming(rng, profile, duration, 20.0, 3.5))
 
 
 def _stop_and_go_world(rng, profile, duration):
-    world = w.build_world(rng, _route(profile), w.CITY)
-    return world.with_movers(_oncoming(rng, profile, duration, 15.0, 3.5))
+    world = w.build_world(rng, _route(profile), w.CITY_TRAFFIC)
+    return world.with_traffic(_oncoming(rng, profile, duration, 15.0, 3.5))
 
 
 BLOCKAGE_DELTA = 3.3  # s: the truck's rear axle is where the ego's will be 3.3 s later
@@ -87,10 +89,10 @@ def _blockage_profile(rng, duration):
 
 
 def _blockage_world(rng, profile, duration):
-    world = w.build_world(rng, _route(profile), w.CITY)
+    world = w.build_world(rng, _route(profile), w.CITY_TRAFFIC)
     truck = w.lead_vehicle(profile, MOVER_ID, BLOCKAGE_DELTA, 0.0, duration, size=(8.0, 2.6, 3.8))
     movers = [truck] + _oncoming(rng, profile, duration, 10.0, 3.5, size=w.TRUCK_SIZE, start_id=1)
-    return world.with_movers(movers).with_blackouts([BLOCKAGE_BLACKOUT])
+    return world.with_traffic(movers).with_blackouts([BLOCKAGE_BLACKOUT])
 
 
 def _yaw_world(rng, profile, duration):
@@ -121,7 +123,7 @@ def _prior_truth(profile) -> dict:
 
 
 CITY = register(Scenario(
-    "city", 2, "urban driving 0-50 km/h: buildings, parked cars, poles, turns, stops, oncoming traffic",
+    "city", 3, "urban driving 0-50 km/h: buildings, parked cars, poles, turns, stops, oncoming traffic",
     traj.city, _city_world, estimator_defaults=dict(CA_POLAR), length=950.0))
 HIGHWAY = register(Scenario(
     "highway", 2, "80-130 km/h, gentle curves, lane changes, guard rails, a lead truck, overtaking cars",
@@ -130,10 +132,10 @@ HILLS = register(Scenario(
     "hills", 2, "rural road 40-70 km/h with 3-8 % grades (tens of metres of height change)",
     traj.hills, _hills_world, estimator_defaults=dict(CA_POLAR), length=950.0))
 STOP_AND_GO = register(Scenario(
-    "stop_and_go", 2, "stop-and-go city traffic down to standstill, 10-35 km/h",
+    "stop_and_go", 3, "stop-and-go city traffic down to standstill, 10-35 km/h",
     traj.stop_and_go, _stop_and_go_world, estimator_defaults=dict(CA_POLAR), length=950.0))
 BLOCKAGE = register(Scenario(
-    "blockage", 2, "crawling behind a truck; 8 s at 1.6 m/s with it 0.8 m ahead (+-54 deg), 2 s total blockage",
+    "blockage", 3, "crawling behind a truck; 8 s at 1.6 m/s with it 0.8 m ahead (+-54 deg), 2 s total blockage",
     _blockage_profile, _blockage_world, estimator_defaults=dict(CA_POLAR), duration=40.0))
 YAW_ACCEL = register(Scenario(
     "yaw_accel", 2, "the paper's Fig. 1 manoeuvre: 10 m/s with constant yaw acceleration 0.05 rad/s^2",

@@ -11,7 +11,7 @@ Checked by: tests/sim/test_world.py
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 from rodo.estimator.lie import se3, so3
 
 from .objects import MovingBox, Patches, Points, box, empty_patches
+from .traffic import collision_free, footprints
 from .trajectory import Profile, Route
 
 GROUND_BELOW = 0.35  # m, ground under the vehicle frame origin
@@ -40,7 +41,7 @@ class SceneParams:
     tree_spacing: float = 30.0
     tree_offset: tuple = (5.0, 9.0)
     parked_car_spacing: float = 20.0         # 0: none
-    parked_car_offset: tuple = (3.6, 4.4)
+    parked_car_offset: tuple = (3.6, 4.4)    # centre distance from the route
     guard_rail_offset: float = 0.0           # 0: no guard rails
     clutter_per_100m: float = 20.0
     ground_half_width: float = 20.0
@@ -49,6 +50,9 @@ class SceneParams:
 
 
 CITY = SceneParams()
+# CITY with traffic in the lanes beside the ego's (oncoming 3.5 m to the left, passing 3.5 m to the right):
+# the parked cars stand beyond them, clear of a truck's width
+CITY_TRAFFIC = SceneParams(parked_car_offset=(6.2, 6.8))
 HIGHWAY = SceneParams(building_offset=(25.0, 45.0), building_prob=0.25, building_height=(5.0, 10.0),
                       pole_spacing=50.0, pole_offset=(9.0, 12.0), tree_spacing=40.0, tree_offset=(12.0, 25.0),
                       parked_car_spacing=0.0, guard_rail_offset=7.5, clutter_per_100m=10.0,
@@ -67,15 +71,23 @@ class World:
     points: Points
     movers: tuple = ()
     blackouts: tuple = ()
+    solids: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 2)))  # (K, 4, 2) parked cars' footprints
 
     def blacked_out(self, t: float) -> bool:
         return any(t0 <= t <= t1 for t0, t1 in self.blackouts)
 
     def with_movers(self, movers) -> "World":
-        return World(self.patches, self.points, tuple(self.movers) + tuple(movers), self.blackouts)
+        return World(self.patches, self.points, tuple(self.movers) + tuple(movers), self.blackouts, self.solids)
+
+    def with_traffic(self, movers) -> "World":
+        """`with_movers` for traffic placed by rule: each mover whose footprint would overlap one already in
+        the world, an earlier one of `movers` or a parked car while both are present is left out
+        (`traffic.collision_free`)."""
+        kept, _ = collision_free(tuple(self.movers) + tuple(movers), self.solids)
+        return World(self.patches, self.points, tuple(kept), self.blackouts, self.solids)
 
     def with_blackouts(self, blackouts) -> "World":
-        return World(self.patches, self.points, self.movers, tuple(self.blackouts) + tuple(blackouts))
+        return World(self.patches, self.points, self.movers, tuple(self.blackouts) + tuple(blackouts), self.solids)
 
 
 class _Ids:
@@ -119,6 +131,7 @@ class _Scene:
         self.tree = cKDTree(route.p_world[:, :2])
         self.patches: list[Patches] = []
         self.points: list[Points] = []
+        self.solids: list[np.ndarray] = []  # (4, 2) footprints of the parked cars
 
     def clear(self, pts) -> bool:
         """All points at least `clearance` from the driven path."""
@@ -143,7 +156,8 @@ def build_world(rng: np.random.Generator, route: Route, params: SceneParams = CI
         _add_guard_rails(scene)
     _add_roadside_clutter(scene, rng)
     scene.patches.append(_ground(route, params, scene.ids.next_object()))
-    return World(Patches.concat(scene.patches), Points.concat(scene.points))
+    return World(Patches.concat(scene.patches), Points.concat(scene.points),
+                 solids=np.array(scene.solids).reshape(-1, 4, 2))
 
 
 def landmark_world(rng: np.random.Generator, route: Route, per_100m: float = 400.0, lateral: tuple = (3.0, 40.0),
@@ -247,6 +261,7 @@ def _add_parked_cars(scene: _Scene, rng: np.random.Generator) -> None:
                 scene.patches.append(box(T_world_car, CAR_SIZE, scene.ids.next_object(), 2.0, opaque=True,
                                          max_size=2.5))
                 scene.points.append(Points(corners, np.full(4, 0.7), scene.ids.landmarks(4)))
+                scene.solids.append(footprints(T_world_car, CAR_SIZE)[0])
 
 
 def _add_guard_rails(scene: _Scene) -> None:

@@ -22,9 +22,10 @@ from tests.fingerprint import fingerprint
 FILES = ("radar.csv", "groundtruth.txt", "sensor.toml", "truth.npz")
 # tests.fingerprint (floats to 1e-6, the same under OpenBLAS's SkylakeX, Zen and Haswell kernels), first 16 hex
 # digits, of `simulate_to("city", 7, d, 2.0)`: the code before faults existed (commit 71cd697) gave the same bytes
-# until the trajectory's checkpoint grid moved every pose by round-off (< 1e-11 m); since, the first commit with it
-CLEAN_CITY_7 = {"radar.csv": "de99a4f54c49dca4", "groundtruth.txt": "d1051c9943dc2d9e",
-                "sensor.toml": "d9a5e56a10bebe25", "truth.npz": "550995c91cb63c49"}
+# until the trajectory's checkpoint grid moved every pose by round-off (< 1e-11 m); since, the first commit with it;
+# since city's version 3 (traffic clear of itself and of the parked cars), that commit's
+CLEAN_CITY_7 = {"radar.csv": "ad0db3c9d69b03fe", "groundtruth.txt": "d1051c9943dc2d9e",
+                "sensor.toml": "d9a5e56a10bebe25", "truth.npz": "f086089c333dfa75"}
 
 
 def _hashes(d) -> dict:

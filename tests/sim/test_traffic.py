@@ -1,0 +1,137 @@
+"""Traffic that never passes through traffic (sim.traffic): footprints, the separating-axis overlap test against a
+vertex-and-edge reference, the collision filter, and every traffic scenario's movers clear of each other and of
+the parked cars at every instant."""
+
+import numpy as np
+import pytest
+from hypothesis import assume, given
+from hypothesis import strategies as st
+
+from rodo.estimator.lie import se3, so3
+from rodo.scenarios import registry
+from rodo.sim import trajectory as tr
+from rodo.sim import world as w
+from rodo.sim.traffic import collision_free, footprints, overlap
+
+
+def _rect(x, y, yaw, length, width):
+    T = se3.from_rotation_translation(so3.exp(np.array([0.0, 0.0, yaw])), np.array([x, y, 0.0]))
+    return footprints(T[None], (length, width, 1.5))[0]
+
+
+def _inside(p, quad):
+    """p strictly inside the counter-clockwise convex quad."""
+    e, d = np.roll(quad, -1, axis=0) - quad, p - quad
+    return bool(np.all(e[:, 0] * d[:, 1] - e[:, 1] * d[:, 0] > 0))
+
+
+def _cross(p, q, r, s):
+    """Segments pq and rs cross at a point interior to both."""
+    def side(a, b, c):
+        return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+    return side(p, q, r) * side(p, q, s) < 0 and side(r, s, p) * side(r, s, q) < 0
+
+
+def _reference(a, b):
+    """Convex polygons intersect iff a vertex or the centre of one lies inside the other or two edges cross (the
+    centre: rectangles that coincide, or share edges, have neither a vertex strictly inside nor a crossing)."""
+    if any(_inside(p, b) for p in [*a, a.mean(0)]) or any(_inside(p, a) for p in [*b, b.mean(0)]):
+        return True
+    return any(_cross(a[i], a[(i + 1) % 4], b[j], b[(j + 1) % 4]) for i in range(4) for j in range(4))
+
+
+def test_footprint_is_the_box_bottom_under_its_pose():
+    T = se3.from_rotation_translation(so3.exp(np.array([0.0, 0.0, 0.7])), np.array([3.0, -2.0, 0.4]))
+    quad = footprints(T[None], (4.0, 2.0, 1.5))[0]
+    local = np.array([[-2.0, -1.0, 0.0], [2.0, -1.0, 0.0], [2.0, 1.0, 0.0], [-2.0, 1.0, 0.0]])
+    np.testing.assert_allclose(quad, se3.transform_points(T, local)[:, :2], atol=1e-12)
+    e = np.roll(quad, -1, axis=0) - quad
+    assert np.all(e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0] > 0)  # CCW
+
+
+coord = st.floats(-6.0, 6.0)
+yaw = st.floats(-np.pi, np.pi)
+side = st.floats(0.3, 6.0)
+
+
+@given(coord, coord, yaw, side, side, coord, coord, yaw, side, side)
+def test_overlap_agrees_with_vertices_and_edges(x1, y1, a1, l1, w1, x2, y2, a2, l2, w2):
+    grown = _reference(_rect(x1, y1, a1, l1 + 0.02, w1 + 0.02), _rect(x2, y2, a2, l2 + 0.02, w2 + 0.02))
+    shrunk = _reference(_rect(x1, y1, a1, l1 - 0.02, w1 - 0.02), _rect(x2, y2, a2, l2 - 0.02, w2 - 0.02))
+    assume(grown == shrunk)  # not within a centimetre of touching
+    a, b = _rect(x1, y1, a1, l1, w1), _rect(x2, y2, a2, l2, w2)
+    assert overlap(a[None], b[None])[0] == shrunk
+    assert overlap(b[None], a[None])[0] == shrunk
+
+
+def test_overlap_margin_and_batches():
+    a = _rect(0.0, 0.0, 0.0, 4.0, 2.0)
+    b = _rect(5.0, 0.0, 0.0, 4.0, 2.0)  # 1 m apart, end to end
+    assert not overlap(a[None], b[None])[0]
+    assert not overlap(a[None], b[None], margin=0.9)[0] and overlap(a[None], b[None], margin=1.1)[0]
+    many = np.stack([_rect(x, 0.0, 0.0, 4.0, 2.0) for x in (0.0, 3.9, 4.1, 10.0)])
+    np.testing.assert_array_equal(overlap(many, a[None]), [True, True, False, False])
+
+
+@pytest.fixture(scope="module")
+def straight():
+    """60 s straight at 10 m/s."""
+    return tr.ProfileBuilder(10.0).add(60.0).build()
+
+
+def test_head_on_in_one_lane_leaves_the_later_mover_out(straight):
+    oncoming = w.oncoming_vehicle(straight, 1, 30.0, lane=3.5)
+    passing = w.overtaking_vehicle(straight, 2, 20.0, lane=3.5, speed_ratio=1.4)
+    kept, out = collision_free([oncoming, passing])
+    assert kept == [oncoming] and out == [passing]
+    passing_right = w.overtaking_vehicle(straight, 3, 20.0, lane=-3.5, speed_ratio=1.4)
+    assert collision_free([oncoming, passing_right]) == ([oncoming, passing_right], [])
+
+
+def test_a_mover_through_a_parked_car_is_left_out(straight):
+    oncoming = w.oncoming_vehicle(straight, 1, 30.0, lane=3.5)
+    in_lane = _rect(200.0, 3.5, 0.0, 4.5, 1.8)[None]
+    beside = _rect(200.0, 6.5, 0.0, 4.5, 1.8)[None]
+    assert collision_free([oncoming], in_lane) == ([], [oncoming])
+    assert collision_free([oncoming], beside) == ([oncoming], [])
+
+
+def _movers_overlap(world, step=0.013):
+    """Any two movers, or a mover and a parked car, overlapping at an instant of a grid other than the filter's."""
+    times = np.arange(0.0, 30.0, step)
+    quads = []
+    for m in world.movers:
+        s = m.states(times)
+        q = np.full((times.size, 4, 2), np.nan)
+        q[s.present] = footprints(s.T_world_object[s.present], m.size)
+        quads.append(q)
+    for i in range(len(quads)):
+        for j in range(i + 1, len(quads)):
+            both = ~np.isnan(quads[i][:, 0, 0]) & ~np.isnan(quads[j][:, 0, 0])
+            if both.any() and overlap(quads[i][both], quads[j][both]).any():
+                return f"movers {world.movers[i].object_id} and {world.movers[j].object_id}"
+        present = ~np.isnan(quads[i][:, 0, 0])
+        for solid in world.solids:
+            if overlap(quads[i][present], solid[None]).any():
+                return f"mover {world.movers[i].object_id} and a parked car"
+    return None
+
+
+@pytest.mark.parametrize("name,seed", [("city", 204), ("city", 3), ("stop_and_go", 5), ("blockage", 1),
+                                       ("highway", 2), ("hills", 4)])
+def test_scenario_traffic_never_overlaps(name, seed):
+    world = registry.get(name).build(seed, 30.0).world
+    assert world.movers
+    assert _movers_overlap(world) is None
+
+
+def test_city_passes_on_the_right_and_parks_beyond_the_traffic():
+    world = registry.get("city").build(204, 30.0).world
+    lanes = {(round(m.rate, 1) > 0, round(float(m.T_carrier_object[1, 3]), 1)) for m in world.movers}
+    assert (True, -3.5) in lanes and (False, 3.5) in lanes  # passing to the right, oncoming to the left
+    assert len(world.solids) > 5
+    route = tr.route_of(registry.get("city").build(204, 30.0).profile)
+    from scipy.spatial import cKDTree
+
+    d = cKDTree(route.p_world[:, :2]).query(world.solids.reshape(-1, 2))[0]
+    assert d.min() > 3.5 + w.TRUCK_SIZE[1] / 2  # every corner beyond a truck in the lanes beside the ego's
