@@ -41,7 +41,7 @@ def _oncoming(rng, profile, duration, every: float, lane: float, first: float = 
 
 
 def _city_world(rng, profile, duration):
-    world = w.build_world(rng, _route(profile), w.CITY_TRAFFIC)
+    world = w.build_world(rng, _route(profile), w.CITY_TWO_LANES)
     movers = _oncoming(rng, profile, duration, 12.0, 3.5)
     n = len(movers)
     # passing in the lane to the right (a street with two lanes the ego's way): the lane to the left is the
@@ -65,7 +65,7 @@ def _hills_world(rng, profile, duration):
 
 
 def _stop_and_go_world(rng, profile, duration):
-    world = w.build_world(rng, _route(profile), w.CITY_TRAFFIC)
+    world = w.build_world(rng, _route(profile), w.CITY_ONCOMING)
     return world.with_traffic(_oncoming(rng, profile, duration, 15.0, 3.5))
 
 
@@ -89,7 +89,7 @@ def _blockage_profile(rng, duration):
 
 
 def _blockage_world(rng, profile, duration):
-    world = w.build_world(rng, _route(profile), w.CITY_TRAFFIC)
+    world = w.build_world(rng, _route(profile), w.CITY_ONCOMING)
     truck = w.lead_vehicle(profile, MOVER_ID, BLOCKAGE_DELTA, 0.0, duration, size=(8.0, 2.6, 3.8))
     movers = [truck] + _oncoming(rng, profile, duration, 10.0, 3.5, size=w.TRUCK_SIZE, start_id=1)
     return world.with_traffic(movers).with_blackouts([BLOCKAGE_BLACKOUT])

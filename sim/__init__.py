@@ -8,9 +8,10 @@ The package, file by file (the names below are re-exported here; submodules stay
     objects.py         scene primitives: `Patches`, `Points`, `MovingBox`, `RigidStates`, `box`, `rectangle`,
                        `empty_patches`; detection labels `STATIC_SURFACE`, `STATIC_POINT`, `MOVING`, `CLUTTER`,
                        `GHOST`.
-    world.py           scenes around a route: `World`, `SceneParams` (`CITY`, `HIGHWAY`, `RURAL`), `build_world`,
-                       `landmark_world` (persistent point scatterers only), traffic (`lead_vehicle`,
-                       `oncoming_vehicle`, `overtaking_vehicle`).
+    world.py           scenes around a route: `World`, `SceneParams` (`CITY`, `CITY_ONCOMING`, `CITY_TWO_LANES`,
+                       `HIGHWAY`, `RURAL`), `build_world`, `landmark_world` (persistent point scatterers only),
+                       traffic (`lead_vehicle`, `oncoming_vehicle`, `overtaking_vehicle`; `World.with_traffic`).
+    traffic.py         traffic clear of itself and of the parked cars: `footprints`, `overlap`, `collision_free`.
     sensor_geometry.py where a radar sits and what it sees of a point: `mount`, `default_mount`,
                        `sensor_velocity`, `polar`.
     radar.py           the sensor model: `Radar`, `RadarConfig`, `Detections`; built on culling.py (what a scan can see at all: per-scene patch geometry and the
@@ -59,8 +60,9 @@ from .simulate import TRUTH_NPZ, load_truth, write_simulation
 from .simulate import simulate as simulate_sequence
 from .trajectory import Motion, Profile, ProfileBuilder, Route, Segment, city, crawl, highway, hills, route_of, \
     stop_and_go, yaw_accel
-from .world import CITY, HIGHWAY, RURAL, SceneParams, World, build_world, landmark_world, lead_vehicle, \
-    oncoming_vehicle, overtaking_vehicle
+from .traffic import collision_free, footprints, overlap
+from .world import CITY, CITY_ONCOMING, CITY_TWO_LANES, HIGHWAY, RURAL, SceneParams, World, build_world, \
+    landmark_world, lead_vehicle, oncoming_vehicle, overtaking_vehicle
 
 __all__ = [
     # trajectory.py
@@ -70,8 +72,10 @@ __all__ = [
     "CLUTTER", "GHOST", "MOVING", "STATIC_POINT", "STATIC_SURFACE", "MovingBox", "Patches", "Points", "RigidStates", "box",
     "empty_patches", "rectangle",
     # world.py
-    "CITY", "HIGHWAY", "RURAL", "SceneParams", "World", "build_world", "landmark_world", "lead_vehicle",
-    "oncoming_vehicle", "overtaking_vehicle",
+    "CITY", "CITY_ONCOMING", "CITY_TWO_LANES", "HIGHWAY", "RURAL", "SceneParams", "World", "build_world",
+    "landmark_world", "lead_vehicle", "oncoming_vehicle", "overtaking_vehicle",
+    # traffic.py
+    "collision_free", "footprints", "overlap",
     # radar.py
     "Detections", "Radar", "RadarConfig",
     # sensor_geometry.py

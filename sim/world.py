@@ -41,7 +41,8 @@ class SceneParams:
     tree_spacing: float = 30.0
     tree_offset: tuple = (5.0, 9.0)
     parked_car_spacing: float = 20.0         # 0: none
-    parked_car_offset: tuple = (3.6, 4.4)    # centre distance from the route
+    parked_car_offset: tuple = (3.6, 4.4)    # centre distance from the route (both sides)
+    parked_car_offset_left: tuple | None = None  # on the left, when not the same (beyond a lane of traffic)
     guard_rail_offset: float = 0.0           # 0: no guard rails
     clutter_per_100m: float = 20.0
     ground_half_width: float = 20.0
@@ -50,9 +51,11 @@ class SceneParams:
 
 
 CITY = SceneParams()
-# CITY with traffic in the lanes beside the ego's (oncoming 3.5 m to the left, passing 3.5 m to the right):
-# the parked cars stand beyond them, clear of a truck's width
-CITY_TRAFFIC = SceneParams(parked_car_offset=(6.2, 6.8))
+# CITY with traffic in the lane to the left (oncoming, 3.5 m): the parked cars on the left stand beyond it, clear
+# of a truck's width; on the right at the kerb
+CITY_ONCOMING = SceneParams(parked_car_offset_left=(6.2, 6.8))
+# ... and in the lane to the right too (overtaking, 3.5 m): the parked cars stand beyond both
+CITY_TWO_LANES = SceneParams(parked_car_offset=(6.2, 6.8))
 HIGHWAY = SceneParams(building_offset=(25.0, 45.0), building_prob=0.25, building_height=(5.0, 10.0),
                       pole_spacing=50.0, pole_offset=(9.0, 12.0), tree_spacing=40.0, tree_offset=(12.0, 25.0),
                       parked_car_spacing=0.0, guard_rail_offset=7.5, clutter_per_100m=10.0,
@@ -247,11 +250,13 @@ def _add_parked_cars(scene: _Scene, rng: np.random.Generator) -> None:
     """Parked cars: opaque boxes + bumper-corner scatterers."""
     route, params = scene.route, scene.params
     for side in (-1.0, 1.0):
+        offset = params.parked_car_offset_left if side > 0 and params.parked_car_offset_left else \
+            params.parked_car_offset
         s = _positions(rng, route.length, params.parked_car_spacing)
         s = s[rng.uniform(size=len(s)) < 0.6]
         g, f, left, _ = _frame(route, s)
         for k in range(len(s)):
-            c = g[k] + side * rng.uniform(*params.parked_car_offset) * left[k]
+            c = g[k] + side * rng.uniform(*offset) * left[k]
             yaw = np.arctan2(f[k, 1], f[k, 0]) + rng.normal(0, 0.03)
             T_world_car = se3.from_rotation_translation(so3.exp(np.array([0, 0, yaw])), c)
             L, W, _ = CAR_SIZE

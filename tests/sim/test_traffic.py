@@ -125,13 +125,30 @@ def test_scenario_traffic_never_overlaps(name, seed):
     assert _movers_overlap(world) is None
 
 
-def test_city_passes_on_the_right_and_parks_beyond_the_traffic():
-    world = registry.get("city").build(204, 30.0).world
-    lanes = {(round(m.rate, 1) > 0, round(float(m.T_carrier_object[1, 3]), 1)) for m in world.movers}
-    assert (True, -3.5) in lanes and (False, 3.5) in lanes  # passing to the right, oncoming to the left
-    assert len(world.solids) > 5
-    route = tr.route_of(registry.get("city").build(204, 30.0).profile)
+def _parked_sides(name, seed):
+    """Distances of the parked cars' corners from the route, on its left and on its right."""
+    parts = registry.get(name).build(seed, 30.0)
+    route = tr.route_of(parts.profile)
     from scipy.spatial import cKDTree
 
-    d = cKDTree(route.p_world[:, :2]).query(world.solids.reshape(-1, 2))[0]
-    assert d.min() > 3.5 + w.TRUCK_SIZE[1] / 2  # every corner beyond a truck in the lanes beside the ego's
+    corners = parts.world.solids.reshape(-1, 2)
+    d, i = cKDTree(route.p_world[:, :2]).query(corners)
+    left = np.einsum("ij,ij->i", corners - route.p_world[i, :2], route.left()[i, :2]) > 0
+    return parts.world, d[left], d[~left]
+
+
+def test_city_passes_on_the_right_and_parks_beyond_the_traffic():
+    world, left, right = _parked_sides("city", 204)
+    lanes = {(round(m.rate, 1) > 0, round(float(m.T_carrier_object[1, 3]), 1)) for m in world.movers}
+    assert (True, -3.5) in lanes and (False, 3.5) in lanes  # passing to the right, oncoming to the left
+    assert left.size > 8 and right.size > 8
+    beyond = 3.5 + w.TRUCK_SIZE[1] / 2  # every corner beyond a truck in the lanes beside the ego's
+    assert left.min() > beyond and right.min() > beyond
+
+
+def test_stop_and_go_parks_at_the_kerb_and_beyond_the_oncoming_lane():
+    _, left, right = _parked_sides("stop_and_go", 5)
+    assert left.size > 8 and right.size > 8
+    assert left.min() > 3.5 + w.TRUCK_SIZE[1] / 2
+    assert right.max() < 4.4 + 2.5  # the kerb: centres 3.6-4.4 m out, corners within half a diagonal
+    assert np.median(right) < 4.5 < np.median(left)
