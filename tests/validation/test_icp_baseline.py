@@ -54,8 +54,9 @@ def test_icp_tracks_noise_free_city(city_noise_free, method):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("kwargs, pos_max, rot_max", [
-    # measured 0.76 m, 2.4 deg: scan-to-scan drifts (each radar scan samples the surfaces anew)
-    ({"method": "point_to_point", "voxel": None, "map_scans": 1}, 1.5, 4.0),
+    # measured 1.51 m, 3.8 deg: scan-to-scan drifts (each radar scan samples the surfaces anew; 0.76 m, 2.4 deg at
+    # city's version 2, its parked cars at the kerb on both sides)
+    ({"method": "point_to_point", "voxel": None, "map_scans": 1}, 3.0, 8.0),
     # measured 0.20 m, 4.0 deg: no voxel filter, normals from the NORMAL_RADIUS search
     ({"method": "point_to_plane", "voxel": None, "map_scans": 5}, 0.4, 6.0),
 ])
