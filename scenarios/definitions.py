@@ -123,7 +123,7 @@ def _prior_truth(profile) -> dict:
 
 
 CITY = register(Scenario(
-    "city", 3, "urban driving 0-50 km/h: buildings, parked cars, poles, turns, stops, oncoming traffic",
+    "city", 3, "urban driving 0-50 km/h: buildings, parked cars, poles, turns, stops, oncoming and passing traffic",
     traj.city, _city_world, estimator_defaults=dict(CA_POLAR), length=950.0))
 HIGHWAY = register(Scenario(
     "highway", 2, "80-130 km/h, gentle curves, lane changes, guard rails, a lead truck, overtaking cars",
