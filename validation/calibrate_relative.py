@@ -244,7 +244,7 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
     n_h = 0 if V_velocity is None else (1 if Y is None else 2)
     failed = np.zeros(len(e), bool)  # the gross failures left out of the shape's fit (`gross_failures`)
     if rates:
-        p, failed = fit_without_gross_failures(
+        p, failed, _ = fit_without_gross_failures(
             lambda keep: _max_likelihood(e[keep], A[keep], V[keep], W[keep], inflation,
                                          None if V_velocity is None else V_velocity[keep],
                                          np.divide(SHARE_RANGE, share), None if Y is None else Y[keep]),

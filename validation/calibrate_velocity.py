@@ -25,8 +25,8 @@ from .run_consistency import runs_of
 
 def _velocity_terms(states, truth, tolerance: float, smoothing: float | None) -> dict:
     """Per scan of every run with finite values: e (K, 6) the velocity errors, P (K, 6, 6) the window's velocity
-    covariances (`drift_velocity_covariances`) and Pi their inverses, the factor's regressors X (K, 6) = [1, |nu|, ln(1 + nis),
-    |omega_x|, |omega_y|, |omega_z|], the lag's smoothed accelerations A (K, 2) (`lag_accelerations` at
+    covariances (`drift_velocity_covariances`) and Pi their inverses, the factor's regressors X (K, 6) = [1, |nu|,
+    ln(1 + nis), |omega_x|, |omega_y|, |omega_z|], the lag's smoothed accelerations A (K, 2) (`lag_accelerations` at
     `smoothing`, across each run from its first scan and its re-initialisations; zeros with smoothing None), and
     where each scan is: run (K,) its run's index, t (K,) its time since that run's first scan (s)."""
     out = {"e": [], "P": [], "Pi": [], "X": [], "A": [], "run": [], "t": []}
@@ -112,10 +112,10 @@ def fit_velocity_inflation(states: dict | list, truth: dict | list, tolerance: f
     if len(q0) < 2 or not np.mean(q0) > 0:  # too few scans, or no error at all (a noise-free drive)
         return {**none, **_lag_report(np.zeros((6, 2)), lag_time), "scans": int(len(q0)),
                 "nees_per_dof": [np.nan, np.nan], "gross_failures": _failures_report(terms, np.zeros(len(q0), bool))}
-    (p, g, L), failed = fit_without_gross_failures(
+    (p, g, L), failed, nees = fit_without_gross_failures(
         lambda keep: _fit(terms, keep, per_axis, per_rate), lambda fit: _scan_nees(terms, *fit), len(e), DOF)
     kept = ~failed
-    after = float(np.mean(_scan_nees(terms, p, g, L)[kept])) / DOF
+    after = float(np.mean(nees[kept])) / DOF
     return {"inflation": float(p[0]), "per_speed": float(p[1]), "per_doppler": float(p[2]),
             "per_rate": [float(x) for x in p[3:6]], "per_axis": [float(x) for x in g], **_lag_report(L, lag_time),
             "scans": int(kept.sum()), "nees_per_dof": [float(np.mean(q0[kept])) / DOF, after],

@@ -54,15 +54,18 @@ def gross_failures(nees: np.ndarray, dof: int) -> np.ndarray:
 
 def fit_without_gross_failures(fit: Callable[[np.ndarray], object], nees: Callable[[object], np.ndarray], n: int,
                                dof: int):
-    """(params, failed (n,) bool): `fit(keep)` (keep (n,) bool, the scans to fit) refitted without the scans whose
-    NEES under it, `nees(params)` (n,) over every scan, are gross failures (`gross_failures`), until the set left out
-    repeats or after ROUNDS fits; params is the fit without the last set."""
+    """(params, failed (n,) bool, NEES (n,) of every scan under params): `fit(keep)` (keep (n,) bool, the scans to
+    fit) refitted without the scans whose NEES under it, `nees(params)` (n,) over every scan, are gross failures
+    (`gross_failures`), until the set left out repeats or after ROUNDS fits; params is the fit without the last
+    set. Each fit's NEES is evaluated once."""
     failed = np.zeros(n, bool)
     params = fit(~failed)
+    scans = nees(params)
     for _ in range(ROUNDS - 1):
-        now = gross_failures(nees(params), dof)
+        now = gross_failures(scans, dof)
         if np.array_equal(now, failed):
             break
         failed = now
         params = fit(~failed)
-    return params, failed
+        scans = nees(params)
+    return params, failed, scans

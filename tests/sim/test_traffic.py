@@ -1,6 +1,6 @@
-"""Traffic that never passes through traffic (sim.traffic): footprints, the separating-axis overlap test against the
-area of one rectangle clipped to the other, the collision filter, and every traffic scenario's movers clear of each other and of
-the parked cars at every instant."""
+"""Traffic that never passes through traffic (sim.traffic): footprints, the separating-axis overlap test against
+the area of one rectangle clipped to the other, the collision filter, and every traffic scenario's movers clear
+of each other and of the parked cars at every instant."""
 
 import numpy as np
 import pytest

@@ -48,8 +48,9 @@ def test_a_fit_without_its_gross_failures_is_the_fit_of_the_clean_scans(n_bad, s
     def fit(keep):
         return float(np.mean(e[keep] ** 2))
 
-    s, failed = gf.fit_without_gross_failures(fit, lambda s: np.sum(e**2, axis=1) / s, n, 6)
+    s, failed, nees = gf.fit_without_gross_failures(fit, lambda s: np.sum(e**2, axis=1) / s, n, 6)
     np.testing.assert_array_equal(np.flatnonzero(failed), np.sort(bad))
+    np.testing.assert_array_equal(nees, np.sum(e**2, axis=1) / s)  # the NEES returned are the returned fit's
     assert s == pytest.approx(scale, rel=0.05)
     if n_bad >= 2:  # (one bad scan's chi-square draw may be small: 0.3 % odds of a plain fit under 1.3 s)
         assert fit(np.ones(n, bool)) > 1.3 * scale
