@@ -41,19 +41,23 @@ class SceneParams:
     tree_spacing: float = 30.0
     tree_offset: tuple = (5.0, 9.0)
     parked_car_spacing: float = 20.0         # 0: none
-    parked_car_offset: tuple = (3.6, 4.4)    # centre distance from the route (both sides)
-    parked_car_offset_left: tuple | None = None  # on the left, when not the same (beyond a lane of traffic)
+    parked_car_offset: tuple = (3.6, 4.4)    # centre distance from the route
     guard_rail_offset: float = 0.0           # 0: no guard rails
     clutter_per_100m: float = 20.0
     ground_half_width: float = 20.0
     ground_reflectivity: float = 0.15
     clearance: float = 2.5
+    left: "SceneParams | None" = None        # the left side's, where not the same (beyond lanes of traffic)
+
+    def side(self, side: float) -> "SceneParams":
+        """The params of the route's left (side > 0) or right side (the placement steps' per-side draws)."""
+        return self.left if side > 0 and self.left is not None else self
 
 
 CITY = SceneParams()
 # CITY with traffic in the lane to the left (oncoming, 3.5 m): the parked cars on the left stand beyond it, clear
 # of a truck's width; on the right at the kerb
-CITY_ONCOMING = SceneParams(parked_car_offset_left=(6.2, 6.8))
+CITY_ONCOMING = SceneParams(left=SceneParams(parked_car_offset=(6.2, 6.8)))
 # ... and in the lane to the right too (overtaking, 3.5 m): the parked cars stand beyond both
 CITY_TWO_LANES = SceneParams(parked_car_offset=(6.2, 6.8))
 HIGHWAY = SceneParams(building_offset=(25.0, 45.0), building_prob=0.25, building_height=(5.0, 10.0),
@@ -153,8 +157,7 @@ def build_world(rng: np.random.Generator, route: Route, params: SceneParams = CI
     _add_buildings(scene, rng)
     _add_poles(scene, rng)
     _add_trees(scene, rng)
-    if params.parked_car_spacing > 0:
-        _add_parked_cars(scene, rng)
+    _add_parked_cars(scene, rng)
     if params.guard_rail_offset > 0:
         _add_guard_rails(scene)
     _add_roadside_clutter(scene, rng)
@@ -181,8 +184,9 @@ def landmark_world(rng: np.random.Generator, route: Route, per_100m: float = 400
 
 def _add_buildings(scene: _Scene, rng: np.random.Generator) -> None:
     """Buildings: boxes whose road-facing side is the facade; corners are strong point scatterers."""
-    route, params = scene.route, scene.params
+    route = scene.route
     for side in (-1.0, 1.0):
+        params = scene.params.side(side)
         s = rng.uniform(-20.0, 0.0)
         while s < route.length + 40.0:
             length = rng.uniform(*params.building_length)
@@ -218,8 +222,9 @@ def _add_building(scene: _Scene, rng: np.random.Generator, side: float, s: float
 
 def _add_poles(scene: _Scene, rng: np.random.Generator) -> None:
     """Poles (3 scatterers up the pole) and signs."""
-    route, params = scene.route, scene.params
+    route = scene.route
     for side in (-1.0, 1.0):
+        params = scene.params.side(side)
         s = _positions(rng, route.length, params.pole_spacing)
         g, _, left, _ = _frame(route, s)
         base = g + side * rng.uniform(*params.pole_offset, (len(s), 1)) * left
@@ -231,8 +236,9 @@ def _add_poles(scene: _Scene, rng: np.random.Generator) -> None:
 
 def _add_trees(scene: _Scene, rng: np.random.Generator) -> None:
     """Trees: a trunk scatterer and a few weak canopy scatterers."""
-    route, params = scene.route, scene.params
+    route = scene.route
     for side in (-1.0, 1.0):
+        params = scene.params.side(side)
         s = _positions(rng, route.length, params.tree_spacing)
         g, _, left, _ = _frame(route, s)
         base = g + side * rng.uniform(*params.tree_offset, (len(s), 1)) * left
@@ -248,15 +254,16 @@ def _add_trees(scene: _Scene, rng: np.random.Generator) -> None:
 
 def _add_parked_cars(scene: _Scene, rng: np.random.Generator) -> None:
     """Parked cars: opaque boxes + bumper-corner scatterers."""
-    route, params = scene.route, scene.params
+    route = scene.route
     for side in (-1.0, 1.0):
-        offset = params.parked_car_offset_left if side > 0 and params.parked_car_offset_left else \
-            params.parked_car_offset
+        params = scene.params.side(side)
+        if not params.parked_car_spacing > 0:
+            continue
         s = _positions(rng, route.length, params.parked_car_spacing)
         s = s[rng.uniform(size=len(s)) < 0.6]
         g, f, left, _ = _frame(route, s)
         for k in range(len(s)):
-            c = g[k] + side * rng.uniform(*offset) * left[k]
+            c = g[k] + side * rng.uniform(*params.parked_car_offset) * left[k]
             yaw = np.arctan2(f[k, 1], f[k, 0]) + rng.normal(0, 0.03)
             T_world_car = se3.from_rotation_translation(so3.exp(np.array([0, 0, yaw])), c)
             L, W, _ = CAR_SIZE

@@ -14,12 +14,12 @@ Statistics (pooled over all scans; the same code on both sides, on the recorded 
 Goal: every distance <= GOAL (0.2: "within 20 %" for the scalars, a KS distance of 0.2 for the distributions).
 Both sides are cropped to the real data's range span where the recording was cropped (RaFlow: 78 m).
 
-Checked by: tests/cli/test_realism_cli.py, tests/sim/test_profiles.py
+Checked by: tests/cli/test_realism_cli.py, tests/sim/test_profiles.py, tests/sim/test_traffic.py (the boulevard)
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -191,12 +191,15 @@ def _real_ti(folder: Path) -> list:
     return [ti_mmwave.convert(folder).sequence]
 
 
-BOULEVARD = w.SceneParams(building_offset=(14.0, 30.0), building_gap=(5.0, 20.0), building_height=(10.0, 30.0),
-                          pole_spacing=15.0, pole_offset=(6.0, 12.0), tree_spacing=10.0, tree_offset=(5.0, 12.0),
-                          parked_car_spacing=12.0, parked_car_offset=(6.0, 9.0), clutter_per_100m=40.0,
-                          ground_half_width=30.0)
+_KERB = w.SceneParams(building_offset=(14.0, 30.0), building_gap=(5.0, 20.0), building_height=(10.0, 30.0),
+                      pole_spacing=15.0, pole_offset=(6.0, 12.0), tree_spacing=10.0, tree_offset=(5.0, 12.0),
+                      parked_car_spacing=12.0, parked_car_offset=(6.0, 9.0), clutter_per_100m=40.0,
+                      ground_half_width=30.0)
+BOULEVARD = replace(_KERB, left=replace(_KERB, pole_offset=(13.0, 15.0), tree_offset=(13.0, 15.0),
+                                        parked_car_offset=(13.4, 13.8), building_offset=(15.5, 30.0)))
 """The LRR30-F comparison's scene: a wide urban boulevard (Shanghai: buildings 14-30 m away, trees and poles,
-cars parked at the kerb 6-9 m off the lane)."""
+cars parked at the kerb 6-9 m off the lane on the right; on the left beyond the two oncoming lanes (7 and 10.5 m),
+at 12.5-14 m)."""
 TRAFFIC_ID = 1_000_000
 
 
@@ -214,17 +217,21 @@ def _traffic(rng: np.random.Generator, profile: traj.Profile, duration: float) -
     return movers
 
 
+def boulevard(seed: int, duration: float, motion=traj.city) -> tuple:
+    """(profile, world, the radar's rng) of drive `seed`: `motion` (the `city` scenario's: 0-50 km/h, turns, stops;
+    or another) on BOULEVARD in dense traffic, clear of itself and of the parked cars (`World.with_traffic`)."""
+    s_traj, s_world, s_radar = np.random.SeedSequence(seed).spawn(3)
+    rng_world = np.random.default_rng(s_world)
+    prof = motion(np.random.default_rng(s_traj), duration + 5.0)
+    world = w.build_world(rng_world, traj.route_of(prof), BOULEVARD)
+    return prof, world.with_traffic(_traffic(rng_world, prof, duration)), np.random.default_rng(s_radar)
+
+
 def _sim_boulevard(profile: str, seeds, duration: float, motion=traj.city) -> list:
-    """City driving (the `city` scenario's motion: 0-50 km/h, turns, stops; or another `motion`) on BOULEVARD in
-    dense traffic."""
     out = []
     for seed in seeds:
-        s_traj, s_world, s_radar = np.random.SeedSequence(seed).spawn(3)
-        rng_world = np.random.default_rng(s_world)
-        prof = motion(np.random.default_rng(s_traj), duration + 5.0)
-        world = w.build_world(rng_world, traj.route_of(prof), BOULEVARD)
-        world = world.with_movers(_traffic(rng_world, prof, duration))
-        out.append(simulate(world, prof, profiles.radar_config(profile), np.random.default_rng(s_radar), duration))
+        prof, world, rng_radar = boulevard(seed, duration, motion)
+        out.append(simulate(world, prof, profiles.radar_config(profile), rng_radar, duration))
     return out
 
 
@@ -320,5 +327,5 @@ def format_table(report: Report) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["DEFAULT_SEEDS", "GOAL", "Pooled", "Report", "Row", "SETUPS", "Setup", "compare", "format_table",
-           "ks_distance", "pooled", "realism", "relative", "spread", "walk_profile"]
+__all__ = ["BOULEVARD", "DEFAULT_SEEDS", "GOAL", "Pooled", "Report", "Row", "SETUPS", "Setup", "boulevard", "compare",
+           "format_table", "ks_distance", "pooled", "realism", "relative", "spread", "walk_profile"]

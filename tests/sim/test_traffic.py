@@ -12,6 +12,7 @@ from rodo.scenarios import registry
 from rodo.sim import trajectory as tr
 from rodo.sim import world as w
 from rodo.sim.traffic import collision_free, footprints, overlap
+from rodo.validation import realism
 
 
 def _rect(x, y, yaw, length, width):
@@ -105,9 +106,9 @@ def test_a_mover_through_a_parked_car_is_left_out(straight):
     assert collision_free([oncoming], beside) == ([oncoming], [])
 
 
-def _movers_overlap(world, step=0.013):
+def _movers_overlap(world, step=0.013, duration=30.0):
     """Any two movers, or a mover and a parked car, overlapping at an instant of a grid other than the filter's."""
-    times = np.arange(0.0, 30.0, step)
+    times = np.arange(0.0, duration, step)
     quads = []
     for m in world.movers:
         s = m.states(times)
@@ -134,16 +135,20 @@ def test_scenario_traffic_never_overlaps(name, seed):
     assert _movers_overlap(world) is None
 
 
-def _parked_sides(name, seed):
+def _sides(world, profile):
     """Distances of the parked cars' corners from the route, on its left and on its right."""
-    parts = registry.get(name).build(seed, 30.0)
-    route = tr.route_of(parts.profile)
+    route = tr.route_of(profile)
     from scipy.spatial import cKDTree
 
-    corners = parts.world.solids.reshape(-1, 2)
+    corners = world.solids.reshape(-1, 2)
     d, i = cKDTree(route.p_world[:, :2]).query(corners)
     left = np.einsum("ij,ij->i", corners - route.p_world[i, :2], route.left()[i, :2]) > 0
-    return parts.world, d[left], d[~left]
+    return d[left], d[~left]
+
+
+def _parked_sides(name, seed):
+    parts = registry.get(name).build(seed, 30.0)
+    return (parts.world, *_sides(parts.world, parts.profile))
 
 
 def test_city_passes_on_the_right_and_parks_beyond_the_traffic():
@@ -161,3 +166,16 @@ def test_stop_and_go_parks_at_the_kerb_and_beyond_the_oncoming_lane():
     assert left.min() > 3.5 + w.TRUCK_SIZE[1] / 2
     assert right.max() < 4.4 + 2.5  # the kerb: centres 3.6-4.4 m out, corners within half a diagonal
     assert np.median(right) < 4.5 < np.median(left)
+
+
+@pytest.mark.parametrize("motion,seed", [(tr.city, 0), (tr.city, 5), (tr.hills, 2)])
+def test_the_realism_boulevard_parks_beyond_its_oncoming_lanes(motion, seed):
+    """validation.realism's boulevard: oncoming cars and trucks in the lanes 7 and 10.5 m to the left, parked cars
+    beyond them on the left and at the kerb on the right, and no mover through another or a parked car."""
+    profile, world, _ = realism.boulevard(seed, 20.0, motion)
+    lanes = {round(float(m.T_carrier_object[1, 3]), 1) for m in world.movers}
+    assert {7.0, 10.5, -3.5} <= lanes
+    assert _movers_overlap(world, duration=20.0) is None
+    left, right = _sides(world, profile)
+    assert left.size > 8 and right.size > 8
+    assert left.min() > 10.5 + w.TRUCK_SIZE[1] / 2 and right.max() < 9.0 + 2.5

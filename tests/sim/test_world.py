@@ -1,6 +1,8 @@
 """World generation: clearance from the route, ground following the road, movers' exact rigid motion,
 reproducibility, box geometry."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -66,6 +68,30 @@ def test_same_rng_same_world(city):
     np.testing.assert_array_equal(world.points.p, again.points.p)
     other = w.build_world(np.random.default_rng(2), route, w.CITY)
     assert len(other.points) != len(world.points) or not np.array_equal(other.points.p, world.points.p)
+
+
+def _lateral(route, p):
+    """Signed distance of points p (N, 3) from the route, positive to its left."""
+    from scipy.spatial import cKDTree
+
+    d, i = cKDTree(route.p_world[:, :2]).query(p[:, :2])
+    return d * np.sign(np.einsum("ij,ij->i", p[:, :2] - route.p_world[i, :2], route.left()[i, :2]))
+
+
+def test_a_left_side_of_its_own_moves_only_the_left(city):
+    """SceneParams.left: the same draws in the same order, so the same side params give the same world bit for
+    bit; other offsets on the left move the left's poles and trees and leave the right's where they were."""
+    _, route, world = city
+    same = w.build_world(np.random.default_rng(1), route, w.SceneParams(left=w.SceneParams()))
+    np.testing.assert_array_equal(same.points.p, world.points.p)
+    np.testing.assert_array_equal(same.patches.origin, world.patches.origin)
+    np.testing.assert_array_equal(same.solids, world.solids)
+    bare = w.SceneParams(building_prob=0.0, parked_car_spacing=0.0, clutter_per_100m=0.0)
+    far = replace(bare, left=replace(bare, pole_offset=(20.0, 21.0), tree_offset=(20.0, 21.0)))
+    y_bare, y_far = (_lateral(route, w.build_world(np.random.default_rng(3), route, p).points.p) for p in (bare, far))
+    np.testing.assert_array_equal(np.sort(y_far[y_far < 0]), np.sort(y_bare[y_bare < 0]))
+    assert y_far[y_far > 0].size > 20
+    assert np.all(y_far[y_far > 0] > 14.0) and np.any(y_bare[(y_bare > 0)] < 9.0)
 
 
 @pytest.mark.parametrize("kind", ["lead", "oncoming", "overtaking"])
