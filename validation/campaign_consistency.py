@@ -20,10 +20,13 @@ have it:
   within the bounds at that spread: each run's NEES taken as chi-square with 6 / spread degrees of freedom scaled
   to mean 6, so the N-run average is chi-square(6 N / spread) / (6 N / spread) times 6. 1 - alpha at spread 1,
   below 90 % from a spread of about 1.42. A model, not a bound: a factor that differs between runs (one that
-  follows the speed or the Doppler innovation) can do better.
+  follows the speed or the Doppler innovation) can do better;
+- `scans_below`, `scans_above`: the scans whose average lies below its bounds (the covariance cautious there) and
+  above them (over-confident), and `scans_above_one_run`: those above that one run puts there, inside the bounds
+  for the others without the largest run's value at that scan (a tail of one run, not a common factor).
 
 Checked by: tests/validation/test_campaign_consistency.py::test_campaign_consistency_per_measure_consistent_and_overconfident,
-    ::test_spread_between_runs_and_the_share_with_a_per_scan_factor
+    ::test_spread_between_runs_and_the_share_with_a_per_scan_factor, ::test_scans_outside_below_above_and_one_run
 """
 
 from __future__ import annotations
@@ -68,20 +71,38 @@ def fraction_within_per_scan_factor(spread: float | None, n_runs: int, alpha: fl
     return float(chi2.cdf(hi * nu, nu) - chi2.cdf(lo * nu, nu))
 
 
+def scans_outside(runs: list[np.ndarray], alpha: float = 0.05) -> dict:
+    """{"scans_below", "scans_above", "scans_above_one_run"} of the runs' per-scan averages (module docstring)."""
+    stack = stacked_runs(runs)
+    count = np.sum(np.isfinite(stack), axis=0)
+    mean, _ = average_nees(runs)
+    b = chi2_bounds(count, DOF, alpha)
+    with np.errstate(invalid="ignore"):
+        below, above = mean < b[:, 0], mean > b[:, 1]
+        largest = np.nanmax(np.where(count > 0, stack, 0.0), axis=0) if stack.size else np.zeros(0)
+        rest = (np.nansum(stack, axis=0) - largest) / np.maximum(count - 1, 1)
+        br = chi2_bounds(np.maximum(count - 1, 0), DOF, alpha)
+        one_run = above & (count > 1) & (rest >= br[:, 0]) & (rest <= br[:, 1])
+    return {"scans_below": int(below.sum()), "scans_above": int(above.sum()), "scans_above_one_run": int(one_run.sum())}
+
+
 def measure_summary(runs: list[np.ndarray], alpha: float = 0.05) -> tuple[dict, dict]:
     """Summary and curve of one measure over runs (each (K_i,) per-scan NEES; runs without a finite value are
     not counted). Returns (summary, curve): summary with dof, runs, mean_per_dof, median_per_dof,
     bounds_for_runs, bounds_per_dof, fraction_scans_within, spread_between_runs, fraction_within_per_scan_factor
-    (None where undefined); curve with mean, count, lower, upper (per scan, NEES, not per dof)."""
+    (None where undefined), scans_below, scans_above and scans_above_one_run (`scans_outside`); curve with mean,
+    count, lower, upper (per scan, NEES, not per dof)."""
     runs = [np.asarray(r, dtype=float) for r in runs if np.isfinite(np.asarray(r, dtype=float)).any()]
     n = len(runs)
     bounds = chi2_bounds(n, DOF, alpha)
     summary = {"dof": DOF, "runs": n, "mean_per_dof": None, "median_per_dof": None,
                "bounds_for_runs": bounds.tolist(), "bounds_per_dof": (bounds / DOF).tolist(),
                "fraction_scans_within": None, "spread_between_runs": None,
-               "fraction_within_per_scan_factor": None}
+               "fraction_within_per_scan_factor": None, "scans_below": 0, "scans_above": 0,
+               "scans_above_one_run": 0}
     if not n:
         return summary, {}
+    summary.update(scans_outside(runs, alpha))
     mean, count = average_nees(runs)
     b = chi2_bounds(count, DOF, alpha)
     fin = np.isfinite(mean)
@@ -114,10 +135,11 @@ def consistency_lines(consistency: dict, fmt) -> list[str]:
     pct = lambda v: fmt(None if v is None else 100 * v)  # noqa: E731
     lines = ["", "Odometry consistency (average NEES over runs per scan, 6 dof, divided by 6; bounds for the N runs "
              "of the measure; spread: the runs' disagreement at a scan against chi-square's, and the share of scans a "
-             "per-scan factor common to all runs would bring within at that spread):", "",
+             "per-scan factor common to all runs would bring within at that spread; outside: the scans below and above "
+             "the bounds, and of those above, how many one run's value puts there):", "",
              "| measure | runs | mean NEES/dof | median | bounds/dof | scans within | spread "
-             "| with a per-scan factor |",
-             "| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: |"]
+             "| with a per-scan factor | below / above (one run) |",
+             "| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: |"]
     for name in MEASURES:
         c = consistency.get(name)
         if c is None:
@@ -125,5 +147,13 @@ def consistency_lines(consistency: dict, fmt) -> list[str]:
         lo, hi = c["bounds_per_dof"]
         lines.append(f"| {name} | {c['runs']} | {fmt(c['mean_per_dof'])} | {fmt(c['median_per_dof'])} | "
                      f"[{fmt(lo)}, {fmt(hi)}] | {pct(c['fraction_scans_within'])} % | "
-                     f"{fmt(c.get('spread_between_runs'))} | {pct(c.get('fraction_within_per_scan_factor'))} % |")
+                     f"{fmt(c.get('spread_between_runs'))} | {pct(c.get('fraction_within_per_scan_factor'))} % | "
+                     f"{_outside_cell(c)} |")
     return lines
+
+
+def _outside_cell(c: dict) -> str:
+    """"below / above (one run)" of a measure's summary; "-" in summaries written before the counts."""
+    if "scans_above" not in c:
+        return "-"
+    return f"{c['scans_below']} / {c['scans_above']} ({c['scans_above_one_run']})"

@@ -36,6 +36,7 @@ MODELS = {"CA/P": ("ca-learned", "ca-polar", "ca"), "CV/C": ("cv-learned", "cv-c
 SCENARIOS = ("city", "hills", "stop_and_go", "highway")
 CELLS = ("velocity", "relative_scan")  # judged scan by scan
 SPANS = ("relative_span", "pose")  # judged by their mean
+OUTSIDE = ("scans_below", "scans_above", "scans_above_one_run")  # where a cell's scans miss (campaign_consistency)
 SHARE_TARGET = 0.90
 SPAN_LIMIT = 2.0
 LEARNED = ("velocity_correlation_time", "velocity_error_share", "velocity_error_share_per_speed",
@@ -88,7 +89,7 @@ def scenario_verdict(out_dir, scenario: str) -> dict:
         row["models"][name] = {
             "runs": entry["runs"], "ok": entry["ok"], "kitti_t_err_pct": {"mean": mean, "lower": lo, "upper": hi,
                                                                          "n": int(np.isfinite(ok).sum())},
-            "consistency": {m: {"mean_per_dof": c["mean_per_dof"], "fraction_scans_within": c["fraction_scans_within"]}
+            "consistency": {m: {k: c[k] for k in ("mean_per_dof", "fraction_scans_within", *OUTSIDE) if k in c}
                             for m, c in entry["consistency"].items() if c["runs"]},
             "ellipsoid_3sigma_pct": coverage, "learned": _learned(config_path(out_dir, scenario, name))}
     row["paired_kitti_t_err_pct"] = paired(rows, "kitti_t_err_pct", MODELS["CA/P"][0], MODELS["CV/C"][0])
@@ -102,9 +103,11 @@ def judge(rows: list[dict]) -> dict:
     for row in rows:
         for name, m in row["models"].items():
             for measure in CELLS:
-                share = m["consistency"].get(measure, {}).get("fraction_scans_within")
+                c = m["consistency"].get(measure, {})
+                share = c.get("fraction_scans_within")
                 cells.append({"scenario": row["scenario"], "model": name, "measure": measure, "share": share,
-                              "met": share is not None and share >= SHARE_TARGET})
+                              "met": share is not None and share >= SHARE_TARGET,
+                              **{k: c[k] for k in OUTSIDE if k in c}})
             for measure in SPANS:
                 mean = m["consistency"].get(measure, {}).get("mean_per_dof")
                 spans.append({"scenario": row["scenario"], "model": name, "measure": measure, "mean_per_dof": mean,
@@ -151,7 +154,7 @@ def render_markdown(verdict: dict, meta: dict | None = None) -> str:
         shares = [c for c in crit["cells"] if c["scenario"] == r["scenario"]]
         lines.append(f"| {r['scenario']} | " + " | ".join(
             ("**" if not c["met"] else "") + _pct(c["share"]) + ("**" if not c["met"] else "") for c in shares) + " |")
-    lines += ["", "Short of the target in bold.", "",
+    lines += ["", "Short of the target in bold."] + _misses(crit["cells"]) + ["",
               f"## On average: mean NEES per dof (the relative pose over the span and the absolute pose: at most "
               f"{crit['span_limit']:g}; {crit['spans_met']} of {len(crit['spans'])} met), and the 3-sigma "
               "ellipsoids (% of scans whose true position is inside, 97.1 % claimed)", "",
@@ -174,6 +177,21 @@ def render_markdown(verdict: dict, meta: dict | None = None) -> str:
     if meta:
         lines += ["", "Parameters: " + ", ".join(f"{k}={v}" for k, v in sorted(meta.items()))]
     return "\n".join(lines) + "\n"
+
+
+def _misses(cells: list[dict]) -> list[str]:
+    """Where each short cell's scans miss: below the bounds (cautious), above (over-confident), and of those
+    above, how many one run's value puts there (`campaign_consistency.scans_outside`)."""
+    short = [c for c in cells if not c["met"] and "scans_above" in c]
+    if not short:
+        return []
+    lines = ["", "Where the short cells miss (scans below the bounds: the covariance cautious; above: over-confident, "
+                 "of which one run's value alone puts there):", ""]
+    for c in short:
+        measure = "velocity" if c["measure"] == "velocity" else "one scan"
+        lines.append(f"- {c['scenario']} {c['model']} {measure}: {c['scans_below']} below, {c['scans_above']} above "
+                     f"({c['scans_above_one_run']} of them one run's)")
+    return lines
 
 
 def write_verdict(out_dir, verdict: dict, meta: dict) -> str:

@@ -198,7 +198,8 @@ def _num(v, digits: int = 2) -> str:
 def print_consistency(summary: dict) -> None:
     """One line per model and measure: mean NEES/dof over scans of the run average, bounds for N runs, the
     fraction of scans inside their bounds, the runs' spread against chi-square's and the fraction a per-scan
-    factor common to all runs could bring inside at that spread ("-" where undefined)."""
+    factor common to all runs could bring inside at that spread ("-" where undefined), and the scans below and
+    above the bounds (those one run puts above in brackets)."""
     pct = lambda v: None if v is None else 100 * v  # noqa: E731
     for m, e in summary["models"].items():
         for k, c in e.get("consistency", {}).items():
@@ -206,7 +207,9 @@ def print_consistency(summary: dict) -> None:
             print(f"  {m:<14} {k:<14} NEES/dof {_num(c['mean_per_dof']):>8}  bounds/dof for {c['runs']} runs "
                   f"[{_num(lo)}, {_num(hi)}]  scans within {_num(pct(c['fraction_scans_within']), 0)} %  "
                   f"spread {_num(c.get('spread_between_runs'))} "
-                  f"(with a per-scan factor {_num(pct(c.get('fraction_within_per_scan_factor')), 1)} %)")
+                  f"(with a per-scan factor {_num(pct(c.get('fraction_within_per_scan_factor')), 1)} %)"
+                  + (f"  below / above {c['scans_below']} / {c['scans_above']} ({c['scans_above_one_run']} one "
+                     "run's)" if "scans_above" in c else ""))
 
 
 def check_campaign_options(args) -> None:

@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 from rodo.commands.montecarlo import print_consistency
 from rodo.validation.campaign import Trial, TrialOutcome, make_trials, read_results, run_campaign, \
     summarize_campaign, write_summary
-from rodo.validation.campaign_consistency import fraction_within_per_scan_factor, measure_summary, spread_between_runs
+from rodo.validation.campaign_consistency import fraction_within_per_scan_factor, measure_summary, scans_outside, \
+    spread_between_runs
 from rodo.validation.consistency import chi2_bounds
 from rodo.validation.odometry_consistency import MEASURES
 from tests.validation.test_campaign import MODELS, FakeTrial
@@ -53,10 +54,14 @@ def test_campaign_consistency_per_measure_consistent_and_overconfident(tmp_path,
     assert "| relative_span | 12 |" in md and "| acceleration | 0 | - |" in md
     assert "| spread | with a per-scan factor |" in md
     c = s["models"][MODELS[0]]["consistency"]["velocity"]
-    assert f"| {c['spread_between_runs']:.4g} | {100 * c['fraction_within_per_scan_factor']:.4g} % |" in md
+    outside = f"{c['scans_below']} / {c['scans_above']} ({c['scans_above_one_run']})"
+    assert f"| {c['spread_between_runs']:.4g} | {100 * c['fraction_within_per_scan_factor']:.4g} % | {outside} |" in md
+    if scale > 1.0:  # scaled up, the scans' averages are over-confident, none cautious
+        assert c["scans_above"] > 0 and c["scans_below"] == 0
     print_consistency(s)
     line = next(x for x in capsys.readouterr().out.splitlines() if MODELS[0] in x and "velocity" in x)
     assert f"spread {c['spread_between_runs']:.2f} (with a per-scan factor" in line
+    assert f"below / above {c['scans_below']} / {c['scans_above']} ({c['scans_above_one_run']} one run's)" in line
 
 
 @dataclass(frozen=True)
@@ -165,6 +170,29 @@ def test_spread_between_runs_and_the_share_with_a_per_scan_factor():
     assert shaped["spread_between_runs"] == pytest.approx(1.0, abs=0.05)
     assert shaped["fraction_within_per_scan_factor"] == pytest.approx(0.95, abs=0.01)
     assert shaped["fraction_scans_within"] < 0.7
+
+
+def test_scans_outside_below_above_and_one_run():
+    """Chi-square runs with a cautious stretch (every run's NEES halved), an over-confident one (doubled) and
+    scans where one run alone is far out: the counts name each, against a direct count of the averages and of
+    the averages without each scan's largest run; the summary carries them."""
+    rng = np.random.default_rng(np.random.SeedSequence(44))
+    n, K = 20, 3000
+    X = _chi2_runs(rng, n, K, per_scan_mean=np.r_[np.full(500, 0.5), np.full(500, 2.0), np.ones(K - 1000)])
+    X[3, 1500:1600] = 400.0  # one run's tail: 100 scans
+    lo, hi = chi2_bounds(n, 6)
+    lo1, hi1 = chi2_bounds(n - 1, 6)
+    mean, rest = X.mean(axis=0), (X.sum(axis=0) - X.max(axis=0)) / (n - 1)
+    out = scans_outside(list(X))
+    assert out["scans_below"] == np.sum(mean < lo) and 520 <= out["scans_below"] <= 580  # 500 + 2.5 % of 2000
+    assert out["scans_above"] == np.sum(mean > hi) and 620 <= out["scans_above"] <= 680  # 500 + 100 + 2.5 %
+    assert out["scans_above_one_run"] == np.sum((mean > hi) & (rest >= lo1) & (rest <= hi1))
+    assert 100 <= out["scans_above_one_run"] <= 170  # the tail's 100, and most of chi-square's own 2.5 %
+    assert np.sum((mean[500:1000] > hi) & (rest[500:1000] >= lo1) & (rest[500:1000] <= hi1)) < 20
+    summary, _ = measure_summary(list(X))
+    assert {k: summary[k] for k in out} == out
+    assert scans_outside([np.full(5, np.nan), np.full(5, 6.0)]) == {"scans_below": 0, "scans_above": 0,
+                                                                    "scans_above_one_run": 0}
 
 
 @pytest.mark.parametrize("n_runs, sigma", [(2, 1.0), (5, 1.5), (20, 1.5), (20, 2.0), (40, 3.0)])

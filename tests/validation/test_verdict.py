@@ -12,7 +12,7 @@ from rodo import scenarios
 from rodo.cli import main
 from rodo.estimator.config import OdometryConfig
 from rodo.validation.campaign_files import read_results
-from rodo.validation.verdict import CELLS, SHARE_TARGET, SPAN_LIMIT, SPANS, judge
+from rodo.validation.verdict import CELLS, OUTSIDE, SHARE_TARGET, SPAN_LIMIT, SPANS, judge, render_markdown
 from tests.cli.helpers import fails
 
 shares = st.one_of(st.none(), st.floats(0.0, 1.0))
@@ -47,6 +47,23 @@ def test_judge_at_the_boundaries():
     assert [s["met"] for s in crit["spans"]] == [True, False, False, True]
 
 
+def test_the_short_cells_say_where_they_miss():
+    """A cell short of the target lists its scans below and above the bounds and those one run puts above; a cell
+    that meets it, or one from a summary written before the counts, lists nothing."""
+    row = _row("city", [0.85, 0.95, 1.0, 1.0, 0.80, 0.93, 1.0, 1.0])
+    c = row["models"]["CA/P"]["consistency"]["velocity"]
+    c.update(scans_below=3, scans_above=40, scans_above_one_run=31)
+    row["models"]["CA/P"]["consistency"]["relative_scan"].update(scans_below=9, scans_above=9, scans_above_one_run=0)
+    crit = judge([row])
+    assert [k for k in OUTSIDE if k in crit["cells"][0]] == list(OUTSIDE) and "scans_above" not in crit["cells"][2]
+    for m in row["models"].values():  # the rest of a row, for the report
+        m.update(kitti_t_err_pct=dict.fromkeys(("mean", "lower", "upper")), ellipsoid_3sigma_pct=None, learned={})
+    row["paired_kitti_t_err_pct"] = {"mean_difference": None, "lower": None, "upper": None, "a_lower": 0, "trials": 0}
+    text = render_markdown({"rows": [row], "criteria": crit})
+    assert "- city CA/P velocity: 3 below, 40 above (31 of them one run's)" in text
+    assert "CA/P one scan:" not in text and "CV/C velocity:" not in text  # met; short but without counts
+
+
 ARGS = ["--scenarios", "stop_and_go", "--runs", "2", "--duration", "3", "--calibration-duration", "5",
         "--seed", "3"]
 
@@ -68,8 +85,8 @@ def test_a_verdict_reports_its_campaign_at_the_configs_it_learned(verdict_dir):
         config = verdict_dir / "calibration" / f"stop_and_go_{file}.toml"
         assert campaign["configs"][label] == config.read_text()  # the campaign ran the learned config
         for measure, c in row["models"][name]["consistency"].items():
-            assert c["fraction_scans_within"] == summary["models"][label]["consistency"][measure][
-                "fraction_scans_within"]
+            for key in ("fraction_scans_within", *OUTSIDE):
+                assert c[key] == summary["models"][label]["consistency"][measure][key]
         assert row["models"][name]["ok"] == 2
         lag = OdometryConfig.from_toml(config).uncertainty.velocity_lag_per_yaw_acceleration[5]
         assert row["models"][name]["learned"]["yaw_rate_lag"] == lag  # learned for the CV model only
@@ -81,6 +98,9 @@ def test_a_verdict_reports_its_campaign_at_the_configs_it_learned(verdict_dir):
     assert len(crit["cells"]) == 4 and crit["cells_met"] == sum(c["share"] >= 0.9 for c in crit["cells"])
     text = (verdict_dir / "verdict.md").read_text()
     assert f"{crit['cells_met']} of 4 cells" in text and "| stop_and_go | CA/P |" in text
+    for c in crit["cells"]:  # each short cell says where its scans miss
+        line = f"{c['scans_below']} below, {c['scans_above']} above ({c['scans_above_one_run']} of them one run's)"
+        assert (line in text) == (not c["met"])
     assert verdict["parameters"]["calibration_duration"] == 5.0
 
 
