@@ -197,9 +197,9 @@ _KERB = w.SceneParams(building_offset=(14.0, 30.0), building_gap=(5.0, 20.0), bu
                       ground_half_width=30.0)
 BOULEVARD = replace(_KERB, left=replace(_KERB, pole_offset=(13.0, 15.0), tree_offset=(13.0, 15.0),
                                         parked_car_offset=(13.4, 13.8), building_offset=(15.5, 30.0)))
-"""The LRR30-F comparison's scene: a wide urban boulevard (Shanghai: buildings 14-30 m away, trees and poles,
-cars parked at the kerb 6-9 m off the lane on the right; on the left beyond the two oncoming lanes (7 and 10.5 m),
-at 12.5-14 m)."""
+"""The LRR30-F comparison's scene: a wide urban boulevard (Shanghai). On the right buildings 14-30 m away, trees
+and poles, cars parked at the kerb 6-9 m off the lane; on the left, beyond the two oncoming lanes (7 and 10.5 m),
+trees and poles 13-15 m, parked cars 13.4-13.8 m, buildings 15.5-30 m."""
 TRAFFIC_ID = 1_000_000
 
 
