@@ -73,15 +73,13 @@ def fraction_within_per_scan_factor(spread: float | None, n_runs: int, alpha: fl
 
 def scans_outside(runs: list[np.ndarray], alpha: float = 0.05) -> dict:
     """{"scans_below", "scans_above", "scans_above_one_run"} of the runs' per-scan averages (module docstring)."""
+    mean, count = average_nees(runs)
     stack = stacked_runs(runs)
-    count = np.sum(np.isfinite(stack), axis=0)
-    total = np.nansum(stack, axis=0)
     b = chi2_bounds(count, DOF, alpha)
     with np.errstate(invalid="ignore"):
-        mean = np.where(count > 0, total / np.maximum(count, 1), np.nan)
         below, above = mean < b[:, 0], mean > b[:, 1]
         largest = np.nanmax(np.where(count > 0, stack, 0.0), axis=0) if stack.size else np.zeros(0)
-        rest = (total - largest) / np.maximum(count - 1, 1)
+        rest = (mean * count - largest) / np.maximum(count - 1, 1)
         br = chi2_bounds(np.maximum(count - 1, 0), DOF, alpha)
         one_run = above & (count > 1) & (rest >= br[:, 0]) & (rest <= br[:, 1])
     return {"scans_below": int(below.sum()), "scans_above": int(above.sum()), "scans_above_one_run": int(one_run.sum())}

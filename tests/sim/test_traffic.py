@@ -13,6 +13,7 @@ from rodo.sim import trajectory as tr
 from rodo.sim import world as w
 from rodo.sim.traffic import collision_free, footprints, overlap
 from rodo.validation import realism
+from tests.sim.test_world import lateral
 
 
 def _rect(x, y, yaw, length, width):
@@ -137,13 +138,8 @@ def test_scenario_traffic_never_overlaps(name, seed):
 
 def _sides(world, profile):
     """Distances of the parked cars' corners from the route, on its left and on its right."""
-    route = tr.route_of(profile)
-    from scipy.spatial import cKDTree
-
-    corners = world.solids.reshape(-1, 2)
-    d, i = cKDTree(route.p_world[:, :2]).query(corners)
-    left = np.einsum("ij,ij->i", corners - route.p_world[i, :2], route.left()[i, :2]) > 0
-    return d[left], d[~left]
+    y = lateral(tr.route_of(profile), world.solids.reshape(-1, 2))
+    return y[y > 0], -y[y < 0]
 
 
 def _parked_sides(name, seed):

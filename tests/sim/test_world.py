@@ -70,8 +70,8 @@ def test_same_rng_same_world(city):
     assert len(other.points) != len(world.points) or not np.array_equal(other.points.p, world.points.p)
 
 
-def _lateral(route, p):
-    """Signed distance of points p (N, 3) from the route, positive to its left."""
+def lateral(route, p):
+    """Signed distance of points p (N, 2 or 3) from the route, positive to its left (also test_traffic's)."""
     from scipy.spatial import cKDTree
 
     d, i = cKDTree(route.p_world[:, :2]).query(p[:, :2])
@@ -88,7 +88,7 @@ def test_a_left_side_of_its_own_moves_only_the_left(city):
     np.testing.assert_array_equal(same.solids, world.solids)
     bare = w.SceneParams(building_prob=0.0, parked_car_spacing=0.0, clutter_per_100m=0.0)
     far = replace(bare, left=replace(bare, pole_offset=(20.0, 21.0), tree_offset=(20.0, 21.0)))
-    y_bare, y_far = (_lateral(route, w.build_world(np.random.default_rng(3), route, p).points.p) for p in (bare, far))
+    y_bare, y_far = (lateral(route, w.build_world(np.random.default_rng(3), route, p).points.p) for p in (bare, far))
     np.testing.assert_array_equal(np.sort(y_far[y_far < 0]), np.sort(y_bare[y_bare < 0]))
     assert y_far[y_far > 0].size > 20
     assert np.all(y_far[y_far > 0] > 14.0) and np.any(y_bare[(y_bare > 0)] < 9.0)
