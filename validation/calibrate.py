@@ -138,11 +138,22 @@ def expected_log_likelihood(q, B, S) -> tuple[float, np.ndarray]:
     return float(value), 0.5 * np.einsum("kiab,kba->i", B, M)
 
 
-def fit_qc(B, S, floor: float = DEFAULT_FLOOR, qc0=None, fixed=None) -> QcFit:
-    """Maximise L(q) (module docstring) over q_i >= floor, from qc0 (default: a moment estimate).
+def floors(floor) -> np.ndarray:
+    """The six lower bounds of Qc's diagonal (COMPONENTS' order) from one number or six, each from QC_MIN to
+    below QC_MAX."""
+    lo = np.broadcast_to(np.asarray(floor, dtype=float), (6,)) if np.ndim(floor) == 0 else np.asarray(floor, float)
+    if lo.shape != (6,) or not np.all((lo >= QC_MIN) & (lo < QC_MAX)):  # NaN fails too
+        raise InputError(f"floor: one number or six ({','.join(COMPONENTS)}), each from {QC_MIN:g} to below "
+                         f"{QC_MAX:g}, got {floor!r}")
+    return lo.copy()
+
+
+def fit_qc(B, S, floor=DEFAULT_FLOOR, qc0=None, fixed=None) -> QcFit:
+    """Maximise L(q) (module docstring) over q_i >= floor_i, from qc0 (default: a moment estimate).
 
     Args:
         B: (K, 6, d, d) noise basis (`transitions_and_basis`); S: (K, d, d) second moments of the residuals.
+        floor: one lower bound for every q_i, or six (`floors`).
         fixed: optional (6,) bool mask of components held at qc0 (which must then be given).
 
     Checked by: tests/validation/test_calibrate.py::test_ml_recovers_qc_of_ca_sde_trajectories
@@ -153,9 +164,10 @@ def fit_qc(B, S, floor: float = DEFAULT_FLOOR, qc0=None, fixed=None) -> QcFit:
     if qc0 is None:  # each q_i alone explaining the matching diagonal part of S
         diag_b = np.einsum("kiaa->ia", B)
         qc0 = np.einsum("kaa->a", S) @ diag_b.T / np.maximum((diag_b**2).sum(axis=1), 1e-300)
+    floor = floors(floor)
     theta0 = np.log(np.maximum(np.asarray(qc0, dtype=float), floor))
     fixed = np.zeros(6, bool) if fixed is None else np.asarray(fixed, dtype=bool)
-    bounds = [(t, t) if f else (np.log(floor), np.log(QC_MAX)) for t, f in zip(theta0, fixed)]
+    bounds = [(t, t) if f else (np.log(lo), np.log(QC_MAX)) for t, f, lo in zip(theta0, fixed, floor)]
     scale = float(B.shape[0] * S.shape[-1])
 
     def objective(theta):
@@ -166,11 +178,11 @@ def fit_qc(B, S, floor: float = DEFAULT_FLOOR, qc0=None, fixed=None) -> QcFit:
                             bounds=bounds, options=dict(maxiter=500, gtol=1e-10))
     qc = np.where(fixed, np.asarray(qc0, dtype=float), np.exp(res.x))
     value, _ = expected_log_likelihood(qc, B, S)
-    return QcFit(qc, value, int(B.shape[0]), [bool(x <= floor * 1.01 and not f) for x, f in zip(qc, fixed)],
+    return QcFit(qc, value, int(B.shape[0]), [bool(x <= lo * 1.01 and not f) for x, f, lo in zip(qc, fixed, floor)],
                  int(res.nit))
 
 
-def fit_qc_to_truth(kind: str, tracks, floor: float = DEFAULT_FLOOR) -> QcFit:
+def fit_qc_to_truth(kind: str, tracks, floor=DEFAULT_FLOOR) -> QcFit:
     """Maximum-likelihood diagonal Qc of the prior `kind` from true trajectories (one `StateTrack` or several:
     their intervals are pooled), S_k = e_k e_k^T, B_k linearised at the true states.
 
@@ -314,7 +326,7 @@ def aitken_step(step: np.ndarray, previous: np.ndarray | None, max_factor: float
     return step * factor
 
 
-def em_qc(run, kind: str, qc0, iterations: int = 5, tolerance: float = 0.05, floor: float = DEFAULT_FLOOR,
+def em_qc(run, kind: str, qc0, iterations: int = 5, tolerance: float = 0.05, floor=DEFAULT_FLOOR,
           accelerate: bool = True, on_iteration=None, learn=None) -> list[EmIteration]:
     """EM over the estimator's posteriors: `run(qc) -> StateTrack` (with P; or a list of them) is the E-step's
     estimator run with Qc = diag(qc); the M-step is `fit_qc` on `expected_noise_moments`. Stops after
@@ -343,7 +355,7 @@ def em_qc(run, kind: str, qc0, iterations: int = 5, tolerance: float = 0.05, flo
                      qc0=qc, fixed=None if learn is None else ~np.asarray(learn, dtype=bool))
         step = np.log(fit.qc) - np.log(qc)
         jump = aitken_step(step, previous) if accelerate else step
-        qc_next = np.clip(qc * np.exp(jump), floor, QC_MAX)
+        qc_next = np.clip(qc * np.exp(jump), floors(floor), QC_MAX)
         change = float(np.max(np.abs(fit.qc - qc) / qc))
         remaining = remaining_distance(step, previous)
         history.append(EmIteration(qc, fit.qc, fit.loglik, change, fit.intervals, qc_next, remaining))

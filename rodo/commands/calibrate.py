@@ -1,5 +1,5 @@
 """`rodo calibrate SEQ_DIR [SEQ_DIR ...] --out CONFIG.toml [--model M] [--config BASE.toml] [--no-truth]
-[--iterations N] [--duration S] [--floor Q]`: learn the noise from a sequence (with ground truth: from several,
+[--iterations N] [--duration S] [--floor Q[,Q,...]]`: learn the noise from a sequence (with ground truth: from several,
 pooled) and write a config for `rodo run --config` (docs/calibration.md), with CONFIG.json and CONFIG.md
 reports beside it."""
 
@@ -66,8 +66,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, default=None, help="use the first S seconds only")
     p.add_argument("--learn", default=",".join(COMPONENTS), metavar="x,y,...",
                    help="EM: the Qc components to learn, the others keep the base config's (%(default)s)")
-    p.add_argument("--floor", type=float, default=DEFAULT_FLOOR, help="lower bound of each Qc element "
-                                                                      "(%(default)s)")
+    p.add_argument("--floor", default=str(DEFAULT_FLOOR), metavar="Q[,Q,...]",
+                   help="lower bound of each Qc element: one for all, or six (x,y,z,roll,pitch,yaw) (%(default)s)")
     p.set_defaults(func=main)
 
 
@@ -78,9 +78,7 @@ def _check_args(args) -> Path:
         raise InputError(f"--tolerance: must be > 0, got {args.tolerance}")
     if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
-    if not (np.isfinite(args.floor) and QC_MIN <= args.floor < QC_MAX):
-        raise InputError(f"--floor: must be from {QC_MIN:g} (the config's lower bound) to below the fit's upper "
-                         f"bound {QC_MAX:g}, got {args.floor}")
+    args.floor = parse_floor(args.floor)
     if args.sensor_noise and not args.no_truth:
         raise InputError("--sensor-noise: learns the measurement noise without ground truth (with --no-truth); "
                          "with truth.npz it is learned from the truth anyway")
@@ -103,6 +101,25 @@ def _check_args(args) -> Path:
     return out
 
 
+def parse_floor(text: str) -> float | list[float]:
+    """--floor: one number (every Qc element) or six, comma-separated (COMPONENTS' order)."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (1, 6) or not all(QC_MIN <= v < QC_MAX for v in values):  # NaN fails too
+        raise InputError(f"--floor: one number or six ({','.join(COMPONENTS)}), each from {QC_MIN:g} (the "
+                         f"config's lower bound) to below the fit's upper bound {QC_MAX:g}, got {text!r}")
+    return values[0] if len(values) == 1 else values
+
+
+def floor_words(floor) -> str:
+    """The floor as the report says it: '1e-04' or 'x 1e-04, ..., yaw 1e-04'."""
+    if np.ndim(floor) == 0:
+        return f"{floor:g}"
+    return ", ".join(f"{c} {v:g}" for c, v in zip(COMPONENTS, floor))
+
+
 def parse_learn(text: str) -> np.ndarray:
     names = [x.strip() for x in text.split(",") if x.strip()]
     unknown = [x for x in names if x not in COMPONENTS]
@@ -115,8 +132,8 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
     lines = [f"rodo calibrate {seq_dir} --model {model}: {report['mode']}."]
     if report["mode"] == "ground truth":
         lines += [f"noise.qc_ca, noise.qc_cv: maximum likelihood of the true states' prior residuals "
-                  f"({report['qc_ca']['intervals']} intervals); elements at the floor {report['floor']:g} were "
-                  "not excited by the trajectory.",
+                  f"({report['qc_ca']['intervals']} intervals); elements at the floor "
+                  f"({floor_words(report['floor'])}) were not excited by the trajectory.",
                   "noise.sensor_sigma_scale: ML common factor on sensor.toml's sigmas from the static detections; "
                   "per-channel sigmas are in the .json/.md report.",
                   f"noise.doppler_common_sigma {report['measurement']['doppler_common']['sigma_c']:.3g} m/s: the "

@@ -1,5 +1,5 @@
 """`rodo verdict [--scenarios city,hills,stop_and_go,highway] [--runs 20] [--duration 30] [--seed 7]
-[--calibration-seed 100] [--calibration-duration 180] [--calibration-drives 1] [--floor 1e-4] [--jobs J] --out DIR
+[--calibration-seed 100] [--calibration-duration 180] [--calibration-drives 1] [--floor Q[,Q,...]] [--jobs J] --out DIR
 [--resume]`:
 the consistency verdict of CA/P against CV/C, each at its learned noise (validation/verdict.py).
 
@@ -56,7 +56,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--calibration-drives", type=int, default=1,
                    help="calibration drives per scenario, seeds --calibration-seed, +1, ..., pooled by rodo "
                         "calibrate (default 1)")
-    p.add_argument("--floor", type=float, default=1e-4, help="rodo calibrate's --floor (default 1e-4)")
+    p.add_argument("--floor", default="1e-4", metavar="Q[,Q,...]",
+                   help="rodo calibrate's --floor: one for every Qc element or six, x,y,z,roll,pitch,yaw (default 1e-4)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
     p.add_argument("--out", required=True, metavar="DIR", help="the verdict's directory")
     p.add_argument("--resume", action="store_true", help="continue the verdict in DIR (skip finished steps)")
@@ -76,10 +77,9 @@ def _check(args) -> list[str]:
     for flag, v in (("--duration", args.duration), ("--calibration-duration", args.calibration_duration)):
         if not 0 < v <= MAX_DURATION:  # NaN too
             raise InputError(f"{flag}: must be > 0 and at most {MAX_DURATION:g} s, got {v}")
-    from rodo.validation.calibrate import QC_MAX, QC_MIN
+    from .calibrate import parse_floor
 
-    if not QC_MIN <= args.floor < QC_MAX:  # as rodo calibrate checks it, before the drives are simulated
-        raise InputError(f"--floor: must be from {QC_MIN:g} to below {QC_MAX:g}, got {args.floor}")
+    args.floor = parse_floor(args.floor)  # as rodo calibrate checks it, before the drives are simulated
     return names
 
 
@@ -97,6 +97,7 @@ def _steps(args, names: list[str]) -> tuple[list, list, list]:
 
     files = (RADAR_CSV, SENSOR_TOML, GROUNDTRUTH_TXT, TRUTH_NPZ)  # a simulated sequence, all written
     out, sims, cals, camps = Path(args.out), [], [], []
+    floor_text = ",".join(map(str, args.floor)) if isinstance(args.floor, list) else str(args.floor)
     for s in names:
         seqs = calibration_drives(out, s, args.calibration_drives)
         for i, seq in enumerate(seqs):
@@ -107,7 +108,7 @@ def _steps(args, names: list[str]) -> tuple[list, list, list]:
         for name, (label, model, _) in MODELS.items():
             cfg = config_path(out, s, name)
             cals.append((f"calibrate {s} {name}", ["calibrate", *map(str, seqs), "--model", model, "--floor",
-                                                   str(args.floor), "--out", str(cfg)],
+                                                   floor_text, "--out", str(cfg)],
                          cfg.is_file() and cfg.with_suffix(".md").is_file()))
             labels.append(f"{label}={cfg}")
         camps.append((f"montecarlo {s}", ["montecarlo", s, "--runs", str(args.runs), "--duration", str(args.duration),

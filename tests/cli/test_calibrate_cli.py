@@ -218,6 +218,8 @@ def test_calibrate_bad_input(seq, tmp_path, capsys):
     fails(capsys, ["calibrate", seq, "--out", out, "--floor", "0"], "--floor")
     fails(capsys, ["calibrate", seq, "--out", out, "--floor", "1e8"], "--floor", "upper bound")
     fails(capsys, ["calibrate", seq, "--out", out, "--floor", "1e-25"], "--floor", "lower bound")
+    fails(capsys, ["calibrate", seq, "--out", out, "--floor", "1e-4,1e-3"], "--floor", "one number or six")
+    fails(capsys, ["calibrate", seq, "--out", out, "--floor", "1e-4,1e-4,1e-4,x,1e-3,1e-4"], "--floor", "'1e-4,")
     empty = tmp_path / "empty"
     empty.mkdir()
     for name in ("sensor.toml", "groundtruth.txt"):

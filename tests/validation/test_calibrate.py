@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from rodo import scenarios
 from rodo.estimator.config import MODELS, OdometryConfig
+from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.estimator.priors import ConstantAccelerationPrior
 from rodo.sim.prior_sampling import sample_prior
@@ -134,6 +135,25 @@ def test_unexcited_component_goes_to_the_floor():
     tracks = draw_ca_tracks(np.array([0.5, 0.1, 0.05, 1e-14, 0.005, 0.05]), 2, 20, _rng(5))
     fit = cal.fit_qc_to_truth("ca", tracks, floor=1e-9)
     assert fit.at_floor[3] and fit.qc[3] == pytest.approx(1e-9)
+
+
+def test_each_component_can_have_its_own_floor():
+    """A floor per component holds the unexcited roll at its own floor and, where the data excite a component
+    well above its floor, leaves the fit as one floor for all does."""
+    qc = np.array([0.5, 0.1, 0.05, 1e-14, 0.005, 0.05])
+    tracks = draw_ca_tracks(qc, 2, 20, _rng(5))
+    one = cal.fit_qc_to_truth("ca", tracks, floor=1e-9)
+    own = cal.fit_qc_to_truth("ca", tracks, floor=[1e-9, 1e-9, 1e-9, 1e-6, 1e-9, 1e-9])
+    assert own.at_floor == [False, False, False, True, False, False] and own.qc[3] == pytest.approx(1e-6)
+    np.testing.assert_allclose(own.qc[[0, 1, 2, 4, 5]], one.qc[[0, 1, 2, 4, 5]], rtol=0.05)
+    raised = cal.fit_qc_to_truth("ca", tracks, floor=[1e-9, 1e-9, 1e-9, 1e-9, 1.0, 1e-9])  # above pitch's fit
+    assert raised.at_floor[4] and raised.qc[4] == pytest.approx(1.0) and one.qc[4] < 0.1
+
+
+@pytest.mark.parametrize("floor", [[1e-4, 1e-3], [1e-4] * 5 + [float("nan")], [0.0] * 6, 1e9])
+def test_a_floor_out_of_its_range_is_refused(floor):
+    with pytest.raises(InputError, match="floor"):
+        cal.floors(floor)
 
 
 # ------------------------------------------------------------------------------------------ EM without truth

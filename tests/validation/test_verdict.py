@@ -1,6 +1,7 @@
 """`rodo verdict`: the criteria on hand-made rows, and one tiny real verdict through the CLI (calibration drive,
 both calibrations, the campaign, the table) that resumes without redoing a step and refuses other parameters."""
 
+import argparse
 import json
 
 import numpy as np
@@ -10,6 +11,8 @@ from hypothesis import strategies as st
 
 from rodo import scenarios
 from rodo.cli import main
+from rodo.commands.calibrate import parse_floor
+from rodo.commands.verdict import _steps
 from rodo.estimator.config import OdometryConfig
 from rodo.validation.campaign_files import read_results
 from rodo.validation.verdict import CELLS, OUTSIDE, SHARE_TARGET, SPAN_LIMIT, SPANS, judge, render_markdown
@@ -165,6 +168,7 @@ def test_several_calibration_drives_are_simulated_at_their_seeds_and_pooled(tmp_
     (["--jobs", "0"], "--jobs"),
     (["--floor", "nan"], "--floor"),
     (["--floor", "1e9"], "--floor"),
+    (["--floor", "1e-4,1e-3"], "--floor"),
 ])
 def test_bad_options_are_refused_before_any_work(tmp_path, capsys, argv, needle):
     fails(capsys, ["verdict", *argv, "--out", tmp_path / "v"], needle)
@@ -176,3 +180,14 @@ def test_an_output_that_is_a_file_is_refused(tmp_path, capsys):
     out.write_text("not a directory\n")
     fails(capsys, ["verdict", "--out", out], "--out", "not a directory")
     assert out.read_text() == "not a directory\n"
+
+
+def test_a_floor_per_component_reaches_both_calibrations_as_given(tmp_path):
+    """--floor with six values: each calibration step gets them, and rodo calibrate reads back the same six."""
+    floor = parse_floor("1e-4,1e-4,1e-4,1e-3,1e-3,1e-4")
+    args = argparse.Namespace(out=str(tmp_path), calibration_drives=1, calibration_seed=100, calibration_duration=5.0,
+                              floor=floor, runs=2, duration=3.0, seed=3, jobs=1)
+    _, cals, _ = _steps(args, ["city"])
+    assert len(cals) == 2
+    for _, argv, _ in cals:
+        assert parse_floor(argv[argv.index("--floor") + 1]) == floor == [1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4]
