@@ -57,7 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="calibration drives per scenario, seeds --calibration-seed, +1, ..., pooled by rodo "
                         "calibrate (default 1)")
     p.add_argument("--floor", default="1e-4", metavar="Q[,Q,...]",
-                   help="rodo calibrate's --floor: one for every Qc element or six, x,y,z,roll,pitch,yaw (default 1e-4)")
+                   help="rodo calibrate's --floor: one for every Qc element or six, x,y,z,roll,pitch,yaw "
+                        "(default 1e-4)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
     p.add_argument("--out", required=True, metavar="DIR", help="the verdict's directory")
     p.add_argument("--resume", action="store_true", help="continue the verdict in DIR (skip finished steps)")
