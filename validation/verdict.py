@@ -33,6 +33,10 @@ from .campaign_files import read_results
 from .metrics import jsonable
 
 MODELS = {"CA/P": ("ca-learned", "ca-polar", "ca"), "CV/C": ("cv-learned", "cv-cartesian", "cv")}  # label, model, file
+# rodo calibrate's --floor per model (file key), x,y,z,roll,pitch,yaw. CA's Qc is a jerk PSD, CV's an acceleration
+# PSD: the same number is a stiffer prior on the CA model's rates. CA/P's roll and pitch at 3e-4 let its rates follow
+# the profiles' pitch and roll bumps (docs/consistency.md, "The floor per model").
+FLOORS = {"ca": "1e-4,1e-4,1e-4,3e-4,3e-4,1e-4", "cv": "1e-4"}
 SCENARIOS = ("city", "hills", "stop_and_go", "highway")
 CELLS = ("velocity", "relative_scan")  # judged scan by scan
 SPANS = ("relative_span", "pose")  # judged by their mean

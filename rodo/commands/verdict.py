@@ -1,12 +1,12 @@
 """`rodo verdict [--scenarios city,hills,stop_and_go,highway] [--runs 20] [--duration 30] [--seed 7]
-[--calibration-seed 100] [--calibration-duration 180] [--calibration-drives 1] [--floor Q[,Q,...]] [--jobs J] --out DIR
-[--resume]`:
+[--calibration-seed 100] [--calibration-duration 180] [--calibration-drives 1] [--floor-ca Q[,Q,...]]
+[--floor-cv Q[,Q,...]] [--jobs J] --out DIR [--resume]`:
 the consistency verdict of CA/P against CV/C, each at its learned noise (validation/verdict.py).
 
 Per scenario S, the recipe of docs/consistency.md ("The verdict with everything learned") as one command:
 
     rodo simulate S --seed 100 --duration 180 --out DIR/calibration/S      # a drive the campaign never sees
-    rodo calibrate DIR/calibration/S --model ca-polar --floor 1e-4 --out DIR/calibration/S_ca.toml
+    rodo calibrate DIR/calibration/S --model ca-polar --floor 1e-4,1e-4,1e-4,3e-4,3e-4,1e-4 --out DIR/calibration/S_ca.toml
     rodo calibrate DIR/calibration/S --model cv-cartesian --floor 1e-4 --out DIR/calibration/S_cv.toml
     rodo montecarlo S --runs 20 --duration 30 --seed 7 --models ca-learned=...S_ca.toml,cv-learned=...S_cv.toml
         --out DIR/S
@@ -37,7 +37,7 @@ MAX_CALIBRATION_DRIVES = 20
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from rodo.validation.verdict import SCENARIOS
+    from rodo.validation.verdict import FLOORS, SCENARIOS
 
     p = sub.add_parser("verdict", help="the consistency verdict: calibrate both models on a drive of their own, "
                                        "then campaigns of both at the learned noise (docs/consistency.md)",
@@ -56,9 +56,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--calibration-drives", type=int, default=1,
                    help="calibration drives per scenario, seeds --calibration-seed, +1, ..., pooled by rodo "
                         "calibrate (default 1)")
-    p.add_argument("--floor", default="1e-4", metavar="Q[,Q,...]",
-                   help="rodo calibrate's --floor: one for every Qc element or six, x,y,z,roll,pitch,yaw "
-                        "(default 1e-4)")
+    for key, name in (("ca", "CA/P"), ("cv", "CV/C")):
+        p.add_argument(f"--floor-{key}", default=FLOORS[key], metavar="Q[,Q,...]",
+                       help=f"rodo calibrate's --floor for {name}: one for every Qc element or six, "
+                            f"x,y,z,roll,pitch,yaw (default {FLOORS[key]})")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
     p.add_argument("--out", required=True, metavar="DIR", help="the verdict's directory")
     p.add_argument("--resume", action="store_true", help="continue the verdict in DIR (skip finished steps)")
@@ -80,7 +81,7 @@ def _check(args) -> list[str]:
             raise InputError(f"{flag}: must be > 0 and at most {MAX_DURATION:g} s, got {v}")
     from .calibrate import parse_floor
 
-    args.floor = parse_floor(args.floor)  # as rodo calibrate checks it, before the drives are simulated
+    args.floor_ca, args.floor_cv = parse_floor(args.floor_ca), parse_floor(args.floor_cv)  # before any work
     return names
 
 
@@ -98,7 +99,6 @@ def _steps(args, names: list[str]) -> tuple[list, list, list]:
 
     files = (RADAR_CSV, SENSOR_TOML, GROUNDTRUTH_TXT, TRUTH_NPZ)  # a simulated sequence, all written
     out, sims, cals, camps = Path(args.out), [], [], []
-    floor_text = ",".join(map(str, args.floor)) if isinstance(args.floor, list) else str(args.floor)
     for s in names:
         seqs = calibration_drives(out, s, args.calibration_drives)
         for i, seq in enumerate(seqs):
@@ -106,10 +106,12 @@ def _steps(args, names: list[str]) -> tuple[list, list, list]:
                                                   "--duration", str(args.calibration_duration), "--out", str(seq)],
                          all((seq / f).is_file() for f in files)))
         labels = []
-        for name, (label, model, _) in MODELS.items():
+        for name, (label, model, key) in MODELS.items():
             cfg = config_path(out, s, name)
-            cals.append((f"calibrate {s} {name}", ["calibrate", *map(str, seqs), "--model", model, "--floor",
-                                                   floor_text, "--out", str(cfg)],
+            floor = getattr(args, f"floor_{key}")
+            floor = ",".join(map(str, floor)) if isinstance(floor, list) else str(floor)
+            cals.append((f"calibrate {s} {name}", ["calibrate", *map(str, seqs), "--model", model, "--floor", floor,
+                                                   "--out", str(cfg)],
                          cfg.is_file() and cfg.with_suffix(".md").is_file()))
             labels.append(f"{label}={cfg}")
         camps.append((f"montecarlo {s}", ["montecarlo", s, "--runs", str(args.runs), "--duration", str(args.duration),
@@ -175,7 +177,7 @@ def main(args) -> int:
     meta = {"scenarios": ",".join(names), "runs": args.runs, "duration": args.duration, "seed": args.seed,
             "calibration_seed": args.calibration_seed, "calibration_duration": args.calibration_duration,
             **({"calibration_drives": args.calibration_drives} if args.calibration_drives != 1 else {}),
-            "floor": args.floor}
+            "floor_ca": args.floor_ca, "floor_cv": args.floor_cv}
     with campaign_lock(out):
         if not args.resume and (out / "campaign.json").exists():
             raise InputError(f"--out: {out / 'campaign.json'} exists (a verdict in progress or done); pass --resume "

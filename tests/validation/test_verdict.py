@@ -166,9 +166,9 @@ def test_several_calibration_drives_are_simulated_at_their_seeds_and_pooled(tmp_
     (["--duration", "nan"], "--duration"),
     (["--calibration-duration", "0"], "--calibration-duration"),
     (["--jobs", "0"], "--jobs"),
-    (["--floor", "nan"], "--floor"),
-    (["--floor", "1e9"], "--floor"),
-    (["--floor", "1e-4,1e-3"], "--floor"),
+    (["--floor-ca", "nan"], "--floor"),
+    (["--floor-cv", "1e9"], "--floor"),
+    (["--floor-ca", "1e-4,1e-3"], "--floor"),
 ])
 def test_bad_options_are_refused_before_any_work(tmp_path, capsys, argv, needle):
     fails(capsys, ["verdict", *argv, "--out", tmp_path / "v"], needle)
@@ -182,12 +182,15 @@ def test_an_output_that_is_a_file_is_refused(tmp_path, capsys):
     assert out.read_text() == "not a directory\n"
 
 
-def test_a_floor_per_component_reaches_both_calibrations_as_given(tmp_path):
-    """--floor with six values: each calibration step gets them, and rodo calibrate reads back the same six."""
-    floor = parse_floor("1e-4,1e-4,1e-4,1e-3,1e-3,1e-4")
+def test_each_model_is_calibrated_at_its_own_floor(tmp_path):
+    """--floor-ca and --floor-cv (one value or six) reach their model's calibration step as given: rodo calibrate
+    reads back the same values."""
+    floors = {"ca-polar": parse_floor("1e-4,1e-4,1e-4,1e-3,1e-3,1e-4"), "cv-cartesian": parse_floor("2e-4")}
     args = argparse.Namespace(out=str(tmp_path), calibration_drives=1, calibration_seed=100, calibration_duration=5.0,
-                              floor=floor, runs=2, duration=3.0, seed=3, jobs=1)
+                              floor_ca=floors["ca-polar"], floor_cv=floors["cv-cartesian"], runs=2, duration=3.0,
+                              seed=3, jobs=1)
     _, cals, _ = _steps(args, ["city"])
-    assert len(cals) == 2
+    assert sorted(argv[argv.index("--model") + 1] for _, argv, _ in cals) == sorted(floors)
     for _, argv, _ in cals:
-        assert parse_floor(argv[argv.index("--floor") + 1]) == floor == [1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4]
+        assert parse_floor(argv[argv.index("--floor") + 1]) == floors[argv[argv.index("--model") + 1]]
+    assert floors["ca-polar"] == [1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4] and floors["cv-cartesian"] == 2e-4
