@@ -16,7 +16,7 @@ from rodo.estimator.errors import InputError
 from rodo.outputs import check_not_input, check_output_file, sequence_inputs, write_text_atomic
 from rodo.sim.sequence import read_sequence
 from rodo.sim.simulate import TRUTH_NPZ, load_truth
-from rodo.validation.calibrate import COMPONENTS, DEFAULT_FLOOR, QC_MAX, QC_MIN
+from rodo.validation.calibrate import COMPONENTS, DEFAULT_FLOOR, QC_MAX, QC_MIN, floors
 from rodo.validation.calibrate_config import calibrate_with_truth, calibrate_without_truth, config_toml
 from rodo.validation.calibrate_consistency import DRIFT_SIGNIFICANCE
 from rodo.validation.calibrate_relative import REST_FRACTION
@@ -105,12 +105,12 @@ def parse_floor(text: str) -> float | list[float]:
     """--floor: one number (every Qc element) or six, comma-separated (COMPONENTS' order)."""
     try:
         values = [float(x) for x in text.split(",")]
-    except ValueError:
-        values = []
-    if len(values) not in (1, 6) or not all(QC_MIN <= v < QC_MAX for v in values):  # NaN fails too
+        floor = values[0] if len(values) == 1 else values
+        floors(floor)  # six, each in range (NaN fails too)
+    except (ValueError, InputError):
         raise InputError(f"--floor: one number or six ({','.join(COMPONENTS)}), each from {QC_MIN:g} (the "
-                         f"config's lower bound) to below the fit's upper bound {QC_MAX:g}, got {text!r}")
-    return values[0] if len(values) == 1 else values
+                         f"config's lower bound) to below the fit's upper bound {QC_MAX:g}, got {text!r}") from None
+    return floor
 
 
 def floor_words(floor) -> str:

@@ -6,7 +6,8 @@ the consistency verdict of CA/P against CV/C, each at its learned noise (validat
 Per scenario S, the recipe of docs/consistency.md ("The verdict with everything learned") as one command:
 
     rodo simulate S --seed 100 --duration 180 --out DIR/calibration/S      # a drive the campaign never sees
-    rodo calibrate DIR/calibration/S --model ca-polar --floor 1e-4,1e-4,1e-4,3e-4,3e-4,1e-4 --out DIR/calibration/S_ca.toml
+    rodo calibrate DIR/calibration/S --model ca-polar --floor 1e-4,1e-4,1e-4,3e-4,3e-4,1e-4
+        --out DIR/calibration/S_ca.toml
     rodo calibrate DIR/calibration/S --model cv-cartesian --floor 1e-4 --out DIR/calibration/S_cv.toml
     rodo montecarlo S --runs 20 --duration 30 --seed 7 --models ca-learned=...S_ca.toml,cv-learned=...S_cv.toml
         --out DIR/S
