@@ -8,7 +8,7 @@ sigma(r) = a + b r to |res| sqrt(pi / 2) (E|res| = sigma sqrt(2 / pi) for a Gaus
 to tell whether the spread depends on range. `sigma_scale` is the single factor s on the sensor.toml sigmas
 that maximises the likelihood of all channels together (what `noise.sensor_sigma_scale` can express).
 
-Checked by: tests/validation/test_calibrate.py::test_measurement_noise_recovered_on_city
+Checked by: tests/validation/test_calibrate_sensor.py::test_measurement_noise_recovered_on_city
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def cartesian_sigma(res: np.ndarray, r: np.ndarray) -> float:
     seen through d(x, y, z)/d(r, az, el) at the true range (azimuth and elevation near boresight are enough for
     the trace: |dp|^2 = dr^2 + r^2 (cos^2(el) daz^2 + del^2), with cos(el) ~ 1 for a radar's elevations).
 
-    Checked by: tests/validation/test_calibrate.py::test_cartesian_sigma_is_the_ml_isotropic_sigma
+    Checked by: tests/validation/test_calibrate_sensor.py::test_cartesian_sigma_is_the_ml_isotropic_sigma
     """
     res = np.asarray(res, dtype=float)
     sq = res[:, 0] ** 2 + np.asarray(r, dtype=float) ** 2 * (res[:, 1] ** 2 + res[:, 2] ** 2)
@@ -78,7 +78,7 @@ def channel_noise(res: np.ndarray, r: np.ndarray, bins: int = 6) -> dict:
     sigma(r) = a + b r and `range_dependent` (|b| above 4 standard errors and b (r_max - r_min) above 5 % of
     sigma).
 
-    Checked by: tests/validation/test_calibrate.py::test_range_dependence_is_detected
+    Checked by: tests/validation/test_calibrate_sensor.py::test_range_dependence_is_detected
     """
     res, r = np.asarray(res, dtype=float), np.asarray(r, dtype=float)
     if res.ndim != 2 or res.shape[1] != 4 or res.shape[0] != r.shape[0] or res.shape[0] < 2 * bins:
@@ -105,7 +105,7 @@ def channel_noise(res: np.ndarray, r: np.ndarray, bins: int = 6) -> dict:
 def sigma_scale(res: np.ndarray, sensor_sigmas) -> float:
     """ML single scale s of the sensor sigmas over all channels: s^2 = mean((res / sigma_sensor)^2).
 
-    Checked by: tests/validation/test_calibrate.py::test_measurement_noise_recovered_on_city
+    Checked by: tests/validation/test_calibrate_sensor.py::test_measurement_noise_recovered_on_city
     """
     sig = np.asarray(sensor_sigmas, dtype=float)
     if sig.shape != (4,) or not np.all(sig > 0):
@@ -123,7 +123,7 @@ def common_doppler_error(seq, truth: dict, scans: int | None = None, labels=STAT
     be lists (several sequences, their scans pooled; `scans` then one limit for each or a list). Returns sigma_c,
     sigma_vr (independent), the lag-1 correlation of the b_k, the scans used and whether it was significant.
 
-    Checked by: tests/validation/test_calibrate.py::test_common_doppler_error_recovered_from_truth
+    Checked by: tests/validation/test_calibrate_sensor.py::test_common_doppler_error_recovered_from_truth
     """
     if isinstance(truth, dict):
         seq, truth, scans = [seq], [truth], [scans]
