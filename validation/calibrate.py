@@ -346,6 +346,7 @@ def em_qc(run, kind: str, qc0, iterations: int = 5, tolerance: float = 0.05, flo
         raise InputError(f"qc0: must be 6 positive numbers, got {qc0!r}")
     if learn is not None and (np.shape(learn) != (6,) or not np.any(learn)):
         raise InputError(f"learn: expected 6 booleans, at least one true, got {learn!r}")
+    floor = floors(floor)
     history, previous = [], None
     for _ in range(int(iterations)):
         tracks = run(qc)
@@ -355,7 +356,7 @@ def em_qc(run, kind: str, qc0, iterations: int = 5, tolerance: float = 0.05, flo
                      qc0=qc, fixed=None if learn is None else ~np.asarray(learn, dtype=bool))
         step = np.log(fit.qc) - np.log(qc)
         jump = aitken_step(step, previous) if accelerate else step
-        qc_next = np.clip(qc * np.exp(jump), floors(floor), QC_MAX)
+        qc_next = np.clip(qc * np.exp(jump), floor, QC_MAX)
         change = float(np.max(np.abs(fit.qc - qc) / qc))
         remaining = remaining_distance(step, previous)
         history.append(EmIteration(qc, fit.qc, fit.loglik, change, fit.intervals, qc_next, remaining))

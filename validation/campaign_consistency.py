@@ -74,8 +74,12 @@ def fraction_within_per_scan_factor(spread: float | None, n_runs: int, alpha: fl
 def scans_outside(runs: list[np.ndarray], alpha: float = 0.05) -> dict:
     """{"scans_below", "scans_above", "scans_above_one_run"} of the runs' per-scan averages (module docstring)."""
     mean, count = average_nees(runs)
+    return _outside(runs, mean, count, chi2_bounds(count, DOF, alpha), alpha)
+
+
+def _outside(runs: list[np.ndarray], mean: np.ndarray, count: np.ndarray, b: np.ndarray, alpha: float) -> dict:
+    """`scans_outside` given the runs' per-scan average, count and bounds."""
     stack = stacked_runs(runs)
-    b = chi2_bounds(count, DOF, alpha)
     with np.errstate(invalid="ignore"):
         below, above = mean < b[:, 0], mean > b[:, 1]
         largest = np.nanmax(np.where(count > 0, stack, 0.0), axis=0) if stack.size else np.zeros(0)
@@ -101,9 +105,9 @@ def measure_summary(runs: list[np.ndarray], alpha: float = 0.05) -> tuple[dict, 
                "scans_above_one_run": 0}
     if not n:
         return summary, {}
-    summary.update(scans_outside(runs, alpha))
     mean, count = average_nees(runs)
     b = chi2_bounds(count, DOF, alpha)
+    summary.update(_outside(runs, mean, count, b, alpha))
     fin = np.isfinite(mean)
     within = fraction_within(mean, b)
     summary.update({"mean_per_dof": float(np.mean(mean[fin]) / DOF), "median_per_dof": float(np.median(mean[fin]) / DOF),

@@ -82,7 +82,8 @@ def _check(args) -> list[str]:
             raise InputError(f"{flag}: must be > 0 and at most {MAX_DURATION:g} s, got {v}")
     from .calibrate import parse_floor
 
-    args.floor_ca, args.floor_cv = parse_floor(args.floor_ca), parse_floor(args.floor_cv)  # before any work
+    for floor in (args.floor_ca, args.floor_cv):  # as rodo calibrate checks them, before any work
+        parse_floor(floor)
     return names
 
 
@@ -109,10 +110,8 @@ def _steps(args, names: list[str]) -> tuple[list, list, list]:
         labels = []
         for name, (label, model, key) in MODELS.items():
             cfg = config_path(out, s, name)
-            floor = getattr(args, f"floor_{key}")
-            floor = ",".join(map(str, floor)) if isinstance(floor, list) else str(floor)
-            cals.append((f"calibrate {s} {name}", ["calibrate", *map(str, seqs), "--model", model, "--floor", floor,
-                                                   "--out", str(cfg)],
+            cals.append((f"calibrate {s} {name}", ["calibrate", *map(str, seqs), "--model", model, "--floor",
+                                                   getattr(args, f"floor_{key}"), "--out", str(cfg)],
                          cfg.is_file() and cfg.with_suffix(".md").is_file()))
             labels.append(f"{label}={cfg}")
         camps.append((f"montecarlo {s}", ["montecarlo", s, "--runs", str(args.runs), "--duration", str(args.duration),
@@ -173,12 +172,14 @@ def main(args) -> int:
     from rodo.validation.campaign_dir import campaign_lock, check_and_save_meta
     from rodo.validation.verdict import build_verdict, write_verdict
 
+    from .calibrate import parse_floor
+
     names = _check(args)
     out = Path(args.out)
     meta = {"scenarios": ",".join(names), "runs": args.runs, "duration": args.duration, "seed": args.seed,
             "calibration_seed": args.calibration_seed, "calibration_duration": args.calibration_duration,
             **({"calibration_drives": args.calibration_drives} if args.calibration_drives != 1 else {}),
-            "floor_ca": args.floor_ca, "floor_cv": args.floor_cv}
+            "floor_ca": parse_floor(args.floor_ca), "floor_cv": parse_floor(args.floor_cv)}  # values: 1e-4 == 0.0001
     with campaign_lock(out):
         if not args.resume and (out / "campaign.json").exists():
             raise InputError(f"--out: {out / 'campaign.json'} exists (a verdict in progress or done); pass --resume "

@@ -185,9 +185,10 @@ def test_an_output_that_is_a_file_is_refused(tmp_path, capsys):
 def test_each_model_is_calibrated_at_its_own_floor(tmp_path):
     """--floor-ca and --floor-cv (one value or six) reach their model's calibration step as given: rodo calibrate
     reads back the same values."""
-    floors = {"ca-polar": parse_floor("1e-4,1e-4,1e-4,1e-3,1e-3,1e-4"), "cv-cartesian": parse_floor("2e-4")}
+    given = {"ca-polar": "1e-4,1e-4,1e-4,1e-3,1e-3,1e-4", "cv-cartesian": "2e-4"}
+    floors = {model: parse_floor(text) for model, text in given.items()}
     args = argparse.Namespace(out=str(tmp_path), calibration_drives=1, calibration_seed=100, calibration_duration=5.0,
-                              floor_ca=floors["ca-polar"], floor_cv=floors["cv-cartesian"], runs=2, duration=3.0,
+                              floor_ca=given["ca-polar"], floor_cv=given["cv-cartesian"], runs=2, duration=3.0,
                               seed=3, jobs=1)
     _, cals, _ = _steps(args, ["city"])
     assert sorted(argv[argv.index("--model") + 1] for _, argv, _ in cals) == sorted(floors)
