@@ -41,6 +41,7 @@ from rodo.sim.sequence import atomic_write_bytes
 
 from .campaign_dir import campaign_lock, check_and_save_meta
 from .campaign_consistency import campaign_consistency, consistency_lines
+from .error_growth import growth_lines
 from .campaign_files import (CONSISTENCY_FIELDS, COVERAGE_FIELDS, FIELDS, METRICS, append_rows, cell,
                              load_trial_arrays, npz_path, read_results, rewrite_results, save_arrays, writes_arrays)
 from .campaign_compare import compare_models, comparison_lines
@@ -339,8 +340,8 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
             runs.append(z["nees"])
             dim = int(z["nees_dim"])
             t = z["t"] if len(z["t"]) > len(t) else t
-            arrays.append({k: v for k, v in z.items() if k == "t" or k.startswith("nees_")})
-        entry["consistency"], entry["consistency_curves"] = campaign_consistency(arrays, alpha)
+            arrays.append({k: v for k, v in z.items() if k == "t" or k.startswith(("nees_", "growth_"))})
+        entry.update(campaign_consistency(arrays, alpha))
         if runs:
             mean, count = average_nees(runs)
             b = chi2_bounds(count, dim, alpha)
@@ -391,7 +392,7 @@ def write_summary(out_dir, summary: dict, plot_note: str = "") -> None:
                           f"{n['runs']} runs [{fmt(lo)}, {fmt(hi)}]; scans within their bounds: "
                           f"{fmt(None if n['fraction_scans_within'] is None else 100 * n['fraction_scans_within'])} %."]
         if any(c["runs"] for c in e.get("consistency", {}).values()):
-            lines += consistency_lines(e["consistency"], fmt)
+            lines += consistency_lines(e["consistency"], fmt) + growth_lines(e.get("error_growth"), fmt)
         lines.append("")
     lines += comparison_lines(summary.get("comparisons", []), fmt)
     if plot_note:

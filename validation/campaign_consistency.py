@@ -35,6 +35,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from .consistency import average_nees, chi2_bounds, fraction_within, stacked_runs
+from .error_growth import growth_table, pooled_growth
 from .odometry_consistency import DOF, MEASURES
 
 
@@ -119,10 +120,12 @@ def measure_summary(runs: list[np.ndarray], alpha: float = 0.05) -> tuple[dict, 
                      "upper": b[:, 1].tolist()}
 
 
-def campaign_consistency(arrays: list[dict], alpha: float = 0.05) -> tuple[dict, dict]:
+def campaign_consistency(arrays: list[dict], alpha: float = 0.05) -> dict:
     """Per measure (MEASURES) over the runs' npz arrays (dicts with `t` and `nees_<measure>`; runs written
-    before the measures existed have none and are skipped). Returns (summary {measure: measure_summary},
-    curves {"t": longest t, measure: curve})."""
+    before the measures existed have none and are skipped), and the runs' error growth pooled (their
+    `growth_<sum>` arrays, `error_growth`; None where no run has them). Returns {"consistency": {measure:
+    measure_summary}, "consistency_curves": {"t": longest t, measure: curve}, "error_growth": {runs, the pooled
+    sums, table: `growth_table`} or None}."""
     t = max((np.asarray(a["t"], dtype=float) for a in arrays), key=len, default=np.zeros(0))
     summary, curves = {}, {"t": t.tolist()}
     for name in MEASURES:
@@ -130,7 +133,11 @@ def campaign_consistency(arrays: list[dict], alpha: float = 0.05) -> tuple[dict,
         summary[name], curve = measure_summary([a[key] for a in arrays if key in a], alpha)
         if curve:
             curves[name] = curve
-    return summary, curves
+    growths = [{k[len("growth_"):]: v for k, v in a.items() if k.startswith("growth_")} for a in arrays
+               if "growth_count" in a]
+    pooled = pooled_growth(growths)
+    growth = None if pooled is None else {"runs": len(growths), **pooled, "table": growth_table(pooled)}
+    return {"consistency": summary, "consistency_curves": curves, "error_growth": growth}
 
 
 def consistency_lines(consistency: dict, fmt) -> list[str]:

@@ -21,6 +21,7 @@ from rodo.estimator.lie import se3
 from .alignment import align_to_first
 from .association import DEFAULT_TOLERANCE, associate
 from .consistency import chi2_bounds, fraction_within, nees_sequence, nis_summary, pose_error
+from .error_growth import error_growth, growth_table
 from .odometry_consistency import odometry_nees, summarise
 from .kitti import LENGTHS, kitti_errors, trajectory_distances
 
@@ -307,6 +308,7 @@ def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, 
                        "time_average_bounds": chi2_bounds(max(v.size, 1), d, alpha).tolist()}
         tau = float(states["velocity_correlation_time"]) if "velocity_correlation_time" in states else 0.25
         out["consistency"] = summarise(odometry_nees(states, truth, span=1.0, tau=tau, tolerance=tolerance), alpha)
+        out["error_growth"] = growth_table(error_growth(states, truth, tolerance=tolerance))
     return out
 
 

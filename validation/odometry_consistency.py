@@ -98,25 +98,28 @@ def recursion_inputs_of_run(states: dict, Sigma_rel: np.ndarray, P_window: np.nd
     return S, P
 
 
-def _span_terms(m: dict, n: int, tau: float, drift_rate_sigma, heading):
-    """(e (K - n, 6), C (K - n, 6, 6), t (K,), n) of the relative poses over n scans of a matched run (`_matched`):
-    their errors, covariances (the drift's composed over the span and the revision at its first scan; no jitter),
-    the scan times and n; None where there are none."""
+def relative_terms(m: dict, n: int, tau: float, drift_rate_sigma, heading, starts=None):
+    """(e (K - n, 6), C (K - n, 6, 6), t (K,), n) of the relative poses over n scans of a matched run
+    (`matched_run`): their errors, covariances (the drift's composed over the span and the revision at its first
+    scan; no jitter), the scan times and n; None where there are none. With `starts` (increasing first scans,
+    each below K - n) the rows of those spans alone."""
     t, T_est, states = m["t"], m["T_est"], m["sub"]
     if m["drift_inputs"] is None or n >= len(t):
         return None
+    rows = slice(None) if starts is None else np.asarray(starts, dtype=int)
     Sigma_rel, P_varpi, restarts, deviations = m["drift_inputs"]
-    C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma, restarts, heading, deviations)
+    C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma, restarts, heading, deviations,
+                         starts)
     if "P_revision" in states:  # the revision of each span's first emitted pose, by the scan after it
-        C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)
-    return _relative_errors(m["T_true"], T_est, n), C, t, n
+        C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)[rows]
+    return _relative_errors(m["T_true"], T_est, n)[rows], C, t, n
 
 
 def _span_nees(m: dict, n: int, tau: float, drift_rate_sigma, heading, jitter) -> np.ndarray:
-    """Per-scan NEES of the relative pose over n scans of a matched run (`_matched`), with the roll and pitch
+    """Per-scan NEES of the relative pose over n scans of a matched run (`matched_run`), with the roll and pitch
     jitter [V, T] (None: off)."""
     out = np.full(len(m["t"]), np.nan)
-    terms = _span_terms(m, n, tau, drift_rate_sigma, heading)
+    terms = relative_terms(m, n, tau, drift_rate_sigma, heading)
     if terms is not None:
         e, C, t, n = terms
         out[n:] = nees(e, with_roll_pitch_variance(C, span_excess(t, n, jitter)))
@@ -160,7 +163,7 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
     require_arrays(states, truth)
     if jitter is None:
         jitter = states.get("attitude_jitter")
-    m = _matched(states, truth, tolerance, tau, drift_rate_sigma, heading)
+    m = matched_run(states, truth, tolerance, tau, drift_rate_sigma, heading)
     t, P, sub, ib = m["t"], m["P"], m["sub"], m["ib"]
     xi = se3.log(m["T_true"] @ se3.inverse(m["T_est"]))
     out = {"t": t, "dof": DOF, "span": float(span)}
@@ -187,8 +190,8 @@ def span_terms(states: dict, truth: dict, span: float = 1.0, tau: float = 0.25,
     scan times and n; None without P_relative or with too few scans. For fitting the jitter
     (`validation.calibrate_jitter`)."""
     require_arrays(states, truth)
-    m = _matched(states, truth, tolerance, tau, drift_rate_sigma, heading)
-    return _span_terms(m, span_scans(m["t"], span), tau, m["drift_rate_sigma"], m["heading"])
+    m = matched_run(states, truth, tolerance, tau, drift_rate_sigma, heading)
+    return relative_terms(m, span_scans(m["t"], span), tau, m["drift_rate_sigma"], m["heading"])
 
 
 def matched_poses(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE):
@@ -201,7 +204,7 @@ def matched_poses(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANC
     return ia, ib, T_est, (T_true @ T_est[0] if len(ia) else T_true)
 
 
-def _matched(states: dict, truth: dict, tolerance: float, tau: float, drift_rate_sigma, heading) -> dict:
+def matched_run(states: dict, truth: dict, tolerance: float, tau: float, drift_rate_sigma, heading) -> dict:
     """A run's scans matched to the truth (`odometry_nees`'s arguments): t, T_est, T_true (in the estimator's
     world), P, sub (the per-scan states arrays at the matched scans), ib (the truth's indices), the drift rate and
     heading reversion in use (the run's own where None), and drift_inputs, what the run's drift recursion

@@ -59,33 +59,36 @@ def step_matrices(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: 
 
 
 def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, n: int, tau: float,
-                     drift_rate_sigma=None, restarts=None, heading=None, deviations=None) -> np.ndarray:
+                     drift_rate_sigma=None, restarts=None, heading=None, deviations=None, starts=None) -> np.ndarray:
     """Covariances (N - n, 6, 6) of T_k T_{k-n}^-1 for k = n .. N-1: row k - n equals
     `span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, tau, drift_rate_sigma, restarts, heading,
-    deviations[k - n])` bit for bit.
+    deviations[k - n])` bit for bit; with `starts`, the rows of those spans' first scans alone (len(starts), 6, 6).
 
     Args: as `uncertainty.span_covariance`; n >= 1 scans per span; deviations (N,) each scan's Var(yaw - anchor)
-    (`heading_deviations`; None: zeros).
+    (`heading_deviations`; None: zeros); starts: increasing first scans, each below N - n (None: all).
     """
     N = len(t)
-    starts = fresh_starts(restarts, N)
-    out = np.zeros((max(N - n, 0), 6, 6))
+    fresh = fresh_starts(restarts, N)
+    first = np.arange(max(N - n, 0)) if starts is None else np.asarray(starts, dtype=int)
+    out = np.zeros((len(first), 6, 6))
     prior = np.diag(np.square(drift_rate_sigma_array(drift_rate_sigma)))
-    for b0 in range(0, N - n, BLOCK):  # spans starting at scans b0 .. b1 - 1
-        b1 = min(b0 + BLOCK, N - n)
-        A_all, Q_all = step_matrices(T, t, Sigma_rel, P_varpi, tau, np.arange(b0 + 1, b1 + n), restarts, heading)
-        C = np.zeros((b1 - b0,) + A_all.shape[1:])  # uncertainty._initial with a known start pose
+    for b in range(0, len(first), BLOCK):  # spans starting at scans s = first[b:b + BLOCK]
+        s = first[b:b + BLOCK]
+        A_all, Q_all = step_matrices(T, t, Sigma_rel, P_varpi, tau, np.arange(s[0] + 1, s[-1] + n + 1), restarts,
+                                     heading)
+        C = np.zeros((len(s),) + A_all.shape[1:])  # uncertainty._initial with a known start pose
         if tau > 0:
-            C[:, 6:12, 6:12] = P_varpi[b0:b1]
-            C[starts[b0:b1], 6:12, 6:12] = 0.0  # from the run's first scan or a re-initialisation: at zero
+            C[:, 6:12, 6:12] = P_varpi[s]
+            C[fresh[s], 6:12, 6:12] = 0.0  # from the run's first scan or a re-initialisation: at zero
         C[:, 12:18, 12:18] = prior
         if C.shape[-1] > 18 and deviations is not None:
-            C[:, 18, 18] = deviations[b0:b1]  # the anchor at -(yaw - a) from each span's start pose
+            C[:, 18, 18] = deviations[s]  # the anchor at -(yaw - a) from each span's start pose
+        rows = s - s[0]
         for i in range(n):  # step into scan start + i + 1 of every span
-            A, Q = A_all[i:i + b1 - b0], Q_all[i:i + b1 - b0]
+            A, Q = A_all[rows + i], Q_all[rows + i]
             C = A @ C @ np.swapaxes(A, -1, -2) + Q
             C = 0.5 * (C + np.swapaxes(C, -1, -2))
-        out[b0:b1] = C[:, :6, :6]
+        out[b:b + len(s)] = C[:, :6, :6]
     return out
 
 

@@ -18,6 +18,7 @@ import numpy as np
 from .campaign import Trial, TrialOutcome, error_text
 from .association import associate
 from .consistency import nees_sequence, nis_summary
+from .error_growth import error_growth
 from .kitti import LENGTHS, kitti_errors
 from .metrics import ate, drift, path_distances, rpe, velocity_errors
 from .odometry_consistency import DOF, MEASURES, summarise
@@ -143,7 +144,7 @@ def consistency_of(states: dict, truth: dict, t: np.ndarray) -> tuple[dict, dict
     run's scans, "" where undefined), `ellipsoid_3sigma_pct` (the % of its scans whose true position is inside
     the 3-sigma ellipsoid of the absolute pose covariance, `run_consistency.truth_coverage`; 97.1 % claimed) and
     the trial npz arrays `nees_<measure>` (per scan, on the times t of
-    `nees`), `nees_measure_dof` and `nees_span`.
+    `nees`), `nees_measure_dof`, `nees_span` and `growth_<sum>`, the run's `error_growth.error_growth` sums.
 
     Checked by: tests/validation/test_campaign_consistency.py::test_run_consistency_per_scan_and_ellipsoid_coverage
     """
@@ -155,4 +156,5 @@ def consistency_of(states: dict, truth: dict, t: np.ndarray) -> tuple[dict, dict
     metrics["ellipsoid_3sigma_pct"] = 100.0 * inside if np.isfinite(inside) else ""
     arrays = {f"nees_{k}": m[k][keep] for k in MEASURES}
     arrays.update({"nees_measure_dof": DOF, "nees_span": m["span"]})
+    arrays.update({f"growth_{k}": v for k, v in error_growth(states, truth).items()})
     return metrics, arrays

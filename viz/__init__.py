@@ -11,8 +11,8 @@ in `rodo.validation` (viz sits above validation; validation never imports viz).
 - `viz.sequence_layers`: what a sequence recording adds (Doppler-coloured scans, the moving objects as boxes
   with their velocities, its layout);
 - `viz.live`: `LiveRun`, the live stream of `rodo run --connect/--serve` (scan by scan, while it runs);
-- `viz.figures`: `plot_nees` (Monte Carlo summaries) and the paper's figures 1-4 plus our Fig. 5, drawn from
-  the dicts of `validation.experiments`.
+- `viz.figures`: `plot_nees` and `plot_growth` (Monte Carlo summaries) and the paper's figures 1-4 plus our
+  Fig. 5, drawn from the dicts of `validation.experiments`.
 
 Documentation: docs/visualisation.md.
 """
@@ -24,6 +24,7 @@ from .figures import (
     figure3_association,
     figure4_trajectories,
     figure5_out_of_plane,
+    plot_growth,
     plot_nees,
     write_all,
 )
@@ -38,6 +39,7 @@ __all__ = [
     "figure3_association",
     "figure4_trajectories",
     "figure5_out_of_plane",
+    "plot_growth",
     "plot_nees",
     "record_run",
     "record_sequence",

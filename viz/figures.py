@@ -111,6 +111,38 @@ def plot_nees(path, t, nees_mean, bounds, labels, title: str = "Normalised estim
     return save_png(fig, path)
 
 
+def plot_growth(path, table: list[dict], title: str = "How the error grows, per axis") -> Path:
+    """Per axis, E[e^2 / sigma^2] of the relative pose against the span (log-log; the rows of
+    `validation.error_growth.growth_table`, spans first, then the drive's absolute pose as markers at the right),
+    with the consistent value 1: an axis below it is cautious at that horizon, above it over-confident. Rows
+    without a count are left out."""
+    spans = [r for r in table if r["ratio"] and r["scans"]]
+    drive = next((r for r in table if r["scans"] is None and r["ratio"]), None)
+    if not spans and drive is None:
+        raise InputError("error growth: no span or drive with a count to plot")
+    x = np.array([r["scans"] for r in spans], dtype=float)
+    y = np.array([r["ratio"] for r in spans], dtype=float).reshape(len(spans), 6)
+    x_drive = 2.0 * x.max() if len(x) else 1.0
+    fig = _figure(7.5, 4.0)
+    ax = fig.add_subplot()
+    ax.axhline(1.0, color="0.3", lw=1.0, ls="--", label="consistent")
+    for j, (axis, style) in enumerate(zip(("x", "y", "z", "roll", "pitch", "yaw"), ["-"] * 3 + [":"] * 3)):
+        line = ax.plot(x, y[:, j], style, marker="o", ms=3, lw=1.3, label=axis)[0]
+        if drive is not None:
+            ax.plot([x_drive], [drive["ratio"][j]], marker="s", ms=6, color=line.get_color(), ls="none")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ticks = list(x) + ([x_drive] if drive is not None else [])
+    ax.set_xticks(ticks, [r["label"] for r in spans] + (["drive"] if drive is not None else []), fontsize=7)
+    ax.minorticks_off()
+    ax.set_xlabel("span of the relative pose (the drive's absolute pose at the right)")
+    ax.set_ylabel("E[e^2 / sigma^2] per axis")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8, ncol=2)
+    ax.set_title(title)
+    return save_png(fig, path)
+
+
 def figure1_prior(path, data: dict) -> Path:
     """Fig. 1: the CA prior under pure yaw acceleration: Monte Carlo samples (blue) and the prior's mean with
     3-sigma ellipses (pink) for position (top view), velocity and acceleration (forward and yaw components)."""

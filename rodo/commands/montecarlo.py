@@ -143,9 +143,10 @@ def _nan(v):
 
 
 def plot_summary(out_dir, summary: dict) -> str:
-    """Plot the average NEES per model (nees_MODEL.png) and its odometry consistency measures
+    """Plot the average NEES per model (nees_MODEL.png), its odometry consistency measures
     (consistency_MODEL.png, each measure divided by its 6 dof, with the band of its N runs) through
-    viz.figures.plot_nees; returns a note for summary.md (where the plots are, or why there are none)."""
+    viz.figures.plot_nees, and its error growth per axis (growth_MODEL.png, viz.figures.plot_growth); returns a
+    note for summary.md (where the plots are, or why there are none)."""
     from rodo import extras
 
     if not extras.is_installed("matplotlib"):
@@ -162,10 +163,10 @@ def plot_summary(out_dir, summary: dict) -> str:
         try:
             plot_nees(os.path.join(out_dir, name), _nan(c["t"]), _nan(c["mean"]), (_nan(c["lower"]), _nan(c["upper"])),
                       f"{m} ({e['nees']['dim']} dof)")
-            written += [name] + plot_consistency(out_dir, m, e, plot_nees)
+            written += [name] + plot_consistency(out_dir, m, e, plot_nees) + plot_error_growth(out_dir, m, e)
         except Exception as exc:  # noqa: BLE001 - a plot is never worth losing the summary
             return f"No NEES plot: viz.figures.plot_nees failed ({type(exc).__name__}: {exc})."
-    return "Average NEES over time with its bounds: " + ", ".join(written) + "."
+    return "Plots (average NEES over time with its bounds; the error growth per axis): " + ", ".join(written) + "."
 
 
 def plot_consistency(out_dir, model: str, entry: dict, plot_nees) -> list[str]:
@@ -187,6 +188,18 @@ def plot_consistency(out_dir, model: str, entry: dict, plot_nees) -> list[str]:
     name = f"consistency_{model}.png"
     plot_nees(os.path.join(out_dir, name), t, y, (lo, hi), [f"{k} ({cons[k]['runs']} runs)" for k in names],
               title=f"{model}: odometry consistency ({runs} runs, 6 dof each)", ylabel="average NEES / dof")
+    return [name]
+
+
+def plot_error_growth(out_dir, model: str, entry: dict) -> list[str]:
+    """growth_MODEL.png: the runs' error growth per axis (`viz.figures.plot_growth`); [] without it."""
+    from rodo.viz.figures import plot_growth
+
+    g = entry.get("error_growth")
+    if not g or not any(r["ratio"] for r in g["table"]):
+        return []
+    name = f"growth_{model}.png"
+    plot_growth(os.path.join(out_dir, name), g["table"], title=f"{model}: how the error grows ({g['runs']} runs)")
     return [name]
 
 

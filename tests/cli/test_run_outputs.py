@@ -5,6 +5,7 @@ Sizing: one 8 s highway sequence (105 scans, 249 m: every KITTI length up to 200
 run (about 10 s).
 """
 
+import json
 import re
 
 import numpy as np
@@ -58,6 +59,26 @@ def test_run_prints_the_numbers_of_rodo_evaluate(highway_run, capsys):
     assert _number(r"\((\d+) segments\)", line) == _number(r"\((\d+) segments\)", table)
     # and they are real numbers for this 249 m drive: below 2 % / 0.02 deg/m, ATE under a metre
     assert 0 < float(t_run) < 2 and 0 < float(r_run) < 0.02 and 0 < float(ate_run) < 1
+
+
+def test_evaluate_prints_the_runs_error_growth_per_axis(highway_run, capsys):
+    """With the run's states and the truth, `rodo evaluate` tables E[e^2 / sigma^2] per axis over each span that
+    fits the 8 s drive and over the drive: the report's rows (`error_growth.growth_table`), rounded, printed."""
+    seq, out, _ = highway_run
+    report = out.parent / f"{out.name}_growth.json"
+    assert main(["evaluate", "--gt", str(seq / "groundtruth.txt"), "--est", str(out / "estimate.txt"), "--states",
+                 str(out / "states.npz"), "--truth", str(seq / "truth.npz"), "--json", str(report)],
+                commands=[evaluate_cmd]) == 0
+    text = capsys.readouterr().out
+    rows = json.loads(report.read_text())["error_growth"]
+    assert [r["label"] for r in rows] == ["1 scan", "0.5 s", "1 s", "2 s", "5 s", "10 s", "20 s", "drive"]
+    counted = [r for r in rows if r["count"]]
+    assert [r["label"] for r in counted] == ["1 scan", "0.5 s", "1 s", "2 s", "5 s", "drive"]  # 8 s: no 10 s span
+    assert "error growth E[e^2/sigma^2]" in text
+    for r in counted:
+        assert all(x > 0 for x in r["ratio"])
+        line = next(x for x in text.splitlines() if x.split()[:len(r["label"].split())] == r["label"].split())
+        assert line.split()[len(r["label"].split()):-1] == [f"{x:.2f}" for x in r["ratio"]], line
 
 
 def test_kitti_poses_round_trip_to_the_tum_poses(highway_run):

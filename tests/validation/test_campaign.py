@@ -305,6 +305,11 @@ def test_tiny_real_campaign_through_the_cli(tmp_path, capsys):
         for r in rows:
             with np.load(npz_path(out, int(r["trial"]), r["model"])) as z:
                 assert all(f"nees_{k}" in z.files and len(z[f"nees_{k}"]) == len(z["t"]) for k in MEASURES)
+        growth = summary["models"][m]["error_growth"]  # the runs' error growth pooled, tabled and drawn
+        assert growth["runs"] == 2 and growth["table"][0]["label"] == "1 scan"
+        assert growth["table"][0]["count"] == growth["count"][0] > 0 and len(growth["table"][0]["ratio"]) == 6
+        assert (out / f"growth_{m}.png").stat().st_size > 1000
+    assert "Error growth per axis" in md and "growth_ca-polar.png" in md
     assert next(x for x in printed.splitlines() if x.split()[:2] == ["cv-cartesian", "acceleration"]).count("-") >= 3
     assert main(argv + ["--resume"], commands=[montecarlo]) == 0  # nothing left to do
     assert "ran 0 (trial, model) runs, skipped 4" in capsys.readouterr().out

@@ -1,5 +1,5 @@
-"""validation/span_covariances.py: every span covariance of a run at once, equal bit for bit to the recursion of
-estimator.uncertainty.span_covariance span by span."""
+"""validation/span_covariances.py: every span covariance of a run at once (or those of chosen starts), equal bit
+for bit to the recursion of estimator.uncertainty.span_covariance span by span."""
 
 import numpy as np
 import pytest
@@ -29,6 +29,9 @@ def test_equals_span_covariance_bit_for_bit(states, n, tau, drift, monkeypatch):
     assert got.shape == want.shape and got.tobytes() == want.tobytes()
     monkeypatch.setattr(sc, "BLOCK", 4)  # spans advanced in several blocks give the same
     assert sc.span_covariances(T, t, Sigma_rel, P_varpi, n, tau, drift).tobytes() == want.tobytes()
+    starts = np.arange(0, len(t) - n, 3)  # some spans alone: their rows, whatever the blocks
+    assert sc.span_covariances(T, t, Sigma_rel, P_varpi, n, tau, drift, starts=starts).tobytes() == \
+        want[starts].tobytes()
 
 
 @pytest.mark.parametrize("n", [1, 4])

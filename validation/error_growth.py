@@ -1,0 +1,129 @@
+"""How a run's pose error grows with the span, per axis, against what its covariance says.
+
+The consistency measures (`odometry_consistency`) test 6-dof NEES at three horizons: one scan, one span (1 s)
+and the whole drive. Where one of them is off, the question is which axis and from which horizon on: the drift
+recursion (`estimator.uncertainty`) composes one model of how the error grows, and a model that is right over
+one second can be wrong over ten (docs/consistency.md, "How the error grows, per axis"). This is the odometry's
+counterpart of an Allan-variance plot: per span L of GROWTH_SPANS and per axis i of the left perturbation of
+T_vehicle_world (x forward, y left, z up, roll, pitch, yaw; the translation carries the rotation's error over
+the distance, as the covariance does),
+
+    E[e_i^2 / C_ii]   over the relative poses over L (their covariance as `relative_span`'s: the drift
+                      recursion composed over the span, the revision at its first scan, the roll and pitch
+                      jitter's excess), and over the absolute poses of the drive (`pose`'s);
+
+1 where the covariance's variance is right on that axis at that horizon, below 1 cautious, above over-confident.
+The per-axis view leaves out the correlations between axes, which the 6-dof NEES counts. A span of n scans
+starts every max(1, n // STARTS_PER_SPAN) scans (overlapping spans repeat each other's errors; the long spans'
+covariances are the costliest part). The result holds sums, so runs pool by adding (`pooled_growth`): a
+campaign's table weighs every span of every run alike.
+
+Checked by: tests/validation/test_error_growth.py
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rodo.estimator.attitude_jitter import span_excess, with_roll_pitch_variance
+from rodo.estimator.lie import se3
+
+from .association import DEFAULT_TOLERANCE
+from .consistency import require_arrays
+from .odometry_consistency import matched_run, relative_terms, span_scans
+
+GROWTH_SPANS = (0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0)  # s; 0: one scan
+STARTS_PER_SPAN = 8
+AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+SUMS = ("count", "z2", "e2", "var")
+
+
+def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float = DEFAULT_TOLERANCE) -> dict:
+    """The per-axis sums of one run (module docstring): span (S,) seconds, scans (S,) each span's scans (0 where
+    the run is too short for it), and for the S spans and then the absolute pose (S + 1 rows): count, the
+    relative (or absolute) poses summed; z2 (S + 1, 6), sum e_i^2 / C_ii; e2, sum e_i^2; var, sum C_ii. Rows
+    with a non-finite error or variance, or a variance <= 0, are left out; the first scan's absolute pose too
+    (the truth is aligned there). The velocity correlation time, drift rate, heading reversion and jitter are the
+    run's own (states'; DEFAULT_TAU and none when absent). Zero sums without P_relative."""
+    from .run_consistency import DEFAULT_TAU
+
+    require_arrays(states, truth)
+    tau = float(states.get("velocity_correlation_time", DEFAULT_TAU))
+    m = matched_run(states, truth, tolerance, tau, None, None)
+    spans = np.asarray(spans, dtype=float)
+    out = {"span": spans, "scans": np.zeros(len(spans), int), "count": np.zeros(len(spans) + 1),
+           **{k: np.zeros((len(spans) + 1, 6)) for k in SUMS[1:]}}
+    K = len(m["t"])
+    for row, span in enumerate(spans):
+        n = 1 if span == 0 else span_scans(m["t"], span)
+        if K < 2 or n >= K:
+            continue
+        starts = np.arange(0, K - n, max(1, n // STARTS_PER_SPAN))
+        terms = relative_terms(m, n, tau, m["drift_rate_sigma"], m["heading"], starts)
+        if terms is None:
+            continue
+        excess = span_excess(m["t"], n, states.get("attitude_jitter"))[starts]
+        e, C = terms[0], with_roll_pitch_variance(terms[1], excess)
+        out["scans"][row] = n
+        _add(out, row, e, C)
+    if "P_pose_absolute" in m["sub"]:
+        xi = se3.log(m["T_true"] @ se3.inverse(m["T_est"]))
+        _add(out, len(spans), xi[1:], np.asarray(m["sub"]["P_pose_absolute"], dtype=float)[1:])
+    return out
+
+
+def _add(out: dict, row: int, e: np.ndarray, C: np.ndarray) -> None:
+    """Add the errors e (M, 6) and the diagonals of their covariances C (M, 6, 6) to `out`'s sums at `row`."""
+    v = np.einsum("kii->ki", C)
+    ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(v), axis=1) & np.all(v > 0, axis=1)
+    e, v = e[ok], v[ok]
+    out["count"][row] += len(e)
+    out["z2"][row] += np.sum(e**2 / v, axis=0)
+    out["e2"][row] += np.sum(e**2, axis=0)
+    out["var"][row] += np.sum(v, axis=0)
+
+
+def pooled_growth(growths: list[dict]) -> dict | None:
+    """The sums of several runs' `error_growth` (the same spans), added; the scans of the first run that has
+    each span; None without runs. ValueError where the runs' spans differ."""
+    growths = [g for g in growths if g is not None]
+    if not growths:
+        return None
+    span = np.asarray(growths[0]["span"], dtype=float)
+    if any(not np.array_equal(np.asarray(g["span"], dtype=float), span) for g in growths):
+        raise ValueError("error growth: the runs were measured over different spans")
+    scans = np.zeros(len(span), int)
+    for g in reversed(growths):
+        scans = np.where(np.asarray(g["scans"]) > 0, g["scans"], scans)
+    return {"span": span, "scans": scans, **{k: sum(np.asarray(g[k], dtype=float) for g in growths) for k in SUMS}}
+
+
+def growth_table(g: dict) -> list[dict]:
+    """Per row (the spans, then "drive" for the absolute pose) of summed `error_growth`: label, scans (None for
+    the drive), count, and per axis the mean z^2 (`ratio`), the RMS error and the RMS sigma (lists of 6; None
+    where nothing was counted)."""
+    labels = ["1 scan" if s == 0 else f"{s:g} s" for s in g["span"]] + ["drive"]
+    rows = []
+    for i, label in enumerate(labels):
+        c = float(g["count"][i])
+        per = (lambda k, f=(lambda x: x): [float(f(x / c)) for x in g[k][i]] if c else None)  # noqa: E731
+        rows.append({"label": label, "scans": int(g["scans"][i]) if i < len(g["span"]) else None, "count": int(c),
+                     "ratio": per("z2"), "rms_error": per("e2", np.sqrt), "rms_sigma": per("var", np.sqrt)})
+    return rows
+
+
+def growth_lines(g: dict | None, fmt) -> list[str]:
+    """Markdown table of summed `error_growth` (summary.md, `rodo evaluate --growth`); [] without it. `fmt`
+    formats a number or None."""
+    if g is None or not np.any(np.asarray(g["count"]) > 0):
+        return []
+    lines = ["", "Error growth per axis (E[e^2 / sigma^2] of the relative pose over each span, and of the absolute "
+                 "pose over the drive, pooled over the runs' spans: 1 where the covariance's variance is right on "
+                 "that axis at that horizon, below 1 cautious, above over-confident; docs/consistency.md, \"How the "
+                 "error grows, per axis\"):", "",
+             "| span | scans | spans | " + " | ".join(AXES) + " |", "| --- | ---: | ---: |" + " ---: |" * len(AXES)]
+    for r in growth_table(g):
+        cells = [fmt(x) for x in r["ratio"]] if r["ratio"] else ["-"] * len(AXES)
+        lines.append(f"| {r['label']} | {'-' if r['scans'] is None else r['scans']} | {r['count']} | "
+                     + " | ".join(cells) + " |")
+    return lines
