@@ -31,6 +31,7 @@ from rodo.estimator.lie import se3
 from .association import DEFAULT_TOLERANCE
 from .consistency import require_arrays
 from .odometry_consistency import matched_run, relative_terms, span_scans
+from .run_consistency import DEFAULT_TAU
 
 GROWTH_SPANS = (0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0)  # s; 0: one scan
 STARTS_PER_SPAN = 8
@@ -45,8 +46,6 @@ def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float
     with a non-finite error or variance, or a variance <= 0, are left out; the first scan's absolute pose too
     (the truth is aligned there). The velocity correlation time, drift rate, heading reversion and jitter are the
     run's own (states'; DEFAULT_TAU and none when absent). Zero sums without P_relative."""
-    from .run_consistency import DEFAULT_TAU
-
     require_arrays(states, truth)
     tau = float(states.get("velocity_correlation_time", DEFAULT_TAU))
     m = matched_run(states, truth, tolerance, tau, None, None)

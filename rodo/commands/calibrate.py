@@ -261,15 +261,20 @@ def _consistency_markdown(c: dict) -> list[str]:
     if c.get("heading_reversion", {}).get("grid"):
         h = c["heading_reversion"]
         chosen = f"{h['time']:g} / {h['anchor_time']:g} s" if h["time"] > 0 else "off"
-        lines.append("heading reversion grid (T_r / T_a s: the same ratios, at the first tau): "
-                     + ", ".join(f"{k}: {r['relative_span']:.3g} / {r['pose']:.3g}" for k, r in h["grid"].items())
-                     + f"; chosen: {chosen}")
+        lines.append("heading reversion grid (T_r / T_a s: the cost of the yaw's E[e^2 / sigma^2] over the spans "
+                     "from the span on and over the drive, at the first tau): "
+                     + ", ".join(f"{k}: {_heading_cost(r)}" for k, r in h["grid"].items()) + f"; chosen: {chosen}")
     j = c.get("attitude_jitter", {})
     if j.get("fitted"):
         lines.append(f"attitude jitter variance {j['variance']:.3g} rad^2 at T {j['time']:g} s ({j['outcome']}: mean "
                      f"roll and pitch NEES/dof of the relative pose over the span {j['mean_without']:.3g} -> "
                      f"{j['mean_with']:.3g})")
     return lines
+
+
+def _heading_cost(r: dict) -> str:
+    """A heading grid point's cost (reports before session 46: its 6-dof span / pose ratios)."""
+    return f"{r['cost']:.3g}" if "cost" in r else f"{r['relative_span']:.3g} / {r['pose']:.3g}"
 
 
 def _heading_words(c: dict) -> str:

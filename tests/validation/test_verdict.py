@@ -189,9 +189,21 @@ def test_each_model_is_calibrated_at_its_own_floor(tmp_path):
     floors = {model: parse_floor(text) for model, text in given.items()}
     args = argparse.Namespace(out=str(tmp_path), calibration_drives=1, calibration_seed=100, calibration_duration=5.0,
                               floor_ca=given["ca-polar"], floor_cv=given["cv-cartesian"], runs=2, duration=3.0,
-                              seed=3, jobs=1)
+                              seed=3, jobs=1, heading_reversion=False)
     _, cals, _ = _steps(args, ["city"])
     assert sorted(argv[argv.index("--model") + 1] for _, argv, _ in cals) == sorted(floors)
     for _, argv, _ in cals:
         assert parse_floor(argv[argv.index("--floor") + 1]) == floors[argv[argv.index("--model") + 1]]
     assert floors["ca-polar"] == [1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4] and floors["cv-cartesian"] == 2e-4
+
+
+def test_the_heading_reversion_reaches_both_calibrations(tmp_path):
+    """--heading-reversion: both models' calibration steps learn the yaw's reversion (rodo calibrate's flag);
+    without it neither does."""
+    args = argparse.Namespace(out=str(tmp_path), calibration_drives=1, calibration_seed=100, calibration_duration=5.0,
+                              floor_ca="1e-4", floor_cv="1e-4", runs=2, duration=3.0, seed=3, jobs=1,
+                              heading_reversion=True)
+    _, cals, _ = _steps(args, ["city", "hills"])
+    assert len(cals) == 4 and all("--heading-reversion" in argv for _, argv, _ in cals)
+    _, cals, _ = _steps(argparse.Namespace(**dict(vars(args), heading_reversion=False)), ["city"])
+    assert not any("--heading-reversion" in argv for _, argv, _ in cals)
