@@ -41,6 +41,7 @@ SCENARIOS = ("city", "hills", "stop_and_go", "highway")
 CELLS = ("velocity", "relative_scan")  # judged scan by scan
 SPANS = ("relative_span", "pose")  # judged by their mean
 OUTSIDE = ("scans_below", "scans_above", "scans_above_one_run")  # where a cell's scans miss (campaign_consistency)
+GROWTH_ROWS = ("1 s", "5 s", "drive")  # the error growth's rows a verdict shows per cell (`error_growth`)
 SHARE_TARGET = 0.90
 SPAN_LIMIT = 2.0
 LEARNED = ("velocity_correlation_time", "velocity_error_share", "velocity_error_share_per_speed",
@@ -95,7 +96,8 @@ def scenario_verdict(out_dir, scenario: str) -> dict:
                                                                          "n": int(np.isfinite(ok).sum())},
             "consistency": {m: {k: c[k] for k in ("mean_per_dof", "fraction_scans_within", *OUTSIDE) if k in c}
                             for m, c in entry["consistency"].items() if c["runs"]},
-            "ellipsoid_3sigma_pct": coverage, "learned": _learned(config_path(out_dir, scenario, name))}
+            "ellipsoid_3sigma_pct": coverage, "learned": _learned(config_path(out_dir, scenario, name)),
+            "error_growth": {r["label"]: r["ratio"] for r in (entry.get("error_growth") or {}).get("table", [])}}
     row["paired_kitti_t_err_pct"] = paired(rows, "kitti_t_err_pct", MODELS["CA/P"][0], MODELS["CV/C"][0])
     return row
 
@@ -171,6 +173,7 @@ def render_markdown(verdict: dict, meta: dict | None = None) -> str:
                      ("velocity", "acceleration", "relative_scan", "relative_span", "pose")]
             lines.append(f"| {r['scenario']} | {name} | " + " | ".join(means) + f" | "
                          f"{_num(m['ellipsoid_3sigma_pct'], '.1f')} |")
+    lines += _growth_lines(rows)
     lines += ["", "## What was learned (the `[uncertainty]` terms; the whole configs in calibration/; gross_failures: "
                   "the calibration drives' scans its velocity + one-scan fits left out)", "",
               "| scenario | model | " + " | ".join(LEARNED) + " |", "| --- | --- |" + " ---: |" * len(LEARNED)]
@@ -181,6 +184,23 @@ def render_markdown(verdict: dict, meta: dict | None = None) -> str:
     if meta:
         lines += ["", "Parameters: " + ", ".join(f"{k}={v}" for k, v in sorted(meta.items()))]
     return "\n".join(lines) + "\n"
+
+
+def _growth_lines(rows: list[dict]) -> list[str]:
+    """The error growth per axis of every cell over GROWTH_ROWS ([] when no campaign has it: summaries before
+    session 46)."""
+    if not any(m.get("error_growth") for r in rows for m in r["models"].values()):
+        return []
+    lines = ["", "## Per axis: E[e^2 / sigma^2] of the relative pose over 1 s and 5 s and of the absolute pose over "
+                 "the drive (x y z roll pitch yaw: 1 right, below 1 cautious, above over-confident; every span in "
+                 "<scenario>/summary.md)", "",
+             "| scenario | model | " + " | ".join(GROWTH_ROWS) + " |", "| --- | --- |" + " --- |" * len(GROWTH_ROWS)]
+    for r in rows:
+        for name, m in r["models"].items():
+            g = m.get("error_growth", {})
+            cells = [" ".join(_num(x) for x in g[k]) if g.get(k) else "-" for k in GROWTH_ROWS]
+            lines.append(f"| {r['scenario']} | {name} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def _misses(cells: list[dict]) -> list[str]:

@@ -74,7 +74,8 @@ def test_calibrate_learns_the_velocity_per_axis_by_default(seq, tmp_path, capsys
 @pytest.mark.slow
 def test_calibrate_learns_the_heading_reversion_when_asked(seq, tmp_path, capsys):
     """--heading-reversion on a 12 s drive: the report holds the grid's points with T_r up to a tenth of the
-    drive (off and 1 s), the config the point of least cost (at the tau before it) and tau chosen again with it,
+    drive (off and 1 s), each with the yaw's error growth and its cost, the config the point of least cost (at the
+    tau before it) and tau chosen again with it,
     the markdown the grid and the choice, and `rodo run` accepts the config. On the 2 s drive only off is tried."""
     from rodo.validation import calibrate_consistency as cc
 
@@ -86,7 +87,8 @@ def test_calibrate_learns_the_heading_reversion_when_asked(seq, tmp_path, capsys
     c = json.loads(out.with_suffix(".json").read_text())["consistency"]
     h = c["heading_reversion"]
     assert h["fitted"] is True and set(h["grid"]) == {"0/0", "1/20", "1/50", "1/100", "1/200"}
-    cost = {k: cc.tau_cost((r["relative_span"], r["pose"])) for k, r in h["grid"].items()}
+    cost = {k: r["cost"] for k, r in h["grid"].items()}  # of the yaw's error growth over 1, 2, 5 and 10 s, the drive
+    assert all(len(r["yaw"]) == 5 and r["cost"] == cc.tau_cost(r["yaw"]) for r in h["grid"].values())
     assert cost[f"{h['time']:g}/{h['anchor_time']:g}"] == min(cost.values())
     assert unc.heading_reversion_time == h["time"]
     assert unc.heading_anchor_time == (h["anchor_time"] if h["time"] > 0 else 100.0)
