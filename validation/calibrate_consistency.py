@@ -51,9 +51,9 @@ tells the truth (docs/consistency.md):
 - `uncertainty.heading_reversion_time` T_r and `heading_anchor_time` T_a (`estimator.heading_reversion`), when
   asked: the yaw error reverts to an anchor where the far scene holds the heading. Chosen after tau on the grid
   HEADINGS (off among them) by the yaw's error growth (`fit_heading`: its E[e^2 / sigma^2] over spans from 1 s
-  and over the drive, the same cost), then tau chosen again with them. Not by default: on the verdict's drives
-  it brings the yaw nearer its covariance in six cells of eight and over-confident in city's (docs/consistency.md,
-  "The heading reverts").
+  and over the drive, the same cost), then tau chosen again with them. Not by default: in the verdict at seed 7 it
+  brought the yaw over the drive nearer its covariance in seven cells of eight, over-confident in hills CV/C, and
+  two one-scan cells below 90 % (docs/consistency.md, "The heading reverts").
 - `uncertainty.attitude_jitter_variance` V (`estimator.attitude_jitter`): last, tau chosen without it.
 
 Needs truth.npz; on real data, carry kappa and tau over from a simulated sequence like it (docs/calibration.md).
