@@ -20,11 +20,13 @@ Modules:
 - `experiments`: `fig1_data` ... `fig5_data`, `figure_data`;
 - `odometry_consistency`: `odometry_nees`, `summarise` (NEES of velocity, acceleration, relative pose over a
   scan and a span, absolute pose: docs/consistency.md); `run_consistency` (the same for a run in memory, the
-  ellipsoid coverage); `campaign_consistency` (over N runs);
+  ellipsoid coverage); `campaign_consistency` (over N runs); `error_growth` (per axis, over spans from one scan
+  to 20 s and the drive);
 - `calibrate`, `calibrate_sensor`, `calibrate_config`: noise learned from data (`rodo calibrate`,
   docs/calibration.md), `calibrate_sensor_em` the measurement noise without ground truth; `calibrate_consistency`:
   the uncertainty parameters (kappa, the factors, drift rate, tau) fitted against the truth, `calibrate_velocity`
-  the velocity factor, `calibrate_relative` the one-scan relative pose's, `calibrate_jitter` the roll and pitch
+  the velocity factor, `calibrate_relative` the one-scan relative pose's, `calibrate_drift` the drift rate,
+  `calibrate_jitter` the roll and pitch
   jitter's variance last, `gross_failures` the scans those fits leave out; `replayed_states`: a run's states at
   other uncertainty settings, without running again.
 

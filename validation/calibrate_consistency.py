@@ -72,17 +72,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from rodo.estimator.config import OdometryConfig
-from rodo.estimator.lie import se3
 from rodo.estimator.uncertainty import heading_of
 from rodo.sim.sequence import Sequence
 
-from .association import DEFAULT_TOLERANCE
+from .calibrate_drift import fit_drift_rate
 from .calibrate_jitter import attitude_jitter_report
 from .calibrate_relative import fit_relative_inflation, median_ratio, relative_factor_states
 from .calibrate_velocity import fit_velocity_inflation
 from .driver import run_sequence
-from .error_growth import error_growth, pooled_growth
-from .odometry_consistency import matched_poses, odometry_nees
+from .error_growth import error_growth, growth_table, pooled_growth
+from .odometry_consistency import odometry_nees
 from .replayed_states import replayed, velocity_inflated_states
 from .run_consistency import run_states, runs_of
 
@@ -101,8 +100,6 @@ DEFAULT_TAU = 0.25  # s, kept when no tau of the grid gives finite ratios
 CORRELATIONS = (0.0, 0.5, 1.0)
 OVERCONFIDENCE_WEIGHT = 2.0  # how much more an over-confident ln ratio (> 0) counts than a cautious one in fit_tau
 KAPPA_RANGE = (1.0, 100.0)
-DRIFT_BLOCK = 2.0  # s, the blocks of fit_drift_rate's standard error (the one-scan errors' correlation: 1-2 s)
-DRIFT_SIGNIFICANCE = 3.0  # block standard errors a drift rate component must reach to be carried
 FIXED_POINT_MEASURES = ("velocity", "relative_scan")
 REPORTED = ("velocity", "relative_scan", "relative_span", "pose")
 def _each(fn, states, *args):
@@ -162,52 +159,6 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
         unc = dataclasses.replace(unc, velocity_error_share=float(share[0]),
                                   velocity_error_share_per_speed=float(share[1]), registration_correlation=float(share[2]))
     return config.replace(uncertainty=unc)
-
-
-def fit_drift_rate(states: dict | list, truth: dict | list, tolerance: float = DEFAULT_TOLERANCE,
-                   block: float = DRIFT_BLOCK, significance: float = DRIFT_SIGNIFICANCE) -> dict:
-    """The drift rate of one run (or runs, pooled: one beta over all their scans): beta (6,) = sum_k e_k /
-    sum_k s_k, e_k = ln(R_true R_est^-1) the one-scan relative error (vehicle frame) and s_k the true distance of
-    the scan (not the dead-reckoned steps of re-initialisations, states' `restarted`: no registration there); its
-    standard error se (6,) from the scatter of e_k - s_k beta (scans as independent), and se_block from the
-    scatter of those residuals summed over `block` seconds of consecutive scans (at least se): the one-scan
-    errors are correlated over a few scans to two seconds (docs/consistency.md, "What is not yet right"), which
-    the independent se understates up to 2.9 times on the verdict's drives. sigma = sqrt(beta^2 + se_block^2)
-    where |beta| is at least `significance` times se_block, else 0: a drift the drive cannot tell from none is
-    not carried into the reported covariance (it held the absolute pose cautious where there is none:
-    docs/consistency.md, "A drift rate only where the drive shows one"). Returns beta, se, se_block, z (beta /
-    se_block), sigma, distance (m), block (s).
-
-    Checked by: tests/validation/test_calibrate_consistency.py::test_drift_rate_of_a_run_with_a_known_one,
-        ::test_drift_rate_gate_counts_correlated_errors
-    """
-    e, s, blocks, first = [np.zeros((0, 6))], [np.zeros(0)], [np.zeros(0, int)], 0
-    for st, tr in runs_of(states, truth):
-        ia, _, T_est, T_true = matched_poses(st, tr, tolerance)
-        R_true = T_true[1:] @ se3.inverse(T_true[:-1])
-        keep = ~np.asarray(st.get("restarted", np.zeros(len(st["t"]), bool)), dtype=bool)[ia][1:]
-        e.append(se3.log(R_true @ se3.inverse(T_est[1:] @ se3.inverse(T_est[:-1])))[keep])
-        s.append(np.linalg.norm(R_true[:, :3, 3], axis=1)[keep])
-        t = np.asarray(st["t"], dtype=float)[ia]
-        n = max(1, int(round(block / np.median(np.diff(t))))) if len(t) > 1 else 1
-        blocks.append(first + np.arange(int(keep.sum())) // n)  # numbered across the runs
-        first = blocks[-1][-1] + 1 if len(blocks[-1]) else first
-    e, s, blocks = np.concatenate(e), np.concatenate(s), np.concatenate(blocks)
-    distance = float(s.sum())
-    if len(e) < 2 or distance <= 0:
-        zeros = [0.0] * 6
-        return {"beta": zeros, "se": zeros, "se_block": zeros, "z": zeros, "sigma": zeros, "distance": distance,
-                "block": block}
-    beta = e.sum(axis=0) / distance
-    residual = e - s[:, None] * beta
-    se = np.sqrt(np.sum(np.square(residual), axis=0)) / distance
-    summed = np.zeros((blocks.max() + 1, 6))
-    np.add.at(summed, blocks, residual)
-    se_block = np.maximum(np.sqrt(np.sum(np.square(summed), axis=0)) / distance, se)  # never below the scans'
-    z = beta / np.maximum(se_block, np.finfo(float).tiny)
-    sigma = np.where(np.abs(z) >= significance, np.hypot(beta, se_block), 0.0)
-    return {"beta": beta.tolist(), "se": se.tolist(), "se_block": se_block.tolist(), "z": z.tolist(),
-            "sigma": sigma.tolist(), "distance": distance, "block": block}
 
 
 def _ratios(states: dict | list, truth: dict | list, span: float, tau: float, drift_rate_sigma=None) -> dict:
@@ -368,8 +319,8 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
                                     runs_of(states, truth))
     jitter_pair = (jitter["variance"], jitter["time"])
     fitted = _with(config, kappa, tau, drift["sigma"], factors, new, heading, jitter_pair, (*share, correlation))
-    final = _ratios(_each(lambda s: replayed(_at_velocity(s, factors, u.velocity_lag_time), tau, drift["sigma"],
-                                             heading, jitter_pair), states), truth, span, tau, drift["sigma"])
+    final, growth = _final(states, truth, span, tau, drift["sigma"], heading, jitter_pair,
+                           lambda s: _at_velocity(s, factors, u.velocity_lag_time))
     steps.append(ConsistencyStep(kappa, tau, final))
     if progress is not None:
         progress(steps[-1])
@@ -382,8 +333,19 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
                                     "tau_without": tau_alone,
                                     "grid": {f"{r:g}/{a:g}": {"yaw": x, "cost": tau_cost(x)}
                                              for (r, a), x in heading_ratios.items()}},
-              "attitude_jitter": jitter}
+              "attitude_jitter": jitter, "error_growth": growth}
     return fitted, report
+
+
+def _final(states, truth, span: float, tau: float, drift_rate_sigma, heading, jitter, at_velocity) -> tuple:
+    """(every REPORTED measure's median ratio, the error growth per axis: {the pooled sums, table}) of the
+    runs' states at the fitted terms (replayed: they do not change the estimate)."""
+    at = _each(lambda s: dict(replayed(at_velocity(s), tau, drift_rate_sigma, heading, jitter),
+                              velocity_correlation_time=float(tau), drift_rate_sigma=np.asarray(drift_rate_sigma,
+                                                                                                 dtype=float)), states)
+    g = pooled_growth([error_growth(s, t) for s, t in runs_of(at, truth)])
+    return _ratios(at, truth, span, tau, drift_rate_sigma), {**{k: np.asarray(v).tolist() for k, v in g.items()},
+                                                             "table": growth_table(g)}
 
 
 def _velocity_fit(states, truth, axes: bool, lag: bool, lag_time: float) -> tuple[dict, tuple]:

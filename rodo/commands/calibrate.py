@@ -18,8 +18,9 @@ from rodo.sim.sequence import read_sequence
 from rodo.sim.simulate import TRUTH_NPZ, load_truth
 from rodo.validation.calibrate import COMPONENTS, DEFAULT_FLOOR, QC_MAX, QC_MIN, floors
 from rodo.validation.calibrate_config import calibrate_with_truth, calibrate_without_truth, config_toml
-from rodo.validation.calibrate_consistency import DRIFT_SIGNIFICANCE
+from rodo.validation.calibrate_drift import DRIFT_SIGNIFICANCE
 from rodo.validation.calibrate_relative import REST_FRACTION
+from rodo.validation.error_growth import growth_lines
 
 from .run import load_config
 
@@ -188,6 +189,7 @@ def _markdown(report: dict) -> str:
                   f"{', '.join(f'{x:.2f}' for x in d['lag1'])} over {d['scans']} scans"]
         if "consistency" in report:
             lines += [""] + _consistency_markdown(report["consistency"])
+            lines += growth_lines(report["consistency"].get("error_growth"), lambda v: "-" if v is None else f"{v:.3g}")
     else:
         lines += ["| iteration | Qc in | Qc out | change | left (extrapolated) | expected log-likelihood |",
                   "| --- | --- | --- | --- | --- | --- |"]

@@ -10,6 +10,8 @@ import pytest
 from rodo import scenarios
 from rodo.cli import main
 from rodo.estimator.config import OdometryConfig
+from rodo.sim.simulate import load_truth
+from rodo.validation.error_growth import error_growth, growth_table
 from tests.cli.helpers import fails
 
 
@@ -96,6 +98,15 @@ def test_calibrate_learns_the_heading_reversion_when_asked(seq, tmp_path, capsys
     assert taus[unc.velocity_correlation_time] == min(taus.values())  # at the chosen reversion
     assert "heading reversion grid" in out.with_suffix(".md").read_text()
     assert main(["run", str(longer), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    # the report's error growth per axis (its replay of the fitted terms) is the run's at the written config
+    with np.load(tmp_path / "run" / "states.npz") as z:
+        states = dict(z)
+    ran = growth_table(error_growth(states, load_truth(longer)))
+    reported = c["error_growth"]["table"]
+    assert [r["count"] for r in ran] == [r["count"] for r in reported] and reported[0]["count"] > 0
+    for a, b in zip(ran, reported):
+        assert a["ratio"] == b["ratio"] or a["ratio"] == pytest.approx(b["ratio"], rel=1e-9)
+    assert "Error growth per axis" in out.with_suffix(".md").read_text()
 
     assert main(["calibrate", str(seq), "--heading-reversion", "--out", str(tmp_path / "short.toml")]) == 0
     h = json.loads((tmp_path / "short.json").read_text())["consistency"]["heading_reversion"]

@@ -12,7 +12,7 @@ from rodo import scenarios
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.ground import off_road, road_mask
 from rodo.sim.world import GROUND_BELOW
-from rodo.validation.calibrate_consistency import fit_drift_rate
+from rodo.validation.calibrate_drift import fit_drift_rate
 from rodo.validation.driver import run_sequence
 from rodo.validation.run_consistency import run_states
 
