@@ -214,25 +214,16 @@ def fit_heading(states: dict | list, truth: dict | list, span: float, tau: float
     spans' then the drive's}). Only reversion times up to the shortest run's duration / REVERSIONS_PER_DRIVE are
     tried: a longer one cannot be told from none there (a 2 s drive chose T_r 6 s by a cost 0.3 % below off's)."""
     shortest = min(float(np.ptp(s["t"])) for s, _ in runs_of(states, truth))
-    at = lambda s, h: dict(replayed(s, tau, drift_rate_sigma, h), velocity_correlation_time=float(tau),  # noqa: E731
-                           drift_rate_sigma=_drift_array(drift_rate_sigma, s))
-    grid = {(float(r), float(a)): yaw_growth(_each(at, states, (r, a)), truth, span)
+    grid = {(float(r), float(a)): yaw_growth(_each(replayed, states, tau, drift_rate_sigma, (r, a)), truth, span)
             for r, a in headings if r <= shortest / REVERSIONS_PER_DRIVE}
     finite = {k: r for k, r in grid.items() if len(r) and np.all(np.isfinite(r)) and min(r) > 0}
     return (min(finite, key=lambda k: tau_cost(finite[k])) if finite else (0.0, 0.0)), grid
 
 
-def _drift_array(drift_rate_sigma, states: dict) -> np.ndarray:
-    """The drift rate sigma (6,) a fit composes with: the given one, else the run's own (zeros without)."""
-    if drift_rate_sigma is None:
-        return np.asarray(states.get("drift_rate_sigma", np.zeros(6)), dtype=float)
-    return np.asarray(drift_rate_sigma, dtype=float)
-
-
 def yaw_growth(states: dict | list, truth: dict | list, span: float) -> list[float]:
-    """The yaw's E[e^2 / sigma^2] (`error_growth`, at the runs' own tau, drift rate and reversion) over the
-    relative poses of each span of GROWTH_SPANS from `span` seconds on that the runs reach, then over the
-    absolute pose."""
+    """The yaw's E[e^2 / sigma^2] (`error_growth`, at the runs' own tau, drift rate and reversion, as `replayed`
+    records them) over the relative poses of each span of GROWTH_SPANS from `span` seconds on that the runs
+    reach, then over the absolute pose."""
     g = pooled_growth([error_growth(s, t) for s, t in runs_of(states, truth)])
     rows = [i for i, L in enumerate(g["span"]) if L >= span and g["count"][i] > 0] + [len(g["span"])]
     return [float(g["z2"][i][YAW] / g["count"][i]) if g["count"][i] else float("nan") for i in rows]
@@ -340,9 +331,7 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
 def _final(states, truth, span: float, tau: float, drift_rate_sigma, heading, jitter, at_velocity) -> tuple:
     """(every REPORTED measure's median ratio, the error growth per axis: {the pooled sums, table}) of the
     runs' states at the fitted terms (replayed: they do not change the estimate)."""
-    at = _each(lambda s: dict(replayed(at_velocity(s), tau, drift_rate_sigma, heading, jitter),
-                              velocity_correlation_time=float(tau), drift_rate_sigma=np.asarray(drift_rate_sigma,
-                                                                                                 dtype=float)), states)
+    at = _each(lambda s: replayed(at_velocity(s), tau, drift_rate_sigma, heading, jitter), states)
     g = pooled_growth([error_growth(s, t) for s, t in runs_of(at, truth)])
     return _ratios(at, truth, span, tau, drift_rate_sigma), {**{k: np.asarray(v).tolist() for k, v in g.items()},
                                                              "table": growth_table(g)}

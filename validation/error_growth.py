@@ -30,7 +30,7 @@ from rodo.estimator.lie import se3
 
 from .association import DEFAULT_TOLERANCE
 from .consistency import require_arrays
-from .odometry_consistency import matched_run, relative_terms, span_scans
+from .odometry_consistency import matched_run, matched_span_terms, span_scans
 from .run_consistency import DEFAULT_TAU
 
 GROWTH_SPANS = (0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0)  # s; 0: one scan
@@ -58,7 +58,7 @@ def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float
         if K < 2 or n >= K:
             continue
         starts = np.arange(0, K - n, max(1, n // STARTS_PER_SPAN))
-        terms = relative_terms(m, n, tau, m["drift_rate_sigma"], m["heading"], starts)
+        terms = matched_span_terms(m, n, starts)
         if terms is None:
             continue
         excess = span_excess(m["t"], n, states.get("attitude_jitter"))[starts]
@@ -105,14 +105,20 @@ def growth_table(g: dict) -> list[dict]:
     rows = []
     for i, label in enumerate(labels):
         c = float(g["count"][i])
-        per = (lambda k, f=(lambda x: x): [float(f(x / c)) for x in g[k][i]] if c else None)  # noqa: E731
+        mean = {k: np.asarray(g[k][i], dtype=float) / c if c else None for k in SUMS[1:]}
         rows.append({"label": label, "scans": int(g["scans"][i]) if i < len(g["span"]) else None, "count": int(c),
-                     "ratio": per("z2"), "rms_error": per("e2", np.sqrt), "rms_sigma": per("var", np.sqrt)})
+                     "ratio": _listed(mean["z2"]), "rms_error": _listed(mean["e2"], np.sqrt),
+                     "rms_sigma": _listed(mean["var"], np.sqrt)})
     return rows
 
 
+def _listed(v, f=None) -> list[float] | None:
+    """v (6,), or f(v), as a list of floats; None for None."""
+    return None if v is None else [float(x) for x in (v if f is None else f(v))]
+
+
 def growth_lines(g: dict | None, fmt) -> list[str]:
-    """Markdown table of summed `error_growth` (summary.md, `rodo evaluate --growth`); [] without it. `fmt`
+    """Markdown table of summed `error_growth` (summary.md, the calibration report); [] without it. `fmt`
     formats a number or None."""
     if g is None or not np.any(np.asarray(g["count"]) > 0):
         return []

@@ -32,7 +32,7 @@ from rodo.estimator.velocity_lag import with_lag
 from .alignment import truth_in_estimator_frame
 from .association import DEFAULT_TOLERANCE, associate
 from .consistency import nees, require_arrays
-from .span_covariances import heading_deviations, span_covariances
+from .span_covariances import heading_deviations, span_covariances, step_matrices
 
 # not per scan
 RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation", "heading_reversion",
@@ -98,28 +98,28 @@ def recursion_inputs_of_run(states: dict, Sigma_rel: np.ndarray, P_window: np.nd
     return S, P
 
 
-def relative_terms(m: dict, n: int, tau: float, drift_rate_sigma, heading, starts=None):
+def matched_span_terms(m: dict, n: int, starts=None):
     """(e (K - n, 6), C (K - n, 6, 6), t (K,), n) of the relative poses over n scans of a matched run
-    (`matched_run`): their errors, covariances (the drift's composed over the span and the revision at its first
-    scan; no jitter), the scan times and n; None where there are none. With `starts` (increasing first scans,
-    each below K - n) the rows of those spans alone."""
+    (`matched_run`, at its tau, drift rate and heading reversion): their errors, covariances (the drift's
+    composed over the span and the revision at its first scan; no jitter), the scan times and n; None where there
+    are none. With `starts` (increasing first scans, each below K - n) the rows of those spans alone."""
     t, T_est, states = m["t"], m["T_est"], m["sub"]
     if m["drift_inputs"] is None or n >= len(t):
         return None
     rows = slice(None) if starts is None else np.asarray(starts, dtype=int)
-    Sigma_rel, P_varpi, restarts, deviations = m["drift_inputs"]
-    C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, tau, drift_rate_sigma, restarts, heading, deviations,
-                         starts)
+    Sigma_rel, P_varpi, restarts, deviations, steps = m["drift_inputs"]
+    C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, m["tau"], m["drift_rate_sigma"], restarts, m["heading"],
+                         deviations, starts, steps)
     if "P_revision" in states:  # the revision of each span's first emitted pose, by the scan after it
         C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)[rows]
     return _relative_errors(m["T_true"], T_est, n)[rows], C, t, n
 
 
-def _span_nees(m: dict, n: int, tau: float, drift_rate_sigma, heading, jitter) -> np.ndarray:
+def _span_nees(m: dict, n: int, jitter) -> np.ndarray:
     """Per-scan NEES of the relative pose over n scans of a matched run (`matched_run`), with the roll and pitch
     jitter [V, T] (None: off)."""
     out = np.full(len(m["t"]), np.nan)
-    terms = relative_terms(m, n, tau, drift_rate_sigma, heading)
+    terms = matched_span_terms(m, n)
     if terms is not None:
         e, C, t, n = terms
         out[n:] = nees(e, with_roll_pitch_variance(C, span_excess(t, n, jitter)))
@@ -172,7 +172,7 @@ def odometry_nees(states: dict, truth: dict, span: float = 1.0, tau: float = 0.2
     if P.shape[-1] == 18 and "varpi_dot" in truth and "varpi_dot" in sub:
         out["acceleration"] = nees(np.asarray(truth["varpi_dot"])[ib] - sub["varpi_dot"], P[:, 12:18, 12:18])
     for name, n in (("relative_scan", 1), ("relative_span", span_scans(t, span))):
-        out[name] = _span_nees(m, n, tau, m["drift_rate_sigma"], m["heading"], jitter)
+        out[name] = _span_nees(m, n, jitter)
     out["pose"] = nees(xi, sub["P_pose_absolute"]) if "P_pose_absolute" in sub else np.full(len(t), np.nan)
     out["pose_window"] = nees(xi, P[:, :6, :6])
     return out
@@ -191,7 +191,7 @@ def span_terms(states: dict, truth: dict, span: float = 1.0, tau: float = 0.25,
     (`validation.calibrate_jitter`)."""
     require_arrays(states, truth)
     m = matched_run(states, truth, tolerance, tau, drift_rate_sigma, heading)
-    return relative_terms(m, span_scans(m["t"], span), tau, m["drift_rate_sigma"], m["heading"])
+    return matched_span_terms(m, span_scans(m["t"], span))
 
 
 def matched_poses(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANCE):
@@ -207,9 +207,10 @@ def matched_poses(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANC
 def matched_run(states: dict, truth: dict, tolerance: float, tau: float, drift_rate_sigma, heading) -> dict:
     """A run's scans matched to the truth (`odometry_nees`'s arguments): t, T_est, T_true (in the estimator's
     world), P, sub (the per-scan states arrays at the matched scans), ib (the truth's indices), the drift rate and
-    heading reversion in use (the run's own where None), and drift_inputs, what the run's drift recursion
-    composed, for every span measure ((Sigma_rel, P_varpi, restarts, deviations), `recursion_inputs_of_run`; None
-    without P_relative)."""
+    heading reversion in use (the run's own where None), tau, and drift_inputs, what the run's drift recursion
+    composed, for every span measure ((Sigma_rel, P_varpi, restarts, deviations, and the steps' matrices of
+    `span_covariances.step_matrices` into scans 1 .. K-1, built once for all the spans), `recursion_inputs_of_run`;
+    None without P_relative)."""
     if drift_rate_sigma is None and "drift_rate_sigma" in states:
         drift_rate_sigma = np.asarray(states["drift_rate_sigma"], dtype=float)
     if heading is None:
@@ -231,9 +232,11 @@ def matched_run(states: dict, truth: dict, tolerance: float, tau: float, drift_r
         Sigma_rel, P_varpi = recursion_inputs_of_run(states, np.asarray(sub["P_relative"], dtype=float), P_window,
                                                      ia, restarts)
         deviations = heading_deviations(T_est, t, Sigma_rel, P_varpi, tau, drift_rate_sigma, restarts, heading)
-        drift_inputs = Sigma_rel, P_varpi, restarts, deviations
+        steps = step_matrices(T_est, t, Sigma_rel, P_varpi, tau, np.arange(1, len(t)), restarts, heading)
+        drift_inputs = Sigma_rel, P_varpi, restarts, deviations, steps
     return {"t": t, "T_est": T_est, "T_true": T_true, "P": np.asarray(states["P"], dtype=float)[ia], "sub": sub,
-            "ib": ib, "drift_rate_sigma": drift_rate_sigma, "heading": heading, "drift_inputs": drift_inputs}
+            "ib": ib, "drift_rate_sigma": drift_rate_sigma, "heading": heading, "tau": tau,
+            "drift_inputs": drift_inputs}
 
 
 def summarise(measures: dict, alpha: float = 0.05) -> dict:

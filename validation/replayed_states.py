@@ -16,7 +16,7 @@ import numpy as np
 
 from rodo.estimator.attitude_jitter import absolute_excess, attitude_jitter_array, with_roll_pitch_variance
 from rodo.estimator.heading_reversion import heading_reversion_array
-from rodo.estimator.uncertainty import fresh_starts
+from rodo.estimator.uncertainty import drift_rate_sigma_array, fresh_starts
 from rodo.estimator.velocity_inflation import velocity_inflated, velocity_inflation_array
 from rodo.estimator.velocity_lag import lag_accelerations, with_lag
 
@@ -62,11 +62,13 @@ def velocity_inflated_states(states: dict, inflation: float, per_speed: float, p
 
 
 def replayed(states: dict, tau: float, drift_rate_sigma, heading=None, jitter=None) -> dict:
-    """The states with the absolute covariances the run would have reported at this tau, drift rate, heading
-    reversion ([T_r, T_a]; None: off) and roll and pitch jitter ([V, T]; None: off), the reversion and the jitter
-    recorded (the span measures read them); the estimate itself does not depend on them."""
+    """The states with the absolute covariances the run would have reported at this tau, drift rate (None: none),
+    heading reversion ([T_r, T_a]; None: off) and roll and pitch jitter ([V, T]; None: off), all four recorded as
+    the run records them (the span measures and `error_growth` read them); the estimate itself does not depend on
+    them."""
     heading, jitter = heading_reversion_array(heading), attitude_jitter_array(jitter)
     return dict(states, P_pose_absolute=absolute_covariances(states, tau, drift_rate_sigma, heading, jitter),
+                velocity_correlation_time=float(tau), drift_rate_sigma=drift_rate_sigma_array(drift_rate_sigma),
                 heading_reversion=heading, attitude_jitter=jitter)
 
 

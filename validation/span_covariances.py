@@ -59,13 +59,16 @@ def step_matrices(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: 
 
 
 def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi: np.ndarray, n: int, tau: float,
-                     drift_rate_sigma=None, restarts=None, heading=None, deviations=None, starts=None) -> np.ndarray:
+                     drift_rate_sigma=None, restarts=None, heading=None, deviations=None, starts=None,
+                     steps=None) -> np.ndarray:
     """Covariances (N - n, 6, 6) of T_k T_{k-n}^-1 for k = n .. N-1: row k - n equals
     `span_covariance(T, t, Sigma_rel, P_varpi, k - n, k, tau, drift_rate_sigma, restarts, heading,
     deviations[k - n])` bit for bit; with `starts`, the rows of those spans' first scans alone (len(starts), 6, 6).
 
     Args: as `uncertainty.span_covariance`; n >= 1 scans per span; deviations (N,) each scan's Var(yaw - anchor)
-    (`heading_deviations`; None: zeros); starts: increasing first scans, each below N - n (None: all).
+    (`heading_deviations`; None: zeros); starts: increasing first scans, each below N - n (None: all); steps:
+    `step_matrices` of scans 1 .. N-1 (row j - 1: the step into scan j) at these arguments, for a caller that
+    composes several span lengths (None: each block builds its own).
     """
     N = len(t)
     fresh = fresh_starts(restarts, N)
@@ -74,8 +77,9 @@ def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varp
     prior = np.diag(np.square(drift_rate_sigma_array(drift_rate_sigma)))
     for b in range(0, len(first), BLOCK):  # spans starting at scans s = first[b:b + BLOCK]
         s = first[b:b + BLOCK]
-        A_all, Q_all = step_matrices(T, t, Sigma_rel, P_varpi, tau, np.arange(s[0] + 1, s[-1] + n + 1), restarts,
-                                     heading)
+        first_step = s[0] + 1 if steps is None else 1  # the scan A_all[0] steps into
+        A_all, Q_all = steps if steps is not None else step_matrices(
+            T, t, Sigma_rel, P_varpi, tau, np.arange(s[0] + 1, s[-1] + n + 1), restarts, heading)
         C = np.zeros((len(s),) + A_all.shape[1:])  # uncertainty._initial with a known start pose
         if tau > 0:
             C[:, 6:12, 6:12] = P_varpi[s]
@@ -83,7 +87,7 @@ def span_covariances(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varp
         C[:, 12:18, 12:18] = prior
         if C.shape[-1] > 18 and deviations is not None:
             C[:, 18, 18] = deviations[s]  # the anchor at -(yaw - a) from each span's start pose
-        rows = s - s[0]
+        rows = s + 1 - first_step
         for i in range(n):  # step into scan start + i + 1 of every span
             A, Q = A_all[rows + i], Q_all[rows + i]
             C = A @ C @ np.swapaxes(A, -1, -2) + Q

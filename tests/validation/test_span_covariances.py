@@ -32,6 +32,10 @@ def test_equals_span_covariance_bit_for_bit(states, n, tau, drift, monkeypatch):
     starts = np.arange(0, len(t) - n, 3)  # some spans alone: their rows, whatever the blocks
     assert sc.span_covariances(T, t, Sigma_rel, P_varpi, n, tau, drift, starts=starts).tobytes() == \
         want[starts].tobytes()
+    steps = sc.step_matrices(T, t, Sigma_rel, P_varpi, tau, np.arange(1, len(t)))  # built once, for every span
+    assert sc.span_covariances(T, t, Sigma_rel, P_varpi, n, tau, drift, steps=steps).tobytes() == want.tobytes()
+    assert sc.span_covariances(T, t, Sigma_rel, P_varpi, n, tau, drift, starts=starts, steps=steps).tobytes() == \
+        want[starts].tobytes()
 
 
 @pytest.mark.parametrize("n", [1, 4])
