@@ -26,6 +26,8 @@ A map of the package (each module's public names are re-exported here):
     uncertainty.py      the pose covariance that grows as drift does (relative, absolute, over a span)
     heading_reversion.py  the yaw error's reversion to an anchor in that drift (optional)
     attitude_jitter.py  a smooth roll and pitch error beside that drift (optional)
+    stationary_error.py  a bounded pose error per axis beside that drift, with its lever arm (optional)
+    reported_covariances.py  ReportedCovariances: those parts put together, scan by scan
     velocity_inflation.py  the reported velocity variance's factor (speed, Doppler innovation, body rates)
     velocity_lag.py     the velocity's lag behind a manoeuvre, a bias the reported velocity covariance adds
     pull.py             the scan's pull on its solved pose, and the one-scan relative pose's factor
@@ -75,6 +77,7 @@ _EXPORTS = {
     "ground": ("off_road", "road_mask"),
     "heading_reversion": ("heading_reversion_matrix",),
     "attitude_jitter": ("absolute_excess", "span_excess", "span_variance"),
+    "stationary_error": ("span_term", "taken_out"),
     "uncertainty": ("DriftCovariance", "predicted_relative_covariance", "relative_pose_covariance",
                     "revision_covariance", "scan_relative_covariances", "span_covariance"),
     "pull": ("pose_pull", "pull_term", "relative_factor"),

@@ -247,6 +247,13 @@ class UncertaintyConfig:
         composing them leaves out (about 1.1 V over 1 s at T 1 s), the absolute pose the same since the run's
         first scan. `rodo calibrate` learns it. Reported covariances only. 0: off.
     attitude_jitter_time: that error's correlation time T (s, > 0).
+    stationary_variance: per axis [x, y, z, roll, pitch, yaw] (m^2, rad^2) the variance V of a bounded pose
+        error beside the drift recursion (`estimator.stationary_error`; docs/consistency.md, "A bounded error per
+        axis"): its change over one scan is taken out of the scan's relative pose covariance before the recursion
+        composes it, and a relative pose over a span (the absolute pose, from the run's first scan) adds the
+        error's change over the span with its lever arm. `rodo calibrate --stationary-error` learns it. Reported
+        covariances only; the one-scan relative pose covariance is unchanged. Zeros: off.
+    stationary_time: per axis that error's correlation time T (s, > 0).
     prior_memory: time constant (s) of the marginalised prior's memory (its information times exp(-dt /
         prior_memory) at each marginalisation): the map, made from the same scans, brings their information back
         (docs/consistency.md, "A prior that forgets"). 0: off (the paper's marginalisation).
@@ -275,6 +282,8 @@ class UncertaintyConfig:
     heading_anchor_time: float = 100.0  # s
     attitude_jitter_variance: float = 0.0
     attitude_jitter_time: float = 1.0  # s
+    stationary_variance: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # m^2; rad^2
+    stationary_time: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)  # s
 
 
 @dataclass(frozen=True)

@@ -129,6 +129,8 @@ RULES: dict[str, Rule] = {
     "uncertainty.heading_anchor_time": POSITIVE,
     "uncertainty.attitude_jitter_variance": NONNEGATIVE,
     "uncertainty.attitude_jitter_time": POSITIVE,
+    "uncertainty.stationary_variance": Rule(0.0, size=6),
+    "uncertainty.stationary_time": Rule(0.0, lo_closed=False, size=6),
     "solver.iterations": Rule(1, 1000),
     "solver.step_tolerance": POSITIVE,
     "solver.step_sigma_tolerance": NONNEGATIVE,

@@ -43,7 +43,8 @@ from .scan_association import MapAssociation, ScanMeasurements
 from .sensor import Sensor
 from .state import State
 from .surface import surface_covariances
-from .uncertainty import ReportedCovariances, predicted_relative_covariance, scan_relative_covariances
+from .reported_covariances import ReportedCovariances
+from .uncertainty import predicted_relative_covariance, scan_relative_covariances
 from .window import MeasurementSet, SlidingWindow
 
 LOST_PAIRS = 0.1  # share of the static detections paired below which the gates lost the scan (_recentre)

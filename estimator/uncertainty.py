@@ -33,7 +33,9 @@ of its relative motion, accumulated. These parts make it up (docs/consistency.md
 reversion) from scan to scan (the absolute pose covariance) and `span_covariance` over any span (the covariance
 of a relative pose over, e.g., 1 s). tau = 0 drops the second part (the per-scan relative errors composed as
 independent), drift_rate_sigma = 0 the third, a reversion time of 0 the fourth. Beside the recursion, not in it,
-a smooth roll and pitch jitter adds to the reported covariances (`attitude_jitter`; off by default).
+a smooth roll and pitch jitter adds to the reported covariances (`attitude_jitter`; off by default), and a bounded
+error per axis, whose one-scan change the recursion's inputs leave out, adds its change over a span with its lever
+arm (`stationary_error`; off by default). `reported_covariances.ReportedCovariances` puts them together per scan.
 Across a re-initialisation (`restart_matrices`) the step is the dead-reckoned relative pose alone: no
 registration ran over the outage, so neither the velocity error nor the drift rate adds to it, and b starts
 again at zero as at a run's first scan (the fresh window's velocity covariance is the initial prior's, and the
@@ -61,14 +63,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .attitude_jitter import AbsoluteJitter, attitude_jitter_of, with_roll_pitch_variance
-from .heading_reversion import (ANCHOR, YAW, anchored_at_yaw, heading_of, heading_reversion_array,
+from .heading_reversion import (ANCHOR, YAW, anchored_at_yaw, heading_reversion_array,
                                heading_reversion_matrix, reversion_coefficients, state_size)
 from .lie import se3
-from .pull import relative_factor
+from .stationary_error import taken_out
 from .uncertainty_kernels import drift_step, relative_covariances
-from .velocity_inflation import velocity_inflated
-from .velocity_lag import VelocityLag
 
 NO_REVERSION = np.zeros(4)  # drift_step's coefficients without the heading's reversion (unused there)
 
@@ -252,86 +251,22 @@ class DriftCovariance:
         return float(C[YAW, YAW] + C[ANCHOR, ANCHOR] - 2.0 * C[YAW, ANCHOR]) if len(C) > ANCHOR else 0.0
 
 
-class ReportedCovariances:
-    """What the odometry reports beside the window's covariance, scan by scan: each scan's relative pose
-    covariance and its revision (times `[uncertainty] inflation` + `inflation_per_rate` . |omega| +
-    `inflation_per_doppler` ln(1 + the Doppler NIS) + `inflation_per_pull` pull, omega the scan's estimated body
-    rates, pull its pull on the solved pose, `pose_pull`), the absolute pose
-    covariance through the drift recursion (`DriftCovariance`: from the run's first scan, across
-    re-initialisations with their dead-reckoned step, unscaled) with the roll and pitch jitter's excess since that
-    scan (`attitude_jitter`), the velocity's variance scaled (`velocity_inflated`), its lag added (`VelocityLag`).
-
-    Attributes:
-        config: the odometry's `UncertaintyConfig`.
-        last: the last estimate annotated (None before the first).
-        restart_relative: (6, 6) the dead-reckoned relative pose of a re-initialisation in progress (set by the
-            odometry, `predicted_relative_covariance`), None otherwise.
-
-    Checked by: tests/estimator/test_uncertainty.py::test_the_restart_is_flagged_and_adds_the_dead_reckoned_step_alone,
-        ::test_the_drift_recursion_starts_without_the_first_scans_velocity_error,
-        tests/estimator/test_uncertainty_inflation.py::test_velocity_inflation_changes_the_report_not_the_estimate
-    """
-
-    def __init__(self, config):
-        self.config = config
-        self.axes = np.asarray(config.velocity_axis_inflation, dtype=float)  # converted once, not per scan
-        self.relative_terms = (any(config.inflation_per_rate) or config.inflation_per_doppler != 0.0
-                               or config.inflation_per_pull != 0.0)
-        self.jitter = AbsoluteJitter(attitude_jitter_of(config))
-        self.lag = VelocityLag(config)
-        self.drift: DriftCovariance | None = None
-        self.last = None
-        self.restart_relative: np.ndarray | None = None
-
-    def annotate(self, est, P_relative, reuse: float, doppler_nis: float, pull: float):
-        """The estimate (`ScanEstimate`) with P_relative, P_revision, P_pose_absolute, map_reuse, doppler_nis,
-        pose_pull and restarted set and its velocity variance scaled. P_relative: (relative, revision) of the
-        window's two newest states (`scan_relative_covariances`), or the re-initialisation's (restart_relative,
-        zeros), or None at the first scan."""
-        cfg, last = self.config, self.last  # the drift composes smoothed, unrevised pairs
-        if P_relative is None or self.drift is None:
-            self.drift = DriftCovariance.at_first_scan(est.P[:6, :6], cfg.velocity_correlation_time,
-                                                       cfg.drift_rate_sigma, heading_of(cfg))
-            P_relative, P_revision, P_absolute = np.full((6, 6), np.nan), np.zeros((6, 6)), est.P[:6, :6].copy()
-            self.jitter.start(est.t)
-            step = None  # the lag's acceleration starts again, as at a re-initialisation
-        elif self.restart_relative is not None:  # dead-reckoned across a re-initialisation, not registered:
-            P_relative, P_revision, step = *P_relative, None  # so not scaled by `inflation` either
-            est.restarted = True
-            P_absolute = self.drift.restart(last.T_vehicle_world, est.T_vehicle_world, P_relative)
-        else:
-            f = (relative_factor(est.varpi, cfg.inflation, cfg.inflation_per_rate, cfg.inflation_per_doppler,
-                                 doppler_nis, cfg.inflation_per_pull, pull) if self.relative_terms else cfg.inflation)
-            P_relative, P_revision = (f * P for P in P_relative)
-            dt = est.t - last.t
-            step = (last.varpi, dt)
-            speed = float(np.linalg.norm(est.varpi[:3])) if cfg.velocity_error_share_per_speed else None
-            P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, dt, *recursion_inputs(
-                P_relative, est.P[6:12, 6:12], dt, cfg.registration_correlation, cfg.velocity_error_share,
-                cfg.velocity_error_share_per_speed, speed))
-        P_absolute = with_roll_pitch_variance(P_absolute, self.jitter.at(est.t))
-        self.last, self.restart_relative = est, None
-        est.P_relative, est.P_revision, est.P_pose_absolute, est.map_reuse = P_relative, P_revision, P_absolute, reuse
-        est.doppler_nis, est.pose_pull = doppler_nis, pull
-        est.P = velocity_inflated(est.P, est.varpi, cfg.velocity_inflation, cfg.velocity_inflation_per_speed,
-                                  cfg.velocity_inflation_per_doppler, est.doppler_nis, self.axes,
-                                  cfg.velocity_inflation_per_rate)
-        return self.lag.annotate(est, step)
-
-
 def recursion_inputs(P_relative, P_varpi, dt, correlation: float = 0.0, share: float = 1.0,
-                     share_per_speed: float = 0.0, speed=None):
+                     share_per_speed: float = 0.0, speed=None, stationary=None):
     """(Sigma_rel, the velocity error's variance) the drift recursion composes for a registered scan (one, or a
     stack with dt (N,)): (1 - alpha) P_relative and g P_varpi + alpha P_relative / dt^2, alpha = `[uncertainty]
     registration_correlation` (the share of the registration's covariance carried correlated over tau, with the
     velocity error), g = `velocity_error_share` + `velocity_error_share_per_speed` x `speed` (the scan's |nu|, m/s;
     (N,) with a stack); (P_relative, P_varpi) themselves, bit for bit, at alpha 0, g 1 and no speed term.
     One scan then still composes P_relative + g dt^2 P_varpi (the correlated part's one-scan share is alpha
-    P_relative, smoothed over tau where it varies); a span adds the correlation.
+    P_relative, smoothed over tau where it varies); a span adds the correlation. With a stationary error
+    ([V; T], `estimator.stationary_error`; None: off) its one-scan change is taken out of P_relative first
+    (`stationary_error.taken_out`).
 
     Checked by: tests/estimator/test_uncertainty.py::test_a_correlated_registration_keeps_one_scan_and_grows_a_span,
         ::test_the_velocity_error_share_grows_with_the_speed
     """
+    P_relative = taken_out(P_relative, dt, stationary)
     if correlation == 0.0 and share == 1.0 and share_per_speed == 0.0:
         return P_relative, P_varpi
     P_relative = np.asarray(P_relative, dtype=float)

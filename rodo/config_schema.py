@@ -54,6 +54,7 @@ UNITS = {
     "uncertainty.velocity_lag_per_yaw_acceleration": "s m/rad (s for the rates)", "uncertainty.velocity_lag_time": "s",
     "uncertainty.heading_reversion_time": "s", "uncertainty.heading_anchor_time": "s",
     "uncertainty.attitude_jitter_variance": "rad^2", "uncertainty.attitude_jitter_time": "s",
+    "uncertainty.stationary_variance": "m^2 (rad^2 for the rotation)", "uncertainty.stationary_time": "s",
 }
 
 DESCRIPTIONS = {  # keys whose source has no comment or docstring entry, or only a unit

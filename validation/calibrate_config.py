@@ -65,12 +65,14 @@ def _qc_report(fit: cal.QcFit) -> dict:
 def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: OdometryConfig,
                          duration: float | None = None, floor: float = cal.DEFAULT_FLOOR, consistency: bool = True,
                          progress=None, velocity_axes: bool = True, heading_reversion: bool = False,
-                         attitude_jitter: bool = True, velocity_lag: bool | None = None) -> tuple[OdometryConfig, dict]:
+                         attitude_jitter: bool = True, velocity_lag: bool | None = None,
+                         stationary_error: bool = False) -> tuple[OdometryConfig, dict]:
     """Learn qc_ca, qc_cv, the per-channel sensor sigma factors, the Cartesian sigma and the scans' common Doppler
     error (`calibrate_sensor.common_doppler_error`; 0 unless significant) from ground truth, then
     (`consistency`) the uncertainty section at that noise (the velocity's per-axis factors with `velocity_axes`,
     its lag behind a manoeuvre with `velocity_lag`, None: by the motion prior,
-    the heading's reversion with `heading_reversion`, the roll and pitch jitter unless `attitude_jitter` is False);
+    the heading's reversion with `heading_reversion`, the roll and pitch jitter unless `attitude_jitter` is False,
+    the stationary error per axis with `stationary_error`);
     returns (config, report). `progress` gets each
     `calibrate_consistency.ConsistencyStep`. `seq` and `truth` may be lists of several sequences (of one sensor):
     every fit pools them (their prior intervals, detections and scans), `duration` cuts each."""
@@ -110,7 +112,8 @@ def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: Odome
         config, report["consistency"] = cc.fit_consistency(seqs, truths, config, progress=progress,
                                                            velocity_axes=velocity_axes, velocity_lag=velocity_lag,
                                                            heading_reversion=heading_reversion,
-                                                           attitude_jitter=attitude_jitter)
+                                                           attitude_jitter=attitude_jitter,
+                                                           stationary_error=stationary_error)
     return config, report
 
 

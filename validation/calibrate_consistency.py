@@ -54,7 +54,9 @@ tells the truth (docs/consistency.md):
   and over the drive, the same cost), then tau chosen again with them. Not by default: in the verdict at seed 7 it
   brought the yaw over the drive nearer its covariance in seven cells of eight, over-confident in hills CV/C, and
   two one-scan cells below 90 % (docs/consistency.md, "The heading reverts").
-- `uncertainty.attitude_jitter_variance` V (`estimator.attitude_jitter`): last, tau chosen without it.
+- `uncertainty.attitude_jitter_variance` V (`estimator.attitude_jitter`): tau chosen without it.
+- `uncertainty.stationary_variance` and `stationary_time` (`estimator.stationary_error`), when asked: last, per
+  axis by its error growth from 0.5 s to 20 s (`calibrate_stationary`), every term before it fitted without one.
 
 Needs truth.npz; on real data, carry kappa and tau over from a simulated sequence like it (docs/calibration.md).
 Several sequences: every fit takes one run (states and truth dicts) or several (two lists of the same length)
@@ -72,12 +74,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from rodo.estimator.config import OdometryConfig
-from rodo.estimator.uncertainty import heading_of
+from rodo.estimator.stationary_error import stationary_error_array, stationary_error_of
+from rodo.estimator.heading_reversion import heading_of
 from rodo.sim.sequence import Sequence
 
 from .calibrate_drift import fit_drift_rate
 from .calibrate_jitter import attitude_jitter_report
 from .calibrate_relative import fit_relative_inflation, median_ratio, relative_factor_states
+from .calibrate_stationary import fit_stationary_error
 from .calibrate_velocity import fit_velocity_inflation
 from .driver import run_sequence
 from .error_growth import error_growth, growth_table, pooled_growth
@@ -129,13 +133,13 @@ class ConsistencyStep:
 
 def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=None,
           velocity=(1.0, 0.0, 0.0, (1.0,) * 6, (0.0,) * 3, ((0.0,) * 6,) * 2), relative=None, heading=None,
-          jitter=None, share=None) -> OdometryConfig:
+          jitter=None, share=None, stationary=None) -> OdometryConfig:
     """The config with these uncertainty values; the velocity factors (a, b, d, per-axis g, per-rate r, the lag's
     (per-acceleration, per-yaw-acceleration)) default to none: the fit's runs report the window's own velocity
     covariance; the relative pose factor (`relative`, (f,
     per-rate r, per-Doppler d, per-pull p)), the heading's reversion ([T_r, T_a]), the roll and pitch jitter
-    ([V, T]) and (the velocity error's share, its growth with the speed, the registration's correlation) to the
-    config's."""
+    ([V, T]), (the velocity error's share, its growth with the speed, the registration's correlation) and the
+    stationary error ([V; T] (2, 6)) to the config's."""
     drift = config.uncertainty.drift_rate_sigma if drift_rate_sigma is None else drift_rate_sigma
     u = config.uncertainty
     relative = (u.inflation, u.inflation_per_rate, u.inflation_per_doppler, u.inflation_per_pull) \
@@ -158,6 +162,9 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
     if share is not None:
         unc = dataclasses.replace(unc, velocity_error_share=float(share[0]),
                                   velocity_error_share_per_speed=float(share[1]), registration_correlation=float(share[2]))
+    if stationary is not None:
+        unc = dataclasses.replace(unc, stationary_variance=tuple(float(x) for x in stationary[0]),
+                                  stationary_time=tuple(float(x) for x in stationary[1]))
     return config.replace(uncertainty=unc)
 
 
@@ -268,24 +275,27 @@ def _fixed_point(seq, truth, config: OdometryConfig, iterations: int, tolerance:
 
 
 def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryConfig, iterations: int = 4,
-                    tolerance: float = 0.1, span: float = 1.0, progress=None,
-                    velocity_axes: bool = True, heading_reversion: bool = False,
-                    attitude_jitter: bool = True, velocity_lag: bool | None = None) -> tuple[OdometryConfig, dict]:
+                    tolerance: float = 0.1, span: float = 1.0, progress=None, velocity_axes: bool = True,
+                    heading_reversion: bool = False, attitude_jitter: bool = True, velocity_lag: bool | None = None,
+                    stationary_error: bool = False) -> tuple[OdometryConfig, dict]:
     """Fit kappa (fixed point), then the relative pose's and the velocity's variance factors (per axis too with
     `velocity_axes`, with `velocity_lag` its lag behind a manoeuvre, None: for the constant-velocity prior only
     (LAG_PRIORS): `fit_velocity_inflation`), the drift rate and tau (on the last run's states, without running
     again; at the config's heading reversion, or, with `heading_reversion`, the reversion too: `fit_heading`; with
-    `attitude_jitter` the roll and pitch jitter's variance last, without it the config's kept) on a simulated
+    `attitude_jitter` the roll and pitch jitter's variance, without it the config's kept; with `stationary_error`
+    the stationary error per axis last, every fit before it without one: `fit_stationary_error`) on a simulated
     sequence, or on several (lists of sequences and their truths, pooled: module docstring); returns (config,
     report).
 
     Each iteration runs the estimator once. It stops when the geometric mean r of the FIXED_POINT_MEASURES'
     median ratios is within `tolerance` of 1 (|ln r| < ln(1 + tolerance)), when kappa is at a bound of
-    KAPPA_RANGE and r points beyond it, or after `iterations` runs. The report ends with that last run's ratios
-    at the fitted factors, tau, drift rate and jitter (its covariances replayed: they do not change the estimate,
-    so no run is needed). `progress(ConsistencyStep)` is called after every run and for the final ratios.
+    KAPPA_RANGE and r points beyond it, or after `iterations` runs. The report ends with that last run's ratios at
+    every fitted term (replayed: they do not change the estimate). `progress(ConsistencyStep)` is called after
+    every run and for the final ratios.
     """
     kappa, states, steps = _fixed_point(seq, truth, config, iterations, tolerance, span, progress)
+    stationary = None if stationary_error else stationary_error_of(config.uncertainty)
+    states = _each(lambda s: dict(s, stationary_error=stationary_error_array(stationary)), states)
     drift = fit_drift_rate(states, truth)
     u = config.uncertainty
     ran = (u.inflation, u.inflation_per_rate, u.inflation_per_doppler, u.inflation_per_pull)
@@ -301,16 +311,17 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     correlation, tau, tau_ratios, correlations = fit_correlation(states, truth, span, drift["sigma"],
                                                                  None if heading_reversion else heading)
     states = _each(lambda s: dict(s, registration_correlation=correlation), states)
-    tau_alone, heading_ratios = tau, {}
+    heading_report = {"time": heading[0], "anchor_time": heading[1], "fitted": False, "tau_without": tau, "grid": {}}
     if heading_reversion:
-        heading, heading_ratios = fit_heading(states, truth, span, tau, drift["sigma"])
-        if heading[0] > 0:
-            tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift["sigma"], heading=heading)
+        heading, tau, tau_ratios, heading_report = _heading_fit(states, truth, span, tau, drift["sigma"], tau_ratios)
     jitter = attitude_jitter_report(config.uncertainty, attitude_jitter, span, tau, drift["sigma"], heading,
                                     runs_of(states, truth))
     jitter_pair = (jitter["variance"], jitter["time"])
-    fitted = _with(config, kappa, tau, drift["sigma"], factors, new, heading, jitter_pair, (*share, correlation))
-    final, growth = _final(states, truth, span, tau, drift["sigma"], heading, jitter_pair,
+    stationary, stationary_report = (_stationary_fit(states, truth, tau, drift["sigma"], heading, jitter_pair)
+                                     if stationary_error else (stationary, {"fitted": False}))
+    fitted = _with(config, kappa, tau, drift["sigma"], factors, new, heading, jitter_pair, (*share, correlation),
+                   stationary)
+    final, growth = _final(states, truth, span, tau, drift["sigma"], heading, (jitter_pair, stationary),
                            lambda s: _at_velocity(s, factors, u.velocity_lag_time))
     steps.append(ConsistencyStep(kappa, tau, final))
     if progress is not None:
@@ -320,18 +331,33 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
               "span": span, "tolerance": tolerance, "at_lower_bound": kappa == KAPPA_RANGE[0],
               "steps": [s.as_dict() for s in steps],
               "tau_grid": {f"{t:g}": {"relative_span": r[0], "pose": r[1]} for t, r in tau_ratios.items()},
-              "heading_reversion": {"time": heading[0], "anchor_time": heading[1], "fitted": heading_reversion,
-                                    "tau_without": tau_alone,
-                                    "grid": {f"{r:g}/{a:g}": {"yaw": x, "cost": tau_cost(x)}
-                                             for (r, a), x in heading_ratios.items()}},
-              "attitude_jitter": jitter, "error_growth": growth}
+              "heading_reversion": heading_report, "attitude_jitter": jitter, "stationary_error": stationary_report,
+              "error_growth": growth}
     return fitted, report
 
 
-def _final(states, truth, span: float, tau: float, drift_rate_sigma, heading, jitter, at_velocity) -> tuple:
+def _heading_fit(states, truth, span: float, tau: float, drift_rate_sigma, tau_ratios) -> tuple:
+    """(the heading's reversion [T_r, T_a] at this tau, tau chosen again under it where on, tau's grid, the
+    report: the reversion, whether fitted, tau without it and the grid's costs) (`fit_heading`)."""
+    heading, ratios = fit_heading(states, truth, span, tau, drift_rate_sigma)
+    report = {"time": heading[0], "anchor_time": heading[1], "fitted": True, "tau_without": tau,
+              "grid": {f"{r:g}/{a:g}": {"yaw": x, "cost": tau_cost(x)} for (r, a), x in ratios.items()}}
+    if heading[0] > 0:
+        tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift_rate_sigma, heading=heading)
+    return heading, tau, tau_ratios, report
+
+
+def _stationary_fit(states, truth, tau: float, drift_rate_sigma, heading, jitter) -> tuple:
+    """(the stationary error [V; T] at every other fitted term, its report) (`fit_stationary_error`)."""
+    stationary, report = fit_stationary_error(_each(replayed, states, tau, drift_rate_sigma, heading, jitter), truth)
+    return stationary, {"fitted": True, **report}
+
+
+def _final(states, truth, span: float, tau: float, drift_rate_sigma, heading, added, at_velocity) -> tuple:
     """(every REPORTED measure's median ratio, the error growth per axis: {the pooled sums, table}) of the
-    runs' states at the fitted terms (replayed: they do not change the estimate)."""
-    at = _each(lambda s: replayed(at_velocity(s), tau, drift_rate_sigma, heading, jitter), states)
+    runs' states at the fitted terms (replayed: they do not change the estimate); `added`: (the jitter [V, T],
+    the stationary error [V; T])."""
+    at = _each(lambda s: replayed(at_velocity(s), tau, drift_rate_sigma, heading, *added), states)
     g = pooled_growth([error_growth(s, t) for s, t in runs_of(at, truth)])
     return _ratios(at, truth, span, tau, drift_rate_sigma), {**{k: np.asarray(v).tolist() for k, v in g.items()},
                                                              "table": growth_table(g)}

@@ -28,12 +28,13 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from rodo.estimator.attitude_jitter import attitude_jitter_of
+from rodo.estimator.stationary_error import stationary_error_of
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
 from rodo.estimator.scan import ScanEstimate
-from rodo.estimator.uncertainty import heading_of
+from rodo.estimator.heading_reversion import heading_of
 from rodo.estimator.velocity_inflation import velocity_inflation_array
 from rodo.sim.sequence import Sequence, Trajectory, atomic_write_bytes, write_tum
 
@@ -147,6 +148,7 @@ class RunResult:
             velocity_axis_inflation=np.asarray(u.velocity_axis_inflation, dtype=float),
             heading_reversion=heading_of(u),
             attitude_jitter=attitude_jitter_of(u),
+            stationary_error=stationary_error_of(u),
         )
 
     def trajectory(self) -> Trajectory:

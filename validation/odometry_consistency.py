@@ -25,6 +25,7 @@ import numpy as np
 from rodo.estimator.attitude_jitter import span_excess, with_roll_pitch_variance
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
+from rodo.estimator.stationary_error import is_on, span_term
 from rodo.estimator.uncertainty import recursion_inputs
 from rodo.estimator.velocity_inflation import velocity_factor, velocity_inflation_terms
 from rodo.estimator.velocity_lag import with_lag
@@ -36,7 +37,8 @@ from .span_covariances import heading_deviations, span_covariances, step_matrice
 
 # not per scan
 RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation", "heading_reversion",
-                 "attitude_jitter", "velocity_error_share", "velocity_error_share_per_speed", "registration_correlation")
+                 "attitude_jitter", "velocity_error_share", "velocity_error_share_per_speed", "registration_correlation",
+                 "stationary_error")
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
 
@@ -72,21 +74,24 @@ def drift_velocity_covariances(P: np.ndarray, varpi: np.ndarray, velocity_inflat
 
 
 def recursion_inputs_of_run(states: dict, Sigma_rel: np.ndarray, P_window: np.ndarray, rows=None,
-                            restarted=None) -> tuple[np.ndarray, np.ndarray]:
+                            restarted=None, stationary=None) -> tuple[np.ndarray, np.ndarray]:
     """(Sigma_rel, P_varpi) (N, 6, 6) a run's drift recursion composed at its scans `rows` (None: all):
     `estimator.uncertainty.recursion_inputs` of their relative pose covariances Sigma_rel and window velocity
-    covariances P_window at the run's `registration_correlation` alpha, `velocity_error_share` g and
-    `velocity_error_share_per_speed` g_v (states.npz; 0, 1 and 0 in runs before them), dt the interval since the
-    scan before each in the run. The velocity covariances of every scan are g + g_v |nu| times the window's; alpha
-    moves covariance only at registered scans (not a run's first scan, not a re-initialisation's dead-reckoned step:
-    `restarted` (N,), None: states' own)."""
+    covariances P_window at the run's `registration_correlation` alpha, `velocity_error_share` g,
+    `velocity_error_share_per_speed` g_v and `stationary_error` (states.npz; 0, 1, 0 and off in runs before them;
+    `stationary`, [V; T], in its place where given: False, off), dt the interval since the scan before each in the
+    run. The velocity covariances of every scan are g + g_v |nu| times the window's; alpha and the stationary
+    error move covariance only at registered scans (not a run's first scan, not a re-initialisation's
+    dead-reckoned step: `restarted` (N,), None: states' own)."""
     alpha = float(states.get("registration_correlation", 0.0))
     g = float(states.get("velocity_error_share", 1.0))
     g_v = float(states.get("velocity_error_share_per_speed", 0.0))
+    if stationary is None or stationary is False:
+        stationary = states.get("stationary_error") if stationary is None else None
     rows = np.arange(len(states["t"])) if rows is None else rows
     speed = np.linalg.norm(np.asarray(states["varpi"], dtype=float)[rows, :3], axis=1) if g_v != 0.0 else None
     share = g if speed is None else (g + g_v * speed)[:, None, None]
-    if alpha == 0.0:
+    if alpha == 0.0 and not is_on(stationary):
         return Sigma_rel, (P_window if g == 1.0 and speed is None else share * np.asarray(P_window, dtype=float))
     dt = np.diff(np.asarray(states["t"], dtype=float), prepend=np.nan)[rows]
     if restarted is None:
@@ -94,24 +99,29 @@ def recursion_inputs_of_run(states: dict, Sigma_rel: np.ndarray, P_window: np.nd
     ok = np.isfinite(dt) & ~np.asarray(restarted, dtype=bool) & np.all(np.isfinite(Sigma_rel), axis=(1, 2))
     S, P = np.array(Sigma_rel, dtype=float), share * np.asarray(P_window, dtype=float)
     S[ok], P[ok] = recursion_inputs(Sigma_rel[ok], P_window[ok], dt[ok], alpha, g, g_v,
-                                    None if speed is None else speed[ok])
+                                    None if speed is None else speed[ok], stationary)
     return S, P
 
 
 def matched_span_terms(m: dict, n: int, starts=None):
     """(e (K - n, 6), C (K - n, 6, 6), t (K,), n) of the relative poses over n scans of a matched run
-    (`matched_run`, at its tau, drift rate and heading reversion): their errors, covariances (the drift's
-    composed over the span and the revision at its first scan; no jitter), the scan times and n; None where there
-    are none. With `starts` (increasing first scans, each below K - n) the rows of those spans alone."""
+    (`matched_run`, at its tau, drift rate, heading reversion and stationary error): their errors, covariances (the
+    drift's composed over the span, the revision at its first scan and, over two scans and more, the stationary
+    error's change with its lever arm, `stationary_error.span_term`; over one scan the run's unreduced inputs
+    composed; no jitter), the scan times and n; None where there are none. With `starts` (increasing first scans,
+    each below K - n) the rows of those spans alone."""
     t, T_est, states = m["t"], m["T_est"], m["sub"]
     if m["drift_inputs"] is None or n >= len(t):
         return None
     rows = slice(None) if starts is None else np.asarray(starts, dtype=int)
-    Sigma_rel, P_varpi, restarts, deviations, steps = m["drift_inputs"]
+    Sigma_rel, P_varpi, restarts, deviations, steps = m["drift_inputs"] if n > 1 else m["scan_inputs"]
     C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, m["tau"], m["drift_rate_sigma"], restarts, m["heading"],
                          deviations, starts, steps)
     if "P_revision" in states:  # the revision of each span's first emitted pose, by the scan after it
         C = C + _transported(T_est, np.asarray(states["P_revision"], dtype=float), n)[rows]
+    if n > 1 and is_on(m["stationary"]):
+        first = np.arange(len(t) - n)[rows]
+        C = C + span_term(T_est[first + n], T_est[first], t[first + n] - t[first], m["stationary"])
     return _relative_errors(m["T_true"], T_est, n)[rows], C, t, n
 
 
@@ -207,10 +217,12 @@ def matched_poses(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANC
 def matched_run(states: dict, truth: dict, tolerance: float, tau: float, drift_rate_sigma, heading) -> dict:
     """A run's scans matched to the truth (`odometry_nees`'s arguments): t, T_est, T_true (in the estimator's
     world), P, sub (the per-scan states arrays at the matched scans), ib (the truth's indices), the drift rate and
-    heading reversion in use (the run's own where None), tau, and drift_inputs, what the run's drift recursion
-    composed, for every span measure ((Sigma_rel, P_varpi, restarts, deviations, and the steps' matrices of
-    `span_covariances.step_matrices` into scans 1 .. K-1, built once for all the spans), `recursion_inputs_of_run`;
-    None without P_relative)."""
+    heading reversion in use (the run's own where None), tau, the run's stationary error (states'
+    `stationary_error`, None when absent), and drift_inputs, what the run's drift recursion composed, for every span
+    measure ((Sigma_rel, P_varpi, restarts, deviations, and the steps' matrices of `span_covariances.step_matrices`
+    into scans 1 .. K-1, built once for all the spans), `recursion_inputs_of_run`; None without P_relative), and
+    scan_inputs, the same without the stationary error's one-scan change taken out (drift_inputs themselves when
+    it is off), for the one-scan span."""
     if drift_rate_sigma is None and "drift_rate_sigma" in states:
         drift_rate_sigma = np.asarray(states["drift_rate_sigma"], dtype=float)
     if heading is None:
@@ -223,20 +235,29 @@ def matched_run(states: dict, truth: dict, tolerance: float, tau: float, drift_r
     if "restarted" in sub:  # a restart at a scan without truth: the kept scan after it takes the restart's step
         n_restarts = np.cumsum(np.asarray(states["restarted"], dtype=bool))[ia]
         sub["restarted"] = np.diff(n_restarts, prepend=0) > 0
-    drift_inputs = None
+    stationary = states.get("stationary_error")
+    drift_inputs = scan_inputs = None
     if "P_relative" in sub:
-        restarts = sub.get("restarted")
-        P_window = drift_velocity_covariances(sub["P"], sub["varpi"], states.get("velocity_inflation"),
-                                              sub.get("doppler_nis"), states.get("velocity_axis_inflation"),
-                                              sub.get("velocity_lag"))
-        Sigma_rel, P_varpi = recursion_inputs_of_run(states, np.asarray(sub["P_relative"], dtype=float), P_window,
-                                                     ia, restarts)
-        deviations = heading_deviations(T_est, t, Sigma_rel, P_varpi, tau, drift_rate_sigma, restarts, heading)
-        steps = step_matrices(T_est, t, Sigma_rel, P_varpi, tau, np.arange(1, len(t)), restarts, heading)
-        drift_inputs = Sigma_rel, P_varpi, restarts, deviations, steps
+        drift_inputs = _drift_inputs(states, sub, ia, T_est, t, tau, drift_rate_sigma, heading, None)
+        scan_inputs = (_drift_inputs(states, sub, ia, T_est, t, tau, drift_rate_sigma, heading, False)
+                       if is_on(stationary) else drift_inputs)
     return {"t": t, "T_est": T_est, "T_true": T_true, "P": np.asarray(states["P"], dtype=float)[ia], "sub": sub,
             "ib": ib, "drift_rate_sigma": drift_rate_sigma, "heading": heading, "tau": tau,
-            "drift_inputs": drift_inputs}
+            "stationary": stationary, "drift_inputs": drift_inputs, "scan_inputs": scan_inputs}
+
+
+def _drift_inputs(states: dict, sub: dict, ia, T_est, t, tau: float, drift_rate_sigma, heading, stationary):
+    """(Sigma_rel, P_varpi, restarts, deviations, steps) of `matched_run`'s drift_inputs, the stationary error as
+    `recursion_inputs_of_run`'s (None: the run's own; False: off, for the one-scan span)."""
+    restarts = sub.get("restarted")
+    P_window = drift_velocity_covariances(sub["P"], sub["varpi"], states.get("velocity_inflation"),
+                                          sub.get("doppler_nis"), states.get("velocity_axis_inflation"),
+                                          sub.get("velocity_lag"))
+    Sigma_rel, P_varpi = recursion_inputs_of_run(states, np.asarray(sub["P_relative"], dtype=float), P_window,
+                                                 ia, restarts, stationary)
+    deviations = heading_deviations(T_est, t, Sigma_rel, P_varpi, tau, drift_rate_sigma, restarts, heading)
+    steps = step_matrices(T_est, t, Sigma_rel, P_varpi, tau, np.arange(1, len(t)), restarts, heading)
+    return Sigma_rel, P_varpi, restarts, deviations, steps
 
 
 def summarise(measures: dict, alpha: float = 0.05) -> dict:

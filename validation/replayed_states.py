@@ -5,7 +5,7 @@ run is needed. `rodo calibrate`'s uncertainty fits (`calibrate_consistency`) com
 - `relative_inflated_states`: the relative pose covariances times a factor (`[uncertainty] inflation`);
 - `velocity_inflated_states`: the velocity covariance at other velocity factors;
 - `absolute_covariances`, `replayed`: the absolute pose covariances at another tau, drift rate, heading
-  reversion and roll and pitch jitter.
+  reversion, roll and pitch jitter and stationary error.
 
 Checked by: tests/validation/test_calibrate_consistency.py
 """
@@ -16,6 +16,7 @@ import numpy as np
 
 from rodo.estimator.attitude_jitter import absolute_excess, attitude_jitter_array, with_roll_pitch_variance
 from rodo.estimator.heading_reversion import heading_reversion_array
+from rodo.estimator.stationary_error import is_on, span_term, stationary_error_array
 from rodo.estimator.uncertainty import drift_rate_sigma_array, fresh_starts
 from rodo.estimator.velocity_inflation import velocity_inflated, velocity_inflation_array
 from rodo.estimator.velocity_lag import lag_accelerations, with_lag
@@ -61,33 +62,45 @@ def velocity_inflated_states(states: dict, inflation: float, per_speed: float, p
     return out
 
 
-def replayed(states: dict, tau: float, drift_rate_sigma, heading=None, jitter=None) -> dict:
+def replayed(states: dict, tau: float, drift_rate_sigma, heading=None, jitter=None, stationary=None) -> dict:
     """The states with the absolute covariances the run would have reported at this tau, drift rate (None: none),
-    heading reversion ([T_r, T_a]; None: off) and roll and pitch jitter ([V, T]; None: off), all four recorded as
-    the run records them (the span measures and `error_growth` read them); the estimate itself does not depend on
-    them."""
+    heading reversion ([T_r, T_a]; None: off), roll and pitch jitter ([V, T]; None: off) and stationary error
+    ([V; T] (2, 6); None: off), all five recorded as the run records them (the span measures and `error_growth`
+    read them); the estimate itself does not depend on them."""
     heading, jitter = heading_reversion_array(heading), attitude_jitter_array(jitter)
-    return dict(states, P_pose_absolute=absolute_covariances(states, tau, drift_rate_sigma, heading, jitter),
+    stationary = stationary_error_array(stationary)
+    P_absolute = absolute_covariances(states, tau, drift_rate_sigma, heading, jitter, stationary)
+    return dict(states, P_pose_absolute=P_absolute,
                 velocity_correlation_time=float(tau), drift_rate_sigma=drift_rate_sigma_array(drift_rate_sigma),
-                heading_reversion=heading, attitude_jitter=jitter)
+                heading_reversion=heading, attitude_jitter=jitter, stationary_error=stationary)
 
 
-def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None, heading=None, jitter=None) -> np.ndarray:
+def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None, heading=None, jitter=None,
+                         stationary=None) -> np.ndarray:
     """(N, 6, 6) the absolute pose covariances a run would have reported with this tau, drift rate, heading
-    reversion ([T_r, T_a]; None: off) and roll and pitch jitter ([V, T]; None: off): its recursion replayed over its
-    stored relative and velocity covariances (`recursion_inputs_of_run`), across its re-initialisations
-    where states.npz flags them, `restarted` (`span_covariances.drift_replay`), the jitter's excess since its first
-    scan added (`attitude_jitter.absolute_excess`); row 0: the first pose's.
+    reversion ([T_r, T_a]; None: off), roll and pitch jitter ([V, T]; None: off) and stationary error ([V; T];
+    None: off): its recursion replayed over its stored relative and velocity covariances
+    (`recursion_inputs_of_run`, the stationary error's one-scan change taken out), across its re-initialisations
+    where states.npz flags them, `restarted` (`span_covariances.drift_replay`), the jitter's excess and the
+    stationary error's change since its first scan added (`attitude_jitter.absolute_excess`,
+    `stationary_error.span_term`); row 0: the first pose's.
 
     Checked by: tests/validation/test_calibrate_consistency.py::test_absolute_covariances_replay_the_run,
-        ::test_absolute_covariances_replay_a_run_across_its_restart
+        ::test_absolute_covariances_replay_a_run_across_its_restart,
+        tests/estimator/test_stationary_error.py::test_a_replay_equals_the_run_with_the_stationary_error
     """
     P = np.asarray(states["P"], dtype=float)
     P_window = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"),
                                           states.get("doppler_nis"), states.get("velocity_axis_inflation"),
                                           states.get("velocity_lag"))
-    Sigma_rel, P_varpi = recursion_inputs_of_run(states, np.asarray(states["P_relative"], dtype=float), P_window)
-    steps = drift_replay(np.asarray(states["T_vehicle_world"], dtype=float), np.asarray(states["t"], dtype=float),
-                         Sigma_rel, P_varpi, P[0, :6, :6], tau, drift_rate_sigma, states.get("restarted"), heading)
+    stationary = stationary if is_on(stationary) else False
+    Sigma_rel, P_varpi = recursion_inputs_of_run(states, np.asarray(states["P_relative"], dtype=float), P_window,
+                                                 stationary=stationary)
+    T, t = np.asarray(states["T_vehicle_world"], dtype=float), np.asarray(states["t"], dtype=float)
+    steps = drift_replay(T, t, Sigma_rel, P_varpi, P[0, :6, :6], tau, drift_rate_sigma, states.get("restarted"),
+                         heading)
     P_absolute = np.stack([P[0, :6, :6]] + [drift.C[:6, :6] for drift in steps])
-    return with_roll_pitch_variance(P_absolute, absolute_excess(states["t"], attitude_jitter_array(jitter)))
+    P_absolute = with_roll_pitch_variance(P_absolute, absolute_excess(t, attitude_jitter_array(jitter)))
+    if stationary is not False:
+        P_absolute = P_absolute + span_term(T, T[:1], t - t[0], stationary)
+    return P_absolute

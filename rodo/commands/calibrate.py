@@ -59,6 +59,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with truth: learn the roll and pitch jitter's variance (uncertainty.attitude_jitter_variance, "
                         "at the config's attitude_jitter_time; docs/calibration.md): on by default with truth; "
                         "--no-attitude-jitter keeps the config's")
+    p.add_argument("--stationary-error", action="store_true",
+                   help="with truth: learn a bounded pose error per axis last (uncertainty.stationary_variance and "
+                        "stationary_time, from the error's growth over 0.5-20 s; docs/calibration.md)")
     p.add_argument("--iterations", type=int, default=30, help="EM iterations at most (%(default)s; one estimator "
                                                               "run each)")
     p.add_argument("--tolerance", type=float, default=0.05, help="EM stops when the fixed point its steps "
@@ -85,7 +88,7 @@ def _check_args(args) -> Path:
                          "with truth.npz it is learned from the truth anyway")
     for flag, given in (("--velocity-axes", args.velocity_axes), ("--velocity-lag", args.velocity_lag),
                         ("--heading-reversion", args.heading_reversion),
-                        ("--attitude-jitter", args.attitude_jitter)):
+                        ("--attitude-jitter", args.attitude_jitter), ("--stationary-error", args.stationary_error)):
         for other, off in (("--no-truth", args.no_truth), ("--no-consistency", args.no_consistency)):
             if given and off:
                 raise InputError(f"{flag}: learned in the uncertainty section with ground truth, which {other} "
@@ -151,7 +154,9 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                          + ", drift_rate_sigma and "
                          f"velocity_correlation_time {c['velocity_correlation_time']:g} s"
                          + _correlation_words(c)
-                         + _heading_words(c) + _jitter_words(c) + " fitted so that the "
+                         + _heading_words(c) + _jitter_words(c)
+                         + (", stationary_variance and stationary_time" if c.get("stationary_error", {}).get("fitted")
+                            else "") + " fitted so that the "
                          "estimator's NEES against the truth is consistent (docs/calibration.md).")
     else:
         it = report["iterations"]
@@ -271,6 +276,12 @@ def _consistency_markdown(c: dict) -> list[str]:
         lines.append(f"attitude jitter variance {j['variance']:.3g} rad^2 at T {j['time']:g} s ({j['outcome']}: mean "
                      f"roll and pitch NEES/dof of the relative pose over the span {j['mean_without']:.3g} -> "
                      f"{j['mean_with']:.3g})")
+    s = c.get("stationary_error", {})
+    if s.get("fitted"):
+        lines.append("stationary error per axis (share of the one-scan variance / T s / V; the cost of its growth "
+                     "over 0.5-20 s without -> with): " + ", ".join(
+                         f"{k} {a['share']:g} / {a['time']:g} s / {a['variance']:.3g} ({a['cost_without']:.3g} -> "
+                         f"{a['cost']:.3g})" if a["share"] else f"{k} off" for k, a in s["axes"].items()))
     return lines
 
 
@@ -365,7 +376,8 @@ def main(args) -> int:
                                               velocity_axes=args.velocity_axes is not False,
                                               velocity_lag=args.velocity_lag,
                                               heading_reversion=args.heading_reversion,
-                                              attitude_jitter=attitude_jitter)
+                                              attitude_jitter=attitude_jitter,
+                                              stationary_error=args.stationary_error)
     write_text_atomic(out, config_toml(config, _header(report, " ".join(args.sequence), config.model)))
     write_text_atomic(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     write_text_atomic(out.with_suffix(".md"), _markdown(report))

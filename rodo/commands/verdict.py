@@ -1,6 +1,6 @@
 """`rodo verdict [--scenarios city,hills,stop_and_go,highway] [--runs 20] [--duration 30] [--seed 7]
 [--calibration-seed 100] [--calibration-duration 180] [--calibration-drives 1] [--floor-ca Q[,Q,...]]
-[--floor-cv Q[,Q,...]] [--heading-reversion] [--jobs J] --out DIR [--resume]`:
+[--floor-cv Q[,Q,...]] [--heading-reversion] [--stationary-error] [--jobs J] --out DIR [--resume]`:
 the consistency verdict of CA/P against CV/C, each at its learned noise (validation/verdict.py).
 
 Per scenario S, the recipe of docs/consistency.md ("The verdict with everything learned") as one command:
@@ -16,7 +16,8 @@ then DIR/verdict.md and verdict.json. With --calibration-drives N, N drives per 
 first in DIR/calibration/S, the others in S-1, S-2, ...), pooled by each calibration: the verdict's cells depend
 on the calibration drive as much as on the campaign's seed (docs/consistency.md, "The calibration drive's draw").
 With --heading-reversion both calibrations learn the yaw's reversion too (`rodo calibrate --heading-reversion`;
-docs/consistency.md, "The heading reverts"). Each step's output goes to DIR/logs/; the simulations and calibrations run
+docs/consistency.md, "The heading reverts"), with --stationary-error a bounded pose error per axis
+(`rodo calibrate --stationary-error`; docs/consistency.md, "A bounded error per axis"). Each step's output goes to DIR/logs/; the simulations and calibrations run
 --jobs at a time. With --resume a finished step is skipped (a sequence with all its files, a config with its
 report) and the campaigns resume; DIR/campaign.json holds the parameters, and a resume with other ones is refused.
 """
@@ -64,6 +65,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                             f"x,y,z,roll,pitch,yaw (default {FLOORS[key]})")
     p.add_argument("--heading-reversion", action="store_true",
                    help="rodo calibrate's --heading-reversion for both models: the yaw error's reversion learned "
+                        "from its error growth (default off)")
+    p.add_argument("--stationary-error", action="store_true",
+                   help="rodo calibrate's --stationary-error for both models: a bounded pose error per axis learned "
                         "from its error growth (default off)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
     p.add_argument("--out", required=True, metavar="DIR", help="the verdict's directory")
@@ -116,7 +120,8 @@ def _steps(args, names: list[str]) -> tuple[list, list, list]:
             cfg = config_path(out, s, name)
             cals.append((f"calibrate {s} {name}", ["calibrate", *map(str, seqs), "--model", model, "--floor",
                                                    getattr(args, f"floor_{key}"), "--out", str(cfg)]
-                         + (["--heading-reversion"] if args.heading_reversion else []),
+                         + (["--heading-reversion"] if args.heading_reversion else [])
+                         + (["--stationary-error"] if args.stationary_error else []),
                          cfg.is_file() and cfg.with_suffix(".md").is_file()))
             labels.append(f"{label}={cfg}")
         camps.append((f"montecarlo {s}", ["montecarlo", s, "--runs", str(args.runs), "--duration", str(args.duration),
@@ -185,6 +190,7 @@ def main(args) -> int:
             "calibration_seed": args.calibration_seed, "calibration_duration": args.calibration_duration,
             **({"calibration_drives": args.calibration_drives} if args.calibration_drives != 1 else {}),
             **({"heading_reversion": True} if args.heading_reversion else {}),
+            **({"stationary_error": True} if args.stationary_error else {}),
             "floor_ca": parse_floor(args.floor_ca), "floor_cv": parse_floor(args.floor_cv)}  # values: 1e-4 == 0.0001
     with campaign_lock(out):
         if not args.resume and (out / "campaign.json").exists():

@@ -11,7 +11,7 @@ from rodo import scenarios
 from rodo.cli import main
 from rodo.estimator.config import OdometryConfig
 from rodo.sim.simulate import load_truth
-from rodo.validation.error_growth import error_growth, growth_table
+from rodo.validation.error_growth import AXES, error_growth, growth_table
 from tests.cli.helpers import fails
 
 
@@ -114,6 +114,40 @@ def test_calibrate_learns_the_heading_reversion_when_asked(seq, tmp_path, capsys
 
 
 @pytest.mark.slow
+def test_calibrate_learns_the_stationary_error_when_asked(tmp_path, capsys):
+    """--stationary-error on a 12 s drive: per axis the report's choice (a share and time of the grid, or off)
+    with its cost below the one without by MIN_GAIN at least, the config its variances and times, the markdown
+    the line; `rodo run` at the written config reports the absolute pose the calibration replayed (its error
+    growth is the report's), the stationary error on at least one axis."""
+    from rodo.validation import calibrate_stationary as cst
+
+    longer = tmp_path / "city12"
+    scenarios.simulate_to("city", 2, longer, duration=12.0)
+    out = tmp_path / "stationary.toml"
+    assert main(["calibrate", str(longer), "--stationary-error", "--out", str(out)]) == 0
+    unc = OdometryConfig.from_toml(out).uncertainty
+    s = json.loads(out.with_suffix(".json").read_text())["consistency"]["stationary_error"]
+    assert s["fitted"] is True and list(s["axes"]) == [AXES[a] for a in cst.AXIS_ORDER]
+    for i, name in enumerate(AXES):
+        a = s["axes"][name]
+        assert unc.stationary_variance[i] == a["variance"] and unc.stationary_time[i] == a["time"]
+        if a["share"]:
+            assert a["share"] in cst.SHARES and a["time"] in cst.TIMES
+            assert a["cost"] <= a["cost_without"] - cst.MIN_GAIN
+        else:
+            assert a["variance"] == 0.0
+    assert any(unc.stationary_variance)
+    assert "stationary error per axis" in out.with_suffix(".md").read_text()
+    assert main(["run", str(longer), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    with np.load(tmp_path / "run" / "states.npz") as z:
+        states = dict(z)
+    ran = growth_table(error_growth(states, load_truth(longer)))
+    reported = json.loads(out.with_suffix(".json").read_text())["consistency"]["error_growth"]["table"]
+    for a, b in zip(ran, reported):
+        assert a["ratio"] == b["ratio"] or a["ratio"] == pytest.approx(b["ratio"], rel=1e-9)
+
+
+@pytest.mark.slow
 def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, capsys):
     """By default (and with --attitude-jitter) the report holds the fit (the 1 s span's mean NEES/dof without
     and with the jitter; V positive only where it was over 1, and then bringing it to 1), the config its V at the
@@ -149,7 +183,8 @@ def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, 
     assert "attitude_jitter_variance" not in "".join(line for line in kept.read_text().splitlines() if line[:1] == "#")
 
 
-@pytest.mark.parametrize("flag", ["--velocity-axes", "--velocity-lag", "--heading-reversion", "--attitude-jitter"])
+@pytest.mark.parametrize("flag", ["--velocity-axes", "--velocity-lag", "--heading-reversion", "--attitude-jitter",
+                                  "--stationary-error"])
 @pytest.mark.parametrize("other", ["--no-truth", "--no-consistency"])
 def test_an_uncertainty_flag_without_the_uncertainty_section_is_refused(seq, tmp_path, capsys, flag, other):
     """Asking to learn a term of the uncertainty section while leaving that section out exits 2 naming both."""
