@@ -6,8 +6,8 @@ over n scans gains n one-scan variances. Part of the registration's one-scan err
 change of an error that the scene holds bounded (the far scene holds the heading, the ground the roll and pitch,
 the map the position), so its changes cancel over a span instead of adding up. Measured per axis
 (`validation.error_growth`), a covariance that composes them is right over one scan and cautious from a second
-on: the yaw and the lateral position over 5 s at 0.13-0.33 of their stated variance (docs/consistency.md, "A
-bounded error per axis").
+on: the yaw over 5 s at 0.12-0.40 of its stated variance in every cell of the verdict (docs/consistency.md, "How
+the error grows, per axis", "A bounded error per axis").
 
 So the reported covariances model a stationary error s (6, vehicle frame, left perturbation of T_vehicle_world)
 beside the composed one, independent per axis, of variance V_i and exponential correlation over T_i seconds,
