@@ -74,8 +74,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rodo.estimator.config import OdometryConfig
-from rodo.estimator.stationary_error import stationary_error_array, stationary_error_of
 from rodo.estimator.heading_reversion import heading_of
+from rodo.estimator.stationary_error import stationary_error_array, stationary_error_of
 from rodo.sim.sequence import Sequence
 
 from .calibrate_drift import fit_drift_rate

@@ -17,9 +17,10 @@ first in DIR/calibration/S, the others in S-1, S-2, ...), pooled by each calibra
 on the calibration drive as much as on the campaign's seed (docs/consistency.md, "The calibration drive's draw").
 With --heading-reversion both calibrations learn the yaw's reversion too (`rodo calibrate --heading-reversion`;
 docs/consistency.md, "The heading reverts"), with --stationary-error a bounded pose error per axis
-(`rodo calibrate --stationary-error`; docs/consistency.md, "A bounded error per axis"). Each step's output goes to DIR/logs/; the simulations and calibrations run
---jobs at a time. With --resume a finished step is skipped (a sequence with all its files, a config with its
-report) and the campaigns resume; DIR/campaign.json holds the parameters, and a resume with other ones is refused.
+(`rodo calibrate --stationary-error`; docs/consistency.md, "A bounded error per axis"). Each step's output goes
+to DIR/logs/; the simulations and calibrations run --jobs at a time. With --resume a finished step is skipped (a
+sequence with all its files, a config with its report) and the campaigns resume; DIR/campaign.json holds the
+parameters, and a resume with other ones is refused.
 """
 
 from __future__ import annotations
