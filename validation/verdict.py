@@ -12,8 +12,9 @@ and a campaign of both; this module reads them back and builds the verdict:
   criterion when at least `SHARE_TARGET` of its scans are inside; the relative pose over the span and the
   absolute pose meet theirs when their mean NEES per dof is at most `SPAN_LIMIT`;
 - the 3-sigma ellipsoids: the mean over the runs of the % of scans whose true position lies inside;
-- what was learned: the uncertainty terms of each config that set its reported covariances, and the scans
-  its calibration left out as gross failures (`gross_failures`).
+- what was learned: the uncertainty terms of each config that set its reported covariances (`stationary`: the
+  axes of its bounded error per axis, `estimator.stationary_error`), and the scans its calibration left out as
+  gross failures (`gross_failures`).
 
 Checked by: tests/validation/test_verdict.py
 """
@@ -30,6 +31,7 @@ from rodo.sim.sequence import atomic_write_bytes
 
 from .campaign_compare import mean_interval, paired
 from .campaign_files import read_results
+from .error_growth import AXES
 from .metrics import jsonable
 
 MODELS = {"CA/P": ("ca-learned", "ca-polar", "ca"), "CV/C": ("cv-learned", "cv-cartesian", "cv")}  # label, model, file
@@ -46,7 +48,7 @@ SHARE_TARGET = 0.90
 SPAN_LIMIT = 2.0
 LEARNED = ("velocity_correlation_time", "velocity_error_share", "velocity_error_share_per_speed",
            "registration_correlation", "inflation", "inflation_per_pull", "velocity_inflation", "yaw_rate_lag",
-           "gross_failures")
+           "stationary", "gross_failures")
 
 
 def config_path(out_dir, scenario: str, name: str) -> Path:
@@ -59,6 +61,7 @@ def _learned(path: Path) -> dict:
 
     u = OdometryConfig.from_toml(path).uncertainty
     derived = {"yaw_rate_lag": u.velocity_lag_per_yaw_acceleration[5],  # CV/C's lag behind a turn (s)
+               "stationary": [f"{a} {T:g} s" for a, V, T in zip(AXES, u.stationary_variance, u.stationary_time) if V],
                "gross_failures": _gross_failures(path.with_suffix(".json"))}
     return {k: derived[k] if k in derived else getattr(u, k) for k in LEARNED}
 
@@ -132,8 +135,9 @@ def _num(v, fmt: str = ".2f") -> str:
 
 
 def _learned_cell(v) -> str:
-    """A learned term (a number, "-" when absent) or the gross failures [velocity, one scan] as "v + r"."""
-    return " + ".join(map(str, v)) if isinstance(v, list) else _num(v, ".3g")
+    """A learned term (a number, "-" when absent), the gross failures [velocity, one scan] as "v + r" or the axes
+    of the stationary error ("yaw 0.5 s + y 0.25 s"; "-" where none)."""
+    return (" + ".join(map(str, v)) or "-") if isinstance(v, list) else _num(v, ".3g")
 
 
 def _pct(v) -> str:

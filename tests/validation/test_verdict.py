@@ -94,6 +94,7 @@ def test_a_verdict_reports_its_campaign_at_the_configs_it_learned(verdict_dir):
         lag = OdometryConfig.from_toml(config).uncertainty.velocity_lag_per_yaw_acceleration[5]
         assert row["models"][name]["learned"]["yaw_rate_lag"] == lag  # learned for the CV model only
         assert (lag == 0.0) == (name == "CA/P")
+        assert row["models"][name]["learned"]["stationary"] == []  # off unless asked (`--stationary-error`)
         report = json.loads(config.with_suffix(".json").read_text())["consistency"]  # the scans left out, as reported
         assert row["models"][name]["learned"]["gross_failures"] == [
             report["velocity_inflation"]["gross_failures"]["scans"], report["relative_inflation"]["gross_failures"]]
@@ -194,7 +195,7 @@ def test_each_model_is_calibrated_at_its_own_floor(tmp_path):
     floors = {model: parse_floor(text) for model, text in given.items()}
     args = argparse.Namespace(out=str(tmp_path), calibration_drives=1, calibration_seed=100, calibration_duration=5.0,
                               floor_ca=given["ca-polar"], floor_cv=given["cv-cartesian"], runs=2, duration=3.0,
-                              seed=3, jobs=1, heading_reversion=False)
+                              seed=3, jobs=1, heading_reversion=False, stationary_error=False)
     _, cals, _ = _steps(args, ["city"])
     assert sorted(argv[argv.index("--model") + 1] for _, argv, _ in cals) == sorted(floors)
     for _, argv, _ in cals:
@@ -202,13 +203,17 @@ def test_each_model_is_calibrated_at_its_own_floor(tmp_path):
     assert floors["ca-polar"] == [1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4] and floors["cv-cartesian"] == 2e-4
 
 
-def test_the_heading_reversion_reaches_both_calibrations(tmp_path):
-    """--heading-reversion: both models' calibration steps learn the yaw's reversion (rodo calibrate's flag);
-    without it neither does."""
+@pytest.mark.parametrize("flag", ["heading_reversion", "stationary_error"])
+def test_a_calibration_flag_reaches_both_calibrations(tmp_path, flag):
+    """--heading-reversion, --stationary-error: both models' calibration steps learn the yaw's reversion or the
+    bounded error per axis (rodo calibrate's flag of the same name); without it neither does."""
+    off = {"heading_reversion": False, "stationary_error": False}
     args = argparse.Namespace(out=str(tmp_path), calibration_drives=1, calibration_seed=100, calibration_duration=5.0,
                               floor_ca="1e-4", floor_cv="1e-4", runs=2, duration=3.0, seed=3, jobs=1,
-                              heading_reversion=True)
+                              **dict(off, **{flag: True}))
+    option = "--" + flag.replace("_", "-")
     _, cals, _ = _steps(args, ["city", "hills"])
-    assert len(cals) == 4 and all("--heading-reversion" in argv for _, argv, _ in cals)
-    _, cals, _ = _steps(argparse.Namespace(**dict(vars(args), heading_reversion=False)), ["city"])
-    assert not any("--heading-reversion" in argv for _, argv, _ in cals)
+    assert len(cals) == 4 and all(option in argv for _, argv, _ in cals)
+    assert not any(o in argv for _, argv, _ in cals for o in ("--heading-reversion", "--stationary-error") if o != option)
+    _, cals, _ = _steps(argparse.Namespace(**dict(vars(args), **off)), ["city"])
+    assert not any(option in argv for _, argv, _ in cals)
