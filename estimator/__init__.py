@@ -78,6 +78,7 @@ _EXPORTS = {
     "heading_reversion": ("heading_reversion_matrix",),
     "attitude_jitter": ("absolute_excess", "span_excess", "span_variance"),
     "stationary_error": ("span_term", "taken_out"),
+    "reported_covariances": ("ReportedCovariances",),
     "uncertainty": ("DriftCovariance", "predicted_relative_covariance", "relative_pose_covariance",
                     "revision_covariance", "scan_relative_covariances", "span_covariance"),
     "pull": ("pose_pull", "pull_term", "relative_factor"),
