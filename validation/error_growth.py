@@ -48,8 +48,8 @@ def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float
     run's own (states'; DEFAULT_TAU and none when absent). Zero sums without P_relative."""
     require_arrays(states, truth)
     tau = float(states.get("velocity_correlation_time", DEFAULT_TAU))
-    m = matched_run(states, truth, tolerance, tau, None, None)
     spans = np.asarray(spans, dtype=float)
+    m = matched_run(states, truth, tolerance, tau, None, None, one_scan=bool(np.any(spans == 0)))
     out = {"span": spans, "scans": np.zeros(len(spans), int), "count": np.zeros(len(spans) + 1),
            **{k: np.zeros((len(spans) + 1, 6)) for k in SUMS[1:]}}
     K = len(m["t"])

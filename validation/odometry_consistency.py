@@ -114,6 +114,8 @@ def matched_span_terms(m: dict, n: int, starts=None):
     if m["drift_inputs"] is None or n >= len(t):
         return None
     rows = slice(None) if starts is None else np.asarray(starts, dtype=int)
+    if n == 1 and m["scan_inputs"] is None:
+        raise ValueError("matched_span_terms: the run was matched without its one-scan inputs (one_scan=False)")
     Sigma_rel, P_varpi, restarts, deviations, steps = m["drift_inputs"] if n > 1 else m["scan_inputs"]
     C = span_covariances(T_est, t, Sigma_rel, P_varpi, n, m["tau"], m["drift_rate_sigma"], restarts, m["heading"],
                          deviations, starts, steps)
@@ -214,7 +216,8 @@ def matched_poses(states: dict, truth: dict, tolerance: float = DEFAULT_TOLERANC
     return ia, ib, T_est, (T_true @ T_est[0] if len(ia) else T_true)
 
 
-def matched_run(states: dict, truth: dict, tolerance: float, tau: float, drift_rate_sigma, heading) -> dict:
+def matched_run(states: dict, truth: dict, tolerance: float, tau: float, drift_rate_sigma, heading,
+                one_scan: bool = True) -> dict:
     """A run's scans matched to the truth (`odometry_nees`'s arguments): t, T_est, T_true (in the estimator's
     world), P, sub (the per-scan states arrays at the matched scans), ib (the truth's indices), the drift rate and
     heading reversion in use (the run's own where None), tau, the run's stationary error (states'
@@ -222,7 +225,7 @@ def matched_run(states: dict, truth: dict, tolerance: float, tau: float, drift_r
     measure ((Sigma_rel, P_varpi, restarts, deviations, and the steps' matrices of `span_covariances.step_matrices`
     into scans 1 .. K-1, built once for all the spans), `recursion_inputs_of_run`; None without P_relative), and
     scan_inputs, the same without the stationary error's one-scan change taken out (drift_inputs themselves when
-    it is off), for the one-scan span."""
+    it is off), for the one-scan span (None with the error on and `one_scan` False: a caller of longer spans)."""
     if drift_rate_sigma is None and "drift_rate_sigma" in states:
         drift_rate_sigma = np.asarray(states["drift_rate_sigma"], dtype=float)
     if heading is None:
@@ -239,8 +242,10 @@ def matched_run(states: dict, truth: dict, tolerance: float, tau: float, drift_r
     drift_inputs = scan_inputs = None
     if "P_relative" in sub:
         drift_inputs = _drift_inputs(states, sub, ia, T_est, t, tau, drift_rate_sigma, heading, None)
-        scan_inputs = (_drift_inputs(states, sub, ia, T_est, t, tau, drift_rate_sigma, heading, False)
-                       if is_on(stationary) else drift_inputs)
+        scan_inputs = drift_inputs
+        if is_on(stationary):
+            scan_inputs = _drift_inputs(states, sub, ia, T_est, t, tau, drift_rate_sigma, heading, False) \
+                if one_scan else None
     return {"t": t, "T_est": T_est, "T_true": T_true, "P": np.asarray(states["P"], dtype=float)[ia], "sub": sub,
             "ib": ib, "drift_rate_sigma": drift_rate_sigma, "heading": heading, "tau": tau,
             "stationary": stationary, "drift_inputs": drift_inputs, "scan_inputs": scan_inputs}

@@ -124,3 +124,7 @@ def test_the_one_scan_span_is_the_runs_own_and_longer_spans_change(runs):
     g_off, g_on = error_growth(off, truth), error_growth(on, truth)
     np.testing.assert_array_equal(g_on["z2"][0], g_off["z2"][0])
     assert not np.allclose(g_on["z2"][2], g_off["z2"][2], rtol=1e-3)
+    longer = error_growth(on, truth, spans=(0.5, 1.0))  # matched without the one-scan inputs: the same rows
+    np.testing.assert_array_equal(longer["z2"][:2], g_on["z2"][1:3])
+    with pytest.raises(ValueError, match="one-scan inputs"):
+        matched_span_terms(matched_run(on, truth, 1e-6, 0.4, None, None, one_scan=False), 1)
