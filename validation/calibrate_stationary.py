@@ -34,7 +34,8 @@ MIN_SPAN = 0.5  # s: the shortest span whose growth the fit reads
 OVERCONFIDENCE_WEIGHT = 2.0  # as the tau fit's (`calibrate_consistency.tau_cost`)
 # the least fall of an axis's cost for which its error is taken on: the 95th percentile of the fall the grid finds
 # on an axis without a stationary error (36 axes of twelve synthetic 180 s random-walk drives: median 0.06, 90th
-# percentile 0.68, 95th 1.04, largest 1.44; /work/s47/gainnoise.py), about one span's ratio moved by a factor e
+# percentile 0.68, 95th 1.04, largest 1.44; docs/consistency_history.md, "Session 47"), about one span's ratio
+# moved by a factor e
 MIN_GAIN = 1.0
 
 
