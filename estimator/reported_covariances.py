@@ -46,7 +46,8 @@ class ReportedCovariances:
         self.relative_terms = (any(config.inflation_per_rate) or config.inflation_per_doppler != 0.0
                                or config.inflation_per_pull != 0.0)
         self.jitter = AbsoluteJitter(attitude_jitter_of(config))
-        self.stationary = stationary_error_of(config)
+        stationary = stationary_error_of(config)
+        self.stationary = stationary if is_on(stationary) else None  # None: off, nothing to do per scan
         self.origin = None  # (T_vehicle_world, t) of the run's first scan, for the stationary error's span
         self.lag = VelocityLag(config)
         self.drift: DriftCovariance | None = None
@@ -81,7 +82,7 @@ class ReportedCovariances:
                 P_relative, est.P[6:12, 6:12], dt, cfg.registration_correlation, cfg.velocity_error_share,
                 cfg.velocity_error_share_per_speed, speed, self.stationary))
         P_absolute = with_roll_pitch_variance(P_absolute, self.jitter.at(est.t))
-        if is_on(self.stationary):
+        if self.stationary is not None:
             P_absolute = P_absolute + span_term(est.T_vehicle_world, self.origin[0], est.t - self.origin[1],
                                                 self.stationary)
         self.last, self.restart_relative = est, None

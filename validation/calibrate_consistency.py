@@ -43,8 +43,8 @@ tells the truth (docs/consistency.md):
   the per-scan covariances compose into the drift (the relative pose over a span and the absolute pose). It
   does not change the estimate: chosen on a grid, without running again, so that the relative pose over `span`
   seconds and the absolute pose are as consistent as one tau can make them: the least sum of |ln ratio|, a
-  ratio above 1 (over-confident) counted OVERCONFIDENCE_WEIGHT times (between two about equally consistent taus
-  the cautious one is the safe choice: docs/calibration.md, step 5).
+  ratio above 1 (over-confident) counted `calibrate_relative.OVERCONFIDENCE_WEIGHT` times (`tau_cost`; between
+  two about equally consistent taus the cautious one is the safe choice: docs/calibration.md, step 5).
 - `uncertainty.registration_correlation` alpha: how much of each scan's relative pose covariance the recursion
   carries correlated over tau, with the velocity error (the registration's errors are correlated over a few scans
   to a second); chosen with tau, the pair of the least cost over CORRELATIONS (`fit_correlation`).
@@ -80,7 +80,7 @@ from rodo.sim.sequence import Sequence
 
 from .calibrate_drift import fit_drift_rate
 from .calibrate_jitter import attitude_jitter_report
-from .calibrate_relative import fit_relative_inflation, median_ratio, relative_factor_states
+from .calibrate_relative import fit_relative_inflation, median_ratio, relative_factor_states, tau_cost
 from .calibrate_stationary import fit_stationary_error
 from .calibrate_velocity import fit_velocity_inflation
 from .driver import run_sequence
@@ -102,7 +102,6 @@ DEFAULT_TAU = 0.25  # s, kept when no tau of the grid gives finite ratios
 # the registration's correlation alpha tried with tau: independent, half, all carried with the velocity error (a
 # coarser grid than tau's: offline, the quarters moved the campaigns' 1 s and absolute pose by <= 0.06 per dof)
 CORRELATIONS = (0.0, 0.5, 1.0)
-OVERCONFIDENCE_WEIGHT = 2.0  # how much more an over-confident ln ratio (> 0) counts than a cautious one in fit_tau
 KAPPA_RANGE = (1.0, 100.0)
 FIXED_POINT_MEASURES = ("velocity", "relative_scan")
 REPORTED = ("velocity", "relative_scan", "relative_span", "pose")
@@ -245,13 +244,6 @@ def _grid_fit(states, truth, span: float, drift_rate_sigma, grid: dict, default)
         ratios[key] = (r["relative_span"], r["pose"])
     finite = {key: r for key, r in ratios.items() if np.all(np.isfinite(r)) and min(r) > 0}
     return (min(finite, key=lambda key: tau_cost(finite[key])) if finite else default), ratios
-
-
-def tau_cost(ratios) -> float:
-    """sum_i w_i |ln r_i| of median NEES ratios r_i, w_i = OVERCONFIDENCE_WEIGHT where r_i > 1 (the covariance
-    too small), else 1."""
-    log_r = np.log(np.asarray(ratios, dtype=float))
-    return float(np.sum(np.where(log_r > 0, OVERCONFIDENCE_WEIGHT, 1.0) * np.abs(log_r)))
 
 
 def _fixed_point(seq, truth, config: OdometryConfig, iterations: int, tolerance: float, span: float, progress):

@@ -43,6 +43,7 @@ SHARE_RANGE = (1e-3, 1.0)
 # the share's growth with the speed is learned only from a drive that stops: at least REST_FRACTION of its scans
 # below REST_SPEED (m/s); a drive always at speed cannot tell g + g_v |nu| from a constant share (hills: 12-30 m/s)
 REST_SPEED, REST_FRACTION = 0.5, 0.01
+OVERCONFIDENCE_WEIGHT = 2.0  # how much more an over-confident ln ratio (> 0) counts than a cautious one in tau_cost
 
 
 def median_ratio(values) -> float:
@@ -50,6 +51,14 @@ def median_ratio(values) -> float:
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
     return float(np.median(v) / MEDIAN_CHI2) if v.size else float("nan")
+
+
+def tau_cost(ratios) -> float:
+    """sum_i w_i |ln r_i| of NEES ratios r_i (median ratios, or E[e^2 / sigma^2] per axis), w_i =
+    OVERCONFIDENCE_WEIGHT where r_i > 1 (the covariance too small), else 1: the cost the calibration's grid fits
+    minimise (`calibrate_consistency`'s tau, heading and correlation, `calibrate_stationary`)."""
+    log_r = np.log(np.asarray(ratios, dtype=float))
+    return float(np.sum(np.where(log_r > 0, OVERCONFIDENCE_WEIGHT, 1.0) * np.abs(log_r)))
 
 
 def _run_factor(states: dict, factor) -> np.ndarray:

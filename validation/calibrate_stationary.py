@@ -24,6 +24,7 @@ import numpy as np
 
 from rodo.estimator.stationary_error import stationary_error_array
 
+from .calibrate_relative import tau_cost
 from .error_growth import AXES, GROWTH_SPANS, error_growth, pooled_growth
 from .run_consistency import runs_of
 
@@ -31,7 +32,6 @@ SHARES = (0.5, 0.8, 0.9, 0.95)  # f: the share of an axis's mean one-scan varian
 TIMES = (0.25, 0.5, 1.0, 2.0, 5.0, 10.0)  # s, T
 AXIS_ORDER = (5, 3, 4, 0, 1, 2)  # yaw, roll, pitch, x, y, z
 MIN_SPAN = 0.5  # s: the shortest span whose growth the fit reads
-OVERCONFIDENCE_WEIGHT = 2.0  # as the tau fit's (`calibrate_consistency.tau_cost`)
 # the least fall of an axis's cost for which its error is taken on: the 95th percentile of the fall the grid finds
 # on an axis without a stationary error (36 axes of twelve synthetic 180 s random-walk drives: median 0.06, 90th
 # percentile 0.68, 95th 1.04, largest 1.44; docs/consistency_history.md, "Session 47"), about one span's ratio
@@ -69,11 +69,9 @@ def axis_growth(runs: list, stationary: np.ndarray, spans) -> np.ndarray:
 
 
 def axis_cost(ratios) -> float:
-    """sum over the spans of w |ln r| (w = OVERCONFIDENCE_WEIGHT where r > 1), the spans without finite r left
-    out."""
-    log_r = np.log(np.asarray(ratios, dtype=float))
-    log_r = log_r[np.isfinite(log_r)]
-    return float(np.sum(np.where(log_r > 0, OVERCONFIDENCE_WEIGHT, 1.0) * np.abs(log_r)))
+    """`tau_cost` of an axis's ratios over the spans, the spans without a finite ratio left out."""
+    r = np.asarray(ratios, dtype=float)
+    return tau_cost(r[np.isfinite(r) & (r > 0)])
 
 
 def fit_stationary_error(states, truth, axes=AXIS_ORDER) -> tuple[np.ndarray, dict]:

@@ -77,17 +77,15 @@ def recursion_inputs_of_run(states: dict, Sigma_rel: np.ndarray, P_window: np.nd
                             restarted=None, stationary=None) -> tuple[np.ndarray, np.ndarray]:
     """(Sigma_rel, P_varpi) (N, 6, 6) a run's drift recursion composed at its scans `rows` (None: all):
     `estimator.uncertainty.recursion_inputs` of their relative pose covariances Sigma_rel and window velocity
-    covariances P_window at the run's `registration_correlation` alpha, `velocity_error_share` g,
-    `velocity_error_share_per_speed` g_v and `stationary_error` (states.npz; 0, 1, 0 and off in runs before them;
-    `stationary`, [V; T], in its place where given: False, off), dt the interval since the scan before each in the
-    run. The velocity covariances of every scan are g + g_v |nu| times the window's; alpha and the stationary
+    covariances P_window at the run's `registration_correlation` alpha, `velocity_error_share` g and
+    `velocity_error_share_per_speed` g_v (states.npz; 0, 1 and 0 in runs before them) and the stationary error
+    `stationary` ([V; T]; None: off; a run's own is its states' `stationary_error`), dt the interval since the
+    scan before each in the run. The velocity covariances of every scan are g + g_v |nu| times the window's; alpha and the stationary
     error move covariance only at registered scans (not a run's first scan, not a re-initialisation's
     dead-reckoned step: `restarted` (N,), None: states' own)."""
     alpha = float(states.get("registration_correlation", 0.0))
     g = float(states.get("velocity_error_share", 1.0))
     g_v = float(states.get("velocity_error_share_per_speed", 0.0))
-    if stationary is None or stationary is False:
-        stationary = states.get("stationary_error") if stationary is None else None
     rows = np.arange(len(states["t"])) if rows is None else rows
     speed = np.linalg.norm(np.asarray(states["varpi"], dtype=float)[rows, :3], axis=1) if g_v != 0.0 else None
     share = g if speed is None else (g + g_v * speed)[:, None, None]
@@ -241,10 +239,10 @@ def matched_run(states: dict, truth: dict, tolerance: float, tau: float, drift_r
     stationary = states.get("stationary_error")
     drift_inputs = scan_inputs = None
     if "P_relative" in sub:
-        drift_inputs = _drift_inputs(states, sub, ia, T_est, t, tau, drift_rate_sigma, heading, None)
+        drift_inputs = _drift_inputs(states, sub, ia, T_est, t, tau, drift_rate_sigma, heading, stationary)
         scan_inputs = drift_inputs
         if is_on(stationary):
-            scan_inputs = _drift_inputs(states, sub, ia, T_est, t, tau, drift_rate_sigma, heading, False) \
+            scan_inputs = _drift_inputs(states, sub, ia, T_est, t, tau, drift_rate_sigma, heading, None) \
                 if one_scan else None
     return {"t": t, "T_est": T_est, "T_true": T_true, "P": np.asarray(states["P"], dtype=float)[ia], "sub": sub,
             "ib": ib, "drift_rate_sigma": drift_rate_sigma, "heading": heading, "tau": tau,
@@ -252,8 +250,8 @@ def matched_run(states: dict, truth: dict, tolerance: float, tau: float, drift_r
 
 
 def _drift_inputs(states: dict, sub: dict, ia, T_est, t, tau: float, drift_rate_sigma, heading, stationary):
-    """(Sigma_rel, P_varpi, restarts, deviations, steps) of `matched_run`'s drift_inputs, the stationary error as
-    `recursion_inputs_of_run`'s (None: the run's own; False: off, for the one-scan span)."""
+    """(Sigma_rel, P_varpi, restarts, deviations, steps) of `matched_run`'s drift_inputs at this stationary error
+    ([V; T]; None: off, for the one-scan span)."""
     restarts = sub.get("restarted")
     P_window = drift_velocity_covariances(sub["P"], sub["varpi"], states.get("velocity_inflation"),
                                           sub.get("doppler_nis"), states.get("velocity_axis_inflation"),

@@ -93,7 +93,6 @@ def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None, headin
     P_window = drift_velocity_covariances(P, states["varpi"], states.get("velocity_inflation"),
                                           states.get("doppler_nis"), states.get("velocity_axis_inflation"),
                                           states.get("velocity_lag"))
-    stationary = stationary if is_on(stationary) else False
     Sigma_rel, P_varpi = recursion_inputs_of_run(states, np.asarray(states["P_relative"], dtype=float), P_window,
                                                  stationary=stationary)
     T, t = np.asarray(states["T_vehicle_world"], dtype=float), np.asarray(states["t"], dtype=float)
@@ -101,6 +100,6 @@ def absolute_covariances(states: dict, tau: float, drift_rate_sigma=None, headin
                          heading)
     P_absolute = np.stack([P[0, :6, :6]] + [drift.C[:6, :6] for drift in steps])
     P_absolute = with_roll_pitch_variance(P_absolute, absolute_excess(t, attitude_jitter_array(jitter)))
-    if stationary is not False:
+    if is_on(stationary):
         P_absolute = P_absolute + span_term(T, T[:1], t - t[0], stationary)
     return P_absolute

@@ -9,7 +9,7 @@ from rodo.estimator.heading_reversion import heading_reversion_matrix
 from rodo.estimator.lie import se3
 from rodo.validation import calibrate_consistency as cc
 from rodo.validation import replayed_states as rs
-from tests.validation.synthetic_drives import run_arrays, straight_drive
+from tests.validation.synthetic_drives import stated_run, straight_drive
 
 DT, N = 0.1, 800
 SIGMA = np.array([3e-3, 3e-3, 3e-3, 2e-4, 2e-4, 1e-3])  # per scan: the yaw the largest rotation
@@ -22,15 +22,13 @@ def _run(seed: int, heading, scale=np.ones(6)):
     rng = np.random.default_rng(np.random.SeedSequence([2026, 30, seed]))
     T_true = straight_drive(rng, N)
     x = np.zeros(19)
-    T_est = [T_true[0]]
+    errors = [x[:6].copy()]
     M = np.eye(19) if heading is None else heading_reversion_matrix(DT, heading)
     for k in range(1, N):
         x = M @ x
         x[:6] = se3.adjoint(T_true[k] @ se3.inverse(T_true[k - 1])) @ x[:6] + rng.normal(size=6) * SIGMA * scale
-        T_est.append(se3.exp(-x[:6]) @ T_true[k])
-    Sigma = np.tile(np.diag(SIGMA**2), (N, 1, 1))
-    Sigma[0] = np.nan
-    states, truth = run_arrays(DT * np.arange(N), T_est, T_true, Sigma)
+        errors.append(x[:6].copy())
+    states, truth = stated_run(DT, T_true, errors, np.diag(SIGMA**2))
     return rs.replayed(states, 0.0, None, heading), truth
 
 

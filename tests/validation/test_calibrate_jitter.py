@@ -10,7 +10,7 @@ from rodo.estimator.lie import se3
 from rodo.validation import calibrate_jitter as cj
 from rodo.validation import replayed_states as rs
 from rodo.validation.odometry_consistency import odometry_nees
-from tests.validation.synthetic_drives import run_arrays, straight_drive
+from tests.validation.synthetic_drives import stated_run, straight_drive
 
 DT, N, T_JITTER = 0.1, 800, 1.0
 SIGMA = np.array([3e-3, 3e-3, 3e-3, 2e-4, 2e-4, 5e-4])  # per scan
@@ -36,15 +36,13 @@ def _run(seed: int, V: float, scale=np.ones(6)):
     T_true = straight_drive(rng, N, step_range=(0.06, 0.1))
     j = _path(rng, V)
     j -= j[0]
-    x = np.zeros(6)
-    T_est = [T_true[0]]
+    x, errors = np.zeros(6), [np.zeros(6)]
     for k in range(1, N):
         x = se3.adjoint(T_true[k] @ se3.inverse(T_true[k - 1])) @ x + rng.normal(size=6) * SIGMA * scale
-        T_est.append(se3.exp(-(x + np.r_[0.0, 0.0, 0.0, j[k], 0.0])) @ T_true[k])
-    Sigma = np.tile(np.diag(SIGMA**2), (N, 1, 1))
-    Sigma[:, 3:5, 3:5] += np.eye(2) * span_variance(DT, (V, T_JITTER))  # the one-scan change, as f would fit it
-    Sigma[0] = np.nan
-    states, truth = run_arrays(DT * np.arange(N), T_est, T_true, Sigma)
+        errors.append(x + np.r_[0.0, 0.0, 0.0, j[k], 0.0])
+    stated = np.diag(SIGMA**2)
+    stated[3:5, 3:5] += np.eye(2) * span_variance(DT, (V, T_JITTER))  # the one-scan change, as f would fit it
+    states, truth = stated_run(DT, T_true, errors, stated)
     return rs.replayed(states, 0.0, None), truth
 
 

@@ -7,7 +7,7 @@ import pytest
 from rodo.estimator.lie import se3
 from rodo.validation import replayed_states as rs
 from rodo.validation.calibrate_stationary import fit_stationary_error, stationary_of
-from tests.validation.synthetic_drives import run_arrays, straight_drive
+from tests.validation.synthetic_drives import stated_run, straight_drive
 
 DT, N, RUNS = 0.1, 300, 4
 SIGMA = np.array([3e-3, 3e-3, 3e-3, 2e-4, 2e-4, 5e-4])  # per scan, as the states say
@@ -26,15 +26,12 @@ def _run(seed: int):
     rho = np.exp(-DT / TIME)
     x, s = np.zeros(6), np.zeros(6)
     s[YAW] = rng.normal() * np.sqrt(V)
-    s0, T_est = s.copy(), [T_true[0]]
+    s0, errors = s.copy(), [np.zeros(6)]
     for k in range(1, N):
         x = se3.adjoint(T_true[k] @ se3.inverse(T_true[k - 1])) @ x + rng.normal(size=6) * steps
         s[YAW] = rho * s[YAW] + rng.normal() * np.sqrt(V * (1 - rho**2))
-        e = x + s - se3.adjoint(T_true[k] @ se3.inverse(T_true[0])) @ s0
-        T_est.append(se3.exp(-e) @ T_true[k])
-    Sigma = np.tile(np.diag(SIGMA**2), (N, 1, 1))
-    Sigma[0] = np.nan
-    states, truth = run_arrays(DT * np.arange(N), T_est, T_true, Sigma)
+        errors.append(x + s - se3.adjoint(T_true[k] @ se3.inverse(T_true[0])) @ s0)
+    states, truth = stated_run(DT, T_true, errors, np.diag(SIGMA**2))
     return rs.replayed(states, 0.0, None), truth
 
 

@@ -7,7 +7,7 @@ import pytest
 from rodo.estimator.lie import se3
 from rodo.validation import replayed_states as rs
 from rodo.validation.error_growth import AXES, error_growth, growth_lines, growth_table, pooled_growth
-from tests.validation.synthetic_drives import run_arrays, straight_drive
+from tests.validation.synthetic_drives import stated_run, straight_drive
 
 DT, N = 0.1, 600
 SIGMA = np.array([3e-3, 3e-3, 3e-3, 2e-4, 2e-4, 5e-4])  # per scan
@@ -21,13 +21,10 @@ def _run(seed: int, scale=np.ones(6)):
     (0.06-0.1 m per scan), so the rotation errors carried over the distance are a small part of the position's."""
     rng = np.random.default_rng(np.random.SeedSequence([2026, 46, seed]))
     T_true = straight_drive(rng, N, step_range=(0.06, 0.1))
-    x, T_est = np.zeros(6), [T_true[0]]
+    x = [np.zeros(6)]
     for k in range(1, N):
-        x = se3.adjoint(T_true[k] @ se3.inverse(T_true[k - 1])) @ x + rng.normal(size=6) * SIGMA * scale
-        T_est.append(se3.exp(-x) @ T_true[k])
-    Sigma = np.tile(np.diag(SIGMA**2), (N, 1, 1))
-    Sigma[0] = np.nan
-    states, truth = run_arrays(DT * np.arange(N), T_est, T_true, Sigma)
+        x.append(se3.adjoint(T_true[k] @ se3.inverse(T_true[k - 1])) @ x[-1] + rng.normal(size=6) * SIGMA * scale)
+    states, truth = stated_run(DT, T_true, x, np.diag(SIGMA**2))
     return rs.replayed(states, 0.0, None), truth
 
 
