@@ -327,8 +327,7 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
         entry = {"runs": len(mine), "ok": len(ok), "errors": len(mine) - len(ok),
                  "error_examples": sorted({r["error"] for r in mine if r["status"] == "error"})[:3],
                  "metrics": {k: _describe(num(k)) for k in SUMMARY_METRICS}}
-        runs, t, dim, arrays = [], np.zeros(0), None, []
-        with_arrays = writes_arrays(out, ok, m)
+        runs, t, dim, arrays, with_arrays = [], np.zeros(0), None, [], writes_arrays(out, ok, m)
         for r in ok:
             p = npz_path(out, int(r["trial"]), m)
             if not p.exists() and with_arrays:  # not summarised over fewer runs than the table says
@@ -341,6 +340,7 @@ def summarize_campaign(out_dir, alpha: float = 0.05) -> dict:
             dim = int(z["nees_dim"])
             t = z["t"] if len(z["t"]) > len(t) else t
             arrays.append({k: v for k, v in z.items() if k == "t" or k.startswith(("nees_", "growth_"))})
+            arrays[-1]["trial"] = int(r["trial"])  # names a run with a gross failure
         entry.update(campaign_consistency(arrays, alpha))
         if runs:
             mean, count = average_nees(runs)
@@ -392,7 +392,7 @@ def write_summary(out_dir, summary: dict, plot_note: str = "") -> None:
                           f"{n['runs']} runs [{fmt(lo)}, {fmt(hi)}]; scans within their bounds: "
                           f"{fmt(None if n['fraction_scans_within'] is None else 100 * n['fraction_scans_within'])} %."]
         if any(c["runs"] for c in e.get("consistency", {}).values()):
-            lines += consistency_lines(e["consistency"], fmt) + growth_lines(e.get("error_growth"), fmt)
+            lines += consistency_lines(e, fmt) + growth_lines(e.get("error_growth"), fmt)
         lines.append("")
     lines += comparison_lines(summary.get("comparisons", []), fmt)
     if plot_note:

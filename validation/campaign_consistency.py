@@ -23,7 +23,18 @@ have it:
   follows the speed or the Doppler innovation) can do better;
 - `scans_below`, `scans_above`: the scans whose average lies below its bounds (the covariance cautious there) and
   above them (over-confident), and `scans_above_one_run`: those above that one run puts there, inside the bounds
-  for the others without the largest run's value at that scan (a tail of one run, not a common factor).
+  for the others without the largest run's value at that scan (a tail of one run, not a common factor);
+- `mean_interval_per_dof`: the 95 % interval of the mean over runs of each run's mean NEES/dof over its scans
+  (Cox's, the runs' means taken as lognormal: `mean_interval_per_dof`). The bounds are those of one scan's average under chi-square; where the runs disagree more than
+  chi-square draws (a spread above 1: one drive's absolute pose is one slowly varying path) the mean over scans
+  wanders further than they allow, and this interval says how far (20 prior-consistent CA/P drives with a mean
+  absolute pose of 0.73 per dof: 0.52-1.04; docs/evaluation.md, "Consistency in campaigns").
+
+Runs with a gross failure (`gross_failure_runs`: a scan whose velocity or one-scan relative pose NEES exceeds
+`gross_failures.GROSS_NEES_PER_DOF` per dof, errors ten times their stated sigma) are named, and every measure is
+summarised again without them (`consistency_without_gross`): one run that lost its way (a prior SDE's vehicle
+pitched 50 degrees up, its radar seeing the sky) moves the means by tens, which says nothing about the
+covariance where the estimator works. The first summary keeps every run.
 
 Checked by: tests/validation/test_campaign_consistency.py::test_campaign_consistency_per_measure_consistent_and_overconfident,
     ::test_spread_between_runs_and_the_share_with_a_per_scan_factor, ::test_scans_outside_below_above_and_one_run
@@ -33,10 +44,15 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.stats import chi2
+from scipy.stats import t as student_t
 
+from .campaign_compare import mean_interval
 from .consistency import average_nees, chi2_bounds, fraction_within, stacked_runs
 from .error_growth import growth_table, pooled_growth
+from .gross_failures import GROSS_NEES_PER_DOF
 from .odometry_consistency import DOF, MEASURES
+
+GROSS_MEASURES = ("velocity", "relative_scan")  # scan by scan: where the estimator fails, not where it drifts
 
 
 def spread_between_runs(runs: list[np.ndarray]) -> float | None:
@@ -94,8 +110,9 @@ def measure_summary(runs: list[np.ndarray], alpha: float = 0.05) -> tuple[dict, 
     """Summary and curve of one measure over runs (each (K_i,) per-scan NEES; runs without a finite value are
     not counted). Returns (summary, curve): summary with dof, runs, mean_per_dof, median_per_dof,
     bounds_for_runs, bounds_per_dof, fraction_scans_within, spread_between_runs, fraction_within_per_scan_factor
-    (None where undefined), scans_below, scans_above and scans_above_one_run (`scans_outside`); curve with mean,
-    count, lower, upper (per scan, NEES, not per dof)."""
+    (None where undefined), scans_below, scans_above and scans_above_one_run (`scans_outside`),
+    mean_interval_per_dof (`mean_interval_per_dof`); curve with mean, count, lower, upper (per scan, NEES, not per
+    dof)."""
     runs = [np.asarray(r, dtype=float) for r in runs if np.isfinite(np.asarray(r, dtype=float)).any()]
     n = len(runs)
     bounds = chi2_bounds(n, DOF, alpha)
@@ -103,7 +120,7 @@ def measure_summary(runs: list[np.ndarray], alpha: float = 0.05) -> tuple[dict, 
                "bounds_for_runs": bounds.tolist(), "bounds_per_dof": (bounds / DOF).tolist(),
                "fraction_scans_within": None, "spread_between_runs": None,
                "fraction_within_per_scan_factor": None, "scans_below": 0, "scans_above": 0,
-               "scans_above_one_run": 0}
+               "scans_above_one_run": 0, "mean_interval_per_dof": mean_interval_per_dof(runs)}
     if not n:
         return summary, {}
     mean, count = average_nees(runs)
@@ -120,42 +137,100 @@ def measure_summary(runs: list[np.ndarray], alpha: float = 0.05) -> tuple[dict, 
                      "upper": b[:, 1].tolist()}
 
 
-def campaign_consistency(arrays: list[dict], alpha: float = 0.05) -> dict:
-    """Per measure (MEASURES) over the runs' npz arrays (dicts with `t` and `nees_<measure>`; runs written
-    before the measures existed have none and are skipped), and the runs' error growth pooled (their
-    `growth_<sum>` arrays, `error_growth`; None where no run has them). Returns {"consistency": {measure:
-    measure_summary}, "consistency_curves": {"t": longest t, measure: curve}, "error_growth": {runs, the pooled
-    sums, table: `growth_table`} or None}."""
-    t = max((np.asarray(a["t"], dtype=float) for a in arrays), key=len, default=np.zeros(0))
-    summary, curves = {}, {"t": t.tolist()}
+def mean_interval_per_dof(runs: list[np.ndarray], level: float = 0.95) -> list[float] | None:
+    """[lower, upper], per dof, of the interval at `level` of the mean over runs of each run's mean NEES over its
+    finite scans; None with fewer than two runs that have a scan. The runs' means are taken as lognormal (a
+    scale per run times chi-square noise) and the interval is Cox's for a lognormal mean (Olsson 2005, "Confidence
+    intervals for the mean of a log-normal distribution"): exp(m + s^2 / 2 +- t sqrt(s^2 / N + s^4 / (2 (N - 1))))
+    of the logs' mean m and variance s^2. On runs whose scale spreads by a factor e it holds the mean in 95 % of
+    campaigns of 20 runs, where the Student-t interval held it in 88 % (tests); with a mean of 0 (no log) the
+    t interval, not below 0."""
+    means = np.array([np.mean(r[np.isfinite(r)]) / DOF for r in map(np.asarray, runs) if np.isfinite(r).any()])
+    if len(means) < 2:
+        return None
+    if np.any(means <= 0):
+        _, lo, hi = mean_interval(means, level)
+        return [max(lo, 0.0), hi]
+    y = np.log(means)
+    n, s2 = len(y), float(np.var(y, ddof=1))
+    h = float(student_t.ppf(0.5 + level / 2, n - 1)) * np.sqrt(s2 / n + s2**2 / (2 * (n - 1)))
+    centre = float(np.mean(y)) + s2 / 2
+    return [float(np.exp(centre - h)), float(np.exp(centre + h))]
+
+
+def gross_failure_runs(arrays: list[dict]) -> list[int]:
+    """The indices of the runs (npz arrays, as `campaign_consistency` takes them) with a scan whose NEES of a
+    GROSS_MEASURES measure exceeds GROSS_NEES_PER_DOF per dof."""
+    limit = GROSS_NEES_PER_DOF * DOF
+    return [i for i, a in enumerate(arrays)
+            if any(np.nanmax(np.asarray(a[f"nees_{k}"], dtype=float), initial=-np.inf) > limit
+                   for k in GROSS_MEASURES if f"nees_{k}" in a)]
+
+
+def _summaries(arrays: list[dict], alpha: float) -> tuple[dict, dict]:
+    """({measure: `measure_summary`}, {measure: curve}) over the runs' npz arrays."""
+    summary, curves = {}, {}
     for name in MEASURES:
         key = f"nees_{name}"
         summary[name], curve = measure_summary([a[key] for a in arrays if key in a], alpha)
         if curve:
             curves[name] = curve
+    return summary, curves
+
+
+def campaign_consistency(arrays: list[dict], alpha: float = 0.05) -> dict:
+    """Per measure (MEASURES) over the runs' npz arrays (dicts with `t` and `nees_<measure>`; runs written
+    before the measures existed have none and are skipped), and the runs' error growth pooled (their
+    `growth_<sum>` arrays, `error_growth`; None where no run has them). Returns {"consistency": {measure:
+    measure_summary}, "consistency_curves": {"t": longest t, measure: curve}, "error_growth": {runs, the pooled
+    sums, table: `growth_table`} or None, "gross_failure_runs": the runs with a gross failure (`gross_failure_runs`,
+    named by each run's `trial` where the arrays hold it, else by index), "consistency_without_gross": {measure:
+    measure_summary} over the other runs, or None where there is no such run}."""
+    t = max((np.asarray(a["t"], dtype=float) for a in arrays), key=len, default=np.zeros(0))
+    summary, curves = _summaries(arrays, alpha)
+    curves = {"t": t.tolist(), **curves}
+    gross = gross_failure_runs(arrays)
+    without = _summaries([a for i, a in enumerate(arrays) if i not in gross], alpha)[0] if gross else None
     growths = [{k[len("growth_"):]: v for k, v in a.items() if k.startswith("growth_")} for a in arrays
                if "growth_count" in a]
     pooled = pooled_growth(growths)
     growth = None if pooled is None else {"runs": len(growths), **pooled, "table": growth_table(pooled)}
-    return {"consistency": summary, "consistency_curves": curves, "error_growth": growth}
+    named = [int(arrays[i].get("trial", i)) for i in gross]
+    return {"consistency": summary, "consistency_curves": curves, "error_growth": growth, "gross_failure_runs": named,
+            "consistency_without_gross": without}
 
 
-def consistency_lines(consistency: dict, fmt) -> list[str]:
-    """Markdown table of a model's measures (summary.md); `fmt` formats a number or None ("-")."""
+def consistency_lines(entry: dict, fmt) -> list[str]:
+    """Markdown table of a model's measures (summary.md: `entry` a model's summary, its `consistency` and, where
+    runs had a gross failure, their trials and the table without them); `fmt` formats a number or None ("-")."""
+    lines = ["", "Odometry consistency (average NEES over runs per scan, 6 dof, divided by 6; the 95 % interval of "
+             "the mean over the runs' own means; bounds for the N runs of the measure; spread: the runs' disagreement "
+             "at a scan against chi-square's, and the share of scans a per-scan factor common to all runs would bring "
+             "within at that spread; outside: the scans below and above the bounds, and of those above, how many one "
+             "run's value puts there):", ""] + _table(entry["consistency"], fmt)
+    gross = entry.get("gross_failure_runs") or []
+    if gross and entry.get("consistency_without_gross"):
+        lines += ["", f"Runs with a gross failure (a scan's velocity or one-scan relative pose NEES above "
+                      f"{GROSS_NEES_PER_DOF:g} per dof): trial{'s' if len(gross) > 1 else ''} "
+                      f"{', '.join(map(str, gross))}. Without them:", ""]
+        lines += _table(entry["consistency_without_gross"], fmt)
+    return lines
+
+
+def _table(consistency: dict, fmt) -> list[str]:
+    """The rows of `consistency_lines`' table, with its header."""
     pct = lambda v: fmt(None if v is None else 100 * v)  # noqa: E731
-    lines = ["", "Odometry consistency (average NEES over runs per scan, 6 dof, divided by 6; bounds for the N runs "
-             "of the measure; spread: the runs' disagreement at a scan against chi-square's, and the share of scans a "
-             "per-scan factor common to all runs would bring within at that spread; outside: the scans below and above "
-             "the bounds, and of those above, how many one run's value puts there):", "",
-             "| measure | runs | mean NEES/dof | median | bounds/dof | scans within | spread "
+    lines = ["| measure | runs | mean NEES/dof | 95 % interval | median | bounds/dof | scans within | spread "
              "| with a per-scan factor | below / above (one run) |",
-             "| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: |"]
+             "| --- | ---: | ---: | --- | ---: | --- | ---: | ---: | ---: | ---: |"]
     for name in MEASURES:
         c = consistency.get(name)
         if c is None:
             continue
         lo, hi = c["bounds_per_dof"]
-        lines.append(f"| {name} | {c['runs']} | {fmt(c['mean_per_dof'])} | {fmt(c['median_per_dof'])} | "
+        ci = c.get("mean_interval_per_dof")
+        lines.append(f"| {name} | {c['runs']} | {fmt(c['mean_per_dof'])} | "
+                     f"{'-' if ci is None else f'[{fmt(ci[0])}, {fmt(ci[1])}]'} | {fmt(c['median_per_dof'])} | "
                      f"[{fmt(lo)}, {fmt(hi)}] | {pct(c['fraction_scans_within'])} % | "
                      f"{fmt(c.get('spread_between_runs'))} | {pct(c.get('fraction_within_per_scan_factor'))} % | "
                      f"{_outside_cell(c)} |")

@@ -15,6 +15,7 @@ from rodo.estimator.errors import InputError
 from rodo.progress import Progress
 from rodo.validation.campaign_dir import campaign_lock
 from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign, summarize_campaign, write_summary
+from rodo.validation.gross_failures import GROSS_NEES_PER_DOF
 from rodo.validation.trial import ScenarioTrial
 
 from .simulate import parse_qc
@@ -209,20 +210,28 @@ def _num(v, digits: int = 2) -> str:
 
 
 def print_consistency(summary: dict) -> None:
-    """One line per model and measure: mean NEES/dof over scans of the run average, bounds for N runs, the
-    fraction of scans inside their bounds, the runs' spread against chi-square's and the fraction a per-scan
-    factor common to all runs could bring inside at that spread ("-" where undefined), and the scans below and
-    above the bounds (those one run puts above in brackets)."""
+    """One line per model and measure: mean NEES/dof over scans of the run average (and the 95 % interval of the
+    mean over the runs' own means), bounds for N runs, the fraction of scans inside their bounds, the runs' spread
+    against chi-square's and the fraction a per-scan factor common to all runs could bring inside at that spread
+    ("-" where undefined), and the scans below and above the bounds (those one run puts above in brackets); then
+    a model's runs with a gross failure and its means without them."""
     pct = lambda v: None if v is None else 100 * v  # noqa: E731
     for m, e in summary["models"].items():
         for k, c in e.get("consistency", {}).items():
             lo, hi = c["bounds_per_dof"]
-            print(f"  {m:<14} {k:<14} NEES/dof {_num(c['mean_per_dof']):>8}  bounds/dof for {c['runs']} runs "
+            ci = c.get("mean_interval_per_dof")
+            print(f"  {m:<14} {k:<14} NEES/dof {_num(c['mean_per_dof']):>8} "
+                  f"{'' if ci is None else f'[{_num(ci[0])}, {_num(ci[1])}]':<14} bounds/dof for {c['runs']} runs "
                   f"[{_num(lo)}, {_num(hi)}]  scans within {_num(pct(c['fraction_scans_within']), 0)} %  "
                   f"spread {_num(c.get('spread_between_runs'))} "
                   f"(with a per-scan factor {_num(pct(c.get('fraction_within_per_scan_factor')), 1)} %)"
                   + (f"  below / above {c['scans_below']} / {c['scans_above']} ({c['scans_above_one_run']} one "
                      "run's)" if "scans_above" in c else ""))
+        if e.get("gross_failure_runs") and e.get("consistency_without_gross"):
+            means = ", ".join(f"{k} {_num(c['mean_per_dof'])}" for k, c in e["consistency_without_gross"].items()
+                              if c["runs"])
+            print(f"  {m:<14} gross failures (a scan above {GROSS_NEES_PER_DOF:g} per dof) in trials "
+                  f"{', '.join(map(str, e['gross_failure_runs']))}; NEES/dof without them: {means}")
 
 
 def check_campaign_options(args) -> None:

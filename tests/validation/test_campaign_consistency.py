@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 from rodo.commands.montecarlo import print_consistency
 from rodo.validation.campaign import Trial, TrialOutcome, make_trials, read_results, run_campaign, \
     summarize_campaign, write_summary
-from rodo.validation.campaign_consistency import fraction_within_per_scan_factor, measure_summary, scans_outside, \
+from rodo.validation.campaign_consistency import campaign_consistency, consistency_lines, \
+    fraction_within_per_scan_factor, gross_failure_runs, mean_interval_per_dof, measure_summary, scans_outside, \
     spread_between_runs
 from rodo.validation.consistency import chi2_bounds
 from rodo.validation.odometry_consistency import MEASURES
@@ -170,6 +171,58 @@ def test_spread_between_runs_and_the_share_with_a_per_scan_factor():
     assert shaped["spread_between_runs"] == pytest.approx(1.0, abs=0.05)
     assert shaped["fraction_within_per_scan_factor"] == pytest.approx(0.95, abs=0.01)
     assert shaped["fraction_scans_within"] < 0.7
+
+
+@pytest.mark.parametrize("per_run_sigma", [0.0, 0.5, 1.0])
+def test_the_means_interval_holds_the_true_mean_about_as_often_as_it_claims(per_run_sigma):
+    """Over 400 campaigns of 20 runs whose NEES is chi-square(6) times a lognormal factor per run (drives that
+    disagree beyond chi-square's spread: the absolute pose's case), the 95 % interval of the mean NEES/dof holds
+    the true mean exp(sigma^2 / 2) in 92-98 % of them, and the interval narrows with more runs; runs whose mean is 0
+    (no log) take the t interval, not below 0."""
+    rng = np.random.default_rng(np.random.SeedSequence(71))
+    truth = np.exp(per_run_sigma**2 / 2)
+    held, widths = [], []
+    for _ in range(400):
+        X = _chi2_runs(rng, 20, 50, per_run_sigma)
+        lo, hi = mean_interval_per_dof(list(X))
+        held.append(lo <= truth <= hi)
+        widths.append(hi - lo)
+    assert 0.92 <= np.mean(held) <= 0.98
+    lo80, hi80 = mean_interval_per_dof(list(_chi2_runs(rng, 80, 50, per_run_sigma)))
+    assert hi80 - lo80 < 0.75 * np.median(widths)
+    assert mean_interval_per_dof([np.full(4, 6.0), np.full(4, 6.0)]) == pytest.approx([1.0, 1.0])
+    assert mean_interval_per_dof([np.full(4, 6.0), np.full(4, np.nan)]) is None  # one run with a scan
+    assert mean_interval_per_dof([np.full(4, 60.0), np.full(4, 0.0), np.zeros(4)])[0] == 0.0  # not below 0
+
+
+def test_runs_with_a_gross_failure_are_named_and_summarised_without():
+    """A run with one scan whose velocity (or one-scan relative pose) NEES is above 100 per dof is named by its
+    trial and every measure is summarised again without it, as over the other runs alone; a huge absolute pose or
+    span NEES alone (drift, not a failure) names no run; summary.md's lines say so."""
+    rng = np.random.default_rng(np.random.SeedSequence(72))
+
+    def run(trial, **bad):
+        a = {"t": np.arange(30) / 10.0, "trial": trial,
+             **{f"nees_{k}": rng.chisquare(6, 30) for k in MEASURES if k != "acceleration"}}
+        for k, scan in bad.items():
+            a[f"nees_{k}"][scan] = 601.0 * 6
+        return a
+
+    arrays = [run(10), run(11, velocity=4), run(12, pose=3, relative_span=8), run(13, relative_scan=29), run(14)]
+    assert gross_failure_runs(arrays) == [1, 3]
+    out = campaign_consistency(arrays)
+    assert out["gross_failure_runs"] == [11, 13]
+    kept = [arrays[i] for i in (0, 2, 4)]
+    for name in ("velocity", "relative_scan", "pose"):
+        assert out["consistency_without_gross"][name] == measure_summary([a[f"nees_{name}"] for a in kept])[0]
+        assert out["consistency"][name]["runs"] == 5 and out["consistency_without_gross"][name]["runs"] == 3
+    assert out["consistency"]["velocity"]["mean_per_dof"] > 4  # one scan of 601 per dof in 5 runs of 30 scans
+    assert out["consistency_without_gross"]["velocity"]["mean_per_dof"] == pytest.approx(1.0, abs=0.3)
+    text = "\n".join(consistency_lines(out, lambda v: "-" if v is None else f"{v:.4g}"))
+    assert "trials 11, 13. Without them:" in text and text.count("| velocity | 3 |") == 1
+    clean = campaign_consistency([arrays[0], arrays[2], arrays[4]])
+    assert clean["gross_failure_runs"] == [] and clean["consistency_without_gross"] is None
+    assert "gross failure" not in "\n".join(consistency_lines(clean, str))
 
 
 def test_scans_outside_below_above_and_one_run():
