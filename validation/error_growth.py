@@ -49,9 +49,35 @@ def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float
     require_arrays(states, truth)
     tau = float(states.get("velocity_correlation_time", DEFAULT_TAU))
     spans = np.asarray(spans, dtype=float)
-    m = matched_run(states, truth, tolerance, tau, None, None, one_scan=bool(np.any(spans == 0)))
-    out = {"span": spans, "scans": np.zeros(len(spans), int), "count": np.zeros(len(spans) + 1),
-           **{k: np.zeros((len(spans) + 1, 6)) for k in SUMS[1:]}}
+    m = matched_run(states, truth, tolerance, tau, None, None, one_scan=needs_one_scan(states["t"], spans))
+    out = empty_growth(spans)
+    for row, n, _, e, C in span_rows(m, spans, states.get("attitude_jitter")):
+        out["scans"][row] = n
+        add_sums(out, row, e, np.einsum("kii->ki", C))
+    if "P_pose_absolute" in m["sub"]:
+        xi = se3.log(m["T_true"] @ se3.inverse(m["T_est"]))
+        add_sums(out, len(spans), xi[1:], np.einsum("kii->ki", np.asarray(m["sub"]["P_pose_absolute"], float)[1:]))
+    return out
+
+
+def needs_one_scan(t, spans) -> bool:
+    """Whether a run with scan times t has a span of `spans` (s) one scan long (0, or rounded to one scan), whose
+    covariance composes the run's inputs without the stationary error's change taken out (`matched_run`'s
+    one_scan)."""
+    return any(L == 0 or span_scans(np.asarray(t, dtype=float), L) == 1 for L in np.asarray(spans, dtype=float))
+
+
+def empty_growth(spans) -> dict:
+    """`error_growth`'s result with zero sums, for `spans`."""
+    S = len(spans)
+    return {"span": np.asarray(spans, dtype=float), "scans": np.zeros(S, int), "count": np.zeros(S + 1),
+            **{k: np.zeros((S + 1, 6)) for k in SUMS[1:]}}
+
+
+def span_rows(m: dict, spans, jitter):
+    """Per span of `spans` (s) that a matched run (`matched_run`) reaches: (row, n its scans, the first scans of
+    its relative poses, one every max(1, n // STARTS_PER_SPAN), their errors (M, 6) and covariances (M, 6, 6), as
+    `matched_span_terms` composes them, with the roll and pitch jitter [V, T] (None: off) added)."""
     K = len(m["t"])
     for row, span in enumerate(spans):
         n = 1 if span == 0 else span_scans(m["t"], span)
@@ -59,21 +85,12 @@ def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float
             continue
         starts = np.arange(0, K - n, max(1, n // STARTS_PER_SPAN))
         terms = matched_span_terms(m, n, starts)
-        if terms is None:
-            continue
-        excess = span_excess(m["t"], n, states.get("attitude_jitter"))[starts]
-        e, C = terms[0], with_roll_pitch_variance(terms[1], excess)
-        out["scans"][row] = n
-        _add(out, row, e, C)
-    if "P_pose_absolute" in m["sub"]:
-        xi = se3.log(m["T_true"] @ se3.inverse(m["T_est"]))
-        _add(out, len(spans), xi[1:], np.asarray(m["sub"]["P_pose_absolute"], dtype=float)[1:])
-    return out
+        if terms is not None:
+            yield row, n, starts, terms[0], with_roll_pitch_variance(terms[1], span_excess(m["t"], n, jitter)[starts])
 
 
-def _add(out: dict, row: int, e: np.ndarray, C: np.ndarray) -> None:
-    """Add the errors e (M, 6) and the diagonals of their covariances C (M, 6, 6) to `out`'s sums at `row`."""
-    v = np.einsum("kii->ki", C)
+def add_sums(out: dict, row: int, e: np.ndarray, v: np.ndarray) -> None:
+    """Add the errors e (M, 6) and their variances v (M, 6) to `out`'s sums at `row` (the finite ones with v > 0)."""
     ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(v), axis=1) & np.all(v > 0, axis=1)
     e, v = e[ok], v[ok]
     out["count"][row] += len(e)

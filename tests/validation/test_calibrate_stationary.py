@@ -6,7 +6,8 @@ import pytest
 
 from rodo.estimator.lie import se3
 from rodo.validation import replayed_states as rs
-from rodo.validation.calibrate_stationary import fit_stationary_error, stationary_of
+from rodo.validation.calibrate_stationary import axis_growth, fit_stationary_error, grid_growth, same_change, \
+    stationary_of
 from tests.validation.synthetic_drives import stated_run, straight_drive
 
 DT, N, RUNS = 0.1, 300, 4
@@ -52,3 +53,21 @@ def test_the_fit_finds_the_yaws_stationary_error_and_none_in_a_random_walk(fitte
     assert np.all(s[0, 1:5] == 0.0)  # the axes not fitted stay off
     np.testing.assert_allclose(report["one_scan_variance"], SIGMA**2, rtol=1e-9)
     np.testing.assert_allclose(s[:, YAW], stationary_of({YAW: (yaw["share"], yaw["time"])}, SIGMA**2, DT)[:, YAW])
+
+
+def test_one_shares_times_composed_once_equal_each_composed_alone():
+    """`grid_growth` over the times of one share (the same one-scan change on a steady scan interval: the runs'
+    drift composed once, each error's change over a span added) equals `axis_growth` of each (1e-9), with an
+    earlier axis's error on and the roll and pitch jitter in; scan intervals that are not steady take another
+    change per T, and the grid then measures each alone, as `axis_growth` does."""
+    runs = [_run(seed) for seed in (7, 8)]
+    runs = [(dict(s, attitude_jitter=np.array([1e-7, 0.5])), t) for s, t in runs]
+    spans = (0.5, 1.0, 5.0)
+    grid = [stationary_of({YAW: (0.9, 1.0), 0: (0.8, time)}, SIGMA**2, DT) for time in (0.25, 1.0, 10.0)]
+    assert same_change(runs, grid)
+    for shared, alone in zip(grid_growth(runs, grid, spans), [axis_growth(runs, s, spans) for s in grid]):
+        np.testing.assert_allclose(shared, alone, rtol=1e-9)
+    assert not np.allclose(grid_growth(runs, grid, spans)[0], grid_growth(runs, grid, spans)[2])  # T tells
+    rng = np.random.default_rng(np.random.SeedSequence([2026, 48]))
+    uneven = [(dict(s, t=s["t"] + np.r_[0.0, rng.uniform(-0.02, 0.02, len(s["t"]) - 1)]), t) for s, t in runs]
+    assert not same_change(uneven, grid)
