@@ -8,6 +8,7 @@ from rodo.estimator.lie import se3
 from rodo.validation import replayed_states as rs
 from rodo.validation.calibrate_stationary import axis_growth, fit_stationary_error, grid_growth, same_change, \
     stationary_of
+from rodo.validation.error_growth import error_growth
 from tests.validation.synthetic_drives import stated_run, straight_drive
 
 DT, N, RUNS = 0.1, 300, 4
@@ -71,3 +72,15 @@ def test_one_shares_times_composed_once_equal_each_composed_alone():
     rng = np.random.default_rng(np.random.SeedSequence([2026, 48]))
     uneven = [(dict(s, t=s["t"] + np.r_[0.0, rng.uniform(-0.02, 0.02, len(s["t"]) - 1)]), t) for s, t in runs]
     assert not same_change(uneven, grid)
+
+
+def test_a_span_of_one_scan_at_a_slow_radar_composes_the_unreduced_inputs():
+    """At a 1 Hz radar the fit's shortest span (0.5 s) is one scan: its row is the one-scan span's, the run's
+    inputs without the error's change taken out (as `error_growth`'s own one-scan row), where it raised."""
+    states, truth = _run(9)
+    slow = dict(states, t=states["t"] * 10.0), dict(truth, t=truth["t"] * 10.0)
+    on = stationary_of({YAW: (0.9, 10.0)}, SIGMA**2, 1.0)
+    r = axis_growth([slow], on, (0.5, 5.0))
+    one = error_growth(dict(slow[0], stationary_error=on), slow[1], (0.0,))
+    np.testing.assert_allclose(r[0], one["z2"][0] / one["count"][0], rtol=1e-12)
+    assert np.all(np.isfinite(r)) and not np.allclose(r[1], axis_growth([slow], None, (0.5, 5.0))[1])
