@@ -65,6 +65,23 @@ def test_the_short_cells_say_where_they_miss():
     text = render_markdown({"rows": [row], "criteria": crit})
     assert "- city CA/P velocity: 3 below, 40 above (31 of them one run's)" in text
     assert "CA/P one scan:" not in text and "CV/C velocity:" not in text  # met; short but without counts
+    assert "gross failure" not in text
+
+
+def test_the_means_carry_their_interval_and_the_runs_with_a_gross_failure_are_named():
+    """The span and absolute pose means show their interval over the runs where the summary has one (not the
+    velocity's: judged scan by scan); a cell's runs with a gross failure are named under the table."""
+    row = _row("city", [0.95] * 8)
+    for name, m in row["models"].items():
+        m.update(kitti_t_err_pct=dict.fromkeys(("mean", "lower", "upper")), ellipsoid_3sigma_pct=None, learned={})
+        m["consistency"]["pose"] = {"mean_per_dof": 0.73, "mean_interval_per_dof": [0.52, 1.04]}
+        m["consistency"]["velocity"]["mean_interval_per_dof"] = [0.8, 1.2]
+    row["models"]["CV/C"]["gross_failure_runs"] = [3, 7]
+    row["paired_kitti_t_err_pct"] = {"mean_difference": None, "lower": None, "upper": None, "a_lower": 0, "trials": 0}
+    text = render_markdown({"rows": [row], "criteria": judge([row])})
+    assert text.count("| 0.73 (0.52-1.04) |") == 2 and "(0.80-1.20)" not in text
+    assert "Campaign runs with a gross failure" in text and "city CV/C (trials 3, 7)." in text
+    assert "CA/P (trials" not in text
 
 
 ARGS = ["--scenarios", "stop_and_go", "--runs", "2", "--duration", "3", "--calibration-duration", "5",
@@ -88,7 +105,7 @@ def test_a_verdict_reports_its_campaign_at_the_configs_it_learned(verdict_dir):
         config = verdict_dir / "calibration" / f"stop_and_go_{file}.toml"
         assert campaign["configs"][label] == config.read_text()  # the campaign ran the learned config
         for measure, c in row["models"][name]["consistency"].items():
-            for key in ("fraction_scans_within", *OUTSIDE):
+            for key in ("fraction_scans_within", "mean_interval_per_dof", *OUTSIDE):
                 assert c[key] == summary["models"][label]["consistency"][measure][key]
         assert row["models"][name]["ok"] == 2
         lag = OdometryConfig.from_toml(config).uncertainty.velocity_lag_per_yaw_acceleration[5]
