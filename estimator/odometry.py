@@ -362,29 +362,39 @@ class RadarOdometry:
         return MeasurementSet(self.map.points[pairs.map_idx], scan.z[pairs.det_idx], W, self.T_vehicle_sensor)
 
     def _reinitialise(self, t: float, polar: np.ndarray, reason: str | None = None) -> tuple[State, np.ndarray, list]:
-        """After an outage: dead-reckoned pose, Doppler velocity, last rates, zero acceleration, empty map. The
-        dead-reckoned pose's uncertainty relative to the last estimate carries the absolute covariance across."""
+        """After an outage: dead-reckoned pose, Doppler velocity (dead-reckoned without a consensus of MIN_STATIC:
+        docs/estimator.md, step 9), last rates, zero acceleration, empty map. The dead-reckoned pose's uncertainty
+        relative to the last estimate carries the absolute covariance across."""
         last = self.window.newest
-        T = self.motion.predict(last, t).T_vehicle_world
+        predicted = self.motion.predict(last, t)
         F, Q = self.motion.transition_and_noise(last, t - last.t)
+        T = predicted.T_vehicle_world
         self.report.restart_relative = predicted_relative_covariance(self.P, F, Q, last.T_vehicle_world, T)
-        x, P, _ = self._initial_state(t, polar, T=T, rates=self.last_with_data.varpi[3:])
+        x, P, _ = self._initial_state(t, polar, T, self.last_with_data.varpi[3:],
+                                      (predicted.varpi[:3], (F @ self.P @ F.T + Q)[6:9, 6:9]))
         self.map = self.map.cleared()
         if reason is None:
             reason = f"re-initialised after {t - self.last_with_data.t:.2f} s without associations"
         return x, P, [reason]
 
-    def _initial_state(self, t: float, polar: np.ndarray, T=None, rates=None) -> tuple[State, np.ndarray, list]:
+    def _initial_state(self, t: float, polar: np.ndarray, T=None, rates=None,
+                       dead_reckoned=None) -> tuple[State, np.ndarray, list]:
+        """The state at t: pose T (identity), the Doppler velocity of the scan's widest consensus (omega as known:
+        `rates`) at `solver.init_velocity_sigma`, else zero at 5 m/s; `dead_reckoned` (velocity (3,), covariance
+        (3, 3)) instead unless that consensus has MIN_STATIC detections."""
         cfg = self.config.solver
-        varpi = np.concatenate((np.zeros(3), np.zeros(3) if rates is None else rates))
-        vel_sigma = 5.0
+        v0 = np.zeros(3) if dead_reckoned is None else dead_reckoned[0]
+        varpi, vel_sigma = np.concatenate((v0, np.zeros(3) if rates is None else rates)), 5.0
         if len(polar) >= 3:
             ego = self.doppler.widest_consensus(polar)
-            if ego.ok:  # with omega as known (zero at the start)
+            if ego.ok and (dead_reckoned is None or ego.inliers.sum() >= MIN_STATIC):
                 varpi[:3] = body_velocity(ego.v_sensor, varpi[3:], self.T_vehicle_sensor)
-                vel_sigma = cfg.init_velocity_sigma
+                vel_sigma, dead_reckoned = cfg.init_velocity_sigma, None
         x0 = self.motion.initial_state(t, np.eye(4) if T is None else T, varpi)
         sig = [1e-4] * 6 + self.motion.tail_sigmas([vel_sigma] * 3, cfg.init_rate_sigma, cfg.init_accel_sigma,
                                                    cfg.init_angular_accel_sigma)
-        return x0, np.diag(np.square(sig)), ["initialised"]
+        P = np.diag(np.square(sig))
+        if dead_reckoned is not None:
+            P[6:9, 6:9] = dead_reckoned[1]
+        return x0, P, ["initialised"]
 
