@@ -32,9 +32,9 @@ have it:
 
 Runs with a gross failure (`gross_failure_runs`: a scan whose velocity or one-scan relative pose NEES exceeds
 `gross_failures.GROSS_NEES_PER_DOF` per dof, errors ten times their stated sigma) are named, and every measure is
-summarised again without them (`consistency_without_gross`): one run that lost its way (a prior SDE's vehicle
-pitched 50 degrees up, its radar seeing the sky) moves the means by tens, which says nothing about the
-covariance where the estimator works. The first summary keeps every run.
+summarised again without them (`consistency_without_gross`): one run that lost its way (before session 48's
+fix of the restart, a prior SDE's vehicle pitched 50 degrees up, its radar seeing the sky) moves the means by
+tens, which says nothing about the covariance where the estimator works. The first summary keeps every run.
 
 Checked by: tests/validation/test_campaign_consistency.py::test_campaign_consistency_per_measure_consistent_and_overconfident,
     ::test_spread_between_runs_and_the_share_with_a_per_scan_factor, ::test_scans_outside_below_above_and_one_run
