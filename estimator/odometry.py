@@ -380,14 +380,14 @@ class RadarOdometry:
     def _initial_state(self, t: float, polar: np.ndarray, T=None, rates=None,
                        dead_reckoned=None) -> tuple[State, np.ndarray, list]:
         """The state at t: pose T (identity), the Doppler velocity of the scan's widest consensus (omega as known:
-        `rates`) at `solver.init_velocity_sigma`, else zero at 5 m/s; `dead_reckoned` (velocity (3,), covariance
-        (3, 3)) instead unless that consensus has MIN_STATIC detections."""
+        `rates`) at `solver.init_velocity_sigma` where it has MIN_STATIC detections, else `dead_reckoned`
+        (velocity (3,), covariance (3, 3)) or zero at 5 m/s (docs/estimator.md, step 9)."""
         cfg = self.config.solver
         v0 = np.zeros(3) if dead_reckoned is None else dead_reckoned[0]
         varpi, vel_sigma = np.concatenate((v0, np.zeros(3) if rates is None else rates)), 5.0
         if len(polar) >= 3:
             ego = self.doppler.widest_consensus(polar)
-            if ego.ok and (dead_reckoned is None or ego.inliers.sum() >= MIN_STATIC):
+            if ego.ok and ego.inliers.sum() >= MIN_STATIC:
                 varpi[:3] = body_velocity(ego.v_sensor, varpi[3:], self.T_vehicle_sensor)
                 vel_sigma, dead_reckoned = cfg.init_velocity_sigma, None
         x0 = self.motion.initial_state(t, np.eye(4) if T is None else T, varpi)
