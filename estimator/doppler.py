@@ -163,7 +163,9 @@ class DopplerFrontEnd:
 
     def _widest_in_gate(self, polar: np.ndarray, threshold: np.ndarray, gated: np.ndarray) -> np.ndarray:
         """The static set under an uncertain prediction: the widest consensus (`ConsensusSwitch.widest`) among the
-        detections inside its gate, or the whole gate when none has MIN_STATIC inliers. The gate of a start is
+        detections inside its gate, or none when no consensus there has MIN_STATIC inliers (detections that do
+        not agree are no velocity: ten stray detections of a start-up scan, taken whole, set the velocity metres
+        per second off at the fit's confidence; docs/estimator.md, step 9). The gate of a start is
         wide (the initial yaw-rate sigma through the lever arm: 0.7 m/s at a sensor 3.5 m ahead), and a car
         moving slowly beside the vehicle falls inside it; taken as static, it bent the scan's Doppler fit, which
         then moved the prediction and the solve (tests/estimator/test_odometry.py::
@@ -172,7 +174,7 @@ class DopplerFrontEnd:
         # drawn from the consensus switch's stream: the RANSAC fits' stream stays as it was without this step
         ego = self.consensus.widest(polar[idx], self.consensus.rng, threshold[idx])
         if not ego.ok or ego.inliers.sum() < MIN_STATIC:
-            return gated
+            return np.zeros(len(polar), bool)
         static = np.zeros(len(polar), bool)
         static[idx[ego.inliers]] = True
         return static
