@@ -12,8 +12,8 @@ it lies MIN_GAIN or more below the cost without (else none: the spans' noise). T
 dt the runs' median scan interval: f of the axis's one-scan variance is the error's one-scan change, which the
 composition no longer carries. On a steady scan interval that change is f's alone, so the times T of one share
 compose the runs' drift once and differ only in the error's change over each span (`grid_growth`: the fit about
-five times faster, the same costs to 1e-15). The one-scan span is not among the costs (the model leaves it as it is), nor the
-absolute pose: one drive's is one slowly varying path, where the growth pools every span of the drive (the
+five times faster, the same costs to 1e-15). The one-scan span is not among the costs (the model leaves it as it
+is), nor the absolute pose: one drive's is one slowly varying path, where the growth pools every span of the drive (the
 calibration drive's growth over 1 s and 5 s carries over to the campaigns within about 30 %, its absolute pose
 does not: docs/consistency.md, "How the error grows, per axis").
 

@@ -25,10 +25,11 @@ have it:
   above them (over-confident), and `scans_above_one_run`: those above that one run puts there, inside the bounds
   for the others without the largest run's value at that scan (a tail of one run, not a common factor);
 - `mean_interval_per_dof`: the 95 % interval of the mean over runs of each run's mean NEES/dof over its scans
-  (Cox's, the runs' means taken as lognormal: `mean_interval_per_dof`). The bounds are those of one scan's average under chi-square; where the runs disagree more than
-  chi-square draws (a spread above 1: one drive's absolute pose is one slowly varying path) the mean over scans
-  wanders further than they allow, and this interval says how far (20 prior-consistent CA/P drives with a mean
-  absolute pose of 0.73 per dof: 0.52-1.04; docs/evaluation.md, "Consistency in campaigns").
+  (Cox's, the runs' means taken as lognormal: `mean_interval_per_dof`). The bounds are those of one scan's
+  average under chi-square; where the runs disagree more than chi-square draws (a spread above 1: one drive's
+  absolute pose is one slowly varying path) the mean over scans wanders further than they allow, and this
+  interval says how far (20 prior-consistent CA/P drives with a mean absolute pose of 0.73 per dof: 0.52-1.04;
+  docs/evaluation.md, "Consistency in campaigns").
 
 Runs with a gross failure (`gross_failure_runs`: a scan whose velocity or one-scan relative pose NEES exceeds
 `gross_failures.GROSS_NEES_PER_DOF` per dof, errors ten times their stated sigma) are named, and every measure is
@@ -37,7 +38,9 @@ fix of the restart, a prior SDE's vehicle pitched 50 degrees up, its radar seein
 tens, which says nothing about the covariance where the estimator works. The first summary keeps every run.
 
 Checked by: tests/validation/test_campaign_consistency.py::test_campaign_consistency_per_measure_consistent_and_overconfident,
-    ::test_spread_between_runs_and_the_share_with_a_per_scan_factor, ::test_scans_outside_below_above_and_one_run
+    ::test_spread_between_runs_and_the_share_with_a_per_scan_factor, ::test_scans_outside_below_above_and_one_run,
+    ::test_the_means_interval_holds_the_true_mean_about_as_often_as_it_claims,
+    ::test_runs_with_a_gross_failure_are_named_and_summarised_without
 """
 
 from __future__ import annotations

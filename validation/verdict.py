@@ -32,6 +32,7 @@ from rodo.sim.sequence import atomic_write_bytes
 from .campaign_compare import mean_interval, paired
 from .campaign_files import read_results
 from .error_growth import AXES
+from .gross_failures import GROSS_NEES_PER_DOF
 from .metrics import jsonable
 
 MODELS = {"CA/P": ("ca-learned", "ca-polar", "ca"), "CV/C": ("cv-learned", "cv-cartesian", "cv")}  # label, model, file
@@ -190,8 +191,8 @@ def render_markdown(verdict: dict, meta: dict | None = None) -> str:
     gross = [f"{r['scenario']} {name} (trials {', '.join(map(str, m['gross_failure_runs']))})" for r in rows
              for name, m in r["models"].items() if m.get("gross_failure_runs")]
     if gross:
-        lines += ["", "Campaign runs with a gross failure (a scan above 100 per dof; every measure without them in "
-                      "<scenario>/summary.md): " + "; ".join(gross) + "."]
+        lines += ["", f"Campaign runs with a gross failure (a scan above {GROSS_NEES_PER_DOF:g} per dof; every measure "
+                      "without them in <scenario>/summary.md): " + "; ".join(gross) + "."]
     lines += _growth_lines(rows)
     lines += ["", "## What was learned (the `[uncertainty]` terms; the whole configs in calibration/; gross_failures: "
                   "the calibration drives' scans its velocity + one-scan fits left out)", "",
