@@ -26,12 +26,9 @@ import numpy as np
 
 from rodo.estimator.stationary_error import is_on, one_scan_change, span_term, stationary_error_array
 
-from .association import DEFAULT_TOLERANCE
 from .calibrate_relative import tau_cost
-from .error_growth import AXES, GROWTH_SPANS, add_sums, empty_growth, error_growth, needs_one_scan, pooled_growth, \
-    span_rows
-from .odometry_consistency import matched_run
-from .run_consistency import DEFAULT_TAU, runs_of
+from .error_growth import AXES, GROWTH_SPANS, add_sums, empty_growth, error_growth, growth_run, pooled_growth, span_rows
+from .run_consistency import runs_of
 
 SHARES = (0.5, 0.8, 0.9, 0.95)  # f: the share of an axis's mean one-scan variance that is the error's change
 TIMES = (0.25, 0.5, 1.0, 2.0, 5.0, 10.0)  # s, T
@@ -96,9 +93,7 @@ def grid_growth(runs: list, stationaries: list, spans) -> list[np.ndarray]:
         return [axis_growth(runs, x, spans) for x in stationaries]
     sums = [empty_growth(spans) for _ in stationaries]
     for states, truth in runs:
-        tau = float(states.get("velocity_correlation_time", DEFAULT_TAU))
-        m = matched_run(dict(states, stationary_error=stationaries[0]), truth, DEFAULT_TOLERANCE, tau, None, None,
-                        one_scan=needs_one_scan(states["t"], spans))
+        m = growth_run(dict(states, stationary_error=stationaries[0]), truth, spans)
         t, T = m["t"], m["T_est"]
         for row, n, starts, e, C in span_rows(dict(m, stationary=None), spans, states.get("attitude_jitter")):
             v = np.einsum("kii->ki", C)

@@ -46,10 +46,7 @@ def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float
     with a non-finite error or variance, or a variance <= 0, are left out; the first scan's absolute pose too
     (the truth is aligned there). The velocity correlation time, drift rate, heading reversion and jitter are the
     run's own (states'; DEFAULT_TAU and none when absent). Zero sums without P_relative."""
-    require_arrays(states, truth)
-    tau = float(states.get("velocity_correlation_time", DEFAULT_TAU))
-    spans = np.asarray(spans, dtype=float)
-    m = matched_run(states, truth, tolerance, tau, None, None, one_scan=needs_one_scan(states["t"], spans))
+    m = growth_run(states, truth, spans, tolerance)
     out = empty_growth(spans)
     for row, n, _, e, C in span_rows(m, spans, states.get("attitude_jitter")):
         out["scans"][row] = n
@@ -60,11 +57,15 @@ def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float
     return out
 
 
-def needs_one_scan(t, spans) -> bool:
-    """Whether a run with scan times t has a span of `spans` (s) one scan long (0, or rounded to one scan), whose
-    covariance composes the run's inputs without the stationary error's change taken out (`matched_run`'s
-    one_scan)."""
-    return any(L == 0 or span_scans(np.asarray(t, dtype=float), L) == 1 for L in np.asarray(spans, dtype=float))
+def growth_run(states: dict, truth: dict, spans, tolerance: float = DEFAULT_TOLERANCE) -> dict:
+    """The matched run (`matched_run`) whose growth over `spans` (s) `error_growth` sums: at the run's own tau,
+    drift rate and heading reversion, with the one-scan inputs where a span is one scan long (0, or rounded to one
+    scan: its covariance composes the inputs without the stationary error's change taken out)."""
+    require_arrays(states, truth)
+    tau = float(states.get("velocity_correlation_time", DEFAULT_TAU))
+    t = np.asarray(states["t"], dtype=float)
+    one_scan = any(L == 0 or span_scans(t, L) == 1 for L in np.asarray(spans, dtype=float))
+    return matched_run(states, truth, tolerance, tau, None, None, one_scan=one_scan)
 
 
 def empty_growth(spans) -> dict:

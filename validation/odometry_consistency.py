@@ -37,8 +37,8 @@ from .span_covariances import heading_deviations, span_covariances, step_matrice
 
 # not per scan
 RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation", "heading_reversion",
-                 "attitude_jitter", "velocity_error_share", "velocity_error_share_per_speed", "registration_correlation",
-                 "stationary_error")
+                 "attitude_jitter", "velocity_error_share", "velocity_error_share_per_speed",
+                 "registration_correlation", "stationary_error")
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
 
@@ -80,8 +80,8 @@ def recursion_inputs_of_run(states: dict, Sigma_rel: np.ndarray, P_window: np.nd
     covariances P_window at the run's `registration_correlation` alpha, `velocity_error_share` g and
     `velocity_error_share_per_speed` g_v (states.npz; 0, 1 and 0 in runs before them) and the stationary error
     `stationary` ([V; T]; None: off; a run's own is its states' `stationary_error`), dt the interval since the
-    scan before each in the run. The velocity covariances of every scan are g + g_v |nu| times the window's; alpha and the stationary
-    error move covariance only at registered scans (not a run's first scan, not a re-initialisation's
+    scan before each in the run. The velocity covariances of every scan are g + g_v |nu| times the window's; alpha
+    and the stationary error move covariance only at registered scans (not a run's first scan, not a re-initialisation's
     dead-reckoned step: `restarted` (N,), None: states' own)."""
     alpha = float(states.get("registration_correlation", 0.0))
     g = float(states.get("velocity_error_share", 1.0))

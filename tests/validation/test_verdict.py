@@ -231,6 +231,7 @@ def test_a_calibration_flag_reaches_both_calibrations(tmp_path, flag):
     option = "--" + flag.replace("_", "-")
     _, cals, _ = _steps(args, ["city", "hills"])
     assert len(cals) == 4 and all(option in argv for _, argv, _ in cals)
-    assert not any(o in argv for _, argv, _ in cals for o in ("--heading-reversion", "--stationary-error") if o != option)
+    others = [o for o in ("--heading-reversion", "--stationary-error") if o != option]
+    assert not any(o in argv for _, argv, _ in cals for o in others)
     _, cals, _ = _steps(argparse.Namespace(**dict(vars(args), **off)), ["city"])
     assert not any(option in argv for _, argv, _ in cals)
