@@ -168,7 +168,7 @@ class DopplerFrontEnd:
         per second off at the fit's confidence; docs/estimator.md, step 9). The gate of a start is
         wide (the initial yaw-rate sigma through the lever arm: 0.7 m/s at a sensor 3.5 m ahead), and a car
         moving slowly beside the vehicle falls inside it; taken as static, it bent the scan's Doppler fit, which
-        then moved the prediction and the solve (tests/estimator/test_odometry.py::
+        then moved the prediction and the solve (tests/estimator/test_odometry_starts.py::
         test_movers_inside_the_starts_wide_gate_are_not_taken_for_the_world)."""
         idx = np.flatnonzero(gated)
         # drawn from the consensus switch's stream: the RANSAC fits' stream stays as it was without this step
