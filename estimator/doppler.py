@@ -131,7 +131,9 @@ class DopplerFrontEnd:
         the static set (event "doppler-few-static"): a free fit would take whatever fills the view. An uncertain
         prediction (after initialisation or an outage) takes the widest consensus inside its gate
         (`_widest_in_gate`); only one that explains too little of the scan leaves the decision to an
-        unconstrained RANSAC fit.
+        unconstrained RANSAC fit, whose consensus is taken where it is wider than the gate. Otherwise it is again
+        the gate's own consensus of MIN_STATIC, or no static set: a few detections that do not agree are no
+        velocity (tests/estimator/test_doppler_front_end.py).
         """
         acfg = self.config.association
         az, el, vr = polar[:, 1], polar[:, 2], polar[:, 3]
@@ -159,7 +161,8 @@ class DopplerFrontEnd:
         ego = self.widest_consensus(polar, fit_threshold)
         if ego.ok and ego.inliers.sum() > mask.sum():
             return ego.inliers, "doppler-ransac-fallback"
-        return mask, None
+        # a few detections in the gate beside many far outside it: again only a consensus of them
+        return self._widest_in_gate(polar, fit_threshold, mask), None
 
     def _widest_in_gate(self, polar: np.ndarray, threshold: np.ndarray, gated: np.ndarray) -> np.ndarray:
         """The static set under an uncertain prediction: the widest consensus (`ConsensusSwitch.widest`) among the
@@ -171,6 +174,8 @@ class DopplerFrontEnd:
         then moved the prediction and the solve (tests/estimator/test_odometry_starts.py::
         test_movers_inside_the_starts_wide_gate_are_not_taken_for_the_world)."""
         idx = np.flatnonzero(gated)
+        if len(idx) < MIN_STATIC:  # no consensus can have MIN_STATIC inliers (and no draws are spent)
+            return np.zeros(len(polar), bool)
         # drawn from the consensus switch's stream: the RANSAC fits' stream stays as it was without this step
         ego = self.consensus.widest(polar[idx], self.consensus.rng, threshold[idx])
         if not ego.ok or ego.inliers.sum() < MIN_STATIC:
