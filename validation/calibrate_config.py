@@ -30,6 +30,7 @@ from . import calibrate as cal
 from . import calibrate_consistency as cc
 from . import calibrate_sensor as cs
 from . import calibrate_sensor_em as csem
+from . import velocity_growth as vg
 from .driver import run_sequence
 
 
@@ -179,7 +180,18 @@ def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: i
                              for h in history]}
     if measurement is not None:
         report["measurement"] = measurement
-    return config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)})), report
+    config = config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)}))
+    report["velocity_growth"] = _growth_check(seq, config, qc)
+    return config, report
+
+
+def _growth_check(seq: Sequence, config: OdometryConfig, qc) -> list[dict] | str:
+    """EM's Qc against the one the estimated velocity's growth over seconds gives (`velocity_growth`), on a run at
+    EM's Qc; or why the drive is too short for it."""
+    try:
+        return vg.growth_check(qc, vg.velocity_growth(estimator_track(seq, config), config.prior))
+    except InputError as e:
+        return f"not checked: {e}"
 
 
 def _toml_value(v) -> str:

@@ -21,6 +21,7 @@ from rodo.validation.calibrate_config import calibrate_with_truth, calibrate_wit
 from rodo.validation.calibrate_drift import DRIFT_SIGNIFICANCE
 from rodo.validation.calibrate_relative import REST_FRACTION
 from rodo.validation.error_growth import growth_lines
+from rodo.validation.velocity_growth import growth_check_lines
 
 from .run import load_config
 
@@ -32,7 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="With truth.npz (simulated sequences): maximum-likelihood Qc of both motion "
                                    "priors from the true states, and the measurement noise from the static "
                                    "detections. With --no-truth: EM over the estimator's posteriors for the "
-                                   "Qc of the model's prior. Writes CONFIG.toml, CONFIG.json and CONFIG.md.")
+                                   "Qc of the model's prior (the CA prior's checked against the estimated "
+                                   "velocity's growth over seconds). Writes CONFIG.toml, CONFIG.json and CONFIG.md.")
     p.add_argument("sequence", metavar="SEQ_DIR", nargs="+",
                    help="sequence directory (radar.csv, sensor.toml[, truth.npz]); with ground truth several, pooled "
                         "(docs/calibration.md)")
@@ -169,6 +171,12 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                   "consecutive scans (docs/calibration.md); everything else as in the base config."
                   if "measurement" in report else
                   "Everything else (including the measurement noise) as in the base config."]
+        rows = report.get("velocity_growth")
+        off = [r["component"] for r in (rows if isinstance(rows, list) else [])
+               if r["outside"] and r["component"] in report["learned_components"]]
+        if off:
+            lines.append(f"CHECK: EM's {', '.join(off)} lie outside the interval the estimated velocity's growth over "
+                         "seconds gives (the .md report; docs/calibration.md, \"EM's check\").")
     return lines + ["The learned values and likelihoods are in the .json and .md files beside this one.", ""]
 
 
@@ -203,6 +211,9 @@ def _markdown(report: dict) -> str:
                          f"{h['remaining']:.3g} | {h['loglik']:.6g} |")
         if "measurement" in report:
             lines += [""] + _sensor_noise_markdown(report["measurement"])
+        check = report.get("velocity_growth")
+        lines += ["", check] if isinstance(check, str) else [""] + growth_check_lines(check,
+                                                                                     report["learned_components"])
     return "\n".join(lines) + "\n"
 
 

@@ -233,7 +233,32 @@ def test_calibrate_without_truth_runs_em(seq, tmp_path, capsys):
     assert config.noise.qc_ca[3:5] == (0.001, 0.001) and report["learned_components"] == ["x", "y", "z", "yaw"]
     assert "(x, y, z, yaw)" in out.read_text().splitlines()[1]
     assert np.all(np.isfinite(its[-1]["qc_out"])) and its[-1]["intervals"] >= 10
+    assert report["velocity_growth"].startswith("not checked: velocity growth: the track spans")  # 1 s of drive
+    assert report["velocity_growth"] in out.with_suffix(".md").read_text()
     assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+
+
+def test_the_em_report_names_the_components_outside_the_velocitys_growth():
+    """The config's header says CHECK for the learned components outside their interval (not for one left at the
+    base config's), and the markdown table marks them."""
+    from rodo.commands.calibrate import _header, _markdown
+
+    rows = [{"component": c, "em": 1.0, "growth": g, "interval": None if g is None else [0.5, 2.0],
+             "outside": None if g is None else not 0.5 <= 1.0 / g <= 2.0}
+            for c, g in zip(("x", "y", "z", "roll", "pitch", "yaw"), (1.0, 0.1, None, 0.1, 0.1, 1.2))]
+    for r in rows:
+        if r["growth"] is not None:
+            r["interval"] = [0.5 * r["growth"], 2.0 * r["growth"]]
+    report = {"mode": "EM without ground truth", "field": "qc_ca", "learned_components": ["x", "y", "z", "yaw",
+                                                                                           "pitch"],
+              "converged": True, "tolerance": 0.05, "velocity_growth": rows,
+              "iterations": [{"qc_in": [1.0] * 6, "qc_out": [1.0] * 6, "change": 0.01, "remaining": 0.01,
+                              "loglik": 1.0, "intervals": 10}]}
+    check = [line for line in _header(report, "SEQ", "ca-polar") if line.startswith("CHECK")]
+    assert len(check) == 1 and "EM's y, pitch lie outside" in check[0]  # roll is outside but not learned
+    md = _markdown(report)
+    assert "| y | 1 | 0.1 | 0.05 - 0.2 | **yes** |" in md and "| x | 1 | 1 | 0.5 - 2 | no |" in md
+    assert "| z | 1 | - (no motion) | - | - |" in md and "for y, pitch:" in md
 
 
 @pytest.mark.slow

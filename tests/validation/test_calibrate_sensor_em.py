@@ -161,6 +161,8 @@ def test_calibrate_without_truth_recovers_the_sensor_noise_and_the_observed_qc(p
     true_qc = np.asarray(truth["prior_qc"])
     np.testing.assert_allclose(qc[[0, 5]], true_qc[[0, 5]], rtol=0.25)
     assert report["measurement"]["learned"] == [True] * 4 and report["measurement"]["pairs"] > 10000
+    rows = {r["component"]: r for r in report["velocity_growth"]}  # EM's check: x and yaw agree with it
+    assert rows["x"]["outside"] is False and rows["yaw"]["outside"] is False
 
 
 @pytest.mark.slow
@@ -174,6 +176,7 @@ def test_a_planar_radar_keeps_the_configured_elevation(tmp_path):
     assert report["measurement"]["learned"] == [True, True, False, True] and report["measurement"]["planar"]
     assert config.noise.sensor_sigma_scales[2] == 1.7
     assert report["measurement"]["cartesian_sigma"] is None
+    assert report["velocity_growth"].startswith("not checked")  # 4 s are too short for the check
     assert config.noise.cartesian_sigma == base.noise.cartesian_sigma
     assert report["measurement"]["sigmas"]["elevation"] == pytest.approx(1.7 * read_sequence(d).sensor.noise.elevation)
 
