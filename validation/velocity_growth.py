@@ -159,7 +159,7 @@ def growth_check(qc, growth: VelocityGrowth) -> list[dict]:
 
 def growth_check_lines(rows: list[dict], learned: list[str]) -> list[str]:
     """The check as a Markdown table, and a line naming the learned components outside their interval."""
-    lines = [f"The jerk or acceleration PSD from the estimated velocity's growth over {LAGS[0]:g}-{LAGS[1]:g} s "
+    lines = [f"The jerk PSD from the estimated velocity's growth over {LAGS[0]:g}-{LAGS[1]:g} s "
              f"({LEVEL:.0%} interval; docs/calibration.md, \"EM's check\"):", "",
              "| component | EM | from the velocity's growth | interval | EM outside |", "| --- | --- | --- | --- | --- |"]
     for r in rows:
