@@ -163,12 +163,13 @@ def growth_check_lines(rows: list[dict], learned: list[str]) -> list[str]:
              f"({LEVEL:.0%} interval; docs/calibration.md, \"EM's check\"):", "",
              "| component | EM | from the velocity's growth | interval | EM outside |", "| --- | --- | --- | --- | --- |"]
     for r in rows:
+        em = f"{r['em']:.3g}" + ("" if r["component"] in learned else " (not learned)")
         if r["growth"] is None:
-            lines.append(f"| {r['component']} | {r['em']:.3g} | - (no motion) | - | - |")
+            lines.append(f"| {r['component']} | {em} | - (no motion) | - | - |")
             continue
         lo, hi = r["interval"]
-        lines.append(f"| {r['component']} | {r['em']:.3g} | {r['growth']:.3g} | {lo:.3g} - {hi:.3g} | "
-                     f"{'**yes**' if r['outside'] else 'no'} |")
+        verdict = "-" if r["component"] not in learned else "**yes**" if r["outside"] else "no"
+        lines.append(f"| {r['component']} | {em} | {r['growth']:.3g} | {lo:.3g} - {hi:.3g} | {verdict} |")
     off = [r["component"] for r in rows if r["outside"] and r["component"] in learned]
     lines += ["", f"EM's value lies outside the velocity's growth for {', '.join(off)}: there EM books the "
               "estimator's own error as motion, or stays near the base config where the drive says little. Take "

@@ -259,6 +259,7 @@ def test_the_em_report_names_the_components_outside_the_velocitys_growth():
     md = _markdown(report)
     assert "| y | 1 | 0.1 | 0.05 - 0.2 | **yes** |" in md and "| x | 1 | 1 | 0.5 - 2 | no |" in md
     assert "| z | 1 | - (no motion) | - | - |" in md and "for y, pitch:" in md
+    assert "| roll | 1 (not learned) | 0.1 | 0.05 - 0.2 | - |" in md  # the base config's value: no verdict
 
 
 @pytest.mark.slow
