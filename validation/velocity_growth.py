@@ -13,7 +13,10 @@ ground truth"). It is far less precise than EM where EM is right: only the secon
 holds a few independent samples of each (its 99 % interval spans a factor 7 on the forward axis there, two to four
 orders of magnitude on the weakly excited ones). What it does is catch EM where it runs away, as on a 60 s drive of
 `prior_ca_points` at seed 3, where EM stopped at 2.3-25 x the simulator's Qc (11-25 x in y, z, roll and pitch) while
-this estimate was within 0.8-1.9 x in all six: five of the six are flagged. The CV prior is not checked: its velocity's
+this estimate was within 0.8-1.9 x in all six: five of the six are flagged. It tests the CA prior's random walk over
+seconds, which a car's roll and pitch do not follow (they revert): on a 180 s city drive it flags EM's roll and pitch,
+near the truth's maximum-likelihood one-step values, as well as its lateral and vertical ones, which are the
+estimator's error. The CV prior is not checked: its velocity's
 second difference grows only linearly with the lag, as a correlated error's does over a few of its correlation
 times, and on 60 s drives the two do not come apart.
 
@@ -161,7 +164,8 @@ def growth_check_lines(rows: list[dict], learned: list[str]) -> list[str]:
     """The check as a Markdown table, and a line naming the learned components outside their interval."""
     lines = [f"The jerk PSD from the estimated velocity's growth over {LAGS[0]:g}-{LAGS[1]:g} s "
              f"({LEVEL:.0%} interval; docs/calibration.md, \"EM's check\"):", "",
-             "| component | EM | from the velocity's growth | interval | EM outside |", "| --- | --- | --- | --- | --- |"]
+             "| component | EM | from the velocity's growth | interval | EM outside |",
+             "| --- | --- | --- | --- | --- |"]
     for r in rows:
         em = f"{r['em']:.3g}" + ("" if r["component"] in learned else " (not learned)")
         if r["growth"] is None:
@@ -172,8 +176,9 @@ def growth_check_lines(rows: list[dict], learned: list[str]) -> list[str]:
         lines.append(f"| {r['component']} | {em} | {r['growth']:.3g} | {lo:.3g} - {hi:.3g} | {verdict} |")
     off = [r["component"] for r in rows if r["outside"] and r["component"] in learned]
     lines += ["", f"EM's value lies outside the velocity's growth for {', '.join(off)}: there EM books the "
-              "estimator's own error as motion, or stays near the base config where the drive says little. Take "
-              "these from a reference (or from this estimate where its interval is narrow enough) and --learn only "
-              "the components that agree." if off else
+              "estimator's own error as motion, stays near the base config where the drive says little, or the "
+              "motion does not random-walk over seconds (a car's roll and pitch, which revert: EM's value may then "
+              "be right for a scan's step, and the check cannot tell). Take these from a reference (or from this "
+              "estimate where its interval is narrow enough) and --learn only the components that agree." if off else
               "EM's value lies inside the velocity's growth interval in every learned component."]
     return lines
