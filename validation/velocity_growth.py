@@ -29,6 +29,7 @@ at the median scan interval (a recording with jittered scan times is taken as ev
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.stats import t as student_t
@@ -46,12 +47,15 @@ LEVEL = 0.99  # per component: a check over six flags a right EM on about one dr
 @dataclass(frozen=True)
 class VelocityGrowth:
     """q (6,) per component (NaN where the track does not move on that axis, e.g. a planar radar's z, roll and
-    pitch), its interval lo, hi (6,) at `LEVEL`, and the lags used (s)."""
+    pitch), its interval lo, hi (6,) at `LEVEL`, the lags used (s), the mean squared second differences D (lags, 6)
+    and the fitted constant c (6,): D ~ c + q g(lag)."""
 
     qc: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
     lags: np.ndarray
+    D: np.ndarray
+    c: np.ndarray
 
 
 def growth_kernel(kind: str, tau) -> np.ndarray:
@@ -74,10 +78,10 @@ def _squared_differences(track: StateTrack, m: int) -> tuple[np.ndarray, np.ndar
     return d[keep] ** 2, k[keep]
 
 
-def _fit(D: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """q of D = c + q g per column (c >= 0: refitted without c where it comes out negative), weighted least
+def _fit(D: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(c, q) of D = c + q g per column (c >= 0: refitted without c where it comes out negative), weighted least
     squares (weights 1 / model^2: a mean of squares' variance grows with its mean squared), iterated."""
-    q = np.full(D.shape[1], np.nan)
+    c, q = np.full(D.shape[1], np.nan), np.full(D.shape[1], np.nan)
     for i in range(D.shape[1]):
         y = D[:, i]
         if not np.all(np.isfinite(y)) or np.max(y) <= 0:
@@ -90,8 +94,8 @@ def _fit(D: np.ndarray, g: np.ndarray) -> np.ndarray:
                 model = A @ x
             if len(x) == 1 or x[0] >= 0:
                 break
-        q[i] = x[-1]
-    return q
+        c[i], q[i] = (x[0] if len(x) == 2 else 0.0), x[-1]
+    return c, q
 
 
 def velocity_growth(track: StateTrack, kind: str, lags=LAGS, blocks: int = BLOCKS) -> VelocityGrowth:
@@ -117,7 +121,7 @@ def velocity_growth(track: StateTrack, kind: str, lags=LAGS, blocks: int = BLOCK
     moving = np.max(np.abs(track.varpi - track.varpi[0]), axis=0) > 0
     D = np.array([d2.mean(axis=0) for d2, _ in diffs])
     D[:, ~moving] = np.nan
-    q = _fit(D, g)
+    c, q = _fit(D, g)
     edges = np.linspace(0, len(track.t), blocks + 1)
     replicates = []
     for b in range(blocks):
@@ -127,9 +131,9 @@ def velocity_growth(track: StateTrack, kind: str, lags=LAGS, blocks: int = BLOCK
             Db.append(d2[~out].mean(axis=0))
         Db = np.array(Db)
         Db[:, ~moving] = np.nan
-        replicates.append(_fit(Db, g))
+        replicates.append(_fit(Db, g)[1])
     lo, hi = _intervals(q, np.array(replicates), blocks)
-    return VelocityGrowth(q, lo, hi, ms * dt)
+    return VelocityGrowth(q, lo, hi, ms * dt, D, c)
 
 
 def _intervals(q: np.ndarray, reps: np.ndarray, blocks: int) -> tuple[np.ndarray, np.ndarray]:
@@ -157,7 +161,24 @@ def growth_check(qc, growth: VelocityGrowth) -> list[dict]:
         rows.append({"component": name, "em": float(em), "growth": float(q) if fitted else None,
                      "interval": [float(lo), float(hi)] if fitted else None,
                      "outside": bool(em < lo or em > hi) if fitted else None})
+    for r, c, D in zip(rows, growth.c, growth.D.T):  # what the figure draws: D over the lags, and the fit's c
+        r.update(lags=growth.lags.tolist(), D=D.tolist() if r["growth"] is not None else None,
+                 c=float(c) if r["growth"] is not None else None)
     return rows
+
+
+def growth_figure_path(out: Path) -> Path:
+    """The figure of EM's check beside a calibration's CONFIG.toml: CONFIG_growth.png."""
+    return Path(out).with_name(Path(out).stem + "_growth.png")
+
+
+def growth_check_header(rows, learned: list[str]) -> list[str]:
+    """The config header's line naming the learned components outside their interval (none: no line; `rows` a
+    reason string where the drive was not checked)."""
+    off = [r["component"] for r in (rows if isinstance(rows, list) else [])
+           if r["outside"] and r["component"] in learned]
+    return [f"CHECK: EM's {', '.join(off)} lie outside the interval the estimated velocity's growth over seconds "
+            "gives (the .md report and _growth.png; docs/calibration.md, \"EM's check\")."] if off else []
 
 
 def growth_check_lines(rows: list[dict], learned: list[str]) -> list[str]:

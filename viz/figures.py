@@ -143,6 +143,40 @@ def plot_growth(path, table: list[dict], title: str = "How the error grows, per 
     return save_png(fig, path)
 
 
+def plot_velocity_growth(path, rows: list[dict]) -> Path:
+    """EM's check without ground truth (`validation.velocity_growth.growth_check` rows), one panel per component:
+    the mean squared second difference of the estimated velocity against the lag (log-log, points), the fit
+    c + q (2/3) lag^3 (solid: growing as lag^3 where the axis random-walks, flat where it is the estimator's error or
+    a motion that reverts) and c + q_EM (2/3) lag^3 with EM's Qc (dashed: far above the points where EM books error
+    as motion)."""
+    from rodo.validation.velocity_growth import growth_kernel
+
+    fig = _figure(10.0, 5.6)
+    for ax, r in zip(fig.subplots(2, 3).ravel(), rows):
+        ax.set_title(f"{r['component']}" + {True: ": EM outside", False: ": EM inside", None: ""}[r["outside"]],
+                     fontsize=9)
+        if r["growth"] is None:
+            ax.text(0.5, 0.5, "no motion", ha="center", va="center", transform=ax.transAxes)
+            ax.set_axis_off()
+            continue
+        lags = np.asarray(r["lags"], float)
+        fine = np.geomspace(lags[0], lags[-1], 60)
+        g = growth_kernel("ca", fine)
+        ax.plot(lags, r["D"], "o", ms=3.5, color="0.2", label="estimated velocity")
+        ax.plot(fine, r["c"] + max(r["growth"], 0.0) * g, "-", color=CA, label=f"fit: q {r['growth']:.2g}")
+        ax.plot(fine, r["c"] + r["em"] * g, "--", color=CV, label=f"EM: q {r['em']:.2g}")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ticks = [t for t in (0.5, 1.0, 2.0, 5.0) if lags[0] <= t <= lags[-1] * 1.01]
+        ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
+        ax.xaxis.set_minor_formatter("")
+        ax.set_xlabel("lag (s)", fontsize=8)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    fig.suptitle("EM's check: the estimated velocity's mean squared second difference against the lag", fontsize=10)
+    return save_png(fig, path)
+
+
 def figure1_prior(path, data: dict) -> Path:
     """Fig. 1: the CA prior under pure yaw acceleration: Monte Carlo samples (blue) and the prior's mean with
     3-sigma ellipses (pink) for position (top view), velocity and acceleration (forward and yaw components)."""

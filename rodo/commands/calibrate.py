@@ -21,7 +21,7 @@ from rodo.validation.calibrate_config import calibrate_with_truth, calibrate_wit
 from rodo.validation.calibrate_drift import DRIFT_SIGNIFICANCE
 from rodo.validation.calibrate_relative import REST_FRACTION
 from rodo.validation.error_growth import growth_lines
-from rodo.validation.velocity_growth import growth_check_lines
+from rodo.validation.velocity_growth import growth_check_header, growth_check_lines, growth_figure_path
 
 from .run import load_config
 
@@ -101,7 +101,8 @@ def _check_args(args) -> Path:
     if out.suffix in (".json", ".md"):
         raise InputError(f"--out: {out} would be overwritten by the report; name the config CONFIG.toml")
     inputs = [p for d in args.sequence for p in sequence_inputs(d)]  # (--config may be the output: read first)
-    for path in (out, out.with_suffix(".json"), out.with_suffix(".md")):  # the config and its two reports
+    figure = [growth_figure_path(out)] if args.no_truth else []  # EM's check, drawn
+    for path in (out, out.with_suffix(".json"), out.with_suffix(".md"), *figure):  # the config and its reports
         check_output_file(path, "--out")
         check_not_input(path, "--out", inputs)
     return out
@@ -171,12 +172,7 @@ def _header(report: dict, seq_dir: str, model: str) -> list[str]:
                   "consecutive scans (docs/calibration.md); everything else as in the base config."
                   if "measurement" in report else
                   "Everything else (including the measurement noise) as in the base config."]
-        rows = report.get("velocity_growth")
-        off = [r["component"] for r in (rows if isinstance(rows, list) else [])
-               if r["outside"] and r["component"] in report["learned_components"]]
-        if off:
-            lines.append(f"CHECK: EM's {', '.join(off)} lie outside the interval the estimated velocity's growth over "
-                         "seconds gives (the .md report; docs/calibration.md, \"EM's check\").")
+        lines += growth_check_header(report.get("velocity_growth"), report["learned_components"])
     return lines + ["The learned values and likelihoods are in the .json and .md files beside this one.", ""]
 
 
@@ -393,5 +389,9 @@ def main(args) -> int:
     write_text_atomic(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     write_text_atomic(out.with_suffix(".md"), _markdown(report))
     print(_markdown(report), end="")
-    print(f"wrote {out}, {out.with_suffix('.json')}, {out.with_suffix('.md')}")
+    written = [out, out.with_suffix(".json"), out.with_suffix(".md")]
+    if isinstance(report.get("velocity_growth"), list):
+        from rodo.viz.figures import plot_velocity_growth  # viz is the only package importing matplotlib
+        written.append(plot_velocity_growth(growth_figure_path(out), report["velocity_growth"]))
+    print(f"wrote {', '.join(str(w) for w in written)}")
     return 0

@@ -238,6 +238,22 @@ def test_calibrate_without_truth_runs_em(seq, tmp_path, capsys):
     assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
 
 
+@pytest.mark.slow
+def test_calibrate_without_truth_draws_ems_check(tmp_path, capsys):
+    """On a drive long enough for the check (8 s): the .json rows carry what the figure draws, the .md its table,
+    and CONFIG_growth.png is written beside the config and named in the output."""
+    d = tmp_path / "drive"
+    scenarios.simulate_to("prior_ca_points", 3, d, duration=8.0)
+    out = tmp_path / "em.toml"
+    assert main(["calibrate", str(d), "--no-truth", "--iterations", "1", "--out", str(out)]) == 0
+    rows = json.loads(out.with_suffix(".json").read_text())["velocity_growth"]
+    assert [r["component"] for r in rows] == ["x", "y", "z", "roll", "pitch", "yaw"]
+    assert all(len(r["D"]) == len(r["lags"]) >= 3 and r["c"] >= 0 for r in rows if r["growth"] is not None)
+    assert "| component | EM | from the velocity's growth | interval | EM outside |" in out.with_suffix(".md").read_text()
+    png = tmp_path / "em_growth.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and str(png) in capsys.readouterr().out
+
+
 def test_the_em_report_names_the_components_outside_the_velocitys_growth():
     """The config's header says CHECK for the learned components outside their interval (not for one left at the
     base config's), and the markdown table marks them."""

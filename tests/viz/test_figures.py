@@ -114,3 +114,27 @@ def test_rodo_figures_writes_five_pngs(tmp_path, monkeypatch, capsys, data):
     for p in printed:
         assert_png(Path(p))
     assert [n for n, _ in asked] == [1, 4, 5] and asked[0][1]["n_samples"] == 200  # the quick sizes
+
+
+def test_plot_velocity_growth_draws_the_points_the_fit_and_ems_line(tmp_path, monkeypatch):
+    """EM's check (`validation.velocity_growth` rows of SDE tracks): per moving component its points and the two
+    curves c + q g(lag) with the growth's and EM's q; a component without motion gets a panel saying so."""
+    from tests.validation.test_velocity_growth import QC_CA, _rng, _track
+    from rodo.validation.velocity_growth import growth_check, growth_kernel, velocity_growth
+
+    tr = _track(_rng(11), "ca", QC_CA, 40.0, np.sqrt(0.5 * QC_CA * growth_kernel("ca", 1.0) / 6))
+    tr.varpi[:, 3] = 0.0  # roll never moves
+    rows = growth_check(10 * QC_CA, velocity_growth(tr, "ca"))
+    drawn = []
+    save = figures.save_png
+    monkeypatch.setattr(figures, "save_png", lambda fig, path: (drawn.append(fig), save(fig, path))[1])
+    assert_png(figures.plot_velocity_growth(tmp_path / "g.png", rows))
+    axes = drawn[-1].axes
+    assert len(axes) == 6 and not axes[3].axison and axes[3].texts[0].get_text() == "no motion"
+    x = axes[0]
+    points, fit, em = x.lines
+    np.testing.assert_allclose(points.get_ydata(), rows[0]["D"])
+    lag = fit.get_xdata()[-1]
+    assert fit.get_ydata()[-1] == pytest.approx(rows[0]["c"] + rows[0]["growth"] * float(growth_kernel("ca", lag)))
+    assert em.get_ydata()[-1] == pytest.approx(rows[0]["c"] + rows[0]["em"] * float(growth_kernel("ca", lag)))
+    assert x.get_title() == "x: EM outside" and x.get_xscale() == x.get_yscale() == "log"
