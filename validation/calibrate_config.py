@@ -165,8 +165,12 @@ def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: i
     if sensor_noise:
         config, measurement = with_learned_sensor_noise(seq, config)
 
+    tracks = []  # the last run's track, which EM's check reads (no run of its own)
+
     def run(qc):
-        return estimator_track(seq, config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)})))
+        tracks[:] = [estimator_track(seq, config.replace(noise=dataclasses.replace(config.noise,
+                                                                                    **{field: tuple(qc)})))]
+        return tracks[0]
 
     history = cal.em_qc(run, config.prior, getattr(config.noise, field), iterations, tolerance, floor,
                         on_iteration=progress, learn=learn)
@@ -180,16 +184,16 @@ def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: i
                              for h in history]}
     if measurement is not None:
         report["measurement"] = measurement
-    config = config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)}))
-    report["velocity_growth"] = _growth_check(seq, config, qc)
-    return config, report
+    report["velocity_growth"] = _growth_check(tracks[0], config.prior, qc)
+    return config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)})), report
 
 
-def _growth_check(seq: Sequence, config: OdometryConfig, qc) -> list[dict] | str:
-    """EM's Qc against the one the estimated velocity's growth over seconds gives (`velocity_growth`), on a run at
-    EM's Qc; or why the drive is too short for it."""
+def _growth_check(track: cal.StateTrack, prior: str, qc) -> list[dict] | str:
+    """EM's Qc against the one the estimated velocity's growth over seconds gives (`velocity_growth`), on EM's
+    last run (at the Qc its last iteration started from: the growth hardly depends on it); or why it is not
+    checked."""
     try:
-        return vg.growth_check(qc, vg.velocity_growth(estimator_track(seq, config), config.prior))
+        return vg.growth_check(qc, vg.velocity_growth(track, prior))
     except InputError as e:
         return f"not checked: {e}"
 

@@ -181,8 +181,11 @@ def growth_check_header(rows, learned: list[str]) -> list[str]:
             "gives (the .md report and _growth.png; docs/calibration.md, \"EM's check\")."] if off else []
 
 
-def growth_check_lines(rows: list[dict], learned: list[str]) -> list[str]:
-    """The check as a Markdown table, and a line naming the learned components outside their interval."""
+def growth_check_lines(rows: list[dict] | str | None, learned: list[str]) -> list[str]:
+    """The check as a Markdown table, and a line naming the learned components outside their interval (`rows` a
+    reason string where the drive was not checked: that line; None: nothing)."""
+    if not isinstance(rows, list):
+        return [] if rows is None else [rows]
     lines = [f"The jerk PSD from the estimated velocity's growth over {LAGS[0]:g}-{LAGS[1]:g} s "
              f"({LEVEL:.0%} interval; docs/calibration.md, \"EM's check\"):", "",
              "| component | EM | from the velocity's growth | interval | EM outside |",

@@ -207,9 +207,7 @@ def _markdown(report: dict) -> str:
                          f"{h['remaining']:.3g} | {h['loglik']:.6g} |")
         if "measurement" in report:
             lines += [""] + _sensor_noise_markdown(report["measurement"])
-        check = report.get("velocity_growth")
-        lines += ["", check] if isinstance(check, str) else [""] + growth_check_lines(check,
-                                                                                     report["learned_components"])
+        lines += [""] + growth_check_lines(report.get("velocity_growth"), report["learned_components"])
     return "\n".join(lines) + "\n"
 
 
