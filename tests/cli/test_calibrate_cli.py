@@ -115,14 +115,16 @@ def test_calibrate_learns_the_heading_reversion_when_asked(seq, tmp_path, capsys
 
 @pytest.mark.slow
 def test_calibrate_learns_the_stationary_error_when_asked(tmp_path, capsys):
-    """--stationary-error on a 12 s drive: per axis the report's choice (a share and time of the grid, or off)
+    """--stationary-error on a 15 s hills drive: per axis the report's choice (a share and time of the grid, or off)
     with its cost below the one without by MIN_GAIN at least, the config its variances and times, the markdown
     the line; `rodo run` at the written config reports the absolute pose the calibration replayed (its error
-    growth is the report's), the stationary error on at least one axis."""
+    growth is the report's), the stationary error on at least one axis (the yaw's cost falls by about 10 there;
+    on city's first 12 s, which this test drove until session 50, the fall is near MIN_GAIN or below it, as the
+    CPU's BLAS kernels round: learned on an Intel machine, not on an AMD EPYC)."""
     from rodo.validation import calibrate_stationary as cst
 
-    longer = tmp_path / "city12"
-    scenarios.simulate_to("city", 2, longer, duration=12.0)
+    longer = tmp_path / "hills15"
+    scenarios.simulate_to("hills", 2, longer, duration=15.0)
     out = tmp_path / "stationary.toml"
     assert main(["calibrate", str(longer), "--stationary-error", "--out", str(out)]) == 0
     unc = OdometryConfig.from_toml(out).uncertainty

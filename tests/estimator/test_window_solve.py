@@ -115,7 +115,8 @@ def test_compiled_gauss_newton_equals_the_python_loop(kind, case, monkeypatch):
     for P, Q in zip(got.newest_covariances(), want.newest_covariances()):  # Q None: a window of one
         assert (P is None) == (Q is None)
         if Q is not None:
-            np.testing.assert_allclose(P, Q, rtol=100 * rounding, atol=0.001 * rounding * np.abs(Q).max())
+            # atol 1e-11 of the largest element: on an AMD EPYC a window of one differs by 1.06e-12 of it
+            np.testing.assert_allclose(P, Q, rtol=100 * rounding, atol=0.01 * rounding * np.abs(Q).max())
 
 
 @pytest.mark.parametrize("pairs", [False, True])
