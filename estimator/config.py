@@ -211,6 +211,11 @@ class UncertaintyConfig:
         variance), the rest composed as independent: the registration's errors are correlated over a few scans to
         a second (the same section). `rodo calibrate` chooses it with tau. Reported covariances only; 0:
         independent registrations.
+    registration_axis_correlation: per axis [x, y, z, roll, pitch, yaw] (0-1 each) the share a_i of what alpha
+        leaves independent that the recursion carries correlated as well, alpha_i = alpha + (1 - alpha) a_i: the
+        registration's errors are correlated longer on some axes than on others (CV/C's forward position on city:
+        docs/consistency.md, "The registration's correlation per axis"). `rodo calibrate` learns it
+        by default. Reported covariances only; zeros: alpha on every axis.
     drift_rate_sigma: sigma of the registration's systematic error per metre driven, unknown but constant
         over a run ([x, y, z] m/m, [roll, pitch, yaw] rad/m, vehicle frame): the absolute pose's error grows
         with the distance, not its square root. Not in the solve.
@@ -267,6 +272,7 @@ class UncertaintyConfig:
     velocity_error_share: float = 1.0
     velocity_error_share_per_speed: float = 0.0  # s/m
     registration_correlation: float = 0.0
+    registration_axis_correlation: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     measurement_inflation: float = 1.0
     drift_rate_sigma: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     prior_memory: float = 0.0  # s

@@ -121,6 +121,7 @@ RULES: dict[str, Rule] = {
     "uncertainty.velocity_error_share": POSITIVE,
     "uncertainty.velocity_error_share_per_speed": NONNEGATIVE,
     "uncertainty.registration_correlation": Rule(0.0, 1.0),
+    "uncertainty.registration_axis_correlation": Rule(0.0, 1.0, size=6),
     "uncertainty.velocity_axis_inflation": Rule(0.0, lo_closed=False, size=6),
     "uncertainty.velocity_lag_per_acceleration": Rule(size=6),
     "uncertainty.velocity_lag_per_yaw_acceleration": Rule(size=6),

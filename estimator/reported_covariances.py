@@ -13,7 +13,7 @@ from .attitude_jitter import AbsoluteJitter, attitude_jitter_of, with_roll_pitch
 from .heading_reversion import heading_of
 from .pull import relative_factor
 from .stationary_error import is_on, span_term, stationary_error_of
-from .uncertainty import DriftCovariance, recursion_inputs
+from .uncertainty import DriftCovariance, recursion_inputs, registration_shares
 from .velocity_inflation import velocity_inflated
 from .velocity_lag import VelocityLag
 
@@ -50,6 +50,7 @@ class ReportedCovariances:
         self.stationary = stationary if is_on(stationary) else None  # None: off, nothing to do per scan
         self.origin = None  # (T_vehicle_world, t) of the run's first scan, for the stationary error's span
         self.lag = VelocityLag(config)
+        self.correlation = registration_shares(config.registration_correlation, config.registration_axis_correlation)
         self.drift: DriftCovariance | None = None
         self.last = None
         self.restart_relative: np.ndarray | None = None
@@ -79,7 +80,7 @@ class ReportedCovariances:
             step = (last.varpi, dt)
             speed = float(np.linalg.norm(est.varpi[:3])) if cfg.velocity_error_share_per_speed else None
             P_absolute = self.drift.update(last.T_vehicle_world, est.T_vehicle_world, dt, *recursion_inputs(
-                P_relative, est.P[6:12, 6:12], dt, cfg.registration_correlation, cfg.velocity_error_share,
+                P_relative, est.P[6:12, 6:12], dt, self.correlation, cfg.velocity_error_share,
                 cfg.velocity_error_share_per_speed, speed, self.stationary))
         P_absolute = with_roll_pitch_variance(P_absolute, self.jitter.at(est.t))
         if self.stationary is not None:

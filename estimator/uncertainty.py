@@ -45,7 +45,8 @@ default; the registration pins each pose to the map, so less of the window's vel
 pose than dead reckoning would carry; + `velocity_error_share_per_speed` times the speed, 0 by default: less at
 rest than at speed), plus `registration_correlation` alpha (0 by default) of the scan's relative
 pose covariance over dt^2, which then composes the rest, (1 - alpha) Sigma_rel,k, as independent: the registration's
-errors are correlated over a few scans (`recursion_inputs`); the reported one has its variance scaled with the
+errors are correlated over a few scans (`recursion_inputs`; per axis with `registration_axis_correlation`,
+`registration_shares`); the reported one has its variance scaled with the
 speed where calibrated (`velocity_inflation.velocity_inflated`).
 
 Checked by: tests/estimator/test_uncertainty.py::test_relative_covariance_of_a_known_joint_gaussian,
@@ -251,7 +252,7 @@ class DriftCovariance:
         return float(C[YAW, YAW] + C[ANCHOR, ANCHOR] - 2.0 * C[YAW, ANCHOR]) if len(C) > ANCHOR else 0.0
 
 
-def recursion_inputs(P_relative, P_varpi, dt, correlation: float = 0.0, share: float = 1.0,
+def recursion_inputs(P_relative, P_varpi, dt, correlation=0.0, share: float = 1.0,
                      share_per_speed: float = 0.0, speed=None, stationary=None):
     """(Sigma_rel, the velocity error's variance) the drift recursion composes for a registered scan (one, or a
     stack with dt (N,)): (1 - alpha) P_relative and g P_varpi + alpha P_relative / dt^2, alpha = `[uncertainty]
@@ -261,18 +262,34 @@ def recursion_inputs(P_relative, P_varpi, dt, correlation: float = 0.0, share: f
     One scan then still composes P_relative + g dt^2 P_varpi (the correlated part's one-scan share is alpha
     P_relative, smoothed over tau where it varies); a span adds the correlation. With a stationary error
     ([V; T], `estimator.stationary_error`; None: off) its one-scan change is taken out of P_relative first
-    (`stationary_error.taken_out`).
+    (`stationary_error.taken_out`). `correlation` may be (6,), a share per axis (`registration_shares`): then
+    B P_relative B and A P_relative A / dt^2, A = diag(sqrt(alpha)), B = diag(sqrt(1 - alpha)) (the registration's
+    error the sum of a correlated and an independent part, per axis; the same as the scalar's where all are equal).
 
     Checked by: tests/estimator/test_uncertainty.py::test_a_correlated_registration_keeps_one_scan_and_grows_a_span,
-        ::test_the_velocity_error_share_grows_with_the_speed
+        ::test_the_velocity_error_share_grows_with_the_speed,
+        ::test_a_registration_correlation_per_axis_grows_its_axis_alone
     """
     P_relative = taken_out(P_relative, dt, stationary)
-    if correlation == 0.0 and share == 1.0 and share_per_speed == 0.0:
+    per_axis = np.ndim(correlation) > 0
+    if not per_axis and correlation == 0.0 and share == 1.0 and share_per_speed == 0.0:
         return P_relative, P_varpi
     P_relative = np.asarray(P_relative, dtype=float)
     dt = np.asarray(dt, dtype=float)[..., None, None]
     g = share if share_per_speed == 0.0 else share + share_per_speed * np.asarray(speed, dtype=float)[..., None, None]
-    return (1.0 - correlation) * P_relative, g * np.asarray(P_varpi, dtype=float) + correlation * P_relative / dt**2
+    if not per_axis:
+        return (1.0 - correlation) * P_relative, g * np.asarray(P_varpi, dtype=float) + correlation * P_relative / dt**2
+    a = np.asarray(correlation, dtype=float).reshape(6)
+    A, B = np.sqrt(a), np.sqrt(1.0 - a)
+    return (B[:, None] * P_relative * B[None, :],
+            g * np.asarray(P_varpi, dtype=float) + A[:, None] * P_relative * A[None, :] / dt**2)
+
+
+def registration_shares(alpha: float, axis_correlation=None):
+    """The registration's correlated share for `recursion_inputs`: alpha itself (a float) where the per-axis shares
+    a (`[uncertainty] registration_axis_correlation`; None: none) are all 0, else (6,) alpha + (1 - alpha) a."""
+    a = np.zeros(6) if axis_correlation is None else np.asarray(axis_correlation, dtype=float).reshape(6)
+    return float(alpha) if not a.any() else float(alpha) + (1.0 - float(alpha)) * a
 
 
 def fresh_starts(restarts, n: int) -> np.ndarray:

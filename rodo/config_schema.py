@@ -49,6 +49,7 @@ UNITS = {
     "uncertainty.inflation_per_pull": "factor per unit pull per dof",
     "uncertainty.velocity_error_share": "factor", "uncertainty.velocity_error_share_per_speed": "s/m",
     "uncertainty.registration_correlation": "fraction",
+    "uncertainty.registration_axis_correlation": "fractions",
     "uncertainty.velocity_axis_inflation": "factors",
     "uncertainty.velocity_lag_per_acceleration": "s (rad s/m for the rates)",
     "uncertainty.velocity_lag_per_yaw_acceleration": "s m/rad (s for the rates)", "uncertainty.velocity_lag_time": "s",

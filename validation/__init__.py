@@ -28,7 +28,8 @@ Modules:
   the uncertainty parameters (kappa, the factors, drift rate, tau) fitted against the truth, `calibrate_velocity`
   the velocity factor, `calibrate_relative` the one-scan relative pose's, `calibrate_drift` the drift rate,
   `calibrate_jitter` the roll and pitch
-  jitter's variance last, `gross_failures` the scans those fits leave out; `replayed_states`: a run's states at
+  jitter's variance last, `calibrate_axis_correlation` the registration's correlation per axis,
+  `calibrate_stationary` the bounded error per axis, `gross_failures` the scans those fits leave out; `replayed_states`: a run's states at
   other uncertainty settings, without running again.
 
 Documentation: docs/evaluation.md (metrics, campaigns), docs/visualisation.md (figures).

@@ -67,13 +67,14 @@ def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: Odome
                          duration: float | None = None, floor: float = cal.DEFAULT_FLOOR, consistency: bool = True,
                          progress=None, velocity_axes: bool = True, heading_reversion: bool = False,
                          attitude_jitter: bool = True, velocity_lag: bool | None = None,
-                         stationary_error: bool = False) -> tuple[OdometryConfig, dict]:
+                         stationary_error: bool = False, axis_correlation: bool = True) -> tuple[OdometryConfig, dict]:
     """Learn qc_ca, qc_cv, the per-channel sensor sigma factors, the Cartesian sigma and the scans' common Doppler
     error (`calibrate_sensor.common_doppler_error`; 0 unless significant) from ground truth, then
     (`consistency`) the uncertainty section at that noise (the velocity's per-axis factors with `velocity_axes`,
     its lag behind a manoeuvre with `velocity_lag`, None: by the motion prior,
     the heading's reversion with `heading_reversion`, the roll and pitch jitter unless `attitude_jitter` is False,
-    the stationary error per axis with `stationary_error`);
+    the stationary error per axis with `stationary_error`, the registration's correlation per axis unless
+    `axis_correlation` is False);
     returns (config, report). `progress` gets each
     `calibrate_consistency.ConsistencyStep`. `seq` and `truth` may be lists of several sequences (of one sensor):
     every fit pools them (their prior intervals, detections and scans), `duration` cuts each."""
@@ -114,7 +115,8 @@ def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: Odome
                                                            velocity_axes=velocity_axes, velocity_lag=velocity_lag,
                                                            heading_reversion=heading_reversion,
                                                            attitude_jitter=attitude_jitter,
-                                                           stationary_error=stationary_error)
+                                                           stationary_error=stationary_error,
+                                                           axis_correlation=axis_correlation)
     return config, report
 
 

@@ -78,6 +78,7 @@ from rodo.estimator.heading_reversion import heading_of
 from rodo.estimator.stationary_error import stationary_error_array, stationary_error_of
 from rodo.sim.sequence import Sequence
 
+from .calibrate_axis_correlation import fit_axis_correlation
 from .calibrate_drift import fit_drift_rate
 from .calibrate_jitter import attitude_jitter_report
 from .calibrate_relative import fit_relative_inflation, median_ratio, relative_factor_states, tau_cost
@@ -161,6 +162,8 @@ def _with(config: OdometryConfig, kappa: float, tau: float, drift_rate_sigma=Non
     if share is not None:
         unc = dataclasses.replace(unc, velocity_error_share=float(share[0]),
                                   velocity_error_share_per_speed=float(share[1]), registration_correlation=float(share[2]))
+        if len(share) > 3:
+            unc = dataclasses.replace(unc, registration_axis_correlation=tuple(float(x) for x in share[3]))
     if stationary is not None:
         unc = dataclasses.replace(unc, stationary_variance=tuple(float(x) for x in stationary[0]),
                                   stationary_time=tuple(float(x) for x in stationary[1]))
@@ -246,6 +249,13 @@ def _grid_fit(states, truth, span: float, drift_rate_sigma, grid: dict, default)
     return (min(finite, key=lambda key: tau_cost(finite[key])) if finite else default), ratios
 
 
+def _record(steps: list, step, progress) -> None:
+    """Append a ConsistencyStep and pass it to `progress` (None: nothing)."""
+    steps.append(step)
+    if progress is not None:
+        progress(step)
+
+
 def _fixed_point(seq, truth, config: OdometryConfig, iterations: int, tolerance: float, span: float, progress):
     """kappa's fixed point (`fit_consistency`): (kappa, the last run's states, [ConsistencyStep per run])."""
     kappa = float(np.clip(config.uncertainty.measurement_inflation, *KAPPA_RANGE))
@@ -253,9 +263,7 @@ def _fixed_point(seq, truth, config: OdometryConfig, iterations: int, tolerance:
     steps = []
     for _ in range(iterations):
         states, ratios = _measure(seq, truth, _with(config, kappa, tau), span)
-        steps.append(ConsistencyStep(kappa, tau, ratios))
-        if progress is not None:
-            progress(steps[-1])
+        _record(steps, ConsistencyStep(kappa, tau, ratios), progress)
         r = float(np.exp(np.mean(np.log([ratios[m] for m in FIXED_POINT_MEASURES]))))
         new = float(np.clip(kappa * r, *KAPPA_RANGE))
         if not np.isfinite(r) or abs(np.log(r)) < np.log1p(tolerance) or new == kappa:
@@ -269,21 +277,20 @@ def _fixed_point(seq, truth, config: OdometryConfig, iterations: int, tolerance:
 def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryConfig, iterations: int = 4,
                     tolerance: float = 0.1, span: float = 1.0, progress=None, velocity_axes: bool = True,
                     heading_reversion: bool = False, attitude_jitter: bool = True, velocity_lag: bool | None = None,
-                    stationary_error: bool = False) -> tuple[OdometryConfig, dict]:
-    """Fit kappa (fixed point), then the relative pose's and the velocity's variance factors (per axis too with
-    `velocity_axes`, with `velocity_lag` its lag behind a manoeuvre, None: for the constant-velocity prior only
-    (LAG_PRIORS): `fit_velocity_inflation`), the drift rate and tau (on the last run's states, without running
-    again; at the config's heading reversion, or, with `heading_reversion`, the reversion too: `fit_heading`; with
-    `attitude_jitter` the roll and pitch jitter's variance, without it the config's kept; with `stationary_error`
-    the stationary error per axis last, every fit before it without one: `fit_stationary_error`) on a simulated
-    sequence, or on several (lists of sequences and their truths, pooled: module docstring); returns (config,
-    report).
+                    stationary_error: bool = False, axis_correlation: bool = True) -> tuple[OdometryConfig, dict]:
+    """Fit kappa (fixed point), then on the last run's states, without running again: the relative pose's and the
+    velocity's variance factors (per axis with `velocity_axes`; with `velocity_lag` its lag behind a manoeuvre,
+    None: for LAG_PRIORS; `fit_velocity_inflation`), the drift rate, tau and alpha (`fit_correlation`; at the
+    config's heading reversion, or with `heading_reversion` the reversion too, `fit_heading`), the registration's
+    correlation per axis (`axis_correlation`: `fit_axis_correlation`), the roll and pitch jitter (`attitude_jitter`)
+    and, with `stationary_error`, the stationary error per axis last (every fit before it without one); a term not
+    fitted keeps the config's. On a simulated sequence or several (lists, pooled: module docstring); returns
+    (config, report).
 
     Each iteration runs the estimator once. It stops when the geometric mean r of the FIXED_POINT_MEASURES'
     median ratios is within `tolerance` of 1 (|ln r| < ln(1 + tolerance)), when kappa is at a bound of
-    KAPPA_RANGE and r points beyond it, or after `iterations` runs. The report ends with that last run's ratios at
-    every fitted term (replayed: they do not change the estimate). `progress(ConsistencyStep)` is called after
-    every run and for the final ratios.
+    KAPPA_RANGE and r points beyond it, or after `iterations` runs. The report ends with the last run's ratios at
+    every fitted term (replayed). `progress(ConsistencyStep)` is called after every run and for the final ratios.
     """
     kappa, states, steps = _fixed_point(seq, truth, config, iterations, tolerance, span, progress)
     stationary = None if stationary_error else stationary_error_of(config.uncertainty)
@@ -297,46 +304,59 @@ def fit_consistency(seq: Sequence | list, truth: dict | list, config: OdometryCo
     share = (relative["velocity_error_share"], relative["velocity_error_share_per_speed"])
     states = _each(lambda s: dict(relative_factor_states(s, ran, new), velocity_error_share=share[0],
                                   velocity_error_share_per_speed=share[1]), states)
-    lag = config.prior in LAG_PRIORS if velocity_lag is None else velocity_lag
-    velocity, factors = _velocity_fit(states, truth, velocity_axes, lag, u.velocity_lag_time)
+    velocity, factors = _velocity_fit(states, truth, velocity_axes, config.prior in LAG_PRIORS if velocity_lag is None
+                                      else velocity_lag, u.velocity_lag_time)
     heading = tuple(float(x) for x in heading_of(config.uncertainty))  # kept, unless asked to fit it
     correlation, tau, tau_ratios, correlations = fit_correlation(states, truth, span, drift["sigma"],
                                                                  None if heading_reversion else heading)
     states = _each(lambda s: dict(s, registration_correlation=correlation), states)
-    heading_report = {"time": heading[0], "anchor_time": heading[1], "fitted": False, "tau_without": tau, "grid": {}}
-    if heading_reversion:
-        heading, tau, tau_ratios, heading_report = _heading_fit(states, truth, span, tau, drift["sigma"], tau_ratios)
+    heading, tau, tau_ratios, heading_report = _heading_fit(states, truth, span, tau, drift["sigma"], tau_ratios,
+                                                            None if heading_reversion else heading)
+    states, axis_shares, axis_report = _axis_fit(states, truth, tau, drift["sigma"], heading,
+                                                 u.registration_axis_correlation if not axis_correlation else None)
     jitter = attitude_jitter_report(config.uncertainty, attitude_jitter, span, tau, drift["sigma"], heading,
                                     runs_of(states, truth))
     jitter_pair = (jitter["variance"], jitter["time"])
     stationary, stationary_report = (_stationary_fit(states, truth, tau, drift["sigma"], heading, jitter_pair)
                                      if stationary_error else (stationary, {"fitted": False}))
-    fitted = _with(config, kappa, tau, drift["sigma"], factors, new, heading, jitter_pair, (*share, correlation),
-                   stationary)
+    fitted = _with(config, kappa, tau, drift["sigma"], factors, new, heading, jitter_pair,
+                   (*share, correlation, axis_shares), stationary)
     final, growth = _final(states, truth, span, tau, drift["sigma"], heading, (jitter_pair, stationary),
                            lambda s: _at_velocity(s, factors, u.velocity_lag_time))
-    steps.append(ConsistencyStep(kappa, tau, final))
-    if progress is not None:
-        progress(steps[-1])
+    _record(steps, ConsistencyStep(kappa, tau, final), progress)
     report = {"measurement_inflation": kappa, "relative_inflation": relative, "velocity_inflation": velocity,
               "velocity_correlation_time": tau, "registration_correlation": correlations, "drift_rate": drift,
               "span": span, "tolerance": tolerance, "at_lower_bound": kappa == KAPPA_RANGE[0],
               "steps": [s.as_dict() for s in steps],
               "tau_grid": {f"{t:g}": {"relative_span": r[0], "pose": r[1]} for t, r in tau_ratios.items()},
-              "heading_reversion": heading_report, "attitude_jitter": jitter, "stationary_error": stationary_report,
+              "heading_reversion": heading_report, "registration_axis_correlation": axis_report,
+              "attitude_jitter": jitter, "stationary_error": stationary_report,
               "error_growth": growth}
     return fitted, report
 
 
-def _heading_fit(states, truth, span: float, tau: float, drift_rate_sigma, tau_ratios) -> tuple:
+def _heading_fit(states, truth, span: float, tau: float, drift_rate_sigma, tau_ratios, kept=None) -> tuple:
     """(the heading's reversion [T_r, T_a] at this tau, tau chosen again under it where on, tau's grid, the
-    report: the reversion, whether fitted, tau without it and the grid's costs) (`fit_heading`)."""
+    report: the reversion, whether fitted, tau without it and the grid's costs) (`fit_heading`); `kept` (the
+    config's [T_r, T_a]) where given, not fitted."""
+    if kept is not None:
+        return kept, tau, tau_ratios, {"time": kept[0], "anchor_time": kept[1], "fitted": False, "tau_without": tau,
+                                       "grid": {}}
     heading, ratios = fit_heading(states, truth, span, tau, drift_rate_sigma)
     report = {"time": heading[0], "anchor_time": heading[1], "fitted": True, "tau_without": tau,
               "grid": {f"{r:g}/{a:g}": {"yaw": x, "cost": tau_cost(x)} for (r, a), x in ratios.items()}}
     if heading[0] > 0:
         tau, tau_ratios = fit_tau(states, truth, span, drift_rate_sigma=drift_rate_sigma, heading=heading)
     return heading, tau, tau_ratios, report
+
+
+def _axis_fit(states, truth, tau: float, drift_rate_sigma, heading, kept) -> tuple:
+    """(the states with the registration's correlation per axis recorded, the shares (6,), the report): fitted at
+    this tau, drift rate and heading reversion (`fit_axis_correlation`), or `kept` (the config's) where given."""
+    shares, report = (fit_axis_correlation(_each(replayed, states, tau, drift_rate_sigma, heading), truth)
+                      if kept is None else (np.asarray(kept, dtype=float), {"fitted": False}))
+    return _each(lambda s: dict(s, registration_axis_correlation=np.asarray(shares, dtype=float)), states), shares, \
+        report
 
 
 def _stationary_fit(states, truth, tau: float, drift_rate_sigma, heading, jitter) -> tuple:

@@ -141,6 +141,7 @@ class RunResult:
             velocity_error_share=np.float64(u.velocity_error_share),
             velocity_error_share_per_speed=np.float64(u.velocity_error_share_per_speed),
             registration_correlation=np.float64(u.registration_correlation),
+            registration_axis_correlation=np.asarray(u.registration_axis_correlation, dtype=float),
             drift_rate_sigma=np.asarray(u.drift_rate_sigma, dtype=float),
             velocity_inflation=velocity_inflation_array(
                 u.velocity_inflation, u.velocity_inflation_per_speed, u.velocity_inflation_per_doppler,

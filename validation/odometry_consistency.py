@@ -26,7 +26,7 @@ from rodo.estimator.attitude_jitter import span_excess, with_roll_pitch_variance
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.estimator.stationary_error import is_on, span_term
-from rodo.estimator.uncertainty import recursion_inputs
+from rodo.estimator.uncertainty import recursion_inputs, registration_shares
 from rodo.estimator.velocity_inflation import velocity_factor, velocity_inflation_terms
 from rodo.estimator.velocity_lag import with_lag
 
@@ -38,7 +38,7 @@ from .span_covariances import heading_deviations, span_covariances, step_matrice
 # not per scan
 RUN_CONSTANTS = ("drift_rate_sigma", "velocity_inflation", "velocity_axis_inflation", "heading_reversion",
                  "attitude_jitter", "velocity_error_share", "velocity_error_share_per_speed",
-                 "registration_correlation", "stationary_error")
+                 "registration_correlation", "registration_axis_correlation", "stationary_error")
 MEASURES = ("velocity", "acceleration", "relative_scan", "relative_span", "pose", "pose_window")
 DOF = 6
 
@@ -77,19 +77,21 @@ def recursion_inputs_of_run(states: dict, Sigma_rel: np.ndarray, P_window: np.nd
                             restarted=None, stationary=None) -> tuple[np.ndarray, np.ndarray]:
     """(Sigma_rel, P_varpi) (N, 6, 6) a run's drift recursion composed at its scans `rows` (None: all):
     `estimator.uncertainty.recursion_inputs` of their relative pose covariances Sigma_rel and window velocity
-    covariances P_window at the run's `registration_correlation` alpha, `velocity_error_share` g and
+    covariances P_window at the run's `registration_correlation` alpha (per axis with its
+    `registration_axis_correlation`, `registration_shares`), `velocity_error_share` g and
     `velocity_error_share_per_speed` g_v (states.npz; 0, 1 and 0 in runs before them) and the stationary error
     `stationary` ([V; T]; None: off; a run's own is its states' `stationary_error`), dt the interval since the
     scan before each in the run. The velocity covariances of every scan are g + g_v |nu| times the window's; alpha
     and the stationary error move covariance only at registered scans (not a run's first scan, not a re-initialisation's
     dead-reckoned step: `restarted` (N,), None: states' own)."""
-    alpha = float(states.get("registration_correlation", 0.0))
+    alpha = registration_shares(float(states.get("registration_correlation", 0.0)),
+                                states.get("registration_axis_correlation"))
     g = float(states.get("velocity_error_share", 1.0))
     g_v = float(states.get("velocity_error_share_per_speed", 0.0))
     rows = np.arange(len(states["t"])) if rows is None else rows
     speed = np.linalg.norm(np.asarray(states["varpi"], dtype=float)[rows, :3], axis=1) if g_v != 0.0 else None
     share = g if speed is None else (g + g_v * speed)[:, None, None]
-    if alpha == 0.0 and not is_on(stationary):
+    if np.ndim(alpha) == 0 and alpha == 0.0 and not is_on(stationary):
         return Sigma_rel, (P_window if g == 1.0 and speed is None else share * np.asarray(P_window, dtype=float))
     dt = np.diff(np.asarray(states["t"], dtype=float), prepend=np.nan)[rows]
     if restarted is None:

@@ -48,8 +48,8 @@ GROWTH_ROWS = ("1 s", "5 s", "drive")  # the error growth's rows a verdict shows
 SHARE_TARGET = 0.90
 SPAN_LIMIT = 2.0
 LEARNED = ("velocity_correlation_time", "velocity_error_share", "velocity_error_share_per_speed",
-           "registration_correlation", "inflation", "inflation_per_pull", "velocity_inflation", "yaw_rate_lag",
-           "stationary", "gross_failures")
+           "registration_correlation", "axis_correlation", "inflation", "inflation_per_pull", "velocity_inflation",
+           "yaw_rate_lag", "stationary", "gross_failures")
 
 
 def config_path(out_dir, scenario: str, name: str) -> Path:
@@ -62,6 +62,7 @@ def _learned(path: Path) -> dict:
 
     u = OdometryConfig.from_toml(path).uncertainty
     derived = {"yaw_rate_lag": u.velocity_lag_per_yaw_acceleration[5],  # CV/C's lag behind a turn (s)
+               "axis_correlation": [f"{a} {x:g}" for a, x in zip(AXES, u.registration_axis_correlation) if x],
                "stationary": [f"{a} {T:g} s" for a, V, T in zip(AXES, u.stationary_variance, u.stationary_time) if V],
                "gross_failures": _gross_failures(path.with_suffix(".json"))}
     return {k: derived[k] if k in derived else getattr(u, k) for k in LEARNED}
@@ -139,7 +140,7 @@ def _num(v, fmt: str = ".2f") -> str:
 
 def _learned_cell(v) -> str:
     """A learned term (a number, "-" when absent), the gross failures [velocity, one scan] as "v + r" or the axes
-    of the stationary error ("yaw 0.5 s + y 0.25 s"; "-" where none)."""
+    of the stationary error ("yaw 0.5 s + y 0.25 s") or of the registration's correlation ("x 0.25"); "-" where none."""
     return (" + ".join(map(str, v)) or "-") if isinstance(v, list) else _num(v, ".3g")
 
 

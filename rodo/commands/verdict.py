@@ -1,6 +1,7 @@
 """`rodo verdict [--scenarios city,hills,stop_and_go,highway] [--runs 20] [--duration 30] [--seed 7]
 [--calibration-seed 100] [--calibration-duration 180] [--calibration-drives 1] [--floor-ca Q[,Q,...]]
-[--floor-cv Q[,Q,...]] [--heading-reversion] [--stationary-error] [--jobs J] --out DIR [--resume]`:
+[--floor-cv Q[,Q,...]] [--heading-reversion] [--stationary-error] [--no-axis-correlation] [--jobs J] --out DIR
+[--resume]`:
 the consistency verdict of CA/P against CV/C, each at its learned noise (validation/verdict.py).
 
 Per scenario S, the recipe of docs/consistency.md ("The verdict with everything learned") as one command:
@@ -17,7 +18,9 @@ first in DIR/calibration/S, the others in S-1, S-2, ...), pooled by each calibra
 on the calibration drive as much as on the campaign's seed (docs/consistency.md, "The calibration drive's draw").
 With --heading-reversion both calibrations learn the yaw's reversion too (`rodo calibrate --heading-reversion`;
 docs/consistency.md, "The heading reverts"), with --stationary-error a bounded pose error per axis
-(`rodo calibrate --stationary-error`; docs/consistency.md, "A bounded error per axis"). Each step's output goes
+(`rodo calibrate --stationary-error`; docs/consistency.md, "A bounded error per axis"); with
+--no-axis-correlation neither learns the registration's correlation per axis (`rodo calibrate
+--no-axis-correlation`; docs/consistency.md, "The registration's correlation per axis"). Each step's output goes
 to DIR/logs/; the simulations and calibrations run --jobs at a time. With --resume a finished step is skipped (a
 sequence with all its files, a config with its report) and the campaigns resume; DIR/campaign.json holds the
 parameters, and a resume with other ones is refused.
@@ -70,6 +73,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stationary-error", action="store_true",
                    help="rodo calibrate's --stationary-error for both models: a bounded pose error per axis learned "
                         "from its error growth (default off)")
+    p.add_argument("--no-axis-correlation", dest="axis_correlation", action="store_false",
+                   help="rodo calibrate's --no-axis-correlation for both models: the registration's correlation per "
+                        "axis not learned (learned by default)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
     p.add_argument("--out", required=True, metavar="DIR", help="the verdict's directory")
     p.add_argument("--resume", action="store_true", help="continue the verdict in DIR (skip finished steps)")
@@ -122,7 +128,8 @@ def _steps(args, names: list[str]) -> tuple[list, list, list]:
             cals.append((f"calibrate {s} {name}", ["calibrate", *map(str, seqs), "--model", model, "--floor",
                                                    getattr(args, f"floor_{key}"), "--out", str(cfg)]
                          + (["--heading-reversion"] if args.heading_reversion else [])
-                         + (["--stationary-error"] if args.stationary_error else []),
+                         + (["--stationary-error"] if args.stationary_error else [])
+                         + ([] if args.axis_correlation else ["--no-axis-correlation"]),
                          cfg.is_file() and cfg.with_suffix(".md").is_file()))
             labels.append(f"{label}={cfg}")
         camps.append((f"montecarlo {s}", ["montecarlo", s, "--runs", str(args.runs), "--duration", str(args.duration),
@@ -192,6 +199,7 @@ def main(args) -> int:
             **({"calibration_drives": args.calibration_drives} if args.calibration_drives != 1 else {}),
             **({"heading_reversion": True} if args.heading_reversion else {}),
             **({"stationary_error": True} if args.stationary_error else {}),
+            **({} if args.axis_correlation else {"axis_correlation": False}),
             "floor_ca": parse_floor(args.floor_ca), "floor_cv": parse_floor(args.floor_cv)}  # values: 1e-4 == 0.0001
     with campaign_lock(out):
         if not args.resume and (out / "campaign.json").exists():

@@ -150,6 +150,38 @@ def test_calibrate_learns_the_stationary_error_when_asked(tmp_path, capsys):
 
 
 @pytest.mark.slow
+def test_calibrate_learns_the_registrations_correlation_per_axis_when_asked(tmp_path, capsys):
+    """--axis-correlation on a 12 s CV/C drive: per axis the report's choice (a share of the grid with its cost
+    below the one without by MIN_GAIN at least, or 0), the config those shares, the markdown the line; `rodo
+    run` at the written config records them and reports the absolute pose the calibration replayed (its error
+    growth is the report's)."""
+    from rodo.validation import calibrate_axis_correlation as cac
+    from rodo.validation.calibrate_stationary import AXIS_ORDER, MIN_GAIN
+
+    longer = tmp_path / "city12"
+    scenarios.simulate_to("city", 2, longer, duration=12.0)
+    out = tmp_path / "axes.toml"
+    assert main(["calibrate", str(longer), "--model", "cv-cartesian", "--axis-correlation", "--out", str(out)]) == 0
+    unc = OdometryConfig.from_toml(out).uncertainty
+    a = json.loads(out.with_suffix(".json").read_text())["consistency"]["registration_axis_correlation"]
+    assert a["fitted"] is True and list(a["axes"]) == [AXES[i] for i in AXIS_ORDER]
+    for i, name in enumerate(AXES):
+        x = a["axes"][name]
+        assert unc.registration_axis_correlation[i] == x["share"] == a["shares"][i]
+        assert x["share"] == 0.0 or (x["share"] in cac.SHARES and x["cost"] <= x["cost_without"] - MIN_GAIN)
+    assert "registration's correlation per axis" in out.with_suffix(".md").read_text()
+    assert main(["run", str(longer), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    with np.load(tmp_path / "run" / "states.npz") as z:
+        states = dict(z)
+    np.testing.assert_array_equal(states["registration_axis_correlation"], unc.registration_axis_correlation)
+    ran = growth_table(error_growth(states, load_truth(longer)))
+    reported = json.loads(out.with_suffix(".json").read_text())["consistency"]["error_growth"]["table"]
+    assert [r["count"] for r in ran] == [r["count"] for r in reported]
+    for r, b in zip(ran, reported):
+        assert r["ratio"] == b["ratio"] or r["ratio"] == pytest.approx(b["ratio"], rel=1e-9)
+
+
+@pytest.mark.slow
 def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, capsys):
     """By default (and with --attitude-jitter) the report holds the fit (the 1 s span's mean NEES/dof without
     and with the jitter; V positive only where it was over 1, and then bringing it to 1), the config its V at the
@@ -186,7 +218,7 @@ def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, 
 
 
 @pytest.mark.parametrize("flag", ["--velocity-axes", "--velocity-lag", "--heading-reversion", "--attitude-jitter",
-                                  "--stationary-error"])
+                                  "--stationary-error", "--axis-correlation"])
 @pytest.mark.parametrize("other", ["--no-truth", "--no-consistency"])
 def test_an_uncertainty_flag_without_the_uncertainty_section_is_refused(seq, tmp_path, capsys, flag, other):
     """Asking to learn a term of the uncertainty section while leaving that section out exits 2 naming both."""
@@ -259,7 +291,7 @@ def test_calibrate_without_truth_draws_ems_check(tmp_path, capsys):
 def test_the_em_report_names_the_components_outside_the_velocitys_growth():
     """The config's header says CHECK for the learned components outside their interval (not for one left at the
     base config's), and the markdown table marks them."""
-    from rodo.commands.calibrate import _header, _markdown
+    from rodo.commands.calibrate_report import header as _header, markdown as _markdown
 
     rows = [{"component": c, "em": 1.0, "growth": g, "interval": None if g is None else [0.5, 2.0],
              "outside": None if g is None else not 0.5 <= 1.0 / g <= 2.0}
@@ -343,7 +375,7 @@ def test_calibrate_bad_input(seq, tmp_path, capsys):
 def test_the_report_names_the_gross_failures_it_left_out():
     """CONFIG.md's words for the scans the factor fits left out (validation.gross_failures): none, a count (the
     one-scan fit), or each scan by run and time (the velocity fit), the first MAX_NAMED of them."""
-    from rodo.commands.calibrate import MAX_NAMED, _failure_words
+    from rodo.commands.calibrate_report import MAX_NAMED, _failure_words
 
     assert _failure_words(0) == "" and _failure_words({"scans": 0, "runs": [], "t": []}) == ""
     assert _failure_words(3) == ("; 3 scans left out as gross failures (NEES above 100 per dof at the median scan's "

@@ -10,8 +10,8 @@ from scipy.stats import chi2
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
-from rodo.estimator.uncertainty import (DriftCovariance, recursion_inputs, relative_pose_covariance, revision_covariance,
-                                       span_covariance)
+from rodo.estimator.uncertainty import (DriftCovariance, recursion_inputs, registration_shares, relative_pose_covariance,
+                                       revision_covariance, span_covariance)
 from tests.estimator import scene
 from tests.strategies import twists
 
@@ -235,6 +235,39 @@ def test_a_correlated_registration_keeps_one_scan_and_grows_a_span(alpha, g, tau
     np.testing.assert_allclose(span_covariance(T, t, S_k, P_k, 1, 1 + n, tau), expected, rtol=1e-9, atol=1e-15)
     same = recursion_inputs(Sigma, P, dt, 0.0, 1.0)
     assert same[0] is Sigma and same[1] is P
+
+
+@settings(max_examples=10, deadline=None)
+@given(alpha=st.floats(0.0, 1.0), a=st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6), g=st.floats(0.05, 1.0),
+       tau=st.floats(0.05, 2.0), n=st.integers(2, 20), seed=st.integers(0, 2**32 - 1))
+def test_a_registration_correlation_per_axis_grows_its_axis_alone(alpha, a, g, tau, n, seed):
+    """`recursion_inputs` with a share per axis (`registration_shares`: alpha + (1 - alpha) a_i): at rest (every
+    Ad the identity) a span of n scans is the AR(1) sum n B Sigma_rel B + dt^2 P' (n + 2 sum_k (n - k) phi^k),
+    P' = g P_varpi + A Sigma_rel A / dt^2, A = diag(sqrt(alpha_i)), B = diag(sqrt(1 - alpha_i)); one scan keeps
+    every axis's variance Sigma_rel,ii + g dt^2 P_varpi,ii; equal shares are the scalar alpha's (to rounding);
+    per-axis shares of 0 are alpha itself, a float (the scalar's path, bit for bit)."""
+    rng = np.random.default_rng(np.random.SeedSequence([50, seed]))
+    dt, m = 0.077, n + 3
+    t = dt * np.arange(m)
+    T = np.stack([np.eye(4)] * m)
+    Sigma, P = _random_cov(rng, 1e-3), _random_cov(rng, 1e-2)
+    shares = registration_shares(alpha, a)
+    if not any(a):
+        assert shares == alpha and isinstance(shares, float)
+        return
+    np.testing.assert_allclose(shares, alpha + (1 - alpha) * np.asarray(a), rtol=0, atol=1e-15)
+    S_k, P_k = recursion_inputs(np.stack([Sigma] * m), np.stack([P] * m), np.full(m, dt), shares, g)
+    one = span_covariance(T, t, S_k, P_k, 1, 2, tau)
+    np.testing.assert_allclose(np.diag(one), np.diag(Sigma + g * dt**2 * P), rtol=1e-9, atol=1e-15)
+    A, B = np.diag(np.sqrt(shares)), np.diag(np.sqrt(1 - shares))
+    phi = np.exp(-dt / tau)
+    P_prime = g * P + A @ Sigma @ A / dt**2
+    expected = n * B @ Sigma @ B + dt**2 * P_prime * (n + 2 * sum((n - k) * phi**k for k in range(1, n)))
+    np.testing.assert_allclose(span_covariance(T, t, S_k, P_k, 1, 1 + n, tau), expected, rtol=1e-9, atol=1e-15)
+    equal = recursion_inputs(Sigma, P, dt, np.full(6, shares[0]), g)
+    scalar = recursion_inputs(Sigma, P, dt, float(shares[0]), g)
+    for x, y in zip(equal, scalar):
+        np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-18)
 
 
 @settings(max_examples=10, deadline=None)

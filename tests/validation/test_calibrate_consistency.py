@@ -133,6 +133,27 @@ def test_absolute_covariances_replay_the_run(city_run):
     assert not np.allclose(rs.absolute_covariances(states, 0.05, drift), states["P_pose_absolute"], rtol=1e-3)
 
 
+def test_absolute_covariances_replay_a_run_with_a_correlation_per_axis(city):
+    """A run with the registration's correlation per axis (`registration_axis_correlation`): its states record the
+    shares, the replay at its tau and drift rate gives the absolute covariances it reported, and without the
+    shares the replay gives others (the forward position's grows with its share)."""
+    from rodo.validation.driver import run_sequence
+    from rodo.validation.run_consistency import run_states
+
+    seq, _ = city
+    config = OdometryConfig.for_model("cv-cartesian")
+    config = config.replace(uncertainty=dataclasses.replace(
+        config.uncertainty, velocity_correlation_time=0.4, registration_correlation=0.2,
+        registration_axis_correlation=(0.5, 0.0, 0.0, 0.0, 0.0, 0.0)))
+    states = run_states(run_sequence(seq, config))
+    np.testing.assert_array_equal(states["registration_axis_correlation"], [0.5, 0, 0, 0, 0, 0])
+    replay = rs.absolute_covariances(states, 0.4, states["drift_rate_sigma"])
+    np.testing.assert_allclose(replay, states["P_pose_absolute"], rtol=1e-9, atol=1e-15)
+    without = rs.absolute_covariances(dict(states, registration_axis_correlation=np.zeros(6)), 0.4,
+                                      states["drift_rate_sigma"])
+    assert np.all(replay[-1].diagonal()[:1] > 1.05 * without[-1].diagonal()[:1])
+
+
 def test_absolute_covariances_replay_a_run_across_its_restart():
     """A run that re-initialises after a blackout (`blockage`'s 5-7 s): the replay takes the restart's step where
     states.npz flags it (`restarted`) and gives the absolute covariances the run reported, its roll and pitch
