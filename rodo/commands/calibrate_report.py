@@ -44,8 +44,7 @@ def header(report: dict, seq_dir: str, model: str) -> list[str]:
                          f"velocity_correlation_time {c['velocity_correlation_time']:g} s"
                          + _correlation_words(c)
                          + _heading_words(c) + _jitter_words(c)
-                         + (", registration_axis_correlation" if c.get("registration_axis_correlation", {}).get("fitted")
-                            else "")
+                         + _axis_words(c)
                          + (", stationary_variance and stationary_time" if c.get("stationary_error", {}).get("fitted")
                             else "") + " fitted so that the "
                          "estimator's NEES against the truth is consistent (docs/calibration.md).")
@@ -173,7 +172,8 @@ def _consistency_markdown(c: dict) -> list[str]:
     if a.get("fitted"):
         lines.append("registration's correlation per axis (the share of what alpha leaves independent; the cost of its "
                      "growth over 0.5-20 s without -> with): " + ", ".join(
-                         f"{k} {x['share']:g} ({x['cost_without']:.3g} -> {x['cost']:.3g})" for k, x in a["axes"].items()))
+                         f"{k} {x['share']:g} ({x['cost_without']:.3g} -> {x['cost']:.3g})"
+                         for k, x in a["axes"].items()))
     s = c.get("stationary_error", {})
     if s.get("fitted"):
         lines.append("stationary error per axis (share of the one-scan variance / T s / V; the cost of its growth "
@@ -229,6 +229,13 @@ def _correlation_words(c: dict) -> str:
     """' with registration_correlation alpha' of a consistency report (none in reports before it)."""
     alpha = c.get("registration_correlation", {}).get("value")
     return "" if alpha is None else f" with registration_correlation {alpha:g}"
+
+
+def _axis_words(c: dict) -> str:
+    """', registration_axis_correlation (x 0.25, pitch 1)' where the fit took a share on some axis, else ''."""
+    a = c.get("registration_axis_correlation", {})
+    taken = [f"{k} {x['share']:g}" for k, x in a.get("axes", {}).items() if x["share"]] if a.get("fitted") else []
+    return f", registration_axis_correlation ({', '.join(taken)})" if taken else ""
 
 
 def _jitter_words(c: dict) -> str:

@@ -152,9 +152,11 @@ def test_calibrate_learns_the_stationary_error_when_asked(tmp_path, capsys):
 @pytest.mark.slow
 def test_calibrate_learns_the_registrations_correlation_per_axis_when_asked(tmp_path, capsys):
     """--axis-correlation on a 12 s CV/C drive: per axis the report's choice (a share of the grid with its cost
-    below the one without by MIN_GAIN at least, or 0), the config those shares, the markdown the line; `rodo
-    run` at the written config records them and reports the absolute pose the calibration replayed (its error
-    growth is the report's)."""
+    below the one without by MIN_GAIN at least, or 0), the config those shares, the markdown the line, the
+    config's header the shares taken (none here: a drive this short learns none; the fit's choice is tested on
+    drives with a known share, tests/validation/test_calibrate_axis_correlation.py); `rodo run` at the written
+    config records them and reports the absolute pose the calibration replayed (its error growth is the
+    report's)."""
     from rodo.validation import calibrate_axis_correlation as cac
     from rodo.validation.calibrate_stationary import AXIS_ORDER, MIN_GAIN
 
@@ -170,6 +172,8 @@ def test_calibrate_learns_the_registrations_correlation_per_axis_when_asked(tmp_
         assert unc.registration_axis_correlation[i] == x["share"] == a["shares"][i]
         assert x["share"] == 0.0 or (x["share"] in cac.SHARES and x["cost"] <= x["cost_without"] - MIN_GAIN)
     assert "registration's correlation per axis" in out.with_suffix(".md").read_text()
+    header = "".join(line for line in out.read_text().splitlines() if line[:1] == "#")
+    assert ("registration_axis_correlation (" in header) == any(a["shares"])  # named where a share was taken
     assert main(["run", str(longer), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
     with np.load(tmp_path / "run" / "states.npz") as z:
         states = dict(z)
@@ -179,6 +183,20 @@ def test_calibrate_learns_the_registrations_correlation_per_axis_when_asked(tmp_
     assert [r["count"] for r in ran] == [r["count"] for r in reported]
     for r, b in zip(ran, reported):
         assert r["ratio"] == b["ratio"] or r["ratio"] == pytest.approx(b["ratio"], rel=1e-9)
+
+
+def test_the_header_names_the_per_axis_shares_taken():
+    """The config header's uncertainty line names the axes whose registration's correlation the fit took, with their
+    shares, and says nothing of the term where it took none or was not asked."""
+    from rodo.commands.calibrate_report import _axis_words
+
+    def report(shares):
+        return {"registration_axis_correlation": {"fitted": True, "axes": {k: {"share": x} for k, x in shares.items()}}}
+
+    named = _axis_words(report({"yaw": 0.0, "x": 0.25, "pitch": 1.0}))
+    assert named == ", registration_axis_correlation (x 0.25, pitch 1)"
+    assert _axis_words(report({"yaw": 0.0, "x": 0.0})) == ""
+    assert _axis_words({"registration_axis_correlation": {"fitted": False}}) == _axis_words({}) == ""
 
 
 @pytest.mark.slow

@@ -10,8 +10,8 @@ from scipy.stats import chi2
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.lie import se3
 from rodo.estimator.odometry import RadarOdometry
-from rodo.estimator.uncertainty import (DriftCovariance, recursion_inputs, registration_shares, relative_pose_covariance,
-                                       revision_covariance, span_covariance)
+from rodo.estimator.uncertainty import (DriftCovariance, recursion_inputs, registration_shares,
+                                       relative_pose_covariance, revision_covariance, span_covariance)
 from tests.estimator import scene
 from tests.strategies import twists
 
