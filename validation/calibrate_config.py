@@ -30,6 +30,7 @@ from . import calibrate as cal
 from . import calibrate_consistency as cc
 from . import calibrate_sensor as cs
 from . import calibrate_sensor_em as csem
+from . import calibrate_vehicle as veh
 from . import velocity_growth as vg
 from .driver import run_sequence
 
@@ -67,9 +68,11 @@ def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: Odome
                          duration: float | None = None, floor: float = cal.DEFAULT_FLOOR, consistency: bool = True,
                          progress=None, velocity_axes: bool = True, heading_reversion: bool = False,
                          attitude_jitter: bool = True, velocity_lag: bool | None = None,
-                         stationary_error: bool = False, axis_correlation: bool = True) -> tuple[OdometryConfig, dict]:
+                         stationary_error: bool = False, axis_correlation: bool = True,
+                         vehicle_rates: bool = False) -> tuple[OdometryConfig, dict]:
     """Learn qc_ca, qc_cv, the per-channel sensor sigma factors, the Cartesian sigma and the scans' common Doppler
-    error (`calibrate_sensor.common_doppler_error`; 0 unless significant) from ground truth, then
+    error (`calibrate_sensor.common_doppler_error`; 0 unless significant) from ground truth, with
+    `vehicle_rates` the road-vehicle terms on the roll and pitch rates (`calibrate_vehicle`), then
     (`consistency`) the uncertainty section at that noise (the velocity's per-axis factors with `velocity_axes`,
     its lag behind a manoeuvre with `velocity_lag`, None: by the motion prior,
     the heading's reversion with `heading_reversion`, the roll and pitch jitter unless `attitude_jitter` is False,
@@ -110,6 +113,8 @@ def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: Odome
                         "cartesian_sigma": cart, "doppler_common": common},
     }
     config = config.replace(noise=noise)
+    if vehicle_rates:
+        config, report["vehicle"] = veh.fit_vehicle_rates(tracks, config)
     if consistency:
         config, report["consistency"] = cc.fit_consistency(seqs, truths, config, progress=progress,
                                                            velocity_axes=velocity_axes, velocity_lag=velocity_lag,

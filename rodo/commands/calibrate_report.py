@@ -31,6 +31,7 @@ def header(report: dict, seq_dir: str, model: str) -> list[str]:
                   "per-channel sigmas are in the .json/.md report.",
                   f"noise.doppler_common_sigma {report['measurement']['doppler_common']['sigma_c']:.3g} m/s: the "
                   "scans' common Doppler error (0 unless significant; docs/calibration.md)."]
+        lines += _vehicle_lines(report.get("vehicle"))
         if "consistency" in report:
             c = report["consistency"]
             v = c["velocity_inflation"]
@@ -78,6 +79,7 @@ def markdown(report: dict) -> str:
             lines.append(f"| {name} | {c['sigma']:.4g} | {m['sensor_toml_sigmas'][name]:.4g} | {c['mean']:.2g} | "
                          f"{ln['a']:.4g}, {ln['b_per_m']:.2g} ({ln['b_stderr']:.2g}) | {c['range_dependent']} |")
         d = m["doppler_common"]
+        lines += [""] + _vehicle_lines(report.get("vehicle"))
         lines += ["", f"sensor_sigma_scale = {m['sensor_sigma_scale']:.4g}",
                   "", f"common Doppler error per scan: sigma_c {d['sigma_c_estimate']:.3g} m/s "
                   f"({'significant' if d['significant'] else 'not significant: 0 written'}), independent radial "
@@ -229,6 +231,16 @@ def _correlation_words(c: dict) -> str:
     """' with registration_correlation alpha' of a consistency report (none in reports before it)."""
     alpha = c.get("registration_correlation", {}).get("value")
     return "" if alpha is None else f" with registration_correlation {alpha:g}"
+
+
+def _vehicle_lines(v: dict | None) -> list[str]:
+    """The road-vehicle terms learned (`calibrate_vehicle`): one line, none where they were not."""
+    if not v or not v.get("fitted"):
+        return []
+    return [f"vehicle.sigma_roll_rate {v['sigma'][0]:.3g}, sigma_pitch_rate {v['sigma'][1]:.3g} rad/s: the true roll "
+            f"and pitch rates' RMS over {v['moving_scans']} moving scans ({v['rms'][0]:.3g}, {v['rms'][1]:.3g}; at "
+            f"least {v['floor']:g}; a term the base config has off stays off; it had {v['before'][0]:g}, "
+            f"{v['before'][1]:g})."]
 
 
 def _axis_words(c: dict) -> str:

@@ -1,7 +1,7 @@
 """`rodo verdict [--scenarios city,hills,stop_and_go,highway] [--runs 20] [--duration 30] [--seed 7]
 [--calibration-seed 100] [--calibration-duration 180] [--calibration-drives 1] [--floor-ca Q[,Q,...]]
-[--floor-cv Q[,Q,...]] [--heading-reversion] [--stationary-error] [--no-axis-correlation] [--jobs J] --out DIR
-[--resume]`:
+[--floor-cv Q[,Q,...]] [--heading-reversion] [--stationary-error] [--no-axis-correlation] [--vehicle-rates]
+[--jobs J] --out DIR [--resume]`:
 the consistency verdict of CA/P against CV/C, each at its learned noise (validation/verdict.py).
 
 Per scenario S, the recipe of docs/consistency.md ("The verdict with everything learned") as one command:
@@ -20,7 +20,9 @@ With --heading-reversion both calibrations learn the yaw's reversion too (`rodo 
 docs/consistency.md, "The heading reverts"), with --stationary-error a bounded pose error per axis
 (`rodo calibrate --stationary-error`; docs/consistency.md, "A bounded error per axis"); with
 --no-axis-correlation neither learns the registration's correlation per axis (`rodo calibrate
---no-axis-correlation`; docs/consistency.md, "The registration's correlation per axis"). Each step's output goes
+--no-axis-correlation`; docs/consistency.md, "The registration's correlation per axis"), with --vehicle-rates both
+learn the road-vehicle terms on the roll and pitch rates (`rodo calibrate --vehicle-rates`). Each step's
+output goes
 to DIR/logs/; the simulations and calibrations run --jobs at a time. With --resume a finished step is skipped (a
 sequence with all its files, a config with its report) and the campaigns resume; DIR/campaign.json holds the
 parameters, and a resume with other ones is refused.
@@ -76,6 +78,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-axis-correlation", dest="axis_correlation", action="store_false",
                    help="rodo calibrate's --no-axis-correlation for both models: the registration's correlation per "
                         "axis not learned (learned by default)")
+    p.add_argument("--vehicle-rates", action="store_true",
+                   help="rodo calibrate's --vehicle-rates for both models: the road-vehicle terms on the roll and "
+                        "pitch rates learned from the truth (default off)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
     p.add_argument("--out", required=True, metavar="DIR", help="the verdict's directory")
     p.add_argument("--resume", action="store_true", help="continue the verdict in DIR (skip finished steps)")
@@ -129,7 +134,8 @@ def _steps(args, names: list[str]) -> tuple[list, list, list]:
                                                    getattr(args, f"floor_{key}"), "--out", str(cfg)]
                          + (["--heading-reversion"] if args.heading_reversion else [])
                          + (["--stationary-error"] if args.stationary_error else [])
-                         + ([] if args.axis_correlation else ["--no-axis-correlation"]),
+                         + ([] if args.axis_correlation else ["--no-axis-correlation"])
+                         + (["--vehicle-rates"] if args.vehicle_rates else []),
                          cfg.is_file() and cfg.with_suffix(".md").is_file()))
             labels.append(f"{label}={cfg}")
         camps.append((f"montecarlo {s}", ["montecarlo", s, "--runs", str(args.runs), "--duration", str(args.duration),
@@ -200,6 +206,7 @@ def main(args) -> int:
             **({"heading_reversion": True} if args.heading_reversion else {}),
             **({"stationary_error": True} if args.stationary_error else {}),
             **({} if args.axis_correlation else {"axis_correlation": False}),
+            **({"vehicle_rates": True} if args.vehicle_rates else {}),
             "floor_ca": parse_floor(args.floor_ca), "floor_cv": parse_floor(args.floor_cv)}  # values: 1e-4 == 0.0001
     with campaign_lock(out):
         if not args.resume and (out / "campaign.json").exists():

@@ -235,6 +235,22 @@ def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, 
     assert "attitude_jitter_variance" not in "".join(line for line in kept.read_text().splitlines() if line[:1] == "#")
 
 
+def test_the_vehicle_rates_need_the_truth(seq, tmp_path, capsys):
+    """--vehicle-rates with --no-truth exits 2 naming both; with --no-consistency it is learned all the same (it is
+    not in the uncertainty section); without it (the default) the base config's terms are kept."""
+    fails(capsys, ["calibrate", str(seq), "--vehicle-rates", "--no-truth", "--out", tmp_path / "x.toml"],
+          "--vehicle-rates", "--no-truth")
+    out, kept = tmp_path / "v.toml", tmp_path / "k.toml"
+    assert main(["calibrate", str(seq), "--vehicle-rates", "--no-consistency", "--out", str(out)]) == 0
+    v = json.loads(out.with_suffix(".json").read_text())["vehicle"]
+    unc = OdometryConfig.from_toml(out).vehicle
+    assert v["fitted"] and [unc.sigma_roll_rate, unc.sigma_pitch_rate] == v["sigma"] != v["before"]
+    assert "vehicle.sigma_roll_rate" in out.with_suffix(".md").read_text()
+    assert main(["calibrate", str(seq), "--no-consistency", "--out", str(kept)]) == 0
+    assert OdometryConfig.from_toml(kept).vehicle == OdometryConfig.for_model("ca-polar").vehicle
+    assert "vehicle" not in json.loads(kept.with_suffix(".json").read_text())
+
+
 @pytest.mark.parametrize("flag", ["--velocity-axes", "--velocity-lag", "--heading-reversion", "--attitude-jitter",
                                   "--stationary-error", "--axis-correlation"])
 @pytest.mark.parametrize("other", ["--no-truth", "--no-consistency"])

@@ -212,7 +212,8 @@ def test_each_model_is_calibrated_at_its_own_floor(tmp_path):
     floors = {model: parse_floor(text) for model, text in given.items()}
     args = argparse.Namespace(out=str(tmp_path), calibration_drives=1, calibration_seed=100, calibration_duration=5.0,
                               floor_ca=given["ca-polar"], floor_cv=given["cv-cartesian"], runs=2, duration=3.0,
-                              seed=3, jobs=1, heading_reversion=False, stationary_error=False, axis_correlation=True)
+                              seed=3, jobs=1, heading_reversion=False, stationary_error=False, axis_correlation=True,
+                              vehicle_rates=False)
     _, cals, _ = _steps(args, ["city"])
     assert sorted(argv[argv.index("--model") + 1] for _, argv, _ in cals) == sorted(floors)
     for _, argv, _ in cals:
@@ -220,12 +221,14 @@ def test_each_model_is_calibrated_at_its_own_floor(tmp_path):
     assert floors["ca-polar"] == [1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4] and floors["cv-cartesian"] == 2e-4
 
 
-@pytest.mark.parametrize("flag", ["heading_reversion", "stationary_error", "no_axis_correlation"])
+@pytest.mark.parametrize("flag", ["heading_reversion", "stationary_error", "no_axis_correlation", "vehicle_rates"])
 def test_a_calibration_flag_reaches_both_calibrations(tmp_path, flag):
-    """--heading-reversion, --stationary-error, --no-axis-correlation: both models' calibration steps learn the
-    yaw's reversion or the bounded error per axis, or do not learn the registration's correlation per axis (rodo
-    calibrate's flag of the same name); without it neither does (the last: both learn it)."""
-    off = {"heading_reversion": False, "stationary_error": False, "no_axis_correlation": False}
+    """--heading-reversion, --stationary-error, --vehicle-rates, --no-axis-correlation: both models' calibration
+    steps learn the yaw's reversion, the bounded error per axis or the vehicle's rate terms, or do not learn the
+    registration's correlation per axis (rodo calibrate's flag of the same name); without it neither does (the
+    last: both learn it)."""
+    off = {"heading_reversion": False, "stationary_error": False, "no_axis_correlation": False,
+           "vehicle_rates": False}
     args = argparse.Namespace(out=str(tmp_path), calibration_drives=1, calibration_seed=100, calibration_duration=5.0,
                               floor_ca="1e-4", floor_cv="1e-4", runs=2, duration=3.0, seed=3, jobs=1,
                               **dict(off, **{flag: True}))
@@ -233,7 +236,8 @@ def test_a_calibration_flag_reaches_both_calibrations(tmp_path, flag):
     option = "--" + flag.replace("_", "-")
     _, cals, _ = _steps(args, ["city", "hills"])
     assert len(cals) == 4 and all(option in argv for _, argv, _ in cals)
-    others = [o for o in ("--heading-reversion", "--stationary-error", "--no-axis-correlation") if o != option]
+    others = [o for o in ("--heading-reversion", "--stationary-error", "--no-axis-correlation", "--vehicle-rates")
+              if o != option]
     assert not any(o in argv for _, argv, _ in cals for o in others)
     _, cals, _ = _steps(argparse.Namespace(**dict(vars(args), **off, axis_correlation=True)), ["city"])
     assert not any(option in argv for _, argv, _ in cals)
