@@ -237,10 +237,10 @@ def _vehicle_lines(v: dict | None) -> list[str]:
     """The road-vehicle terms learned (`calibrate_vehicle`): one line, none where they were not."""
     if not v or not v.get("fitted"):
         return []
-    return [f"vehicle.sigma_roll_rate {v['sigma'][0]:.3g}, sigma_pitch_rate {v['sigma'][1]:.3g} rad/s: the true roll "
-            f"and pitch rates' RMS over {v['moving_scans']} moving scans ({v['rms'][0]:.3g}, {v['rms'][1]:.3g}; at "
-            f"least {v['floor']:g}; a term the base config has off stays off; it had {v['before'][0]:g}, "
-            f"{v['before'][1]:g})."]
+    return [f"vehicle.sigma_roll_rate {v['sigma'][0]:.3g}, sigma_pitch_rate {v['sigma'][1]:.3g} rad/s: sqrt(window) x "
+            f"the true roll and pitch rates' RMS over {v['moving_scans']} moving scans ({v['rms'][0]:.3g}, "
+            f"{v['rms'][1]:.3g}; at least {v['floor']:g}; a term the base config has off stays off; it had "
+            f"{v['before'][0]:g}, {v['before'][1]:g})."]
 
 
 def _axis_words(c: dict) -> str:

@@ -24,8 +24,9 @@ def _track(rng, n, speed, roll_sigma, pitch_sigma):
 @given(roll=st.floats(2e-3, 0.05), pitch=st.floats(2e-3, 0.05), seed=st.integers(0, 2**32 - 1))
 def test_the_sigmas_are_the_true_rates_rms_over_the_moving_scans(roll, pitch, seed):
     """Two drives pooled, each standing for its first 200 scans with rates ten times larger (the term does not
-    apply at a standstill, so they are left out): the sigmas are the moving scans' RMS (within 10 % of the drawn
-    sigmas over 4000 scans: the RMS's relative standard error is 1.1 %), and the report says how many scans."""
+    apply at a standstill, so they are left out): the report's RMS is the moving scans' (within 10 % of the drawn
+    sigmas over 4000 scans: its relative standard error is 1.1 %), the sigmas sqrt(window) times it (the window's
+    states each carry the term), and the report says how many scans."""
     rng = np.random.default_rng(np.random.SeedSequence([50, seed]))
     speed = np.r_[np.zeros(200), np.full(2000, 8.0)]
     tracks = [_track(rng, 2200, speed, roll, pitch) for _ in range(2)]
@@ -36,7 +37,8 @@ def test_the_sigmas_are_the_true_rates_rms_over_the_moving_scans(roll, pitch, se
     np.testing.assert_allclose(report["rms"], np.sqrt(np.mean(moving**2, axis=0)), rtol=1e-12)
     assert report["moving_scans"] == 4000
     got = (config.vehicle.sigma_roll_rate, config.vehicle.sigma_pitch_rate)
-    np.testing.assert_allclose(got, [roll, pitch], rtol=0.1)
+    np.testing.assert_allclose(report["rms"], [roll, pitch], rtol=0.1)
+    np.testing.assert_allclose(got, np.sqrt(config.window) * np.asarray(report["rms"]), rtol=1e-12)
     assert list(got) == report["sigma"] and report["before"] == [0.01, 0.015]
 
 
@@ -62,4 +64,4 @@ def test_the_config_keeps_its_other_vehicle_terms():
     base = base.replace(vehicle=type(base.vehicle)(sigma_lateral_velocity=0.02, sigma_vertical_velocity=0.03))
     config, _ = fit_vehicle_rates([_track(rng, 300, np.full(300, 5.0), 0.004, 0.006)], base)
     assert (config.vehicle.sigma_lateral_velocity, config.vehicle.sigma_vertical_velocity) == (0.02, 0.03)
-    assert config.vehicle.sigma_roll_rate == pytest.approx(0.004, rel=0.2)
+    assert config.vehicle.sigma_roll_rate == pytest.approx(0.004 * np.sqrt(config.window), rel=0.2)
