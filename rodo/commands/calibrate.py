@@ -66,9 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "on by default with truth; --no-axis-correlation keeps the config's")
     p.add_argument("--vehicle-rates", action="store_true",
                    help="with truth: learn the road-vehicle terms on the roll and pitch rates (vehicle.sigma_roll_rate "
-                        "and sigma_pitch_rate, the true rates' RMS while moving; docs/calibration.md; off by default: "
-                        "more accurate on three scenarios of four, less on hills, and the uncertainty recipe does not "
-                        "follow it)")
+                        "and sigma_pitch_rate, sqrt(window) x the true rates' RMS while moving; docs/calibration.md; "
+                        "off by default: more accurate on three scenarios of four, but the uncertainty section's "
+                        "learned terms do not carry over at them)")
     p.add_argument("--iterations", type=int, default=30, help="EM iterations at most (%(default)s; one estimator "
                                                               "run each)")
     p.add_argument("--tolerance", type=float, default=0.05, help="EM stops when the fixed point its steps "

@@ -21,11 +21,10 @@ docs/consistency.md, "The heading reverts"), with --stationary-error a bounded p
 (`rodo calibrate --stationary-error`; docs/consistency.md, "A bounded error per axis"); with
 --no-axis-correlation neither learns the registration's correlation per axis (`rodo calibrate
 --no-axis-correlation`; docs/consistency.md, "The registration's correlation per axis"), with --vehicle-rates both
-learn the road-vehicle terms on the roll and pitch rates (`rodo calibrate --vehicle-rates`). Each step's
-output goes
-to DIR/logs/; the simulations and calibrations run --jobs at a time. With --resume a finished step is skipped (a
-sequence with all its files, a config with its report) and the campaigns resume; DIR/campaign.json holds the
-parameters, and a resume with other ones is refused.
+learn the road-vehicle terms on the roll and pitch rates (`rodo calibrate --vehicle-rates`; docs/consistency.md,
+"The vehicle's rate terms learned"). Each step's output goes to DIR/logs/; the simulations and calibrations run
+--jobs at a time. With --resume a finished step is skipped (a sequence with all its files, a config with its report)
+and the campaigns resume; DIR/campaign.json holds the parameters, and a resume with other ones is refused.
 """
 
 from __future__ import annotations
