@@ -49,7 +49,7 @@ SHARE_TARGET = 0.90
 SPAN_LIMIT = 2.0
 LEARNED = ("velocity_correlation_time", "velocity_error_share", "velocity_error_share_per_speed",
            "registration_correlation", "axis_correlation", "inflation", "inflation_per_pull", "velocity_inflation",
-           "yaw_rate_lag", "stationary", "gross_failures")
+           "yaw_rate_lag", "stationary", "vehicle_rates", "gross_failures")
 
 
 def config_path(out_dir, scenario: str, name: str) -> Path:
@@ -60,8 +60,10 @@ def config_path(out_dir, scenario: str, name: str) -> Path:
 def _learned(path: Path) -> dict:
     from rodo.estimator.config import OdometryConfig
 
-    u = OdometryConfig.from_toml(path).uncertainty
-    derived = {"yaw_rate_lag": u.velocity_lag_per_yaw_acceleration[5],  # CV/C's lag behind a turn (s)
+    config = OdometryConfig.from_toml(path)
+    u, v = config.uncertainty, config.vehicle
+    derived = {"vehicle_rates": [f"{v.sigma_roll_rate:.3g}", f"{v.sigma_pitch_rate:.3g}"],  # roll + pitch, rad/s
+               "yaw_rate_lag": u.velocity_lag_per_yaw_acceleration[5],  # CV/C's lag behind a turn (s)
                "axis_correlation": [f"{a} {x:g}" for a, x in zip(AXES, u.registration_axis_correlation) if x],
                "stationary": [f"{a} {T:g} s" for a, V, T in zip(AXES, u.stationary_variance, u.stationary_time) if V],
                "gross_failures": _gross_failures(path.with_suffix(".json"))}
@@ -140,7 +142,8 @@ def _num(v, fmt: str = ".2f") -> str:
 
 def _learned_cell(v) -> str:
     """A learned term (a number, "-" when absent), the gross failures [velocity, one scan] as "v + r" or the axes
-    of the stationary error ("yaw 0.5 s + y 0.25 s") or of the registration's correlation ("x 0.25"); "-" where none."""
+    of the stationary error ("yaw 0.5 s + y 0.25 s"), of the registration's correlation ("x 0.25") or the vehicle's
+    roll + pitch rate sigmas ("0.01 + 0.015"); "-" where none."""
     return (" + ".join(map(str, v)) or "-") if isinstance(v, list) else _num(v, ".3g")
 
 
