@@ -3,12 +3,9 @@ local gRPC server (`rerun --port P --save FILE`, the viewer's headless proxy) st
 
 from __future__ import annotations
 
-import os
-import shutil
 import signal
 import socket
 import subprocess
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -96,47 +93,41 @@ def _wait_for_port(port: int, proc, timeout: float = 20.0) -> None:
     pytest.fail(f"the rerun server did not listen on port {port} within {timeout} s")
 
 
-def _group_alive(pgid: int) -> bool:
+def _rerun_server() -> str | None:
+    """The rerun server binary itself (rerun-sdk's `rerun_cli/rerun`), not the `rerun` console script, which runs
+    it as a child through `subprocess.call`: a signal to the script leaves that child to the script's exception
+    handling, and a kill of the script orphaned it (a server left running after every `make test` until session
+    50). None where it is not installed."""
     try:
-        os.killpg(pgid, 0)
-    except ProcessLookupError:
-        return False
-    return True
-
-
-def _stop_group(proc: subprocess.Popen, timeout: float = 20.0) -> None:
-    """SIGINT to the process group `proc` leads (the server saves its file and exits), SIGKILL to what is left
-    after `timeout` s; the group reaped."""
-    os.killpg(proc.pid, signal.SIGINT)
-    deadline = time.monotonic() + timeout
-    while _group_alive(proc.pid) and time.monotonic() < deadline:
-        proc.poll()  # reap the wrapper, so that it does not keep the group alive as a zombie
-        time.sleep(0.1)
-    if _group_alive(proc.pid):
-        os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
-    proc.stderr.close()
+        import rerun_cli
+    except ImportError:
+        return None
+    exe = Path(rerun_cli.__file__).with_name("rerun")
+    return str(exe) if exe.is_file() else None
 
 
 def test_run_connect_streams_to_a_local_grpc_server(seq_dir, tmp_path, capsys):
     """`rodo run --connect 127.0.0.1:PORT` against `rerun --port PORT --save FILE` (a headless proxy started
     here): the server receives the estimated pose of every scan, equal to estimate.txt."""
-    exe = shutil.which("rerun", path=str(Path(sys.executable).parent))
+    exe = _rerun_server()
     if exe is None:
-        pytest.skip("the rerun executable (from rerun-sdk) is not next to the Python interpreter")
+        pytest.skip("the rerun server binary (rerun-sdk's rerun_cli) is not installed")
     port, saved = _free_port(), tmp_path / "server.rrd"
-    # its own process group: `rerun` is a wrapper whose server is a child process, which a signal to the wrapper
-    # alone left running after the tests (one per `make test`, found in session 50)
     proc = subprocess.Popen([exe, "--port", str(port), "--save", str(saved)], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, start_new_session=True)
+                            stderr=subprocess.PIPE)
     try:
         _wait_for_port(port, proc)
         assert _run(["run", seq_dir, "--out", tmp_path / "out", "--connect", f"127.0.0.1:{port}"]) == 0
         assert f"streaming live to rerun+http://127.0.0.1:{port}/proxy" in capsys.readouterr().out
         time.sleep(0.5)
     finally:
-        _stop_group(proc)
-    assert not _group_alive(proc.pid), "the rerun server outlived the test"
+        proc.send_signal(signal.SIGINT)  # the server saves its file and exits
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        proc.stderr.close()
     est = read_tum(tmp_path / "out" / "estimate.txt")
     got = _vehicle_translations(saved)
     assert sorted(got) == list(range(len(est)))
