@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .calibrate_stationary import AXIS_ORDER, MIN_GAIN, MIN_SPAN, axis_cost
-from .error_growth import AXES, GROWTH_SPANS, error_growth, pooled_growth
+from .calibrate_stationary import AXIS_ORDER, MIN_GAIN, MIN_SPAN, axis_cost, growth_ratios
+from .error_growth import AXES, GROWTH_SPANS
 from .run_consistency import runs_of
 
 SHARES = (0.1, 0.25, 0.5, 1.0)  # a: the share of an axis's independent registration covariance carried correlated
@@ -31,10 +31,7 @@ SHARES = (0.1, 0.25, 0.5, 1.0)  # a: the share of an axis's independent registra
 def growth_at(runs: list, shares: np.ndarray, spans) -> np.ndarray:
     """(S, 6) E[e^2 / sigma^2] per span of `spans` and axis over the runs' relative poses, their recursion composed
     with the per-axis shares `shares` (6,) (NaN where no run reaches a span)."""
-    g = pooled_growth([error_growth(dict(s, registration_axis_correlation=np.asarray(shares, dtype=float)), t, spans)
-                       for s, t in runs])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return g["z2"][:len(spans)] / g["count"][:len(spans), None]
+    return growth_ratios(runs, spans, registration_axis_correlation=np.asarray(shares, dtype=float))
 
 
 def fit_axis_correlation(states, truth, axes=AXIS_ORDER, shares=SHARES) -> tuple[np.ndarray, dict]:
@@ -44,15 +41,17 @@ def fit_axis_correlation(states, truth, axes=AXIS_ORDER, shares=SHARES) -> tuple
     runs = runs_of(states, truth)
     spans = tuple(L for L in GROWTH_SPANS if L >= MIN_SPAN)
     chosen, report = np.zeros(6), {}
+    current = growth_at(runs, chosen, spans)  # the growth at the shares chosen so far, every axis
     for axis in axes:
-        costs = {}
-        for a in (0.0, *shares):
+        costs, growths = {0.0: axis_cost(current[:, axis])}, {0.0: current}
+        for a in shares:
             trial = chosen.copy()
             trial[axis] = a
-            costs[a] = axis_cost(growth_at(runs, trial, spans)[:, axis])
+            growths[a] = growth_at(runs, trial, spans)
+            costs[a] = axis_cost(growths[a][:, axis])
         best = min(costs, key=costs.get)
         if costs[0.0] - costs[best] < MIN_GAIN:
             best = 0.0
-        chosen[axis] = best
+        chosen[axis], current = best, growths[best]
         report[AXES[axis]] = {"share": best, "cost": costs[best], "cost_without": costs[0.0]}
     return chosen, {"fitted": True, "shares": chosen.tolist(), "axes": report}

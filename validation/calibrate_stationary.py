@@ -65,8 +65,14 @@ def stationary_of(choice: dict, one_scan: np.ndarray, dt: float) -> np.ndarray:
 def axis_growth(runs: list, stationary: np.ndarray, spans) -> np.ndarray:
     """(S, 6) E[e^2 / sigma^2] per span of `spans` and axis over the runs' relative poses, the stationary error
     [V; T] in place of theirs (NaN where no run reaches a span)."""
-    return _ratios(pooled_growth([error_growth(dict(s, stationary_error=stationary), t, spans) for s, t in runs]),
-                   len(spans))
+    return growth_ratios(runs, spans, stationary_error=stationary)
+
+
+def growth_ratios(runs: list, spans, **arrays) -> np.ndarray:
+    """(S, 6) E[e^2 / sigma^2] per span of `spans` and axis over the runs' relative poses ([(states, truth), ...]),
+    the states' `arrays` (e.g. stationary_error, registration_axis_correlation) in place of theirs (NaN where no
+    run reaches a span): what the per-axis fits compare."""
+    return _ratios(pooled_growth([error_growth(dict(s, **arrays), t, spans) for s, t in runs]), len(spans))
 
 
 def _ratios(g: dict, S: int) -> np.ndarray:

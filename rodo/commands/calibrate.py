@@ -24,6 +24,27 @@ from .calibrate_report import header, markdown
 from .run import load_config
 
 
+# the uncertainty section's terms a flag asks for, learned with truth (refused with --no-truth or --no-consistency):
+# (flag, with a --no- form (default None: the term's own default), help after "with truth: ")
+UNCERTAINTY_FLAGS = (
+    ("--velocity-axes", True, "learn the velocity variance per axis too (uncertainty.velocity_axis_inflation; "
+     "docs/calibration.md): on by default with truth; --no-velocity-axes leaves them at 1"),
+    ("--velocity-lag", True, "learn the velocity's lag behind a manoeuvre (uncertainty.velocity_lag_*; "
+     "docs/calibration.md): by default with truth for the constant-velocity models; --no-velocity-lag leaves it at "
+     "0, --velocity-lag learns it for every model"),
+    ("--heading-reversion", False, "learn the yaw error's reversion too (uncertainty.heading_reversion_time and "
+     "heading_anchor_time; docs/calibration.md)"),
+    ("--attitude-jitter", True, "learn the roll and pitch jitter's variance (uncertainty.attitude_jitter_variance, "
+     "at the config's attitude_jitter_time; docs/calibration.md): on by default with truth; --no-attitude-jitter "
+     "keeps the config's"),
+    ("--stationary-error", False, "learn a bounded pose error per axis last (uncertainty.stationary_variance and "
+     "stationary_time, from the error's growth over 0.5-20 s; docs/calibration.md)"),
+    ("--axis-correlation", True, "learn the registration's correlation per axis (uncertainty."
+     "registration_axis_correlation, from the error's growth over 0.5-20 s; docs/calibration.md): on by default "
+     "with truth; --no-axis-correlation keeps the config's"),
+)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibrate", help="learn Qc (and R) from a sequence; write a config for rodo run --config",
                        description="With truth.npz (simulated sequences): maximum-likelihood Qc of both motion "
@@ -43,27 +64,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "consecutive scans (assumes persistent scatterers; docs/calibration.md)")
     p.add_argument("--no-consistency", action="store_true",
                    help="with truth: skip the uncertainty section (kappa, drift rate, tau; a few estimator runs)")
-    p.add_argument("--velocity-axes", action=argparse.BooleanOptionalAction, default=None,
-                   help="with truth: learn the velocity variance per axis too (uncertainty.velocity_axis_inflation; "
-                        "docs/calibration.md): on by default with truth; --no-velocity-axes leaves them at 1")
-    p.add_argument("--velocity-lag", action=argparse.BooleanOptionalAction, default=None,
-                   help="with truth: learn the velocity's lag behind a manoeuvre (uncertainty.velocity_lag_*; "
-                        "docs/calibration.md): by default with truth for the constant-velocity models; "
-                        "--no-velocity-lag leaves it at 0, --velocity-lag learns it for every model")
-    p.add_argument("--heading-reversion", action="store_true",
-                   help="with truth: learn the yaw error's reversion too (uncertainty.heading_reversion_time and "
-                        "heading_anchor_time; docs/calibration.md)")
-    p.add_argument("--attitude-jitter", action=argparse.BooleanOptionalAction, default=None,
-                   help="with truth: learn the roll and pitch jitter's variance (uncertainty.attitude_jitter_variance, "
-                        "at the config's attitude_jitter_time; docs/calibration.md): on by default with truth; "
-                        "--no-attitude-jitter keeps the config's")
-    p.add_argument("--stationary-error", action="store_true",
-                   help="with truth: learn a bounded pose error per axis last (uncertainty.stationary_variance and "
-                        "stationary_time, from the error's growth over 0.5-20 s; docs/calibration.md)")
-    p.add_argument("--axis-correlation", action=argparse.BooleanOptionalAction, default=None,
-                   help="with truth: learn the registration's correlation per axis (uncertainty."
-                        "registration_axis_correlation, from the error's growth over 0.5-20 s; docs/calibration.md): "
-                        "on by default with truth; --no-axis-correlation keeps the config's")
+    for flag, optional, text in UNCERTAINTY_FLAGS:
+        p.add_argument(flag, action=argparse.BooleanOptionalAction if optional else "store_true",
+                       default=None if optional else False, help="with truth: " + text)
     p.add_argument("--vehicle-rates", action="store_true",
                    help="with truth: learn the road-vehicle terms on the roll and pitch rates (vehicle.sigma_roll_rate "
                         "and sigma_pitch_rate, sqrt(window) x the true rates' RMS while moving; docs/calibration.md; "
@@ -96,10 +99,8 @@ def _check_args(args) -> Path:
     if args.sensor_noise and not args.no_truth:
         raise InputError("--sensor-noise: learns the measurement noise without ground truth (with --no-truth); "
                          "with truth.npz it is learned from the truth anyway")
-    for flag, given in (("--velocity-axes", args.velocity_axes), ("--velocity-lag", args.velocity_lag),
-                        ("--heading-reversion", args.heading_reversion),
-                        ("--attitude-jitter", args.attitude_jitter), ("--stationary-error", args.stationary_error),
-                        ("--axis-correlation", args.axis_correlation)):
+    for flag, *_ in UNCERTAINTY_FLAGS:
+        given = getattr(args, flag[2:].replace("-", "_"))
         for other, off in (("--no-truth", args.no_truth), ("--no-consistency", args.no_consistency)):
             if given and off:
                 raise InputError(f"{flag}: learned in the uncertainty section with ground truth, which {other} "
