@@ -266,7 +266,8 @@ def recursion_inputs(P_relative, P_varpi, dt, correlation=0.0, share: float = 1.
     B P_relative B and A P_relative A / dt^2, A = diag(sqrt(alpha)), B = diag(sqrt(1 - alpha)) (the registration's
     error the sum of a correlated and an independent part, per axis; the same as the scalar's where all are equal).
 
-    Checked by: tests/estimator/test_uncertainty.py::test_a_correlated_registration_keeps_one_scan_and_grows_a_span,
+    Checked by:
+        tests/estimator/test_recursion_inputs.py::test_a_correlated_registration_keeps_one_scan_and_grows_a_span,
         ::test_the_velocity_error_share_grows_with_the_speed,
         ::test_a_registration_correlation_per_axis_grows_its_axis_alone
     """

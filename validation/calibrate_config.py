@@ -13,7 +13,7 @@
 - `config_toml(config, header)`: the complete config as TOML that `OdometryConfig.from_toml` reads back.
 
 Checked by: tests/validation/test_calibrate.py::test_config_toml_round_trips,
-    tests/cli/test_calibrate_cli.py
+    tests/cli/test_calibrate_cli.py, tests/cli/test_calibrate_no_truth_cli.py
 """
 
 from __future__ import annotations

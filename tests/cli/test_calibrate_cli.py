@@ -1,5 +1,6 @@
-"""`rodo calibrate`: the config it writes is accepted by `rodo run --config` and round-trips through
-OdometryConfig.from_toml; the reports beside it; bad input exits 2 naming the file, option or field."""
+"""`rodo calibrate` with ground truth: the config it writes is accepted by `rodo run --config` and round-trips
+through OdometryConfig.from_toml; the reports beside it; bad input exits 2 naming the file, option or field. Without
+ground truth (EM): tests/cli/test_calibrate_no_truth_cli.py."""
 
 import json
 import shutil
@@ -16,11 +17,8 @@ from tests.cli.helpers import fails
 
 
 @pytest.fixture(scope="module")
-def seq(tmp_path_factory):
-    """A 2 s city sequence (27 scans) with truth.npz."""
-    d = tmp_path_factory.mktemp("cal") / "city"
-    scenarios.simulate_to("city", 2, d, duration=2.0)
-    return d
+def seq(calibration_seq):
+    return calibration_seq
 
 
 @pytest.mark.slow
@@ -282,86 +280,6 @@ def test_calibrate_pools_several_sequences(seq, tmp_path, capsys):
     assert report["qc_ca"]["intervals"] == sum(len(k.t) - 1 for k in tracks)
     assert f"{seq} {second}" in out.read_text().splitlines()[0]
     assert "consistency" in report and OdometryConfig.from_toml(out).model == "ca-polar"
-
-
-@pytest.mark.slow
-def test_calibrate_without_truth_runs_em(seq, tmp_path, capsys):
-    base = tmp_path / "base.toml"
-    base.write_text("window = 3\n[noise]\nqc_ca = [1.0, 0.1, 0.1, 0.001, 0.001, 0.01]\n")
-    out = tmp_path / "em.toml"
-    assert main(["calibrate", str(seq), "--no-truth", "--config", str(base), "--iterations", "2",
-                 "--duration", "1.0", "--learn", "x,y,z,yaw", "--out", str(out)]) == 0
-    assert "EM iteration" in capsys.readouterr().out
-    config = OdometryConfig.from_toml(out)
-    report = json.loads(out.with_suffix(".json").read_text())
-    its = report["iterations"]
-    assert 1 <= len(its) <= 2 and its[0]["qc_in"] == [1.0, 0.1, 0.1, 0.001, 0.001, 0.01]
-    assert config.window == 3 and config.noise.qc_ca == tuple(its[-1]["qc_out"])
-    assert config.noise.qc_cv == OdometryConfig().noise.qc_cv  # the other prior is left alone
-    assert config.noise.qc_ca[3:5] == (0.001, 0.001) and report["learned_components"] == ["x", "y", "z", "yaw"]
-    assert "(x, y, z, yaw)" in out.read_text().splitlines()[1]
-    assert np.all(np.isfinite(its[-1]["qc_out"])) and its[-1]["intervals"] >= 10
-    assert report["velocity_growth"].startswith("not checked: velocity growth: the track spans")  # 1 s of drive
-    assert report["velocity_growth"] in out.with_suffix(".md").read_text()
-    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
-
-
-@pytest.mark.slow
-def test_calibrate_without_truth_draws_ems_check(tmp_path, capsys):
-    """On a drive long enough for the check (8 s): the .json rows carry what the figure draws, the .md its table,
-    and CONFIG_growth.png is written beside the config and named in the output."""
-    d = tmp_path / "drive"
-    scenarios.simulate_to("prior_ca_points", 3, d, duration=8.0)
-    out = tmp_path / "em.toml"
-    assert main(["calibrate", str(d), "--no-truth", "--iterations", "1", "--out", str(out)]) == 0
-    rows = json.loads(out.with_suffix(".json").read_text())["velocity_growth"]
-    assert [r["component"] for r in rows] == ["x", "y", "z", "roll", "pitch", "yaw"]
-    assert all(len(r["D"]) == len(r["lags"]) >= 3 and r["c"] >= 0 for r in rows if r["growth"] is not None)
-    assert "| component | EM | from the velocity's growth | interval | EM outside |" in out.with_suffix(".md").read_text()
-    png = tmp_path / "em_growth.png"
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and str(png) in capsys.readouterr().out
-
-
-def test_the_em_report_names_the_components_outside_the_velocitys_growth():
-    """The config's header says CHECK for the learned components outside their interval (not for one left at the
-    base config's), and the markdown table marks them."""
-    from rodo.commands.calibrate_report import header as _header, markdown as _markdown
-
-    rows = [{"component": c, "em": 1.0, "growth": g, "interval": None if g is None else [0.5, 2.0],
-             "outside": None if g is None else not 0.5 <= 1.0 / g <= 2.0}
-            for c, g in zip(("x", "y", "z", "roll", "pitch", "yaw"), (1.0, 0.1, None, 0.1, 0.1, 1.2))]
-    for r in rows:
-        if r["growth"] is not None:
-            r["interval"] = [0.5 * r["growth"], 2.0 * r["growth"]]
-    report = {"mode": "EM without ground truth", "field": "qc_ca", "learned_components": ["x", "y", "z", "yaw",
-                                                                                           "pitch"],
-              "converged": True, "tolerance": 0.05, "velocity_growth": rows,
-              "iterations": [{"qc_in": [1.0] * 6, "qc_out": [1.0] * 6, "change": 0.01, "remaining": 0.01,
-                              "loglik": 1.0, "intervals": 10}]}
-    check = [line for line in _header(report, "SEQ", "ca-polar") if line.startswith("CHECK")]
-    assert len(check) == 1 and "EM's y, pitch lie outside" in check[0]  # roll is outside but not learned
-    md = _markdown(report)
-    assert "| y | 1 | 0.1 | 0.05 - 0.2 | **yes** |" in md and "| x | 1 | 1 | 0.5 - 2 | no |" in md
-    assert "| z | 1 | - (no motion) | - | - |" in md and "for y, pitch:" in md
-    assert "| roll | 1 (not learned) | 0.1 | 0.05 - 0.2 | - |" in md  # the base config's value: no verdict
-
-
-@pytest.mark.slow
-def test_calibrate_without_truth_learns_the_sensor_noise_when_asked(seq, tmp_path, capsys):
-    """--no-truth --sensor-noise: the config carries the learned per-channel factors and Cartesian sigma, the
-    header and the markdown report say so; `rodo run` accepts it. Without --no-truth the flag is refused."""
-    out = tmp_path / "em_r.toml"
-    assert main(["calibrate", str(seq), "--no-truth", "--sensor-noise", "--iterations", "1", "--out", str(out)]) == 0
-    config = OdometryConfig.from_toml(out)
-    m = json.loads(out.with_suffix(".json").read_text())["measurement"]
-    assert list(config.noise.sensor_sigma_scales) == m["sensor_sigma_scales"]
-    assert config.noise.cartesian_sigma == m["cartesian_sigma"] and config.noise.sensor_sigma_scale == 1.0
-    assert m["learned"] == [True] * 4 and m["pairs"] > 0
-    assert "learned first from the static detections" in out.read_text()
-    assert "## Measurement noise without ground truth" in out.with_suffix(".md").read_text()
-    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
-    fails(capsys, ["calibrate", str(seq), "--sensor-noise", "--out", tmp_path / "x.toml"], "--sensor-noise",
-          "--no-truth")
 
 
 def test_calibrate_bad_input(seq, tmp_path, capsys):
