@@ -13,7 +13,11 @@ the distance, as the covariance does),
                       jitter's excess), and over the absolute poses of the drive (`pose`'s);
 
 1 where the covariance's variance is right on that axis at that horizon, below 1 cautious, above over-confident.
-The per-axis view leaves out the correlations between axes, which the 6-dof NEES counts. A span of n scans
+Beside the spans, the same per-axis view of the velocity and the acceleration at the scan (their error against the
+window's reported covariance, as the `velocity` and `acceleration` measures take them: vx vy vz, then the roll, pitch
+and yaw rates, and their derivatives): which of the 6-dof velocity NEES's components is off (docs/consistency.md,
+"The vehicle's rate terms learned": the pitch rate at a road's bumps). The per-axis view leaves out the
+correlations between axes, which the 6-dof NEES counts. A span of n scans
 starts every max(1, n // STARTS_PER_SPAN) scans (overlapping spans repeat each other's errors; the long spans'
 covariances are the costliest part). The result holds sums, so runs pool by adding (`pooled_growth`): a
 campaign's table weighs every span of every run alike.
@@ -37,6 +41,7 @@ GROWTH_SPANS = (0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0)  # s; 0: one scan
 STARTS_PER_SPAN = 8
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 SUMS = ("count", "z2", "e2", "var")
+RATE_ROWS = ("velocity", "acceleration")  # the rows after the drive's, their sums under "vel_<sum>"
 
 
 def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float = DEFAULT_TOLERANCE) -> dict:
@@ -44,8 +49,9 @@ def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float
     the run is too short for it), and for the S spans and then the absolute pose (S + 1 rows): count, the
     relative (or absolute) poses summed; z2 (S + 1, 6), sum e_i^2 / C_ii; e2, sum e_i^2; var, sum C_ii. Rows
     with a non-finite error or variance, or a variance <= 0, are left out; the first scan's absolute pose too
-    (the truth is aligned there). The velocity correlation time, drift rate, heading reversion and jitter are the
-    run's own (states'; DEFAULT_TAU and none when absent). Zero sums without P_relative."""
+    (the truth is aligned there); and the velocity's and the acceleration's ("vel_<sum>", rows RATE_ROWS:
+    `_rate_sums`). The velocity correlation time, drift rate, heading reversion and jitter are the run's own
+    (states'; DEFAULT_TAU and none when absent). Zero span sums without P_relative."""
     m = growth_run(states, truth, spans, tolerance)
     out = empty_growth(spans)
     for row, n, _, e, C in span_rows(m, spans, states.get("attitude_jitter")):
@@ -54,7 +60,20 @@ def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float
     if "P_pose_absolute" in m["sub"]:
         xi = se3.log(m["T_true"] @ se3.inverse(m["T_est"]))
         add_sums(out, len(spans), xi[1:], np.einsum("kii->ki", np.asarray(m["sub"]["P_pose_absolute"], float)[1:]))
-    return out
+    return {**out, **_rate_sums(m, truth)}
+
+
+def _rate_sums(m: dict, truth: dict) -> dict:
+    """The sums ("vel_<sum>", rows RATE_ROWS) of the velocity's and the acceleration's errors against the reported
+    covariance's diagonal at every matched scan (the acceleration's zero for a CV run)."""
+    out = {k: np.zeros((2, 6)) for k in SUMS[1:]}
+    out["count"] = np.zeros(2)
+    P, sub, ib = m["P"], m["sub"], m["ib"]
+    add_sums(out, 0, np.asarray(truth["varpi"], float)[ib] - sub["varpi"], np.einsum("kii->ki", P[:, 6:12, 6:12]))
+    if P.shape[-1] == 18 and "varpi_dot" in truth and "varpi_dot" in sub:
+        add_sums(out, 1, np.asarray(truth["varpi_dot"], float)[ib] - sub["varpi_dot"],
+                 np.einsum("kii->ki", P[:, 12:18, 12:18]))
+    return {f"vel_{k}": v for k, v in out.items()}
 
 
 def growth_run(states: dict, truth: dict, spans, tolerance: float = DEFAULT_TOLERANCE) -> dict:
@@ -112,20 +131,26 @@ def pooled_growth(growths: list[dict]) -> dict | None:
     scans = np.zeros(len(span), int)
     for g in reversed(growths):
         scans = np.where(np.asarray(g["scans"]) > 0, g["scans"], scans)
-    return {"span": span, "scans": scans, **{k: sum(np.asarray(g[k], dtype=float) for g in growths) for k in SUMS}}
+    keys = [*SUMS, *(f"vel_{k}" for k in SUMS if all(f"vel_{k}" in g for g in growths))]  # runs before session 51
+    return {"span": span, "scans": scans, **{k: sum(np.asarray(g[k], dtype=float) for g in growths) for k in keys}}
 
 
 def growth_table(g: dict) -> list[dict]:
-    """Per row (the spans, then "drive" for the absolute pose) of summed `error_growth`: label, scans (None for
-    the drive), count, and per axis the mean z^2 (`ratio`), the RMS error and the RMS sigma (lists of 6; None
-    where nothing was counted)."""
+    """Per row (the spans, then "drive" for the absolute pose, then RATE_ROWS where the sums have them) of summed
+    `error_growth`: label, scans (None but for the spans), count, and per axis the mean z^2 (`ratio`), the RMS error
+    and the RMS sigma (lists of 6; None where nothing was counted)."""
     labels = ["1 scan" if s == 0 else f"{s:g} s" for s in g["span"]] + ["drive"]
+    sums = [(i, "") for i in range(len(labels))]
+    if "vel_count" in g:
+        labels += list(RATE_ROWS)
+        sums += [(0, "vel_"), (1, "vel_")]
     rows = []
-    for i, label in enumerate(labels):
-        c = float(g["count"][i])
-        mean = {k: np.asarray(g[k][i], dtype=float) / c if c else None for k in SUMS[1:]}
-        rows.append({"label": label, "scans": int(g["scans"][i]) if i < len(g["span"]) else None, "count": int(c),
-                     "ratio": _listed(mean["z2"]), "rms_error": _listed(mean["e2"], np.sqrt),
+    for label, (i, prefix) in zip(labels, sums):
+        c = float(g[prefix + "count"][i])
+        mean = {k: np.asarray(g[prefix + k][i], dtype=float) / c if c else None for k in SUMS[1:]}
+        scans = int(g["scans"][i]) if not prefix and i < len(g["span"]) else None
+        rows.append({"label": label, "scans": scans, "count": int(c), "ratio": _listed(mean["z2"]),
+                     "rms_error": _listed(mean["e2"], np.sqrt),
                      "rms_sigma": _listed(mean["var"], np.sqrt)})
     return rows
 
@@ -143,7 +168,9 @@ def growth_lines(g: dict | None, fmt) -> list[str]:
     lines = ["", "Error growth per axis (E[e^2 / sigma^2] of the relative pose over each span, and of the absolute "
                  "pose over the drive, pooled over the runs' spans: 1 where the covariance's variance is right on "
                  "that axis at that horizon, below 1 cautious, above over-confident; docs/consistency.md, \"How the "
-                 "error grows, per axis\"):", "",
+                 "error grows, per axis\")" + ("; then of the velocity and the acceleration at the scan (vx vy vz "
+                                                "and the roll, pitch and yaw rates, and their derivatives)"
+                                                if "vel_count" in g else "") + ":", "",
              "| span | scans | spans | " + " | ".join(AXES) + " |", "| --- | ---: | ---: |" + " ---: |" * len(AXES)]
     for r in growth_table(g):
         cells = [fmt(x) for x in r["ratio"]] if r["ratio"] else ["-"] * len(AXES)

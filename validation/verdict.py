@@ -44,7 +44,7 @@ SCENARIOS = ("city", "hills", "stop_and_go", "highway")
 CELLS = ("velocity", "relative_scan")  # judged scan by scan
 SPANS = ("relative_span", "pose")  # judged by their mean
 OUTSIDE = ("scans_below", "scans_above", "scans_above_one_run")  # where a cell's scans miss (campaign_consistency)
-GROWTH_ROWS = ("1 s", "5 s", "drive")  # the error growth's rows a verdict shows per cell (`error_growth`)
+GROWTH_ROWS = ("velocity", "1 s", "5 s", "drive")  # the error growth's rows a verdict shows per cell (`error_growth`)
 SHARE_TARGET = 0.90
 SPAN_LIMIT = 2.0
 LEARNED = ("velocity_correlation_time", "velocity_error_share", "velocity_error_share_per_speed",
@@ -215,9 +215,10 @@ def _growth_lines(rows: list[dict]) -> list[str]:
     session 46)."""
     if not any(m.get("error_growth") for r in rows for m in r["models"].values()):
         return []
-    lines = ["", "## Per axis: E[e^2 / sigma^2] of the relative pose over 1 s and 5 s and of the absolute pose over "
-                 "the drive (x y z roll pitch yaw: 1 right, below 1 cautious, above over-confident; every span in "
-                 "<scenario>/summary.md)", "",
+    lines = ["", "## Per axis: E[e^2 / sigma^2] of the velocity at the scan (vx vy vz, then the roll, pitch and yaw "
+                 "rates), of the relative pose over 1 s and 5 s and of the absolute pose over the drive (x y z roll "
+                 "pitch yaw: 1 right, below 1 cautious, above over-confident; every span in <scenario>/summary.md)",
+             "",
              "| scenario | model | " + " | ".join(GROWTH_ROWS) + " |", "| --- | --- |" + " --- |" * len(GROWTH_ROWS)]
     for r in rows:
         for name, m in r["models"].items():

@@ -117,7 +117,7 @@ def plot_growth(path, table: list[dict], title: str = "How the error grows, per 
     with the consistent value 1: an axis below it is cautious at that horizon, above it over-confident. Rows
     without a count are left out."""
     spans = [r for r in table if r["ratio"] and r["scans"]]
-    drive = next((r for r in table if r["scans"] is None and r["ratio"]), None)
+    drive = next((r for r in table if r["label"] == "drive" and r["ratio"]), None)  # the velocity rows: not plotted
     if not spans and drive is None:
         raise InputError("error growth: no span or drive with a count to plot")
     x = np.array([r["scans"] for r in spans], dtype=float)

@@ -125,7 +125,8 @@ def table(rep: dict) -> str:
                 rows.append((f"  {name}", f"mean {_fmt(m['mean_per_dof'])}, {_fmt(100 * m['within'], '.0f')} % of "
                                           f"scans within ({m['scans']} scans)"))
     if any(r["ratio"] for r in rep.get("error_growth", [])):
-        rows.append(("error growth E[e^2/sigma^2]", "per axis x y z roll pitch yaw (1: right, < 1 cautious)"))
+        rows.append(("error growth E[e^2/sigma^2]", "per axis x y z roll pitch yaw (1: right, < 1 cautious; "
+                                                    "velocity, acceleration: vx vy vz and the rates)"))
         rows += [(f"  {r['label']}", " ".join(_fmt(x, ".2f") for x in r["ratio"]) + f" ({r['count']})")
                  for r in rep["error_growth"] if r["ratio"]]
     if "nis" in rep:

@@ -63,7 +63,8 @@ def test_run_prints_the_numbers_of_rodo_evaluate(highway_run, capsys):
 
 def test_evaluate_prints_the_runs_error_growth_per_axis(highway_run, capsys):
     """With the run's states and the truth, `rodo evaluate` tables E[e^2 / sigma^2] per axis over each span that
-    fits the 8 s drive and over the drive: the report's rows (`error_growth.growth_table`), rounded, printed."""
+    fits the 8 s drive, over the drive and of the velocity: the report's rows (`error_growth.growth_table`), rounded,
+    printed."""
     seq, out, _ = highway_run
     report = out.parent / f"{out.name}_growth.json"
     assert main(["evaluate", "--gt", str(seq / "groundtruth.txt"), "--est", str(out / "estimate.txt"), "--states",
@@ -71,13 +72,16 @@ def test_evaluate_prints_the_runs_error_growth_per_axis(highway_run, capsys):
                 commands=[evaluate_cmd]) == 0
     text = capsys.readouterr().out
     rows = json.loads(report.read_text())["error_growth"]
-    assert [r["label"] for r in rows] == ["1 scan", "0.5 s", "1 s", "2 s", "5 s", "10 s", "20 s", "drive"]
+    assert [r["label"] for r in rows] == ["1 scan", "0.5 s", "1 s", "2 s", "5 s", "10 s", "20 s", "drive", "velocity",
+                                          "acceleration"]
     counted = [r for r in rows if r["count"]]
-    assert [r["label"] for r in counted] == ["1 scan", "0.5 s", "1 s", "2 s", "5 s", "drive"]  # 8 s: no 10 s span
+    assert [r["label"] for r in counted] == ["1 scan", "0.5 s", "1 s", "2 s", "5 s", "drive",  # 8 s: no 10 s span
+                                             "velocity"]  # a CV run: no acceleration
     assert "error growth E[e^2/sigma^2]" in text
     for r in counted:
         assert all(x > 0 for x in r["ratio"])
-        line = next(x for x in text.splitlines() if x.split()[:len(r["label"].split())] == r["label"].split())
+        line = next(x for x in text.split("error growth E[e^2/sigma^2]")[1].splitlines()
+                    if x.split()[:len(r["label"].split())] == r["label"].split())
         assert line.split()[len(r["label"].split()):-1] == [f"{x:.2f}" for x in r["ratio"]], line
 
 

@@ -1,5 +1,6 @@
 """validation/error_growth.py: per axis and span, E[e^2 / sigma^2] of runs whose errors follow their covariance
-comes out near 1, and near s^2 on an axis whose errors are s times what it states; the sums pool by adding."""
+comes out near 1, and near s^2 on an axis whose errors are s times what it states, the velocity and the
+acceleration at the scan as the pose's spans; the sums pool by adding."""
 
 import numpy as np
 import pytest
@@ -39,10 +40,10 @@ def test_errors_that_follow_their_covariance_read_one_and_a_scaled_axis_its_squa
     one-scan and 1 s spans of twelve 60 s drives, within 30 % over 5 s: 144 independent spans, a standard error
     of 12 %); each span counted as its starts say, the drive's absolute pose too."""
     table = growth_table(pooled_growth(growths))
-    assert [r["label"] for r in table] == ["1 scan", "1 s", "5 s", "drive"]
-    assert [r["scans"] for r in table] == [1, 10, 50, None]
+    assert [r["label"] for r in table] == ["1 scan", "1 s", "5 s", "drive", "velocity", "acceleration"]
+    assert [r["scans"] for r in table] == [1, 10, 50, None, None, None]
     assert [r["count"] for r in table] == [RUNS * (N - 1), RUNS * (N - 10), RUNS * len(range(0, N - 50, 6)),
-                                           RUNS * (N - 1)]
+                                           RUNS * (N - 1), RUNS * N, 0]  # no acceleration in these runs
     want = np.array([4.0, 1.0, 1.0, 1.0, 1.0, 1.0])
     for r, tol in zip(table[:3], (0.15, 0.15, 0.3)):
         np.testing.assert_allclose(r["ratio"], want, rtol=tol, err_msg=r["label"])
@@ -64,8 +65,40 @@ def test_the_sums_pool_by_adding(growths):
     with pytest.raises(ValueError, match="different spans"):
         pooled_growth([a, dict(b, span=np.array([0.0, 2.0, 5.0]))])
     lines = growth_lines(pooled, lambda v: f"{v:.3g}")
-    assert lines[3] == "| span | scans | spans | " + " | ".join(AXES) + " |" and len(lines) == 5 + len(SPANS) + 1
-    assert lines[-1].startswith("| drive | - |")
+    assert lines[3] == "| span | scans | spans | " + " | ".join(AXES) + " |" and len(lines) == 5 + len(SPANS) + 3
+    assert lines[-3].startswith("| drive | - |")
+    assert lines[-1] == "| acceleration | - | 0 | " + " | ".join("-" * 6) + " |"
+    old = [{k: v for k, v in g.items() if not k.startswith("vel_")} for g in (a, b)]  # runs before session 51
+    assert [r["label"] for r in growth_table(pooled_growth([old[0], b]))][-1] == "drive"
+    assert "velocity" not in growth_lines(pooled_growth(old), str)[1]
+
+
+@pytest.mark.parametrize("kind", ["ca", "cv"])
+def test_the_velocity_and_the_acceleration_per_axis(kind):
+    """Velocity (and, for a CA run, acceleration) errors drawn from the reported covariance's diagonal, the pitch
+    rate's three times it: per axis E[e^2 / P_ii] near 1 and 9 on the pitch rate (within 12 %: 2,400 scans, a
+    standard error of 3 %); its RMS sigma the stated one; a CV run's acceleration row empty."""
+    v = np.array([1e-3, 4e-3, 2e-3, 1e-3, 5e-4, 2e-3]) ** 2
+    scale = np.array([1.0, 1.0, 1.0, 1.0, 3.0, 1.0])
+    dim = 18 if kind == "ca" else 12
+    runs = []
+    for seed in range(4):
+        states, truth = _run(seed)
+        rng = np.random.default_rng(np.random.SeedSequence([2026, 51, seed]))
+        P = np.tile(np.diag(np.r_[np.full(6, 1e-12), v, v][:dim]), (N, 1, 1))
+        truth = {**truth, "varpi": rng.normal(size=(N, 6)), "varpi_dot": rng.normal(size=(N, 6))}
+        states = {**states, "P": P, "varpi": truth["varpi"] - rng.normal(size=(N, 6)) * np.sqrt(v) * scale}
+        if kind == "ca":
+            states["varpi_dot"] = truth["varpi_dot"] - rng.normal(size=(N, 6)) * np.sqrt(v) * scale
+        runs.append(error_growth(states, truth, spans=SPANS))
+    velocity, acceleration = growth_table(pooled_growth(runs))[-2:]
+    assert velocity["label"] == "velocity" and velocity["count"] == 4 * N
+    np.testing.assert_allclose(velocity["ratio"], scale**2, rtol=0.12)
+    np.testing.assert_allclose(velocity["rms_sigma"], np.sqrt(v), rtol=1e-12)
+    if kind == "ca":
+        np.testing.assert_allclose(acceleration["ratio"], scale**2, rtol=0.12)
+    else:
+        assert acceleration["count"] == 0 and acceleration["ratio"] is None
 
 
 def test_a_run_too_short_for_a_span_counts_none():

@@ -118,12 +118,13 @@ def test_a_verdict_reports_its_campaign_at_the_configs_it_learned(verdict_dir):
         growth = {r["label"]: r["ratio"] for r in summary["models"][label]["error_growth"]["table"]}
         assert row["models"][name]["error_growth"] == growth  # the campaign's, per axis
         assert len(growth["1 s"]) == 6 and growth["5 s"] is None  # 3 s drives: no 5 s span
+        assert len(growth["velocity"]) == 6 and (growth["acceleration"] is None) == (label == "cv-learned")
     crit = verdict["criteria"]
     assert len(crit["cells"]) == 4 and crit["cells_met"] == sum(c["share"] >= 0.9 for c in crit["cells"])
     text = (verdict_dir / "verdict.md").read_text()
     assert f"{crit['cells_met']} of 4 cells" in text and "| stop_and_go | CA/P |" in text
-    one_s = " ".join(f"{x:.2f}" for x in row["models"]["CV/C"]["error_growth"]["1 s"])
-    assert "## Per axis" in text and f"| stop_and_go | CV/C | {one_s} | - | " in text
+    vel, one_s = (" ".join(f"{x:.2f}" for x in row["models"]["CV/C"]["error_growth"][k]) for k in ("velocity", "1 s"))
+    assert "## Per axis" in text and f"| stop_and_go | CV/C | {vel} | {one_s} | - | " in text
     for c in crit["cells"]:  # each short cell says where its scans miss
         line = f"{c['scans_below']} below, {c['scans_above']} above ({c['scans_above_one_run']} of them one run's)"
         assert (line in text) == (not c["met"])

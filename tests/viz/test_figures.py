@@ -138,3 +138,29 @@ def test_plot_velocity_growth_draws_the_points_the_fit_and_ems_line(tmp_path, mo
     assert fit.get_ydata()[-1] == pytest.approx(rows[0]["c"] + rows[0]["growth"] * float(growth_kernel("ca", lag)))
     assert em.get_ydata()[-1] == pytest.approx(rows[0]["c"] + rows[0]["em"] * float(growth_kernel("ca", lag)))
     assert x.get_title() == "x: EM outside" and x.get_xscale() == x.get_yscale() == "log"
+
+
+@pytest.mark.parametrize("with_drive", [True, False])
+def test_plot_growth_draws_the_spans_and_the_drive_not_the_velocity(tmp_path, monkeypatch, with_drive):
+    """The error growth's figure: one line per axis over the spans with a count, the drive's absolute pose as a
+    marker at the right where it has one; the velocity and acceleration rows (scans None, as the drive's) are not
+    taken for the drive."""
+    from rodo.validation.error_growth import empty_growth, growth_table
+
+    g = empty_growth((0.0, 1.0))
+    g["scans"][:] = (1, 10)
+    rows = [0, 1, 2] if with_drive else [0, 1]
+    g["count"][rows] = 10.0
+    g["z2"][rows] = 10.0 * np.arange(1, len(rows) + 1)[:, None]
+    g["e2"][rows] = g["var"][rows] = 1.0
+    g.update({"vel_count": np.array([10.0, 0.0]), "vel_z2": np.full((2, 6), 70.0), "vel_e2": np.ones((2, 6)),
+              "vel_var": np.ones((2, 6))})
+    drawn = []
+    save = figures.save_png
+    monkeypatch.setattr(figures, "save_png", lambda fig, path: (drawn.append(fig), save(fig, path))[1])
+    assert_png(figures.plot_growth(tmp_path / "g.png", growth_table(g)), min_bytes=5_000)
+    ax = drawn[-1].axes[0]
+    markers = [line for line in ax.lines if line.get_marker() == "s"]
+    assert len(markers) == (6 if with_drive else 0)
+    assert all(line.get_ydata()[0] == 3.0 for line in markers)  # the drive's ratio, not the velocity's 7
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["1 scan", "1 s"] + (["drive"] if with_drive else [])
