@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from rodo.estimator.ego_velocity import doppler_inliers, estimate_ego_velocity, least_squares_velocity
@@ -194,10 +194,12 @@ def _reference_ransac(U, b, draws, threshold, ref, radius, sigma_vr2):
 @pytest.mark.parametrize("dof", [2, 3])
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 80), near=st.booleans(),
        outliers=st.floats(0.0, 0.45))
+@example(seed=365, n=3, near=False, outliers=0.0)  # condition number 1e11 (a clean clone's CI, session 51)
 def test_compiled_ransac_equals_the_numpy_reference(dof, seed, n, near, outliers):
     """The compiled RANSAC (`doppler_kernels.ransac`: Cramer's rule, normal equations) picks the hypothesis,
     the inliers and the fit the NumPy reference does (LAPACK), to rounding: a static world with a moving
-    group, noise, per-detection thresholds, free or gated near a prediction, planar or 3-D, empty scans."""
+    group, noise, per-detection thresholds, free or gated near a prediction, planar or 3-D, empty scans.
+    Ill-conditioned fits (a few detections in nearly one plane) agree to their condition number times eps."""
     from rodo.estimator.doppler_kernels import ransac
 
     rng = _rng(seed)
@@ -218,8 +220,11 @@ def test_compiled_ransac_equals_the_numpy_reference(dof, seed, n, near, outliers
     assert ok == (want is not None)
     if ok:
         np.testing.assert_array_equal(got_inl, want[2])
-        np.testing.assert_allclose(got_v, want[0], rtol=1e-9, atol=1e-9)
-        np.testing.assert_allclose(got_cov, want[1], rtol=1e-7, atol=1e-15)
+        # rounding grows with the fit's condition number (accepted up to 1e12: three nearly coplanar directions,
+        # seed 365, n 3, read 1e11 and agree to 1.6e-6)
+        rounding = 10 * np.finfo(float).eps * np.linalg.cond(U[want[2]].T @ U[want[2]])
+        np.testing.assert_allclose(got_v, want[0], rtol=1e-9 + rounding, atol=1e-9)
+        np.testing.assert_allclose(got_cov, want[1], rtol=1e-7 + rounding, atol=1e-15)
 
 
 def test_least_squares_velocity():
