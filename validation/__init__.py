@@ -21,7 +21,7 @@ Modules:
 - `odometry_consistency`: `odometry_nees`, `summarise` (NEES of velocity, acceleration, relative pose over a
   scan and a span, absolute pose: docs/consistency.md); `run_consistency` (the same for a run in memory, the
   ellipsoid coverage); `campaign_consistency` (over N runs); `error_growth` (per axis, over spans from one scan
-  to 20 s and the drive);
+  to 20 s and the drive, and of the velocity and acceleration at the scan);
 - `calibrate`, `calibrate_sensor`, `calibrate_config`: noise learned from data (`rodo calibrate`,
   docs/calibration.md), `calibrate_sensor_em` the measurement noise without ground truth, `velocity_growth` EM's
   check (the CA prior's jerk PSD from the estimated velocity's growth over seconds); `calibrate_consistency`:
