@@ -355,8 +355,8 @@ def _axis_fit(states, truth, tau: float, drift_rate_sigma, heading, kept) -> tup
     this tau, drift rate and heading reversion (`fit_axis_correlation`), or `kept` (the config's) where given."""
     shares, report = (fit_axis_correlation(_each(replayed, states, tau, drift_rate_sigma, heading), truth)
                       if kept is None else (np.asarray(kept, dtype=float), {"fitted": False}))
-    return _each(lambda s: dict(s, registration_axis_correlation=np.asarray(shares, dtype=float)), states), shares, \
-        report
+    states = _each(lambda s: dict(s, registration_axis_correlation=np.asarray(shares, dtype=float)), states)
+    return states, shares, report
 
 
 def _stationary_fit(states, truth, tau: float, drift_rate_sigma, heading, jitter) -> tuple:

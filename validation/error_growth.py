@@ -66,8 +66,7 @@ def error_growth(states: dict, truth: dict, spans=GROWTH_SPANS, tolerance: float
 def _rate_sums(m: dict, truth: dict) -> dict:
     """The sums ("vel_<sum>", rows RATE_ROWS) of the velocity's and the acceleration's errors against the reported
     covariance's diagonal at every matched scan (the acceleration's zero for a CV run)."""
-    out = {k: np.zeros((2, 6)) for k in SUMS[1:]}
-    out["count"] = np.zeros(2)
+    out = _zero_sums(len(RATE_ROWS))
     P, sub, ib = m["P"], m["sub"], m["ib"]
     add_sums(out, 0, np.asarray(truth["varpi"], float)[ib] - sub["varpi"], np.einsum("kii->ki", P[:, 6:12, 6:12]))
     if P.shape[-1] == 18 and "varpi_dot" in truth and "varpi_dot" in sub:
@@ -89,9 +88,12 @@ def growth_run(states: dict, truth: dict, spans, tolerance: float = DEFAULT_TOLE
 
 def empty_growth(spans) -> dict:
     """`error_growth`'s result with zero sums, for `spans`."""
-    S = len(spans)
-    return {"span": np.asarray(spans, dtype=float), "scans": np.zeros(S, int), "count": np.zeros(S + 1),
-            **{k: np.zeros((S + 1, 6)) for k in SUMS[1:]}}
+    return {"span": np.asarray(spans, dtype=float), "scans": np.zeros(len(spans), int), **_zero_sums(len(spans) + 1)}
+
+
+def _zero_sums(rows: int) -> dict:
+    """SUMS for `rows` rows, zeros: count (rows,), the others (rows, 6)."""
+    return {"count": np.zeros(rows), **{k: np.zeros((rows, 6)) for k in SUMS[1:]}}
 
 
 def span_rows(m: dict, spans, jitter):

@@ -14,7 +14,7 @@ def seq(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def calibration_seq(tmp_path_factory):
+def cal_seq(tmp_path_factory):
     """A 2 s city sequence (27 scans) with truth.npz, for `rodo calibrate` (with and without the truth)."""
     d = tmp_path_factory.mktemp("cal") / "city"
     scenarios.simulate_to("city", 2, d, duration=2.0)

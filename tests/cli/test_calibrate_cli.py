@@ -16,15 +16,10 @@ from rodo.validation.error_growth import AXES, error_growth, growth_table
 from tests.cli.helpers import fails
 
 
-@pytest.fixture(scope="module")
-def seq(calibration_seq):
-    return calibration_seq
-
-
 @pytest.mark.slow
-def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, capsys):
+def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(cal_seq, tmp_path, capsys):
     out = tmp_path / "learned.toml"
-    assert main(["calibrate", str(seq), "--model", "cv-polar", "--out", str(out)]) == 0
+    assert main(["calibrate", str(cal_seq), "--model", "cv-polar", "--out", str(out)]) == 0
     text = out.read_text()
     assert text.startswith("# rodo calibrate") and "ground truth" in text.splitlines()[0]
     config = OdometryConfig.from_toml(out)
@@ -41,7 +36,7 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
     assert any(velocity["lag_per_yaw_acceleration"])  # least squares: never exactly 0 on a real drive
     assert "lag behind a manoeuvre" in out.with_suffix(".md").read_text()
     capsys.readouterr()
-    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    assert main(["run", str(cal_seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
     assert np.abs(np.load(tmp_path / "run" / "states.npz")["velocity_lag"]).max() > 0
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["model"] == "cv-polar" and summary["config"] == config.to_dict()
@@ -53,13 +48,13 @@ def test_calibrate_with_truth_writes_a_config_rodo_run_accepts(seq, tmp_path, ca
 
 
 @pytest.mark.slow
-def test_calibrate_learns_the_velocity_per_axis_by_default(seq, tmp_path, capsys):
+def test_calibrate_learns_the_velocity_per_axis_by_default(cal_seq, tmp_path, capsys):
     """With truth the config carries the fitted per-axis velocity factors (product 1; --velocity-axes is the
     default; the velocity's lag is not learned for this constant-acceleration model by default), the report and
     its markdown name them, and `rodo run` accepts the config. --no-velocity-axes and --no-velocity-lag (below,
     with --no-attitude-jitter, for a constant-velocity model) leave them at 1 and 0."""
     out = tmp_path / "axes.toml"
-    assert main(["calibrate", str(seq), "--out", str(out)]) == 0
+    assert main(["calibrate", str(cal_seq), "--out", str(out)]) == 0
     g = OdometryConfig.from_toml(out).uncertainty.velocity_axis_inflation
     report = json.loads(out.with_suffix(".json").read_text())
     assert list(g) == report["consistency"]["velocity_inflation"]["per_axis"]
@@ -68,11 +63,11 @@ def test_calibrate_learns_the_velocity_per_axis_by_default(seq, tmp_path, capsys
     unc = OdometryConfig.from_toml(out).uncertainty  # not learned for the constant-acceleration prior by default
     assert unc.velocity_lag_per_acceleration == unc.velocity_lag_per_yaw_acceleration == (0.0,) * 6
     assert "lag behind a manoeuvre" not in out.with_suffix(".md").read_text()
-    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    assert main(["run", str(cal_seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
 
 
 @pytest.mark.slow
-def test_calibrate_learns_the_heading_reversion_when_asked(seq, tmp_path, capsys):
+def test_calibrate_learns_the_heading_reversion_when_asked(cal_seq, tmp_path, capsys):
     """--heading-reversion on a 12 s drive: the report holds the grid's points with T_r up to a tenth of the
     drive (off and 1 s), each with the yaw's error growth and its cost, the config the point of least cost (at the
     tau before it) and tau chosen again with it,
@@ -106,7 +101,7 @@ def test_calibrate_learns_the_heading_reversion_when_asked(seq, tmp_path, capsys
         assert a["ratio"] == b["ratio"] or a["ratio"] == pytest.approx(b["ratio"], rel=1e-9)
     assert "Error growth per axis" in out.with_suffix(".md").read_text()
 
-    assert main(["calibrate", str(seq), "--heading-reversion", "--out", str(tmp_path / "short.toml")]) == 0
+    assert main(["calibrate", str(cal_seq), "--heading-reversion", "--out", str(tmp_path / "short.toml")]) == 0
     h = json.loads((tmp_path / "short.json").read_text())["consistency"]["heading_reversion"]
     assert set(h["grid"]) == {"0/0"} and h["time"] == 0.0
 
@@ -198,13 +193,13 @@ def test_the_header_names_the_per_axis_shares_taken():
 
 
 @pytest.mark.slow
-def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, capsys):
+def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(cal_seq, tmp_path, capsys):
     """By default (and with --attitude-jitter) the report holds the fit (the 1 s span's mean NEES/dof without
     and with the jitter; V positive only where it was over 1, and then bringing it to 1), the config its V at the
     base config's T, the markdown and the header name it, and `rodo run` reports it in its states;
     --no-attitude-jitter keeps the base config's (here V 3e-6 rad^2 at T 0.5 s) and fits nothing."""
     out = tmp_path / "jitter.toml"
-    assert main(["calibrate", str(seq), "--attitude-jitter", "--out", str(out)]) == 0
+    assert main(["calibrate", str(cal_seq), "--attitude-jitter", "--out", str(out)]) == 0
     unc = OdometryConfig.from_toml(out).uncertainty
     j = json.loads(out.with_suffix(".json").read_text())["consistency"]["attitude_jitter"]
     assert j["fitted"] is True and j["time"] == unc.attitude_jitter_time == 1.0
@@ -215,14 +210,14 @@ def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, 
         assert j["variance"] == 0.0
     assert "attitude jitter variance" in out.with_suffix(".md").read_text()
     assert "attitude_jitter_variance" in "".join(line for line in out.read_text().splitlines() if line[:1] == "#")
-    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    assert main(["run", str(cal_seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
     states = np.load(tmp_path / "run" / "states.npz")
     np.testing.assert_array_equal(states["attitude_jitter"], [j["variance"], 1.0])
 
     base = tmp_path / "base.toml"
     base.write_text("[uncertainty]\nattitude_jitter_variance = 3e-6\nattitude_jitter_time = 0.5\n")
     kept = tmp_path / "kept.toml"
-    assert main(["calibrate", str(seq), "--config", str(base), "--model", "cv-polar", "--no-attitude-jitter",
+    assert main(["calibrate", str(cal_seq), "--config", str(base), "--model", "cv-polar", "--no-attitude-jitter",
                  "--no-velocity-axes", "--no-velocity-lag", "--out", str(kept)]) == 0
     unc = OdometryConfig.from_toml(kept).uncertainty
     assert unc.velocity_axis_inflation == (1.0,) * 6
@@ -233,18 +228,18 @@ def test_calibrate_learns_the_attitude_jitter_unless_told_not_to(seq, tmp_path, 
     assert "attitude_jitter_variance" not in "".join(line for line in kept.read_text().splitlines() if line[:1] == "#")
 
 
-def test_the_vehicle_rates_need_the_truth(seq, tmp_path, capsys):
+def test_the_vehicle_rates_need_the_truth(cal_seq, tmp_path, capsys):
     """--vehicle-rates with --no-truth exits 2 naming both; with --no-consistency it is learned all the same (it is
     not in the uncertainty section); without it (the default) the base config's terms are kept."""
-    fails(capsys, ["calibrate", str(seq), "--vehicle-rates", "--no-truth", "--out", tmp_path / "x.toml"],
+    fails(capsys, ["calibrate", str(cal_seq), "--vehicle-rates", "--no-truth", "--out", tmp_path / "x.toml"],
           "--vehicle-rates", "--no-truth")
     out, kept = tmp_path / "v.toml", tmp_path / "k.toml"
-    assert main(["calibrate", str(seq), "--vehicle-rates", "--no-consistency", "--out", str(out)]) == 0
+    assert main(["calibrate", str(cal_seq), "--vehicle-rates", "--no-consistency", "--out", str(out)]) == 0
     v = json.loads(out.with_suffix(".json").read_text())["vehicle"]
     unc = OdometryConfig.from_toml(out).vehicle
     assert v["fitted"] and [unc.sigma_roll_rate, unc.sigma_pitch_rate] == v["sigma"] != v["before"]
     assert "vehicle.sigma_roll_rate" in out.with_suffix(".md").read_text()
-    assert main(["calibrate", str(seq), "--no-consistency", "--out", str(kept)]) == 0
+    assert main(["calibrate", str(cal_seq), "--no-consistency", "--out", str(kept)]) == 0
     assert OdometryConfig.from_toml(kept).vehicle == OdometryConfig.for_model("ca-polar").vehicle
     assert "vehicle" not in json.loads(kept.with_suffix(".json").read_text())
 
@@ -252,13 +247,13 @@ def test_the_vehicle_rates_need_the_truth(seq, tmp_path, capsys):
 @pytest.mark.parametrize("flag", ["--velocity-axes", "--velocity-lag", "--heading-reversion", "--attitude-jitter",
                                   "--stationary-error", "--axis-correlation"])
 @pytest.mark.parametrize("other", ["--no-truth", "--no-consistency"])
-def test_an_uncertainty_flag_without_the_uncertainty_section_is_refused(seq, tmp_path, capsys, flag, other):
+def test_an_uncertainty_flag_without_the_uncertainty_section_is_refused(cal_seq, tmp_path, capsys, flag, other):
     """Asking to learn a term of the uncertainty section while leaving that section out exits 2 naming both."""
-    fails(capsys, ["calibrate", str(seq), flag, other, "--out", tmp_path / "x.toml"], flag, other)
+    fails(capsys, ["calibrate", str(cal_seq), flag, other, "--out", tmp_path / "x.toml"], flag, other)
 
 
 @pytest.mark.slow
-def test_calibrate_pools_several_sequences(seq, tmp_path, capsys):
+def test_calibrate_pools_several_sequences(cal_seq, tmp_path, capsys):
     """Two sequences with truth: one config from both, Qc the maximum likelihood over both drives' intervals
     (not either one's), the sensor noise over both drives' detections; the header names both."""
     from rodo.sim.simulate import load_truth
@@ -268,9 +263,9 @@ def test_calibrate_pools_several_sequences(seq, tmp_path, capsys):
     second = tmp_path / "city3"
     scenarios.simulate_to("city", 3, second, duration=2.0)
     out = tmp_path / "both.toml"
-    assert main(["calibrate", str(seq), str(second), "--out", str(out)]) == 0
+    assert main(["calibrate", str(cal_seq), str(second), "--out", str(out)]) == 0
     report = json.loads(out.with_suffix(".json").read_text())
-    tracks = [truth_track(load_truth(d)) for d in (seq, second)]
+    tracks = [truth_track(load_truth(d)) for d in (cal_seq, second)]
     assert report["sequences"] == 2 and report["scans"] == sum(len(k.t) for k in tracks)
     for kind in ("ca", "cv"):
         pooled, first = cal.fit_qc_to_truth(kind, tracks), cal.fit_qc_to_truth(kind, tracks[0])
@@ -278,49 +273,49 @@ def test_calibrate_pools_several_sequences(seq, tmp_path, capsys):
         assert report[f"qc_{kind}"]["loglik"] == pytest.approx(pooled.loglik, rel=1e-12)
         assert abs(pooled.loglik - first.loglik) > 0.3 * abs(first.loglik)  # both drives' intervals count
     assert report["qc_ca"]["intervals"] == sum(len(k.t) - 1 for k in tracks)
-    assert f"{seq} {second}" in out.read_text().splitlines()[0]
+    assert f"{cal_seq} {second}" in out.read_text().splitlines()[0]
     assert "consistency" in report and OdometryConfig.from_toml(out).model == "ca-polar"
 
 
-def test_calibrate_bad_input(seq, tmp_path, capsys):
+def test_calibrate_bad_input(cal_seq, tmp_path, capsys):
     out = tmp_path / "c.toml"
     fails(capsys, ["calibrate", tmp_path / "nope", "--out", out], "nope", "not a sequence directory")
     no_truth = tmp_path / "no_truth"
-    shutil.copytree(seq, no_truth)
+    shutil.copytree(cal_seq, no_truth)
     (no_truth / "truth.npz").unlink()
     fails(capsys, ["calibrate", no_truth, "--out", out], "truth.npz", "--no-truth")
-    fails(capsys, ["calibrate", seq, "--out", out, "--iterations", "0"], "--iterations")
-    fails(capsys, ["calibrate", seq, "--out", out, "--duration", "-1"], "--duration")
-    fails(capsys, ["calibrate", seq, "--out", out, "--floor", "0"], "--floor")
-    fails(capsys, ["calibrate", seq, "--out", out, "--floor", "1e8"], "--floor", "upper bound")
-    fails(capsys, ["calibrate", seq, "--out", out, "--floor", "1e-25"], "--floor", "lower bound")
-    fails(capsys, ["calibrate", seq, "--out", out, "--floor", "1e-4,1e-3"], "--floor", "one number or six")
-    fails(capsys, ["calibrate", seq, "--out", out, "--floor", "1e-4,1e-4,1e-4,x,1e-3,1e-4"], "--floor", "'1e-4,")
+    fails(capsys, ["calibrate", cal_seq, "--out", out, "--iterations", "0"], "--iterations")
+    fails(capsys, ["calibrate", cal_seq, "--out", out, "--duration", "-1"], "--duration")
+    fails(capsys, ["calibrate", cal_seq, "--out", out, "--floor", "0"], "--floor")
+    fails(capsys, ["calibrate", cal_seq, "--out", out, "--floor", "1e8"], "--floor", "upper bound")
+    fails(capsys, ["calibrate", cal_seq, "--out", out, "--floor", "1e-25"], "--floor", "lower bound")
+    fails(capsys, ["calibrate", cal_seq, "--out", out, "--floor", "1e-4,1e-3"], "--floor", "one number or six")
+    fails(capsys, ["calibrate", cal_seq, "--out", out, "--floor", "1e-4,1e-4,1e-4,x,1e-3,1e-4"], "--floor", "'1e-4,")
     empty = tmp_path / "empty"
     empty.mkdir()
     for name in ("sensor.toml", "groundtruth.txt"):
-        (empty / name).write_bytes((seq / name).read_bytes())
-    (empty / "radar.csv").write_text((seq / "radar.csv").read_text().splitlines()[0] + "\n")  # the header only
+        (empty / name).write_bytes((cal_seq / name).read_bytes())
+    (empty / "radar.csv").write_text((cal_seq / "radar.csv").read_text().splitlines()[0] + "\n")  # the header only
     fails(capsys, ["calibrate", empty, "--out", out, "--no-truth"], "radar.csv", "no detections")
-    fails(capsys, ["calibrate", seq, "--out", out, "--no-truth", "--learn", "x,jaw"], "--learn", "jaw")
-    fails(capsys, ["calibrate", seq, "--out", tmp_path], "--out", "is a directory")
-    fails(capsys, ["calibrate", seq, "--out", tmp_path / "missing" / "c.toml"], "--out", "does not exist")
-    fails(capsys, ["calibrate", seq, "--out", tmp_path / "c.json"], "--out", "overwritten")
+    fails(capsys, ["calibrate", cal_seq, "--out", out, "--no-truth", "--learn", "x,jaw"], "--learn", "jaw")
+    fails(capsys, ["calibrate", cal_seq, "--out", tmp_path], "--out", "is a directory")
+    fails(capsys, ["calibrate", cal_seq, "--out", tmp_path / "missing" / "c.toml"], "--out", "does not exist")
+    fails(capsys, ["calibrate", cal_seq, "--out", tmp_path / "c.json"], "--out", "overwritten")
     bad = tmp_path / "bad.toml"
     bad.write_text("[noise]\nqc_ca = [1, 2]\n")
-    fails(capsys, ["calibrate", seq, "--config", bad, "--out", out], "bad.toml", "noise.qc_ca")
+    fails(capsys, ["calibrate", cal_seq, "--config", bad, "--out", out], "bad.toml", "noise.qc_ca")
     other = tmp_path / "other"
-    shutil.copytree(seq, other)
+    shutil.copytree(cal_seq, other)
     lines = (other / "radar.csv").read_text().splitlines()
     (other / "radar.csv").write_text("\n".join(lines[:-5]) + "\n")  # truth.npz no longer matches radar.csv
     fails(capsys, ["calibrate", other, "--out", out], "truth.npz", "radar.csv")
-    fails(capsys, ["calibrate", seq, seq, "--no-truth", "--out", out], "--no-truth", "one sequence, got 2")
-    fails(capsys, ["calibrate", seq, no_truth, "--out", out], "no_truth", "truth.npz")
+    fails(capsys, ["calibrate", cal_seq, cal_seq, "--no-truth", "--out", out], "--no-truth", "one sequence, got 2")
+    fails(capsys, ["calibrate", cal_seq, no_truth, "--out", out], "no_truth", "truth.npz")
     moved = tmp_path / "moved"
-    shutil.copytree(seq, moved)
+    shutil.copytree(cal_seq, moved)
     toml = (moved / "sensor.toml").read_text()
     (moved / "sensor.toml").write_text(toml.replace("max_range", "max_range = 60.0\n# was max_range", 1))
-    fails(capsys, ["calibrate", seq, moved, "--out", out], "moved", "sensor.toml", "another sensor")
+    fails(capsys, ["calibrate", cal_seq, moved, "--out", out], "moved", "sensor.toml", "another sensor")
     assert not out.exists()
 
 

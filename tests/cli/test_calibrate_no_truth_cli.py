@@ -13,17 +13,12 @@ from rodo.estimator.config import OdometryConfig
 from tests.cli.helpers import fails
 
 
-@pytest.fixture(scope="module")
-def seq(calibration_seq):
-    return calibration_seq
-
-
 @pytest.mark.slow
-def test_calibrate_without_truth_runs_em(seq, tmp_path, capsys):
+def test_calibrate_without_truth_runs_em(cal_seq, tmp_path, capsys):
     base = tmp_path / "base.toml"
     base.write_text("window = 3\n[noise]\nqc_ca = [1.0, 0.1, 0.1, 0.001, 0.001, 0.01]\n")
     out = tmp_path / "em.toml"
-    assert main(["calibrate", str(seq), "--no-truth", "--config", str(base), "--iterations", "2",
+    assert main(["calibrate", str(cal_seq), "--no-truth", "--config", str(base), "--iterations", "2",
                  "--duration", "1.0", "--learn", "x,y,z,yaw", "--out", str(out)]) == 0
     assert "EM iteration" in capsys.readouterr().out
     config = OdometryConfig.from_toml(out)
@@ -37,7 +32,7 @@ def test_calibrate_without_truth_runs_em(seq, tmp_path, capsys):
     assert np.all(np.isfinite(its[-1]["qc_out"])) and its[-1]["intervals"] >= 10
     assert report["velocity_growth"].startswith("not checked: velocity growth: the track spans")  # 1 s of drive
     assert report["velocity_growth"] in out.with_suffix(".md").read_text()
-    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    assert main(["run", str(cal_seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
 
 
 @pytest.mark.slow
@@ -81,11 +76,12 @@ def test_the_em_report_names_the_components_outside_the_velocitys_growth():
 
 
 @pytest.mark.slow
-def test_calibrate_without_truth_learns_the_sensor_noise_when_asked(seq, tmp_path, capsys):
+def test_calibrate_without_truth_learns_the_sensor_noise_when_asked(cal_seq, tmp_path, capsys):
     """--no-truth --sensor-noise: the config carries the learned per-channel factors and Cartesian sigma, the
     header and the markdown report say so; `rodo run` accepts it. Without --no-truth the flag is refused."""
     out = tmp_path / "em_r.toml"
-    assert main(["calibrate", str(seq), "--no-truth", "--sensor-noise", "--iterations", "1", "--out", str(out)]) == 0
+    assert main(["calibrate", str(cal_seq), "--no-truth", "--sensor-noise", "--iterations", "1",
+                 "--out", str(out)]) == 0
     config = OdometryConfig.from_toml(out)
     m = json.loads(out.with_suffix(".json").read_text())["measurement"]
     assert list(config.noise.sensor_sigma_scales) == m["sensor_sigma_scales"]
@@ -93,6 +89,6 @@ def test_calibrate_without_truth_learns_the_sensor_noise_when_asked(seq, tmp_pat
     assert m["learned"] == [True] * 4 and m["pairs"] > 0
     assert "learned first from the static detections" in out.read_text()
     assert "## Measurement noise without ground truth" in out.with_suffix(".md").read_text()
-    assert main(["run", str(seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
-    fails(capsys, ["calibrate", str(seq), "--sensor-noise", "--out", tmp_path / "x.toml"], "--sensor-noise",
+    assert main(["run", str(cal_seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
+    fails(capsys, ["calibrate", str(cal_seq), "--sensor-noise", "--out", tmp_path / "x.toml"], "--sensor-noise",
           "--no-truth")
