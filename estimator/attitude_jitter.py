@@ -1,7 +1,7 @@
 """The roll and pitch jitter beside the drift recursion (`uncertainty`; off by default, learned by `rodo calibrate`).
 
 The registration's roll and pitch errors are correlated over a few scans to two seconds and bounded over the
-drive (docs/consistency.md, "The relative pose over 1 s"): the ground and the near surfaces tilt the solution one
+drive (docs/consistency.md, "What is not yet right"): the ground and the near surfaces tilt the solution one
 way for a while, then another. Every term of the drift recursion is a random walk, so a recursion tuned to the
 drive's end over-states the roll and pitch over tens of seconds, and one tuned to a second under-states them over
 that second (CA/P at learned noise, held-out drives: roll over 1 s 2.1-3.0, pitch 1.5-4.6 per axis).

@@ -3,6 +3,7 @@
 6. Every "Checked by:" reference names an existing test file and test function.
 7. Paper corrections the code relies on are cited inside the repository (docs/paper_notes.md), never outside.
 8. Every function and test docs/architecture.md names exists.
+9. Every section cited by its title (`docs/page.md, "Title"` or `page.md ("Title")`) is a heading of that page.
 
 The structural rules (namespace, layers, cycles, private names, sizes) are in tests/test_architecture.py; the
 checkers here are plain functions of (path, source) so `test_reference_checkers_catch_violations` can show
@@ -157,6 +158,48 @@ def test_architecture_doc_references_exist():
     assert not problems, "\n".join(problems)
 
 
+# ------------------------------------------------------------------------------ 9. sections cited by title
+
+SECTION = re.compile(r"\b([\w-]+\.md)(?:,\s*|\s+\(?|\s*\()\"([^\"\s][^\"]{0,159})\"")
+WRAP = re.compile(r"\s*\n\s*(?:#\s*)?")
+
+
+def headings(text: str) -> set[str]:
+    """The titles of a markdown page's headings, without their leading #s."""
+    return {line.lstrip("#").strip() for line in text.splitlines() if re.match(r"#{1,6} ", line)}
+
+
+def _opens(heading: str, title: str) -> bool:
+    """Whether the heading is the title, or goes on past it after a whole word ("Session 44: ...")."""
+    return heading.startswith(title) and (len(heading) == len(title) or not heading[len(title)].isalnum())
+
+
+def section_problems(path_name: str, source: str, pages: dict[str, set[str]]) -> list[str]:
+    """Sections cited by title that are not a heading of the page (a heading may go on past the cited title after a
+    whole word, as "The floor per model (`rodo verdict --floor-ca`, ...)" and "Session 44: ..." do): `pages` maps a page's file name to its headings;
+    pages not in it (a report's CONFIG.md, a README elsewhere) are not checked. A title wrapped over lines, in a
+    docstring or a comment, is read as one line."""
+    problems = []
+    for m in SECTION.finditer(source):
+        page, title = m.group(1), WRAP.sub(" ", m.group(2)).strip()
+        if page in pages and not any(_opens(h, title) for h in pages[page]):
+            line = source.count("\n", 0, m.start()) + 1
+            problems.append(f"{path_name}:{line}: cites {page}, \"{title}\", which is not a heading of {page}")
+    return problems
+
+
+def test_cited_sections_exist():
+    pages = {p.name: headings(p.read_text()) for p in (ROOT / "docs").glob("*.md")}
+    paths = list(_py_files(*SIZE_DIRS, "tests")) + sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
+    problems, count = [], 0
+    for path in paths:
+        source = path.read_text()
+        count += sum(1 for m in SECTION.finditer(source) if m.group(1) in pages)
+        problems += section_problems(_rel(path), source, pages)
+    assert count > 100, f"only {count} sections cited by title found: is the pattern still reading them?"
+    assert not problems, "\n".join(problems)
+
+
 def test_reference_checkers_catch_violations(tmp_path):
     """Each checker reports a planted violation with its file and line (and passes the clean variant)."""
     test_file = tmp_path / "tests" / "test_a.py"
@@ -176,3 +219,10 @@ def test_reference_checkers_catch_violations(tmp_path):
         "x.py:1: cites 'shared/paper', outside the repository (cite docs/paper_notes.md or another file in docs/)",
         "x.py:3: cites docs/gone.md, which does not exist"]
     assert citation_problems("x.py", "'../shared/realdata is the data folder'\n", tmp_path) == []
+
+    pages = {"a.md": headings("# A\n\n## The floor per model (session 45)\n\nnot ## a heading\n")}
+    cited = ('"""See docs/a.md, "The floor per model", a.md ("The floor\n    per model"), b.md, "Anything";\n'
+             '    docs/a.md, "The floor per mode" and a.md "not"."""\n')
+    assert section_problems("x.py", cited, pages) == [
+        'x.py:3: cites a.md, "The floor per mode", which is not a heading of a.md',
+        'x.py:3: cites a.md, "not", which is not a heading of a.md']

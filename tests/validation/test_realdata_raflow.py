@@ -6,7 +6,7 @@ sideways jump between two poses). So the error bar of a chain's end-to-end refer
 REF_SIGMAS * sqrt(2) * max(jitter, JITTER_FLOOR) per axis (both ends jitter), and the checks are: the Doppler
 speed against the chain's pose-derived speed, each model's end-to-end relative pose against the reference, the
 two models against each other (no reference noise), and the standstill chain held still. Numbers:
-docs/realdata.md ("RaFlow: a real 4D check").
+docs/realdata.md ("RaFlow demo data").
 """
 
 from __future__ import annotations
