@@ -175,10 +175,10 @@ def _opens(heading: str, title: str) -> bool:
 
 
 def section_problems(path_name: str, source: str, pages: dict[str, set[str]]) -> list[str]:
-    """Sections cited by title that are not a heading of the page (a heading may go on past the cited title after a
-    whole word, as "The floor per model (`rodo verdict --floor-ca`, ...)" and "Session 44: ..." do): `pages` maps a page's file name to its headings;
-    pages not in it (a report's CONFIG.md, a README elsewhere) are not checked. A title wrapped over lines, in a
-    docstring or a comment, is read as one line."""
+    """Sections cited by title that are not a heading of the page. A heading may go on past the cited title after a
+    whole word, as "The floor per model (`rodo verdict --floor-ca`, ...)" and "Session 44: ..." do. `pages` maps a
+    page's file name to its headings; pages not in it (a report's CONFIG.md, a README elsewhere) are not checked. A
+    title wrapped over lines, in a docstring or a comment, is read as one line."""
     problems = []
     for m in SECTION.finditer(source):
         page, title = m.group(1), WRAP.sub(" ", m.group(2)).strip()
