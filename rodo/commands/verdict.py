@@ -1,7 +1,7 @@
 """`rodo verdict [--scenarios city,hills,stop_and_go,highway] [--runs 20] [--duration 30] [--seed 7]
 [--calibration-seed 100] [--calibration-duration 180] [--calibration-drives 1] [--floor-ca Q[,Q,...]]
 [--floor-cv Q[,Q,...]] [--heading-reversion] [--stationary-error] [--no-axis-correlation] [--vehicle-rates]
-[--jobs J] --out DIR [--resume]`:
+[--config BASE.toml] [--jobs J] --out DIR [--resume]`:
 the consistency verdict of CA/P against CV/C, each at its learned noise (validation/verdict.py).
 
 Per scenario S, the recipe of docs/consistency.md ("The verdict with everything learned") as one command:
@@ -22,7 +22,10 @@ docs/consistency.md, "The heading reverts"), with --stationary-error a bounded p
 --no-axis-correlation neither learns the registration's correlation per axis (`rodo calibrate
 --no-axis-correlation`; docs/consistency.md, "The registration's correlation per axis"), with --vehicle-rates both
 learn the road-vehicle terms on the roll and pitch rates (`rodo calibrate --vehicle-rates`; docs/consistency.md,
-"The vehicle's rate terms learned"). Each step's output goes to DIR/logs/; the simulations and calibrations run
+"The vehicle's rate terms learned"). With --config BASE.toml both calibrations start from that estimator config
+instead of the defaults (`rodo calibrate --config`: what they do not learn, e.g. `[vehicle]
+sigma_vertical_velocity`, is kept); it is copied to DIR/base.toml, which the calibrations read, and its hash is a
+parameter of the verdict. Each step's output goes to DIR/logs/; the simulations and calibrations run
 --jobs at a time. With --resume a finished step is skipped (a sequence with all its files, a config with its report)
 and the campaigns resume; DIR/campaign.json holds the parameters, and a resume with other ones is refused.
 """
@@ -31,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
 import os
 import sys
 import time
@@ -42,6 +46,7 @@ from rodo.estimator.errors import InputError
 from .table1 import parse_scenarios
 
 MAX_CALIBRATION_DRIVES = 20
+BASE_CONFIG = "base.toml"  # --config's copy in DIR, what the calibrations read
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -80,6 +85,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--vehicle-rates", action="store_true",
                    help="rodo calibrate's --vehicle-rates for both models: the road-vehicle terms on the roll and "
                         "pitch rates learned from the truth (default off)")
+    p.add_argument("--config", metavar="BASE.toml",
+                   help="base estimator config for both calibrations, without a model (rodo calibrate's --config: "
+                        "the settings they do not learn are kept; default: the built-in defaults)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel workers (default: cores)")
     p.add_argument("--out", required=True, metavar="DIR", help="the verdict's directory")
     p.add_argument("--resume", action="store_true", help="continue the verdict in DIR (skip finished steps)")
@@ -104,6 +112,20 @@ def _check(args) -> list[str]:
     for floor in (args.floor_ca, args.floor_cv):  # as rodo calibrate checks them, before any work
         parse_floor(floor)
     return names
+
+
+def base_config(path: str) -> bytes:
+    """The bytes of --config, checked as `rodo calibrate` will read them: a TOML estimator config (every
+    setting valid) that leaves the model to the verdict, which calibrates both."""
+    import tomllib
+
+    from rodo.estimator.config import OdometryConfig
+
+    OdometryConfig.from_toml(path)  # InputError naming the file and the setting
+    data = Path(path).read_bytes()
+    if "model" in tomllib.loads(data.decode("utf-8")):
+        raise InputError(f"--config: {path} sets model; the verdict calibrates both models, so leave it out")
+    return data
 
 
 def calibration_drives(out: Path, scenario: str, n: int) -> list[Path]:
@@ -131,6 +153,7 @@ def _steps(args, names: list[str]) -> tuple[list, list, list]:
             cfg = config_path(out, s, name)
             cals.append((f"calibrate {s} {name}", ["calibrate", *map(str, seqs), "--model", model, "--floor",
                                                    getattr(args, f"floor_{key}"), "--out", str(cfg)]
+                         + ([] if args.config is None else ["--config", str(out / BASE_CONFIG)])
                          + (["--heading-reversion"] if args.heading_reversion else [])
                          + (["--stationary-error"] if args.stationary_error else [])
                          + ([] if args.axis_correlation else ["--no-axis-correlation"])
@@ -192,6 +215,7 @@ def _run(steps: list, logs: Path | None, jobs: int) -> None:
 
 
 def main(args) -> int:
+    from rodo.sim.sequence import atomic_write_bytes
     from rodo.validation.campaign_dir import campaign_lock, check_and_save_meta
     from rodo.validation.verdict import build_verdict, write_verdict
 
@@ -199,6 +223,7 @@ def main(args) -> int:
 
     names = _check(args)
     out = Path(args.out)
+    base = None if args.config is None else base_config(args.config)  # checked before any work too
     meta = {"scenarios": ",".join(names), "runs": args.runs, "duration": args.duration, "seed": args.seed,
             "calibration_seed": args.calibration_seed, "calibration_duration": args.calibration_duration,
             **({"calibration_drives": args.calibration_drives} if args.calibration_drives != 1 else {}),
@@ -206,12 +231,15 @@ def main(args) -> int:
             **({"stationary_error": True} if args.stationary_error else {}),
             **({} if args.axis_correlation else {"axis_correlation": False}),
             **({"vehicle_rates": True} if args.vehicle_rates else {}),
+            **({} if base is None else {"config_sha256": hashlib.sha256(base).hexdigest()}),
             "floor_ca": parse_floor(args.floor_ca), "floor_cv": parse_floor(args.floor_cv)}  # values: 1e-4 == 0.0001
     with campaign_lock(out):
         if not args.resume and (out / "campaign.json").exists():
             raise InputError(f"--out: {out / 'campaign.json'} exists (a verdict in progress or done); pass --resume "
                              "to continue it, or choose another directory")
         check_and_save_meta(out, meta, args.resume)
+        if base is not None:
+            atomic_write_bytes(out / BASE_CONFIG, base)
         logs = out / "logs"
         logs.mkdir(exist_ok=True)
         sims, cals, camps = _steps(args, names)

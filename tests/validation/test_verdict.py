@@ -2,6 +2,7 @@
 both calibrations, the campaign, the table) that resumes without redoing a step and refuses other parameters."""
 
 import argparse
+import hashlib
 import json
 
 import numpy as np
@@ -214,7 +215,7 @@ def test_each_model_is_calibrated_at_its_own_floor(tmp_path):
     args = argparse.Namespace(out=str(tmp_path), calibration_drives=1, calibration_seed=100, calibration_duration=5.0,
                               floor_ca=given["ca-polar"], floor_cv=given["cv-cartesian"], runs=2, duration=3.0,
                               seed=3, jobs=1, heading_reversion=False, stationary_error=False, axis_correlation=True,
-                              vehicle_rates=False)
+                              vehicle_rates=False, config=None)
     _, cals, _ = _steps(args, ["city"])
     assert sorted(argv[argv.index("--model") + 1] for _, argv, _ in cals) == sorted(floors)
     for _, argv, _ in cals:
@@ -232,7 +233,7 @@ def test_a_calibration_flag_reaches_both_calibrations(tmp_path, flag):
            "vehicle_rates": False}
     args = argparse.Namespace(out=str(tmp_path), calibration_drives=1, calibration_seed=100, calibration_duration=5.0,
                               floor_ca="1e-4", floor_cv="1e-4", runs=2, duration=3.0, seed=3, jobs=1,
-                              **dict(off, **{flag: True}))
+                              config=None, **dict(off, **{flag: True}))
     args.axis_correlation = not args.no_axis_correlation  # the parser's dest for --no-axis-correlation
     option = "--" + flag.replace("_", "-")
     _, cals, _ = _steps(args, ["city", "hills"])
@@ -242,3 +243,46 @@ def test_a_calibration_flag_reaches_both_calibrations(tmp_path, flag):
     assert not any(o in argv for _, argv, _ in cals for o in others)
     _, cals, _ = _steps(argparse.Namespace(**dict(vars(args), **off, axis_correlation=True)), ["city"])
     assert not any(option in argv for _, argv, _ in cals)
+
+
+BASE = "[vehicle]\nsigma_vertical_velocity = 0.05\nsigma_lateral_velocity = 0.04\n\n[map]\ncapacity = 1200\n"
+
+
+@pytest.mark.slow
+def test_a_base_config_reaches_both_calibrations_and_is_a_parameter(tmp_path, capsys):
+    """--config: both learned configs keep the base's settings that calibration does not learn (the non-holonomic
+    terms, the map's capacity); the verdict keeps the copy it calibrated from and the base's hash, and a resume
+    with another base, or without one, is refused."""
+    base, out = tmp_path / "base.toml", tmp_path / "v"
+    base.write_text(BASE)
+    argv = ["verdict", *ARGS, "--jobs", "2", "--out", str(out)]
+    assert main([*argv, "--config", str(base)]) == 0
+    for file in ("ca", "cv"):
+        config = OdometryConfig.from_toml(out / "calibration" / f"stop_and_go_{file}.toml")
+        assert (config.vehicle.sigma_vertical_velocity, config.vehicle.sigma_lateral_velocity) == (0.05, 0.04)
+        assert config.map.capacity == 1200
+        assert config.model == {"ca": "ca-polar", "cv": "cv-cartesian"}[file]
+    assert (out / "base.toml").read_bytes() == base.read_bytes()
+    meta = json.loads((out / "campaign.json").read_text())
+    assert meta["config_sha256"] == hashlib.sha256(base.read_bytes()).hexdigest()
+    fails(capsys, [*argv, "--resume"], "config_sha256")
+    other = tmp_path / "other.toml"
+    other.write_text(BASE.replace("1200", "1300"))
+    fails(capsys, [*argv, "--resume", "--config", str(other)], "config_sha256")
+    assert main([*argv, "--resume", "--config", str(base)]) == 0
+    assert "calibrate stop_and_go CA/P: done before, kept" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("text, needle", [
+    (None, "config file not found"),
+    ('model = "ca-polar"\n', "sets model"),
+    ("[vehicle]\nsigma_vertical_velocity = -1.0\n", "sigma_vertical_velocity"),
+    ("[vehicle\n", "invalid TOML"),
+])
+def test_a_bad_base_config_is_refused_before_any_work(tmp_path, capsys, text, needle):
+    base = tmp_path / "base.toml"
+    if text is not None:
+        base.write_text(text)
+    fails(capsys, ["verdict", "--config", base, "--out", tmp_path / "v"], needle, str(base))
+    assert not (tmp_path / "v").exists()
+
