@@ -223,7 +223,7 @@ def main(args) -> int:
 
     names = _check(args)
     out = Path(args.out)
-    base = None if args.config is None else base_config(args.config)  # checked before any work too
+    base = None if args.config is None else base_config(args.config)  # checked before any work
     meta = {"scenarios": ",".join(names), "runs": args.runs, "duration": args.duration, "seed": args.seed,
             "calibration_seed": args.calibration_seed, "calibration_duration": args.calibration_duration,
             **({"calibration_drives": args.calibration_drives} if args.calibration_drives != 1 else {}),
