@@ -205,6 +205,9 @@ def render_markdown(verdict: dict, meta: dict | None = None) -> str:
         for name, m in r["models"].items():
             cells = " | ".join(_learned_cell(m["learned"].get(k)) for k in LEARNED)
             lines.append(f"| {r['scenario']} | {name} | {cells} |")
+    if meta and "config_sha256" in meta:
+        lines += ["", "Both calibrations started from base.toml in this directory (`--config`): its settings that "
+                      "calibration does not learn are in every learned config."]
     if meta:
         lines += ["", "Parameters: " + ", ".join(f"{k}={v}" for k, v in sorted(meta.items()))]
     return "\n".join(lines) + "\n"

@@ -123,6 +123,7 @@ def test_a_verdict_reports_its_campaign_at_the_configs_it_learned(verdict_dir):
     crit = verdict["criteria"]
     assert len(crit["cells"]) == 4 and crit["cells_met"] == sum(c["share"] >= 0.9 for c in crit["cells"])
     text = (verdict_dir / "verdict.md").read_text()
+    assert "base.toml" not in text and not (verdict_dir / "base.toml").exists()  # no --config
     assert f"{crit['cells_met']} of 4 cells" in text and "| stop_and_go | CA/P |" in text
     vel, one_s = (" ".join(f"{x:.2f}" for x in row["models"]["CV/C"]["error_growth"][k]) for k in ("velocity", "1 s"))
     assert "## Per axis" in text and f"| stop_and_go | CV/C | {vel} | {one_s} | - | " in text
@@ -263,6 +264,7 @@ def test_a_base_config_reaches_both_calibrations_and_is_a_parameter(tmp_path, ca
         assert config.map.capacity == 1200
         assert config.model == {"ca": "ca-polar", "cv": "cv-cartesian"}[file]
     assert (out / "base.toml").read_bytes() == base.read_bytes()
+    assert "started from base.toml" in (out / "verdict.md").read_text()
     meta = json.loads((out / "campaign.json").read_text())
     assert meta["config_sha256"] == hashlib.sha256(base.read_bytes()).hexdigest()
     fails(capsys, [*argv, "--resume"], "config_sha256")
