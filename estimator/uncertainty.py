@@ -344,4 +344,3 @@ def span_covariance(T: np.ndarray, t: np.ndarray, Sigma_rel: np.ndarray, P_varpi
         else:
             C = _step(C, T[j - 1], T[j], t[j] - t[j - 1], S, P_varpi[j], tau, heading)
     return C[:6, :6]
-

@@ -287,4 +287,3 @@ def test_a_bad_base_config_is_refused_before_any_work(tmp_path, capsys, text, ne
         base.write_text(text)
     fails(capsys, ["verdict", "--config", base, "--out", tmp_path / "v"], needle, str(base))
     assert not (tmp_path / "v").exists()
-
