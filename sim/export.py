@@ -111,8 +111,8 @@ def poses_at_scans(seq: Sequence, trajectory: Trajectory, where: str) -> np.ndar
     bad = np.abs(t_traj[idx] - t_scan) > TIME_MATCH_S
     if bad.any():
         k = int(np.flatnonzero(bad)[0])
-        raise InputError(f"{where}: no pose at the time of scan {seq.scans[k].scan} (t = {t_scan[k]!r} s; "
-                         f"poses cover {t_traj[0]!r} .. {t_traj[-1]!r} s)")
+        raise InputError(f"{where}: no pose at the time of scan {seq.scans[k].scan} (t = {float(t_scan[k])!r} s; "
+                         f"poses cover {float(t_traj[0])!r} .. {float(t_traj[-1])!r} s)")  # plain numbers
     return trajectory.T_world_vehicle[idx]
 
 

@@ -109,6 +109,15 @@ class Faults:
         """The radar with the clutter rate applied (the same object when clutter is not set)."""
         return config if self.clutter is None else replace(config, clutter_rate=float(self.clutter))
 
+    def check_duration(self, duration: float) -> None:
+        """InputError naming --fault outage and the duration when an outage starts after the simulation ends
+        (START > duration): it would empty no scan, a fault asked for and silently not applied."""
+        for start, length in self.outage:
+            if start > duration:
+                raise InputError(f"--fault outage={start:g}:{length:g}: starts after the end of the simulated "
+                                 f"{duration:g} s (--duration), so it would empty no scan; start it before "
+                                 f"{duration:g} s or simulate longer")
+
     def check_rate(self, rate_hz: float) -> None:
         """The jitter bound depends on the scan period: sigma <= JITTER_MAX periods."""
         if self.jitter > JITTER_MAX / rate_hz:
@@ -200,6 +209,8 @@ def apply(faults: Faults, dets: list, t: np.ndarray, config: RadarConfig,
             (spawn(5) gives the same first four as spawn(4): adding a generator changed no earlier draw).
     """
     rng_ghost, rng_drop, rng_jitter, rng_outage, rng_doppler = [np.random.default_rng(s) for s in seed_seq.spawn(5)]
+    if len(t):
+        faults.check_duration(float(t[-1]) + 1.0 / config.rate_hz)  # the CLI checks --duration itself, first
     intervals = faults.outage
     if faults.outages is not None and len(t):
         intervals = intervals + outage_intervals(*faults.outages, t[0], t[-1] + 1.0 / config.rate_hz, rng_outage)

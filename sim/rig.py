@@ -24,7 +24,8 @@ from rodo.estimator.tomlcompat import tomllib
 
 from ._seqio import SequenceFormatError, atomic_write_bytes, read_text
 from .sensor_geometry import DEG, mount
-from .sequence import GROUNDTRUTH_TXT, RIG_TOML, check_one_layout, read_sequence, read_tum, write_sequence
+from .sequence import (GROUNDTRUTH_TXT, RADAR_CSV, RIG_TOML, check_one_layout, read_sequence, read_tum,
+                       remove_stale, write_sequence)
 from .sequence_types import RadarScan, Sequence, Trajectory
 from .tum import format_tum
 
@@ -51,7 +52,8 @@ class Rig:
         for (t0, i0, _), (t1, i1, _) in zip(merged, merged[1:]):
             if t1 == t0:
                 raise InputError(f"{where}: radars {self.names[i0]!r} and {self.names[i1]!r} both have a scan at "
-                                 f"t = {t0!r} s: the odometry takes one scan per instant (offset one radar's clock)")
+                                 f"t = {float(t0)!r} s: the odometry takes one scan per instant (offset one "
+                                 "radar's clock)")
         return merged
 
 
@@ -92,12 +94,33 @@ def read_rig(path, *, use_cache: bool = True) -> Rig:
         raise SequenceFormatError(path, f"not a rig directory (expected {RIG_TOML} in it)")
     names = _names(path / RIG_TOML, read_text(path / RIG_TOML))
     sequences = [read_sequence(path / n, use_cache=use_cache) for n in names]
+    check_one_clock(path, names, sequences)
     gt_path = path / GROUNDTRUTH_TXT
     return Rig(names, sequences, read_tum(gt_path) if gt_path.exists() else None)
 
 
+def check_one_clock(path: Path, names: list[str], sequences: list[Sequence]) -> None:
+    """InputError naming both radar.csv files and their time spans unless every two radars with scans scan over
+    overlapping times: all radars of a rig share one clock, and a radar on another (or offset by far more than its
+    turn) would send the one estimator jumping in time. Each span is widened by one scan period of its radar
+    (1 / rate_hz): radars taking turns may start and stop up to a period apart.
+
+    Checked by: tests/sim/test_input_defects_rig_clock.py
+    """
+    spans = [(n, s.scans[0].t, s.scans[-1].t, 1.0 / s.sensor.rate_hz)
+             for n, s in zip(names, sequences) if s.scans]
+    for i, (a, a0, a1, pa) in enumerate(spans):
+        for b, b0, b1, pb in spans[i + 1:]:
+            if a0 - pa > b1 + pb or b0 - pb > a1 + pa:
+                raise InputError(f"{path / a / RADAR_CSV} (scans at {a0:.6g} to {a1:.6g} s) and "
+                                 f"{path / b / RADAR_CSV} (scans at {b0:.6g} to {b1:.6g} s) do not overlap in time: "
+                                 "all radars of a rig share one clock (different clocks or time offsets?); give "
+                                 "them the same time base")
+
+
 def write_rig(path, rig: Rig) -> None:
-    """Write a rig directory: each sequence into its sub-directory, rig.toml, groundtruth.txt when given.
+    """Write a rig directory: each sequence into its sub-directory (`write_sequence`), rig.toml, groundtruth.txt
+    when given (a stale one is removed otherwise).
 
     Checked by: tests/sim/test_rig.py::test_round_trip_and_merge
     """
@@ -111,6 +134,8 @@ def write_rig(path, rig: Rig) -> None:
     write_rig_toml(path, rig.names)
     if gt_bytes is not None:
         atomic_write_bytes(path / GROUNDTRUTH_TXT, gt_bytes)
+    else:
+        remove_stale(path / GROUNDTRUTH_TXT)
 
 
 def _rig_text(names: list[str]) -> str:

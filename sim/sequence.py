@@ -36,12 +36,16 @@ RADAR_CSV = "radar.csv"
 SENSOR_TOML = "sensor.toml"
 GROUNDTRUTH_TXT = "groundtruth.txt"
 RIG_TOML = "rig.toml"  # a rig directory (sim/rig.py) instead of one sequence
+# what a converter puts beside a sequence: its report (sim.convert CONVERSION_JSON) and RadarScenes' odometry;
+# they describe a recording, not what is written next: `write_sequence` removes them (a converter then adds its own)
+CONVERTER_FILES = ("conversion.json", "odom.csv")
 
 __all__ = [
-    "GROUNDTRUTH_TXT", "RADAR_CSV", "RIG_TOML", "SENSOR_TOML", "NoiseSigmas", "RadarScan", "SensorConfig", "Sequence",
-    "SequenceFormatError", "atomic_write_bytes", "Trajectory", "cache_path", "check_one_layout", "check_scan_rate",
-    "polar_to_cartesian", "read_radar_csv", "read_sensor_config", "read_sequence", "read_tum", "replace_synced",
-    "temporary_beside", "write_sensor_config", "write_sequence", "write_tum",
+    "GROUNDTRUTH_TXT", "RADAR_CSV", "RIG_TOML", "SENSOR_TOML", "CONVERTER_FILES", "NoiseSigmas", "RadarScan",
+    "SensorConfig", "Sequence", "SequenceFormatError", "atomic_write_bytes", "Trajectory", "cache_path",
+    "check_one_layout", "check_scan_rate", "polar_to_cartesian", "read_radar_csv", "read_sensor_config",
+    "read_sequence", "read_tum", "remove_stale", "replace_synced", "temporary_beside", "write_sensor_config",
+    "write_sequence", "write_tum",
 ]
 
 
@@ -58,8 +62,8 @@ def read_sequence(path, *, use_cache: bool = True) -> Sequence:
         groundtruth.txt is absent.
 
     Raises:
-        SequenceFormatError (InputError): missing directory or required file, or any malformed content
-        (message names file, line and field).
+        SequenceFormatError (InputError): missing directory or required file, a rig directory (rig.toml: give
+        one of its radars), or any malformed content (message names file, line and field).
         InputError: the scans and the ground truth do not overlap in time (names both files).
 
     Checked by: tests/sim/test_sequence.py::test_round_trip_is_bit_exact_and_deterministic
@@ -68,6 +72,11 @@ def read_sequence(path, *, use_cache: bool = True) -> Sequence:
     if not path.is_dir():
         raise SequenceFormatError(path, "not a sequence directory (expected radar.csv and sensor.toml in it)")
     check_one_layout(path)
+    if (path / RIG_TOML).is_file():
+        radars = sorted(d.name for d in path.iterdir() if (d / RADAR_CSV).is_file())
+        example = f"e.g. {path / radars[0]} (radars: {', '.join(radars)})" if radars else "a radar's sub-directory"
+        raise SequenceFormatError(path, f"holds a rig ({RIG_TOML}: several radars), not a single sequence; give "
+                                  f"one radar's directory, {example}; `rodo run` reads a whole rig")
     sensor = read_sensor_config(path / SENSOR_TOML)
     scans = read_radar_csv(path / RADAR_CSV, use_cache=use_cache)
     check_scan_rate(scans, sensor.rate_hz, path)
@@ -136,12 +145,16 @@ def write_sequence(path, seq: Sequence) -> None:
     """Write a sequence directory (created if needed; its three files are replaced atomically).
 
     Empty scans write no rows. A stale radar cache is removed, and so is a stale groundtruth.txt when
-    `seq.groundtruth` is None. Other files in the directory (e.g. the simulator's truth.npz) are left alone.
+    `seq.groundtruth` is None, and a converter's files (CONVERTER_FILES: conversion.json, odom.csv), which describe
+    the recording converted before, not this sequence (a converter writes its own after this call). The
+    simulator's truth.npz is left alone (a simulated sequence rewritten with scans removed keeps its truth; a
+    converter removes it: `sim.convert.write_conversion`).
 
     Raises:
         InputError: `seq` does not satisfy the format's rules (names the offending scan and field).
 
-    Checked by: tests/sim/test_sequence.py::test_round_trip_is_bit_exact_and_deterministic
+    Checked by: tests/sim/test_sequence.py::test_round_trip_is_bit_exact_and_deterministic,
+        tests/sim/test_input_defects_stale_files.py
     """
     if not isinstance(seq, Sequence):
         raise InputError(f"seq: expected a Sequence, got {type(seq).__name__}")
@@ -160,16 +173,23 @@ def write_sequence(path, seq: Sequence) -> None:
     except OSError as exc:
         raise InputError(f"{path}: cannot create the sequence directory ({exc.strerror or exc})") from None
     atomic_write_bytes(path / RADAR_CSV, radar_bytes)
-    try:
-        os.unlink(cache_path(path / RADAR_CSV))
-    except FileNotFoundError:
-        pass
+    remove_stale(cache_path(path / RADAR_CSV))
     atomic_write_bytes(path / SENSOR_TOML, sensor_bytes)
     gt_path = path / GROUNDTRUTH_TXT
     if gt_bytes is not None:
         atomic_write_bytes(gt_path, gt_bytes)
     else:
-        try:
-            os.unlink(gt_path)
-        except FileNotFoundError:
-            pass
+        remove_stale(gt_path)
+    for name in CONVERTER_FILES:
+        remove_stale(path / name)
+
+
+def remove_stale(path: Path) -> None:
+    """Remove a file left by an earlier writer (none is fine); InputError naming it when it cannot be removed."""
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+    except OSError as exc:
+        raise InputError(f"{path}: cannot remove this stale file ({exc.strerror or exc}); remove it by hand or "
+                         "write to another directory") from None

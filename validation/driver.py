@@ -171,18 +171,70 @@ class RunResult:
         }
 
 
+SAME_TIME = 1e-6  # s: groundtruth.txt keeps 9 decimals, so a pose within 1 us of a scan is at that scan
+
+
 def scan_times(seq: Sequence) -> np.ndarray:
-    """Times at which the estimator reports: every scan with rows, plus empty scans known from groundtruth.txt."""
-    t = np.array([s.t for s in seq.scans])
-    if seq.groundtruth is not None and len(seq.groundtruth.t):
-        # groundtruth.txt keeps 9 decimals: a time within 1 us of a scan's is that scan
-        g = seq.groundtruth.t
-        if len(t):
-            idx = np.clip(np.searchsorted(t, g), 1, len(t)) - 1
-            near = np.minimum(np.abs(g - t[idx]), np.abs(g - t[np.minimum(idx + 1, len(t) - 1)]))
-            g = g[near > 1e-6]
-        t = np.union1d(t, g)
-    return t
+    """Times at which the estimator reports: every scan with rows, plus the empty scans known from groundtruth.txt
+    (`empty_scan_times`: only where its times are the radar's own scan times; a radar.csv without rows has
+    nothing else to go by, so then every pose is one).
+
+    Checked by: tests/validation/test_input_defects_gt_times.py::test_shifted_or_faster_groundtruth_changes_nothing
+    """
+    t = np.array([s.t for s in seq.scans], dtype=float)
+    if seq.groundtruth is None or not len(seq.groundtruth.t):
+        return t
+    g = np.asarray(seq.groundtruth.t, dtype=float)
+    if not len(t):
+        return np.unique(g)
+    index = np.array([s.scan for s in seq.scans], dtype=np.int64)
+    return np.union1d(t, empty_scan_times(t, index, g, seq.sensor.rate_hz))
+
+
+def empty_scan_times(t: np.ndarray, index: np.ndarray, g: np.ndarray, rate_hz: float) -> np.ndarray:
+    """The ground-truth times `g` that are scans without rows, given the scans with rows (times `t`, scan indices
+    `index`, both increasing) and the sensor's rate. The simulator and the converters write no rows for an empty
+    scan but a pose at every scan time, with consecutive scan indices; ground truth at another rate or phase (or
+    from another clock) must not add scans. So its times are taken as the radar's scan times only when
+    - every scan with rows has a pose within SAME_TIME, and
+    - between two consecutive scans with rows there are exactly as many other poses as their indices skip;
+    then the other poses are empty scans: those between scans; those before the first scan with rows when they
+    are as many as its index; those after the last when two or more scans have rows (the counts above were
+    checked) or, with one, when each is a whole number of periods 1 / rate_hz after it (within SAME_TIME).
+    Otherwise there are none: groundtruth.txt is then for evaluation only (docs/sequence_format.md).
+
+    Checked by: tests/validation/test_input_defects_gt_times.py::test_simulated_empty_scans_are_still_run,
+        ::test_empty_scan_rule_on_synthetic_times
+    """
+    none = np.zeros(0)
+    if len(t) == 0:
+        return np.unique(g)
+    on_scan = _nearest_gap(t, g) <= SAME_TIME
+    if not np.all(_nearest_gap(g, t) <= SAME_TIME):
+        return none  # a scan without a pose: the poses are not at the scan times
+    other = g[~on_scan]
+    where = np.searchsorted(t, other)  # 0: before the first scan with rows, len(t): after the last
+    counts = np.bincount(where, minlength=len(t) + 1)
+    if not np.array_equal(counts[1:len(t)], np.diff(index) - 1):
+        return none
+    keep = (where > 0) & (where < len(t))
+    if counts[0] == index[0]:
+        keep |= where == 0
+    after = where == len(t)
+    if len(t) >= 2:
+        keep |= after
+    elif np.any(after):
+        steps = (other[after] - t[-1]) * rate_hz
+        on_grid = np.abs(other[after] - (t[-1] + np.round(steps) / rate_hz)) <= SAME_TIME
+        keep |= after & bool(np.all(on_grid))
+    return np.unique(other[keep])
+
+
+def _nearest_gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """For each of `b`, the distance to the nearest of `a` (sorted, non-empty)."""
+    i = np.searchsorted(a, b)
+    lo, hi = a[np.clip(i - 1, 0, len(a) - 1)], a[np.clip(i, 0, len(a) - 1)]
+    return np.minimum(np.abs(b - lo), np.abs(b - hi))
 
 
 def run_sequence(seq: Sequence, config: OdometryConfig, progress=None, record_detail: bool = False,

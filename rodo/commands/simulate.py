@@ -128,6 +128,7 @@ def run_simulate(args: argparse.Namespace) -> int:
         check_output_file(args.rerun, "--rerun", parents=True)
         check_not_input(args.rerun, "--rerun", sequence_inputs(args.out))  # the sequence it writes
     duration = scenario.default_duration(args.seed, **params) if args.duration is None else args.duration
+    faults.check_duration(duration)  # an outage after the end: refused before the simulation
     n_scans = int(np.floor(duration * radar.rate_hz + 1e-9)) + 1
     with Progress(n_scans, f"simulate {scenario.name}", unit="scan") as bar:
         seq, truth = scenarios.simulate_to(scenario.name, args.seed, args.out, duration, progress=bar,
@@ -165,6 +166,7 @@ def _simulate_rig(args: argparse.Namespace, scenario, params: dict, faults) -> i
     if args.rerun:
         raise InputError("--rig: --rerun is for a single radar; simulate the rig without it")
     duration = scenario.default_duration(args.seed, **params) if args.duration is None else args.duration
+    faults.check_duration(duration)
     radars = scenarios.simulate_rig_to(scenario.name, args.seed, args.out, args.rig, duration,
                                        sensor_profile=args.profile, faults=faults, **params)
     print(f"{scenario.name} v{scenario.version} seed {args.seed}, rig {args.rig} -> {args.out}")

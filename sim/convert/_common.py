@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
-from rodo.sim.sequence import RadarScan, Sequence, atomic_write_bytes, write_sequence
+from rodo.sim.sequence import RadarScan, Sequence, atomic_write_bytes, remove_stale, write_sequence
+from rodo.sim.simulate import TRUTH_NPZ
 
 CONVERSION_JSON = "conversion.json"
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -228,9 +229,14 @@ def field_of_view(angles: np.ndarray, default: float, limit: float) -> tuple[flo
 
 
 def write_conversion(out_dir, conv: Conversion) -> Path:
-    """Write the sequence, conversion.json and the extra files into `out_dir`; return the directory."""
+    """Write the sequence, conversion.json and the extra files into `out_dir`; return the directory. Files of an
+    earlier writer are removed: the simulator's truth.npz here, a converter's files by `write_sequence`.
+
+    Checked by: tests/sim/test_input_defects_stale_files.py
+    """
     out = Path(out_dir)
     write_sequence(out, conv.sequence)
+    remove_stale(out / TRUTH_NPZ)  # a recording has no simulator truth: another drive's would be read as its own
     try:
         atomic_write_bytes(out / CONVERSION_JSON,
                            (json.dumps(conv.report.to_dict(), indent=2, sort_keys=True) + "\n").encode("utf-8"))

@@ -43,12 +43,21 @@ def test_scan_times_adds_groundtruth_times_without_scans(n, data):
     assert np.array_equal(scan_times(Sequence(SENSOR, seq.scans, None)), t[with_rows])
 
 
-def test_scan_times_keeps_groundtruth_between_scans():
+def test_scan_times_do_not_take_groundtruth_between_consecutive_scans():
+    """Poses at half periods between scans whose indices do not skip are not scans of this radar (a ground truth at
+    twice its rate): the scans with rows alone (tests/validation/test_input_defects_gt_times.py has the rule)."""
     t = np.arange(5) / RATE
     extra = t[:-1] + 0.5 / RATE  # groundtruth at half periods: no scan within 1 us
     gt = np.sort(np.r_[np.round(t, 9), np.round(extra, 9)])
     got = scan_times(Sequence(SENSOR, [_scan(k, t[k]) for k in range(5)], _still(gt)))
-    assert np.array_equal(got, np.sort(np.r_[t, np.round(extra, 9)]))
+    assert np.array_equal(got, t)
+
+
+def test_scan_times_take_groundtruth_where_the_scan_index_skips():
+    t = np.arange(5) / RATE
+    kept = [0, 1, 4]  # scans 2 and 3 without rows: their poses are empty scans
+    got = scan_times(Sequence(SENSOR, [_scan(k, t[k]) for k in kept], _still(np.round(t, 9))))
+    assert np.allclose(got, t, atol=1e-9) and len(got) == 5
 
 
 @pytest.fixture(scope="module")
