@@ -58,6 +58,18 @@ def _num(x) -> str:
 POSITIVE = Rule(0.0, lo_closed=False)
 NONNEGATIVE = Rule(0.0)
 PROBABILITY = Rule(0.0, 1.0, lo_closed=False, hi_closed=False)
+# sigmas and variances are squared (or multiplied) on their way into covariances: 1e200 overflowed to inf there
+# (OverflowError, NaN covariances). Bounds far beyond any meaning (a sigma of 1000 km, 1000 km/s, 1e6 rad) keep
+# every square and product finite; a key whose meaning needs more would say so here
+MAX_SIGMA = 1e6  # in the key's unit
+MAX_VARIANCE = MAX_SIGMA**2
+SIGMA = Rule(0.0, MAX_SIGMA)  # >= 0: 0 disables the term
+POSITIVE_SIGMA = Rule(0.0, MAX_SIGMA, lo_closed=False)
+# a detection's or map point's position sigma, m: the polar model adds it to the polar R (radians at the floor
+# 5e-4), and at 1e6 m the sum was no longer positive definite in double precision; 1 km is beyond any map
+MAX_POSITION_SIGMA = 1e3
+POSITION_SIGMA = Rule(0.0, MAX_POSITION_SIGMA)
+POSITIVE_POSITION_SIGMA = Rule(0.0, MAX_POSITION_SIGMA, lo_closed=False)
 
 # "section.key" -> range; a list's rule applies to each element and fixes its length
 RULES: dict[str, Rule] = {
@@ -65,17 +77,17 @@ RULES: dict[str, Rule] = {
     "seed": Rule(0, 2**63 - 1),
     "noise.qc_ca": Rule(1e-20, 1e8, size=6),  # beyond: Q_k under- or overflows (calibrate fits inside)
     "noise.qc_cv": Rule(1e-20, 1e8, size=6),
-    "noise.cartesian_sigma": POSITIVE,
-    "noise.map_sigma_polar": NONNEGATIVE,
-    "noise.map_sigma_cartesian": NONNEGATIVE,
+    "noise.cartesian_sigma": POSITIVE_POSITION_SIGMA,
+    "noise.map_sigma_polar": POSITION_SIGMA,
+    "noise.map_sigma_cartesian": POSITION_SIGMA,
     "noise.sensor_sigma_scale": Rule(0.0, 1e6, lo_closed=False),  # ratios to sensor.toml's sigmas (may be tiny)
     "noise.sensor_sigma_scales": Rule(0.0, 1e6, lo_closed=False, size=4),
     "noise.sigma_floor": Rule(0.0, 1e3, lo_closed=False, size=4),
-    "noise.doppler_common_sigma": NONNEGATIVE,
+    "noise.doppler_common_sigma": SIGMA,
     "noise.min_prior_dt": Rule(0.0, 1.0),  # s: a floor on the scan interval, not a time in ms
     "association.gate_probability": PROBABILITY,
     "association.max_radius": POSITIVE,
-    "association.doppler_sigma_floor": NONNEGATIVE,
+    "association.doppler_sigma_floor": SIGMA,
     "association.reassociate": Rule(0, 100),
     "association.ransac_above_sigma": NONNEGATIVE,
     "association.doppler_jerk_margin": POSITIVE,
@@ -90,26 +102,26 @@ RULES: dict[str, Rule] = {
     "map.max_age": Rule(0, 1_000_000),
     "map.voxel": NONNEGATIVE,
     "map.max_fused": Rule(2, 1_000_000, also=(0,)),
-    "map.surface_normal_sigma": NONNEGATIVE,
-    "map.surface_tangent_sigma": POSITIVE,
+    "map.surface_normal_sigma": POSITION_SIGMA,
+    "map.surface_tangent_sigma": POSITIVE_POSITION_SIGMA,
     "map.surface_neighbours": Rule(5, 1000),
     "map.surface_radius": POSITIVE,
     "map.surface_planarity": Rule(0.0, 1.0, lo_closed=False),
     "outage.reinit_after": NONNEGATIVE,
     "standstill.speed": NONNEGATIVE,
-    "standstill.sigma_velocity": POSITIVE,
-    "standstill.sigma_rate": POSITIVE,
-    "standstill.sigma_accel": POSITIVE,
-    "standstill.sigma_angular_accel": POSITIVE,
-    "standstill.sigma_accel_jump": NONNEGATIVE,
-    "vehicle.sigma_roll_rate": NONNEGATIVE,
-    "vehicle.sigma_pitch_rate": NONNEGATIVE,
-    "vehicle.sigma_lateral_velocity": NONNEGATIVE,
-    "vehicle.sigma_vertical_velocity": NONNEGATIVE,
+    "standstill.sigma_velocity": POSITIVE_SIGMA,
+    "standstill.sigma_rate": POSITIVE_SIGMA,
+    "standstill.sigma_accel": POSITIVE_SIGMA,
+    "standstill.sigma_angular_accel": POSITIVE_SIGMA,
+    "standstill.sigma_accel_jump": SIGMA,
+    "vehicle.sigma_roll_rate": SIGMA,
+    "vehicle.sigma_pitch_rate": SIGMA,
+    "vehicle.sigma_lateral_velocity": SIGMA,
+    "vehicle.sigma_vertical_velocity": SIGMA,
     "uncertainty.velocity_correlation_time": NONNEGATIVE,
     "uncertainty.inflation": POSITIVE,
     "uncertainty.measurement_inflation": Rule(1.0),
-    "uncertainty.drift_rate_sigma": Rule(0.0, size=6),
+    "uncertainty.drift_rate_sigma": Rule(0.0, MAX_SIGMA, size=6),
     "uncertainty.prior_memory": NONNEGATIVE,
     "uncertainty.velocity_inflation": Rule(0.0, lo_closed=False),
     "uncertainty.velocity_inflation_per_speed": NONNEGATIVE,
@@ -123,24 +135,24 @@ RULES: dict[str, Rule] = {
     "uncertainty.registration_correlation": Rule(0.0, 1.0),
     "uncertainty.registration_axis_correlation": Rule(0.0, 1.0, size=6),
     "uncertainty.velocity_axis_inflation": Rule(0.0, lo_closed=False, size=6),
-    "uncertainty.velocity_lag_per_acceleration": Rule(size=6),
-    "uncertainty.velocity_lag_per_yaw_acceleration": Rule(size=6),
+    "uncertainty.velocity_lag_per_acceleration": Rule(-MAX_SIGMA, MAX_SIGMA, size=6),  # b = L a enters as b b^T
+    "uncertainty.velocity_lag_per_yaw_acceleration": Rule(-MAX_SIGMA, MAX_SIGMA, size=6),
     "uncertainty.velocity_lag_time": POSITIVE,
     "uncertainty.heading_reversion_time": NONNEGATIVE,
     "uncertainty.heading_anchor_time": POSITIVE,
-    "uncertainty.attitude_jitter_variance": NONNEGATIVE,
+    "uncertainty.attitude_jitter_variance": Rule(0.0, MAX_VARIANCE),
     "uncertainty.attitude_jitter_time": POSITIVE,
-    "uncertainty.stationary_variance": Rule(0.0, size=6),
+    "uncertainty.stationary_variance": Rule(0.0, MAX_VARIANCE, size=6),
     "uncertainty.stationary_time": Rule(0.0, lo_closed=False, size=6),
     "solver.iterations": Rule(1, 1000),
     "solver.step_tolerance": POSITIVE,
     "solver.step_sigma_tolerance": NONNEGATIVE,
     "solver.refine_iterations": Rule(1, 1000),
     "solver.robust_c": NONNEGATIVE,
-    "solver.init_velocity_sigma": POSITIVE,
-    "solver.init_rate_sigma": Rule(0.0, lo_closed=False, size=3),
-    "solver.init_accel_sigma": Rule(0.0, lo_closed=False, size=3),
-    "solver.init_angular_accel_sigma": Rule(0.0, lo_closed=False, size=3),
+    "solver.init_velocity_sigma": POSITIVE_SIGMA,
+    "solver.init_rate_sigma": Rule(0.0, MAX_SIGMA, lo_closed=False, size=3),
+    "solver.init_accel_sigma": Rule(0.0, MAX_SIGMA, lo_closed=False, size=3),
+    "solver.init_angular_accel_sigma": Rule(0.0, MAX_SIGMA, lo_closed=False, size=3),
 }
 
 _INTEGER = (int, np.integer)

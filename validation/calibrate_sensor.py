@@ -21,6 +21,25 @@ from rodo.estimator.radar_geometry import polar_to_cartesian, wrap_angle
 
 CHANNELS = ("range", "azimuth", "elevation", "radial_velocity")
 STATIC_LABELS = (0, 1)  # truth.npz det_label: 0 static surface, 1 static point scatterer, 2 mover, 3 clutter
+RANGE_BINS = 6  # channel_noise's range bins, two detections each at least
+WITH_TRUTH = f"static detections with truth (truth.npz det_label {' or '.join(map(str, STATIC_LABELS))})"
+
+
+def check_residuals(res: np.ndarray, r: np.ndarray | None = None, minimum: int = 2 * RANGE_BINS,
+                    what: str = WITH_TRUTH) -> np.ndarray:
+    """res as an (M, 4) float array, M matching r; InputError (before any mean of an empty array) unless
+    M >= minimum: a sequence without static detections (all dropped, all clutter) has no noise to learn.
+
+    Checked by:
+        tests/cli/test_command_defects_realism_calibrate.py::test_the_noise_fits_refuse_empty_residuals_before_any_mean
+    """
+    res = np.asarray(res, dtype=float)
+    if res.ndim != 2 or res.shape[1] != 4 or (r is not None and res.shape[0] != np.shape(r)[0]):
+        ranges = "" if r is None else f" and {np.shape(r)} ranges"
+        raise InputError(f"measurement noise: expected (M, 4) residuals and M ranges, got {res.shape}{ranges}")
+    if res.shape[0] < minimum:
+        raise InputError(f"measurement noise: need >= {minimum} {what}, got {res.shape[0]}")
+    return res
 
 
 def detection_residuals(seq, truth: dict, scans: int | None = None,
@@ -57,7 +76,7 @@ def cartesian_sigma(res: np.ndarray, r: np.ndarray) -> float:
 
     Checked by: tests/validation/test_calibrate_sensor.py::test_cartesian_sigma_is_the_ml_isotropic_sigma
     """
-    res = np.asarray(res, dtype=float)
+    res = check_residuals(res, r, minimum=1, what="static detection")
     sq = res[:, 0] ** 2 + np.asarray(r, dtype=float) ** 2 * (res[:, 1] ** 2 + res[:, 2] ** 2)
     return float(np.sqrt(np.mean(sq) / 3.0))
 
@@ -73,16 +92,14 @@ def _range_fit(abs_res: np.ndarray, r: np.ndarray) -> dict:
     return {"a": float(coef[0]), "b_per_m": float(coef[1]), "b_stderr": float(np.sqrt(cov[1, 1]))}
 
 
-def channel_noise(res: np.ndarray, r: np.ndarray, bins: int = 6) -> dict:
+def channel_noise(res: np.ndarray, r: np.ndarray, bins: int = RANGE_BINS) -> dict:
     """Per channel: sigma (ML, zero mean), mean, count, sigma per range bin (equal counts), the line
     sigma(r) = a + b r and `range_dependent` (|b| above 4 standard errors and b (r_max - r_min) above 5 % of
     sigma).
 
     Checked by: tests/validation/test_calibrate_sensor.py::test_range_dependence_is_detected
     """
-    res, r = np.asarray(res, dtype=float), np.asarray(r, dtype=float)
-    if res.ndim != 2 or res.shape[1] != 4 or res.shape[0] != r.shape[0] or res.shape[0] < 2 * bins:
-        raise InputError(f"measurement noise: need >= {2 * bins} static detections with truth, got {len(res)}")
+    res, r = check_residuals(res, r, 2 * bins), np.asarray(r, dtype=float)
     edges = np.quantile(r, np.linspace(0, 1, bins + 1))
     which = np.clip(np.searchsorted(edges, r, side="right") - 1, 0, bins - 1)
     out = {}
@@ -110,7 +127,7 @@ def sigma_scale(res: np.ndarray, sensor_sigmas) -> float:
     sig = np.asarray(sensor_sigmas, dtype=float)
     if sig.shape != (4,) or not np.all(sig > 0):
         raise InputError(f"sensor sigmas: expected 4 positive numbers, got {sensor_sigmas!r}")
-    return float(np.sqrt(np.mean((np.asarray(res, dtype=float) / sig) ** 2)))
+    return float(np.sqrt(np.mean((check_residuals(res) / sig) ** 2)))
 
 
 def common_doppler_error(seq, truth: dict, scans: int | None = None, labels=STATIC_LABELS,

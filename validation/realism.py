@@ -64,12 +64,16 @@ class Pooled:
     elevation: np.ndarray
     value: np.ndarray
     residual: np.ndarray
-    nonstatic: float
+    nonstatic: float  # NaN without a moving scan
     ghost_rate: float | None = None
+    moving_scans: int = 0  # scans that enter the Doppler statistics (fitted sensor speed above MOVING)
 
 
 @dataclass
 class Row:
+    """One statistic; sim or real NaN: not computable on that side (then distance None, as for a statistic that is
+    reported, not compared)."""
+
     name: str
     sim: float | str
     real: float | str
@@ -139,8 +143,9 @@ def pooled(scans, column: str, crop: float | None, ghosts: np.ndarray | None = N
             n_moving += len(scan)
     cat = {k: np.concatenate(v) if v else np.zeros(0) for k, v in cols.items()}
     return Pooled(np.array(counts), cat["r"], cat["az"], cat["el"], cat["v"],
-                  np.concatenate(residuals) if residuals else np.zeros(0), n_out / max(n_moving, 1),
-                  None if ghosts is None else n_ghost / max(len(cat["r"]), 1))
+                  np.concatenate(residuals) if residuals else np.zeros(0),
+                  n_out / n_moving if n_moving else float("nan"),
+                  None if ghosts is None else n_ghost / max(len(cat["r"]), 1), len(residuals))
 
 
 def _subset(scan, keep: np.ndarray):
@@ -155,26 +160,53 @@ def spread(residual: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(residual - np.median(residual)))) if residual.size else float("nan")
 
 
+def _median(x: np.ndarray, scale: float = 1.0) -> float:
+    """The median (times scale), NaN for no values (not computable; no warning)."""
+    return float(np.median(x) * scale) if np.size(x) else float("nan")
+
+
+def _row(name: str, sim: float, real: float, distance: float, measure: str) -> Row:
+    """A compared statistic; its distance None where either side is not computable (NaN)."""
+    computable = np.isfinite(sim) and np.isfinite(real)
+    return Row(name, float(sim), float(real), float(distance) if computable else None, measure)
+
+
 def compare(sim: Pooled, real: Pooled, column: str, planar: bool) -> list[Row]:
-    """The statistics table (see the module docstring)."""
-    rows = [Row("points per scan (mean)", float(sim.counts.mean()), float(real.counts.mean()),
-                relative(sim.counts.mean(), real.counts.mean()), "relative"),
-            Row("range (m)", float(np.median(sim.range)), float(np.median(real.range)),
-                ks_distance(sim.range, real.range), "KS"),
-            Row("azimuth (deg)", float(np.degrees(np.median(sim.azimuth))), float(np.degrees(np.median(real.azimuth))),
-                ks_distance(sim.azimuth, real.azimuth), "KS")]
+    """The statistics table (see the module docstring); a statistic one side has no data for (no detections, no
+    moving scan) is NaN on that side, with no distance."""
+    mean_sim, mean_real = (float(p.counts.mean()) if p.counts.size else float("nan") for p in (sim, real))
+    deg = 180.0 / np.pi
+    rows = [_row("points per scan (mean)", mean_sim, mean_real, relative(mean_sim, mean_real), "relative"),
+            _row("range (m)", _median(sim.range), _median(real.range), ks_distance(sim.range, real.range), "KS"),
+            _row("azimuth (deg)", _median(sim.azimuth, deg), _median(real.azimuth, deg),
+                 ks_distance(sim.azimuth, real.azimuth), "KS")]
     if not planar:
-        rows.append(Row("elevation (deg)", float(np.degrees(np.median(sim.elevation))),
-                        float(np.degrees(np.median(real.elevation))), ks_distance(sim.elevation, real.elevation), "KS"))
+        rows.append(_row("elevation (deg)", _median(sim.elevation, deg), _median(real.elevation, deg),
+                         ks_distance(sim.elevation, real.elevation), "KS"))
     unit = "dBsm" if column == "rcs" else "dB"
-    rows += [Row(f"{column} ({unit})", float(np.median(sim.value)), float(np.median(real.value)),
-                 ks_distance(sim.value, real.value), "KS"),
-             Row("static Doppler residual spread (m/s)", spread(sim.residual), spread(real.residual),
-                 relative(spread(sim.residual), spread(real.residual)), "relative"),
-             Row("non-static fraction", sim.nonstatic, real.nonstatic, relative(sim.nonstatic, real.nonstatic),
-                 "relative"),
+    spreads = spread(sim.residual), spread(real.residual)
+    rows += [_row(f"{column} ({unit})", _median(sim.value), _median(real.value), ks_distance(sim.value, real.value),
+                  "KS"),
+             _row("static Doppler residual spread (m/s)", *spreads, relative(*spreads), "relative"),
+             _row("non-static fraction", sim.nonstatic, real.nonstatic, relative(sim.nonstatic, real.nonstatic),
+                  "relative"),
              Row("ghost rate (per detection)", float(sim.ghost_rate or 0.0), "n/a (no labels)", None, "reported")]
     return rows
+
+
+def not_computable(sim: Pooled, real: Pooled) -> list[str]:
+    """Notes on the statistics a side could not give: no moving scan for the Doppler ones.
+
+    Checked by:
+        tests/cli/test_command_defects_realism_calibrate.py::test_a_side_without_moving_scans_has_no_doppler_statistics
+    """
+    notes = []
+    for side, p in (("simulation", sim), ("real recording", real)):
+        if not p.moving_scans:
+            notes.append(f"static Doppler residual spread, non-static fraction: not computable for the {side} "
+                         f"(n/a): no scan with >= {MIN_POINTS} detections moved faster than {MOVING:g} m/s"
+                         + (" (a longer --duration reaches the motion)" if side == "simulation" else ""))
+    return notes
 
 
 # ------------------------------------------------------------------------------------------------- set-ups
@@ -311,7 +343,7 @@ def realism(profile: str, realdata: Path, seeds=DEFAULT_SEEDS, duration: float |
     sim = pooled(sim_scans, setup.column, setup.crop, ghosts)
     real = pooled(real_scans, setup.column, setup.crop)
     notes = [setup.notes, f"sim: seeds {', '.join(map(str, seeds))}, {duration:g} s each, {len(sim_scans)} scans; "
-             f"real: {len(real_scans)} scans"]
+             f"real: {len(real_scans)} scans"] + not_computable(sim, real)
     return Report(profile, compare(sim, real, setup.column, planar), sim, real, notes)
 
 
@@ -320,7 +352,7 @@ def format_table(report: Report) -> str:
     lines = [f"| statistic ({report.profile}) | sim | real | distance | within {GOAL:.0%} |",
              "| --- | --- | --- | --- | --- |"]
     for row in report.rows:
-        fmt = (lambda v: v if isinstance(v, str) else f"{v:.4g}")
+        fmt = (lambda v: v if isinstance(v, str) else f"{v:.4g}" if np.isfinite(v) else "n/a")
         dist = "-" if row.distance is None else f"{row.distance:.3f} ({row.measure})"
         ok = "-" if row.ok is None else ("yes" if row.ok else "NO")
         lines.append(f"| {row.name} | {fmt(row.sim)} | {fmt(row.real)} | {dist} | {ok} |")

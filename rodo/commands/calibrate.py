@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -118,16 +119,27 @@ def _check_args(args) -> Path:
     return out
 
 
-def parse_floor(text: str) -> float | list[float]:
-    """--floor: one number (every Qc element) or six, comma-separated (COMPONENTS' order)."""
+def parse_floor(text: str, option: str = "--floor") -> float | list[float]:
+    """--floor: one number (every Qc element) or six, comma-separated (COMPONENTS' order); errors name `option`
+    (`rodo verdict` passes --floor-ca and --floor-cv)."""
     try:
         values = [float(x) for x in text.split(",")]
         floor = values[0] if len(values) == 1 else values
         floors(floor)  # six, each in range (NaN fails too)
     except (ValueError, InputError):
-        raise InputError(f"--floor: one number or six ({','.join(COMPONENTS)}), each from {QC_MIN:g} (the "
+        raise InputError(f"{option}: one number or six ({','.join(COMPONENTS)}), each from {QC_MIN:g} (the "
                          f"config's lower bound) to below the fit's upper bound {QC_MAX:g}, got {text!r}") from None
     return floor
+
+
+@contextmanager
+def _naming(dirs: list[str]):
+    """An InputError of the calibration (measurement noise: no static detections, ...) prefixed with the sequence
+    directories it came from, as `rodo evaluate` names its files (outputs are written after it)."""
+    try:
+        yield
+    except InputError as exc:
+        raise InputError(f"{' + '.join(str(d) for d in dirs)}: {exc}") from None
 
 
 def parse_learn(text: str) -> np.ndarray:
@@ -170,15 +182,16 @@ def main(args) -> int:
             print(f"uncertainty: measurement_inflation {s.kappa:.3g}, median NEES ratio "
                   + ", ".join(f"{k} {v:.3g}" for k, v in s.ratios.items()))
         truths = [load_truth(d) for d in args.sequence]
-        config, report = calibrate_with_truth(seqs, truths, config, args.duration, args.floor,
-                                              consistency=not args.no_consistency, progress=step,
-                                              velocity_axes=args.velocity_axes is not False,
-                                              velocity_lag=args.velocity_lag,
-                                              heading_reversion=args.heading_reversion,
-                                              attitude_jitter=attitude_jitter,
-                                              stationary_error=args.stationary_error,
-                                              axis_correlation=args.axis_correlation is not False,
-                                              vehicle_rates=args.vehicle_rates)
+        with _naming(args.sequence):
+            config, report = calibrate_with_truth(seqs, truths, config, args.duration, args.floor,
+                                                  consistency=not args.no_consistency, progress=step,
+                                                  velocity_axes=args.velocity_axes is not False,
+                                                  velocity_lag=args.velocity_lag,
+                                                  heading_reversion=args.heading_reversion,
+                                                  attitude_jitter=attitude_jitter,
+                                                  stationary_error=args.stationary_error,
+                                                  axis_correlation=args.axis_correlation is not False,
+                                                  vehicle_rates=args.vehicle_rates)
     write_text_atomic(out, config_toml(config, header(report, " ".join(args.sequence), config.model)))
     write_text_atomic(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     write_text_atomic(out.with_suffix(".md"), markdown(report))

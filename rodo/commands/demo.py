@@ -46,8 +46,8 @@ ONE_DRIVE = ("One drive at the default noise: the two models' errors vary from d
 def main(args) -> int:
     out = _check_args(args)
     report = {"prior_montecarlo": _prior_montecarlo(args, out)}
-    seq, truth = _simulate(args, out)
-    results = {model: _run_and_evaluate(model, seq, truth, out) for model in MODELS}
+    seq_dir, seq, truth = _simulate(args, out)
+    results = {model: _run_and_evaluate(model, seq, seq_dir, out) for model in MODELS}
     print("\n" + _table(results))
     print("\n" + ONE_DRIVE)
     report["runs"] = {m: {k: _jsonable(ev.get(k)) for k in ("kitti_t_err_pct", "kitti_r_err_deg_per_m", "ate_rmse_m",
@@ -90,7 +90,7 @@ def _prior_montecarlo(args, out: Path) -> dict:
 
 
 def _simulate(args, out: Path):
-    """Step 2: simulate the scenario into out/<scenario>_seed<seed>; returns (sequence, truth) read back."""
+    """Step 2: simulate the scenario into out/<scenario>_seed<seed>; returns (its directory, sequence, truth)."""
     import numpy as np
 
     from rodo import scenarios
@@ -104,26 +104,25 @@ def _simulate(args, out: Path):
     truth = load_truth(seq_dir)
     print(f"    {len(seq.scans)} scans, median {np.median([len(s) for s in seq.scans]):.0f} detections per scan, "
           f"{time.perf_counter() - tic:.1f} s -> {seq_dir}")
-    return seq, truth
+    return seq_dir, seq, truth
 
 
-def _run_and_evaluate(model: str, seq, truth: dict, out: Path):
-    """Step 3: run one model, write its run directory and evaluation.json; returns (RunResult, evaluation)."""
-    import numpy as np
-
+def _run_and_evaluate(model: str, seq, seq_dir: Path, out: Path):
+    """Step 3: run one model, write its run directory and evaluation.json: `rodo evaluate`'s report of the written
+    files (`rodo evaluate --gt SEQ/groundtruth.txt --est MODEL/estimate.txt --states MODEL/states.npz --truth
+    SEQ/truth.npz`, the KITTI devkit's lengths: no KITTI figure for a path under 100 m); returns (RunResult,
+    evaluation)."""
+    from rodo.commands.evaluate import report
+    from rodo.sim.sequence import GROUNDTRUTH_TXT
+    from rodo.sim.simulate import TRUTH_NPZ
     from rodo.validation.driver import run_sequence, scan_times, write_run
-    from rodo.validation.metrics import evaluate
 
     tic = _step(f"running {model}")
     with Progress(len(scan_times(seq)), model, unit="scan") as bar:
         res = run_sequence(seq, OdometryConfig.for_model(model), progress=bar, record_detail=model == "ca-polar")
     run_dir = out / model
     write_run(run_dir, res)
-    with np.load(run_dir / "states.npz", allow_pickle=False) as z:
-        states = dict(z)
-    path_len = float(np.sum(np.linalg.norm(np.diff(seq.groundtruth.T_world_vehicle[:, :3, 3], axis=0), axis=1)))
-    lengths = [L for L in (50.0, 100.0, 200.0, 400.0, 800.0) if L < 0.9 * path_len] or [path_len / 2]
-    ev = evaluate(seq.groundtruth, res.trajectory(), lengths=lengths, states=states, truth=truth)
+    ev = report(seq_dir / GROUNDTRUTH_TXT, run_dir / "estimate.txt", run_dir / "states.npz", seq_dir / TRUTH_NPZ)
     write_text_atomic(run_dir / "evaluation.json", json.dumps(_jsonable(ev), indent=2) + "\n")
     print(f"    {time.perf_counter() - tic:.1f} s -> {run_dir}")
     return res, ev
@@ -150,15 +149,30 @@ def _figures(out: Path) -> None:
 
 
 def _table(results) -> str:
+    """The runs' table: KITTI as `rodo evaluate` reports it ("-" where the path is shorter than 100 m, with a
+    line saying so)."""
+    from rodo.validation.kitti import LENGTHS
+
     rows = ["| model | KITTI t (%) | KITTI r (deg/m) | ATE (m) | drift z (m) | drift roll / pitch (deg) | ms/scan |",
             "| --- | --- | --- | --- | --- | --- | --- |"]
     for model, (res, ev) in results.items():
         fin = (ev.get("drift") or {}).get("final", {})
-        rows.append(f"| {model} | {ev['kitti_t_err_pct']:.3f} | {ev['kitti_r_err_deg_per_m']:.4f} | "
-                    f"{ev['ate_rmse_m']:.3f} | {fin.get('z', float('nan')):.3f} | "
-                    f"{fin.get('roll', float('nan')):.3f} / {fin.get('pitch', float('nan')):.3f} | "
+        rows.append(f"| {model} | {_num(ev['kitti_t_err_pct'], '.3f')} | {_num(ev['kitti_r_err_deg_per_m'], '.4f')} | "
+                    f"{_num(ev['ate_rmse_m'], '.3f')} | {_num(fin.get('z'), '.3f')} | "
+                    f"{_num(fin.get('roll'), '.3f')} / {_num(fin.get('pitch'), '.3f')} | "
                     f"{res.summary()['median_ms_per_scan']:.1f} |")
+    short = [ev["path_length_m"] for _, ev in results.values() if not ev["kitti_segments"]]
+    if short:
+        rows.append(f"\nKITTI -: the path ({short[0]:.1f} m) is shorter than the KITTI devkit's shortest segment "
+                    f"({LENGTHS[0]:g} m); `rodo evaluate` reports no KITTI figure either")
     return "\n".join(rows)
+
+
+def _num(v, spec: str) -> str:
+    """A number of the table, "-" where it is undefined (None, NaN), as `rodo evaluate` prints it."""
+    import math
+
+    return "-" if v is None or not math.isfinite(v) else format(v, spec)
 
 
 def _jsonable(obj):

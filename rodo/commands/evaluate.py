@@ -150,6 +150,92 @@ def _check(fn, what: str) -> None:
         raise InputError(f"{what}: {exc}") from None
 
 
+TUM_ROUNDING = 1e-9  # s: a TUM file keeps 9 decimals, states.npz and truth.npz the exact times
+POSE_TOLERANCE = (1e-3, 1e-4)  # m, rad: the truth's pose against groundtruth.txt's at the same time (beyond the
+# motion over their time difference): the same poses written to 9 decimals differ by 1e-9
+
+
+def check_states_times(states: dict, est, tolerance: float, where: str) -> None:
+    """InputError naming `where` (both files) unless the states' times are the estimate's, one per pose within
+    `tolerance` (plus TUM's rounding): the states.npz of another run would report that run's NIS, timing, NEES.
+
+    Checked by: tests/cli/test_command_defects_demo_evaluate.py::test_states_off_by_more_than_the_tolerance_are_refused
+    """
+    ts, te = np.asarray(states["t"], dtype=float), np.asarray(est.t, dtype=float)
+    off = np.abs(ts - te) > tolerance + TUM_ROUNDING if ts.shape == te.shape else None
+    if off is None or off.any():
+        first = "" if off is None else (f"; first at pose {int(np.argmax(off))}: {ts[np.argmax(off)]:.6f} s "
+                                        f"against {te[np.argmax(off)]:.6f} s")
+        raise InputError(f"{where}: the states' times are not the estimate's within {tolerance:g} s "
+                         f"({len(ts)} states over {_span(ts)}, {len(te)} poses over {_span(te)}{first}): give the "
+                         "states.npz that `rodo run` wrote with this estimate")
+
+
+def _span(t: np.ndarray) -> str:
+    return f"[{t[0]:.6f}, {t[-1]:.6f}] s" if len(t) else "no times"
+
+
+def check_truth_poses(truth: dict, gt, tolerance: float, where: str) -> None:
+    """InputError naming `where` (both files) unless truth.npz's poses are groundtruth.txt's: the times associate
+    and, at every matched time, position and attitude agree within POSE_TOLERANCE plus the truth's motion over
+    the two times' difference (a truth.npz of another sequence on the same clock would give a wrong NEES).
+
+    Checked by: tests/cli/test_command_defects_demo_evaluate.py::test_the_truth_pose_tolerance_is_a_millimetre
+    """
+    from rodo.estimator.lie import se3
+
+    try:
+        ig, it = associate(gt.t, truth["t"], tolerance)
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
+    T_true = se3.inverse(np.asarray(truth["T_vehicle_world"], dtype=float)[it])
+    G = gt.T_world_vehicle[ig]
+    dt = np.abs(gt.t[ig] - np.asarray(truth["t"], dtype=float)[it])
+    varpi = np.asarray(truth["varpi"], dtype=float)[it]
+    dp = np.linalg.norm(G[:, :3, 3] - T_true[:, :3, 3], axis=1)
+    cos = 0.5 * (np.trace(np.swapaxes(G[:, :3, :3], 1, 2) @ T_true[:, :3, :3], axis1=1, axis2=2) - 1.0)
+    angle = np.arccos(np.clip(cos, -1.0, 1.0))
+    bad = ((dp > POSE_TOLERANCE[0] + np.linalg.norm(varpi[:, :3], axis=1) * dt)
+           | (angle > POSE_TOLERANCE[1] + np.linalg.norm(varpi[:, 3:], axis=1) * dt))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(f"{where}: the truth's poses are not the ground truth's ({int(bad.sum())} of {len(bad)} "
+                         f"matched poses differ by more than {POSE_TOLERANCE[0]:g} m or {POSE_TOLERANCE[1]:g} rad; "
+                         f"first at t = {gt.t[ig[k]]:.6f} s: {dp[k]:.4g} m, {np.rad2deg(angle[k]):.4g} deg): give "
+                         "the truth.npz of the sequence whose groundtruth.txt this is")
+
+
+def load_inputs(gt_path, est_path, states_path=None, truth_path=None, tolerance: float = DEFAULT_TOLERANCE):
+    """(gt, est, states, truth) read from `rodo evaluate`'s files and checked against each other before any
+    metric: times that associate, states of this estimate, a truth of this ground truth. InputError names the
+    option and file."""
+    gt = read_tum(gt_path)
+    est = read_tum(est_path)
+    states = load_npz(states_path, "--states", ("t", "T_vehicle_world", "varpi", "P")) if states_path else None
+    truth = load_npz(truth_path, "--truth", ("t", "T_vehicle_world", "varpi")) if truth_path else None
+    if truth is not None and states is None:  # the truth serves the NEES alone, which needs the run's states
+        raise InputError("--truth: give it with --states (the run's states.npz); alone it would be ignored")
+    if truth is not None and "P" in truth:
+        raise InputError(f"--truth {truth_path}: has a covariance P, as a run's states.npz does; give the "
+                         "sequence's truth.npz")
+    _check(lambda: associate(gt.t, est.t, tolerance), f"--gt {gt_path} and --est {est_path}")
+    if states is not None:
+        check_states_times(states, est, tolerance, f"--states {states_path} and --est {est_path}")
+    if states is not None and truth is not None:
+        _check(lambda: associate(states["t"], truth["t"], tolerance),
+               f"--states {states_path} and --truth {truth_path}")
+        check_truth_poses(truth, gt, tolerance, f"--truth {truth_path} and --gt {gt_path}")
+    return gt, est, states, truth
+
+
+def report(gt_path, est_path, states_path=None, truth_path=None, lengths=None, step: int = 10,
+           tolerance: float = DEFAULT_TOLERANCE) -> dict:
+    """`rodo evaluate`'s report of these files (default lengths: the KITTI devkit's, validation.kitti.LENGTHS):
+    what `rodo demo` writes as evaluation.json, the same numbers by construction."""
+    gt, est, states, truth = load_inputs(gt_path, est_path, states_path, truth_path, tolerance)
+    return evaluate(gt, est, lengths, step, states, truth, tolerance)
+
+
 def main(args) -> int:
     lengths = parse_lengths(args.lengths)
     if args.step < 1:
@@ -159,20 +245,7 @@ def main(args) -> int:
     if args.json:
         check_output_file(args.json, "--json")  # before any work
         check_not_input(args.json, "--json", [f for f in (args.gt, args.est, args.states, args.truth) if f])
-    gt = read_tum(args.gt)
-    est = read_tum(args.est)
-    states = load_npz(args.states, "--states", ("t", "T_vehicle_world", "varpi", "P")) if args.states else None
-    truth = load_npz(args.truth, "--truth", ("t", "T_vehicle_world", "varpi")) if args.truth else None
-    if truth is not None and states is None:  # the truth serves the NEES alone, which needs the run's states
-        raise InputError("--truth: give it with --states (the run's states.npz); alone it would be ignored")
-    if truth is not None and "P" in truth:
-        raise InputError(f"--truth {args.truth}: has a covariance P, as a run's states.npz does; give the "
-                         "sequence's truth.npz")
-    _check(lambda: associate(gt.t, est.t, args.tolerance), f"--gt {args.gt} and --est {args.est}")
-    if states is not None and truth is not None:
-        _check(lambda: associate(states["t"], truth["t"], args.tolerance),
-               f"--states {args.states} and --truth {args.truth}")
-    rep = evaluate(gt, est, lengths, args.step, states, truth, args.tolerance)
+    rep = report(args.gt, args.est, args.states, args.truth, lengths, args.step, args.tolerance)
     print(table(rep))
     if args.json:
         write_text_atomic(args.json, json.dumps(jsonable(rep), indent=1) + "\n")

@@ -132,7 +132,10 @@ def parse_configs(text: str) -> tuple[tuple[str, str], ...]:
         label, path = (x.strip() for x in entry.split("=", 1))
         if not label or not all(c.isalnum() or c in "-_." for c in label):
             raise InputError(f"--models: label {label!r} of {entry!r}: use letters, digits, '-', '_', '.'")
-        OdometryConfig.from_toml(path)  # a clear error naming the file, now rather than in a worker
+        cfg = OdometryConfig.from_toml(path)  # a clear error naming the file, now rather than in a worker
+        if label in MODELS and cfg.model != label:  # a built-in model's name must not label another model's run
+            raise InputError(f"--models: label {label!r} of {entry!r} is a model's name, but {path} runs model "
+                             f"{cfg.model!r}; label it {cfg.model!r} or a name of its own (e.g. {label}-tuned)")
         out.append((label, Path(path).read_text(encoding="utf-8")))
     return tuple(out)
 

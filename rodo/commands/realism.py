@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import warnings
 from pathlib import Path
 
 from rodo.estimator.errors import InputError
@@ -59,6 +60,17 @@ def _seeds(text: str) -> tuple[int, ...]:
     return seeds
 
 
+def report_json(profile: str, report) -> str:
+    """The report's numbers as strict JSON: a statistic that is not computable (NaN) or infinite is null."""
+    from rodo.validation import realism
+    from rodo.validation.metrics import jsonable
+
+    rows = [dict(statistic=r.name, sim=r.sim, real=r.real, distance=r.distance, measure=r.measure, ok=r.ok)
+            for r in report.rows]
+    return json.dumps(jsonable({"profile": profile, "goal": realism.GOAL, "rows": rows, "notes": report.notes}),
+                      indent=1, allow_nan=False) + "\n"
+
+
 def run_realism(args: argparse.Namespace) -> int:
     from rodo import extras
     from rodo.validation import realism
@@ -76,14 +88,13 @@ def run_realism(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
         stem = out / f"realism_{args.profile}"
         write_text_atomic(stem.with_suffix(".md"), table + "\n\n" + "\n".join(f"- {n}" for n in report.notes) + "\n")
-        rows = [dict(statistic=r.name, sim=r.sim, real=r.real, distance=r.distance, measure=r.measure, ok=r.ok)
-                for r in report.rows]
-        write_text_atomic(stem.with_suffix(".json"), json.dumps({"profile": args.profile, "goal": realism.GOAL,
-                                                                 "rows": rows, "notes": report.notes}, indent=1) + "\n")
+        write_text_atomic(stem.with_suffix(".json"), report_json(args.profile, report))
         if extras.is_installed("matplotlib"):
             from rodo.viz.realism import plot_realism  # viz is the only package importing matplotlib
 
-            print(f"wrote {plot_realism(stem.with_suffix('.png'), report)}")
+            with warnings.catch_warnings():  # a sample that is not computable (empty) is an empty panel, said in
+                warnings.filterwarnings("ignore", "invalid value encountered", RuntimeWarning)  # the notes
+                print(f"wrote {plot_realism(stem.with_suffix('.png'), report)}")
         else:
             print(f"no figure: matplotlib is not installed ({extras.install_hint('viz')} adds it)")
         print(f"wrote {stem.with_suffix('.md')} and {stem.with_suffix('.json')}")

@@ -103,6 +103,8 @@ def main(args) -> int:
     if is_rig(args.sequence):
         return _run_rig(args, config)
     seq = read_sequence(args.sequence)
+    gt_path = Path(args.sequence) / GROUNDTRUTH_TXT
+    no_accuracy = None if seq.groundtruth is None else accuracy_problem(seq.groundtruth, scan_times(seq), gt_path)
     truth_path = Path(args.sequence) / TRUTH_NPZ  # the recording's truth, read before the run
     truth = load_truth(truth_path) if args.rerun and truth_path.exists() else None
     check_output_dir(args.out)
@@ -131,7 +133,7 @@ def main(args) -> int:
         print(f"rodo run: warning: {text}", file=sys.stderr)
     _report(args.out, s)
     if seq.groundtruth is not None:
-        print(accuracy_line(Path(args.sequence) / GROUNDTRUTH_TXT, Path(args.out) / "estimate.txt"))
+        print_accuracy(gt_path, Path(args.out) / "estimate.txt", no_accuracy)
     if args.serve:
         print("the web viewer keeps serving the run: Ctrl-C to stop")
         wait_for_interrupt()
@@ -164,6 +166,10 @@ def _run_rig(args, config: OdometryConfig) -> int:
         if given:
             raise InputError(f"{flag}: not available for a rig yet (run one radar: {args.sequence}/RADAR)")
     rig = read_rig(args.sequence)
+    gt = merged_groundtruth(rig)
+    gt_path = Path(args.sequence) / GROUNDTRUTH_TXT if rig.groundtruth is not None else Path(args.out) / GROUNDTRUTH_TXT
+    gt_name = gt_path if rig.groundtruth is not None else f"the radars' groundtruth.txt merged ({gt_path})"
+    no_accuracy = None if gt is None else accuracy_problem(gt, np.array([t for t, _, _ in rig.scans()]), gt_name)
     check_output_dir(args.out)
     if rig.groundtruth is None:  # the radars' ground truths merged are written to --out: not over one of them
         check_not_input(Path(args.out) / GROUNDTRUTH_TXT, "--out", sequence_inputs(args.sequence))
@@ -173,14 +179,42 @@ def _run_rig(args, config: OdometryConfig) -> int:
     _write(args.out, result)
     s = result.summary()
     _report(args.out, s, {"radars": rig.names})
-    gt = merged_groundtruth(rig)
     if gt is not None:
-        gt_path = Path(args.sequence) / GROUNDTRUTH_TXT
         if rig.groundtruth is None:  # the radars' own ground truths merged: written beside the estimate
-            gt_path = Path(args.out) / GROUNDTRUTH_TXT
             write_tum(gt_path, gt)
-        print(accuracy_line(gt_path, Path(args.out) / "estimate.txt"))
+        print_accuracy(gt_path, Path(args.out) / "estimate.txt", no_accuracy)
     return 0
+
+
+def accuracy_problem(gt, times: np.ndarray, gt_name) -> str | None:
+    """Why the KITTI drift and ATE against the ground truth `gt` (named gt_name) cannot be computed for an estimate
+    at `times`, or None: `rodo evaluate` associates the two (`validation.association.associate`, at its
+    defaults), and too few of gt's poses fall on a scan's time. Checked before the run, said after it.
+
+    Checked by: tests/cli/test_command_defects_run.py
+    """
+    from rodo.validation.association import DEFAULT_TOLERANCE, associate
+
+    try:
+        associate(gt.t, times, DEFAULT_TOLERANCE)
+        return None
+    except InputError:
+        matched = len(associate(gt.t, times, DEFAULT_TOLERANCE, min_matches=0, min_fraction=0.0)[0])
+    return (f"{gt_name}: accuracy not computed: {matched} of its {len(gt.t)} poses fall on a scan's time (within "
+            f"{DEFAULT_TOLERANCE:g} s); the KITTI drift and ATE need 2 or more, and half of the shorter "
+            "trajectory's poses")
+
+
+def print_accuracy(gt_path: Path, est_path: Path, problem: str | None) -> None:
+    """The accuracy line, or (a ground truth that does not associate) a warning on stderr: the run's outputs
+    are written and stay valid, the run succeeds."""
+    if problem is None:
+        try:
+            print(accuracy_line(gt_path, est_path))
+            return
+        except InputError as exc:  # e.g. an estimate that left the finite numbers: said, not a lost run
+            problem = f"{gt_path}: accuracy not computed: {exc}"
+    print(f"rodo run: warning: {problem}", file=sys.stderr)
 
 
 def accuracy_line(gt_path: Path, est_path: Path) -> str:

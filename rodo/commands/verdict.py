@@ -109,8 +109,8 @@ def _check(args) -> list[str]:
             raise InputError(f"{flag}: must be > 0 and at most {MAX_DURATION:g} s, got {v}")
     from .calibrate import parse_floor
 
-    for floor in (args.floor_ca, args.floor_cv):  # as rodo calibrate checks them, before any work
-        parse_floor(floor)
+    for option, floor in (("--floor-ca", args.floor_ca), ("--floor-cv", args.floor_cv)):  # as rodo calibrate
+        parse_floor(floor, option)  # checks them, before any work
     return names
 
 

@@ -32,7 +32,8 @@ def test_demo_runs_end_to_end_and_writes_its_report(tmp_path, capsys):
     assert len(seq.scans) == 14 and (out / "city_seed0" / "truth.npz").is_file()
     for model, d in (("ca-polar", 18), ("cv-cartesian", 12)):
         run = report["runs"][model]
-        assert np.isfinite(run["kitti_t_err_pct"]) and run["ate_rmse_m"] < 0.05, (model, run)
+        # a 1 s drive (about 3 m) has no KITTI segment of 100 m: undefined, as `rodo evaluate` says
+        assert run["kitti_t_err_pct"] is None and run["ate_rmse_m"] < 0.05, (model, run)
         est = read_tum(out / model / "estimate.txt")
         assert np.array_equal(est.t, seq.groundtruth.t)
         with np.load(out / model / "states.npz") as z:
