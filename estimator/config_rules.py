@@ -68,6 +68,11 @@ POSITIVE_SIGMA = Rule(0.0, MAX_SIGMA, lo_closed=False)
 # a detection's or map point's position sigma, m: the polar model adds it to the polar R (radians at the floor
 # 5e-4), and at 1e6 m the sum was no longer positive definite in double precision; 1 km is beyond any map
 MAX_POSITION_SIGMA = 1e3
+# the other end: a term's information is 1 / sigma^2, and a time constant divides dt; at the smallest doubles both
+# overflowed (5e-324: a divide-by-zero, then NaN). 1e-9 in a sigma's unit is beyond any sensor; 0 stays "off"
+MIN_SIGMA = 1e-9
+INFORMATION_SIGMA = Rule(MIN_SIGMA, MAX_SIGMA)
+INFORMATION_SIGMA_OR_OFF = Rule(MIN_SIGMA, MAX_SIGMA, also=(0.0,))
 POSITION_SIGMA = Rule(0.0, MAX_POSITION_SIGMA)
 POSITIVE_POSITION_SIGMA = Rule(0.0, MAX_POSITION_SIGMA, lo_closed=False)
 
@@ -100,7 +105,7 @@ RULES: dict[str, Rule] = {
     "association.ground_band": NONNEGATIVE,
     "map.capacity": Rule(10, 10_000_000),
     "map.max_age": Rule(0, 1_000_000),
-    "map.voxel": NONNEGATIVE,
+    "map.voxel": Rule(1e-3, also=(0.0,)),  # m: 0 off; a voxel key floor(p / voxel) must stay an integer
     "map.max_fused": Rule(2, 1_000_000, also=(0,)),
     "map.surface_normal_sigma": POSITION_SIGMA,
     "map.surface_tangent_sigma": POSITIVE_POSITION_SIGMA,
@@ -109,15 +114,15 @@ RULES: dict[str, Rule] = {
     "map.surface_planarity": Rule(0.0, 1.0, lo_closed=False),
     "outage.reinit_after": NONNEGATIVE,
     "standstill.speed": NONNEGATIVE,
-    "standstill.sigma_velocity": POSITIVE_SIGMA,
-    "standstill.sigma_rate": POSITIVE_SIGMA,
-    "standstill.sigma_accel": POSITIVE_SIGMA,
-    "standstill.sigma_angular_accel": POSITIVE_SIGMA,
+    "standstill.sigma_velocity": INFORMATION_SIGMA,
+    "standstill.sigma_rate": INFORMATION_SIGMA,
+    "standstill.sigma_accel": INFORMATION_SIGMA,
+    "standstill.sigma_angular_accel": INFORMATION_SIGMA,
     "standstill.sigma_accel_jump": SIGMA,
-    "vehicle.sigma_roll_rate": SIGMA,
-    "vehicle.sigma_pitch_rate": SIGMA,
-    "vehicle.sigma_lateral_velocity": SIGMA,
-    "vehicle.sigma_vertical_velocity": SIGMA,
+    "vehicle.sigma_roll_rate": INFORMATION_SIGMA_OR_OFF,
+    "vehicle.sigma_pitch_rate": INFORMATION_SIGMA_OR_OFF,
+    "vehicle.sigma_lateral_velocity": INFORMATION_SIGMA_OR_OFF,
+    "vehicle.sigma_vertical_velocity": INFORMATION_SIGMA_OR_OFF,
     "uncertainty.velocity_correlation_time": NONNEGATIVE,
     "uncertainty.inflation": POSITIVE,
     "uncertainty.measurement_inflation": Rule(1.0),
@@ -138,7 +143,7 @@ RULES: dict[str, Rule] = {
     "uncertainty.velocity_lag_per_acceleration": Rule(-MAX_SIGMA, MAX_SIGMA, size=6),  # b = L a enters as b b^T
     "uncertainty.velocity_lag_per_yaw_acceleration": Rule(-MAX_SIGMA, MAX_SIGMA, size=6),
     "uncertainty.velocity_lag_time": POSITIVE,
-    "uncertainty.heading_reversion_time": NONNEGATIVE,
+    "uncertainty.heading_reversion_time": Rule(1e-3, also=(0.0,)),  # s: 0 off; it divides dt
     "uncertainty.heading_anchor_time": POSITIVE,
     "uncertainty.attitude_jitter_variance": Rule(0.0, MAX_VARIANCE),
     "uncertainty.attitude_jitter_time": POSITIVE,

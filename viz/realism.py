@@ -41,8 +41,9 @@ def plot_realism(path, report) -> Path:
         both = np.concatenate([a, b]) if a.size + b.size else np.zeros(1)
         lo, hi = np.percentile(both, [0.5, 99.5]) if both.size > 1 else (0.0, 1.0)
         bins = np.linspace(lo, hi if hi > lo else lo + 1.0, 40)
-        ax.hist(a, bins, density=True, histtype="step", color=SIM, lw=1.5, label="simulated")
-        ax.hist(b, bins, density=True, histtype="step", color=REAL, lw=1.5, label="real")
+        for sample, color, label in ((a, SIM, "simulated"), (b, REAL, "real")):
+            if sample.size:  # an empty sample (not computable: the report's notes say why) draws nothing
+                ax.hist(sample, bins, density=True, histtype="step", color=color, lw=1.5, label=label)
         row = rows.get(name)
         dist = "" if row is None or row.distance is None else f"  ({row.measure} {row.distance:.2f})"
         ax.set_title(f"{name}{dist}", fontsize=10)

@@ -169,6 +169,31 @@ def check_states_times(states: dict, est, tolerance: float, where: str) -> None:
         raise InputError(f"{where}: the states' times are not the estimate's within {tolerance:g} s "
                          f"({len(ts)} states over {_span(ts)}, {len(te)} poses over {_span(te)}{first}): give the "
                          "states.npz that `rodo run` wrote with this estimate")
+    check_states_poses(states, est, where)
+
+
+STATES_POSE_TOLERANCE = 1e-6  # m and rad: the run's states and its estimate.txt are one pose each, 9 decimals apart
+
+
+def check_states_poses(states: dict, est, where: str) -> None:
+    """InputError naming `where` unless every state's pose is the estimate's at that scan (within
+    STATES_POSE_TOLERANCE): the states of another run on the same scan times (the other model, another scenario
+    of the same duration) would otherwise give that run's NEES, NIS and timing as this estimate's.
+
+    Checked by: tests/cli/test_command_defects_demo_evaluate.py::test_states_of_another_run_on_the_same_times_are_refused
+    """
+    from rodo.estimator.lie import se3
+
+    T_est = se3.inverse(np.asarray(states["T_vehicle_world"], dtype=float))
+    G = np.asarray(est.T_world_vehicle, dtype=float)
+    dp = np.linalg.norm(T_est[:, :3, 3] - G[:, :3, 3], axis=1)
+    cos = 0.5 * (np.trace(np.swapaxes(G[:, :3, :3], 1, 2) @ T_est[:, :3, :3], axis1=1, axis2=2) - 1.0)
+    bad = (dp > STATES_POSE_TOLERANCE) | (np.arccos(np.clip(cos, -1.0, 1.0)) > STATES_POSE_TOLERANCE)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(f"{where}: the states' poses are not the estimate's ({int(bad.sum())} of {len(bad)} differ; "
+                         f"first at t = {est.t[k]:.6f} s by {dp[k]:.3g} m): give the states.npz that `rodo run` "
+                         "wrote with this estimate")
 
 
 def _span(t: np.ndarray) -> str:

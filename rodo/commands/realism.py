@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import warnings
 from pathlib import Path
 
 from rodo.estimator.errors import InputError
@@ -92,9 +91,7 @@ def run_realism(args: argparse.Namespace) -> int:
         if extras.is_installed("matplotlib"):
             from rodo.viz.realism import plot_realism  # viz is the only package importing matplotlib
 
-            with warnings.catch_warnings():  # a sample that is not computable (empty) is an empty panel, said in
-                warnings.filterwarnings("ignore", "invalid value encountered", RuntimeWarning)  # the notes
-                print(f"wrote {plot_realism(stem.with_suffix('.png'), report)}")
+            print(f"wrote {plot_realism(stem.with_suffix('.png'), report)}")
         else:
             print(f"no figure: matplotlib is not installed ({extras.install_hint('viz')} adds it)")
         print(f"wrote {stem.with_suffix('.md')} and {stem.with_suffix('.json')}")

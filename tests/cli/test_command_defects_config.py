@@ -91,3 +91,21 @@ def test_rodo_run_refuses_a_huge_noise_sigma_before_any_work(seq, tmp_path, caps
     out = tmp_path / "out"
     fails(capsys, ["run", seq, "--config", cfg, "--out", out], str(cfg), f"[noise] {key} = 1e+200", bound)
     assert not out.exists()
+
+
+def test_every_key_at_the_smallest_positive_double_is_refused_naming_it_or_runs_cleanly(seq):
+    """The other end: a sigma's information is 1 / sigma^2, so 5e-324 overflowed it to inf (a divide-by-zero
+    warning, then NaN) where the key allowed any positive value."""
+    sequence = read_sequence(seq)
+    for name in RULES:
+        if _is_int(name):
+            continue
+        setting = _setting(name, 5e-324)
+        try:
+            OdometryConfig.from_dict(setting, source="c.toml")
+        except InputError as exc:
+            section, _, key = name.rpartition(".")
+            msg = str(exc)
+            assert (f"[{section}] {key}" in msg or name in msg) if section else key in msg, msg
+            continue
+        _runs_cleanly(sequence, setting)

@@ -86,6 +86,8 @@ def drives(tmp_path_factory):
         scenarios.simulate_to("city", seed, root / name, duration=duration)
     for name in ("a", "c"):
         assert main(["run", str(root / name), "--out", str(root / f"run_{name}")], commands=[run_cmd]) == 0
+    assert main(["run", str(root / "a"), "--model", "cv-cartesian", "--out", str(root / "run_a_cv")],
+                commands=[run_cmd]) == 0
     return root
 
 
@@ -103,6 +105,15 @@ def test_states_of_another_run_are_refused_before_printing(drives, capsys):
     # the run's own states pass
     assert main([str(a) for a in _args(drives)], commands=[evaluate_cmd]) == 0
     assert "NIS per pair" in capsys.readouterr().out
+
+
+def test_states_of_another_run_on_the_same_times_are_refused(drives, capsys):
+    """The other model's run of the same sequence: every time matches, the poses do not (its NIS, timing and NEES
+    would be reported as this estimate's)."""
+    capsys.readouterr()
+    err = fails(capsys, _args(drives, states="run_a_cv"), "--states", "run_a_cv/states.npz", "--est",
+                "run_a/estimate.txt", "poses are not the estimate's")
+    assert "of 27 differ" in err
 
 
 def test_states_off_by_more_than_the_tolerance_are_refused(drives, tmp_path, capsys):

@@ -87,7 +87,9 @@ def test_states_and_truth_add_nees_nis_and_velocity(files, capsys):
     np.savez(d / "states.npz", t=gt.t, T_vehicle_world=se3.exp(-e[:, :6]) @ rel, varpi=varpi - e[:, 6:],
              varpi_dot=np.zeros((n, 6)), P=P, nis=np.full(n, 4.0), n_associated=np.full(n, 50),
              ms_per_scan=np.full(n, 12.0))
-    assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", "--states", d / "states.npz", "--truth",
+    T_states = se3.exp(-e[:, :6]) @ rel
+    write_tum(d / "est_states.txt", Trajectory(gt.t, np.linalg.inv(T_states)))  # the estimate the states belong to
+    assert _run(["--gt", d / "gt.txt", "--est", d / "est_states.txt", "--states", d / "states.npz", "--truth",
                  d / "truth.npz", "--json", d / "r.json"]) == 0
     rep = json.loads((d / "r.json").read_text())
     assert rep["nees"]["dim"] == 12 and rep["nees"]["scans"] == n
@@ -96,7 +98,7 @@ def test_states_and_truth_add_nees_nis_and_velocity(files, capsys):
     assert rep["nis"]["mean"] == pytest.approx(4.0) and rep["ms_per_scan"]["median"] == 12.0
     assert "NEES (d=12)" in capsys.readouterr().out
     # the run's states alone (real data has no truth.npz): its NIS and time per scan, no NEES
-    assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", "--states", d / "states.npz"]) == 0
+    assert _run(["--gt", d / "gt.txt", "--est", d / "est_states.txt", "--states", d / "states.npz"]) == 0
     out = capsys.readouterr().out
     assert "NIS" in out and "NEES" not in out
 
