@@ -28,8 +28,9 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import json
+import multiprocessing
 import time
-from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, CancelledError, wait
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, CancelledError, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
@@ -108,10 +109,9 @@ def make_executor(jobs: int, dask: str | None = None, processes: bool = True, da
     if dashboard is not None and dask != "local":
         raise InputError("dashboard: only with dask='local' (a remote scheduler serves its own dashboard: "
                          "`dask scheduler --dashboard-address :8787`)")
-    if dask is None:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(int(jobs)) as ex:
+    if dask is None:  # spawned: a forked worker inherits the campaign's flock and, orphaned by a killed
+        # campaign, kept holding it (tests/validation/test_campaign_workers.py)
+        with ProcessPoolExecutor(int(jobs), mp_context=multiprocessing.get_context("spawn")) as ex:
             yield ex
         return
     from distributed import Client, LocalCluster

@@ -39,6 +39,7 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
 from pathlib import Path
 
 from rodo.estimator.errors import InputError
@@ -46,6 +47,8 @@ from rodo.estimator.errors import InputError
 from .table1 import parse_scenarios
 
 MAX_CALIBRATION_DRIVES = 20
+MIN_CALIBRATION_DURATION = 1.0  # s: the common Doppler error's fit needs 10 scans with static detections (13 Hz)
+INTERRUPTED = 130  # a step's exit code after Ctrl-C (rodo.cli)
 BASE_CONFIG = "base.toml"  # --config's copy in DIR, what the calibrations read
 
 
@@ -107,6 +110,9 @@ def _check(args) -> list[str]:
     for flag, v in (("--duration", args.duration), ("--calibration-duration", args.calibration_duration)):
         if not 0 < v <= MAX_DURATION:  # NaN too
             raise InputError(f"{flag}: must be > 0 and at most {MAX_DURATION:g} s, got {v}")
+    if args.calibration_duration < MIN_CALIBRATION_DURATION:  # refused now, not after the drives are simulated
+        raise InputError(f"--calibration-duration: at least {MIN_CALIBRATION_DURATION:g} s (the calibration needs "
+                         f"10 scans or more with static detections), got {args.calibration_duration:g}")
     from .calibrate import parse_floor
 
     for option, floor in (("--floor-ca", args.floor_ca), ("--floor-cv", args.floor_cv)):  # as rodo calibrate
@@ -205,8 +211,12 @@ def _run(steps: list, logs: Path | None, jobs: int) -> None:
     else:
         for (label, _), log in zip(todo, paths):
             print(f"    {label} (log: {log})", flush=True)
-        with ProcessPoolExecutor(max_workers=min(jobs, len(todo))) as pool:
+        # spawned, not forked: a forked worker would share the verdict's lock and, orphaned by a killed verdict,
+        # hold it (validation.campaign.make_executor)
+        with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=get_context("spawn")) as pool:
             codes = list(pool.map(run_step, [argv for _, argv in todo], paths))
+    if INTERRUPTED in codes:  # a step stopped by Ctrl-C is the verdict interrupted, not a step that failed
+        raise KeyboardInterrupt
     for (label, _), log, code in zip(todo, paths, codes):
         if code != 0:
             said = f"{_last_line(Path(log))} (log: {log})" if log else "its message is above"

@@ -15,6 +15,7 @@ from rodo.cli import main
 from rodo.commands.calibrate import parse_floor
 from rodo.commands.verdict import _steps
 from rodo.estimator.config import OdometryConfig
+from rodo.estimator.errors import InputError
 from rodo.validation.campaign_files import read_results
 from rodo.validation.verdict import CELLS, OUTSIDE, SHARE_TARGET, SPAN_LIMIT, SPANS, judge, render_markdown
 from tests.cli.helpers import fails
@@ -191,6 +192,7 @@ def test_several_calibration_drives_are_simulated_at_their_seeds_and_pooled(tmp_
     (["--runs", "1"], "--runs"),
     (["--duration", "nan"], "--duration"),
     (["--calibration-duration", "0"], "--calibration-duration"),
+    (["--calibration-duration", "0.3"], "at least 1 s"),  # too short to calibrate: refused before simulating it
     (["--jobs", "0"], "--jobs"),
     (["--floor-ca", "nan"], "--floor"),
     (["--floor-cv", "1e9"], "--floor"),
@@ -287,3 +289,18 @@ def test_a_bad_base_config_is_refused_before_any_work(tmp_path, capsys, text, ne
         base.write_text(text)
     fails(capsys, ["verdict", "--config", base, "--out", tmp_path / "v"], needle, str(base))
     assert not (tmp_path / "v").exists()
+
+
+def test_a_step_stopped_by_ctrl_c_is_the_verdict_interrupted(tmp_path, monkeypatch):
+    """A calibration stopped by Ctrl-C returns 130 (rodo.cli): the verdict is interrupted (exit 130, "interrupted"),
+    not a step that failed and must be fixed."""
+    from rodo.commands import verdict
+
+    monkeypatch.setattr(verdict, "run_step", lambda argv, log: verdict.INTERRUPTED)
+    with pytest.raises(KeyboardInterrupt):
+        verdict._run([("calibrate city CA/P", ["calibrate"], False)], tmp_path, 1)
+    monkeypatch.setattr(verdict, "run_step", lambda argv, log: 2)
+    (tmp_path / "calibrate_city_CAP.log").write_text("rodo calibrate: error: broken\n")  # the step's log
+    with pytest.raises(InputError, match="failed \\(exit 2\\)"):
+        verdict._run([("calibrate city CA/P", ["calibrate"], False)], tmp_path, 1)
+
