@@ -28,9 +28,8 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import json
-import multiprocessing
 import time
-from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, CancelledError, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, CancelledError, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
@@ -48,6 +47,7 @@ from .campaign_files import (CONSISTENCY_FIELDS, COVERAGE_FIELDS, FIELDS, METRIC
 from .campaign_compare import compare_models, comparison_lines
 from .consistency import average_nees, chi2_bounds, fraction_within
 from .metrics import jsonable
+from .workers import spawn_pool
 
 
 @dataclass(frozen=True)
@@ -109,9 +109,8 @@ def make_executor(jobs: int, dask: str | None = None, processes: bool = True, da
     if dashboard is not None and dask != "local":
         raise InputError("dashboard: only with dask='local' (a remote scheduler serves its own dashboard: "
                          "`dask scheduler --dashboard-address :8787`)")
-    if dask is None:  # spawned: a forked worker inherits the campaign's flock and, orphaned by a killed
-        # campaign, kept holding it (tests/validation/test_campaign_workers.py)
-        with ProcessPoolExecutor(int(jobs), mp_context=multiprocessing.get_context("spawn")) as ex:
+    if dask is None:  # spawned workers that leave with this process (validation.workers)
+        with spawn_pool(int(jobs)) as ex:
             yield ex
         return
     from distributed import Client, LocalCluster

@@ -38,11 +38,10 @@ import hashlib
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 
 from rodo.estimator.errors import InputError
+from rodo.validation.workers import spawn_pool
 
 from .table1 import parse_scenarios
 
@@ -211,9 +210,7 @@ def _run(steps: list, logs: Path | None, jobs: int) -> None:
     else:
         for (label, _), log in zip(todo, paths):
             print(f"    {label} (log: {log})", flush=True)
-        # spawned, not forked: a forked worker would share the verdict's lock and, orphaned by a killed verdict,
-        # hold it (validation.campaign.make_executor)
-        with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=get_context("spawn")) as pool:
+        with spawn_pool(min(jobs, len(todo))) as pool:  # spawned workers that leave with the verdict
             codes = list(pool.map(run_step, [argv for _, argv in todo], paths))
     if INTERRUPTED in codes:  # a step stopped by Ctrl-C is the verdict interrupted, not a step that failed
         raise KeyboardInterrupt

@@ -26,3 +26,28 @@ def test_a_workers_descriptors_do_not_include_the_campaigns_lock(tmp_path):
         with make_executor(1) as ex:
             held = ex.submit(open_files).result()
         assert held and lock not in held, held
+
+
+def test_a_worker_leaves_when_its_parent_is_gone():
+    """The initializer's watch: a process whose parent has gone (here a fake parent pid that is not its parent)
+    ends within a few watch intervals. Run in a child process so that os._exit ends the child, not pytest."""
+    import multiprocessing
+
+    from rodo.validation.workers import exit_with_parent
+
+    ctx = multiprocessing.get_context("spawn")
+    child = ctx.Process(target=_orphan_then_wait, args=(exit_with_parent,))
+    child.start()
+    child.join(timeout=60)  # generous: it leaves after one interval (1 s); a hung child would fail here
+    alive = child.is_alive()
+    if alive:
+        child.kill()
+    assert not alive and child.exitcode == 1
+
+
+def _orphan_then_wait(start_watch) -> None:
+    """Watch a 'parent' that is not ours (as after re-parenting), then wait as a worker blocked on a pipe would."""
+    import time
+
+    start_watch(os.getppid() + 1_000_000)
+    time.sleep(600)
