@@ -8,6 +8,7 @@ Checked by: tests/sim/test_export.py
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -114,6 +115,56 @@ def poses_at_scans(seq: Sequence, trajectory: Trajectory, where: str) -> np.ndar
         raise InputError(f"{where}: no pose at the time of scan {seq.scans[k].scan} (t = {float(t_scan[k])!r} s; "
                          f"poses cover {float(t_traj[0])!r} .. {float(t_traj[-1])!r} s)")  # plain numbers
     return trajectory.T_world_vehicle[idx]
+
+
+def _read_states(states_path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(t, n_detections) of a run's states.npz, or an InputError naming it."""
+    try:
+        with open(states_path, "rb") as fh, np.load(fh, allow_pickle=False) as data:  # closed also on a bad zip
+            missing = [k for k in ("t", "n_detections") if k not in data.files]
+            if missing:
+                raise InputError(f"--run: {states_path}: no array {missing[0]!r} (not a `rodo run` states.npz)")
+            t, n = np.asarray(data["t"], dtype=float), np.asarray(data["n_detections"])
+    except InputError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise InputError(f"--run: {states_path}: cannot read ({exc})") from None
+    if t.ndim != 1 or n.shape != t.shape or n.dtype.kind not in "iu":
+        raise InputError(f"--run: {states_path}: t {t.shape} and n_detections {n.shape} {n.dtype} are not one "
+                         "count per scan (not a `rodo run` states.npz)")
+    return t, n
+
+
+def check_run_of_sequence(seq: Sequence, states_path, run_name: str, seq_name: str) -> None:
+    """Refuse a run of another sequence: simulated sequences share their scan times, so matching times do not
+    tell. The run's states.npz counts the detections the estimator took from every scan (n_detections: range
+    in (0, max_range], and without those of elevation exactly 0 under `association.missing_elevation_zero`); each
+    scan of `seq` must have a state at its time with its count, one of those two.
+
+    Raises:
+        InputError naming both directories and the first scan that differs.
+
+    Checked by: tests/sim/test_review2_export_run.py::test_a_run_of_another_sequence_with_the_same_times_is_refused
+    """
+    states_path = Path(states_path)
+    t_run, n_run = _read_states(states_path)
+    order = np.argsort(t_run, kind="stable")
+    t_run, n_run = t_run[order], n_run[order]
+    max_range = seq.sensor.max_range
+    for scan in seq.scans:
+        j = int(np.searchsorted(t_run, scan.t))
+        near = [k for k in (j - 1, j) if 0 <= k < len(t_run) and abs(t_run[k] - scan.t) <= TIME_MATCH_S]
+        where = f"scan {scan.scan} (t = {float(scan.t)!r} s)"
+        if not near:
+            raise InputError(f"--run: {run_name} is not a run of {seq_name}: its {states_path.name} has no state at "
+                             f"{where}")
+        inside = (scan.range > 0) & (scan.range <= max_range)
+        n_in, n_elevation = int(inside.sum()), int((inside & (scan.elevation != 0)).sum())
+        if int(n_run[near[0]]) not in (n_in, n_elevation):
+            also = "" if n_elevation == n_in else f", {n_elevation} of them with an elevation"
+            raise InputError(f"--run: {run_name} is not a run of {seq_name}: at {where} the run took "
+                             f"{int(n_run[near[0]])} detections ({states_path.name} n_detections), the sequence "
+                             f"has {n_in} in range (0, {max_range:g}] m{also}; give the run of this sequence")
 
 
 def export_ply(seq: Sequence, out_dir, trajectory: Trajectory | None = None, where: str = "trajectory") -> dict:

@@ -6,7 +6,8 @@ the parameters that say which campaign the directory holds (docs/evaluation.md, 
   process dies). A second writer, in another process, gets an InputError naming the directory. The lock is
   re-entrant within one process (a command holds it over the whole run, `run_campaign` takes it again inside).
 - `check_and_save_meta(out_dir, meta, resume)`: refuse to overwrite a campaign, to resume a different one, to
-  resume without (or with a corrupt) campaign.json, or to shrink one; a larger `runs` extends it.
+  resume without (or with a corrupt) campaign.json, or to shrink one; a larger `runs` extends it. A refused
+  resume names each differing parameter on one line (`describe_difference`: long values by a digest).
 
 Checked by: tests/validation/test_campaign_lock.py
 """
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -127,10 +129,46 @@ def check_and_save_meta(out: Path, meta: dict, resume: bool) -> None:
         diff = sorted(k for k in set(saved) | set(meta) if k != "runs" and saved.get(k) != meta.get(k))
         if diff:
             raise InputError(f"resume: {meta_path} was written for a different campaign (differs in "
-                             f"{', '.join(diff)}: saved {[saved.get(k) for k in diff]}, now "
-                             f"{[meta.get(k) for k in diff]})")
+                             f"{'; '.join(describe_difference(k, saved.get(k), meta.get(k)) for k in diff)})")
     if meta:
         atomic_write_bytes(meta_path, (json.dumps(meta, indent=2, sort_keys=True) + "\n").encode("utf-8"))
+
+
+SHORT_VALUE = 60  # characters of a value's repr shown as it is; a longer one by its SHA-256 prefix
+
+
+def describe_difference(key: str, saved, now) -> str:
+    """One line on how campaign.json's `key` differs: short values as they are (`saved 0, now 1`); long ones
+    (config texts) by a SHA-256 prefix and length, and for a dict (`configs`: label -> config text) only the
+    labels added, removed or changed, e.g. `configs: cvx changed (saved sha256 68c371d8bb9a, 2411 characters;
+    now sha256 0d4445c8f5b3, 2418 characters)`. A text's digest is the one `sha256sum` prints for its file.
+
+    Checked by: tests/cli/test_review2_campaign_resume.py::test_resume_with_an_edited_config_names_the_label_briefly
+    """
+    if isinstance(saved, dict) and isinstance(now, dict) and max(len(repr(saved)), len(repr(now))) > SHORT_VALUE:
+        parts = []
+        for label in sorted(set(saved) | set(now), key=str):
+            if label not in saved:
+                parts.append(f"{label} added ({_brief(now[label])})")
+            elif label not in now:
+                parts.append(f"{label} removed (saved {_brief(saved[label])})")
+            elif saved[label] != now[label]:
+                parts.append(f"{label} changed (saved {_brief(saved[label])}; now {_brief(now[label])})")
+        return f"{key}: {', '.join(parts)}"
+    return f"{key}: saved {_brief(saved)}, now {_brief(now)}"
+
+
+def _brief(value) -> str:
+    """repr(value) when short, else its SHA-256 prefix (of the text, or of its JSON) and size; a dict by entry."""
+    text = repr(value)
+    if len(text) <= SHORT_VALUE:
+        return text
+    if isinstance(value, str):
+        return f"sha256 {hashlib.sha256(value.encode('utf-8')).hexdigest()[:12]}, {len(value)} characters"
+    if isinstance(value, dict):  # e.g. configs against none: the labels, each briefly
+        return "{" + ", ".join(f"{k!r}: {_brief(v)}" for k, v in value.items()) + "}"
+    data = json.dumps(value, sort_keys=True, default=str).encode("utf-8")
+    return f"{type(value).__name__} of JSON sha256 {hashlib.sha256(data).hexdigest()[:12]}, {len(data)} bytes"
 
 
 def _check_runs(meta_path: Path, saved, now) -> None:

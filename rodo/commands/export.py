@@ -8,6 +8,7 @@ Checked by: tests/sim/test_export.py
 from __future__ import annotations
 
 import argparse
+import sys
 
 from rodo.estimator.errors import InputError
 
@@ -20,7 +21,8 @@ Formats:
   ply        DIR/scans/<scan>.ply, one per scan in the sensor frame (binary little-endian; properties x, y, z,
              radial_velocity, scan_time, scan, range, azimuth, elevation and the sequence's extra columns).
              With --run RUN_DIR (a `rodo run` output) also DIR/map.ply: all scans in the world frame placed by
-             the estimated poses (estimate.txt), the aggregated map.
+             the estimated poses (estimate.txt), the aggregated map. The run must be of SEQ_DIR: a pose at
+             every scan time and, from its states.npz, the same number of detections in every scan.
   kitti-bin  the KITTI odometry layout: DIR/sequences/00/velodyne/<k>.bin (float32 x, y, z, intensity),
              times.txt, calib.txt (Tr identity) and DIR/poses/00.txt from groundtruth.txt when it has a pose at
              every scan. kiss-icp reads it unchanged: kiss_icp_pipeline DIR/sequences/00/velodyne
@@ -42,6 +44,8 @@ def register(subparsers) -> None:
 
 
 def _estimate(run_dir: str):
+    """(trajectory, estimate path, states.npz path or None) of --run: a `rodo run` directory, or its estimate.txt
+    (then its directory's states.npz); another TUM file has no states.npz of its run."""
     from pathlib import Path
 
     from rodo.sim.sequence import read_tum
@@ -51,23 +55,29 @@ def _estimate(run_dir: str):
         path = path / "estimate.txt"
     if not path.is_file():
         raise InputError(f"--run: {path} not found (expected a `rodo run` output directory with estimate.txt)")
-    return read_tum(path), str(path)
+    states = path.parent / "states.npz" if path.name == "estimate.txt" else None
+    return read_tum(path), str(path), states if states is not None and states.is_file() else None
 
 
 def run(args) -> int:
-    from rodo.sim.export import export_kitti, export_ply
+    from rodo.sim.export import check_run_of_sequence, export_kitti, export_ply
     from rodo.sim.sequence import read_sequence
 
     for option, value, owner in (("--run", args.run, "ply"), ("--intensity", args.intensity, "kitti-bin")):
         if value is not None and args.format != owner:
             raise InputError(f"{option}: only for the {owner} format, not {args.format}")
-    trajectory, where = _estimate(args.run) if args.run is not None else (None, "")
+    trajectory, where, states = _estimate(args.run) if args.run is not None else (None, "", None)
     seq = read_sequence(args.sequence)
+    if states is not None:  # the run's detection counts: a run of another sequence on the same clock is refused
+        check_run_of_sequence(seq, states, str(args.run), str(args.sequence))
     if args.format == "ply":
         done = export_ply(seq, args.out, trajectory=trajectory, where=where)
         print(f"wrote {done['scans']} scans ({done['points']} points) to {args.out}/scans/")
         if done["map"] is not None:
             print(f"wrote {done['map']} (all scans in the world frame, poses from {where})")
+        if args.run is not None and states is None:
+            print(f"rodo export: warning: {where} has no states.npz beside it: only its times were checked against "
+                  f"{args.sequence} (a run of another sequence on the same scan times would pass)", file=sys.stderr)
         return 0
     done = export_kitti(seq, args.out, intensity=args.intensity)
     print(f"wrote {done['scans']} scans ({done['points']} points) to {args.out}/sequences/00/velodyne/ "

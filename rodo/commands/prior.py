@@ -10,9 +10,11 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 from rodo.estimator.priors import ConstantAccelerationPrior
-from rodo.outputs import write_text_atomic
+from rodo.outputs import check_output_dir, write_text_atomic
 from rodo.sim import prior_sampling as ps
 from rodo.sim.simulate import save_npz
+
+DOF = 18  # the CA state [pose; velocity; acceleration]
 
 
 def register(subparsers) -> None:
@@ -21,7 +23,8 @@ def register(subparsers) -> None:
                                           "(the paper's Fig. 1 set-up) and check the prior's propagated mean and "
                                           "covariance against the samples: mean NEES within its chi-square bounds "
                                           "and a covariance test. Writes DIR/prior_montecarlo.json.")
-    p.add_argument("--samples", type=int, default=2000, help="number of SDE samples (default 2000)")
+    p.add_argument("--samples", type=int, default=2000,
+                   help="number of SDE samples (default 2000; at least 62, for the covariance test)")
     p.add_argument("--seed", type=int, default=0, help="SeedSequence entropy (default 0)")
     p.add_argument("--dt", type=float, default=1.0, help="horizon in seconds (default 1.0)")
     p.add_argument("--substeps", type=int, default=200, help="jerk sub-steps of the SDE (default 200)")
@@ -32,16 +35,33 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
-    if args.samples < 2:
-        raise InputError(f"--samples: need at least 2, got {args.samples}")
+def _check(args) -> None:
+    """The options checked before any work; --samples and --out after the prior's own checks (`_check_samples`)."""
     if args.seed < 0:
         raise InputError(f"--seed: must be >= 0, got {args.seed}")
+    if args.substeps < 1:
+        raise InputError(f"substeps: expected a positive integer, got {args.substeps} (--substeps)")
+
+
+def _check_samples(samples: int, out) -> None:
+    """--out is (or can be) a directory; --samples is enough for the covariance test (`ps.whitened_covariance_test`:
+    the least count at which its Bartlett-corrected chi-square approximation holds the level, 62 for d = 18)."""
+    check_output_dir(out, create=False)
+    need = ps.covariance_test_min_samples(DOF)
+    if samples < need:
+        raise InputError(f"--samples: {samples} is too few for the covariance test of the {DOF}-dimensional state; "
+                         f"give at least {need} (Bartlett-corrected likelihood-ratio test: below {need} its "
+                         f"chi-square approximation rejects a correct prior far more often than its 0.1 % level)")
+
+
+def run(args) -> int:
+    _check(args)
     case = ps.yaw_acceleration_case()
     case["dt"] = args.dt
     prior = ConstantAccelerationPrior(case["Qc"], magnus_order=args.magnus_order, noise=args.noise)
     state = {k: case[k] for k in ("T0", "varpi0", "vd0", "P0", "dt")}
     (T_m, w_m, v_m), P = ps.propagate_mean_cov(prior, **state)
+    _check_samples(args.samples, args.out)
     rng = np.random.default_rng(np.random.SeedSequence(args.seed))
     samples = ps.sample_prior(prior, **state, n_samples=args.samples, rng=rng, substeps=args.substeps)
     eps = ps.nees(samples, (T_m, w_m, v_m), P)
@@ -51,8 +71,9 @@ def run(args) -> int:
     result = {
         "case": "yaw_acceleration", "samples": args.samples, "seed": args.seed, "dt": args.dt,
         "substeps": args.substeps, "magnus_order": args.magnus_order, "noise": args.noise,
-        "mean_nees": mean_nees, "nees_bounds_95": [lo, hi], "dof": 18,
+        "mean_nees": mean_nees, "nees_bounds_95": [lo, hi], "dof": DOF,
         "covariance_lrt_stat": stat, "covariance_lrt_dof": dof, "covariance_lrt_p": p_value,
+        "covariance_lrt_bartlett_factor": ps.bartlett_factor(args.samples, DOF),  # stat = factor x plain LRT
         "pass": bool(lo <= mean_nees <= hi and p_value > 1e-3),
     }
     try:

@@ -44,10 +44,29 @@ def has_display(environ=None) -> bool:
     return bool(env.get("DISPLAY") or env.get("WAYLAND_DISPLAY"))
 
 
+WRITE_ONE = "write one with `rodo run SEQ --out DIR --rerun OUT.rrd`"  # a placeholder, never the path given
+LISTED = 5  # .rrd files of a directory named in its error
+
+
+def _directory_error(path: Path) -> InputError:
+    """The error for a directory given as the recording: its .rrd files named, if it has any."""
+    try:
+        rrds = sorted(p.name for p in path.glob("*.rrd") if p.is_file())
+    except OSError:
+        rrds = []
+    if not rrds:
+        return InputError(f"{path}: is a directory and holds no .rrd recording; give a .rrd file ({WRITE_ONE})")
+    more = f" and {len(rrds) - LISTED} more" if len(rrds) > LISTED else ""
+    return InputError(f"{path}: is a directory, not a recording; it holds {', '.join(rrds[:LISTED])}{more}: give "
+                      f"one, e.g. `rodo view {path / rrds[0]}`")
+
+
 def main(args: argparse.Namespace) -> int:
     path = Path(args.recording)
+    if path.is_dir():
+        raise _directory_error(path)
     if not path.is_file():
-        raise InputError(f"{path}: recording not found (write one with `rodo run SEQ --out DIR --rerun {path}`)")
+        raise InputError(f"{path}: recording not found ({WRITE_ONE})")
     try:
         with open(path, "rb") as fh:
             head = fh.read(4)
@@ -55,7 +74,7 @@ def main(args: argparse.Namespace) -> int:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if not head.startswith(RRD_MAGIC):  # an .rrd file starts with "RRF" and a format version
         raise InputError(f"{path}: not a Rerun recording (it starts with {head!r}, a recording with {RRD_MAGIC!r}); "
-                         f"write one with `rodo run SEQ --out DIR --rerun {path}`")
+                         f"{WRITE_ONE}")
     viewer = find_viewer()
     if viewer is not None and has_display():
         return subprocess.call([viewer, str(path)])
