@@ -235,17 +235,17 @@ def test_ego_velocity_bad_inputs(seq, tmp_path, capsys):
 @pytest.mark.parametrize("extra, needles", [
     (["--samples", "1"], ("--samples",)),
     (["--seed", "-1"], ("--seed",)),
-    (["--samples", "20", "--dt", "-1"], ("dt",)),
-    (["--samples", "20", "--dt", "0"], ("dt",)),
-    (["--samples", "20", "--substeps", "0"], ("substeps",)),
-    (["--samples", "20", "--magnus-order", "9"], ("magnus_order", "9")),
+    (["--samples", "62", "--dt", "-1"], ("dt",)),
+    (["--samples", "62", "--dt", "0"], ("dt",)),
+    (["--samples", "62", "--substeps", "0"], ("substeps",)),
+    (["--samples", "62", "--magnus-order", "9"], ("magnus_order", "9")),
 ])
 def test_prior_montecarlo_bad_inputs(tmp_path, capsys, extra, needles):
     fails(capsys, ["prior-montecarlo", *extra, "--out", tmp_path / "p"], *needles)
 
 
 def test_prior_montecarlo_out_is_a_file(a_file, capsys):
-    fails(capsys, ["prior-montecarlo", "--samples", "20", "--substeps", "10", "--out", a_file], "--out", "a_file")
+    fails(capsys, ["prior-montecarlo", "--samples", "62", "--substeps", "10", "--out", a_file], "--out", "a_file")
 
 
 # ---------------------------------------------------------------- rodo figures, view
