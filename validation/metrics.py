@@ -92,7 +92,7 @@ def ate(gt: np.ndarray, est: np.ndarray, align: bool = True) -> dict:
     return {**_stats(err, "ate", "m"), "T_align": T.tolist()}
 
 
-def _rotation_angle(C: np.ndarray) -> np.ndarray:
+def rotation_angle(C: np.ndarray) -> np.ndarray:
     """Angle of rotation matrices, accurate near 0 too: atan2(|axial(C - C^T)| / 2, (tr C - 1) / 2)."""
     axial = np.stack([C[..., 2, 1] - C[..., 1, 2], C[..., 0, 2] - C[..., 2, 0], C[..., 1, 0] - C[..., 0, 1]], -1)
     return np.arctan2(0.5 * np.linalg.norm(axial, axis=-1), 0.5 * (np.trace(C, axis1=-2, axis2=-1) - 1.0))
@@ -124,7 +124,7 @@ def rpe(gt: np.ndarray, est: np.ndarray, delta_frames: int = 1, delta_m: float =
 
     def errors(i, j):
         E = se3.inverse(se3.inverse(est[i]) @ est[j]) @ (se3.inverse(gt[i]) @ gt[j])
-        return np.linalg.norm(E[:, :3, 3], axis=1), _rotation_angle(E[:, :3, :3])
+        return np.linalg.norm(E[:, :3, 3], axis=1), rotation_angle(E[:, :3, :3])
 
     i = np.arange(max(len(gt) - d, 0))
     te, re = errors(i, i + d)
@@ -216,7 +216,7 @@ def pose_errors(T_world_vehicle_est, T_world_vehicle_true) -> PoseErrors:
     xi = np.full((n, 6), np.nan)
     if ok.any():
         drift_xyz[ok] = T_est[ok, :3, 3] - T_true[ok, :3, 3]
-        rot[ok] = np.rad2deg(_rotation_angle(np.swapaxes(T_est[ok, :3, :3], 1, 2) @ T_true[ok, :3, :3]))
+        rot[ok] = np.rad2deg(rotation_angle(np.swapaxes(T_est[ok, :3, :3], 1, 2) @ T_true[ok, :3, :3]))
         xi[ok] = pose_error(se3.inverse(T_true[ok]), se3.inverse(T_est[ok]))
     return PoseErrors(np.linalg.norm(drift_xyz, axis=1), rot, drift_xyz, xi)
 

@@ -15,7 +15,7 @@ from rodo.estimator.errors import InputError
 from rodo.sim.sequence import read_tum
 from rodo.validation.association import DEFAULT_TOLERANCE, associate
 from rodo.outputs import check_not_input, check_output_file, write_text_atomic
-from rodo.validation.metrics import evaluate, jsonable
+from rodo.validation.metrics import evaluate, jsonable, rotation_angle
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -169,7 +169,6 @@ def check_states_times(states: dict, est, tolerance: float, where: str) -> None:
         raise InputError(f"{where}: the states' times are not the estimate's within {tolerance:g} s "
                          f"({len(ts)} states over {_span(ts)}, {len(te)} poses over {_span(te)}{first}): give the "
                          "states.npz that `rodo run` wrote with this estimate")
-    check_states_poses(states, est, where)
 
 
 STATES_POSE_TOLERANCE = 1e-6  # m and rad: the run's states and its estimate.txt are one pose each, 9 decimals apart
@@ -182,18 +181,23 @@ def check_states_poses(states: dict, est, where: str) -> None:
 
     Checked by: tests/cli/test_command_defects_demo_evaluate.py::test_states_of_another_run_on_the_same_times_are_refused
     """
-    from rodo.estimator.lie import se3
-
-    T_est = se3.inverse(np.asarray(states["T_vehicle_world"], dtype=float))
-    G = np.asarray(est.T_world_vehicle, dtype=float)
-    dp = np.linalg.norm(T_est[:, :3, 3] - G[:, :3, 3], axis=1)
-    cos = 0.5 * (np.trace(np.swapaxes(G[:, :3, :3], 1, 2) @ T_est[:, :3, :3], axis1=1, axis2=2) - 1.0)
-    bad = (dp > STATES_POSE_TOLERANCE) | (np.arccos(np.clip(cos, -1.0, 1.0)) > STATES_POSE_TOLERANCE)
+    dp, angle = _pose_gaps(est.T_world_vehicle, states["T_vehicle_world"])
+    bad = (dp > STATES_POSE_TOLERANCE) | (angle > STATES_POSE_TOLERANCE)
     if bad.any():
         k = int(np.argmax(bad))
         raise InputError(f"{where}: the states' poses are not the estimate's ({int(bad.sum())} of {len(bad)} differ; "
                          f"first at t = {est.t[k]:.6f} s by {dp[k]:.3g} m): give the states.npz that `rodo run` "
                          "wrote with this estimate")
+
+
+def _pose_gaps(T_world_vehicle, T_vehicle_world) -> tuple[np.ndarray, np.ndarray]:
+    """(position distance (m), rotation angle (rad)) between two stacks of one pose each, given as a TUM file's
+    T_world_vehicle and an npz's T_vehicle_world."""
+    from rodo.estimator.lie import se3
+
+    A, B = np.asarray(T_world_vehicle, dtype=float), se3.inverse(np.asarray(T_vehicle_world, dtype=float))
+    return (np.linalg.norm(A[:, :3, 3] - B[:, :3, 3], axis=1),
+            rotation_angle(np.swapaxes(A[:, :3, :3], 1, 2) @ B[:, :3, :3]))
 
 
 def _span(t: np.ndarray) -> str:
@@ -207,19 +211,13 @@ def check_truth_poses(truth: dict, gt, tolerance: float, where: str) -> None:
 
     Checked by: tests/cli/test_command_defects_demo_evaluate.py::test_the_truth_pose_tolerance_is_a_millimetre
     """
-    from rodo.estimator.lie import se3
-
     try:
         ig, it = associate(gt.t, truth["t"], tolerance)
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
-    T_true = se3.inverse(np.asarray(truth["T_vehicle_world"], dtype=float)[it])
-    G = gt.T_world_vehicle[ig]
     dt = np.abs(gt.t[ig] - np.asarray(truth["t"], dtype=float)[it])
     varpi = np.asarray(truth["varpi"], dtype=float)[it]
-    dp = np.linalg.norm(G[:, :3, 3] - T_true[:, :3, 3], axis=1)
-    cos = 0.5 * (np.trace(np.swapaxes(G[:, :3, :3], 1, 2) @ T_true[:, :3, :3], axis1=1, axis2=2) - 1.0)
-    angle = np.arccos(np.clip(cos, -1.0, 1.0))
+    dp, angle = _pose_gaps(gt.T_world_vehicle[ig], np.asarray(truth["T_vehicle_world"], dtype=float)[it])
     bad = ((dp > POSE_TOLERANCE[0] + np.linalg.norm(varpi[:, :3], axis=1) * dt)
            | (angle > POSE_TOLERANCE[1] + np.linalg.norm(varpi[:, 3:], axis=1) * dt))
     if bad.any():
@@ -245,7 +243,9 @@ def load_inputs(gt_path, est_path, states_path=None, truth_path=None, tolerance:
                          "sequence's truth.npz")
     _check(lambda: associate(gt.t, est.t, tolerance), f"--gt {gt_path} and --est {est_path}")
     if states is not None:
-        check_states_times(states, est, tolerance, f"--states {states_path} and --est {est_path}")
+        where = f"--states {states_path} and --est {est_path}"
+        check_states_times(states, est, tolerance, where)
+        check_states_poses(states, est, where)  # on the same times: the other model's run, another drive's
     if states is not None and truth is not None:
         _check(lambda: associate(states["t"], truth["t"], tolerance),
                f"--states {states_path} and --truth {truth_path}")

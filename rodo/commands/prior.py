@@ -36,22 +36,17 @@ def register(subparsers) -> None:
 
 
 def _check(args) -> None:
-    """The options checked before any work; --samples and --out after the prior's own checks (`_check_samples`)."""
+    """The options checked before any work (the prior's own, --dt, --substeps, --magnus-order, where it uses them):
+    --seed; --samples enough for the covariance test (`ps.whitened_covariance_test`: the least count at which its
+    Bartlett-corrected chi-square approximation holds the level, 62 for d = 18); --out a directory or creatable."""
     if args.seed < 0:
         raise InputError(f"--seed: must be >= 0, got {args.seed}")
-    if args.substeps < 1:
-        raise InputError(f"substeps: expected a positive integer, got {args.substeps} (--substeps)")
-
-
-def _check_samples(samples: int, out) -> None:
-    """--out is (or can be) a directory; --samples is enough for the covariance test (`ps.whitened_covariance_test`:
-    the least count at which its Bartlett-corrected chi-square approximation holds the level, 62 for d = 18)."""
-    check_output_dir(out, create=False)
     need = ps.covariance_test_min_samples(DOF)
-    if samples < need:
-        raise InputError(f"--samples: {samples} is too few for the covariance test of the {DOF}-dimensional state; "
-                         f"give at least {need} (Bartlett-corrected likelihood-ratio test: below {need} its "
-                         f"chi-square approximation rejects a correct prior far more often than its 0.1 % level)")
+    if args.samples < need:
+        raise InputError(f"--samples: {args.samples} is too few for the covariance test of the {DOF}-dimensional "
+                         f"state; give at least {need} (Bartlett-corrected likelihood-ratio test: below {need} its "
+                         "chi-square approximation rejects a correct prior far more often than its 0.1 % level)")
+    check_output_dir(args.out, create=False)
 
 
 def run(args) -> int:
@@ -61,7 +56,6 @@ def run(args) -> int:
     prior = ConstantAccelerationPrior(case["Qc"], magnus_order=args.magnus_order, noise=args.noise)
     state = {k: case[k] for k in ("T0", "varpi0", "vd0", "P0", "dt")}
     (T_m, w_m, v_m), P = ps.propagate_mean_cov(prior, **state)
-    _check_samples(args.samples, args.out)
     rng = np.random.default_rng(np.random.SeedSequence(args.seed))
     samples = ps.sample_prior(prior, **state, n_samples=args.samples, rng=rng, substeps=args.substeps)
     eps = ps.nees(samples, (T_m, w_m, v_m), P)

@@ -34,29 +34,35 @@ def _evaluate_json(tmp_path, gt, est, states, truth) -> dict:
     return json.loads(out.read_text())
 
 
-def _demo(tmp_path, capsys, scenario: str, duration: str):
+def _demo_and_evaluate(tmp_path, capsys, scenario: str, duration: str):
+    """Run the demo, then `rodo evaluate` on each model's files: (the demo's printed text, and per model (its
+    evaluation.json, evaluate's report, demo.json's entry, its row of the printed table))."""
     out = tmp_path / f"demo_{scenario}"
     assert main(["demo", "--out", str(out), "--scenario", scenario, "--duration", duration, "--no-figures"],
                 commands=[demo_cmd]) == 0
-    return out, capsys.readouterr().out
+    text = capsys.readouterr().out
+    seq = out / f"{scenario}_seed0"
+    report = json.loads((out / "demo.json").read_text())
+    per_model = {}
+    for model in demo_cmd.MODELS:
+        ours = json.loads((out / model / "evaluation.json").read_text())
+        theirs = _evaluate_json(tmp_path, seq / "groundtruth.txt", out / model / "estimate.txt",
+                                out / model / "states.npz", seq / "truth.npz")
+        row = next(line for line in text.splitlines() if line.startswith(f"| {model} |"))
+        per_model[model] = (ours, theirs, report["runs"][model], row)
+    return text, per_model
 
 
 @pytest.mark.slow
 def test_the_demos_kitti_figure_is_rodo_evaluates(tmp_path, capsys):
     """On 5 s of highway (about 150 m: KITTI defined) the demo's evaluation.json, demo.json and table hold exactly
     what `rodo evaluate` reports for the files the demo wrote."""
-    out, text = _demo(tmp_path, capsys, "highway", "5")
-    seq = out / "highway_seed0"
-    report = json.loads((out / "demo.json").read_text())
-    for model in demo_cmd.MODELS:
-        ours = json.loads((out / model / "evaluation.json").read_text())
-        theirs = _evaluate_json(tmp_path, seq / "groundtruth.txt", out / model / "estimate.txt",
-                                out / model / "states.npz", seq / "truth.npz")
+    _, per_model = _demo_and_evaluate(tmp_path, capsys, "highway", "5")
+    for ours, theirs, reported, row in per_model.values():
         assert ours == theirs
         assert theirs["path_length_m"] > 100 and theirs["kitti_segments"] > 0
         assert [s["length_m"] for s in theirs["segments"]][0] == 100.0  # the devkit's lengths, not 50 m
-        assert report["runs"][model]["kitti_t_err_pct"] == theirs["kitti_t_err_pct"] > 0
-        row = next(line for line in text.splitlines() if line.startswith(f"| {model} |"))
+        assert reported["kitti_t_err_pct"] == theirs["kitti_t_err_pct"] > 0
         assert row.split("|")[2].strip() == f"{theirs['kitti_t_err_pct']:.3f}"
 
 
@@ -64,16 +70,10 @@ def test_the_demos_kitti_figure_is_rodo_evaluates(tmp_path, capsys):
 def test_the_demo_has_no_kitti_figure_below_100_m(tmp_path, capsys):
     """On 1 s of city (about 3 m) `rodo evaluate` has no KITTI figure, and neither has the demo: '-' in its table,
     null in its JSON, and a line saying why."""
-    out, text = _demo(tmp_path, capsys, "city", "1")
-    seq = out / "city_seed0"
-    report = json.loads((out / "demo.json").read_text())
-    for model in demo_cmd.MODELS:
-        ours = json.loads((out / model / "evaluation.json").read_text())
-        theirs = _evaluate_json(tmp_path, seq / "groundtruth.txt", out / model / "estimate.txt",
-                                out / model / "states.npz", seq / "truth.npz")
+    text, per_model = _demo_and_evaluate(tmp_path, capsys, "city", "1")
+    for ours, theirs, reported, row in per_model.values():
         assert ours == theirs and theirs["kitti_t_err_pct"] is None and theirs["kitti_segments"] == 0
-        assert report["runs"][model]["kitti_t_err_pct"] is None
-        row = next(line for line in text.splitlines() if line.startswith(f"| {model} |"))
+        assert reported["kitti_t_err_pct"] is None
         assert [c.strip() for c in row.split("|")[2:4]] == ["-", "-"]
     assert "KITTI -: the path" in text and "shorter than the KITTI devkit's shortest segment (100 m)" in text
 
