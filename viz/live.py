@@ -12,6 +12,9 @@ Checked by: tests/viz/test_live.py
 
 from __future__ import annotations
 
+import socket
+from urllib.parse import urlsplit
+
 import numpy as np
 
 from rodo.estimator.errors import InputError
@@ -34,6 +37,19 @@ def grpc_url(value: str | None) -> str:
     if port.isdigit() and 0 < int(port) < 65536 and (host or ":" not in value):
         return f"rerun+http://{host or '127.0.0.1'}:{port}/proxy"
     raise InputError(f"--connect: expected a port, HOST:PORT or a rerun+http://HOST:PORT/proxy URL, got {value!r}")
+
+
+def check_viewer(url: str, timeout: float = 3.0) -> None:
+    """InputError naming --connect when nothing accepts connections at the viewer address `url` (a `grpc_url`):
+    the SDK would otherwise buffer the whole run for a viewer that never comes, and wait for it at the end."""
+    parts = urlsplit(url.split("+", 1)[1] if url.startswith("rerun+") else url.replace("rerun://", "http://", 1))
+    host, port = parts.hostname or "127.0.0.1", parts.port or DEFAULT_PORT
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as e:
+        raise InputError(f"--connect: no Rerun viewer is listening at {host}:{port} ({e.strerror or e}); start one "
+                         "first (`rerun`, or `rerun --port N` for another port), or use --serve or --rerun OUT.rrd") \
+            from None
 
 
 class LiveRun:
@@ -99,8 +115,15 @@ class LiveRun:
         if est.events:
             rec.log("events", rr.TextLog("; ".join(est.events), level="INFO"))
 
-    def close(self) -> None:
-        """Flush what is buffered; close a connection (a server keeps serving until the process ends)."""
-        self.rec.flush()
+    def close(self, timeout: float = 10.0) -> str | None:
+        """Flush what is buffered; close a connection (a server keeps serving until the process ends). Returns
+        None, or why the viewer did not get everything (it went away during the run) after at most about
+        `timeout` s plus the SDK's own few seconds of grace."""
+        problem = None
+        try:
+            self.rec.flush(timeout_sec=timeout)
+        except RuntimeError as e:  # the SDK's "unable to connect" once the timeout has passed
+            problem = f"the live viewer at {self.url} did not receive the whole run ({e})"
         if self.connected:
             self.rec.disconnect()
+        return problem

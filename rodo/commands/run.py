@@ -92,10 +92,10 @@ def main(args) -> int:
     if args.connect is not None and args.serve:
         raise InputError("--connect and --serve: give one of them")
     live_stream = args.connect is not None or args.serve
-    if args.connect:
-        from rodo.viz.live import grpc_url
+    if args.connect is not None:
+        from rodo.viz.live import check_viewer, grpc_url
 
-        grpc_url(args.connect)  # a bad address fails before the work
+        check_viewer(grpc_url(args.connect))  # a bad address, or no viewer there, fails before the work
     if args.rerun:
         check_output_file(args.rerun, "--rerun", parents=True)  # before the run, not after the estimate is written
         check_not_input(args.rerun, "--rerun", sequence_inputs(args.sequence) + [Path(args.out) / name
@@ -119,9 +119,9 @@ def main(args) -> int:
         result = run_sequence(seq, config, progress=bar, record_detail=bool(args.rerun) or live_stream,
                               on_scan=live.on_scan if live is not None else None,
                               keep_estimates=bool(args.rerun))  # else per-scan arrays only (a long drive)
-    if live is not None:
-        live.close()
-    _write(args.out, result)
+    _write(args.out, result)  # before the live stream closes: the files never wait for a viewer
+    if live is not None and (problem := live.close()) is not None:
+        print(f"rodo run: warning: {problem}", file=sys.stderr)
     if args.rerun:
         from rodo.viz.recording import record_run  # viz is the only package importing rerun
 

@@ -23,7 +23,7 @@ from rodo.validation.driver import run_sequence
 rr = pytest.importorskip("rerun", reason="the live stream needs rerun-sdk")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from rodo.viz.live import LiveRun, grpc_url  # noqa: E402
+from rodo.viz.live import LiveRun, check_viewer, grpc_url  # noqa: E402
 
 
 def _run(argv) -> int:
@@ -164,3 +164,39 @@ def test_live_flags_bad_input(seq_dir, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
     with pytest.raises(InputError, match="--connect"):
         grpc_url("99999")
+
+
+def test_run_connect_without_a_viewer_fails_before_the_work(seq_dir, tmp_path, capsys):
+    """Nothing listening at the --connect address: refused at once, naming it, with nothing written (the SDK
+    would buffer the whole run and wait for a viewer for ever, Ctrl-C included)."""
+    port = _free_port()
+    assert _run(["run", seq_dir, "--out", tmp_path / "o", "--connect", str(port)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rodo run: error: --connect: no Rerun viewer is listening at 127.0.0.1:"
+                          f"{port}"), err
+    assert "--serve or --rerun" in err and not (tmp_path / "o").exists()
+
+
+def test_run_writes_its_files_when_the_viewer_goes_away(seq_dir, tmp_path, monkeypatch, capsys):
+    """A viewer that goes away during the run: the files are written first, and the lost stream is a warning."""
+    import rodo.viz.live as live
+
+    monkeypatch.setattr(live, "check_viewer", lambda url: None)
+    monkeypatch.setattr(rr.RecordingStream, "connect_grpc", lambda self, url=None, **kw: None)
+
+    def flush(self, timeout_sec=1e38):
+        raise RuntimeError("gRPC has been unable to connect for 10s")
+
+    monkeypatch.setattr(rr.RecordingStream, "flush", flush)
+    monkeypatch.setattr(rr.RecordingStream, "disconnect", lambda self: None)
+    assert _run(["run", seq_dir, "--out", tmp_path / "o", "--connect", "9"]) == 0
+    err = capsys.readouterr().err
+    assert "rodo run: warning: the live viewer at rerun+http://127.0.0.1:9/proxy did not receive the whole run" in err
+    assert read_tum(tmp_path / "o" / "estimate.txt").t.size > 0
+
+
+def test_check_viewer_accepts_a_listening_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        check_viewer(grpc_url(str(s.getsockname()[1])))  # no error
