@@ -198,7 +198,12 @@ def main(args) -> int:
     print(markdown(report), end="")
     written = [out, out.with_suffix(".json"), out.with_suffix(".md")]
     if isinstance(report.get("velocity_growth"), list):
-        from rodo.viz.figures import plot_velocity_growth  # viz is the only package importing matplotlib
-        written.append(plot_velocity_growth(growth_figure_path(out), report["velocity_growth"]))
+        from rodo import extras
+
+        if extras.is_installed("matplotlib"):
+            from rodo.viz.figures import plot_velocity_growth  # viz is the only package importing matplotlib
+            written.append(plot_velocity_growth(growth_figure_path(out), report["velocity_growth"]))
+        else:
+            print(f"no growth figure: matplotlib is not installed ({extras.install_hint('viz')} adds it)")
     print(f"wrote {', '.join(str(w) for w in written)}")
     return 0

@@ -7,6 +7,7 @@ None or an error), then calls rodo's entry point. The same refusal in this proce
 Sizing: one 1.5 s city sequence simulated and run once (about 15 s with the subprocess start-ups).
 """
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -14,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rodo import extras
+from rodo import extras, scenarios
 from rodo.estimator.tomlcompat import tomllib
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -147,3 +148,16 @@ def test_extra_for_maps_submodules():
     assert extras.extra_for("open3d") == "icp" and extras.extra_for("kiss_icp.pipeline") == "icp"
     assert extras.extra_for("distributed") == "dask"
     assert extras.extra_for("numpy") is None and extras.extra_for(None) is None
+
+
+@pytest.mark.slow
+def test_calibrate_without_truth_and_matplotlib_writes_everything_but_the_figure(tmp_path):
+    """EM's check of the velocity's growth draws a figure; without matplotlib the calibration is written all the
+    same and the figure is skipped with a hint (it failed with exit 2 after the whole EM had run)."""
+    d, out = tmp_path / "drive", tmp_path / "em.toml"
+    scenarios.simulate_to("prior_ca_points", 3, d, duration=8.0)
+    p = rodo_without(["matplotlib"], "calibrate", d, "--no-truth", "--iterations", 1, "--out", out)
+    assert p.returncode == 0, p.stderr
+    assert "no growth figure: matplotlib is not installed" in p.stdout
+    assert out.exists() and isinstance(json.loads(out.with_suffix(".json").read_text())["velocity_growth"], list)
+    assert not (tmp_path / "em_growth.png").exists()
