@@ -11,7 +11,7 @@ picks the locator and reads the source stamp at decoration time).
 If numba's (private) caching API is not the one expected, nothing is installed and numba's plain behaviour
 remains.
 
-Compiling every kernel takes about a minute on a slow machine; it happens once, on the first run after an
+Compiling every kernel takes a minute or more (77-81 s on a 2-core machine); it happens once, on the first run after an
 install or an edit (then the cache loads in a second). The first compilation of a registered root's kernel in a
 process prints COMPILE_NOTICE on stderr (a numba compile event: numba fires it only on a cache miss), so a
 first run does not look hung. `make install` compiles them all (`python -m rodo.warmup`).
@@ -33,7 +33,7 @@ from numba.core import event
 __all__ = ["COMPILE_NOTICE", "FASTMATH", "LOCATOR_INSTALLED", "njit", "register_kernel_root", "source_digest",
            "source_stamp"]
 
-COMPILE_NOTICE = ("rodo: compiling kernels (first run after an install or an edit only: about a minute, then "
+COMPILE_NOTICE = ("rodo: compiling kernels (first run after an install or an edit only: a minute or more, then "
                   "cached)")
 
 # IEEE-safe fast-math subset shared by the kernels (no nnan/ninf: finiteness checks must survive)

@@ -1,7 +1,7 @@
 """`python -m rodo.warmup`: compile (or load) every kernel the odometry runs, for all four models.
 
 `make install` runs it once, so the first `rodo run`, `make demo` and the test suite find the numba cache
-warm (`rodo.estimator.jit`: compiling takes about a minute; loading the cache, about a second). It runs each
+warm (`rodo.estimator.jit`: compiling takes a minute or more; loading the cache, about a second). It runs each
 model on two seconds of the simulated `city` scenario; a second call only loads the cache.
 """
 

@@ -46,10 +46,15 @@ def parse_lengths(text: str) -> tuple[float, ...]:
     return lengths
 
 
+NPZ_NAMES = {"--states": "the states.npz `rodo run` writes", "--truth": "the truth.npz `rodo simulate` writes"}
+
+
 def load_npz(path: str, option: str, required: tuple[str, ...]) -> dict:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{option} {path}: file not found")
+    if not zipfile.is_zipfile(p):  # np.load would take it for a pickle and suggest loading it unsafely
+        raise InputError(f"{option} {path}: not an .npz archive (expected {NPZ_NAMES.get(option, 'an .npz')})")
     try:
         with np.load(p, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}

@@ -51,9 +51,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def load_config(args) -> OdometryConfig:
     if args.config:
-        cfg = OdometryConfig.from_toml(args.config, model=args.model)
-        if args.model and cfg.model != args.model:  # the command line wins over the file
-            cfg = cfg.replace(model=args.model)
+        cfg = OdometryConfig.from_toml(args.config, model=args.model)  # --model fills in a file without one
+        if args.model and cfg.model != args.model:  # its noise and learned terms belong to its own model
+            raise InputError(f"--model {args.model}: {args.config} is a {cfg.model} config (its model key); drop "
+                             f"--model to run it, or give a {args.model} config")
         return cfg
     return OdometryConfig.for_model(args.model or "ca-polar")
 

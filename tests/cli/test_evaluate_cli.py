@@ -116,8 +116,11 @@ def test_errors_exit_2_with_a_clear_message(files, capsys):
     assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", "--states", d / "nope.npz"]) == 2
     assert "--states" in capsys.readouterr().err
     (d / "junk.npz").write_text("not a zip")
-    assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", "--truth", d / "junk.npz"]) == 2
-    assert "not a readable .npz" in capsys.readouterr().err
+    for option, expected in (("--truth", "truth.npz"), ("--states", "states.npz")):  # e.g. a TUM file given
+        assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", option, d / "junk.npz"]) == 2
+        err = capsys.readouterr().err
+        assert f"{option} {d / 'junk.npz'}: not an .npz archive (expected the {expected}" in err, err
+        assert "pickle" not in err and "unsafe" not in err
     np.savez(d / "partial.npz", t=gt.t)
     assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", "--states", d / "partial.npz"]) == 2
     assert "missing array(s) T_vehicle_world" in capsys.readouterr().err

@@ -138,15 +138,18 @@ def test_config_override_is_applied_and_saved(short, tmp_path, capsys):
     assert (out / "estimate.txt").read_bytes() != (default_out / "estimate.txt").read_bytes()
 
 
-def test_model_option_wins_over_the_config_files_model(short, tmp_path, capsys):
+def test_model_option_against_the_config_files_model_is_refused(short, tmp_path, capsys):
+    """A config that names its model (every `rodo calibrate` output) run with another --model: refused before the
+    run (its noise and learned terms are that model's; it ran silently as the other model)."""
     seq_dir, _ = short
     cfg = tmp_path / "cv.toml"
     cfg.write_text('model = "cv-cartesian"\n' + OVERRIDE)
     out = tmp_path / "out"
-    rc = _run(seq_dir, "--model", "ca-polar", "--config", cfg, "--out", out)
-    assert rc == 0, capsys.readouterr().err
-    saved = json.loads((out / "summary.json").read_text())
-    assert saved["model"] == "ca-polar" and saved["config"]["window"] == 3
+    assert _run(seq_dir, "--model", "ca-polar", "--config", cfg, "--out", out) == 2
+    err = capsys.readouterr().err
+    assert f"--model ca-polar: {cfg} is a cv-cartesian config" in err and not out.exists()
+    assert _run(seq_dir, "--model", "cv-cartesian", "--config", cfg, "--out", out) == 0  # the same model: fine
+    assert json.loads((out / "summary.json").read_text())["config"]["window"] == 3
 
 
 def test_config_round_trips_in_memory():

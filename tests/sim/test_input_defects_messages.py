@@ -48,3 +48,15 @@ def test_a_rig_given_for_one_sequence_is_named_as_a_rig(tmp_path, capsys, argv):
                     "radars: front_left, front_right")
     assert "file not found" not in message
     assert not (tmp_path / "e.csv").exists() and not (tmp_path / "x").exists()
+
+
+def test_a_truth_file_that_is_not_an_archive_is_named_without_pickle_advice(tmp_path):
+    """A text file in place of truth.npz: named as not an archive; numpy's own message took it for pickled data and
+    suggested loading it unsafely."""
+    from rodo.sim.simulate import load_truth
+
+    (tmp_path / "truth.npz").write_text("0.0 1 2 3 0 0 0 1\n")
+    with pytest.raises(InputError) as err:
+        load_truth(tmp_path)
+    assert str(err.value) == (f"{tmp_path / 'truth.npz'}: not an .npz archive "
+                              "(expected the truth.npz `rodo simulate` writes)")
