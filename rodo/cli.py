@@ -4,6 +4,7 @@ listed explicitly in COMMANDS (no discovery by magic)."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from rodo.estimator.errors import InputError
@@ -42,7 +43,12 @@ def main(argv: list[str] | None = None, commands=None) -> int:
     args = parser.parse_args(argv)
     try:
         extras.check_command(args)  # a missing optional dependency fails before any work
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a reader gone early (`| head`) shows here, not in Python's own flush at exit
+        return code
+    except BrokenPipeError:  # stdout's reader went away: stop as a pipeline's writer does, without a traceback
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # the exit's flush then has nowhere to fail
+        return 141  # 128 + SIGPIPE
     except InputError as exc:
         print(f"rodo {args.command}: error: {exc}", file=sys.stderr)
         return 2

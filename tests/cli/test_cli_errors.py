@@ -5,7 +5,10 @@ Known gaps are marked xfail(strict=True) with the file and line of the bug; they
 unmarked) once fixed.
 """
 
+import os
 import shutil
+import subprocess
+import sys
 
 import pytest
 
@@ -285,3 +288,17 @@ def test_convert_bad_inputs(tmp_path, a_file, capsys):
 def test_table1_bad_inputs(tmp_path, capsys):
     fails(capsys, ["table1", "--scenarios", "city,atlantis", "--out", tmp_path / "t"], "atlantis")
     fails(capsys, ["table1", "--runs", "0", "--out", tmp_path / "t"], "--runs")
+
+
+@pytest.mark.parametrize("argv", [["scenarios"], ["config", "dump"]])
+def test_a_reader_gone_early_ends_the_command_without_a_traceback(argv):
+    """`rodo ... | head`: a closed stdout ends the command with 141 (128 + SIGPIPE), as a pipeline's writer, and
+    no BrokenPipeError traceback (the read end is closed before the command starts, so every write fails)."""
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        p = subprocess.run([sys.executable, "-m", "rodo.cli", *argv], stdout=w, stderr=subprocess.PIPE, text=True,
+                           timeout=300)
+    finally:
+        os.close(w)
+    assert p.returncode == 141 and p.stderr == "", p.stderr
