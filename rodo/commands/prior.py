@@ -22,7 +22,8 @@ def register(subparsers) -> None:
                               description="Sample the constant-acceleration prior's SDE under pure yaw acceleration "
                                           "(the paper's Fig. 1 set-up) and check the prior's propagated mean and "
                                           "covariance against the samples: mean NEES within its chi-square bounds "
-                                          "and a covariance test. Writes DIR/prior_montecarlo.json.")
+                                          "and a covariance test. Writes DIR/prior_montecarlo.json (the test) "
+                                          "and DIR/prior_montecarlo.npz (the samples).")
     p.add_argument("--samples", type=int, default=2000,
                    help="number of SDE samples (default 2000; at least 62, for the covariance test)")
     p.add_argument("--seed", type=int, default=0, help="SeedSequence entropy (default 0)")
