@@ -164,7 +164,7 @@ def load_truth(path) -> dict:
     if not path.is_file():
         raise InputError(f"{path}: truth file not found")
     if not zipfile.is_zipfile(path):  # np.load would take it for a pickle and suggest loading it unsafely
-        raise InputError(f"{path}: not an .npz archive (expected the truth.npz `rodo simulate` writes)")
+        raise InputError(f"{path}: not a readable .npz archive (expected the truth.npz `rodo simulate` writes)")
     try:
         with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:  # ours to close when the load fails
             truth = {k: z[k] for k in z.files}

@@ -54,7 +54,7 @@ def load_npz(path: str, option: str, required: tuple[str, ...]) -> dict:
     if not p.is_file():
         raise InputError(f"{option} {path}: file not found")
     if not zipfile.is_zipfile(p):  # np.load would take it for a pickle and suggest loading it unsafely
-        raise InputError(f"{option} {path}: not an .npz archive (expected {NPZ_NAMES.get(option, 'an .npz')})")
+        raise InputError(f"{option} {path}: not a readable .npz archive (expected {NPZ_NAMES.get(option, 'an .npz')})")
     try:
         with np.load(p, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}

@@ -119,7 +119,7 @@ def test_errors_exit_2_with_a_clear_message(files, capsys):
     for option, expected in (("--truth", "truth.npz"), ("--states", "states.npz")):  # e.g. a TUM file given
         assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", option, d / "junk.npz"]) == 2
         err = capsys.readouterr().err
-        assert f"{option} {d / 'junk.npz'}: not an .npz archive (expected the {expected}" in err, err
+        assert f"{option} {d / 'junk.npz'}: not a readable .npz archive (expected the {expected}" in err, err
         assert "pickle" not in err and "unsafe" not in err
     np.savez(d / "partial.npz", t=gt.t)
     assert _run(["--gt", d / "gt.txt", "--est", d / "est.txt", "--states", d / "partial.npz"]) == 2

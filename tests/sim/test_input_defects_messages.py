@@ -58,5 +58,5 @@ def test_a_truth_file_that_is_not_an_archive_is_named_without_pickle_advice(tmp_
     (tmp_path / "truth.npz").write_text("0.0 1 2 3 0 0 0 1\n")
     with pytest.raises(InputError) as err:
         load_truth(tmp_path)
-    assert str(err.value) == (f"{tmp_path / 'truth.npz'}: not an .npz archive "
+    assert str(err.value) == (f"{tmp_path / 'truth.npz'}: not a readable .npz archive "
                               "(expected the truth.npz `rodo simulate` writes)")
