@@ -24,3 +24,25 @@ def check_finite(name: str, value, shape: tuple | None = None):
     if not np.isfinite(arr).all():
         raise InputError(f"{name}: contains NaN or infinity")
     return arr
+
+
+def check_time(name: str, value) -> float:
+    """Return value as a finite float (a time in seconds); raise InputError naming the argument otherwise."""
+    import math
+
+    try:
+        t = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: expected a time in seconds, got {value!r}") from None
+    if not math.isfinite(t):
+        raise InputError(f"{name}: must be finite, got {t}")
+    return t
+
+
+def check_rows(name: str, value, width: int):
+    """Return value as an (n, width) float array (one row (width,) allowed); InputError naming the argument if
+    non-finite or of another shape (an (m, k, width) array is not m * k rows)."""
+    arr = check_finite(name, value, (width,))
+    if arr.ndim > 2:
+        raise InputError(f"{name}: expected shape (N, {width}), got {arr.shape}")
+    return arr.reshape(-1, width)

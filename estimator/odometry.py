@@ -30,7 +30,7 @@ from . import association
 from .config import OdometryConfig
 from .consensus import MIN_STATIC  # fewest static detections to use
 from .doppler import DopplerFrontEnd, body_velocity, common_doppler_error, vehicle_information
-from .errors import InputError, check_finite
+from .errors import InputError, check_finite, check_rows, check_time
 from .ground import off_road
 from .lie import se3
 from .local_map import LocalMap
@@ -68,8 +68,9 @@ class RadarOdometry:
 
     def __init__(self, config: OdometryConfig, T_vehicle_sensor, sensor_sigmas, max_range: float = 200.0,
                  record_detail: bool = False, fov=None):
-        self.config = config
-        self.record_detail = record_detail
+        if not isinstance(config, OdometryConfig):
+            raise InputError(f"config: expected an OdometryConfig (OdometryConfig.for_model(...)), got {config!r}")
+        self.config, self.record_detail = config, record_detail
         self.motion = motion_prior_for(config)
         self.measurement = measurement_model(config.measurement)
         self.map_sigma = self.measurement.map_sigma(config.noise)
@@ -178,8 +179,7 @@ class RadarOdometry:
     # --- stages -----------------------------------------------------------------------------------------
     def _accept(self, t, polar) -> tuple[float, np.ndarray, np.ndarray]:
         """Checked scan: time, the detections within (0, max_range] and the mask of those rows."""
-        polar = check_finite("polar", polar, (4,)).reshape(-1, 4)
-        t = float(t)
+        polar, t = check_rows("polar", polar, 4), check_time("t", t)
         if self.last_t is not None and not t > self.last_t:
             raise InputError(f"t: scan times must increase strictly (got {t} after {self.last_t})")
         in_range = (polar[:, 0] > 0) & (polar[:, 0] <= self.max_range)

@@ -74,6 +74,16 @@ class Scenario:
     extra_truth: Callable | None = None
     sensor_profile: str = profiles.DEFAULT
 
+    def __post_init__(self):
+        given = [x is not None for x in (self.length, self.duration)]
+        if sum(given) != 1:
+            raise InputError(f"scenario {self.name!r}: give one of length (m) or duration (s), got length "
+                             f"{self.length!r}, duration {self.duration!r}")
+        value = self.length if given[0] else self.duration
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (np.isfinite(value) and value > 0):
+            raise InputError(f"scenario {self.name!r}: {'length' if given[0] else 'duration'} must be a positive "
+                             f"number, got {value!r}")
+
     def radar_config(self, sensor_profile: str | None = None) -> RadarConfig:
         """The radar of sensor profile `sensor_profile` (None: the scenario's own; "generic": `radar()`);
         InputError listing the known profiles for an unknown name."""
@@ -108,6 +118,10 @@ class Scenario:
             profile = self.profile(rng, guess, **self._params(params))
             if profile.path_length() >= self.length:
                 break
+            if guess >= MAX_DURATION:  # a profile that never gets there (one of fixed length, or standing still)
+                raise InputError(f"scenario {self.name!r}: its trajectory covers {profile.path_length():.0f} m of its "
+                                 f"{self.length:g} m length within {profile.duration:g} s; give a duration, or a "
+                                 "profile(rng, duration) that covers the duration asked")
             guess *= 2
             rng = self._rngs(seed)[0]
         lo, hi = 0.0, profile.duration
@@ -119,7 +133,8 @@ class Scenario:
     def build(self, seed: int, duration: float | None = None, **params) -> Parts:
         """Profile, world and radar for `seed` (same seed and parameters -> identical parts)."""
         params = self._params(params)
-        if duration is not None and not (np.isfinite(duration) and duration > 0):
+        number = isinstance(duration, (int, float, np.integer, np.floating)) and not isinstance(duration, bool)
+        if duration is not None and not (number and np.isfinite(duration) and duration > 0):
             raise InputError(f"duration: must be a positive number of seconds, got {duration!r}")
         if duration is not None and duration > MAX_DURATION:  # bounded before anything is allocated
             raise InputError(f"duration: at most {MAX_DURATION:g} s (one hour) per simulation, got {duration:g} s; "
@@ -139,7 +154,7 @@ class Scenario:
         (`sim.faults.Faults`, default off) injects clutter, ghosts, dropped scans, jitter and outages, drawn
         from a fourth stream `SeedSequence(seed).spawn(4)[3]` (the first three are the clean streams, so the
         clean output is unchanged); `params` are the scenario's own parameters (e.g. `qc=` for prior_ca)."""
-        faults = Faults() if faults is None else faults
+        faults = _faults(faults)
         parts = self.build(seed, duration, **params)
         config = faults.radar(self._radar(parts, sensor_profile) if radar is None else radar)
         faults.check_rate(config.rate_hz)  # before the simulation
@@ -163,7 +178,7 @@ class Scenario:
         from rodo.sim.rig import LAYOUTS
         if layout not in LAYOUTS:
             raise InputError(f"rig: unknown layout {layout!r}; known layouts: {', '.join(LAYOUTS)}")
-        faults = Faults() if faults is None else faults
+        faults = _faults(faults)
         parts = self.build(seed, duration, **params)
         base = faults.radar(self._radar(parts, sensor_profile))
         faults.check_rate(base.rate_hz)
@@ -186,6 +201,16 @@ class Scenario:
     def summary(self) -> str:
         extent = f"{self.length:.0f} m" if self.length is not None else f"{self.duration:.0f} s"
         return f"{self.name:<16} v{self.version:<3} {extent:>7}  {self.description}"
+
+
+def _faults(faults) -> Faults:
+    """`faults` or no faults; InputError for anything but a Faults (the CLI's text form goes through parse_faults)."""
+    if faults is None:
+        return Faults()
+    if not isinstance(faults, Faults):
+        raise InputError(f"faults: expected a sim.faults.Faults (sim.faults.parse_faults turns the CLI's "
+                         f"'NAME=VALUE' texts into one), got {type(faults).__name__} {faults!r}")
+    return faults
 
 
 def _streams(seed: int) -> list[np.random.SeedSequence]:

@@ -14,7 +14,8 @@ Modules:
   two-sided, `alpha` outside, N runs), `fraction_within`, `nees_sequence`, `average_nees`, `nis_summary`,
   `gated_mean`;
 - `kitti`: devkit-exact KITTI drift; `metrics`: `ate`, `rpe`, `drift`, `pose_errors`, `velocity_errors`,
-  `evaluate`, `jsonable`;
+  `evaluate`, `jsonable`; `evaluation_inputs`: the checks that states and a truth belong to the trajectories
+  evaluated (`evaluate` and `rodo evaluate`);
 - `campaign`, `campaign_files`, `trial`, `table1`: Monte Carlo campaigns and the paper's Table I;
 - `driver`: `run_sequence`, `write_run`; `icp_baseline`: `run_icp`;
 - `experiments`: `fig1_data` ... `fig5_data`, `figure_data`;

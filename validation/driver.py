@@ -247,6 +247,15 @@ def run_sequence(seq: Sequence, config: OdometryConfig, progress=None, record_de
     where threading costs far more than it gains (measured: a 72x72 Cholesky solve took 7.8 ms with two busy
     threads, 77 us with one).
     """
+    if not (hasattr(seq, "scans") and hasattr(seq, "sensor")):
+        raise InputError(f"seq: expected a sim.sequence.Sequence (read_sequence(DIR), or the first of a scenario's "
+                         f"simulate(seed)), got {type(seq).__name__}")
+    ts = np.array([s.t for s in seq.scans], dtype=float)
+    bad = ~np.isfinite(ts) | np.r_[False, ~(np.diff(ts) > 0)]  # a Sequence built in memory: not read and checked
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(f"sequence: scan times must be finite and increase strictly (scan {k}: t = {ts[k]}"
+                         + (f" after {ts[k - 1]})" if k else ")"))
     times = scan_times(seq)
     if len(times) == 0:
         raise InputError("sequence: no scans (radar.csv has no rows and there is no groundtruth.txt)")

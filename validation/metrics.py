@@ -254,6 +254,31 @@ def velocity_errors(t_est, varpi_est, t_true, varpi_true, varpi_dot_est=None, va
     return out
 
 
+def _check_inputs(gt, est, lengths, states, truth, tolerance: float) -> tuple:
+    """`evaluate`'s arguments checked as `rodo evaluate` checks its files (InputError naming the argument): the
+    trajectories, the KITTI lengths (default LENGTHS), and states and a truth that belong to `est` and `gt`."""
+    from .evaluation_inputs import check_states_poses, check_states_times, check_truth_poses  # they use this module
+
+    for name, traj in (("gt", gt), ("est", est)):
+        if not (hasattr(traj, "t") and hasattr(traj, "T_world_vehicle")):
+            raise InputError(f"{name}: expected a trajectory with t and T_world_vehicle (sim.sequence.Trajectory, "
+                             f"e.g. RunResult.trajectory()), got {type(traj).__name__}")
+    lengths = LENGTHS if lengths is None else tuple(np.atleast_1d(np.asarray(lengths, dtype=float)))
+    if not lengths or not all(np.isfinite(L) and L > 0 for L in lengths):
+        raise InputError(f"lengths: need positive finite KITTI segment lengths (m), got {list(lengths)}")
+    for name, arrays, keys in (("states", states, ("t", "T_vehicle_world", "varpi")),
+                               ("truth", truth, ("t", "T_vehicle_world", "varpi"))):
+        missing = [] if arrays is None else [k for k in keys if k not in arrays]
+        if missing:
+            raise InputError(f"{name}: missing array(s) {', '.join(missing)}")
+    if states is not None:
+        check_states_times(states, est, tolerance, "states and est")
+        check_states_poses(states, est, "states and est")
+    if truth is not None:
+        check_truth_poses(truth, gt, tolerance, "truth and gt")
+    return lengths
+
+
 def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, truth: dict | None = None,
              tolerance: float = DEFAULT_TOLERANCE, alpha: float = 0.05) -> dict:
     """All metrics of one run, as the JSON report of `rodo evaluate` (docs/evaluation.md lists the keys).
@@ -275,9 +300,10 @@ def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, 
         tests/validation/test_metrics.py::test_evaluate_report_has_the_documented_keys_and_zero_errors_for_truth,
         tests/cli/test_evaluate_cli.py
     """
+    lengths = _check_inputs(gt, est, lengths, states, truth, tolerance)
     ig, ie = associate(gt.t, est.t, tolerance)
     G, E = gt.T_world_vehicle[ig], est.T_world_vehicle[ie]
-    k = kitti_errors(G, E, LENGTHS if lengths is None else lengths, step)
+    k = kitti_errors(G, E, lengths, step)
     out = {"matched": int(len(ig)), "gt_poses": int(len(gt.t)), "est_poses": int(len(est.t)),
            "path_length_m": float(path_distances(G)[-1]),
            "kitti_t_err_pct": k.t_err_pct, "kitti_r_err_deg_per_m": k.r_err_deg_per_m,
