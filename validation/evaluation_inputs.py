@@ -2,7 +2,7 @@
 `rodo evaluate` (naming its files) and `validation.metrics.evaluate` (naming its arguments): the states.npz of
 another run, or the truth.npz of another drive, would otherwise give a wrong NEES, NIS and timing without a word.
 
-Checked by: tests/cli/test_command_defects_demo_evaluate.py, tests/validation/test_metrics.py
+Checked by: tests/cli/test_command_defects_demo_evaluate.py, tests/validation/test_review3_python_api.py
 """
 
 from __future__ import annotations
