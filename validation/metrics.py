@@ -263,7 +263,10 @@ def _check_inputs(gt, est, lengths, states, truth, tolerance: float) -> tuple:
         if not (hasattr(traj, "t") and hasattr(traj, "T_world_vehicle")):
             raise InputError(f"{name}: expected a trajectory with t and T_world_vehicle (sim.sequence.Trajectory, "
                              f"e.g. RunResult.trajectory()), got {type(traj).__name__}")
-    lengths = LENGTHS if lengths is None else tuple(np.atleast_1d(np.asarray(lengths, dtype=float)))
+    try:
+        lengths = LENGTHS if lengths is None else tuple(float(L) for L in np.atleast_1d(np.asarray(lengths, float)))
+    except (TypeError, ValueError):
+        raise InputError(f"lengths: need positive finite KITTI segment lengths (m), got {lengths!r}") from None
     if not lengths or not all(np.isfinite(L) and L > 0 for L in lengths):
         raise InputError(f"lengths: need positive finite KITTI segment lengths (m), got {list(lengths)}")
     for name, arrays, keys in (("states", states, ("t", "T_vehicle_world", "varpi")),

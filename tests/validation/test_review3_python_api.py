@@ -93,7 +93,7 @@ def test_evaluate_checks_its_arguments_as_rodo_evaluate_checks_files(city):
         evaluate(gt, est, states=states, truth=other)  # gave a NEES of 6e5 without a word
     with pytest.raises(InputError, match="truth: missing array"):
         evaluate(gt, est, states=states, truth={"t": truth["t"], "T_vehicle_world": truth["T_vehicle_world"]})
-    for lengths in ([-5.0], []):
+    for lengths in ([-5.0], [], "100 m"):
         with pytest.raises(InputError, match="lengths: need positive finite"):
             evaluate(gt, est, lengths=lengths)
     with pytest.raises(InputError, match="est: expected a trajectory with t and T_world_vehicle"):
