@@ -311,7 +311,10 @@ def _run(sensor, scans: Iterable, config: OdometryConfig, progress, record_detai
     empty = np.zeros((0, 4))
     for k, (t, scan, *radar) in enumerate(scans):
         tic = time.perf_counter()
-        est = odo.process(t, scan.polar if scan is not None else empty, radar[0] if radar else 0)
+        try:
+            est = odo.process(t, scan.polar if scan is not None else empty, radar[0] if radar else 0)
+        except InputError as exc:  # a Sequence built in memory is not checked as a file is: name the scan
+            raise InputError(f"scan {k} (t = {t} s): {exc}") from None
         wall.append((time.perf_counter() - tic) * 1e3)
         columns.append(est)
         if keep_estimates:

@@ -102,3 +102,13 @@ def test_evaluate_checks_its_arguments_as_rodo_evaluate_checks_files(city):
     moved["T_vehicle_world"][3:, 0, 3] += 0.5
     with pytest.raises(InputError, match="states and est: the states' poses are not the estimate's"):
         evaluate(gt, est, states=moved, truth=truth)
+
+
+def test_bad_values_in_an_in_memory_scan_name_the_scan(city):
+    seq = city[0]
+    scans = list(seq.scans)
+    r = scans[5].range.copy()
+    r[3] = np.nan
+    scans[5] = dataclasses.replace(scans[5], range=r)
+    with pytest.raises(InputError, match=rf"^scan 5 \(t = {scans[5].t} s\): polar: contains NaN or infinity$"):
+        run_sequence(Sequence(seq.sensor, scans, seq.groundtruth), OdometryConfig.for_model("ca-polar"))
