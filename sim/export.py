@@ -8,7 +8,6 @@ Checked by: tests/sim/test_export.py
 
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +16,7 @@ from rodo.estimator.errors import InputError
 from rodo.estimator.lie import se3
 from rodo.sim.kitti_poses import format_kitti_poses
 from rodo.sim.sequence import RadarScan, Sequence, Trajectory, atomic_write_bytes
+from rodo.sim.simulate import read_npz
 
 PLY_TYPES = {"f4": "float", "f8": "double", "i4": "int", "u4": "uint", "i2": "short", "u2": "ushort",
              "i1": "char", "u1": "uchar"}
@@ -119,16 +119,11 @@ def poses_at_scans(seq: Sequence, trajectory: Trajectory, where: str) -> np.ndar
 
 def _read_states(states_path: Path) -> tuple[np.ndarray, np.ndarray]:
     """(t, n_detections) of a run's states.npz, or an InputError naming it."""
-    try:
-        with open(states_path, "rb") as fh, np.load(fh, allow_pickle=False) as data:  # closed also on a bad zip
-            missing = [k for k in ("t", "n_detections") if k not in data.files]
-            if missing:
-                raise InputError(f"--run: {states_path}: no array {missing[0]!r} (not a `rodo run` states.npz)")
-            t, n = np.asarray(data["t"], dtype=float), np.asarray(data["n_detections"])
-    except InputError:
-        raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise InputError(f"--run: {states_path}: cannot read ({exc})") from None
+    data = read_npz(states_path, f"--run: {states_path}: cannot read", "the states.npz `rodo run` writes")
+    missing = [k for k in ("t", "n_detections") if k not in data]
+    if missing:
+        raise InputError(f"--run: {states_path}: no array {missing[0]!r} (not a `rodo run` states.npz)")
+    t, n = np.asarray(data["t"], dtype=float), np.asarray(data["n_detections"])
     if t.ndim != 1 or n.shape != t.shape or n.dtype.kind not in "iu":
         raise InputError(f"--run: {states_path}: t {t.shape} and n_detections {n.shape} {n.dtype} are not one "
                          "count per scan (not a `rodo run` states.npz)")

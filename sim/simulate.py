@@ -148,6 +148,19 @@ def save_npz(path, arrays: dict) -> None:
     atomic_write_bytes(path, buf.getvalue())  # a crash never leaves a truncated truth.npz
 
 
+def read_npz(path, name: str, expected: str) -> dict:
+    """Every array of the .npz archive at `path` (an existing file; no pickles), or an InputError `NAME: ...`
+    saying what it is not; `expected` names the file it should be. truth.npz, and a run's states.npz for
+    `rodo evaluate` and `rodo export`, are read with it."""
+    if not zipfile.is_zipfile(path):  # np.load would take it for a pickle and suggest loading it unsafely
+        raise InputError(f"{name}: not a readable .npz archive (expected {expected})")
+    try:
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:  # ours to close when the load fails
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError, TypeError, zipfile.BadZipFile) as exc:  # TypeError: a bare .npy
+        raise InputError(f"{name}: not a readable .npz file ({exc})") from None
+
+
 def write_simulation(out_dir, seq: Sequence, truth: dict) -> Path:
     """Write the sequence (radar.csv, sensor.toml, groundtruth.txt) and truth.npz into out_dir."""
     out = Path(out_dir)
@@ -163,13 +176,7 @@ def load_truth(path) -> dict:
         path = path / TRUTH_NPZ
     if not path.is_file():
         raise InputError(f"{path}: truth file not found")
-    if not zipfile.is_zipfile(path):  # np.load would take it for a pickle and suggest loading it unsafely
-        raise InputError(f"{path}: not a readable .npz archive (expected the truth.npz `rodo simulate` writes)")
-    try:
-        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:  # ours to close when the load fails
-            truth = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, TypeError, zipfile.BadZipFile) as exc:  # TypeError: a bare .npy
-        raise InputError(f"{path}: not a readable .npz file ({exc})") from None
+    truth = read_npz(path, str(path), "the truth.npz `rodo simulate` writes")
     for key in ("t", "T_vehicle_world", "varpi", "varpi_dot"):  # the states' arrays: finite numbers
         a = truth.get(key)
         if a is not None and not (np.issubdtype(a.dtype, np.number) and np.isfinite(a).all()):
@@ -185,5 +192,5 @@ def path_length(T_world_vehicle: np.ndarray) -> float:
     return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
 
 
-__all__ = ["TRUTH_NPZ", "load_truth", "path_length", "save_npz", "scan_times", "simulate",
+__all__ = ["TRUTH_NPZ", "load_truth", "path_length", "read_npz", "save_npz", "scan_times", "simulate",
            "truth_arrays", "write_simulation"]

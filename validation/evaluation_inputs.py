@@ -1,6 +1,7 @@
-"""Checks that a run's states and a simulator's truth belong to the trajectories being evaluated, shared by
-`rodo evaluate` (naming its files) and `validation.metrics.evaluate` (naming its arguments): the states.npz of
-another run, or the truth.npz of another drive, would otherwise give a wrong NEES, NIS and timing without a word.
+"""Checks that a run's states and a simulator's truth belong to the trajectories being evaluated, made once by
+`validation.metrics.evaluate` (naming its arguments, or `rodo evaluate`'s files through its labels): the
+states.npz of another run, or the truth.npz of another drive, would otherwise give a wrong NEES, NIS and timing
+without a word.
 
 Checked by: tests/cli/test_command_defects_demo_evaluate.py, tests/validation/test_review3_python_api.py
 """

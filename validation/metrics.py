@@ -254,14 +254,15 @@ def velocity_errors(t_est, varpi_est, t_true, varpi_true, varpi_dot_est=None, va
     return out
 
 
-def _check_inputs(gt, est, lengths, states, truth, tolerance: float) -> tuple:
-    """`evaluate`'s arguments checked as `rodo evaluate` checks its files (InputError naming the argument): the
-    trajectories, the KITTI lengths (default LENGTHS), and states and a truth that belong to `est` and `gt`."""
+def _check_inputs(gt, est, lengths, states, truth, tolerance: float, labels: dict | None) -> tuple:
+    """`evaluate`'s arguments checked (InputError naming each by its label, default its name): the trajectories,
+    the KITTI lengths (default LENGTHS), and states and a truth that belong to `est` and `gt`."""
     from .evaluation_inputs import check_states_poses, check_states_times, check_truth_poses  # they use this module
 
-    for name, traj in (("gt", gt), ("est", est)):
+    name = {"gt": "gt", "est": "est", "states": "states", "truth": "truth", **(labels or {})}
+    for key, traj in (("gt", gt), ("est", est)):
         if not (hasattr(traj, "t") and hasattr(traj, "T_world_vehicle")):
-            raise InputError(f"{name}: expected a trajectory with t and T_world_vehicle (sim.sequence.Trajectory, "
+            raise InputError(f"{name[key]}: expected a trajectory with t and T_world_vehicle (sim.sequence.Trajectory, "
                              f"e.g. RunResult.trajectory()), got {type(traj).__name__}")
     try:
         lengths = LENGTHS if lengths is None else tuple(float(L) for L in np.atleast_1d(np.asarray(lengths, float)))
@@ -269,21 +270,20 @@ def _check_inputs(gt, est, lengths, states, truth, tolerance: float) -> tuple:
         raise InputError(f"lengths: need positive finite KITTI segment lengths (m), got {lengths!r}") from None
     if not lengths or not all(np.isfinite(L) and L > 0 for L in lengths):
         raise InputError(f"lengths: need positive finite KITTI segment lengths (m), got {list(lengths)}")
-    for name, arrays, keys in (("states", states, ("t", "T_vehicle_world", "varpi")),
-                               ("truth", truth, ("t", "T_vehicle_world", "varpi"))):
-        missing = [] if arrays is None else [k for k in keys if k not in arrays]
+    for key, arrays in (("states", states), ("truth", truth)):
+        missing = [] if arrays is None else [k for k in ("t", "T_vehicle_world", "varpi") if k not in arrays]
         if missing:
-            raise InputError(f"{name}: missing array(s) {', '.join(missing)}")
+            raise InputError(f"{name[key]}: missing array(s) {', '.join(missing)}")
     if states is not None:
-        check_states_times(states, est, tolerance, "states and est")
-        check_states_poses(states, est, "states and est")
+        check_states_times(states, est, tolerance, f"{name['states']} and {name['est']}")
+        check_states_poses(states, est, f"{name['states']} and {name['est']}")  # the same times: another run's
     if truth is not None:
-        check_truth_poses(truth, gt, tolerance, "truth and gt")
+        check_truth_poses(truth, gt, tolerance, f"{name['truth']} and {name['gt']}")
     return lengths
 
 
 def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, truth: dict | None = None,
-             tolerance: float = DEFAULT_TOLERANCE, alpha: float = 0.05) -> dict:
+             tolerance: float = DEFAULT_TOLERANCE, alpha: float = 0.05, *, labels: dict | None = None) -> dict:
     """All metrics of one run, as the JSON report of `rodo evaluate` (docs/evaluation.md lists the keys).
 
     Args:
@@ -291,7 +291,9 @@ def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, 
             times are matched with `associate` (mutual nearest within `tolerance`).
         lengths, step: KITTI segment lengths (m; default validation.kitti.LENGTHS) and first-frame step.
         states: optional states.npz arrays (t, T_vehicle_world, varpi, varpi_dot, P, nis, n_associated,
-            ms_per_scan); truth: optional truth.npz arrays (t, T_vehicle_world, varpi, varpi_dot).
+            ms_per_scan); truth: optional truth.npz arrays (t, T_vehicle_world, varpi, varpi_dot). The states
+            must be `est`'s run and the truth `gt`'s drive (validation/evaluation_inputs.py), else InputError.
+        labels: what the errors call gt, est, states and truth (default those names; `rodo evaluate` its files).
 
     Returns:
         dict with kitti_t_err_pct, kitti_r_err_deg_per_m, kitti_segments, segments (per length), ate_*,
@@ -303,7 +305,7 @@ def evaluate(gt, est, lengths=None, step: int = 10, states: dict | None = None, 
         tests/validation/test_metrics.py::test_evaluate_report_has_the_documented_keys_and_zero_errors_for_truth,
         tests/cli/test_evaluate_cli.py
     """
-    lengths = _check_inputs(gt, est, lengths, states, truth, tolerance)
+    lengths = _check_inputs(gt, est, lengths, states, truth, tolerance, labels)
     ig, ie = associate(gt.t, est.t, tolerance)
     G, E = gt.T_world_vehicle[ig], est.T_world_vehicle[ie]
     k = kitti_errors(G, E, lengths, step)

@@ -151,28 +151,23 @@ def _figures(out: Path) -> None:
 def _table(results) -> str:
     """The runs' table: KITTI as `rodo evaluate` reports it ("-" where the path is shorter than 100 m, with a
     line saying so)."""
+    from rodo.commands.evaluate import number
     from rodo.validation.kitti import LENGTHS
 
     rows = ["| model | KITTI t (%) | KITTI r (deg/m) | ATE (m) | drift z (m) | drift roll / pitch (deg) | ms/scan |",
             "| --- | --- | --- | --- | --- | --- | --- |"]
     for model, (res, ev) in results.items():
         fin = (ev.get("drift") or {}).get("final", {})
-        rows.append(f"| {model} | {_num(ev['kitti_t_err_pct'], '.3f')} | {_num(ev['kitti_r_err_deg_per_m'], '.4f')} | "
-                    f"{_num(ev['ate_rmse_m'], '.3f')} | {_num(fin.get('z'), '.3f')} | "
-                    f"{_num(fin.get('roll'), '.3f')} / {_num(fin.get('pitch'), '.3f')} | "
+        rows.append(f"| {model} | {number(ev['kitti_t_err_pct'], '.3f')} | "
+                    f"{number(ev['kitti_r_err_deg_per_m'], '.4f')} | "
+                    f"{number(ev['ate_rmse_m'], '.3f')} | {number(fin.get('z'), '.3f')} | "
+                    f"{number(fin.get('roll'), '.3f')} / {number(fin.get('pitch'), '.3f')} | "
                     f"{res.summary()['median_ms_per_scan']:.1f} |")
     short = [ev["path_length_m"] for _, ev in results.values() if not ev["kitti_segments"]]
     if short:
         rows.append(f"\nKITTI -: the path ({short[0]:.1f} m) is shorter than the KITTI devkit's shortest segment "
                     f"({LENGTHS[0]:g} m); `rodo evaluate` reports no KITTI figure either")
     return "\n".join(rows)
-
-
-def _num(v, spec: str) -> str:
-    """A number of the table, "-" where it is undefined (None, NaN), as `rodo evaluate` prints it."""
-    import math
-
-    return "-" if v is None or not math.isfinite(v) else format(v, spec)
 
 
 def _jsonable(obj):

@@ -6,16 +6,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from rodo.estimator.errors import InputError
 from rodo.sim.sequence import read_tum
+from rodo.sim.simulate import read_npz
 from rodo.validation.association import DEFAULT_TOLERANCE, associate
 from rodo.outputs import check_not_input, check_output_file, write_text_atomic
-from rodo.validation.evaluation_inputs import check_states_poses, check_states_times, check_truth_poses
 from rodo.validation.metrics import evaluate, jsonable
 
 
@@ -54,13 +53,7 @@ def load_npz(path: str, option: str, required: tuple[str, ...]) -> dict:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{option} {path}: file not found")
-    if not zipfile.is_zipfile(p):  # np.load would take it for a pickle and suggest loading it unsafely
-        raise InputError(f"{option} {path}: not a readable .npz archive (expected {NPZ_NAMES.get(option, 'an .npz')})")
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise InputError(f"{option} {path}: not a readable .npz file ({exc})") from None
+    arrays = read_npz(p, f"{option} {path}", NPZ_NAMES.get(option, "an .npz archive"))
     missing = [k for k in required if k not in arrays]
     if missing:
         raise InputError(f"{option} {path}: missing array(s) {', '.join(missing)} (has {', '.join(arrays)})")
@@ -87,8 +80,10 @@ def check_state_shapes(arrays: dict, where: str) -> None:
                              f"numbers{' with N = len(t)' if key != 't' else ''}")
 
 
-def _fmt(v, spec=".4g") -> str:
-    return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, spec)
+def number(v, spec: str = ".4g") -> str:
+    """A number as the report's table prints it: "-" where it is undefined (None, NaN, infinite); `rodo run`'s
+    accuracy line and `rodo demo`'s table print theirs the same way."""
+    return "-" if v is None or not np.isfinite(v) else format(v, spec)
 
 
 def _skipped(nees: dict) -> str:
@@ -99,52 +94,52 @@ def _skipped(nees: dict) -> str:
 
 def table(rep: dict) -> str:
     rows = [("matched poses", f"{rep['matched']} (gt {rep['gt_poses']}, est {rep['est_poses']})"),
-            ("path length", f"{_fmt(rep['path_length_m'], '.1f')} m"),
-            ("KITTI t_err", f"{_fmt(rep['kitti_t_err_pct'])} %  ({rep['kitti_segments']} segments)"),
-            ("KITTI r_err", f"{_fmt(rep['kitti_r_err_deg_per_m'])} deg/m"),
-            ("ATE rmse / max", f"{_fmt(rep['ate_rmse_m'])} / {_fmt(rep['ate_max_m'])} m"),
-            ("RPE per frame", f"{_fmt(rep['rpe']['rpe_trans_rmse_m'])} m, {_fmt(rep['rpe']['rpe_rot_rmse_deg'])} "
+            ("path length", f"{number(rep['path_length_m'], '.1f')} m"),
+            ("KITTI t_err", f"{number(rep['kitti_t_err_pct'])} %  ({rep['kitti_segments']} segments)"),
+            ("KITTI r_err", f"{number(rep['kitti_r_err_deg_per_m'])} deg/m"),
+            ("ATE rmse / max", f"{number(rep['ate_rmse_m'])} / {number(rep['ate_max_m'])} m"),
+            ("RPE per frame", f"{number(rep['rpe']['rpe_trans_rmse_m'])} m, {number(rep['rpe']['rpe_rot_rmse_deg'])} "
                               "deg (rmse)"),
-            (f"RPE per {rep['rpe']['rpe_delta_m']:g} m", f"{_fmt(rep['rpe']['rpe_trans_pct'])} %, "
-                                                       f"{_fmt(rep['rpe']['rpe_rot_deg_per_m'])} deg/m"),
-            ("final drift x y z", " ".join(_fmt(rep["drift"]["final"][a], ".3f") for a in "xyz") + " m"),
-            ("final drift r p y", " ".join(_fmt(rep["drift"]["final"][a], ".3f") for a in ("roll", "pitch", "yaw"))
+            (f"RPE per {rep['rpe']['rpe_delta_m']:g} m", f"{number(rep['rpe']['rpe_trans_pct'])} %, "
+                                                       f"{number(rep['rpe']['rpe_rot_deg_per_m'])} deg/m"),
+            ("final drift x y z", " ".join(number(rep["drift"]["final"][a], ".3f") for a in "xyz") + " m"),
+            ("final drift r p y", " ".join(number(rep["drift"]["final"][a], ".3f") for a in ("roll", "pitch", "yaw"))
              + " deg"),
-            ("max |z| |roll| |pitch|", f"{_fmt(rep['drift']['max_abs']['z'], '.3f')} m "
-                                       f"{_fmt(rep['drift']['max_abs']['roll'], '.3f')} "
-                                       f"{_fmt(rep['drift']['max_abs']['pitch'], '.3f')} deg")]
+            ("max |z| |roll| |pitch|", f"{number(rep['drift']['max_abs']['z'], '.3f')} m "
+                                       f"{number(rep['drift']['max_abs']['roll'], '.3f')} "
+                                       f"{number(rep['drift']['max_abs']['pitch'], '.3f')} deg")]
     for L, s in ((s["length_m"], s) for s in rep["segments"]):
-        rows.append((f"  {L:g} m", f"{_fmt(s['t_err_pct'])} %, {_fmt(s['r_err_deg_per_m'])} deg/m ({s['count']})"))
+        rows.append((f"  {L:g} m", f"{number(s['t_err_pct'])} %, {number(s['r_err_deg_per_m'])} deg/m ({s['count']})"))
     if "nees" in rep:
         n = rep["nees"]
-        rows.append((f"NEES (d={n['dim']})", f"mean {_fmt(n['mean'])}, per-scan bounds "
-                                             f"[{_fmt(n['per_scan_bounds'][0])}, {_fmt(n['per_scan_bounds'][1])}], "
-                                             f"{_fmt(100 * n['fraction_within'], '.0f')} % of scans within "
+        rows.append((f"NEES (d={n['dim']})", f"mean {number(n['mean'])}, per-scan bounds "
+                                             f"[{number(n['per_scan_bounds'][0])}, {number(n['per_scan_bounds'][1])}], "
+                                             f"{number(100 * n['fraction_within'], '.0f')} % of scans within "
                                              f"(over {n['finite']} of {n['scans']} scans{_skipped(n)})"))
     if "consistency" in rep:
         c = rep["consistency"]
         lo, hi = c["bounds_per_dof"]
-        rows.append(("NEES / dof per measure", f"per-scan 95 % bounds [{_fmt(lo)}, {_fmt(hi)}]"))
+        rows.append(("NEES / dof per measure", f"per-scan 95 % bounds [{number(lo)}, {number(hi)}]"))
         for name in ("pose", "relative_scan", "relative_span", "velocity", "acceleration", "pose_window"):
             m = c[name]
             if m["scans"]:
-                rows.append((f"  {name}", f"mean {_fmt(m['mean_per_dof'])}, {_fmt(100 * m['within'], '.0f')} % of "
+                rows.append((f"  {name}", f"mean {number(m['mean_per_dof'])}, {number(100 * m['within'], '.0f')} % of "
                                           f"scans within ({m['scans']} scans)"))
     if any(r["ratio"] for r in rep.get("error_growth", [])):
         rows.append(("error growth E[e^2/sigma^2]", "per axis x y z roll pitch yaw (1: right, < 1 cautious; "
                                                     "velocity, acceleration: vx vy vz and the rates)"))
-        rows += [(f"  {r['label']}", " ".join(_fmt(x, ".2f") for x in r["ratio"]) + f" ({r['count']})")
+        rows += [(f"  {r['label']}", " ".join(number(x, ".2f") for x in r["ratio"]) + f" ({r['count']})")
                  for r in rep["error_growth"] if r["ratio"]]
     if "nis" in rep:
         n = rep["nis"]
-        rows.append(("NIS per pair (dof 4)", f"mean {_fmt(n['mean'])} over {n['pairs']} pairs, bounds "
-                                             f"[{_fmt(n['bounds'][0])}, {_fmt(n['bounds'][1])}]"))
+        rows.append(("NIS per pair (dof 4)", f"mean {number(n['mean'])} over {n['pairs']} pairs, bounds "
+                                             f"[{number(n['bounds'][0])}, {number(n['bounds'][1])}]"))
     if "velocity" in rep:
         v = rep["velocity"]
-        rows.append(("velocity rmse", f"{_fmt(v['nu_rmse_mps'])} m/s, {_fmt(v['omega_rmse_degps'])} deg/s"))
+        rows.append(("velocity rmse", f"{number(v['nu_rmse_mps'])} m/s, {number(v['omega_rmse_degps'])} deg/s"))
     if rep.get("ms_per_scan"):
-        rows.append(("ms per scan", f"median {_fmt(rep['ms_per_scan']['median'])}, p95 "
-                                    f"{_fmt(rep['ms_per_scan']['p95'])}"))
+        rows.append(("ms per scan", f"median {number(rep['ms_per_scan']['median'])}, p95 "
+                                    f"{number(rep['ms_per_scan']['p95'])}"))
     w = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)
 
@@ -157,9 +152,10 @@ def _check(fn, what: str) -> None:
 
 
 def load_inputs(gt_path, est_path, states_path=None, truth_path=None, tolerance: float = DEFAULT_TOLERANCE):
-    """(gt, est, states, truth) read from `rodo evaluate`'s files and checked against each other before any
-    metric: times that associate, states of this estimate, a truth of this ground truth. InputError names the
-    option and file."""
+    """(gt, est, states, truth) read from `rodo evaluate`'s files and checked as files: readable, the arrays
+    there, times that associate. That the states are this estimate's and the truth this ground truth's,
+    `evaluate` checks (validation/evaluation_inputs.py, naming the files: `report`). InputError names the option
+    and file."""
     gt = read_tum(gt_path)
     est = read_tum(est_path)
     states = load_npz(states_path, "--states", ("t", "T_vehicle_world", "varpi", "P")) if states_path else None
@@ -170,14 +166,9 @@ def load_inputs(gt_path, est_path, states_path=None, truth_path=None, tolerance:
         raise InputError(f"--truth {truth_path}: has a covariance P, as a run's states.npz does; give the "
                          "sequence's truth.npz")
     _check(lambda: associate(gt.t, est.t, tolerance), f"--gt {gt_path} and --est {est_path}")
-    if states is not None:
-        where = f"--states {states_path} and --est {est_path}"
-        check_states_times(states, est, tolerance, where)
-        check_states_poses(states, est, where)  # on the same times: the other model's run, another drive's
     if states is not None and truth is not None:
         _check(lambda: associate(states["t"], truth["t"], tolerance),
                f"--states {states_path} and --truth {truth_path}")
-        check_truth_poses(truth, gt, tolerance, f"--truth {truth_path} and --gt {gt_path}")
     return gt, est, states, truth
 
 
@@ -186,7 +177,9 @@ def report(gt_path, est_path, states_path=None, truth_path=None, lengths=None, s
     """`rodo evaluate`'s report of these files (default lengths: the KITTI devkit's, validation.kitti.LENGTHS):
     what `rodo demo` writes as evaluation.json, the same numbers by construction."""
     gt, est, states, truth = load_inputs(gt_path, est_path, states_path, truth_path, tolerance)
-    return evaluate(gt, est, lengths, step, states, truth, tolerance)
+    labels = {"gt": f"--gt {gt_path}", "est": f"--est {est_path}", "states": f"--states {states_path}",
+              "truth": f"--truth {truth_path}"}
+    return evaluate(gt, est, lengths, step, states, truth, tolerance, labels=labels)
 
 
 def main(args) -> int:

@@ -221,22 +221,18 @@ def print_accuracy(gt_path: Path, est_path: Path, problem: str | None) -> None:
 def accuracy_line(gt_path: Path, est_path: Path) -> str:
     """KITTI drift and ATE of the written estimate against the ground truth: `rodo evaluate`'s numbers for the
     same files at its defaults (validation.metrics.evaluate, formatted as its table)."""
+    from rodo.commands.evaluate import number
     from rodo.validation.kitti import LENGTHS
     from rodo.validation.metrics import evaluate
 
     rep = evaluate(read_tum(gt_path), read_tum(est_path))
     if rep["kitti_segments"]:
-        kitti = (f"KITTI t_err {_fmt(rep['kitti_t_err_pct'])} %, r_err {_fmt(rep['kitti_r_err_deg_per_m'])} deg/m "
-                 f"({rep['kitti_segments']} segments)")
+        kitti = (f"KITTI t_err {number(rep['kitti_t_err_pct'])} %, r_err {number(rep['kitti_r_err_deg_per_m'])} "
+                 f"deg/m ({rep['kitti_segments']} segments)")
     else:
-        kitti = f"KITTI -: the path ({_fmt(rep['path_length_m'], '.1f')} m) is shorter than {LENGTHS[0]:g} m"
-    return (f"against {gt_path} ({rep['matched']} poses): {kitti}; ATE rmse {_fmt(rep['ate_rmse_m'])} m "
+        kitti = f"KITTI -: the path ({number(rep['path_length_m'], '.1f')} m) is shorter than {LENGTHS[0]:g} m"
+    return (f"against {gt_path} ({rep['matched']} poses): {kitti}; ATE rmse {number(rep['ate_rmse_m'])} m "
             f"(all metrics: rodo evaluate --gt {gt_path} --est {est_path})")
-
-
-def _fmt(v, spec: str = ".4g") -> str:
-    """A number as `rodo evaluate`'s table prints it ("-" when undefined)."""
-    return "-" if v is None or not np.isfinite(v) else format(v, spec)
 
 
 def rodo_command(name: str = "rodo") -> str:
