@@ -30,17 +30,17 @@ from . import association
 from .config import OdometryConfig
 from .consensus import MIN_STATIC  # fewest static detections to use
 from .doppler import DopplerFrontEnd, body_velocity, common_doppler_error, vehicle_information
-from .errors import InputError, check_finite, check_rows, check_time
+from .errors import InputError, check_rows, check_time
 from .ground import off_road
 from .lie import se3
 from .local_map import LocalMap
 from .measurement_models import measurement_model
 from .motion import motion_prior_for
 from .pull import pose_pull
-from .radar_geometry import check_fov
 from .scan import ScanDetail, ScanEstimate
 from .scan_association import MapAssociation, ScanMeasurements
 from .sensor import Sensor
+from .sensor_values import check_polar, check_sensor_arguments
 from .state import State
 from .surface import surface_covariances
 from .reported_covariances import ReportedCovariances
@@ -108,18 +108,15 @@ class RadarOdometry:
 
     def _sensor(self, T_vehicle_sensor, sensor_sigmas, max_range, fov, seeds) -> Sensor:
         config = self.config
-        T = check_finite("T_vehicle_sensor", T_vehicle_sensor, (4, 4))
-        sig = check_finite("sensor_sigmas", sensor_sigmas, (4,))
-        if np.any(sig <= 0):
-            raise InputError(f"sensor_sigmas: must be > 0, got {sig}")
+        T, sig, max_range, fov = check_sensor_arguments(T_vehicle_sensor, sensor_sigmas, max_range, fov)
         sigmas = np.maximum(sig * config.noise.sensor_sigma_scale * np.asarray(config.noise.sensor_sigma_scales),
                             config.noise.sigma_floor)
         associator = MapAssociation(
             self.measurement, self.measurement.noise_covariance(sigmas, config.noise.cartesian_sigma), T,
             association.gate_threshold(config.association.gate_probability, 4), config.association.max_radius,
-            0.0 if self.surface_model else self.map_sigma, check_fov(fov), sigmas[1:3])
+            0.0 if self.surface_model else self.map_sigma, fov, sigmas[1:3])
         doppler = DopplerFrontEnd(config, T, sigmas, np.random.default_rng(seeds[0]), np.random.default_rng(seeds[1]))
-        self.sensors.append(Sensor(T, sigmas, float(max_range), associator, doppler))
+        self.sensors.append(Sensor(T, sigmas, max_range, associator, doppler))
         return self.sensors[-1]
 
     @property
@@ -180,6 +177,7 @@ class RadarOdometry:
     def _accept(self, t, polar) -> tuple[float, np.ndarray, np.ndarray]:
         """Checked scan: time, the detections within (0, max_range] and the mask of those rows."""
         polar, t = check_rows("polar", polar, 4), check_time("t", t)
+        check_polar("polar", polar)
         if self.last_t is not None and not t > self.last_t:
             raise InputError(f"t: scan times must increase strictly (got {t} after {self.last_t})")
         in_range = (polar[:, 0] > 0) & (polar[:, 0] <= self.max_range)

@@ -98,12 +98,3 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
     """
     return np.pi - np.mod(np.pi - a, 2 * np.pi)
 
-
-def check_fov(fov):
-    """A field of view ((az_min, az_max), (el_min, el_max)) in radians, checked (min < max), or None."""
-    if fov is None:
-        return None
-    fov = check_finite("fov", fov, (2, 2))
-    if fov.shape != (2, 2) or np.any(fov[:, 0] >= fov[:, 1]):
-        raise InputError(f"fov: expected ((az_min, az_max), (el_min, el_max)) with min < max, got {fov}")
-    return fov

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.estimator.sensor_values import ANGLE_BOUNDS, angle_hint
 
 from ._seqio import SequenceFormatError, atomic_write_bytes, decode_text
 from .sequence_types import REQUIRED_COLUMNS, RadarScan
@@ -25,7 +26,6 @@ from .sequence_types import REQUIRED_COLUMNS, RadarScan
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _CACHE_VERSION = 2  # 2: the signature hashes the whole file, and a loaded cache is re-validated
 _HASH_CHUNK = 1 << 20
-_ANGLE_BOUNDS = {"azimuth": np.pi, "elevation": np.pi / 2}
 
 
 def cache_path(csv_path) -> Path:
@@ -121,16 +121,12 @@ def _check_values(path, cols: dict[str, np.ndarray]) -> None:
     scan, t = cols["scan"], cols["t"]
     add(scan < 0, "scan", lambda r: f"scan index {scan[r]} must be >= 0")
     add(cols["range"] < 0, "range", lambda r: f"negative value {cols['range'][r].item()!r} (range must be >= 0)")
-    for name, bound in _ANGLE_BOUNDS.items():
+    for name, bound in ANGLE_BOUNDS.items():
         col = cols[name]
 
         def reason(r, c=col, b=bound, nm=name):
             v = c[r].item()
-            if nm == "azimuth" and abs(v) <= 2 * np.pi:
-                hint = "looks like degrees or a [0, 2pi) convention: angles must be radians in [-pi, pi]"
-            else:
-                hint = "looks like degrees: angles must be in radians"
-            return f"value {v!r} outside [-{b:.9g}, {b:.9g}]; {hint}"
+            return f"value {v!r} outside [-{b:.9g}, {b:.9g}]; {angle_hint(nm, v)}"
 
         add(np.abs(col) > bound, name, reason)
     if scan.size > 1:
@@ -311,7 +307,7 @@ def _check_scans(scans) -> list[str]:
                 raise InputError(f"{where}.{name}: contains NaN or infinity")
         if np.any(sc.range < 0):
             raise InputError(f"{where}.range: negative range")
-        for name, bound in _ANGLE_BOUNDS.items():
+        for name, bound in ANGLE_BOUNDS.items():
             if np.any(np.abs(getattr(sc, name)) > bound):
                 raise InputError(f"{where}.{name}: values outside [-{bound:.9g}, {bound:.9g}] rad")
         names = list(sc.extra)

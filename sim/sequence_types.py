@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.estimator.sensor_values import check_pose, check_sensor_values  # noqa: F401 (re-exported)
 
 REQUIRED_COLUMNS = ("scan", "t", "range", "azimuth", "elevation", "radial_velocity")
 SIGMA_NAMES = ("range", "azimuth", "elevation", "radial_velocity")
@@ -27,59 +28,6 @@ def _number(name: str, value) -> float:
     if not np.isfinite(value):
         raise InputError(f"{name}: must be finite, got {value!r}")
     return value
-
-
-MAX_DOPPLER_SIGMA = 50.0  # m/s: a radial-velocity sigma above it is a unit mistake
-MAX_MOUNT = 50.0  # m: no radar is mounted farther from the vehicle's origin (a larger value is a unit mistake)
-
-
-def check_sensor_values(rate_hz, sigmas, azimuth_fov, elevation_fov, max_range, min_range, translation,
-                        fail) -> None:
-    """Value rules of a sensor configuration, shared by `SensorConfig` and the TOML reader.
-
-    `fail(key, reason)` raises the caller's error for a dotted key such as 'fov.max_range'.
-    """
-    if rate_hz <= 0:
-        fail("rate_hz", f"must be > 0, got {rate_hz!r}")
-    for key, s in zip(SIGMA_NAMES, sigmas):
-        if s <= 0:
-            fail("noise." + key, f"1-sigma must be > 0, got {s!r}")
-    if sigmas[1] > np.pi:
-        fail("noise.azimuth", f"{sigmas[1]!r} rad is implausibly large: degrees? angles are in radians")
-    if sigmas[2] > np.pi / 2:
-        fail("noise.elevation", f"{sigmas[2]!r} rad is implausibly large: degrees? angles are in radians")
-    for key, (lo, hi), bound in (("fov.azimuth", azimuth_fov, np.pi), ("fov.elevation", elevation_fov, np.pi / 2)):
-        if not (-bound <= lo < hi <= bound):
-            hint = " (looks like degrees: angles are in radians)" if max(abs(lo), abs(hi)) > bound else ""
-            fail(key, f"need -{bound:.6g} <= min < max <= {bound:.6g} rad, got [{lo!r}, {hi!r}]{hint}")
-    if max_range <= 0:
-        fail("fov.max_range", f"must be > 0, got {max_range!r}")
-    if max(abs(float(x)) for x in translation) > MAX_MOUNT:
-        fail("extrinsics.translation", f"{[float(x) for x in translation]} m puts the radar more than {MAX_MOUNT:g} m "
-             "from the vehicle's origin: millimetres? it is in metres")
-    if sigmas[0] >= max_range:
-        fail("noise.range", f"1-sigma {sigmas[0]!r} m is not below fov.max_range {max_range!r} m")
-    if sigmas[3] > MAX_DOPPLER_SIGMA:
-        fail("noise.radial_velocity", f"{sigmas[3]!r} m/s is implausibly large (above {MAX_DOPPLER_SIGMA:g}): "
-             "km/h? radial velocities are in m/s")
-    if not (0 <= min_range < max_range):
-        fail("fov.min_range", f"need 0 <= min_range < max_range, got {min_range!r}")
-
-
-def check_pose(name: str, T) -> np.ndarray:
-    """(4, 4) or (M, 4, 4) rigid transforms: finite, bottom row [0, 0, 0, 1], rotation orthonormal (1e-6)."""
-    T = np.array(T, dtype=float)
-    if T.shape[-2:] != (4, 4):
-        raise InputError(f"{name}: expected shape (..., 4, 4), got {T.shape}")
-    if not np.all(np.isfinite(T)):
-        raise InputError(f"{name}: contains NaN or infinity")
-    if np.any(T[..., 3, :] != np.array([0.0, 0.0, 0.0, 1.0])):
-        raise InputError(f"{name}: bottom row must be [0, 0, 0, 1]")
-    C = T[..., :3, :3]
-    err = np.abs(C @ np.swapaxes(C, -1, -2) - np.eye(3)).max(axis=(-1, -2))
-    if np.any(err > 1e-6) or np.any(np.linalg.det(C) <= 0):
-        raise InputError(f"{name}: rotation block is not a proper rotation (|C C^T - I| = {np.max(err):.3g})")
-    return T
 
 
 @dataclass(frozen=True)

@@ -112,3 +112,14 @@ def test_bad_values_in_an_in_memory_scan_name_the_scan(city):
     scans[5] = dataclasses.replace(scans[5], range=r)
     with pytest.raises(InputError, match=rf"^scan 5 \(t = {scans[5].t} s\): polar: contains NaN or infinity$"):
         run_sequence(Sequence(seq.sensor, scans, seq.groundtruth), OdometryConfig.for_model("ca-polar"))
+
+
+def test_an_in_memory_scan_in_degrees_is_refused_naming_the_scan(city):
+    """The file readers refuse angles in degrees; an in-memory Sequence gave a silently wrong estimate (ATE 2.5 m
+    against 5 mm) before the estimator checked them too (session 55)."""
+    seq = city[0]
+    scans = list(seq.scans)
+    scans[2] = dataclasses.replace(scans[2], azimuth=np.rad2deg(scans[2].azimuth))
+    with pytest.raises(InputError, match=rf"^scan 2 \(t = {scans[2].t} s\): polar\[\d+, 1\] \(azimuth\): value .*"
+                                         "looks like degrees"):
+        run_sequence(Sequence(seq.sensor, scans, seq.groundtruth), OdometryConfig.for_model("ca-polar"))
