@@ -40,7 +40,7 @@ from .pull import pose_pull
 from .scan import ScanDetail, ScanEstimate
 from .scan_association import MapAssociation, ScanMeasurements
 from .sensor import Sensor
-from .sensor_values import check_polar, check_sensor_arguments
+from .sensor_values import check_polar_bounds, check_sensor_arguments
 from .state import State
 from .surface import surface_covariances
 from .reported_covariances import ReportedCovariances
@@ -175,9 +175,10 @@ class RadarOdometry:
 
     # --- stages -----------------------------------------------------------------------------------------
     def _accept(self, t, polar) -> tuple[float, np.ndarray, np.ndarray]:
-        """Checked scan: time, the detections within (0, max_range] and the mask of those rows."""
+        """Checked scan (finite; ranges >= 0 and angles in bounds, `check_polar_bounds`): time, the detections
+        within (0, max_range] and the mask of those rows."""
         polar, t = check_rows("polar", polar, 4), check_time("t", t)
-        check_polar("polar", polar)
+        check_polar_bounds("polar", polar)
         if self.last_t is not None and not t > self.last_t:
             raise InputError(f"t: scan times must increase strictly (got {t} after {self.last_t})")
         in_range = (polar[:, 0] > 0) & (polar[:, 0] <= self.max_range)

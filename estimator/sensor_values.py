@@ -25,7 +25,7 @@ def angle_hint(name: str, value: float) -> str:
     return "looks like degrees: angles must be in radians"
 
 
-def check_polar(name: str, polar: np.ndarray) -> None:
+def check_polar_bounds(name: str, polar: np.ndarray) -> None:
     """Detections (n, 4) [range, azimuth, elevation, radial_velocity]: InputError naming the first bad row's
     column for a negative range or an angle outside [-pi, pi] (azimuth) or [-pi/2, pi/2] (elevation)."""
     bad = (polar[:, 0] < 0) | (np.abs(polar[:, 1]) > np.pi) | (np.abs(polar[:, 2]) > np.pi / 2)

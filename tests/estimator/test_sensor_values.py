@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from rodo.estimator.config import OdometryConfig
 from rodo.estimator.errors import InputError
 from rodo.estimator.odometry import RadarOdometry
-from rodo.estimator.sensor_values import check_polar
+from rodo.estimator.sensor_values import check_polar_bounds
 from rodo.sim.sequence import NoiseSigmas, SensorConfig
 from tests.estimator import scene
 
@@ -54,16 +54,16 @@ def test_an_azimuth_in_0_to_2pi_is_refused_with_its_own_hint():
 @given(st.lists(st.tuples(st.floats(0.0, 300.0), st.floats(-np.pi, np.pi), st.floats(-np.pi / 2, np.pi / 2),
                           st.floats(-50.0, 50.0)), max_size=20),
        st.integers(0, 19), st.sampled_from([(0, -1e-9), (1, np.pi + 1e-9), (1, -4.0), (2, np.pi / 2 + 1e-9)]))
-def test_check_polar_accepts_every_value_in_bounds_and_names_the_first_row_out(rows, at, bad):
+def test_check_polar_bounds_accepts_every_value_in_bounds_and_names_the_first_row_out(rows, at, bad):
     polar = np.array(rows, dtype=float).reshape(-1, 4)
-    check_polar("polar", polar)  # the bounds themselves are in
+    check_polar_bounds("polar", polar)  # the bounds themselves are in
     if len(polar) == 0:
         return
     at = at % len(polar)
     col, value = bad
     polar[at:, col] = value  # every row from `at` on is out: the message names `at`
     with pytest.raises(InputError, match=rf"^polar\[{at}, {col}\] "):
-        check_polar("polar", polar)
+        check_polar_bounds("polar", polar)
 
 
 def _rigid_but_scaled():
