@@ -1,5 +1,7 @@
 """`rodo` command line: parse, call, print. Each command lives in rodo/commands/<name>.py and is
-listed explicitly in COMMANDS (no discovery by magic)."""
+listed explicitly in COMMANDS (no discovery by magic). Scenarios and sensor profiles of your own come from plugin
+modules named explicitly too: `rodo --plugin MODULE` or RODO_PLUGINS (`rodo.validation.plugins`), imported before
+the command runs."""
 
 from __future__ import annotations
 
@@ -8,6 +10,7 @@ import os
 import sys
 
 from rodo.estimator.errors import InputError
+from rodo.validation import plugins
 
 from . import extras
 from .commands import (calibrate, config, convert, demo, ego_velocity, evaluate, export, figures, montecarlo, prior,
@@ -20,6 +23,10 @@ COMMANDS = [demo, simulate, run, evaluate, montecarlo, table1, verdict, convert,
 def build_parser(commands=None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rodo", description="Radar odometry on SE(3): a testbed.")
     parser.add_argument("--version", action="version", version=f"rodo {version()}")
+    parser.add_argument("--plugin", metavar="MODULE", action="append", default=[],
+                        help="import MODULE before the command, so the scenarios and sensor profiles it registers "
+                             "are known to it (repeatable; also the comma-separated RODO_PLUGINS environment "
+                             "variable; docs/simulator.md, Custom scenarios and sensor profiles)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in COMMANDS if commands is None else commands:
         module.register(sub)
@@ -41,6 +48,11 @@ def main(argv: list[str] | None = None, commands=None) -> int:
     """Entry point; `commands` restricts the parser to some command modules (tests use it)."""
     parser = build_parser(commands)
     args = parser.parse_args(argv)
+    try:  # RODO_PLUGINS, then --plugin; their names stay in RODO_PLUGINS for the workers the command spawns
+        plugins.load(args.plugin)
+    except InputError as exc:
+        print(f"rodo: error: {exc}", file=sys.stderr)
+        return 2
     try:
         extras.check_command(args)  # a missing optional dependency fails before any work
         code = int(args.func(args) or 0)

@@ -17,7 +17,7 @@ from rodo.sim import trajectory as traj
 from rodo.sim import world as w
 from rodo.sim.radar import RadarConfig
 
-from .registry import Scenario, register
+from .registry import Scenario, register, seal
 
 MOVER_ID = 1_000_000
 CA_POLAR = {"model": "ca-polar"}
@@ -156,3 +156,5 @@ PRIOR_CV_POINTS = register(Scenario(
     "prior_cv_points", 1, "prior_cv's motion in a world of persistent point scatterers only (an exact measurement "
     "model)", _prior_profile("cv"), _landmark_world, estimator_defaults=dict(CV_POLAR), duration=60.0,
     params=("qc",), extra_truth=_prior_truth))
+
+seal()  # the definitions above are built in: versioned, never replaced (Registry.seal)

@@ -1,5 +1,8 @@
 """The explicit registry of named, versioned scenarios (no discovery by magic: `scenarios.definitions` calls
-`register` for each one).
+`register` for each one, then `seal`, which makes those built in: never replaced). A scenario of your own is
+registered the same way, `register(Scenario(...))` (`replace=True` replaces one of yours of that name, e.g. when a
+notebook cell runs again); the CLI sees it when its module is a plugin (`rodo --plugin MODULE`, RODO_PLUGINS:
+docs/simulator.md, "Custom scenarios and sensor profiles").
 
 A scenario is a small definition: name, version, one-line description, a builder of (trajectory profile,
 world, radar config), estimator defaults (a plain dict), and its default extent: a path length (metres,
@@ -221,7 +224,8 @@ def _streams(seed: int) -> list[np.random.SeedSequence]:
 
 
 _REGISTRY: Registry[Scenario] = Registry("scenario")
-register = _REGISTRY.register
+register = _REGISTRY.register  # register(scenario, replace=False); a built-in one is never replaced
+seal = _REGISTRY.seal  # once, by scenarios.definitions: the scenarios registered so far are the built-in ones
 names = _REGISTRY.names  # in registration order
 get = _REGISTRY.get  # InputError listing the known names for an unknown one
 

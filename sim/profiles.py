@@ -14,7 +14,8 @@ are shaped like real sensors whose recordings are in ../shared/realdata (docs/re
 Numbers are marked in the definitions: *datasheet* (a public data sheet or the dataset's paper), *data* (read off
 the recording itself, e.g. a quantisation step), *calibrated* (tuned so that `rodo realism` matches the real
 data; docs/realism.md gives the statistics), *assumed* (not published; a plausible value). Bump a profile's
-version whenever its output for a seed changes.
+version whenever its output for a seed changes. A profile of your own: `register(SensorProfile(...))` under a name of
+its own (the built-in ones are sealed, never replaced; docs/simulator.md, "Custom scenarios and sensor profiles").
 
 Checked by: tests/sim/test_profiles.py
 """
@@ -58,7 +59,7 @@ class SensorProfile:
 
 
 _REGISTRY: Registry[SensorProfile] = Registry("sensor profile", "profiles")
-register = _REGISTRY.register
+register = _REGISTRY.register  # register(profile, replace=False); a built-in profile is never replaced
 names = _REGISTRY.names  # in registration order (the default first)
 get = _REGISTRY.get  # rodo.estimator.errors.InputError listing the known profiles for an unknown name
 
@@ -153,6 +154,8 @@ IWR6843AOP = register(SensorProfile(
 CORNER2D = register(SensorProfile(
     "corner2d", 1, "RadarScenes-like 2D 77 GHz corner radar (front left, yawed 25 deg), calibrated on RadarScenes",
     _corner2d.__doc__, _corner2d, points_per_scan=(140, 365)))
+
+_REGISTRY.seal()  # the profiles above are built in: versioned, never replaced (a profile of your own: another name)
 
 
 __all__ = ["CORNER2D", "DEFAULT", "GENERIC", "IWR6843AOP", "LRR30F", "SensorProfile", "get", "names", "radar_config",
