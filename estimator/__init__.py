@@ -33,6 +33,8 @@ A map of the package (each module's public names are re-exported here):
     pull.py             the scan's pull on its solved pose, and the one-scan relative pose's factor
     odometry.py         RadarOdometry: predict, Doppler front end, associate, solve, map update
     sensor.py           Sensor: one radar of the odometry (extrinsics, noise, association, Doppler front end)
+    sensor_values.py    the value rules of a radar's description and detections (units), one set for the files
+                        and the Python API
     scan.py             ScanEstimate, ScanDetail: what a scan returns
     config.py           OdometryConfig and its sections (TOML)
     config_rules.py     every config value's type, finiteness and range (one table, checked at load)
@@ -72,6 +74,7 @@ _EXPORTS = {
     "scan": ("ScanDetail", "ScanEstimate"),
     "spd": ("inv_spd", "solve_spd", "trailing_inverse"),
     "sensor": ("Sensor",),
+    "sensor_values": ("check_polar_bounds", "check_sensor_values"),
     "state": ("State", "stacked"),
     "surface": ("surface_covariances",),
     "ground": ("off_road", "road_mask"),

@@ -16,7 +16,9 @@ Modules:
 - `kitti`: devkit-exact KITTI drift; `metrics`: `ate`, `rpe`, `drift`, `pose_errors`, `velocity_errors`,
   `evaluate`, `jsonable`; `evaluation_inputs`: the checks that states and a truth belong to the trajectories
   evaluated (`evaluate` and `rodo evaluate`);
-- `campaign`, `campaign_files`, `trial`, `table1`: Monte Carlo campaigns and the paper's Table I;
+- `campaign`, `campaign_files`, `trial`, `table1`: Monte Carlo campaigns and the paper's Table I; `workers`:
+  their executors (`make_executor`: spawned workers that leave with their parent, or Dask's); `plugins`: the
+  user's modules of scenarios and profiles that `rodo --plugin` and RODO_PLUGINS import, workers included;
 - `driver`: `run_sequence`, `write_run`; `icp_baseline`: `run_icp`;
 - `experiments`: `fig1_data` ... `fig5_data`, `figure_data`;
 - `odometry_consistency`: `odometry_nees`, `summarise` (NEES of velocity, acceleration, relative pose over a

@@ -2,7 +2,7 @@
 
 One runner, `run_campaign(trial_fn, trials, executor, out_dir, resume)`, serves every executor that follows the
 `concurrent.futures.Executor` interface: a local `ProcessPoolExecutor` or a Dask `Client.get_executor()`
-(`make_executor`). Workers only compute; the calling process writes every file, so a remote Dask worker needs no
+(`validation.workers.make_executor`). Workers only compute; the calling process writes every file, so a remote Dask worker needs no
 shared disk. Layout of out_dir (docs/evaluation.md):
 
 - `.campaign.lock`: flock'ed while a writer runs (`validation.campaign_dir`: a second writer is refused);
@@ -25,8 +25,6 @@ Checked by: tests/validation/test_campaign.py
 
 from __future__ import annotations
 
-import contextlib
-import importlib.util
 import json
 import time
 from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, CancelledError, wait
@@ -47,7 +45,7 @@ from .campaign_files import (CONSISTENCY_FIELDS, COVERAGE_FIELDS, FIELDS, METRIC
 from .campaign_compare import compare_models, comparison_lines
 from .consistency import average_nees, chi2_bounds, fraction_within
 from .metrics import jsonable
-from .workers import spawn_pool
+from .workers import make_executor, spawn_pool  # noqa: F401 (make_executor: its home until session 55)
 
 
 @dataclass(frozen=True)
@@ -93,45 +91,6 @@ def make_trials(seed: int, runs: int, models: Iterable[str]) -> list[Trial]:
     if not models:
         raise InputError("models: at least one model is needed")
     return [Trial(i, s, models) for i, s in enumerate(trial_seeds(seed, runs))]
-
-
-@contextlib.contextmanager
-def make_executor(jobs: int, dask: str | None = None, processes: bool = True, dashboard: str | None = None,
-                  on_dashboard=None):
-    """A concurrent.futures Executor: ProcessPoolExecutor(jobs), or Dask (`dask="local"`: a LocalCluster of
-    `jobs` workers with one thread each, processes unless processes=False; `dask="tcp://host:port"`: connect).
-
-    `dashboard` (LocalCluster only) is the address its dashboard serves on ("localhost:8787"; ":8787" listens
-    on every interface; None: no dashboard); `on_dashboard(link)` is then called with the dashboard's URL.
-    Dask moves tasks and results by pickle: connect only to a scheduler you trust (docs/evaluation.md)."""
-    if int(jobs) < 1:
-        raise InputError(f"jobs: must be >= 1, got {jobs!r}")
-    if dashboard is not None and dask != "local":
-        raise InputError("dashboard: only with dask='local' (a remote scheduler serves its own dashboard: "
-                         "`dask scheduler --dashboard-address :8787`)")
-    if dask is None:  # spawned workers that leave with this process (validation.workers)
-        with spawn_pool(int(jobs)) as ex:
-            yield ex
-        return
-    from distributed import Client, LocalCluster
-
-    if dask == "local":
-        if dashboard is not None and importlib.util.find_spec("bokeh") is None:
-            raise InputError("dashboard: Dask's dashboard needs bokeh: pip install 'dask[diagnostics]'")
-        with LocalCluster(n_workers=int(jobs), threads_per_worker=1, processes=processes,
-                          dashboard_address=dashboard, silence_logs=40) as cluster, Client(cluster) as client:
-            if dashboard is not None and on_dashboard is not None:
-                on_dashboard(cluster.dashboard_link)
-            yield client.get_executor()
-    else:
-        if "://" not in dask:
-            raise InputError(f"dask: expected 'local' or a scheduler address like tcp://host:8786, got {dask!r}")
-        try:
-            client = Client(dask, timeout=10)
-        except OSError as exc:
-            raise InputError(f"dask: cannot connect to scheduler {dask!r}: {exc}") from None
-        with client:
-            yield client.get_executor()
 
 
 def error_text(exc: BaseException) -> str:

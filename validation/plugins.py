@@ -27,6 +27,11 @@ def names_in(text: str | None) -> list[str]:
     return [name.strip() for name in (text or "").split(",") if name.strip()]
 
 
+def names() -> list[str]:
+    """The plugins named in this process's RODO_PLUGINS (after `load`: every plugin it imported)."""
+    return names_in(os.environ.get(ENV))
+
+
 def load(modules: Iterable[str] = (), environ: MutableMapping[str, str] | None = None) -> list[str]:
     """Import the plugins named in RODO_PLUGINS and then `modules` (each a name or a comma-separated list),
     each once, and set RODO_PLUGINS to all of them (`environ`, default os.environ). Returns their names.

@@ -174,3 +174,28 @@ def test_the_documented_example_is_the_file_and_runs_from_python(tmp_path):
     refused, files = done.stdout.splitlines()
     assert refused.startswith("scenario 'city' is a built-in, versioned scenario and cannot be replaced")
     assert files == "21 ['groundtruth.txt', 'radar.csv', 'sensor.toml', 'truth.npz']"
+
+
+def test_dask_workers_import_the_plugins_too(tmp_path):
+    """Dask's workers are not spawned by rodo's pool: `make_executor` registers a setup callback on the client
+    that imports the plugins on each (without it every row was an error: unknown scenario 'campus')."""
+    pytest.importorskip("distributed")
+    out = tmp_path / "mc"
+    done = rodo(["--plugin", "my_scenarios", "montecarlo", "campus", "--runs", "2", "--jobs", "1", "--dask", "local",
+                 "--duration", "1", "--models", "ca-polar", "--out", out], tmp_path)
+    assert done.returncode == 0, done.stderr
+    with open(out / "results.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["status"] for r in rows] == ["ok", "ok"], [r.get("error") for r in rows]
+
+
+def test_a_plugin_dask_workers_cannot_import_stops_the_campaign_naming_it(monkeypatch):
+    pytest.importorskip("distributed")
+    from rodo.estimator.errors import InputError
+    from rodo.validation.workers import make_executor
+
+    monkeypatch.setenv(plugins.ENV, "no_such_plugin_for_dask")
+    with pytest.raises(InputError, match="dask: the workers cannot import the plugins no_such_plugin_for_dask: "
+                                         "plugin 'no_such_plugin_for_dask': ModuleNotFoundError"):
+        with make_executor(1, "local", processes=False):
+            pass
