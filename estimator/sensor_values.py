@@ -14,6 +14,7 @@ from .errors import InputError, check_finite
 
 ANGLE_BOUNDS = {"azimuth": np.pi, "elevation": np.pi / 2}  # rad: |angle| above it is out of any radar's view
 MAX_DOPPLER_SIGMA = 50.0  # m/s: a radial-velocity sigma above it is a unit mistake
+RATE_RANGE = (0.1, 1000.0)  # Hz: a scan rate outside it comes from times in another unit than seconds
 MAX_MOUNT = 50.0  # m: no radar is mounted farther from the vehicle's origin (a larger value is a unit mistake)
 POLAR_COLUMNS = ("range", "azimuth", "elevation", "radial_velocity")
 
@@ -66,6 +67,9 @@ def check_sensor_values(rate_hz, sigmas, azimuth_fov, elevation_fov, max_range, 
     """
     if rate_hz <= 0:
         fail("rate_hz", f"must be > 0, got {rate_hz!r}")
+    if not RATE_RANGE[0] <= rate_hz <= RATE_RANGE[1]:
+        fail("rate_hz", f"{rate_hz!r} Hz is no radar's scan rate (expected {RATE_RANGE[0]:g}-{RATE_RANGE[1]:g} Hz): "
+             "were the scan times in milliseconds, microseconds or nanoseconds? they are in seconds")
     check_sigmas(sigmas, fail)
     check_fov_bounds(azimuth_fov, elevation_fov, fail)
     if max_range <= 0:

@@ -77,12 +77,13 @@ def check_output_dir(path, option: str = "--out", create: bool = True) -> Path:
 
 
 def sequence_inputs(seq_dir) -> list[Path]:
-    """The input files of a sequence directory, or of a rig (rig.toml and each radar's sequence files)."""
-    from rodo.sim.sequence import GROUNDTRUTH_TXT, RADAR_CSV, RIG_TOML, SENSOR_TOML
+    """The input files of a sequence directory, or of a rig (rig.toml and each radar's sequence files), a
+    converter's own files (odom.csv, conversion.json) among them."""
+    from rodo.sim.sequence import CONVERTER_FILES, GROUNDTRUTH_TXT, RADAR_CSV, RIG_TOML, SENSOR_TOML
     from rodo.sim.simulate import TRUTH_NPZ
 
     root = Path(seq_dir)
-    names = (RADAR_CSV, SENSOR_TOML, GROUNDTRUTH_TXT, TRUTH_NPZ, RIG_TOML)
+    names = (RADAR_CSV, SENSOR_TOML, GROUNDTRUTH_TXT, TRUTH_NPZ, RIG_TOML) + CONVERTER_FILES
     dirs = [root] + ([d for d in root.iterdir() if d.is_dir()] if (root / RIG_TOML).is_file() else [])
     return [d / name for d in dirs for name in names]
 

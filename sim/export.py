@@ -198,6 +198,18 @@ def kitti_pose_rows(T_world_sensor: np.ndarray) -> str:
     return format_kitti_poses(se3.inverse(T_world_sensor[0]) @ T_world_sensor)
 
 
+def _check_intensity(seq: Sequence, values: list, intensity: str | None, extras: set) -> None:
+    """KITTI's .bin holds float32 intensities that its readers take as numbers: a column with NaN or infinity
+    (allowed in a sequence's extra columns) is refused before anything is written, naming its first such row."""
+    for scan, i in zip(seq.scans, values):
+        bad = ~np.isfinite(i.astype("<f4"))  # a finite float64 beyond float32's range is infinite in the file
+        if bad.any():
+            others = ", ".join(c for c in ["radial_velocity", *sorted(extras)] if c != intensity)
+            raise InputError(f"--intensity: column {intensity!r} is {float(i[bad][0])!r} in scan {scan.scan} "
+                             f"(t = {scan.t} s), row {int(np.argmax(bad))} of the scan; KITTI's .bin needs finite "
+                             f"intensities: choose another column with --intensity ({others})")
+
+
 def export_kitti(seq: Sequence, out_dir, intensity: str | None = None) -> dict:
     """Write the KITTI odometry layout for sequence 00 (sensor frame = KITTI's velodyne = camera, Tr identity):
 
@@ -224,13 +236,13 @@ def export_kitti(seq: Sequence, out_dir, intensity: str | None = None) -> dict:
     if intensity is not None and intensity != "radial_velocity" and intensity not in extras:
         raise InputError(f"--intensity: no column {intensity!r} in the sequence (radial_velocity"
                          f"{''.join(', ' + e for e in sorted(extras))})")
+    values = [np.zeros(len(scan)) if intensity is None else (
+        scan.radial_velocity if intensity == "radial_velocity" else scan.extra[intensity]) for scan in seq.scans]
+    _check_intensity(seq, values, intensity, extras)
     seq_dir = _mkdir(Path(out_dir) / "sequences" / KITTI_SEQUENCE)
     velodyne = _mkdir(seq_dir / "velodyne")
-    for k, scan in enumerate(seq.scans):
-        p = scan.points_sensor
-        i = np.zeros(len(scan)) if intensity is None else (
-            scan.radial_velocity if intensity == "radial_velocity" else scan.extra[intensity])
-        _atomic_write(velodyne / f"{k:06d}.bin", np.c_[p, i].astype("<f4").tobytes())
+    for k, (scan, i) in enumerate(zip(seq.scans, values)):
+        _atomic_write(velodyne / f"{k:06d}.bin", np.c_[scan.points_sensor, i].astype("<f4").tobytes())
     _remove_stale(velodyne, ".bin", {f"{k:06d}.bin" for k in range(len(seq.scans))})
     _atomic_write(seq_dir / "times.txt", "".join(f"{s.t:.9e}\n" for s in seq.scans).encode("ascii"))
     _atomic_write(seq_dir / "calib.txt", b"Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")

@@ -240,11 +240,24 @@ def test_ego_velocity_bad_inputs(seq, tmp_path, capsys):
     (["--seed", "-1"], ("--seed",)),
     (["--samples", "62", "--dt", "-1"], ("dt",)),
     (["--samples", "62", "--dt", "0"], ("dt",)),
+    (["--samples", "62", "--dt", "1e6"], ("--dt: 1000000.0 s is outside (0, 3.5] s", "passes pi")),  # overflowed
+    (["--samples", "62", "--dt", "nan"], ("--dt: nan s is outside",)),
     (["--samples", "62", "--substeps", "0"], ("substeps",)),
     (["--samples", "62", "--magnus-order", "9"], ("magnus_order", "9")),
 ])
 def test_prior_montecarlo_bad_inputs(tmp_path, capsys, extra, needles):
     fails(capsys, ["prior-montecarlo", *extra, "--out", tmp_path / "p"], *needles)
+
+
+def test_prior_montecarlo_beyond_fig1s_horizon_fails_and_says_why(tmp_path, capsys):
+    """At 3 s the first-order prior no longer matches the SDE's spread: exit 1 (a true FAIL, the test working),
+    with a note that it is the linearisation's horizon, not a defect (review 55: it read as one)."""
+    from rodo.commands import prior as prior_cmd
+
+    assert cli.main(["prior-montecarlo", "--dt", "3", "--samples", "200", "--substeps", "60", "--out",
+                     str(tmp_path / "p")], commands=[prior_cmd]) == 1
+    out = capsys.readouterr().out
+    assert ": FAIL" in out and "note: the prior's first-order mean and covariance hold this case at Fig. 1's" in out
 
 
 def test_prior_montecarlo_out_is_a_file(a_file, capsys):

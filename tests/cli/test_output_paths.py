@@ -204,6 +204,10 @@ def test_an_output_never_overwrites_an_input_or_another_output(seq, tmp_path, ca
     assert not out.exists()
     fails(capsys, ["run", copy, "--out", out, "--rerun", radar], "--rerun", str(radar), "overwrite")
     fails(capsys, ["ego-velocity", copy, "--out", radar], "--out", str(radar))
+    odom = copy / "odom.csv"  # a converter's oracle odometry, no file rodo can write again (review 55)
+    odom.write_bytes(b"t,x,y\n0.0,0.0,0.0\n")
+    before[odom.name] = odom.read_bytes()
+    fails(capsys, ["ego-velocity", copy, "--out", odom], "--out", str(odom))
     link = tmp_path / "link.csv"
     link.symlink_to(radar)
     fails(capsys, ["ego-velocity", copy, "--out", link], "--out", str(link), f"the same file as {radar}")

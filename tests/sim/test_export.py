@@ -174,3 +174,23 @@ def test_export_bad_inputs(seq_dir, tmp_path, capsys):
         ply_bytes({"x": np.zeros(2), "c": np.zeros(2, dtype=complex)})
     with pytest.raises(InputError, match="no scans"):
         export_ply(dataclasses.replace(seq, scans=[]), tmp_path / "e")
+
+
+def test_kitti_bin_refuses_an_intensity_that_is_not_finite(seq_dir, tmp_path, capsys):
+    """NaN is allowed in a sequence's extra columns, but KITTI's .bin readers take intensities as numbers: the
+    column is refused, naming its first such row and the others to choose, before anything is written (review
+    55: NaN was written without a word)."""
+    seq = read_sequence(seq_dir, use_cache=False)
+    scans = list(seq.scans)
+    snr = scans[2].extra["snr"].copy()
+    snr[[4, 7]] = [np.nan, np.inf]
+    scans[2] = dataclasses.replace(scans[2], extra={**scans[2].extra, "snr": snr})
+    bad = tmp_path / "bad"
+    write_sequence(bad, dataclasses.replace(seq, scans=scans))
+    out = tmp_path / "o"
+    assert _run(["export", "kitti-bin", bad, "--out", out]) == 2  # snr is the default intensity
+    err = capsys.readouterr().err
+    assert f"--intensity: column 'snr' is nan in scan {scans[2].scan} (t = {scans[2].t} s), row 4" in err, err
+    assert "choose another column with --intensity (radial_velocity)" in err and not out.exists()
+    assert _run(["export", "kitti-bin", bad, "--out", out, "--intensity", "radial_velocity"]) == 0
+    assert len(list((out / "sequences" / "00" / "velodyne").glob("*.bin"))) == len(scans)

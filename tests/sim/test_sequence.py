@@ -315,7 +315,9 @@ def test_sensor_config_rejects_bad_values():
     T[0, 1] = 0.1
     for key, value, message in [("rate_hz", 0.0, "rate_hz"), ("T_vehicle_sensor", T, "rotation"),
                                 ("elevation_fov", (-20.0, 20.0), "degrees"), ("max_range", -1.0, "max_range"),
-                                ("rate_hz", True, "number"), ("min_range", 200.0, "min_range")]:
+                                ("rate_hz", True, "number"), ("min_range", 200.0, "min_range"),
+                                ("rate_hz", 1.02e7, r"rate_hz: 10200000.0 Hz is no radar's scan rate .*milliseconds"),
+                                ("rate_hz", 0.0132, r"rate_hz: 0.0132 Hz is no radar's scan rate")]:
         with pytest.raises(InputError, match=message):
             SensorConfig(**{**good, key: value})
     with pytest.raises(InputError, match="NoiseSigmas.range"):
@@ -338,7 +340,8 @@ def test_sensor_toml_in_other_units_names_the_field(tmp_path):
                                                (-0.3, 0.3), 100.0), [RadarScan(0, 0.0, [10.0], [0.1], [0.0], [1.0])]))
     text = (good / "sensor.toml").read_text()
     for old, new, field in [("translation = [0.0, 0.0, 0.0]", "translation = [3500.0, 0.0, 500.0]",
-                             "extrinsics.translation"), ("range = 0.02", "range = 1000000.0", "noise.range")]:
+                             "extrinsics.translation"), ("range = 0.02", "range = 1000000.0", "noise.range"),
+                            ("rate_hz = 13.0", "rate_hz = 13000.0", "rate_hz")]:
         assert old in text
         bad = tmp_path / field
         bad.mkdir()

@@ -58,15 +58,18 @@ def test_the_writer_refuses_what_the_reader_would(city, tmp_path):
     assert not (tmp_path / "radar.csv").exists()
 
 
-@pytest.mark.parametrize("rate_hz, hint", [(13e3, "times in milliseconds?"), (400.0, "is one of them in another unit?")])
+@pytest.mark.parametrize("rate_hz, hint", [(200.0, "is one of them in another unit?"),
+                                            (900.0, "is one of them in another unit?")])
 def test_a_rate_in_the_wrong_unit_is_refused(city, tmp_path, rate_hz, hint):
-    """A rate_hz that disagrees with scans 1/13 s apart: the message gives both files' units (a rate 1000x too
-    high reads as times in milliseconds; one off by a factor no unit explains says so)."""
+    """A rate_hz that disagrees with scans 1/13 s apart: the message gives both files' units (one off by a factor
+    no unit explains says so; a rate 1000x too high, 13 kHz, is no radar's and SensorConfig refuses it first)."""
     with pytest.raises(InputError) as caught:
         write_sequence(tmp_path, _with_times(city, rate_hz=rate_hz))
     message = str(caught.value)
     assert f"rate_hz = {rate_hz:g} means {1 / rate_hz:.6g} s" in message and hint in message
     assert "radar.csv's t is in seconds, sensor.toml's rate_hz in Hz" in message
+    with pytest.raises(InputError, match=r"rate_hz: 13000.0 Hz is no radar's scan rate .* milliseconds"):
+        _with_times(city, rate_hz=13e3)
 
 
 def test_missing_scans_are_no_mismatch(city, tmp_path):
