@@ -1,6 +1,8 @@
-"""Shared plumbing of the real-data converters: CSV reading with located errors, the drop report, scan building.
+"""Shared plumbing of the real-data converters: CSV reading with located errors, the drop report, scan building,
+and the plausibility rules every converter applies (a scan rate from the times, the share of rows a rule may
+drop before the input is refused, at least one detection).
 
-Docs: docs/realdata.md. Checked by: tests/sim/test_convert.py
+Docs: docs/realdata.md. Checked by: tests/sim/test_convert.py, tests/sim/test_convert_review55.py
 """
 
 from __future__ import annotations
@@ -19,6 +21,13 @@ from rodo.sim.simulate import TRUTH_NPZ
 
 CONVERSION_JSON = "conversion.json"
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+# Hz: a median step between scans outside it comes from times in another unit (estimator/sensor_values.py's
+# RATE_RANGE, which SensorConfig applies; checked here first to name the input file and field)
+SCAN_RATE_HZ = (0.1, 1000.0)
+TIME_UNITS = (("seconds", 1.0), ("milliseconds", 1e-3), ("microseconds", 1e-6), ("nanoseconds", 1e-9))
+# a rule that drops rows (an angle out of range, a point too far) drops at most this share of them; more is
+# a systematic error (a unit, a convention) and refused: the rest would be as wrong
+MAX_DROP_SHARE = 0.01
 
 
 @dataclass
@@ -69,6 +78,8 @@ class Conversion:
 
 def open_text(path: Path):
     """Open a (possibly .gz) text file; InputError naming the file when it is missing or unreadable."""
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a file")
     if not path.is_file():
         raise InputError(f"{path}: file not found")
     try:
@@ -195,6 +206,51 @@ def scans_from_rows(report: ConversionReport, scan: np.ndarray, t_scan: np.ndarr
     report.kept_detections = int(len(s))
     report.kept_scans = len(scans)
     return scans
+
+
+def check_scan_step(times, unit_s: float, unit: str, where: str) -> None:
+    """InputError naming `where` (file and field) unless the median step between consecutive scan `times` (in
+    the input's unit, `unit_s` seconds each, abbreviated `unit`) is a scan rate within SCAN_RATE_HZ; the hint
+    names the units in which the times would be one. Fewer than two times: nothing to check.
+
+    Checked by: tests/sim/test_convert_review55.py::test_ti_trigger_times_in_milliseconds_name_file_and_field
+    """
+    times = np.asarray(times)
+    if len(times) < 2:
+        return
+    step = float(np.median(np.diff(times)))
+    lo, hi = SCAN_RATE_HZ
+    if step > 0 and lo <= 1.0 / (step * unit_s) <= hi:
+        return
+    fits = [name for name, s in TIME_UNITS if s != unit_s and step > 0 and lo <= 1.0 / (step * s) <= hi]
+    rate = f"{1.0 / (step * unit_s):.3g} Hz" if step > 0 else "no scan rate"
+    raise InputError(f"{where}: median step {step:.6g} {unit} between scans, {rate}, is no radar's scan rate "
+                     f"(expected {lo:g}-{hi:g} Hz): {' or '.join(fits) + '?' if fits else 'times in another unit?'}")
+
+
+def drop_few(report: ConversionReport, keep: np.ndarray, bad: np.ndarray, reason: str, explain) -> np.ndarray:
+    """Drop the `bad` rows among the kept ones under `reason` ("detections ..."), when they are at most
+    MAX_DROP_SHARE of them; more is an InputError `explain(k)` (where and why, k the first bad row) with the
+    counts: nothing is written. Returns the new keep mask.
+
+    Checked by: tests/sim/test_convert_review55.py::test_radarscenes_azimuths_in_degrees_or_0_2pi_are_refused,
+        ::test_radarscenes_a_few_azimuths_out_of_range_are_still_dropped
+    """
+    bad = keep & np.asarray(bad, dtype=bool)
+    n_bad, n = int(bad.sum()), int(keep.sum())
+    if n_bad > MAX_DROP_SHARE * n:
+        raise InputError(f"{explain(int(np.flatnonzero(bad)[0]))} ({n_bad} of {n} {reason}, "
+                         f"{100 * n_bad / n:.3g} %; up to {100 * MAX_DROP_SHARE:g} % are dropped and counted)")
+    return keep & report.drop(reason, bad)
+
+
+def require_detections(report: ConversionReport, where) -> None:
+    """InputError naming `where` (the detections' file) when no detection was kept: an empty sequence is no
+    conversion. Names what was dropped, if anything."""
+    if report.kept_detections:
+        return
+    dropped = "; ".join(f"dropped {n} {reason}" for reason, n in sorted(report.dropped.items()))
+    raise InputError(f"{where}: no detections" + (f" left ({dropped})" if dropped else ""))
 
 
 def planar_poses(x, y, yaw) -> np.ndarray:

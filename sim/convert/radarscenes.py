@@ -12,7 +12,12 @@ Sensor velocity implied by the odometry (README formula; the oracle of the ego-v
 v_vehicle = (vx - w y_m, w x_m) at the mounting (x_m, y_m), rotated into the sensor frame by -yaw_m;
 a static target at azimuth az then has v_r = -(cos az, sin az) . v_sensor.
 
-Checked by: tests/sim/test_convert.py, tests/validation/test_realdata.py
+Refused, naming the file, line and field (an offset or a unit would move groundtruth.txt by 100 m to tens of
+km, degrees would keep a few wrong azimuths): scan times whose median step is no scan rate (0.1-1000 Hz),
+|timestamp_rad - timestamp_odom| above MAX_ODOM_OFFSET_S, more than 1 % of the azimuths outside [-pi, pi]
+(fewer are dropped and counted), no detections.
+
+Checked by: tests/sim/test_convert.py, tests/validation/test_realdata.py, tests/sim/test_convert_review55.py
 """
 
 from __future__ import annotations
@@ -23,9 +28,11 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import so3
+from rodo.estimator.sensor_values import angle_hint
 from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence, Trajectory
 
-from ._common import Conversion, ConversionReport, field_of_view, planar_poses, read_csv, scans_from_rows
+from ._common import (Conversion, ConversionReport, check_scan_step, drop_few, field_of_view, planar_poses,
+                      read_csv, require_detections, scans_from_rows)
 
 # radar -> (x_m, y_m, yaw_rad) in the vehicle frame (origin rear-axle centre), from the export's const.py
 MOUNTING = {1: (3.663, -0.873, -1.48418552), 2: (3.86, -0.70, -0.436185662),
@@ -38,6 +45,7 @@ STATIC_LABEL = 11
 DET_COLUMNS = ("scan_idx", "range_m", "azimuth_rad", "vr_mps", "rcs_dbsm", "vr_comp_mps", "label_id")
 MIN_SCAN_STEP = 1e-6  # s
 ODOM_LIMIT = 1e9  # s, m, rad, m/s, rad/s: larger odometry values are refused
+MAX_ODOM_OFFSET_S = 1.0  # s: |timestamp_rad - timestamp_odom| above it is refused (sequence 105: at most 0.136 s)
 ODOM_COLUMNS = ("timestamp_rad", "timestamp_odom", "x_loc", "y_loc", "yaw_loc", "vx_ego", "yaw_rate_ego")
 
 
@@ -144,8 +152,9 @@ def convert_radar(source, radar: int, t_max: float | None = None) -> Conversion:
     report = ConversionReport("radarscenes", str(source))
     report.info["radar"] = radar
     t, n_scans = _scan_times(odom, odom_path, t_max, report)
-    scan, rng, az, vr, label, rcs = _kept_detections(det, len(t), n_scans, report)
+    scan, rng, az, vr, label, rcs = _kept_detections(det, len(t), n_scans, report, det_path)
     scans = scans_from_rows(report, scan, t, rng, az, np.zeros_like(az), vr, {"label": label, "rcs": rcs})
+    require_detections(report, det_path)
     sensor = _sensor_config(radar, odom, t, scan, rng, az, vr, label, report)
     gt, dt = _groundtruth(odom, t, n_scans)
     report.info["max_abs_odom_time_offset_s"] = float(np.max(np.abs(dt)))
@@ -178,17 +187,33 @@ def _scan_times(odom: dict, odom_path, t_max: float | None, report: ConversionRe
         k = int(np.flatnonzero(np.diff(t) < MIN_SCAN_STEP)[0]) + 1
         raise InputError(f"{odom_path}, line {k + 2}, field 'timestamp_rad': times must increase by at least "
                          f"{MIN_SCAN_STEP:g} s")
+    check_scan_step(t, 1.0, "s", f"{odom_path}, field 'timestamp_rad'")
     n_scans = len(t) if t_max is None else int(np.searchsorted(t, t_max, side="right"))
     if n_scans == 0:
         raise InputError(f"t_max: {t_max} is before the first scan at {t[0]} s")
+    _check_odom_offset(odom, odom_path, n_scans)
     if n_scans < len(t):
         report.notes.append(f"kept the {n_scans} scans with t <= {t_max} s of {len(t)}")
     return t, n_scans
 
 
-def _kept_detections(det: dict, n_rows: int, n_scans: int, report: ConversionReport) -> tuple:
+def _check_odom_offset(odom: dict, odom_path, n_scans: int) -> None:
+    """InputError naming the first row of the kept scans whose odometry time is more than MAX_ODOM_OFFSET_S
+    from its scan time: groundtruth.txt moves the pose by vx dt, which an offset or a unit would make wrong."""
+    dt = (odom["timestamp_rad"] - odom["timestamp_odom"])[:n_scans]
+    far = np.abs(dt) > MAX_ODOM_OFFSET_S
+    if far.any():
+        k = int(np.flatnonzero(far)[0])
+        t_rad, t_odom = float(odom["timestamp_rad"][k]), float(odom["timestamp_odom"][k])
+        raise InputError(f"{odom_path}, line {k + 2}, field 'timestamp_odom': {t_odom!r} s is {t_odom - t_rad:+.6g} "
+                         f"s from timestamp_rad {t_rad!r} s (more than {MAX_ODOM_OFFSET_S:g} s; RadarScenes' are at "
+                         f"most 0.14 s): an offset, or another unit?")
+
+
+def _kept_detections(det: dict, n_rows: int, n_scans: int, report: ConversionReport, det_path) -> tuple:
     """The usable detections (dropped ones counted in the report): scan index, range, azimuth, radial
-    velocity, label, rcs."""
+    velocity, label, rcs. More than 1 % of the azimuths outside [-pi, pi] (degrees, a [0, 2pi) convention):
+    InputError naming `det_path`, the first one's line and the field."""
     scan = det["scan_idx"] - 1
     in_time = (scan >= 0) & (scan < n_rows)
     keep = report.drop("detections whose scan_idx has no row in the odometry file", ~in_time)
@@ -197,7 +222,9 @@ def _kept_detections(det: dict, n_rows: int, n_scans: int, report: ConversionRep
     keep &= report.drop("detections with NaN or infinity", keep & ~np.all(np.isfinite(values), axis=0))
     rng, az, vr = det["range_m"], det["azimuth_rad"], det["vr_mps"]
     keep &= report.drop("detections with range <= 0", keep & ~(rng > 0))
-    keep &= report.drop("detections with azimuth outside [-pi, pi]", keep & ~(np.abs(az) <= np.pi))
+    keep = drop_few(report, keep, ~(np.abs(az) <= np.pi), "detections with azimuth outside [-pi, pi]",
+                    lambda k: f"{det_path}, line {k + 2}, field 'azimuth_rad': {float(az[k])!r} is outside [-pi, pi]; "
+                              f"{angle_hint('azimuth', az[k])}")
     return scan[keep], rng[keep], az[keep], vr[keep], det["label_id"][keep], det["rcs_dbsm"][keep]
 
 

@@ -12,8 +12,12 @@ z up) and `calib_ti_mmwave_rospkg_dataset.yaml` (radar -> IMU body extrinsics, r
 - Doppler quantisation is measured (step and share of values on the grid) and reported; sigma_vr is the
   quantisation noise (measured step) / sqrt(12) (the sensor noise below it is not observable here).
 - No ground truth: no groundtruth.txt.
+- Refused, naming the file and field: trigger times whose median step is no scan rate (0.1-1000 Hz: times in
+  ms?), more than 1 % of the detections beyond MAX_RANGE_M (millimetres?; fewer are dropped and counted), no
+  detections.
 
-Checked by: tests/sim/test_convert.py::test_ti_*, tests/validation/test_realdata.py::test_ti_*
+Checked by: tests/sim/test_convert.py::test_ti_*, tests/validation/test_realdata.py::test_ti_*,
+    tests/sim/test_convert_review55.py::test_ti_*
 """
 
 from __future__ import annotations
@@ -26,15 +30,16 @@ from rodo.estimator.errors import InputError
 from rodo.estimator.lie import so3
 from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence
 
-from ._common import (Conversion, ConversionReport, field_of_view, polar_from_xyz, read_csv, read_flat_yaml,
-                      scans_from_rows)
+from ._common import (Conversion, ConversionReport, check_scan_step, drop_few, field_of_view, polar_from_xyz,
+                      read_csv, read_flat_yaml, require_detections, scans_from_rows)
 
 SCANS_CSV = "radar_scans.csv"
 DETECTIONS_CSV = "radar_detections.csv"
 CALIB_YAML = "calib_ti_mmwave_rospkg_dataset.yaml"
 CALIB_KEYS = ("l_b_r_x", "l_b_r_y", "l_b_r_z", "q_b_r_x", "q_b_r_y", "q_b_r_z", "q_b_r_w", "radar_frame_ms")
 C_RIO_TI = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # p_rio = C_RIO_TI @ p_ti
-MAX_COORD_M = 1e6  # detections with a coordinate beyond this are dropped (a range that overflows is no range)
+MAX_RANGE_M = 2000.0  # m: farther detections are dropped, refused when more than 1 % (millimetres; the IWR6843
+# sees tens of metres); also keeps a range that overflows (1e308 m) out
 MAX_SPAN_NS = 10**18  # trigger times spread over more than 30 years are refused
 DOPPLER_STEP = 0.125  # m/s, nominal quantisation (the measured step is used and reported)
 # nominal sigmas (IWR6843AOP, 3 Tx / 4 Rx: coarse angles); not observable without ground truth
@@ -95,10 +100,11 @@ def convert(source) -> Conversion:
                    int_columns=("scan_idx",))
     report = ConversionReport("ti-mmwave", str(source))
     idx, t_scan, t0_ns = _scan_times(source, sc, frame_ms, report)
-    k, keep, rng, az, el = _kept_detections(det, idx, report)
+    k, keep, rng, az, el = _kept_detections(det, idx, report, source / DETECTIONS_CSV)
     vr = det["v_radial_mps"]
     scans = scans_from_rows(report, k[keep], t_scan, rng[keep], az[keep], el[keep], vr[keep],
                             {"snr": det["intensity"][keep]})
+    require_detections(report, source / DETECTIONS_CSV)
     quant = doppler_quantisation(vr[keep])
     step = quant["step_mps"] if quant["step_mps"] is not None else DOPPLER_STEP
     sigma_vr = step / np.sqrt(12.0)
@@ -139,23 +145,30 @@ def _scan_times(source: Path, sc: dict, frame_ms: float, report: ConversionRepor
     good = np.r_[True, t_scan[1:] > np.maximum.accumulate(t_scan)[:-1]]
     if not good.all():
         report.dropped["scans whose trigger time does not increase"] = int((~good).sum())
+    check_scan_step(trig[good], 1e-9, "ns", f"{source / SCANS_CSV}, field 't_trigger_ns'")
     return idx[good], t_scan[good], t0_ns
 
 
-def _kept_detections(det: dict, idx: np.ndarray, report: ConversionReport):
+def _kept_detections(det: dict, idx: np.ndarray, report: ConversionReport, path: Path):
     """Each detection's position in the scan table (-1: none), the mask of usable detections (dropped ones
-    counted in the report), and range, azimuth, elevation of all rows (float64, from x, y, z)."""
+    counted in the report), and range, azimuth, elevation of all rows (float64, from x, y, z). More than 1 %
+    of the detections beyond MAX_RANGE_M: InputError naming `path`, the first one's line and coordinate."""
     s = det["scan_idx"]
     j = np.clip(np.searchsorted(idx, s), 0, len(idx) - 1)  # idx is sorted: no table as long as the largest index
     k = np.where(idx[j] == s, j, -1)
     keep = report.drop("detections whose scan has no (valid) trigger time", k < 0)
     vals = np.stack([det[c] for c in ("x_m", "y_m", "z_m", "intensity", "v_radial_mps")])
     keep &= report.drop("detections with NaN or infinity", keep & ~np.all(np.isfinite(vals), axis=0))
-    # 1e308 m overflowed the range (found by the fuzzer)
-    far = np.any(np.abs(vals[:3]) > MAX_COORD_M, axis=0)
-    keep &= report.drop(f"detections farther than {MAX_COORD_M:g} m", keep & far)
-    p = np.where(keep[:, None], vals[:3].T, 1.0)
-    rng, az, el = polar_from_xyz(p)
+    big = np.any(np.abs(vals[:3]) > MAX_RANGE_M, axis=0)  # before the norm: 1e308 m overflowed it (fuzzer)
+    rng, az, el = polar_from_xyz(np.where((keep & ~big)[:, None], vals[:3].T, 1.0))
+    names = ("x_m", "y_m", "z_m")
+
+    def explain(k: int) -> str:
+        c = int(np.argmax(np.abs(vals[:3, k])))
+        return (f"{path}, line {k + 2}, field '{names[c]}': {vals[c, k]:.6g} puts a detection farther than "
+                f"{MAX_RANGE_M:g} m: millimetres? (x_m, y_m, z_m must be metres)")
+
+    keep = drop_few(report, keep, big | (rng > MAX_RANGE_M), f"detections farther than {MAX_RANGE_M:g} m", explain)
     keep &= report.drop("detections at zero range", keep & ~(rng > 1e-6))
     return k, keep, rng, az, el
 

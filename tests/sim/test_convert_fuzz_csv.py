@@ -181,14 +181,20 @@ def test_ti_detections_straight_up_keep_the_field_of_view_inside_its_limits(tmp_
 
 
 def test_ti_overflowing_range_is_dropped_and_counted(tmp_path):
-    conv = _ti(tmp_path, "0,0\n", "0,1e308,1e308,0.0,0.0,0.0\n0,5.0,0.0,0.0,0.0,0.0\n")
-    assert conv.report.dropped == {"detections farther than 1e+06 m": 1}
-    assert conv.report.kept_detections == 1
+    """One detection at 1e308 m among 101 is dropped (up to 1 % are; more are refused: millimetres?)."""
+    conv = _ti(tmp_path, "0,0\n", "0,1e308,1e308,0.0,0.0,0.0\n" + "0,5.0,0.0,0.0,0.0,0.0\n" * 100)
+    assert conv.report.dropped == {"detections farther than 2000 m": 1}
+    assert conv.report.kept_detections == 100
+
+
+S = 10**8  # ns: 10 Hz (the median step must be a scan rate, 0.1-1000 Hz)
 
 
 @pytest.mark.parametrize("trig, kept", [
-    ([0, 10, 5, 7], [0, 10]),  # only the previous row was compared: 7 > 5 was kept after 10
-    ([0, 10**17, 10**17 + 1, 10**17 + 10**9], [0, 10**17, 10**17 + 10**9]),  # 1 ns after 1e8 s is lost in float64
+    ([0, 10 * S, 5 * S, 7 * S, 11 * S], [0, 10 * S, 11 * S]),  # only the previous row was compared: 7 > 5 was kept
+    # 1 ns after 1e8 s is lost in float64
+    ([0, S, 2 * S, 10**17, 10**17 + 1, 10**17 + S, 10**17 + 2 * S],
+     [0, S, 2 * S, 10**17, 10**17 + S, 10**17 + 2 * S]),
 ])
 def test_ti_scan_times_strictly_increase(tmp_path, trig, kept):
     scans = "".join(f"{k},{t}\n" for k, t in enumerate(trig))
