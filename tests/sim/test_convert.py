@@ -47,7 +47,12 @@ def _vod_frame(rng, n: int, v_sensor: np.ndarray) -> np.ndarray:
     return np.c_[p, rng.normal(0, 5, n), vr, np.zeros(n), rng.uniform(0, 0.05, n)]
 
 
-@given(st.lists(st.tuples(st.floats(0.5, 80), st.floats(-3.1, 3.1), st.floats(-1.2, 1.2), st.floats(-30, 30)),
+def _normal(lo: float, hi: float):
+    """Floats without the tiny ones that make a subnormal float32 value (angles: their sines; refused by `vod`)."""
+    return st.floats(lo, hi).filter(lambda a: a == 0 or abs(a) > 1e-30)
+
+
+@given(st.lists(st.tuples(st.floats(0.5, 80), _normal(-3.1, 3.1), _normal(-1.2, 1.2), _normal(-30, 30)),
                 min_size=1, max_size=20))
 def test_vod_polar_matches_cartesian_points(points):
     """range, azimuth, elevation of the converted scan give back the float32 x, y, z (paper eq. 80)."""

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from rodo.estimator.errors import InputError
-from rodo.sim.convert import radarscenes, ti_mmwave
-from tests.sim.test_convert import _rng, _run, _write_radarscenes, _write_ti
+from rodo.sim.convert import radarscenes, ti_mmwave, vod
+from tests.sim.test_convert import _rng, _run, _vod_frame, _write_radarscenes, _write_ti, _write_vod
 
 
 def _fails(argv, capsys, *needles) -> str:
@@ -143,3 +143,48 @@ def test_radarscenes_header_only_detections_name_the_file(tmp_path, capsys):
         f.write(",".join(radarscenes.DET_COLUMNS) + "\n")
     _fails(["convert", "radarscenes", tmp_path / "src", "--out", tmp_path / "o", "--radars", "2"], capsys,
            "radar2_detections.csv.gz: no detections")
+
+
+# ---------------------------------------------------------------- VoD: file order, dtype, empty, --rate
+
+def test_vod_unpadded_names_are_taken_in_numeric_order(tmp_path):
+    """Finding 3: 0.bin, 1.bin, 10.bin, 2.bin was the scan order."""
+    rng = _rng(29)
+    frames = [_vod_frame(rng, 3 + k, np.array([5.0, 0, 0])) for k in range(12)]
+    tmp_path.joinpath("src").mkdir()
+    for k, f in enumerate(frames):
+        (tmp_path / "src" / f"{k}.bin").write_bytes(np.asarray(f, dtype="<f4").tobytes())
+    conv = vod.convert(tmp_path / "src")
+    assert [len(s.range) for s in conv.sequence.scans] == [3 + k for k in range(12)]
+    assert conv.report.info["files"] == [f"{k}.bin" for k in range(12)]
+
+
+@pytest.mark.parametrize("dtype", ["<f8", ">f4", "<f8 round"])
+def test_vod_float64_or_big_endian_files_are_refused(tmp_path, capsys, dtype):
+    """Finding 4: 56-byte float64 rows are two 28-byte float32 rows; both decoded as garbage and were kept."""
+    frame = _vod_frame(_rng(30), 10, np.array([5.0, 0, 0]))
+    if dtype == "<f8 round":  # float32 values stored as float64 (the reviewer's case: 10, 1, 0, 0, -1, 0, 0)
+        frame, dtype = frame.astype(np.float32).astype(np.float64), "<f8"
+    _write_vod(tmp_path / "src", [frame[:0] + 0, frame])
+    (tmp_path / "src" / "00001.bin").write_bytes(np.asarray(frame, dtype=dtype).tobytes())
+    _fails(["convert", "vod", tmp_path / "src", "--out", tmp_path / "o"], capsys, "00001.bin",
+           "wrong dtype or byte order? (expected little-endian float32 x, y, z, rcs, v_r, v_r_compensated, time)")
+
+
+def test_vod_float32_upcast_round_values_are_refused(tmp_path, capsys):
+    rows = np.tile([10.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.0], (5, 1))
+    (tmp_path / "src").mkdir()
+    (tmp_path / "src" / "00000.bin").write_bytes(rows.astype("<f8").tobytes())
+    _fails(["convert", "vod", tmp_path / "src", "--out", tmp_path / "o"], capsys, "00000.bin", "float64")
+
+
+def test_vod_empty_files_name_the_source(tmp_path, capsys):
+    """Finding 6: only 0-byte files gave an empty sequence with exit 0."""
+    _write_vod(tmp_path / "src", [np.zeros((0, 7))] * 3)
+    _fails(["convert", "vod", tmp_path / "src", "--out", tmp_path / "o"], capsys, "src: no detections")
+
+
+def test_vod_rate_outside_scan_rates_names_the_option(tmp_path, capsys):
+    _write_vod(tmp_path / "src", [_vod_frame(_rng(31), 5, np.ones(3))] * 2)
+    _fails(["convert", "vod", tmp_path / "src", "--out", tmp_path / "o", "--rate", "0.01"], capsys,
+           "--rate: ", "0.1 to 1000 Hz")
