@@ -22,12 +22,13 @@ source has ground truth) plus conversion.json (what was kept, dropped and why, a
 Formats:
   radarscenes  RadarScenes export folder (radar{N}_detections.csv.gz + radar{N}_timestamp_and_odom.csv).
                --radars 2 writes SEQ_DIR; --radars 2,3 writes one sequence per radar into SEQ_DIR/radarN
-               and SEQ_DIR/rig.toml, which makes SEQ_DIR a rig (docs/sequence_format.md, Rigs). 2D radar: elevation 0 with sigma 10 deg. Extra columns
-               label, rcs; odom.csv with the odometry speed and yaw rate; groundtruth.txt from the odometry pose.
+               and SEQ_DIR/rig.toml, which makes SEQ_DIR a rig (docs/sequence_format.md, Rigs). 2D radar:
+               elevation 0 with sigma 10 deg. Extra columns label, rcs; odom.csv with the odometry speed and
+               yaw rate; groundtruth.txt from the odometry pose.
   ti-mmwave    TI mmWave CSV export (radar_scans.csv, radar_detections.csv, calib yaml). 4D; vehicle frame =
                IMU body frame; no ground truth.
   vod          directory of View-of-Delft radar *.bin files (float32 N x 7: x,y,z,RCS,v_r,v_r_comp,time),
-               one per scan in file-name order, t = k / --rate.
+               one per scan in natural file-name order (2.bin before 10.bin), t = k / --rate.
   rosbag       ROS 1 .bag, ROS 2 bag directory (sqlite3 or mcap) or .mcap file (needs: pip install 'rodo[ros]');
                --topic names a sensor_msgs/PointCloud2 topic with x,y,z (--xyz) or range,azimuth,elevation
                (--polar) fields and a Doppler field (--doppler; negative = approaching, else --flip-doppler).
@@ -35,8 +36,13 @@ Formats:
                = sensor frame, nominal noise, no ground truth.
   raflow       RaFlow demo_data folder (train/val/test radar_seqs-S_samples-K.json frame pairs, Hasco LRR30-F
                4D radar): the pairs chained into runs of consecutive frames, repeated raw scans dropped, one
-               sequence per chain of >= --min-scans scans into SEQ_DIR/SPLIT_seqS_K; groundtruth.txt from the
-               GNSS/INS poses (jitter ~0.3 m). Extra columns rcs, power.
+               sequence per chain of >= --min-scans scans into SEQ_DIR/SPLIT_seqS_K (also when one chain
+               qualifies); groundtruth.txt from the GNSS/INS poses (jitter ~0.3 m). Extra columns rcs, power.
+
+Input that no sensor gives is refused (exit 2) naming the file, line and field, and nothing is written: scan
+times whose median step is no scan rate (0.1-1000 Hz: milliseconds?), more than 1 % of the azimuths out of
+[-pi, pi] (degrees?) or of the TI points beyond 2 km (millimetres?), RadarScenes odometry times more than 1 s
+from the scan times, VoD files in another dtype or byte order, no detections at all.
 """
 
 
@@ -48,9 +54,10 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, metavar="SEQ_DIR", help="output sequence directory")
     p.add_argument("--radars", default=None, help="radarscenes: radar numbers 1-4, e.g. 2 or 2,3 (default 2)")
     p.add_argument("--t-max", type=float, default=None, help="radarscenes: keep scans with t <= T_MAX seconds")
-    p.add_argument("--rate", type=float, default=None, help="vod: scan rate in Hz (default 10)")
+    p.add_argument("--rate", type=float, default=None, help="vod: scan rate in Hz, 0.1-1000 (default 10)")
     p.add_argument("--min-scans", type=int, default=None, metavar="N",
-                   help="raflow: write chains of at least N consecutive scans (default 5)")
+                   help="raflow: write chains of at least N consecutive scans (default 5), each into "
+                        "SEQ_DIR/SPLIT_seqS_K")
     p.add_argument("--sigma", default=None, metavar="R,AZ,EL,VR",
                    help="override the 1-sigma noise: range (m), azimuth (rad), elevation (rad), radial velocity (m/s)")
     _add_rosbag_options(p)
@@ -143,8 +150,8 @@ def run(args) -> int:
             raise InputError(f"{option}: only for the {owner} format, not {args.format}")
     if args.t_max is not None and not (np.isfinite(args.t_max) and args.t_max > 0):
         raise InputError(f"--t-max: must be a positive finite number of seconds, got {args.t_max}")
-    if args.rate is not None and not (np.isfinite(args.rate) and 1e-3 <= args.rate <= 1e4):
-        raise InputError(f"--rate: must be > 0, a finite scan rate from 0.001 to 10000 Hz, got {args.rate}")
+    if args.rate is not None and not (np.isfinite(args.rate) and 0.1 <= args.rate <= 1000):
+        raise InputError(f"--rate: must be > 0, a finite scan rate from 0.1 to 1000 Hz, got {args.rate}")
     noise = _sigmas(args.sigma) if args.sigma is not None else None
     out = check_output_dir(args.out, create=False)  # before the conversion, not after it
     jobs = _conversions(args)
@@ -154,8 +161,10 @@ def run(args) -> int:
             made = convert()
             convs += made if isinstance(made, list) else [made]
             bar.update()
-    targets = [out] if len(convs) == 1 else [out / conv.name for conv in convs]
-    for target in targets:  # every target checked before anything is written
+    # one sequence into SEQ_DIR; several, or raflow's chains (however many), into SEQ_DIR/NAME
+    targets = [out] if len(convs) == 1 and args.format != "raflow" else [out / conv.name for conv in convs]
+    for target in targets:  # every target checked before anything is written: a file there fails here
+        check_output_dir(target, "--out", create=False)
         check_layout_target(target, "--out", rig=False)
     if args.format == "radarscenes" and len(convs) > 1:
         check_layout_target(out, "--out", rig=True)

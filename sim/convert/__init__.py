@@ -15,5 +15,5 @@ The package, file by file:
 from . import radarscenes, raflow, rosbag, ti_mmwave, vod
 from ._common import CONVERSION_JSON, Conversion, ConversionReport, read_csv, write_conversion
 
-__all__ = ["CONVERSION_JSON", "Conversion", "ConversionReport", "radarscenes", "raflow", "read_csv", "rosbag", "ti_mmwave",
-           "vod", "write_conversion"]
+__all__ = ["CONVERSION_JSON", "Conversion", "ConversionReport", "radarscenes", "raflow", "read_csv", "rosbag",
+           "ti_mmwave", "vod", "write_conversion"]

@@ -19,7 +19,12 @@ sheet: azimuth +-60 deg, elevation +-10 deg), groundtruth.txt (the GNSS/INS rada
 first, so the world is the first radar frame, as the estimator's). The reference jitters by about 0.3 m per pose
 (the data's README), which bounds what a chain of ~10 m can show.
 
-Checked by: tests/sim/test_convert_raflow.py, tests/validation/test_realdata_raflow.py
+Refused, naming the sample file and the key: an entry that is not a JSON number (a string such as "1.5", true,
+null), a pose that is not a rigid transform (not finite, bottom row, |C C^T - I| > 1e-6, a reflection: det C < 0),
+an interval outside [1 ms, 10 s) (no radar's scan rate), a chain without detections.
+
+Checked by: tests/sim/test_convert_raflow.py, tests/validation/test_realdata_raflow.py,
+    tests/sim/test_convert_review55.py::test_raflow_*
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ import numpy as np
 from rodo.estimator.errors import InputError
 from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence, Trajectory
 
-from ._common import Conversion, ConversionReport, polar_from_xyz, scans_from_rows
+from ._common import SCAN_RATE_HZ, Conversion, ConversionReport, polar_from_xyz, require_detections, scans_from_rows
 
 FILE_RE = re.compile(r"^radar_seqs-(\d+)_samples-(\d+)\.json$")
 SPLITS = ("train", "val", "test")
@@ -46,6 +51,7 @@ AZIMUTH_FOV = float(np.deg2rad(60.0))
 ELEVATION_FOV = float(np.deg2rad(10.0))
 MAX_RANGE = 250.0  # m
 MIN_SCANS = 5
+INTERVAL_S = (1e-3, 10.0)  # s: a pair's interval outside [1 ms, 10 s) gives no radar's scan rate (0.1-1000 Hz)
 REPEATED = "repeated raw scans (resampling duplicates)"
 
 
@@ -75,21 +81,48 @@ def _frame(path: Path, name: str, pc) -> Frame:
     missing = [f for f in FIELDS if f not in pc]
     if missing:
         raise InputError(f"{path}: field '{name}' lacks {', '.join(missing)}")
-    try:
-        cols = {f: np.asarray(pc[f], dtype=float) for f in FIELDS}
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: field '{name}': every entry must be a number") from None
+    cols = {f: _numbers(path, f"{name}.{f}", pc[f]) for f in FIELDS}
     n = len(cols["car_loc_x"])
     for f in FIELDS[:-1]:
         if cols[f].shape != (n,):
             raise InputError(f"{path}: field '{name}.{f}': expected {n} numbers (as car_loc_x), "
                              f"got shape {cols[f].shape}")
+    why = _not_rigid(cols["pose"])
+    if why:
+        raise InputError(f"{path}: field '{name}.pose': expected a finite 4x4 rigid transform; {why}")
     pose = cols["pose"]
-    if pose.shape != (4, 4) or not np.all(np.isfinite(pose)) or not np.allclose(pose[3], [0, 0, 0, 1]) \
-            or not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-6):
-        raise InputError(f"{path}: field '{name}.pose': expected a finite 4x4 rigid transform")
     return Frame(np.c_[cols["car_loc_x"], cols["car_loc_y"], cols["car_loc_z"]], cols["car_vel_r"],
                  cols["rcs"], cols["power"], pose)
+
+
+def _numbers(path: Path, key: str, value) -> np.ndarray:
+    """A JSON list (of lists) of numbers as a float array; InputError naming the file and key for anything else
+    (numpy would read the string "1.5" and true as numbers, null as NaN)."""
+    try:
+        entries = np.asarray(value, dtype=object)
+        if entries.ndim == 0 or not all(type(v) in (int, float) for v in entries.flat):
+            raise TypeError
+        return entries.astype(float)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{path}: field '{key}': every entry must be a number") from None
+
+
+def _not_rigid(pose: np.ndarray) -> str:
+    """Why `pose` is not a 4x4 rigid transform, or '' when it is (rotation orthonormal to 1e-6, det +1)."""
+    if pose.shape != (4, 4):
+        return f"got shape {pose.shape}"
+    if not np.all(np.isfinite(pose)):
+        return "it holds NaN or infinity"
+    if not np.allclose(pose[3], [0, 0, 0, 1]):
+        return f"bottom row {pose[3].tolist()} is not [0, 0, 0, 1]"
+    C = pose[:3, :3]
+    error = float(np.max(np.abs(C @ C.T - np.eye(3))))
+    if error > 1e-6:
+        return f"the rotation block is not orthonormal (|C C^T - I| = {error:.2g})"
+    det = float(np.linalg.det(C))
+    if det < 0:
+        return f"the rotation block has determinant {det:.3g}: a reflection, not a rotation"
+    return ""
 
 
 def read_sample(path) -> tuple[Frame, Frame, float]:
@@ -104,8 +137,9 @@ def read_sample(path) -> tuple[Frame, Frame, float]:
     if not isinstance(data, dict) or not {"pc1", "pc2", "interval"} <= data.keys():
         raise InputError(f"{path}: expected an object with fields pc1, pc2 and interval")
     interval = data["interval"]
-    if isinstance(interval, bool) or not isinstance(interval, (int, float)) or not 0 < interval < 10:
-        raise InputError(f"{path}: field 'interval': expected seconds in (0, 10), got {interval!r}")
+    lo, hi = INTERVAL_S
+    if isinstance(interval, bool) or not isinstance(interval, (int, float)) or not lo <= interval < hi:
+        raise InputError(f"{path}: field 'interval': expected seconds in [{lo:g}, {hi:g}), got {interval!r}")
     return _frame(path, "pc1", data["pc1"]), _frame(path, "pc2", data["pc2"]), float(interval)
 
 
@@ -144,7 +178,7 @@ def chains(samples: dict[int, Path], report: ConversionReport) -> list[tuple[int
     return out
 
 
-def _sequence(frames: list[tuple[float, Frame]], report: ConversionReport) -> Sequence:
+def _sequence(frames: list[tuple[float, Frame]], report: ConversionReport, where: str) -> Sequence:
     n = np.array([len(f.vr) for _, f in frames])
     scan = np.repeat(np.arange(len(frames)), n)
     t_scan = np.array([t for t, _ in frames])
@@ -156,9 +190,14 @@ def _sequence(frames: list[tuple[float, Frame]], report: ConversionReport) -> Se
     keep &= report.drop("detections at zero range", keep & ~(rng > 1e-6))
     scans = scans_from_rows(report, scan[keep], t_scan, rng[keep], az[keep], el[keep], vr[keep],
                             {k: v[keep] for k, v in extra.items()})
+    require_detections(report, where)
     first = np.linalg.inv(frames[0][1].pose)
     gt = Trajectory(t_scan, np.stack([first @ f.pose for _, f in frames]))
-    sensor = SensorConfig(rate_hz=float((len(t_scan) - 1) / (t_scan[-1] - t_scan[0])), T_vehicle_sensor=np.eye(4), noise=DEFAULT_SIGMAS,
+    rate, (lo, hi) = float((len(t_scan) - 1) / (t_scan[-1] - t_scan[0])), SCAN_RATE_HZ
+    if not lo <= rate <= hi:  # intervals of up to 10 s with repeats dropped between them: below 0.1 Hz
+        raise InputError(f"{where}: field 'interval': the chain's {len(t_scan)} scans span {t_scan[-1]:.6g} s, "
+                         f"{rate:.3g} Hz, no radar's scan rate (expected {lo:g}-{hi:g} Hz)")
+    sensor = SensorConfig(rate_hz=rate, T_vehicle_sensor=np.eye(4), noise=DEFAULT_SIGMAS,
                           azimuth_fov=(-AZIMUTH_FOV, AZIMUTH_FOV), elevation_fov=(-ELEVATION_FOV, ELEVATION_FOV),
                           max_range=MAX_RANGE)
     return Sequence(sensor=sensor, scans=scans, groundtruth=gt)
@@ -183,7 +222,7 @@ def convert(source, min_scans: int = MIN_SCANS) -> list[Conversion]:
             if len(frames) < min_scans:
                 continue
             report = ConversionReport("raflow", str(source), dropped=dict(report_seq.dropped))
-            sequence = _sequence(frames, report)
+            sequence = _sequence(frames, report, f"{samples[start]} (the first sample of chain {name})")
             report.info.update({"split": split, "sequence": seq, "first_sample": start,
                                 "scan_times_s": [round(t, 6) for t, _ in frames], "chains_in_sequence": len(found)})
             report.notes += ["vehicle frame = radar frame; nominal sigmas unless --sigma",

@@ -14,8 +14,11 @@ only here and only when a bag is converted: `pip install rosbags`).
 - Every other scalar numeric field present in all messages is kept as an extra column (its name).
 - Vehicle frame = sensor frame (T_vehicle_sensor identity), nominal noise (override with --sigma), no ground
   truth.
+- Refused, naming the bag, topic, message and field: scan times that do not strictly increase (with the other
+  --time to try), a median step between them that is no scan rate (0.1-1000 Hz), more than 1 % of the polar
+  azimuths or elevations out of range (degrees, [0, 2pi); fewer are dropped and counted), no detections.
 
-Checked by: tests/sim/test_convert_rosbag.py
+Checked by: tests/sim/test_convert_rosbag.py, tests/sim/test_convert_review55_rosbag.py
 """
 
 from __future__ import annotations
@@ -26,10 +29,12 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.estimator.sensor_values import angle_hint
 from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence
 from rodo.sim.sequence_types import REQUIRED_COLUMNS
 
-from ._common import Conversion, ConversionReport, field_of_view, polar_from_xyz, scans_from_rows
+from ._common import (Conversion, ConversionReport, check_scan_step, drop_few, field_of_view, polar_from_xyz,
+                      require_detections, scans_from_rows)
 
 POINTCLOUD2 = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/PointCloud2")
 DOPPLER_NAMES = ("velocity", "doppler", "radial_velocity", "v_r", "vr", "v_radial")
@@ -129,24 +134,47 @@ def read_clouds(bag, topic: str, progress=None) -> tuple[list[Cloud], str]:
     return clouds, kind
 
 
-def scan_times_ns(clouds: list[Cloud], time: str, report: ConversionReport) -> np.ndarray:
-    """(S,) int64 time of each message in ns: header stamps, or record times (see module docstring)."""
+def scan_times_ns(clouds: list[Cloud], time: str, report: ConversionReport, where: str = "BAG") -> np.ndarray:
+    """(S,) int64 time of each message in ns: header stamps, or record times (see module docstring); strictly
+    increasing, at a scan rate of 0.1-1000 Hz, or an InputError naming `where` (bag and topic), the message and
+    its time, and the other --time to try.
+
+    Checked by: tests/sim/test_convert_review55_rosbag.py::test_duplicate_record_times_name_bag_topic_message_and_time
+    """
     if time not in TIME_SOURCES:
         raise InputError(f"--time: expected one of {', '.join(TIME_SOURCES)}, got {time!r}")
     header = np.array([c.header_ns for c in clouds], dtype=np.int64)
     record = np.array([c.record_ns for c in clouds], dtype=np.int64)
     usable = bool(np.all(header > 0) and np.all(np.diff(header) > 0))
     if time == "header" and not usable:
-        raise InputError("--time header: the header stamps are zero or do not increase "
+        raise InputError(f"--time header: the header stamps are zero or do not increase in {where} "
                          "(use --time record for the bag's record time)")
     if time == "record" or (time == "auto" and not usable):
+        _check_times(record, "record time", where, "try --time header" if usable else
+                     "the header stamps (--time header) are zero or do not increase either")
         why = "" if time == "record" else " (the header stamps are zero or do not increase)"
         report.notes.append(f"WARNING: scan times are the bag's record (receive) times{why}, not the "
                             f"sensor's measurement times; they lag the measurement by the transport delay")
         report.info["time"] = "bag record time, seconds from t0_ns"
         return record
+    _check_times(header, "header stamp", where, "try --time record" if np.all(np.diff(record) > 0) else
+                 "the record times (--time record) do not increase either")
     report.info["time"] = "header stamp, seconds from t0_ns"
     return header
+
+
+def _check_times(t_ns: np.ndarray, what: str, where: str, other: str) -> None:
+    """InputError naming the first message whose time `what` is not above the previous one's, or the median
+    step when it is no scan rate; `other` says what the other --time would give."""
+    steps = np.diff(t_ns)
+    if np.any(steps <= 0):
+        k = int(np.flatnonzero(steps <= 0)[0]) + 1
+        raise InputError(f"{where}, message {k}: {what} {int(t_ns[k])} ns is not after message {k - 1}'s "
+                         f"({int(t_ns[k - 1])} ns): scan times must strictly increase; {other}")
+    try:
+        check_scan_step(t_ns, 1e-9, "ns", f"{where}, {what}s")
+    except InputError as exc:
+        raise InputError(f"{exc} ({other})") from None
 
 
 def _pick_doppler(available, doppler: str | None, where: str) -> str:
@@ -195,7 +223,7 @@ def convert(bag, topic: str, xyz=("x", "y", "z"), polar=None, doppler: str | Non
     clouds, kind = read_clouds(bag, topic, progress)
     where = f"{bag}, topic {topic}"
     report = ConversionReport("rosbag", str(bag))
-    t_ns = scan_times_ns(clouds, time, report)
+    t_ns = scan_times_ns(clouds, time, report, where)
     dop = _pick_doppler(list(clouds[0].fields), doppler, where)
     geometry = tuple(polar) if polar is not None else tuple(xyz)
     cols, extras = _stack_fields(clouds, (*geometry, dop), where)
@@ -206,8 +234,7 @@ def convert(bag, topic: str, xyz=("x", "y", "z"), polar=None, doppler: str | Non
     keep = report.drop("detections with NaN or infinity", ~np.all(np.isfinite(vals), axis=0))
     if polar is not None:
         rng, az, el = (cols[f] for f in geometry)
-        keep &= report.drop("detections with range <= 0 or angles outside [-pi, pi] / [-pi/2, pi/2]",
-                            keep & ~((rng > 0) & (np.abs(az) <= np.pi) & (np.abs(el) <= np.pi / 2)))
+        keep = _polar_kept(report, keep, rng, az, el, geometry, scan, where)
     else:
         rng, az, el = polar_from_xyz(np.where(keep[:, None], vals[:3].T, 1.0))
         keep &= report.drop("detections at zero range", keep & ~(rng > 1e-6))
@@ -215,12 +242,25 @@ def convert(bag, topic: str, xyz=("x", "y", "z"), polar=None, doppler: str | Non
     t_scan = (t_ns - t0_ns).astype(np.float64) * 1e-9
     scans = scans_from_rows(report, scan[keep], t_scan, rng[keep], az[keep], el[keep], vr[keep],
                             {f: cols[f][keep] for f in extras})
+    require_detections(report, where)
     report.info.update({"t0_ns": t0_ns, "topic": topic, "bag": kind, "doppler_field": dop,
                         "geometry_fields": list(geometry), "flip_doppler": bool(flip_doppler),
                         "extra_columns": extras})
     _add_notes(report, kind, dop, flip_doppler, len(clouds))
     sensor = _sensor(t_scan, rng[keep], az[keep], el[keep])
     return Conversion("rosbag", Sequence(sensor=sensor, scans=scans, groundtruth=None), report)
+
+
+def _polar_kept(report: ConversionReport, keep, rng, az, el, fields, scan, where: str) -> np.ndarray:
+    """The keep mask less polar detections with range <= 0 and angles out of range (dropped and counted; more
+    than 1 % out of range is an InputError naming the message, the field and the likely mistake)."""
+    keep = keep & report.drop("detections with range <= 0", keep & ~(rng > 0))
+    for name, field, angle, bound, text in (("azimuth", fields[1], az, np.pi, "[-pi, pi]"),
+                                            ("elevation", fields[2], el, np.pi / 2, "[-pi/2, pi/2]")):
+        keep = drop_few(report, keep, ~(np.abs(angle) <= bound), f"detections with {name} outside {text}",
+                        lambda k, n=name, f=field, a=angle, b=text: f"{where}, message {scan[k]}, field '{f}': "
+                        f"{float(a[k])!r} is outside {b}; {angle_hint(n, a[k])}")
+    return keep
 
 
 def _sensor(t_scan: np.ndarray, rng, az, el) -> SensorConfig:

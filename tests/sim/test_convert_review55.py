@@ -13,8 +13,10 @@ import numpy as np
 import pytest
 
 from rodo.estimator.errors import InputError
-from rodo.sim.convert import radarscenes, ti_mmwave, vod
+from rodo.sim.convert import radarscenes, raflow, ti_mmwave, vod
+from rodo.sim.sequence import read_sequence
 from tests.sim.test_convert import _rng, _run, _vod_frame, _write_radarscenes, _write_ti, _write_vod
+from tests.sim.test_convert_raflow import _pc, _synthetic, _write
 
 
 def _fails(argv, capsys, *needles) -> str:
@@ -145,6 +147,17 @@ def test_radarscenes_header_only_detections_name_the_file(tmp_path, capsys):
            "radar2_detections.csv.gz: no detections")
 
 
+def test_radarscenes_several_radars_check_every_target_first(tmp_path, capsys):
+    """Finding 11: out/radar3 a file left out/radar2 written (a partial output)."""
+    for r in (2, 3):
+        _write_radarscenes(tmp_path / "src", r, _rng(28 + r), n_scans=5, per_scan=30)
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "radar3").write_text("")
+    _fails(["convert", "radarscenes", tmp_path / "src", "--out", tmp_path / "o", "--radars", "2,3"], capsys,
+           "--out", "radar3")
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["radar3"]
+
+
 # ---------------------------------------------------------------- VoD: file order, dtype, empty, --rate
 
 def test_vod_unpadded_names_are_taken_in_numeric_order(tmp_path):
@@ -188,3 +201,64 @@ def test_vod_rate_outside_scan_rates_names_the_option(tmp_path, capsys):
     _write_vod(tmp_path / "src", [_vod_frame(_rng(31), 5, np.ones(3))] * 2)
     _fails(["convert", "vod", tmp_path / "src", "--out", tmp_path / "o", "--rate", "0.01"], capsys,
            "--rate: ", "0.1 to 1000 Hz")
+
+
+# ---------------------------------------------------------------- RaFlow: layout, reflected pose, JSON types
+
+def test_raflow_single_chain_goes_to_its_subdirectory(tmp_path):
+    """Finding 8: with one chain the sequence went straight into --out; the layout is SEQ_DIR/SPLIT_seqS_K."""
+    _synthetic(tmp_path / "src")
+    assert _run(["convert", "raflow", str(tmp_path / "src"), "--out", str(tmp_path / "o"), "--min-scans", "3"]) == 0
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["train_seq0_1"]
+    assert len(read_sequence(tmp_path / "o" / "train_seq0_1").scans) == 4
+
+
+@pytest.mark.parametrize("pose, needles", [
+    (np.diag([1.0, 1.0, -1.0, 1.0]), ["'pc1.pose'", "determinant -1", "reflection"]),
+    (np.diag([1.0, 1.0, 1.1, 1.0]), ["'pc1.pose'", "|C C^T - I| = 0.21"]),
+])
+def test_raflow_reflected_pose_names_file_and_key(tmp_path, pose, needles):
+    """Finding 9: 'Trajectory.T_world_vehicle: ... not a proper rotation (|C C^T - I| = 2.22e-16)'."""
+    path = _write(tmp_path, "val", 0, 10, dict(_pc(1, 0.0), pose=pose.tolist()), _pc(2, 1.0))
+    with pytest.raises(InputError) as err:
+        raflow.convert(tmp_path, min_scans=2)
+    for needle in [str(path), *needles]:
+        assert needle in str(err.value), (needle, str(err.value))
+
+
+@pytest.mark.parametrize("value", ["1.5", True, None])
+def test_raflow_strings_and_booleans_are_not_numbers(tmp_path, value):
+    pc = _pc(1, 0.0)
+    pc["rcs"][3] = value
+    path = _write(tmp_path, "val", 0, 10, pc, _pc(2, 1.0))
+    with pytest.raises(InputError, match=r"field 'pc1.rcs': every entry must be a number") as err:
+        raflow.convert(tmp_path, min_scans=2)
+    assert str(path) in str(err.value)
+
+
+def test_raflow_chain_without_detections_names_its_file(tmp_path):
+    """Finding 6 (frames without points are one raw scan, dropped as repeats: no points left means NaN ones)."""
+    pc1, pc2 = _pc(1, 0.0), _pc(2, 1.0)
+    for pc in (pc1, pc2):
+        pc["car_loc_x"] = [float("nan")] * len(pc["car_loc_x"])
+    path = _write(tmp_path, "val", 0, 10, pc1, pc2)
+    with pytest.raises(InputError, match="no detections") as err:
+        raflow.convert(tmp_path, min_scans=2)
+    assert str(path) in str(err.value)
+
+
+def test_raflow_interval_below_a_millisecond_is_refused(tmp_path):
+    path = _write(tmp_path, "val", 0, 10, _pc(1, 0.0), _pc(2, 1.0), interval=1e-7)
+    with pytest.raises(InputError, match=r"field 'interval': expected seconds in \[0.001, 10\)") as err:
+        raflow.convert(tmp_path, min_scans=2)
+    assert str(path) in str(err.value)
+
+
+def test_raflow_chain_slower_than_any_radar_names_its_first_file(tmp_path):
+    """Intervals of 9 s with the middle scan a repeat (dropped): 2 scans 18 s apart, 0.056 Hz."""
+    a, b = _pc(1, 0.0), _pc(2, 1.0)
+    first = _write(tmp_path, "val", 0, 10, a, dict(a, pose=_pc(3, 2.0)["pose"]), interval=9.0)
+    _write(tmp_path, "val", 0, 11, dict(a, pose=_pc(3, 2.0)["pose"]), b, interval=9.0)
+    with pytest.raises(InputError, match=r"field 'interval': the chain's 2 scans span 18 s, 0.0556 Hz") as err:
+        raflow.convert(tmp_path, min_scans=2)
+    assert str(first) in str(err.value)
