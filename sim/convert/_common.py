@@ -16,14 +16,15 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.estimator.sensor_values import RATE_RANGE
 from rodo.sim.sequence import RadarScan, Sequence, atomic_write_bytes, remove_stale, write_sequence
 from rodo.sim.simulate import TRUTH_NPZ
 
 CONVERSION_JSON = "conversion.json"
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-# Hz: a median step between scans outside it comes from times in another unit (estimator/sensor_values.py's
-# RATE_RANGE, which SensorConfig applies; checked here first to name the input file and field)
-SCAN_RATE_HZ = (0.1, 1000.0)
+# Hz: a median step between scans outside it comes from times in another unit; SensorConfig's own bound, checked
+# here first to name the input file and field
+SCAN_RATE_HZ = RATE_RANGE
 TIME_UNITS = (("seconds", 1.0), ("milliseconds", 1e-3), ("microseconds", 1e-6), ("nanoseconds", 1e-9))
 # a rule that drops rows (an angle out of range, a point too far) drops at most this share of them; more is
 # a systematic error (a unit, a convention) and refused: the rest would be as wrong
