@@ -54,8 +54,12 @@ def check_pose(name: str, T) -> np.ndarray:
         raise InputError(f"{name}: bottom row must be [0, 0, 0, 1]")
     C = T[..., :3, :3]
     err = np.abs(C @ np.swapaxes(C, -1, -2) - np.eye(3)).max(axis=(-1, -2))
-    if np.any(err > 1e-6) or np.any(np.linalg.det(C) <= 0):
+    if np.any(err > 1e-6):
         raise InputError(f"{name}: rotation block is not a proper rotation (|C C^T - I| = {np.max(err):.3g})")
+    det = np.linalg.det(C)
+    if np.any(det <= 0):
+        raise InputError(f"{name}: rotation block is not a proper rotation (determinant {np.min(det):.3g}: a "
+                         "reflection)")
     return T
 
 

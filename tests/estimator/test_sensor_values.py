@@ -72,6 +72,12 @@ def _rigid_but_scaled():
     return T
 
 
+def _reflected():
+    T = scene.T_VEHICLE_SENSOR.copy()
+    T[:3, 1] *= -1.0
+    return T
+
+
 def _mounted_in_mm():
     T = scene.T_VEHICLE_SENSOR.copy()
     T[:3, 3] *= 1000.0
@@ -82,6 +88,8 @@ def _mounted_in_mm():
 CASES = [
     ("T_vehicle_sensor", _rigid_but_scaled(), r"T_vehicle_sensor: rotation block is not a proper rotation",
      lambda: dict(T_vehicle_sensor=_rigid_but_scaled())),
+    ("T_vehicle_sensor", _reflected(), r"T_vehicle_sensor: .* proper rotation \(determinant -1: a reflection\)",
+     lambda: dict(T_vehicle_sensor=_reflected())),
     ("T_vehicle_sensor", _mounted_in_mm(), r"T_vehicle_sensor\[:3, 3\]: .* millimetres\? it is in metres",
      lambda: dict(T_vehicle_sensor=_mounted_in_mm())),
     ("sensor_sigmas", np.r_[0.02, 5.0, 0.005, 0.01], r"sensor_sigmas\[1\] \(azimuth\): 5.0 rad is implausibly large",
