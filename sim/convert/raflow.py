@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
+from rodo.estimator.sensor_values import check_pose
 from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence, Trajectory
 
 from ._common import SCAN_RATE_HZ, Conversion, ConversionReport, polar_from_xyz, require_detections, scans_from_rows
@@ -87,10 +88,10 @@ def _frame(path: Path, name: str, pc) -> Frame:
         if cols[f].shape != (n,):
             raise InputError(f"{path}: field '{name}.{f}': expected {n} numbers (as car_loc_x), "
                              f"got shape {cols[f].shape}")
-    why = _not_rigid(cols["pose"])
-    if why:
-        raise InputError(f"{path}: field '{name}.pose': expected a finite 4x4 rigid transform; {why}")
-    pose = cols["pose"]
+    where = f"{path}: field '{name}.pose' (a 4x4 rigid transform)"
+    if cols["pose"].shape != (4, 4):
+        raise InputError(f"{where}: got shape {cols['pose'].shape}")
+    pose = check_pose(where, cols["pose"])
     return Frame(np.c_[cols["car_loc_x"], cols["car_loc_y"], cols["car_loc_z"]], cols["car_vel_r"],
                  cols["rcs"], cols["power"], pose)
 
@@ -105,24 +106,6 @@ def _numbers(path: Path, key: str, value) -> np.ndarray:
         return entries.astype(float)
     except (TypeError, ValueError, OverflowError):
         raise InputError(f"{path}: field '{key}': every entry must be a number") from None
-
-
-def _not_rigid(pose: np.ndarray) -> str:
-    """Why `pose` is not a 4x4 rigid transform, or '' when it is (rotation orthonormal to 1e-6, det +1)."""
-    if pose.shape != (4, 4):
-        return f"got shape {pose.shape}"
-    if not np.all(np.isfinite(pose)):
-        return "it holds NaN or infinity"
-    if not np.allclose(pose[3], [0, 0, 0, 1]):
-        return f"bottom row {pose[3].tolist()} is not [0, 0, 0, 1]"
-    C = pose[:3, :3]
-    error = float(np.max(np.abs(C @ C.T - np.eye(3))))
-    if error > 1e-6:
-        return f"the rotation block is not orthonormal (|C C^T - I| = {error:.2g})"
-    det = float(np.linalg.det(C))
-    if det < 0:
-        return f"the rotation block has determinant {det:.3g}: a reflection, not a rotation"
-    return ""
 
 
 def read_sample(path) -> tuple[Frame, Frame, float]:
