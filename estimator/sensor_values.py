@@ -29,14 +29,15 @@ def angle_hint(name: str, value: float) -> str:
 def check_polar_bounds(name: str, polar: np.ndarray) -> None:
     """Detections (n, 4) [range, azimuth, elevation, radial_velocity]: InputError naming the first bad row's
     column for a negative range or an angle outside [-pi, pi] (azimuth) or [-pi/2, pi/2] (elevation)."""
-    bad = (polar[:, 0] < 0) | (np.abs(polar[:, 1]) > np.pi) | (np.abs(polar[:, 2]) > np.pi / 2)
+    bad = ((polar[:, 0] < 0) | (np.abs(polar[:, 1]) > ANGLE_BOUNDS["azimuth"])
+           | (np.abs(polar[:, 2]) > ANGLE_BOUNDS["elevation"]))
     if not bad.any():
         return
     row = int(np.flatnonzero(bad)[0])
     r, az, el = (float(v) for v in polar[row, :3])
     if r < 0:
         raise InputError(f"{name}[{row}, 0] (range): negative value {r!r} (range must be >= 0)")
-    col, value = (1, az) if abs(az) > np.pi else (2, el)
+    col, value = (1, az) if abs(az) > ANGLE_BOUNDS["azimuth"] else (2, el)
     column = POLAR_COLUMNS[col]
     bound = ANGLE_BOUNDS[column]
     raise InputError(f"{name}[{row}, {col}] ({column}): value {value!r} outside [-{bound:.9g}, {bound:.9g}]; "

@@ -2,8 +2,8 @@
 
 One runner, `run_campaign(trial_fn, trials, executor, out_dir, resume)`, serves every executor that follows the
 `concurrent.futures.Executor` interface: a local `ProcessPoolExecutor` or a Dask `Client.get_executor()`
-(`validation.workers.make_executor`). Workers only compute; the calling process writes every file, so a remote Dask worker needs no
-shared disk. Layout of out_dir (docs/evaluation.md):
+(`validation.workers.make_executor`). Workers only compute; the calling process writes every file, so a remote
+Dask worker needs no shared disk. Layout of out_dir (docs/evaluation.md):
 
 - `.campaign.lock`: flock'ed while a writer runs (`validation.campaign_dir`: a second writer is refused);
 - `campaign.json`: the campaign's parameters (checked on resume: resuming a different campaign is an error; a
@@ -45,7 +45,7 @@ from .campaign_files import (CONSISTENCY_FIELDS, COVERAGE_FIELDS, FIELDS, METRIC
 from .campaign_compare import compare_models, comparison_lines
 from .consistency import average_nees, chi2_bounds, fraction_within
 from .metrics import jsonable
-from .workers import make_executor, spawn_pool  # noqa: F401 (make_executor: its home until session 55)
+from .workers import make_executor  # noqa: F401 (re-exported: its home until session 55)
 
 
 @dataclass(frozen=True)

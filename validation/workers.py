@@ -72,7 +72,7 @@ def make_executor(jobs: int, dask: str | None = None, processes: bool = True, da
     if dashboard is not None and dask != "local":
         raise InputError("dashboard: only with dask='local' (a remote scheduler serves its own dashboard: "
                          "`dask scheduler --dashboard-address :8787`)")
-    if dask is None:  # spawned workers that leave with this process (validation.workers)
+    if dask is None:  # spawned workers that leave with this process (`spawn_pool`)
         with spawn_pool(int(jobs)) as ex:
             yield ex
         return

@@ -11,6 +11,7 @@ import argparse
 import dataclasses
 
 from rodo.estimator.errors import InputError
+from rodo.estimator.sensor_values import RATE_RANGE
 from rodo.outputs import check_layout_target, check_output_dir
 
 FORMATS = ("radarscenes", "ti-mmwave", "vod", "rosbag", "raflow")
@@ -150,8 +151,9 @@ def run(args) -> int:
             raise InputError(f"{option}: only for the {owner} format, not {args.format}")
     if args.t_max is not None and not (np.isfinite(args.t_max) and args.t_max > 0):
         raise InputError(f"--t-max: must be a positive finite number of seconds, got {args.t_max}")
-    if args.rate is not None and not (np.isfinite(args.rate) and 0.1 <= args.rate <= 1000):
-        raise InputError(f"--rate: must be > 0, a finite scan rate from 0.1 to 1000 Hz, got {args.rate}")
+    lo, hi = RATE_RANGE
+    if args.rate is not None and not (np.isfinite(args.rate) and lo <= args.rate <= hi):
+        raise InputError(f"--rate: must be > 0, a finite scan rate from {lo:g} to {hi:g} Hz, got {args.rate}")
     noise = _sigmas(args.sigma) if args.sigma is not None else None
     out = check_output_dir(args.out, create=False)  # before the conversion, not after it
     jobs = _conversions(args)

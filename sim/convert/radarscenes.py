@@ -28,7 +28,7 @@ import numpy as np
 
 from rodo.estimator.errors import InputError
 from rodo.estimator.lie import so3
-from rodo.estimator.sensor_values import angle_hint
+from rodo.estimator.sensor_values import ANGLE_BOUNDS, angle_hint
 from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence, Trajectory
 
 from ._common import (Conversion, ConversionReport, check_scan_step, drop_few, field_of_view, planar_poses,
@@ -222,7 +222,7 @@ def _kept_detections(det: dict, n_rows: int, n_scans: int, report: ConversionRep
     keep &= report.drop("detections with NaN or infinity", keep & ~np.all(np.isfinite(values), axis=0))
     rng, az, vr = det["range_m"], det["azimuth_rad"], det["vr_mps"]
     keep &= report.drop("detections with range <= 0", keep & ~(rng > 0))
-    keep = drop_few(report, keep, ~(np.abs(az) <= np.pi), "detections with azimuth outside [-pi, pi]",
+    keep = drop_few(report, keep, ~(np.abs(az) <= ANGLE_BOUNDS["azimuth"]), "detections with azimuth outside [-pi, pi]",
                     lambda k: f"{det_path}, line {k + 2}, field 'azimuth_rad': {float(az[k])!r} is outside [-pi, pi]; "
                               f"{angle_hint('azimuth', az[k])}")
     return scan[keep], rng[keep], az[keep], vr[keep], det["label_id"][keep], det["rcs_dbsm"][keep]

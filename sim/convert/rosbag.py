@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from rodo.estimator.errors import InputError
-from rodo.estimator.sensor_values import angle_hint
+from rodo.estimator.sensor_values import ANGLE_BOUNDS, angle_hint
 from rodo.sim.sequence import NoiseSigmas, SensorConfig, Sequence
 from rodo.sim.sequence_types import REQUIRED_COLUMNS
 
@@ -255,9 +255,9 @@ def _polar_kept(report: ConversionReport, keep, rng, az, el, fields, scan, where
     """The keep mask less polar detections with range <= 0 and angles out of range (dropped and counted; more
     than 1 % out of range is an InputError naming the message, the field and the likely mistake)."""
     keep = keep & report.drop("detections with range <= 0", keep & ~(rng > 0))
-    for name, field, angle, bound, text in (("azimuth", fields[1], az, np.pi, "[-pi, pi]"),
-                                            ("elevation", fields[2], el, np.pi / 2, "[-pi/2, pi/2]")):
-        keep = drop_few(report, keep, ~(np.abs(angle) <= bound), f"detections with {name} outside {text}",
+    for name, field, angle, text in (("azimuth", fields[1], az, "[-pi, pi]"),
+                                     ("elevation", fields[2], el, "[-pi/2, pi/2]")):
+        keep = drop_few(report, keep, ~(np.abs(angle) <= ANGLE_BOUNDS[name]), f"detections with {name} outside {text}",
                         lambda k, n=name, f=field, a=angle, b=text: f"{where}, message {scan[k]}, field '{f}': "
                         f"{float(a[k])!r} is outside {b}; {angle_hint(n, a[k])}")
     return keep
