@@ -1,8 +1,40 @@
-"""The one exception type for bad input: the CLI turns it into a message and exit code 2."""
+"""The one exception type for bad input: the CLI turns it into a message and exit code 2. And the errors of the
+place a command writes to (a full disk, a quota, a file-size limit, a read-only or forbidden place), which are
+the machine's, not the input's: the CLI reports them in one line with exit 1, and a campaign stops at them rather
+than recording a trial as failed."""
+
+import errno
 
 
 class InputError(ValueError):
     """Bad input at a public boundary: says which file/line/field or argument, and why."""
+
+
+# the OSErrors of the place a command writes to (`is_environment_error`); of those, no room (`out_of_space`)
+SPACE_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+ENVIRONMENT_ERRORS = SPACE_ERRORS | {errno.EROFS, errno.EACCES, errno.EPERM}
+
+
+def is_environment_error(exc: BaseException) -> bool:
+    """True for an OSError of ENVIRONMENT_ERRORS: not a defect and not bad input, so not a result either (a trial
+    that met a full disk did not fail; it is run again once there is room)."""
+    return isinstance(exc, OSError) and exc.errno in ENVIRONMENT_ERRORS
+
+
+def out_of_space(exc: BaseException) -> bool:
+    """True for a full disk, a quota or a file-size limit (ENOSPC, EDQUOT, EFBIG): the environment's whatever the
+    writer, where a place that cannot be written at all (EACCES, EROFS) may be the user's choice of output, which the
+    commands that check their outputs first refuse as input (exit 2)."""
+    return isinstance(exc, OSError) and exc.errno in SPACE_ERRORS
+
+
+def naming(exc: OSError, path, tmp=None) -> OSError:
+    """`exc` with `path` as its filename where it names none or the temporary file `tmp` written for it: an error
+    from write, flush or fsync carries no filename, and the user wants the file being written, not
+    `.NAME.xxxx.tmp`. A file it names otherwise (another file's error) is kept."""
+    if exc.filename is None or (tmp is not None and str(exc.filename) == str(tmp)):
+        exc.filename = str(path)
+    return exc
 
 
 def check_finite(name: str, value, shape: tuple | None = None):

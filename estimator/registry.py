@@ -12,15 +12,20 @@ from typing import Generic, TypeVar
 from .errors import InputError
 
 T = TypeVar("T")
+# the scenarios' and sensor profiles' hint (`Registry(hint=...)`): where an entry of one's own comes from
+USER_ENTRIES = ('yours: a module that registers them, imported by `rodo --plugin MODULE` or RODO_PLUGINS; '
+                'docs/simulator.md, "Custom scenarios and sensor profiles"')
 
 
 class Registry(Generic[T]):
     """Named entries of one kind (`kind` names it in messages, e.g. "scenario", `plural` the known ones,
-    default kind + "s"); each entry has a `name`. The entries registered before `seal()` are built in."""
+    default kind + "s", `hint` how to add one's own); each entry has a `name`. The entries registered before
+    `seal()` are built in."""
 
-    def __init__(self, kind: str, plural: str | None = None):
+    def __init__(self, kind: str, plural: str | None = None, hint: str = ""):
         self.kind = kind
         self.plural = kind + "s" if plural is None else plural
+        self.hint = hint  # appended to the unknown-name message: how to add an entry of one's own
         self._entries: dict[str, T] = {}
         self._builtin: frozenset[str] | None = None  # None until sealed
 
@@ -60,5 +65,6 @@ class Registry(Generic[T]):
         try:
             return self._entries[name]
         except (KeyError, TypeError):
-            raise InputError(f"unknown {self.kind} {name!r}; known {self.plural}: {', '.join(self.names())}") \
+            hint = f" ({self.hint})" if self.hint else ""
+            raise InputError(f"unknown {self.kind} {name!r}; known {self.plural}: {', '.join(self.names())}{hint}") \
                 from None

@@ -6,10 +6,11 @@ the command runs."""
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import sys
 
-from rodo.estimator.errors import InputError
+from rodo.estimator.errors import InputError, is_environment_error
 from rodo.validation import plugins
 
 from . import extras
@@ -53,6 +54,9 @@ def main(argv: list[str] | None = None, commands=None) -> int:
     except InputError as exc:
         print(f"rodo: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # a plugin's import interrupted
+        print("rodo: interrupted", file=sys.stderr)
+        return 130
     try:
         extras.check_command(args)  # a missing optional dependency fails before any work
         code = int(args.func(args) or 0)
@@ -74,6 +78,25 @@ def main(argv: list[str] | None = None, commands=None) -> int:
     except KeyboardInterrupt:
         print(f"rodo {args.command}: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:  # the machine's, not the input's: a full disk, a read-only or forbidden output place
+        if not is_environment_error(exc):
+            raise
+        print(f"rodo {args.command}: error: {environment_message(exc)}", file=sys.stderr)
+        return 1
+
+
+def environment_message(exc: OSError) -> str:
+    """One line for an environment error (`estimator.errors.is_environment_error`): what failed, on which file when
+    the error names one, and for a full disk, a quota or a file-size limit what to do (every output is written to a
+    temporary file and renamed, so what a command finished is whole and nothing half-written is left)."""
+    where = f" ({exc.filename})" if exc.filename else ""
+    said = f"{exc.strerror or exc}{where}"
+    again = "run it again (the files already written are whole; a campaign or a verdict continues with --resume)"
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"{said}: free some space and {again}"
+    if exc.errno == errno.EFBIG:
+        return f"{said}: a file larger than this place allows (ulimit -f, or the file system's limit); {again}"
+    return said
 
 
 if __name__ == "__main__":

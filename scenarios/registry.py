@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 
 from rodo.estimator.errors import InputError
-from rodo.estimator.registry import Registry
+from rodo.estimator.registry import USER_ENTRIES, Registry
 from rodo.sim import profiles
 from rodo.sim.faults import Faults
 from rodo.sim.radar import RadarConfig
@@ -223,7 +223,7 @@ def _streams(seed: int) -> list[np.random.SeedSequence]:
     return np.random.SeedSequence(int(seed)).spawn(4)
 
 
-_REGISTRY: Registry[Scenario] = Registry("scenario")
+_REGISTRY: Registry[Scenario] = Registry("scenario", hint=USER_ENTRIES)
 register = _REGISTRY.register  # register(scenario, replace=False); a built-in one is never replaced
 seal = _REGISTRY.seal  # once, by scenarios.definitions: the scenarios registered so far are the built-in ones
 names = _REGISTRY.names  # in registration order

@@ -10,7 +10,7 @@ import os
 import secrets
 from pathlib import Path
 
-from rodo.estimator.errors import InputError
+from rodo.estimator.errors import InputError, naming
 
 UNIT_QUATERNION_TOL = 1e-6
 
@@ -110,8 +110,10 @@ def replace_synced(tmp, path) -> None:
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise naming(exc, path, tmp)
         raise
 
 
@@ -130,11 +132,13 @@ def atomic_write_bytes(path, data: bytes) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
+        if isinstance(exc, OSError):  # the file being written, not its temporary name (nor none, from fsync)
+            raise naming(exc, path, tmp)
         raise
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rodo.estimator.errors import InputError
+from rodo.estimator.errors import InputError, out_of_space
 from rodo.estimator.lie import se3
 from rodo.sim.kitti_poses import format_kitti_poses
 from rodo.sim.sequence import RadarScan, Sequence, Trajectory, atomic_write_bytes
@@ -28,6 +28,8 @@ def _atomic_write(path: Path, data: bytes) -> None:
     try:
         atomic_write_bytes(path, data)  # a uniquely named temporary file, fsync, rename; removed on failure
     except OSError as exc:
+        if out_of_space(exc):  # the machine's: the CLI's one line and exit 1 (atomic_write_bytes named the file)
+            raise
         raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
 
 
@@ -35,6 +37,8 @@ def _mkdir(path: Path) -> Path:
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
+        if out_of_space(exc):  # mkdir's error names its directory
+            raise
         raise InputError(f"{path}: cannot create the directory ({exc.strerror or exc})") from None
     return path
 

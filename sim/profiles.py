@@ -27,7 +27,7 @@ from typing import Callable
 
 import numpy as np
 
-from rodo.estimator.registry import Registry
+from rodo.estimator.registry import USER_ENTRIES, Registry
 
 from .radar import RadarConfig
 from .sensor_geometry import DEG, mount
@@ -58,7 +58,7 @@ class SensorProfile:
         return f"{self.name:<12} v{self.version:<3} {self.description}"
 
 
-_REGISTRY: Registry[SensorProfile] = Registry("sensor profile", "profiles")
+_REGISTRY: Registry[SensorProfile] = Registry("sensor profile", "profiles", USER_ENTRIES)
 register = _REGISTRY.register  # register(profile, replace=False); a built-in profile is never replaced
 names = _REGISTRY.names  # in registration order (the default first)
 get = _REGISTRY.get  # rodo.estimator.errors.InputError listing the known profiles for an unknown name

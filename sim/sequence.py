@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rodo.estimator.errors import InputError
+from rodo.estimator.errors import InputError, out_of_space
 
 from ._seqio import SequenceFormatError, atomic_write_bytes, replace_synced, temporary_beside
 from .radar_csv import cache_path, format_radar_csv, read_radar_csv
@@ -171,6 +171,8 @@ def write_sequence(path, seq: Sequence) -> None:
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
+        if out_of_space(exc):  # the machine's (mkdir's error names its directory)
+            raise
         raise InputError(f"{path}: cannot create the sequence directory ({exc.strerror or exc})") from None
     atomic_write_bytes(path / RADAR_CSV, radar_bytes)
     remove_stale(cache_path(path / RADAR_CSV))

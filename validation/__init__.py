@@ -27,7 +27,8 @@ Modules:
   to 20 s and the drive, and of the velocity and acceleration at the scan);
 - `calibrate`, `calibrate_sensor`, `calibrate_config`: noise learned from data (`rodo calibrate`,
   docs/calibration.md), `calibrate_sensor_em` the measurement noise without ground truth, `velocity_growth` EM's
-  check (the CA prior's jerk PSD from the estimated velocity's growth over seconds); `calibrate_consistency`:
+  check (the CA prior's jerk PSD from the estimated velocity's growth over seconds), `qc_information` the
+  Cramér-Rao bound of Qc on a drive without truth; `calibrate_consistency`:
   the uncertainty parameters (kappa, the factors, drift rate, tau) fitted against the truth, `calibrate_velocity`
   the velocity factor, `calibrate_relative` the one-scan relative pose's, `calibrate_drift` the drift rate,
   `calibrate_jitter` the roll and pitch

@@ -8,10 +8,11 @@ prior residuals e_k = x_k (-) f(x_{k-1}) (eq. 12, 31-34), `fit_qc` maximises
 
 over q >= floor (L-BFGS-B on log q, analytic gradient). With ground truth S_k = e_k e_k^T and L is the
 likelihood of the true trajectory under the prior (`fit_qc_to_truth`). Without it, `em_qc` alternates, as
-Wong et al. (RA-L 2020) do, an E-step (run the estimator with the current q; S_k = E[w_k w_k^T | scans] from
-its per-scan posteriors, `expected_noise_moments`) and this M-step, until q changes by less than `tolerance`.
+Wong et al. (RA-L 2020) do, an E-step (S_k = E[w_k w_k^T | scans] from the estimator's per-scan posteriors, smoothed)
+and this M-step: to the fixed point in the drive's linear-Gaussian stand-in between estimator runs
+(`validation.em_surrogate`), until a run no longer moves it.
 
-Checked by: tests/validation/test_calibrate.py
+Checked by: tests/validation/test_calibrate.py, tests/validation/test_em_surrogate.py
 """
 
 from __future__ import annotations
@@ -99,11 +100,11 @@ def prior_residuals(kind: str, track: StateTrack) -> np.ndarray:
 def transitions_and_basis(kind: str, track: StateTrack, qc) -> tuple[np.ndarray, np.ndarray]:
     """F_k (K, d, d) at x_{k-1} and the noise basis B (K, 6, d, d), B[k, i] = Q_k(e_i e_i^T), so that
     Q_k(q) = sum_i q_i B[k, i] (Q_k is linear in Qc; each B from Q_k(e_i e_i^T + c I) - Q_k(c I), as the
-    priors need a positive-definite Qc). `qc` only sets c (1e-3 of its smallest element)."""
+    priors need a positive-definite Qc). `qc` only sets c (1e-3 of its smallest element, at most 1e-3)."""
     k = track.intervals()
     dt = np.diff(track.t)[k - 1]
     w, vd = track.varpi[k - 1], track.varpi_dot[k - 1]
-    c = 1e-3 * float(np.min(qc))
+    c = 1e-3 * min(1.0, float(np.min(qc)))  # small against the unit q_i: no digits lost to Q(c + e_i) - Q(c)
 
     def batch(q):
         return motion_prior(kind, q).transition_and_noise_batch(w, vd, dt)
@@ -176,7 +177,7 @@ def fit_qc(B, S, floor=DEFAULT_FLOOR, qc0=None, fixed=None) -> QcFit:
 
     res = optimize.minimize(objective, theta0, jac=True, method="L-BFGS-B",
                             bounds=bounds, options=dict(maxiter=500, gtol=1e-10))
-    qc = np.where(fixed, np.asarray(qc0, dtype=float), np.exp(res.x))
+    qc = np.where(fixed, np.asarray(qc0, dtype=float), np.clip(np.exp(res.x), floor, QC_MAX))  # exp(log) rounds
     value, _ = expected_log_likelihood(qc, B, S)
     return QcFit(qc, value, int(B.shape[0]), [bool(x <= lo * 1.01 and not f) for x, f, lo in zip(qc, fixed, floor)],
                  int(res.nit))
@@ -201,76 +202,6 @@ def fit_qc_to_truth(kind: str, tracks, floor=DEFAULT_FLOOR) -> QcFit:
 
 
 # ------------------------------------------------------------------------------------ EM without ground truth
-def _state_delta(motion: MotionPrior, T, w, vd, T_ref, w_ref, vd_ref) -> np.ndarray:
-    """x (-) x_ref for one state, (d,)."""
-    return np.concatenate([se3.log(T @ se3.inverse(T_ref)), motion.tail(w, vd) - motion.tail(w_ref, vd_ref)])
-
-
-def smooth(kind: str, track: StateTrack, qc) -> tuple[StateTrack, np.ndarray]:
-    """Rauch-Tung-Striebel backward pass over per-scan filtered posteriors (x_k, P_k), first order on the
-    manifold: C_k = P_k F^T (P^-)^-1, P^- = F P_k F^T + Q (F, Q of the interval k -> k + 1 at the filtered x_k,
-    with Qc = diag(qc)), x_k^s = x_k (+) C_k (x_{k+1}^s (-) f(x_k)), P_k^s = P_k + C_k (P_{k+1}^s - P^-) C_k^T.
-    An invalid interval starts a new segment (no smoothing across it).
-
-    Returns:
-        the smoothed track (same t, valid) and the cross-covariances cov(x_{k-1}, x_k) = C_{k-1} P_k^s, (N-1, d, d).
-
-    Checked by: tests/validation/test_calibrate.py::test_smoother_of_a_single_interval_matches_the_joint_gaussian
-    """
-    motion = motion_prior(kind, qc)
-    d = motion.dim
-    n = len(track.t)
-    P = np.array(track.P, dtype=float)
-    if P.shape != (n, d, d):
-        raise InputError(f"states.P: expected shape ({n}, {d}, {d}) for the {kind} prior, got {P.shape}")
-    every = StateTrack(track.t, track.T_vehicle_world, track.varpi, track.varpi_dot)
-    F, B = transitions_and_basis(kind, every, qc)
-    Q = np.einsum("i,kiab->kab", np.asarray(qc, dtype=float), B)
-    T_pred, w_pred, vd_pred, _ = _predict(motion, every, every.intervals())
-    T, w, vd = (np.array(a, dtype=float) for a in (track.T_vehicle_world, track.varpi, track.varpi_dot))
-    valid = np.ones(n - 1, bool) if track.valid is None else np.asarray(track.valid, dtype=bool)
-    cross = np.zeros((n - 1, d, d))
-    for k in range(n - 2, -1, -1):
-        if not valid[k]:
-            continue
-        P_minus = F[k] @ P[k] @ F[k].T + Q[k]
-        C = np.linalg.solve(P_minus, F[k] @ P[k]).T
-        dx = C @ _state_delta(motion, T[k + 1], w[k + 1], vd[k + 1], T_pred[k], w_pred[k], vd_pred[k])
-        T[k], w[k] = se3.exp(dx[:6]) @ T[k], w[k] + dx[6:12]
-        vd[k, :len(dx) - 12] += dx[12:]  # no acceleration (CV): nothing to add
-        P[k] = P[k] + C @ (P[k + 1] - P_minus) @ C.T
-        P[k] = 0.5 * (P[k] + P[k].T)
-        cross[k] = C @ P[k + 1]
-    return StateTrack(track.t, T, w, vd, P, track.valid), cross
-
-
-def expected_noise_moments(kind: str, track: StateTrack, qc) -> tuple[np.ndarray, np.ndarray]:
-    """E-step: S_k = E[e_k e_k^T | all scans] of the prior residual of each valid interval, and the basis B.
-
-    The per-scan filtered posteriors (the estimator's newest state and its covariance after each scan, run with
-    Qc = diag(qc)) are smoothed (`smooth`); then, to first order (J_e_x2 = I, J_e_x1 = -F_k: the pose tangent
-    factor J(e)^-1 dropped), S_k = e_k e_k^T + P_k^s + F P_{k-1}^s F^T - F C - C^T F^T with e_k the residual of
-    the smoothed means and C = cov(x_{k-1}, x_k). Per-state covariances alone, without the cross-covariance,
-    would not do: an odometry's pose covariance grows without bound while Q_k stays small. Each S_k is
-    projected onto the PSD cone (an estimator is not an exact Kalman filter).
-
-    Checked by: tests/validation/test_calibrate.py::test_em_recovers_qc_with_a_kalman_filter
-    """
-    if track.P is None:
-        raise InputError("states: the E-step needs the posterior covariances P")
-    smoothed, cross = smooth(kind, track, qc)
-    k = smoothed.intervals()
-    e = prior_residuals(kind, smoothed)
-    F, B = transitions_and_basis(kind, smoothed, qc)
-    P, C = smoothed.P, cross[k - 1]
-    FC = F @ C
-    S = e[:, :, None] * e[:, None, :] + P[k] + F @ P[k - 1] @ np.swapaxes(F, -1, -2) - FC - np.swapaxes(FC, -1, -2)
-    S = 0.5 * (S + np.swapaxes(S, -1, -2))
-    vals, vecs = np.linalg.eigh(S)
-    S = (vecs * np.clip(vals, 0.0, None)[:, None, :]) @ np.swapaxes(vecs, -1, -2)
-    return S, B
-
-
 @dataclass
 class EmIteration:
     """One EM iteration: the Qc the estimator ran with (qc_in), the M-step's Qc (qc_out), the expected
@@ -285,6 +216,7 @@ class EmIteration:
     intervals: int
     qc_next: np.ndarray
     remaining: float = float("nan")
+    steps: int = 0  # EM steps in the run's linear-Gaussian stand-in (`em_surrogate.surrogate_em`)
 
 
 def remaining_distance(step: np.ndarray, previous: np.ndarray | None) -> float:
@@ -328,17 +260,19 @@ def aitken_step(step: np.ndarray, previous: np.ndarray | None, max_factor: float
 
 def em_qc(run, kind: str, qc0, iterations: int = 5, tolerance: float = 0.05, floor=DEFAULT_FLOOR,
           accelerate: bool = True, on_iteration=None, learn=None) -> list[EmIteration]:
-    """EM over the estimator's posteriors: `run(qc) -> StateTrack` (with P; or a list of them) is the E-step's
-    estimator run with Qc = diag(qc); the M-step is `fit_qc` on `expected_noise_moments`. Stops after
-    `iterations` or when the fixed point the last two steps extrapolate to is within `tolerance` (relative) of
-    every q_i (`remaining_distance`). With `accelerate`
-    the next run uses the Aitken extrapolation of the EM steps (`aitken_step`). Returns the iterations; the
-    result is the last qc_out. `on_iteration(EmIteration)`, if given, is called after each iteration. `learn`:
-    optional (6,) bool mask of the components to learn; the others stay at qc0 (components the estimator barely
-    observes, e.g. roll and pitch jerk, whose overconfident posteriors would inflate them; docs/calibration.md).
+    """EM without ground truth: `run(qc) -> StateTrack` (with P; or a list of them) is the estimator run with
+    Qc = diag(qc); from its posteriors EM runs to its fixed point in the drive's linear-Gaussian stand-in
+    (`em_surrogate.surrogate_em`: a smoother per step, the M-step `fit_qc`), and the estimator is run again at that
+    Qc, until the Qc it returns is within `tolerance` (relative) of the fixed point the last two runs' steps
+    extrapolate to (`remaining_distance`), or after `iterations` runs. With `accelerate` the next run uses the
+    Aitken extrapolation of the runs' steps (`aitken_step`). Returns one EmIteration per run; the result is the
+    last qc_out. `on_iteration(EmIteration)`, if given, is called after each. `learn`: optional (6,) bool mask of
+    the components to learn; the others stay at qc0.
 
-    Checked by: tests/validation/test_calibrate.py::test_em_recovers_qc_with_a_kalman_filter
+    Checked by: tests/validation/test_em_surrogate.py::test_em_recovers_qc_with_a_kalman_filter
     """
+    from .em_surrogate import surrogate_em, surrogates
+
     if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
         raise InputError(f"iterations: must be an integer >= 1, got {iterations!r}")
     qc = np.asarray(qc0, dtype=float)
@@ -350,19 +284,19 @@ def em_qc(run, kind: str, qc0, iterations: int = 5, tolerance: float = 0.05, flo
     history, previous = [], None
     for _ in range(int(iterations)):
         tracks = run(qc)
-        moments = [expected_noise_moments(kind, tr, qc)
-                   for tr in ([tracks] if isinstance(tracks, StateTrack) else tracks)]
-        fit = fit_qc(np.concatenate([B for _, B in moments]), np.concatenate([S for S, _ in moments]), floor,
-                     qc0=qc, fixed=None if learn is None else ~np.asarray(learn, dtype=bool))
+        parts = [s for tr in ([tracks] if isinstance(tracks, StateTrack) else tracks)
+                 for s in surrogates(kind, tr, qc)]
+        fixed = np.zeros(6, bool) if learn is None else ~np.asarray(learn, dtype=bool)
+        fit, steps = surrogate_em(parts, qc, floor, fixed=fixed)
         step = np.log(fit.qc) - np.log(qc)
         jump = aitken_step(step, previous) if accelerate else step
-        qc_next = np.clip(qc * np.exp(jump), floor, QC_MAX)
+        qc_next = np.where(fixed, qc, np.clip(qc * np.exp(jump), floor, QC_MAX))  # a fixed one stays, floor or not
         change = float(np.max(np.abs(fit.qc - qc) / qc))
         remaining = remaining_distance(step, previous)
-        history.append(EmIteration(qc, fit.qc, fit.loglik, change, fit.intervals, qc_next, remaining))
+        history.append(EmIteration(qc, fit.qc, fit.loglik, change, fit.intervals, qc_next, remaining, steps))
         if on_iteration is not None:
             on_iteration(history[-1])
-        if remaining < tolerance:
+        if remaining < tolerance or np.any(fit.qc[~fixed] >= QC_MAX):  # converged, or a runaway: no fixed point
             break
         qc, previous = qc_next, step
     return history

@@ -31,6 +31,7 @@ from . import calibrate_consistency as cc
 from . import calibrate_sensor as cs
 from . import calibrate_sensor_em as csem
 from . import calibrate_vehicle as veh
+from . import qc_information as qi
 from . import velocity_growth as vg
 from .driver import run_sequence
 
@@ -165,7 +166,9 @@ def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: i
                             progress=None, learn=None, sensor_noise: bool = False) -> tuple[OdometryConfig, dict]:
     """EM for the Qc of the config's prior; returns (config, report). `progress(EmIteration)` is called after
     each iteration; `learn` (6,) bool: the components to learn (default all; `calibrate.em_qc`). With
-    `sensor_noise` the measurement noise is learned first (`with_learned_sensor_noise`) and EM runs at it."""
+    `sensor_noise` the measurement noise is learned first (`with_learned_sensor_noise`) and EM runs at it. A
+    component that ran away (EM's value at the fit's upper bound: no fixed point on this drive, e.g. a jump of
+    the estimate booked as motion) keeps the base config's value; the report names it ("runaway")."""
     seq = truncate(seq, duration)
     field = f"qc_{config.prior}"
     measurement = None
@@ -183,15 +186,20 @@ def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: i
                         on_iteration=progress, learn=learn)
     qc = history[-1].qc_out
     learned = [c for c, on in zip(cal.COMPONENTS, np.ones(6, bool) if learn is None else learn) if on]
+    away = (qc >= cal.QC_MAX) & np.isin(cal.COMPONENTS, learned)  # no fixed point: the base config's value is kept
+    qc = np.where(away, np.asarray(getattr(config.noise, field), dtype=float), qc)
     report = {"mode": "EM without ground truth", "prior": config.prior, "field": field, "floor": floor,
-              "learned_components": learned,
+              "learned_components": learned, "runaway": [c for c, a in zip(cal.COMPONENTS, away) if a],
               "converged": history[-1].remaining < tolerance, "tolerance": tolerance,
               "iterations": [{"qc_in": h.qc_in.tolist(), "qc_out": h.qc_out.tolist(), "loglik": h.loglik,
-                              "change": h.change, "remaining": h.remaining, "intervals": h.intervals}
+                              "change": h.change, "remaining": h.remaining if np.isfinite(h.remaining) else None,
+                              "intervals": h.intervals,
+                              "steps": h.steps}
                              for h in history]}
     if measurement is not None:
         report["measurement"] = measurement
     report["velocity_growth"] = _growth_check(tracks[0], config.prior, qc)
+    report["information"] = _bound(tracks[0], config.prior, qc, history[-1].qc_in, learn)
     return config.replace(noise=dataclasses.replace(config.noise, **{field: tuple(qc)})), report
 
 
@@ -203,6 +211,16 @@ def _growth_check(track: cal.StateTrack, prior: str, qc) -> list[dict] | str:
         return vg.growth_check(qc, vg.velocity_growth(track, prior))
     except InputError as e:
         return f"not checked: {e}"
+
+
+def _bound(track: cal.StateTrack, prior: str, qc, qc_run, learn) -> dict | str:
+    """The Cramer-Rao bound of EM's Qc on this drive (`qc_information.qc_bound`, from EM's last run, at the Qc it
+    started from), or why it was not computed."""
+    try:
+        rows = qi.qc_bound(prior, track, qc, qc_run, learn)
+    except (np.linalg.LinAlgError, InputError) as e:
+        return f"not computed: {e}"
+    return {"duration_s": float(track.t[-1] - track.t[0]), "samples": qi.SAMPLES, "rows": rows}
 
 
 def _toml_value(v) -> str:

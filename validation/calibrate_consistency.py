@@ -13,12 +13,14 @@ tells the truth (docs/consistency.md):
 - `uncertainty.inflation` f: a factor on the reported one-scan relative pose covariance (not in the solve).
   kappa cannot always make two measures consistent: at its lower bound 1 CV/C's one-scan relative pose stays
   cautious (its Cartesian sigma, learned over all ranges, is too large for the near detections), and where the
-  velocity and the relative pose disagree kappa settles between them. f makes the last run's median ratio of
-  the one-scan relative pose 1 (the velocity error's and the drift rate's shares as they are), fitted only when
-  that ratio is off by more than the fixed point's tolerance. The spans and the absolute pose compose it.
+  velocity and the relative pose disagree kappa settles between them. f makes the last run's mean NEES per dof
+  of the one-scan relative pose 1 (the velocity error's and the drift rate's shares as they are; its gross
+  failures left out), fitted only when that ratio is off by more than the fixed point's tolerance: a mean, as
+  the velocity's, since the N-run bounds of a campaign test means (`calibrate_relative`). The spans and the
+  absolute pose compose it.
 - `uncertainty.velocity_error_share` g: how much of the window's velocity covariance the drift recursion takes as
   its velocity error's variance; learned with f and its terms, by the same likelihood, and scaled with them by
-  the median ratio (docs/consistency.md, "The velocity error's share and the registration's correlation"), with
+  the mean ratio (docs/consistency.md, "The velocity error's share and the registration's correlation"), with
   its growth with the speed, `velocity_error_share_per_speed` g_v (g + g_v |nu|; "The velocity error's share with
   the speed").
 - `uncertainty.drift_rate_sigma`: the registration's systematic error per metre driven (the absolute pose's

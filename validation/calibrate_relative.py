@@ -7,12 +7,15 @@ innovation NIS per dof, as the velocity's factor, and `inflation_per_pull` p on 
 c A + V, A the part the factor scales, V the velocity error's and the drift rate's shares, which it does not (but
 `rodo calibrate` learns a factor g on the velocity error's share with it: `[uncertainty] velocity_error_share`).
 
-- Without the rates, f makes the median ratio of the one-scan relative pose 1 (robust to the few scans where an
-  association fails outright); fitted only where that ratio is off by more than the tolerance.
+- Without the rates, f makes the mean NEES per dof of the one-scan relative pose 1; fitted only where that mean
+  ratio is off by more than the tolerance.
 - With them, the shape (f : r : d : p) is the maximum likelihood of the one-scan errors, then all of them are
-  scaled together so that the median ratio is 1: the mean fit alone follows the heavy tails, and its level did not
-  carry over to the campaigns' drives (docs/consistency.md, "The one-scan relative pose with the rates"). The
-  shape's fit and the level leave out the scans at which the estimator failed outright (`gross_failures`).
+  scaled together so that the mean ratio is 1 (with V, which the level does not scale, not quite the likelihood's
+  own level).
+- Both leave out the scans at which the estimator failed outright (`gross_failures`): a mean is what the
+  campaigns' N-run averages measure, and without them it is not pulled by a few scans. Until session 56 the level
+  was the median ratio's, which left the one scan cautious on the campaigns' drives (mean NEES per dof 0.90-0.99
+  in every cell; docs/consistency.md, "The level of the one-scan factor").
 
 Every fit works on the decomposition (e, A, V) of the run it is given, so no run is needed; restarted scans (a
 dead-reckoned step, not scaled) are left out.
@@ -31,14 +34,14 @@ from scipy.stats import chi2
 from rodo.estimator.pull import pull_term, relative_factor
 from rodo.estimator.velocity_inflation import doppler_term
 
-from .gross_failures import fit_without_gross_failures
+from .gross_failures import fit_without_gross_failures, gross_failures
 from .odometry_consistency import DOF, span_terms
 from .replayed_states import relative_inflated_states
 from .run_consistency import DEFAULT_TAU, runs_of
 
 MEDIAN_CHI2 = float(chi2.median(DOF))
 # the velocity error's share g of the maximum likelihood: at most the window's whole velocity covariance (the level,
-# set after it by the median ratio, scales it with the factor)
+# set after it by the mean ratio, scales it with the factor)
 SHARE_RANGE = (1e-3, 1.0)
 # the share's growth with the speed is learned only from a drive that stops: at least REST_FRACTION of its scans
 # below REST_SPEED (m/s); a drive always at speed cannot tell g + g_v |nu| from a constant share (hills: 12-30 m/s)
@@ -51,6 +54,14 @@ def median_ratio(values) -> float:
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
     return float(np.median(v) / MEDIAN_CHI2) if v.size else float("nan")
+
+
+def mean_ratio(values) -> float:
+    """mean(NEES) / DOF: 1 when consistent on average (what the campaigns' N-run means measure), > 1
+    over-confident, NaN without finite values."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return float(np.mean(v) / DOF) if v.size else float("nan")
 
 
 def tau_cost(ratios) -> float:
@@ -157,18 +168,18 @@ def _max_likelihood(e, A, V, W, f0: float, V_velocity=None, h_range=SHARE_RANGE,
     return np.r_[p[:X.shape[1]] / scale, p[X.shape[1]:] / (y_scale if share else 1.0)]
 
 
-def _median_scale(c, e, A, V) -> float | None:
-    """s at which the median ratio of the NEES at factors s c is 1, or None when no s within 2^30 of 1 reaches
-    it (the unscaled shares alone too cautious, or no finite ratio)."""
+def _mean_scale(e, A, V) -> float | None:
+    """s at which the mean ratio of the NEES at c A + V, c = s for every scan, is 1 (it falls as s grows), or None
+    when no s within 2^30 of 1 reaches it (the unscaled shares V alone too cautious, or no finite ratio)."""
     def log_ratio(s):
-        return np.log(median_ratio(_nees(s * c, e, A, V)))
+        return np.log(mean_ratio(_nees(np.full(len(e), s), e, A, V)))
 
     r = log_ratio(1.0)
     if not np.isfinite(r):
         return None
     if r == 0.0:
         return 1.0
-    step = 2.0 if r > 0.0 else 0.5  # the ratio falls as the factor grows
+    step = 2.0 if r > 0.0 else 0.5
     near, far = 1.0, step
     for _ in range(30):
         r_far = log_ratio(far)
@@ -186,8 +197,8 @@ def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: f
                            per_pull: float = 0.0, share: bool = False) -> dict:
     """The one-scan relative pose covariance's factor for a run (or runs, pooled) that had f = `inflation`, r =
     `per_rate` (None: 0), d = `per_doppler` and p = `per_pull`: with `rates`, the shape (f : r : d : p) by maximum
-    likelihood and the level by the median ratio (module docstring); without, f (with the run's r, d and p) scaled
-    to the median ratio 1, or kept when that ratio is within ratio_tolerance of 1 already (|ln r| < ln(1 +
+    likelihood and the level by the mean ratio (module docstring); without, f (with the run's r, d and p) scaled
+    to the mean ratio 1, or kept when that ratio is within ratio_tolerance of 1 already (|ln r| < ln(1 +
     ratio_tolerance), as the kappa fixed point stops), as it is when the fitted r, d and p all come out 0. Kept
     too when no factor within 2^30 reaches a ratio of 1. The one-scan measure is the same at every tau > 0 (at
     tau 0 it loses the velocity term, so a tau of 0 chosen after f leaves it over-confident: hills CA/P with
@@ -198,10 +209,10 @@ def fit_relative_inflation(states: dict | list, truth: dict | list, inflation: f
     (REST_FRACTION of its scans below REST_SPEED; "rest_fraction" in the result), else 0.
 
     Returns {"inflation": f, "per_rate": [r_x, r_y, r_z], "per_doppler": d, "per_pull": p, "velocity_error_share":
-    g (the runs' own unless learned), "median_ratio": [before, after], "outcome": "fitted", "within tolerance" or
-    "out of reach", "gross_failures": how many scans the shape's fit and the level left out (`gross_failures`: NEES
-    above 100 per dof at the median scan's level under the fit, an outright failure of the estimator; 0 where the
-    fit is not used); the median ratio before is over every scan, after over the scans kept}.
+    g (the runs' own unless learned), "mean_ratio": [before, after] (`mean_ratio`), "outcome": "fitted", "within
+    tolerance" or "out of reach", "gross_failures": how many scans the ratio, the shape's fit and the level left out
+    (`gross_failures`: NEES above 100 per dof at the median scan's level, an outright failure of the estimator);
+    the ratio before is at the run's factor without its gross failures, after at the fit's without the fit's}.
     """
     e, A, V_velocity, V_rest, W, speed = relative_terms_split(states, truth, inflation, per_rate, drift_rate_sigma,
                                                                per_doppler, per_pull, with_speed=True)
@@ -236,13 +247,15 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
     r0 = np.r_[rates0, per_doppler, per_pull][:W.shape[1]]
     c0 = inflation + W @ r0
     V_all = V if V_velocity is None else V + V_velocity
-    before = median_ratio(_nees(c0, e, A, V_all)) if len(e) else float("nan")
+    nees0 = _nees(c0, e, A, V_all)
+    failed = gross_failures(nees0, DOF)  # left out of the ratio, the shape's fit and the level
+    before = mean_ratio(nees0[~failed]) if len(e) else float("nan")
     Y = None if speed is None or V_velocity is None else np.column_stack([np.ones(len(e)), speed])
 
     def result(f, r, outcome, after, h=(1.0, 0.0), failures: int = 0):
         r = np.r_[r, np.zeros(5 - len(r))]
         out = {"inflation": float(f), "per_rate": [float(x) for x in r[:3]], "per_doppler": float(r[3]),
-               "per_pull": float(r[4]), "median_ratio": [before, after], "outcome": outcome,
+               "per_pull": float(r[4]), "mean_ratio": [before, after], "outcome": outcome,
                "gross_failures": failures}
         if V_velocity is None:
             return out
@@ -251,7 +264,6 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
     if not np.isfinite(before):
         return result(inflation, r0, "out of reach", before)
     n_h = 0 if V_velocity is None else (1 if Y is None else 2)
-    failed = np.zeros(len(e), bool)  # the gross failures left out of the shape's fit (`gross_failures`)
     if rates:
         p, failed, _ = fit_without_gross_failures(
             lambda keep: _max_likelihood(e[keep], A[keep], V[keep], W[keep], inflation,
@@ -264,13 +276,13 @@ def fit_factor(e, A, V, W, inflation: float, per_rate=None, ratio_tolerance: flo
     h = np.r_[p[k:], (1.0, 0.0)[n_h:]]  # the share's (g, g_v) as fitted, (1, 0) where not
     if (not rates or not np.any(p[1:k] > 0.0)) and tuple(h) == (1.0, 0.0) \
             and abs(np.log(before)) < np.log1p(ratio_tolerance):
-        return result(inflation, r0, "within tolerance", before)  # the fit not used: nothing left out
+        return result(inflation, r0, "within tolerance", before, failures=int(failed.sum()))  # the fit not used
     kept = ~failed
     scaled = _scaled(p, n_h, A, W, V_velocity, speed)[kept]  # what the level scales
-    s = _median_scale(np.ones(int(kept.sum())), e[kept], scaled, V[kept])
+    s = _mean_scale(e[kept], scaled, V[kept])
     if s is None:
         return result(inflation, r0, "out of reach", before)
-    after = median_ratio(_nees(np.full(len(scaled), s), e[kept], scaled, V[kept]))
+    after = mean_ratio(_nees(np.full(len(scaled), s), e[kept], scaled, V[kept]))
     return result(s * p[0], s * p[1:k], "fitted", after, s * h, int(failed.sum()))
 
 

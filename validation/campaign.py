@@ -34,7 +34,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from rodo.estimator.errors import InputError
+from rodo.estimator.errors import InputError, is_environment_error
 from rodo.sim.sequence import atomic_write_bytes
 
 from .campaign_dir import campaign_lock, check_and_save_meta
@@ -236,6 +236,8 @@ def _collect(out: Path, tr: Trial, fut) -> list[dict]:
     except (BrokenExecutor, CancelledError):
         raise
     except Exception as exc:  # noqa: BLE001 - a failed trial is data, not a reason to stop
+        if is_environment_error(exc):  # but a full disk is not a failed trial: no row, so --resume runs it again
+            raise
         text = error_text(exc)
         return [{**base, "model": m, "status": "error", "error": text} for m in tr.models]
     rows = []

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rodo.estimator.errors import InputError
+from rodo.estimator.errors import InputError, naming
 from rodo.sim.sequence import atomic_write_bytes
 
 # the columns of results.csv before the odometry consistency measures (a campaign started then still resumes:
@@ -37,14 +37,17 @@ METRICS = FIELDS[4:-1]
 def append_rows(path: Path, rows: list[dict]) -> None:
     """Append rows to results.csv (header first if the file is new), flushed and fsync'ed before returning."""
     new = not path.exists() or path.stat().st_size == 0
-    with open(path, "a", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=FIELDS, extrasaction="ignore")
-        if new:
-            w.writeheader()
-        for row in rows:
-            w.writerow({k: cell(row.get(k, "")) for k in FIELDS})
-        fh.flush()
-        os.fsync(fh.fileno())
+    try:
+        with open(path, "a", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=FIELDS, extrasaction="ignore")
+            if new:
+                w.writeheader()
+            for row in rows:
+                w.writerow({k: cell(row.get(k, "")) for k in FIELDS})
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as exc:  # a write or fsync error names no file
+        raise naming(exc, path) from None
 
 
 def cell(v):
@@ -58,7 +61,8 @@ def cell(v):
 
 def read_results(path: str | Path) -> list[dict]:
     """Rows of results.csv as dicts of strings (every key of FIELDS; a file with an older header, FIELDS_V1 or
-    FIELDS_V2, gets "" in the columns it lacks); a torn last row (crash while writing) is dropped."""
+    FIELDS_V2, gets "" in the columns it lacks); a torn last row (crash while writing) is dropped, and a torn
+    header alone is no rows."""
     path = Path(path)
     if not path.exists():
         return []
@@ -67,6 +71,9 @@ def read_results(path: str | Path) -> list[dict]:
     if not rows:
         return []
     header = tuple(rows[0])
+    if "\n" not in text and header[:-1] == FIELDS[:len(header) - 1] and len(header) <= len(FIELDS) \
+            and FIELDS[len(header) - 1].startswith(header[-1]):
+        return []  # a header torn by a full disk in the first write: no row yet (the resume writes it whole)
     if header not in (FIELDS, FIELDS_V2, FIELDS_V1):
         raise InputError(f"{path}: line 1: unexpected header (expected {','.join(FIELDS)})")
     body = rows[1:] if text.endswith("\n") else rows[1:-1]  # a final row without its newline is torn: drop it

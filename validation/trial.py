@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rodo.estimator.errors import is_environment_error
+
 from .campaign import Trial, TrialOutcome, error_text
 from .association import associate
 from .consistency import nees_sequence, nis_summary
@@ -84,6 +86,8 @@ class ScenarioTrial:
                 out.timings = {"simulate": simulate_s, "run": run_s, "evaluate": time.perf_counter() - t0 - run_s}
                 outcomes.append(out)
             except Exception as exc:  # noqa: BLE001 - recorded per model
+                if is_environment_error(exc):  # a full disk is not the trial's failure: the campaign stops
+                    raise
                 frames = traceback.extract_tb(exc.__traceback__)
                 where = next((f for f in reversed(frames) if not f.filename.endswith("errors.py")), frames[-1])
                 outcomes.append(TrialOutcome(model, error=f"{error_text(exc)} (at {Path(where.filename).name}:"

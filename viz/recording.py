@@ -14,7 +14,6 @@ Checked by: tests/viz/test_recording.py (recordings read back with rerun.chunk.R
 
 from __future__ import annotations
 
-import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +22,6 @@ from rodo.estimator.errors import InputError, check_finite
 from rodo.estimator.lie import se3, so3
 from rodo.estimator.measurements import polar_to_cartesian
 from rodo.estimator.scan import ScanDetail
-from rodo.sim.sequence import replace_synced, temporary_beside
 from rodo.validation.alignment import align_to_first
 from rodo.validation.association import match_index
 from rodo.validation.consistency import NIS_DOF, chi2_bounds
@@ -32,6 +30,7 @@ from rodo.validation.metrics import pose_errors
 from rodo.validation.run_consistency import run_states
 
 from .recording_metrics import ELLIPSOID_SIGMA, log_consistency, send_series
+from .rrd_file import recording_file
 from .sequence_layers import log_sequence_layers, sequence_blueprint
 
 # class ids of detections (AnnotationContext on `world`): label, RGB
@@ -275,30 +274,9 @@ def record_run(path, seq, result, truth: dict | None = None, detail: list | None
     if detail is not None and len(detail) != len(est):
         raise InputError(f"detail: expected {len(est)} entries (one per estimate), got {len(detail)}")
     truth_m = _Truth(seq, result, truth)
-    with _recording_file(rr, path, recording_id) as rec:
+    with recording_file(rr, path, recording_id) as rec:
         _write(rec, rr, seq, result, truth_m, detail)
     return Path(path)
-
-
-@contextlib.contextmanager
-def _recording_file(rr, path, recording_id: str | None):
-    """A RecordingStream saving to a uniquely named temporary file beside `path`; when the block completes it is
-    flushed, closed, synced and renamed to `path` (a crash never leaves half a recording under the final name),
-    and when the block raises, the temporary file is removed."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_beside(path)
-    rec = rr.RecordingStream("rodo", recording_id=recording_id)
-    rec.save(tmp)
-    try:
-        yield rec
-        rec.flush()
-    except BaseException:
-        rec.disconnect()
-        tmp.unlink(missing_ok=True)
-        raise
-    rec.disconnect()  # closes the file sink: the .rrd is complete when this returns
-    replace_synced(tmp, path)
 
 
 def record_sequence(path, seq, truth: dict | None = None, recording_id: str | None = None) -> Path:
@@ -318,7 +296,7 @@ def record_sequence(path, seq, truth: dict | None = None, recording_id: str | No
     if seq.groundtruth is None or len(seq.groundtruth.t) == 0:
         raise InputError("sequence: a recording of a sequence needs its groundtruth.txt")
     gt = seq.groundtruth
-    with _recording_file(rr, path, recording_id) as rec:
+    with recording_file(rr, path, recording_id) as rec:
         _log_world(rec, rr)
         _log_frames(rec, rr, seq)
         pos = gt.T_world_vehicle[:, :3, 3]

@@ -74,8 +74,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "off by default: more accurate on three scenarios of four, but the uncertainty section's "
                         "learned terms do not carry over at them)")
     p.add_argument("--iterations", type=int, default=30, help="EM iterations at most (%(default)s; one estimator "
-                                                              "run each)")
-    p.add_argument("--tolerance", type=float, default=0.05, help="EM stops when the fixed point its steps "
+                                                              "run each, then EM to its fixed point in the run's "
+                                                              "linear-Gaussian stand-in)")
+    p.add_argument("--tolerance", type=float, default=0.05, help="EM stops when the fixed point its runs' steps "
                                                                  "extrapolate to is within this (relative) of Qc "
                                                                  "(%(default)s)")
     p.add_argument("--duration", type=float, default=None, help="use the first S seconds only")
@@ -168,8 +169,8 @@ def main(args) -> int:
                          "solutions on them")
     if args.no_truth:
         def say(h):
-            print(f"EM iteration: qc {np.array2string(h.qc_out, precision=4)}, change {h.change:.3g}, "
-                  f"left {h.remaining:.3g}")
+            print(f"EM iteration: qc {np.array2string(h.qc_out, precision=4)} ({h.steps} steps in the run's "
+                  f"stand-in), change {h.change:.3g}, left {h.remaining:.3g}")
         config, report = calibrate_without_truth(seq, config, args.iterations, args.tolerance, args.duration,
                                                  args.floor, progress=say, learn=learn,
                                                  sensor_noise=args.sensor_noise)

@@ -9,6 +9,7 @@ from rodo.validation.calibrate import COMPONENTS
 from rodo.validation.calibrate_drift import DRIFT_SIGNIFICANCE
 from rodo.validation.calibrate_relative import REST_FRACTION
 from rodo.validation.error_growth import growth_lines
+from rodo.validation.qc_information import bound_header, bound_lines
 from rodo.validation.velocity_growth import growth_check_header, growth_check_lines
 
 MAX_NAMED = 8  # gross failures named in the report by run and time (all of them in the .json)
@@ -53,15 +54,26 @@ def header(report: dict, seq_dir: str, model: str) -> list[str]:
         it = report["iterations"]
         lines += [f"noise.{report['field']} ({', '.join(report['learned_components'])}): EM over the estimator's "
                   f"posteriors, {len(it)} iteration(s), last "
-                  f"relative change {it[-1]['change']:.3g}, {it[-1]['remaining']:.3g} left to the fixed point the "
+                  f"relative change {it[-1]['change']:.3g}, {_left(it[-1]['remaining'])} left to the fixed point the "
                   f"steps extrapolate to ({'converged' if report['converged'] else 'NOT converged'}"
                   f" at {report['tolerance']:g}).",
                   "noise.sensor_sigma_scales, noise.cartesian_sigma: learned first from the static detections of "
                   "consecutive scans (docs/calibration.md); everything else as in the base config."
                   if "measurement" in report else
                   "Everything else (including the measurement noise) as in the base config."]
+        if report.get("runaway"):
+            lines.append(f"RUNAWAY: EM's {', '.join(report['runaway'])} reached the fit's upper bound (no fixed point "
+                         "on this drive: an estimate's jump or error booked as motion); the base config's value is "
+                         "kept.")
         lines += growth_check_header(report.get("velocity_growth"), report["learned_components"])
+        if isinstance(report.get("information"), dict):
+            lines += bound_header(report["information"]["rows"])
     return lines + ["The learned values and likelihoods are in the .json and .md files beside this one.", ""]
+
+
+def _left(remaining) -> str:
+    """The distance EM had left; None (JSON has no infinity) where the last runs' steps grew: "inf"."""
+    return "inf" if remaining is None else f"{remaining:.3g}"
 
 
 def markdown(report: dict) -> str:
@@ -89,14 +101,17 @@ def markdown(report: dict) -> str:
             lines += [""] + _consistency_markdown(report["consistency"])
             lines += growth_lines(report["consistency"].get("error_growth"), lambda v: "-" if v is None else f"{v:.3g}")
     else:
-        lines += ["| iteration | Qc in | Qc out | change | left (extrapolated) | expected log-likelihood |",
-                  "| --- | --- | --- | --- | --- | --- |"]
+        lines += ["| iteration (estimator run) | Qc in | Qc out | EM steps in its stand-in | change | left (extrapolated) "
+                  "| expected log-likelihood |", "| --- | --- | --- | --- | --- | --- | --- |"]
         for i, h in enumerate(report["iterations"], 1):
-            lines.append(f"| {i} | {vec(h['qc_in'])} | {vec(h['qc_out'])} | {h['change']:.3g} | "
-                         f"{h['remaining']:.3g} | {h['loglik']:.6g} |")
+            lines.append(f"| {i} | {vec(h['qc_in'])} | {vec(h['qc_out'])} | {h.get('steps', '-')} | {h['change']:.3g} | "
+                         f"{'-' if h['remaining'] is None else format(h['remaining'], '.3g')} | {h['loglik']:.6g} |")
         if "measurement" in report:
             lines += [""] + _sensor_noise_markdown(report["measurement"])
         lines += [""] + growth_check_lines(report.get("velocity_growth"), report["learned_components"])
+        info = report.get("information")
+        if info is not None:
+            lines += [""] + (bound_lines(info["rows"], info["duration_s"]) if isinstance(info, dict) else [info])
     return "\n".join(lines) + "\n"
 
 
@@ -140,10 +155,10 @@ def _consistency_markdown(c: dict) -> list[str]:
         lines.append(f"| {i} | {s['kappa']:.3g} | {s['tau']:g} | {ratios} |")
     d, v, rel = c["drift_rate"], c["velocity_inflation"], c["relative_inflation"]
     vec = ", ".join(f"{x:.3g}" for x in d["sigma"])
-    before, after = rel["median_ratio"]
+    before, after = rel["mean_ratio"]
     lines += ["", "relative pose covariance factor (uncertainty.inflation, inflation_per_doppler, "
-              f"inflation_per_pull, inflation_per_rate; velocity_error_share) {_relative_words(rel)} (median "
-              f"ratio of the one-scan relative pose {before:.3g} -> {after:.3g}; "
+              f"inflation_per_pull, inflation_per_rate; velocity_error_share) {_relative_words(rel)} (mean "
+              f"NEES/dof of the one-scan relative pose {before:.3g} -> {after:.3g}; "
               f"{rel['outcome']}{_failure_words(rel.get('gross_failures', 0))})",
               f"velocity variance factor {v['inflation']:.3g} + {v['per_speed']:.3g} s/m x speed + "
               f"{v['per_doppler']:.3g} x ln(1 + Doppler NIS){_rate_words(v)}, per axis vx, vy, vz, wx, wy, wz x "

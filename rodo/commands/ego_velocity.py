@@ -12,7 +12,7 @@ import argparse
 import numpy as np
 
 from rodo.estimator.ego_velocity import PLANAR_ELEVATION, estimate_ego_velocity
-from rodo.estimator.errors import InputError
+from rodo.estimator.errors import InputError, out_of_space
 from rodo.progress import Progress
 
 HEADER = "scan,t,vx,vy,vz,inliers"
@@ -69,5 +69,7 @@ def run(args) -> int:
     try:
         write_text_atomic(out, "\n".join(rows) + "\n")  # ASCII: numbers only
     except OSError as exc:
+        if out_of_space(exc):  # the machine's: the CLI's one line and exit 1 (the atomic writer named the file)
+            raise
         raise InputError(f"--out: cannot write {out} ({exc.strerror or exc})") from None
     return 0

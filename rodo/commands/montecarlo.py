@@ -11,7 +11,7 @@ import sys
 from concurrent.futures import BrokenExecutor
 
 from rodo.estimator.config import MODELS
-from rodo.estimator.errors import InputError
+from rodo.estimator.errors import InputError, is_environment_error
 from rodo.progress import Progress
 from rodo.validation.campaign_dir import campaign_lock
 from rodo.validation.campaign import make_executor, make_trials, remaining, run_campaign, summarize_campaign, write_summary
@@ -169,6 +169,8 @@ def plot_summary(out_dir, summary: dict) -> str:
                       f"{m} ({e['nees']['dim']} dof)")
             written += [name] + plot_consistency(out_dir, m, e, plot_nees) + plot_error_growth(out_dir, m, e)
         except Exception as exc:  # noqa: BLE001 - a plot is never worth losing the summary
+            if is_environment_error(exc):  # but a full disk is not a plot's failure: stale figures would stay
+                raise
             return f"No NEES plot: viz.figures.plot_nees failed ({type(exc).__name__}: {exc})."
     return "Plots (average NEES over time with its bounds; the error growth per axis): " + ", ".join(written) + "."
 

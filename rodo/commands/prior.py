@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rodo.estimator.errors import InputError
+from rodo.estimator.errors import InputError, out_of_space
 from rodo.estimator.priors import ConstantAccelerationPrior
 from rodo.outputs import check_output_dir, write_text_atomic
 from rodo.sim import prior_sampling as ps
@@ -83,6 +83,8 @@ def run(args) -> int:
             covariance=P, nees=eps, Qc=case["Qc"], P0=case["P0"]))
         write_text_atomic(args.out / "prior_montecarlo.json", json.dumps(result, indent=2) + "\n")
     except OSError as exc:
+        if out_of_space(exc):  # the machine's: the CLI's one line and exit 1 (the atomic writers named the file)
+            raise
         raise InputError(f"--out: cannot write to {args.out} ({exc})") from None
     verdict = "PASS" if result["pass"] else "FAIL"
     print(f"prior-montecarlo: {args.samples} samples, dt {args.dt} s: mean NEES {mean_nees:.3f} "

@@ -190,7 +190,7 @@ def _last_line(log: Path) -> str:
 
 def _run(steps: list, logs: Path | None, jobs: int) -> None:
     """Run the steps not done, `jobs` at a time (in-process for one), their output in logs/ (or on the terminal,
-    logs None); InputError naming the first that failed."""
+    logs None); StepFailed naming the first that failed, with its exit code."""
     todo = [(label, argv) for label, argv, done in steps if not done]
     for label, _, done in steps:
         if done:
@@ -217,11 +217,28 @@ def _run(steps: list, logs: Path | None, jobs: int) -> None:
     for (label, _), log, code in zip(todo, paths, codes):
         if code != 0:
             said = f"{_last_line(Path(log))} (log: {log})" if log else "its message is above"
-            raise InputError(f"{label} failed (exit {code}): {said}; fix it and run again with --resume")
+            raise StepFailed(f"{label} failed (exit {code}): {said}; fix it and run again with --resume", code)
     print(f"    {len(todo)} done in {time.monotonic() - start:.0f} s", flush=True)
 
 
+class StepFailed(Exception):
+    """A step of the verdict that exited non-zero: the verdict exits with its code, 2 for the input's fault, 1 for
+    the machine's (a full disk: `rodo.cli.environment_message`) or any other."""
+
+    def __init__(self, message: str, code: int):
+        super().__init__(message)
+        self.code = code if code in (1, 2) else 1
+
+
 def main(args) -> int:
+    try:
+        return _verdict(args)
+    except StepFailed as exc:
+        print(f"rodo verdict: error: {exc}", file=sys.stderr)
+        return exc.code
+
+
+def _verdict(args) -> int:
     from rodo.sim.sequence import atomic_write_bytes
     from rodo.validation.campaign_dir import campaign_lock, check_and_save_meta
     from rodo.validation.verdict import build_verdict, write_verdict

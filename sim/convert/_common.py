@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rodo.estimator.errors import InputError
+from rodo.estimator.errors import InputError, out_of_space
 from rodo.estimator.sensor_values import RATE_RANGE
 from rodo.sim.sequence import RadarScan, Sequence, atomic_write_bytes, remove_stale, write_sequence
 from rodo.sim.simulate import TRUTH_NPZ
@@ -300,5 +300,7 @@ def write_conversion(out_dir, conv: Conversion) -> Path:
         for name, text in conv.extra_files.items():
             atomic_write_bytes(out / name, text.encode("utf-8"))
     except OSError as exc:
+        if out_of_space(exc):  # the machine's: the CLI's one line and exit 1 (atomic_write_bytes named the file)
+            raise
         raise InputError(f"{out}: cannot write ({exc.strerror or exc})") from None
     return out

@@ -7,7 +7,7 @@ import pytest
 from rodo.cli import main
 from rodo.validation.campaign import read_results
 from tests.cli.helpers import fails
-from tests.validation.test_campaign import DyingTrial
+from tests.validation.test_campaign_failures import DyingTrial
 
 
 @pytest.mark.parametrize("fmt, extra, needle", [

@@ -49,6 +49,15 @@ def test_calibrate_without_truth_draws_ems_check(tmp_path, capsys):
     assert "| component | EM | from the velocity's growth | interval | EM outside |" in out.with_suffix(".md").read_text()
     png = tmp_path / "em_growth.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and str(png) in capsys.readouterr().out
+    info = json.loads(out.with_suffix(".json").read_text())["information"]
+    assert info["duration_s"] == pytest.approx(8.0, abs=0.1)
+    assert [r["component"] for r in info["rows"]] == ["x", "y", "z", "roll", "pitch", "yaw"]
+    # 8 s hold too little for 25 % anywhere: even the forward jerk's bound is about 0.12 x sqrt(30 / 8) s
+    # (docs/calibration.md, "What a drive can tell")
+    assert all(r["sd_log"] is None or r["sd_log"] > 0.125 for r in info["rows"])
+    assert "BOUND: this drive cannot determine x, y, z, roll, pitch, yaw within 25 %" in out.read_text()
+    assert "| component | Qc | bound on SD(log q) | within 25 % | drive length it needs (s) |" in \
+        out.with_suffix(".md").read_text()
 
 
 def test_the_em_report_names_the_components_outside_the_velocitys_growth():
@@ -75,6 +84,29 @@ def test_the_em_report_names_the_components_outside_the_velocitys_growth():
     assert "| roll | 1 (not learned) | 0.1 | 0.05 - 0.2 | - |" in md  # the base config's value: no verdict
 
 
+def test_the_em_report_gives_the_drives_bound():
+    """The config's header says BOUND for the learned components whose bound is wider than 25 % needs, the
+    markdown table gives each one's bound and the drive length it needs (the bound shrinking as 1 / sqrt(T))."""
+    from rodo.commands.calibrate_report import header as _header, markdown as _markdown
+
+    rows = [{"component": c, "qc": 1.0, "learned": c != "roll", "sd_log": None if c == "roll" else sd,
+             "within_95": sd <= 0.125 and c != "roll"}
+            for c, sd in zip(("x", "y", "z", "roll", "pitch", "yaw"), (0.1, 0.25, 0.5, 1.0, 2.0, 0.125))]
+    rows[4]["sd_log"] = None  # pitch: no information
+    report = {"mode": "EM without ground truth", "field": "qc_ca",
+              "learned_components": ["x", "y", "z", "pitch", "yaw"], "converged": True, "tolerance": 0.05,
+              "velocity_growth": "not checked: short", "information": {"duration_s": 30.0, "samples": 2000,
+                                                                       "rows": rows},
+              "iterations": [{"qc_in": [1.0] * 6, "qc_out": [1.0] * 6, "change": 0.01, "remaining": 0.01,
+                              "loglik": 1.0, "intervals": 10}]}
+    bound = [line for line in _header(report, "SEQ", "ca-polar") if line.startswith("BOUND")]
+    assert len(bound) == 1 and "cannot determine y, z, pitch within 25 %" in bound[0]
+    md = _markdown(report)
+    assert "| x | 1 | 0.1 | yes | 19 |" in md and "| y | 1 | 0.25 | **no** | 120 |" in md
+    assert "| yaw | 1 | 0.125 | yes | 30 |" in md and "| roll | 1 | - (not learned) | - | - |" in md
+    assert "| pitch | 1 | no information | **no** | - |" in md
+
+
 @pytest.mark.slow
 def test_calibrate_without_truth_learns_the_sensor_noise_when_asked(cal_seq, tmp_path, capsys):
     """--no-truth --sensor-noise: the config carries the learned per-channel factors and Cartesian sigma, the
@@ -92,3 +124,22 @@ def test_calibrate_without_truth_learns_the_sensor_noise_when_asked(cal_seq, tmp
     assert main(["run", str(cal_seq), "--config", str(out), "--out", str(tmp_path / "run")]) == 0
     fails(capsys, ["calibrate", str(cal_seq), "--sensor-noise", "--out", tmp_path / "x.toml"], "--sensor-noise",
           "--no-truth")
+
+
+@pytest.mark.slow
+def test_a_runaway_component_keeps_the_base_value(tmp_path):
+    """blockage seed 3 (20 s; a blackout and a re-initialisation): EM's forward component has no fixed point on
+    this drive (it reaches the fit's upper bound in the first run's stand-in). The command ends normally, not
+    converged, names it RUNAWAY in the config's header, and writes the base config's value for it; the others are
+    learned. (Before the review of session 57 this drive ended in a LinAlgError traceback.)"""
+    d = tmp_path / "drive"
+    scenarios.simulate_to("blockage", 3, d, duration=20.0)
+    out = tmp_path / "em.toml"
+    assert main(["calibrate", str(d), "--no-truth", "--out", str(out)]) == 0
+    report = json.loads(out.with_suffix(".json").read_text())
+    assert report["runaway"] == ["x"] and not report["converged"]
+    assert "RUNAWAY: EM's x reached the fit's upper bound" in out.read_text()
+    learned = OdometryConfig.from_toml(out).noise.qc_ca
+    assert learned[0] == OdometryConfig.for_model("ca-polar").noise.qc_ca[0]
+    assert all(np.isfinite(learned)) and max(learned[1:]) < 1e3
+    json.loads(out.with_suffix(".json").read_text(), parse_constant=lambda c: pytest.fail(f"JSON has {c}"))

@@ -36,10 +36,13 @@ def test_scenarios_and_profiles_share_it():
     from rodo import scenarios
     from rodo.sim import profiles
 
-    with pytest.raises(InputError, match="unknown scenario 'nope'; known scenarios: city"):
+    with pytest.raises(InputError, match="unknown scenario 'nope'; known scenarios: city") as scenario:
         scenarios.get("nope")
-    with pytest.raises(InputError, match="unknown sensor profile 'nope'; known profiles: generic"):
+    with pytest.raises(InputError, match="unknown sensor profile 'nope'; known profiles: generic") as profile:
         profiles.get("nope")
+    for said in (scenario, profile):  # and where one of the user's own comes from
+        assert str(said.value).endswith("(yours: a module that registers them, imported by `rodo --plugin MODULE` "
+                                        'or RODO_PLUGINS; docs/simulator.md, "Custom scenarios and sensor profiles")')
 
 
 def test_replace_swaps_a_users_entry_in_its_place():

@@ -157,52 +157,6 @@ def test_a_floor_out_of_its_range_is_refused(floor):
 
 # ------------------------------------------------------------------------------------------ EM without truth
 
-SIG = np.r_[0.01, 0.01, 0.01, 5e-4, 5e-4, 5e-4, 1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4]  # pose, velocity
-
-
-def measure(track, rng):
-    """Pose and velocity of every state with noise SIG (a stand-in for what radar odometry measures: Doppler
-    ego-velocity to ~1 mm/s, the pose through the map)."""
-    n = rng.standard_normal((len(track.t), 12)) * SIG
-    return se3.exp(n[:, :6]) @ track.T_vehicle_world, track.varpi + n[:, 6:]
-
-
-def kalman_filter(track, z, qc):
-    """Per-scan filtered posteriors of an EKF with the CA prior Qc = diag(qc), as the odometry reports them."""
-    prior = cal.make_prior("ca", qc)
-    T, w, vd = track.T_vehicle_world[0], track.varpi[0], track.varpi_dot[0]
-    P = np.diag(np.r_[SIG, np.full(6, 0.1)] ** 2)
-    H, R = np.eye(12, 18), np.diag(SIG**2)
-    out = [(T, w, vd, P)]
-    for k in range(1, len(track.t)):
-        dt = track.t[k] - track.t[k - 1]
-        T, w, vd, (F, Q) = *prior.predict(T, w, vd, dt), prior.transition_and_noise(w, vd, dt)
-        P = F @ P @ F.T + Q
-        K = np.linalg.solve(H @ P @ H.T + R, H @ P).T
-        dx = K @ np.r_[se3.log(z[0][k] @ se3.inverse(T)), z[1][k] - w]
-        T, w, vd = se3.exp(dx[:6]) @ T, w + dx[6:12], vd + dx[12:]
-        P = (np.eye(18) - K @ H) @ P
-        out.append((T, w, vd, 0.5 * (P + P.T)))
-    return cal.StateTrack(track.t, *(np.array(a) for a in zip(*out)))
-
-
-def test_smoother_of_a_single_interval_matches_the_joint_gaussian():
-    """Two states, a measurement of the second: the smoothed P_0 and cov(x_0, x_1) equal the conditioned joint
-    Gaussian's blocks (x_0 with covariance P0, x_1 = f(x_0) + w)."""
-    track = draw_ca_tracks(QC, 1, 1, _rng(6))[0]
-    rng = _rng(7)
-    A = rng.standard_normal((18, 18)) * 0.05
-    P0 = A @ A.T + 1e-4 * np.eye(18)
-    F, Q = cal.make_prior("ca", QC).transition_and_noise(track.varpi[0], track.varpi_dot[0], track.t[1])
-    joint = np.block([[P0, P0 @ F.T], [F @ P0, F @ P0 @ F.T + Q]])
-    H, R = np.eye(12, 36, 18), np.diag(SIG**2)
-    post = joint - joint @ H.T @ np.linalg.solve(H @ joint @ H.T + R, H @ joint)
-    filtered = dataclasses.replace(track, P=np.stack([P0, post[18:, 18:]]))
-    smoothed, cross = cal.smooth("ca", filtered, QC)
-    np.testing.assert_allclose(smoothed.P[0], post[:18, :18], atol=1e-10 * np.abs(post).max())
-    np.testing.assert_allclose(cross[0], post[:18, 18:], atol=1e-10 * np.abs(post).max())
-
-
 def test_aitken_step_reaches_a_geometric_limit():
     step, previous = np.array([0.5, -0.2, 0.1, 0.3]), np.array([1.0, -0.4, -0.1, 0.3])
     out = cal.aitken_step(step, previous)
@@ -212,57 +166,6 @@ def test_aitken_step_reaches_a_geometric_limit():
     np.testing.assert_array_equal(cal.aitken_step(step, None), step)
 
 
-@pytest.fixture(scope="module")
-def em_setup(ca_tracks):
-    rng = _rng(8)
-    tracks = ca_tracks[:12]  # 480 intervals
-    zs = [measure(tr, rng) for tr in tracks]
-    return tracks, lambda qc: [kalman_filter(tr, z, qc) for tr, z in zip(tracks, zs)]
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("start", [2.0, 0.5])
-def test_em_recovers_qc_with_a_kalman_filter(em_setup, start):
-    """EM (E-step: the filter re-run with the current Qc, smoothed) from a Qc off by a factor 2 reaches the
-    true Qc within 25 % in at most 5 iterations (measured: 3 iterations each, 0.93-1.07 of the truth from 2x,
-    0.82-1.06 from 0.5x; plain EM without the Aitken step: 1.18-1.31 and 0.71-1.00 after 5)."""
-    _, run = em_setup
-    history = cal.em_qc(run, "ca", QC * start, iterations=5, tolerance=0.05)
-    assert len(history) <= 5
-    np.testing.assert_allclose(history[-1].qc_out, QC, rtol=0.25)
-    first = np.max(np.abs(np.log(history[0].qc_in / QC)))
-    assert np.max(np.abs(np.log(history[-1].qc_out / QC))) < first / 2
-
-
-def test_em_stays_at_the_truth(em_setup):
-    """The true Qc is (up to the data's own noise) a fixed point: one EM iteration started there stays close."""
-    tracks, run = em_setup
-    history = cal.em_qc(run, "ca", QC, iterations=1)
-    ml = cal.fit_qc_to_truth("ca", tracks).qc
-    np.testing.assert_allclose(history[0].qc_out, QC, rtol=0.15)
-    np.testing.assert_allclose(history[0].qc_out, ml, rtol=0.15)
-
-
-def test_em_keeps_the_components_it_does_not_learn(em_setup):
-    _, run = em_setup
-    learn = np.array([True, False, False, False, False, True])
-    history = cal.em_qc(run, "ca", 2 * QC, iterations=2, learn=learn)
-    for h in history:
-        np.testing.assert_array_equal(h.qc_out[~learn], 2 * QC[~learn])
-        np.testing.assert_array_equal(h.qc_next[~learn], 2 * QC[~learn])
-    assert np.all(history[-1].qc_out[learn] < 2 * QC[learn])  # the learned ones move toward the truth
-
-
-def test_em_rejects_bad_arguments(em_setup):
-    _, run = em_setup
-    with pytest.raises(cal.InputError, match="iterations"):
-        cal.em_qc(run, "ca", QC, iterations=0)
-    with pytest.raises(cal.InputError, match="qc0"):
-        cal.em_qc(run, "ca", -QC)
-    with pytest.raises(cal.InputError, match="learn"):
-        cal.em_qc(run, "ca", QC, learn=np.zeros(6, bool))
-    with pytest.raises(cal.InputError, match="covariances P"):
-        cal.expected_noise_moments("ca", em_setup[0][0], QC)
 
 
 # ------------------------------------------------------------------------------------------ config writer

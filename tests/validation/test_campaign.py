@@ -1,4 +1,5 @@
-"""The campaign runner: both executor paths, persistence, resume after an interruption, failures, seeds, summary."""
+"""The campaign runner: both executor paths, persistence, resume after an interruption, seeds, summary (its
+failures: test_campaign_failures.py)."""
 
 import csv
 import json
@@ -124,23 +125,6 @@ def test_process_pool_and_dask_give_the_same_persisted_results(tmp_path):
         == again
 
 
-def test_failing_trial_is_recorded_and_does_not_stop_the_campaign(tmp_path):
-    trials = make_trials(0, 5, MODELS)
-    fn = FakeTrial(fail=frozenset({1}), model_fail=frozenset({(3, "cv-cartesian")}))
-    with ProcessPoolExecutor(2) as ex:
-        rep = run_campaign(fn, trials, ex, tmp_path)
-    rows = {(int(r["trial"]), r["model"]): r for r in read_results(tmp_path / "results.csv")}
-    assert len(rows) == 10
-    for m in MODELS:
-        assert rows[1, m]["status"] == "error"
-        assert rows[1, m]["error"] == "ValueError: simulated failure in trial 1"
-    assert rows[3, "cv-cartesian"]["status"] == "error" and "non-finite" in rows[3, "cv-cartesian"]["error"]
-    assert rows[3, "ca-polar"]["status"] == "ok" and rows[3, "ca-polar"]["error"] == ""
-    assert sum(r["status"] == "ok" for r in rep.rows) == 7
-    s = summarize_campaign(tmp_path)
-    assert s["models"]["cv-cartesian"]["errors"] == 2 and s["models"]["ca-polar"]["errors"] == 1
-
-
 @pytest.mark.parametrize("dask", [False, True])
 def test_resume_after_interruption_loses_nothing_and_duplicates_nothing(tmp_path, dask):
     if dask:
@@ -178,47 +162,6 @@ def test_resume_after_interruption_loses_nothing_and_duplicates_nothing(tmp_path
     assert resumed["models"] == uninterrupted["models"] and resumed["models"]["ca-polar"]["consistency"]["pose"]["runs"]
     with open(tmp_path / "results.csv", newline="") as fh:
         assert next(csv.reader(fh)) == list(FIELDS)
-
-
-@dataclass(frozen=True)
-class DyingTrial:
-    """A worker process that dies (as by the OOM killer) in one trial."""
-
-    die: int
-
-    def __call__(self, trial):
-        if trial.index == self.die:
-            import os
-
-            os._exit(1)
-        return FakeTrial()(trial)
-
-
-def test_dead_worker_stops_the_campaign_without_recording_unfinished_trials(tmp_path):
-    from concurrent.futures.process import BrokenProcessPool
-
-    trials = make_trials(4, 6, MODELS)
-    with pytest.raises(BrokenProcessPool):
-        with ProcessPoolExecutor(1) as ex:
-            run_campaign(DyingTrial(3), trials, ex, tmp_path)
-    rows = read_results(tmp_path / "results.csv")
-    assert all(r["status"] == "ok" for r in rows) and {int(r["trial"]) for r in rows} <= {0, 1, 2}
-    with ProcessPoolExecutor(2) as ex:
-        run_campaign(FakeTrial(), trials, ex, tmp_path, resume=True)
-    assert len(read_results(tmp_path / "results.csv")) == 12
-
-
-def test_read_results_drops_only_a_torn_final_row(tmp_path):
-    with ProcessPoolExecutor(1) as ex:
-        run_campaign(FakeTrial(), make_trials(0, 2, MODELS[:1]), ex, tmp_path)
-    path = tmp_path / "results.csv"
-    good = path.read_text()
-    last = good.splitlines()[-1]
-    path.write_text(good + last.rstrip("\r"))  # all fields present (the error field is empty), no newline
-    assert len(read_results(path)) == 2
-    path.write_text(good.replace(",ok,", ",?,", 1))
-    with pytest.raises(InputError, match="results.csv: line 2: malformed row"):
-        read_results(path)
 
 
 def test_resume_runs_only_the_missing_model(tmp_path):

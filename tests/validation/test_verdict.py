@@ -4,6 +4,7 @@ both calibrations, the campaign, the table) that resumes without redoing a step 
 import argparse
 import hashlib
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -301,6 +302,30 @@ def test_a_step_stopped_by_ctrl_c_is_the_verdict_interrupted(tmp_path, monkeypat
         verdict._run([("calibrate city CA/P", ["calibrate"], False)], tmp_path, 1)
     monkeypatch.setattr(verdict, "run_step", lambda argv, log: 2)
     (tmp_path / "calibrate_city_CAP.log").write_text("rodo calibrate: error: broken\n")  # the step's log
-    with pytest.raises(InputError, match="failed \\(exit 2\\)"):
+    with pytest.raises(verdict.StepFailed, match="failed \\(exit 2\\)"):
         verdict._run([("calibrate city CA/P", ["calibrate"], False)], tmp_path, 1)
 
+
+@pytest.mark.parametrize("code, exit_code", [(1, 1), (2, 2), (137, 1)])
+def test_a_failed_step_passes_its_exit_code_on(tmp_path, monkeypatch, capsys, code, exit_code):
+    """A step that exits 1 (the machine's fault: a full disk, `rodo.cli.environment_message`) makes the verdict exit
+    1, one that exits 2 (the input's) exit 2, anything else 1; the message names the step and its log's last line.
+    Every failed step was an input error (exit 2) before (the review of session 56, finding 6)."""
+    from rodo.commands import verdict
+
+    def step(argv, where):
+        Path(where).write_text("rodo simulate: error: No space left on device (/x/radar.csv): free some space\n")
+        return code
+
+    monkeypatch.setattr(verdict, "run_step", step)
+    with pytest.raises(verdict.StepFailed) as failed:
+        verdict._run([("simulate city", ["simulate"], False)], tmp_path, 1)
+    assert failed.value.code == exit_code and f"simulate city failed (exit {code})" in str(failed.value)
+    assert "No space left on device (/x/radar.csv)" in str(failed.value)
+
+    def raising(args):
+        raise failed.value
+
+    monkeypatch.setattr(verdict, "_verdict", raising)
+    assert verdict.main(None) == exit_code
+    assert capsys.readouterr().err.startswith(f"rodo verdict: error: simulate city failed (exit {code})")
