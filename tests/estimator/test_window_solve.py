@@ -111,7 +111,10 @@ def test_compiled_gauss_newton_equals_the_python_loop(kind, case, monkeypatch):
         for a, b in zip(got._terms.get(id(m), ())[2:], want._terms.get(id(n), ())[2:]):
             np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * np.abs(b).max())
     scale = np.abs(want._H).max()
-    np.testing.assert_allclose(got._H, want._H, rtol=0, atol=0.01 * rounding * scale)
+    # far off, the motion prior's blocks (information ~1e11) amplify the two loops' rounding: on an AMD EPYC
+    # far-ca's H differs by 1.3e-7 of its largest element with the states 1.7e-11 apart (0.01 x rounding, 1e-7,
+    # held on the machines the bound was set on)
+    np.testing.assert_allclose(got._H, want._H, rtol=0, atol=(0.1 if case == "far" else 0.01) * rounding * scale)
     for P, Q in zip(got.newest_covariances(), want.newest_covariances()):  # Q None: a window of one
         assert (P is None) == (Q is None)
         if Q is not None:
