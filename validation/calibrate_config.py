@@ -9,7 +9,8 @@
   effective count kappa, the drift rate, the velocity correlation time).
 - `calibrate_without_truth(seq, config)`: EM (`calibrate.em_qc`) over the estimator's posteriors, for the
   Qc of the config's own prior; R as configured, or (`sensor_noise`) learned first from the static detections
-  of consecutive scans and the estimated poses (`calibrate_sensor_em`).
+  of consecutive scans and the estimated poses (`calibrate_sensor_em`). The estimator runs EM reads are at
+  `solve_only(config)`: the window's own posteriors, not the reported covariances.
 - `config_toml(config, header)`: the complete config as TOML that `OdometryConfig.from_toml` reads back.
 
 Checked by: tests/validation/test_calibrate.py::test_config_toml_round_trips,
@@ -22,7 +23,7 @@ import dataclasses
 
 import numpy as np
 
-from rodo.estimator.config import OdometryConfig
+from rodo.estimator.config import OdometryConfig, UncertaintyConfig
 from rodo.estimator.errors import InputError
 from rodo.sim.sequence import Sequence, Trajectory
 
@@ -126,6 +127,22 @@ def calibrate_with_truth(seq: Sequence | list, truth: dict | list, config: Odome
     return config, report
 
 
+def solve_only(config: OdometryConfig) -> OdometryConfig:
+    """`config` with the `[uncertainty]` terms that change only what is reported at their defaults, and those in
+    the solve (measurement_inflation, prior_memory) kept: a run at it has the same estimate and reports the
+    window's own covariances. EM's stand-in needs those (`em_surrogate`): it takes a scan's information as
+    P_k^-1 - (F_k P_{k-1} F_k^T + Q_k)^-1, which a velocity covariance inflated after the solve (the learned
+    velocity factor, the lag) turns to nothing, so that every scan looks uninformative and Qc runs away (from a
+    config `rodo calibrate` learned with truth: 200 x the truth in x, 4e4 in z, 5e9 in y on 30 s drives where the
+    window's own posteriors give 0.66-1.5 x; docs/calibration.md, "EM reads the window's own posteriors").
+
+    Checked by: tests/validation/test_em_surrogate.py::test_em_reads_the_windows_own_posteriors
+    """
+    u = config.uncertainty
+    return config.replace(uncertainty=UncertaintyConfig(measurement_inflation=u.measurement_inflation,
+                                                        prior_memory=u.prior_memory))
+
+
 def estimator_track(seq: Sequence, config: OdometryConfig) -> cal.StateTrack:
     """Run the estimator; its per-scan posteriors as a StateTrack, intervals ending in an (re-)initialisation
     marked invalid."""
@@ -164,11 +181,12 @@ def with_learned_sensor_noise(seq: Sequence, config: OdometryConfig) -> tuple[Od
 def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: int = 30, tolerance: float = 0.05,
                             duration: float | None = None, floor: float = cal.DEFAULT_FLOOR,
                             progress=None, learn=None, sensor_noise: bool = False) -> tuple[OdometryConfig, dict]:
-    """EM for the Qc of the config's prior; returns (config, report). `progress(EmIteration)` is called after
-    each iteration; `learn` (6,) bool: the components to learn (default all; `calibrate.em_qc`). With
-    `sensor_noise` the measurement noise is learned first (`with_learned_sensor_noise`) and EM runs at it. A
-    component that ran away (EM's value at the fit's upper bound: no fixed point on this drive, e.g. a jump of
-    the estimate booked as motion) keeps the base config's value; the report names it ("runaway")."""
+    """EM for the Qc of the config's prior, over estimator runs at `solve_only(config)`; returns (config, report),
+    the config with its own `[uncertainty]` terms. `progress(EmIteration)` is called after each iteration; `learn`
+    (6,) bool: the components to learn (default all; `calibrate.em_qc`). With `sensor_noise` the measurement noise
+    is learned first (`with_learned_sensor_noise`) and EM runs at it. A component that ran away (EM's value at the
+    fit's upper bound: no fixed point on this drive, e.g. a jump of the estimate booked as motion) keeps the base
+    config's value; the report names it ("runaway")."""
     seq = truncate(seq, duration)
     field = f"qc_{config.prior}"
     measurement = None
@@ -176,10 +194,11 @@ def calibrate_without_truth(seq: Sequence, config: OdometryConfig, iterations: i
         config, measurement = with_learned_sensor_noise(seq, config)
 
     tracks = []  # the last run's track, which EM's check reads (no run of its own)
+    solve = solve_only(config)  # the window's own posteriors, not the reported covariances
 
     def run(qc):
-        tracks[:] = [estimator_track(seq, config.replace(noise=dataclasses.replace(config.noise,
-                                                                                    **{field: tuple(qc)})))]
+        tracks[:] = [estimator_track(seq, solve.replace(noise=dataclasses.replace(solve.noise,
+                                                                                  **{field: tuple(qc)})))]
         return tracks[0]
 
     history = cal.em_qc(run, config.prior, getattr(config.noise, field), iterations, tolerance, floor,

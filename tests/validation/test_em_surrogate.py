@@ -184,3 +184,35 @@ def test_calibrate_without_truth_recovers_a_qc_the_drive_excites():
     assert report["converged"] and len(report["iterations"]) <= 6
     assert np.all(np.abs(np.log(learned / qc)) <= 2.5 * bound), (learned / qc, bound)
     assert learned[0] == pytest.approx(qc[0], rel=0.25)
+
+
+@pytest.mark.slow
+def test_em_reads_the_windows_own_posteriors():
+    """`calibrate_without_truth` from a config with terms that change only the reported covariances (a learned
+    velocity factor and its axes, a one-scan factor, tau, the jitter: what `rodo calibrate` writes with truth)
+    learns, bit for bit, the Qc it learns without them, and keeps them in the config it returns: EM's runs are at
+    `solve_only`, the window's own posteriors. Those runs read inflated velocity covariances before, which hid the
+    scans' information from the stand-in: from such a config Qc ran away (200 x the truth in x, 4e4 x in z on
+    30 s drives of this Qc, where the window's own posteriors give 0.66-1.5 x). The terms in the solve are kept."""
+    from rodo import scenarios
+    from rodo.estimator.config import OdometryConfig, UncertaintyConfig
+    from rodo.validation.calibrate_config import calibrate_without_truth, estimator_track, solve_only
+
+    seq, _ = scenarios.get("prior_ca_points").simulate(20, duration=8.0, qc=[0.05, 0.01, 0.005, 1e-4, 1e-4, 1e-3])
+    base = OdometryConfig.for_model("ca-polar")
+    base = base.replace(vehicle=dataclasses.replace(base.vehicle, sigma_roll_rate=0.0, sigma_pitch_rate=0.0))
+    reported = dataclasses.replace(base.uncertainty, velocity_inflation=0.88, velocity_inflation_per_doppler=0.15,
+                                   velocity_inflation_per_rate=(0.55, 0.0, 0.0), inflation_per_pull=0.68,
+                                   velocity_axis_inflation=(0.63, 1.15, 0.68, 2.5, 0.72, 1.12),
+                                   velocity_correlation_time=0.2, attitude_jitter_variance=4e-5)
+    configured = base.replace(uncertainty=reported)
+    a, b = estimator_track(seq, configured), estimator_track(seq, base)
+    np.testing.assert_array_equal(a.T_vehicle_world, b.T_vehicle_world)  # the same estimate ...
+    assert np.abs(a.P[:, 6:12, 6:12] - b.P[:, 6:12, 6:12]).max() > 0.1 * np.abs(b.P[:, 6:12, 6:12]).max()  # ... not P
+    learned, _ = calibrate_without_truth(seq, configured, iterations=2)
+    plain, _ = calibrate_without_truth(seq, base, iterations=2)
+    assert learned.noise.qc_ca == plain.noise.qc_ca
+    assert learned.uncertainty == reported
+    solve = dataclasses.replace(reported, measurement_inflation=2.0, prior_memory=0.5)
+    assert solve_only(base.replace(uncertainty=solve)).uncertainty == UncertaintyConfig(measurement_inflation=2.0,
+                                                                                         prior_memory=0.5)
