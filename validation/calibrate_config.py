@@ -134,7 +134,8 @@ def solve_only(config: OdometryConfig) -> OdometryConfig:
     P_k^-1 - (F_k P_{k-1} F_k^T + Q_k)^-1, which a velocity covariance inflated after the solve (the learned
     velocity factor, the lag) turns to nothing, so that every scan looks uninformative and Qc runs away (from a
     config `rodo calibrate` learned with truth: 200 x the truth in x, 4e4 in z, 5e9 in y on 30 s drives where the
-    window's own posteriors give 0.66-1.5 x; docs/calibration.md, "EM reads the window's own posteriors").
+    window's own posteriors give 0.66-1.5 x; docs/calibration.md, "EM reads the window's own posteriors"). A new
+    `[uncertainty]` term that the solve reads must be kept here too.
 
     Checked by: tests/validation/test_em_surrogate.py::test_em_reads_the_windows_own_posteriors
     """
