@@ -16,6 +16,7 @@ from rodo.validation import plugins
 from . import extras
 from .commands import (calibrate, config, convert, demo, ego_velocity, evaluate, export, figures, montecarlo, prior,
                        realism, run, simulate, table1, verdict, view)
+from .entry import INTERRUPTED
 
 COMMANDS = [demo, simulate, run, evaluate, montecarlo, table1, verdict, convert, ego_velocity, prior, figures, view,
             calibrate, export, config, realism]  # modules with register(subparsers); see rodo/commands/
@@ -56,7 +57,7 @@ def main(argv: list[str] | None = None, commands=None) -> int:
         return 2
     except KeyboardInterrupt:  # a plugin's import interrupted
         print("rodo: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED
     try:
         extras.check_command(args)  # a missing optional dependency fails before any work
         code = int(args.func(args) or 0)
@@ -77,7 +78,7 @@ def main(argv: list[str] | None = None, commands=None) -> int:
         return 2
     except KeyboardInterrupt:
         print(f"rodo {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED
     except OSError as exc:  # the machine's, not the input's: a full disk, a read-only or forbidden output place
         if not is_environment_error(exc):
             raise

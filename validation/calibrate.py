@@ -114,9 +114,14 @@ def transitions_and_basis(kind: str, track: StateTrack, qc) -> tuple[np.ndarray,
     return F, 0.5 * (B + np.swapaxes(B, -1, -2))
 
 
+def process_noise(q, B) -> np.ndarray:
+    """Q_k(q) = sum_i q_i B[k, i] (K, d, d), from the noise basis B (K, 6, d, d) of `transitions_and_basis`."""
+    return np.einsum("i,kiab->kab", np.asarray(q, dtype=float), B)
+
+
 def _whitened_terms(q, B, S):
     """Q^-1 (K, d, d) and the log-likelihood of S under Q(q) = sum q_i B_i (Jacobi-scaled Cholesky)."""
-    Q = np.einsum("i,kiab->kab", q, B)
+    Q = process_noise(q, B)
     D = 1.0 / np.sqrt(np.einsum("kaa->ka", Q))
     Qs = Q * D[:, :, None] * D[:, None, :]
     L = np.linalg.cholesky(Qs)

@@ -89,6 +89,11 @@ class Surrogate:
     eta: np.ndarray
     P0: np.ndarray
 
+    @property
+    def state_information(self) -> np.ndarray:
+        """Every state's information (K + 1, d, d): the first state's none (its covariance P0 alone), then info."""
+        return np.concatenate([np.zeros((1, *self.P0.shape)), self.info])
+
 
 def surrogates(kind: str, track: cal.StateTrack, qc_run) -> list[Surrogate]:
     """The stand-in of each stretch of the track between re-initialisations (`segments`), from the
@@ -103,8 +108,7 @@ def surrogates(kind: str, track: cal.StateTrack, qc_run) -> list[Surrogate]:
         part = cal.StateTrack(track.t[s], track.T_vehicle_world[s], track.varpi[s], track.varpi_dot[s], track.P[s])
         F, B = cal.transitions_and_basis(kind, part, qc_run)
         P = np.asarray(part.P, dtype=float)
-        Pp_inv = spd_inverse(F @ P[:-1] @ np.swapaxes(F, -1, -2) + np.einsum("i,kiab->kab", np.asarray(qc_run,
-                                                                                                         float), B))
+        Pp_inv = spd_inverse(F @ P[:-1] @ np.swapaxes(F, -1, -2) + cal.process_noise(qc_run, B))
         r = cal.prior_residuals(kind, part)
         info, within = _information(spd_inverse(P[1:]) - Pp_inv, P[1:])
         out.append(Surrogate(F, B, r, info, np.einsum("kab,kbc,kc->ka", within, Pp_inv, r), P[0]))
@@ -151,8 +155,7 @@ def smoothed(s: Surrogate, q) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Kalman filter and Rauch-Tung-Striebel smoother of the stand-in at Qc = diag(q): the smoothed means (K + 1, d)
     and covariances (K + 1, d, d) of delta, and cov(delta_{k-1}, delta_k) (K, d, d)."""
     F, K, d = s.F, s.F.shape[0], s.F.shape[-1]
-    info = np.concatenate([np.zeros((1, d, d)), s.info])  # the first state: its covariance P0 alone
-    P, Pp, Pp_inv, C = filter_covariances(F, np.einsum("i,kiab->kab", np.asarray(q, dtype=float), s.B), info, s.P0)
+    P, Pp, Pp_inv, C = filter_covariances(F, cal.process_noise(q, s.B), s.state_information, s.P0)
     m, mp = np.zeros((K + 1, d)), np.zeros((K + 1, d))
     for k in range(1, K + 1):
         mp[k] = F[k - 1] @ m[k - 1] - s.r[k - 1]

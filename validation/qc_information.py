@@ -61,7 +61,7 @@ def fisher_information(F, B, q, info, P0, samples: int = SAMPLES, rng: np.random
     if B.shape[0] != K or B.shape[2:] != (d, d) or B.shape[1] != q.shape[0] or info.shape != (K + 1, d, d):
         raise InputError(f"fisher_information: F {F.shape}, B {B.shape}, q {q.shape}, info {info.shape} do not match")
     rng = np.random.default_rng(np.random.SeedSequence(0)) if rng is None else rng
-    Q = np.einsum("i,kiab->kab", q, B)
+    Q = cal.process_noise(q, B)
     P, _, Pp_inv, C = filter_covariances(F, Q, info, np.asarray(P0, dtype=float))
     Q_inv = spd_inverse(Q)
     model = (F, B, q, info, P, Pp_inv, C, _sqrt_psd(np.asarray(P0, dtype=float)), _sqrt_psd(Q), _sqrt_psd(info),
@@ -107,8 +107,7 @@ def qc_bound(kind: str, track: cal.StateTrack, qc, qc_run, learned=None, samples
     parts = surrogates(kind, track, qc_run)
     total = np.zeros((6, 6))
     for s, stream in zip(parts, np.random.SeedSequence(seed).spawn(len(parts))):
-        info = np.concatenate([np.zeros((1, *s.P0.shape)), s.info])  # the first state: its covariance P0 alone
-        total += fisher_information(s.F, s.B, qc, info, s.P0, samples, np.random.default_rng(stream))
+        total += fisher_information(s.F, s.B, qc, s.state_information, s.P0, samples, np.random.default_rng(stream))
     sub = total[np.ix_(learned, learned)]
     vals, vecs = np.linalg.eigh(sub)
     informative = vals > 1e-12 * max(float(vals.max()), 1e-300)
